@@ -1,0 +1,253 @@
+"""Energy, gradient and projected sparse Hessian of ``sum_e vol_e psi(J_e(x))``.
+
+Everything is derived from the density by JAX: ``vmap`` over elements, ``grad`` for the
+gradient, ``hessian`` for the element Hessian in J-space (``d^2 x d^2``), which is projected
+to PSD there (cheaper than projecting the ``(d+1)d``-square element block, and valid since
+the map from vertex positions to ``vec J`` is linear) and then lifted with the constant
+matrix ``G`` such that ``J = X^T G`` for the element's vertex positions ``X`` ((d+1), d).
+The global matrix is assembled into a CSC pattern computed once per mesh.
+
+The hot functions are module-level ``jax.jit`` functions keyed on the density (static) and
+array shapes; parameters (eps, lambda...) are traced, so a solve never recompiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+
+from ._eigh import eigh
+from ._errors import ParameterError
+from .energies import Energy, get_energy
+from .problem import Problem
+
+PROJECTIONS = ("clamp", "abs", "none")
+
+
+# ---------------------------------------------------------------- jitted kernels
+
+
+def _jacobians(geom, x):
+    S, Minv, _ = geom
+    X = x[S]  # (m, d+1, d)
+    Ds = jnp.swapaxes(X[:, 1:] - X[:, :1], 1, 2)  # columns = edges
+    return Ds @ Minv
+
+
+def _dets(geom, x):
+    S = geom[0]
+    X = x[S]
+    E = X[:, 1:] - X[:, :1]  # rows = edges; det(E) = det(E^T)
+    if E.shape[-1] == 2:
+        return E[:, 0, 0] * E[:, 1, 1] - E[:, 0, 1] * E[:, 1, 0]
+    return jnp.einsum("ij,ij->i", E[:, 0], jnp.cross(E[:, 1], E[:, 2]))
+
+
+def _total(density, geom, x, params):
+    vol = geom[2]
+    psi = jax.vmap(density, in_axes=(0, None))(_jacobians(geom, x), params)
+    return jnp.sum(vol * psi)
+
+
+@partial(jax.jit, static_argnums=0)
+def energy_kernel(density, geom, x, params):
+    return _total(density, geom, x, params)
+
+
+@partial(jax.jit, static_argnums=0)
+def value_and_grad_kernel(density, geom, x, params):
+    return jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+
+
+@jax.jit
+def dets_kernel(geom, x):
+    return _dets(geom, x)
+
+
+def project_psd(H, method):
+    """Project symmetric blocks ``H`` (..., k, k) to PSD by their eigenvalues.
+
+    ``clamp``: ``max(lambda, floor)`` with a tiny relative floor (Teran et al. 2005);
+    ``abs``: ``max(|lambda|, floor)`` (Chen et al. 2024, "Stabler Neo-Hookean simulation:
+    absolute eigenvalue filtering for projected Newton"); ``none``: unchanged.
+    PSD blocks are returned unchanged up to rounding and the floor.
+    """
+    if method == "none":
+        return H
+    w, Q = eigh(H)
+    floor = 1e-10 * jnp.max(jnp.abs(w), axis=-1, keepdims=True)
+    if method == "clamp":
+        w = jnp.maximum(w, floor)
+    elif method == "abs":
+        w = jnp.maximum(jnp.abs(w), floor)
+    else:
+        raise ParameterError(f"unknown PSD projection {method!r}; valid: {', '.join(PROJECTIONS)}")
+    return (Q * w[..., None, :]) @ jnp.swapaxes(Q, -1, -2)
+
+
+def _lift_matrix(Minv):
+    """G (m, d+1, d) with ``J = X^T G`` for element vertex positions X (d+1, d)."""
+    return jnp.concatenate([-jnp.sum(Minv, axis=1, keepdims=True), Minv], axis=1)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2))
+def hessian_kernel(density, projection, nnz, geom, x, params, slots):
+    """Energy, gradient and the assembled CSC data of the projected Hessian."""
+    value, grad = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+    S, Minv, vol = geom
+    m, k1 = S.shape
+    d = k1 - 1
+    J = _jacobians(geom, x)
+    HJ = jax.vmap(jax.hessian(density), in_axes=(0, None))(J, params).reshape(m, d * d, d * d)
+    HJ = project_psd(HJ * vol[:, None, None], projection).reshape(m, d, d, d, d)
+    G = _lift_matrix(Minv)
+    Hx = jnp.einsum("mcjel,maj,mbl->macbe", HJ, G, G)  # (m, d+1, d, d+1, d)
+    data = jnp.zeros(nnz + 1, Hx.dtype).at[slots].add(Hx.reshape(-1))[:nnz]
+    return value, grad, data
+
+
+# ---------------------------------------------------------------- sparsity pattern
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HessianPattern:
+    """CSC pattern of the Hessian restricted to free DOFs (vertex-major: dof = v*d + c)."""
+
+    n: int  # number of free DOFs
+    indptr: np.ndarray
+    indices: np.ndarray
+    slots: np.ndarray  # (m*((d+1)d)^2,) position of each element entry in data; nnz = dropped
+    free_dofs: np.ndarray  # (n,) global dof ids of free DOFs
+    diag: np.ndarray  # (n,) data positions of the diagonal
+
+    @property
+    def nnz(self) -> int:
+        return len(self.indices)
+
+    def matrix(self, data) -> sp.csc_matrix:
+        return sp.csc_matrix((np.asarray(data), self.indices, self.indptr), shape=(self.n, self.n))
+
+
+def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
+    """The pattern for ``free_dofs`` (n, d) bool."""
+    d = problem.dim
+    free = np.asarray(free_dofs, bool).reshape(-1)
+    red = np.full(problem.n_vertices * d, -1, np.int64)
+    red[free] = np.arange(free.sum())
+    n = int(free.sum())
+    dof = (problem.simplices[:, :, None] * d + np.arange(d)).reshape(len(problem.simplices), -1)
+    r = red[dof]
+    rows = np.broadcast_to(r[:, :, None], r.shape + r.shape[1:]).reshape(-1)
+    cols = np.broadcast_to(r[:, None, :], r.shape + r.shape[1:]).reshape(-1)
+    valid = (rows >= 0) & (cols >= 0)
+    keys = cols[valid] * n + rows[valid]
+    uniq, inv = np.unique(keys, return_inverse=True)
+    slots = np.full(rows.shape, len(uniq), np.int64)
+    slots[valid] = inv
+    ucols, urows = np.divmod(uniq, n) if n else (uniq, uniq)
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(ucols, minlength=n), out=indptr[1:])
+    diag = np.flatnonzero(urows == ucols)
+    return HessianPattern(n, indptr, urows.astype(np.int64), slots, np.flatnonzero(free), diag)
+
+
+# ---------------------------------------------------------------- the objective
+
+
+def is_rotation_invariant(density, d, params, trials=3, rtol=1e-9) -> bool:
+    """Numerically test ``psi(R J) == psi(J)`` for random rotations R and J with det J > 0."""
+    rng = np.random.default_rng(0)
+    for _ in range(trials):
+        J = np.eye(d) + 0.3 * rng.standard_normal((d, d))
+        Q, _ = np.linalg.qr(rng.standard_normal((d, d)))
+        Q *= np.sign(np.linalg.det(Q))
+        a, b = float(density(jnp.asarray(J), params)), float(density(jnp.asarray(Q @ J), params))
+        if not (np.isfinite(a) and abs(a - b) <= rtol * max(abs(a), 1.0)):
+            return False
+    return True
+
+
+class Objective:
+    """A problem, an energy and its parameters, with jitted evaluation.
+
+    Maps ``x`` are (n, dim) arrays; gradients are returned with fixed DOFs zeroed.
+
+    With no fixed vertex the energy is invariant to translations (always: J only sees edge
+    vectors) and, for most energies, rotations, which leaves the Hessian singular.  Then a
+    *gauge* is pinned: one element's first vertex entirely and, for rotation-invariant
+    energies, the coordinates of its other vertices that a rigid motion can always restore
+    (:meth:`gauge_fix` moves a start map there rigidly).  The minimum is unchanged.
+    """
+
+    def __init__(self, problem: Problem, energy: Energy | str, **params):
+        self.problem = problem
+        self.energy = get_energy(energy, **params)
+        self.geom = (
+            jnp.asarray(problem.simplices),
+            jnp.asarray(problem.rest_inv),
+            jnp.asarray(problem.volumes),
+        )
+        self.total_volume = float(problem.volumes.sum())
+        d = problem.dim
+        free = np.repeat(problem.free_mask[:, None], d, axis=1)
+        self.gauge = None
+        if problem.fixed.size == 0:
+            rot = is_rotation_invariant(self.energy.density, d, self.params())
+            verts = problem.simplices[0] if rot else problem.simplices[0, :1]
+            self.gauge = verts
+            for k, v in enumerate(verts):  # vertex k of the element pins coordinates k..d-1
+                free[v, k:] = False
+        self.free_dofs = free
+        self._free = jnp.asarray(free.astype(np.float64))
+        self._pattern = None
+        self._slots = None
+
+    def gauge_fix(self, x) -> np.ndarray:
+        """Move ``x`` rigidly so the pinned gauge coordinates are consistent (see class doc):
+        the first gauge vertex stays, the element's first edge along +x, (3D) its second edge
+        in the xy-plane."""
+        x = np.array(x, dtype=np.float64)
+        if self.gauge is None or len(self.gauge) == 1:
+            return x
+        v = self.gauge
+        E = x[v[1:]] - x[v[0]]  # rows: edges, (d, d)
+        Q, R = np.linalg.qr(E.T)  # E^T = Q R; rotate by Q^T so edges become upper-triangular
+        Q = Q * np.sign(np.diag(R))  # make the diagonal positive
+        if np.linalg.det(Q) < 0:  # a reflection: only possible if the element is inverted
+            return x
+        return (x - x[v[0]]) @ Q + x[v[0]]
+
+    def params(self, **override):
+        p = {**self.energy.params, **override}
+        return {k: jnp.float64(v) for k, v in p.items()}
+
+    @property
+    def pattern(self) -> HessianPattern:
+        if self._pattern is None:
+            self._pattern = hessian_pattern(self.problem, self.free_dofs)
+            self._slots = jnp.asarray(self._pattern.slots)
+        return self._pattern
+
+    def value(self, x, params) -> jax.Array:
+        return energy_kernel(self.energy.density, self.geom, x, params)
+
+    def value_and_grad(self, x, params):
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, x, params)
+        return v, g * self._free
+
+    def hessian(self, x, params, projection="clamp"):
+        """(value, grad (n, d) with fixed rows zeroed, CSC data of the free-DOF Hessian)."""
+        pat = self.pattern
+        v, g, data = hessian_kernel(
+            self.energy.density, projection, pat.nnz, self.geom, x, params, self._slots
+        )
+        return v, g * self._free, data
+
+    def dets(self, x) -> jax.Array:
+        """(m,) determinant of each element's edge matrix (sign = orientation)."""
+        return dets_kernel(self.geom, x)

@@ -1,0 +1,19 @@
+"""Distortion energies, each one density ``psi(J, params)``; see :class:`Energy`."""
+
+from ._densities import chi
+from ._energy import (
+    REGISTRY,
+    Energy,
+    arap,
+    dirichlet,
+    garanzha,
+    get_energy,
+    mips,
+    symmetric_dirichlet,
+    winslow,
+)
+
+__all__ = [
+    "Energy", "REGISTRY", "get_energy", "chi",
+    "dirichlet", "symmetric_dirichlet", "mips", "winslow", "arap", "garanzha",
+]

@@ -1,0 +1,124 @@
+"""Sparse symmetric positive-definite solves for Newton steps, with a fixed pattern.
+
+Backends (chosen by measurement, see the README and issue notes):
+
+* ``cholmod``  — CHOLMOD through scikit-sparse, when importable (needs SuiteSparse); the
+  symbolic analysis is computed once per pattern and reused for every numeric factorization.
+* ``cholespy`` — a self-contained supernodal Cholesky shipped as a wheel (always installed).
+* ``superlu``  — SciPy's SuperLU, the always-available fallback.
+
+``auto`` picks the first available in that order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ._errors import ParameterError
+
+BACKENDS = ("auto", "cholmod", "cholespy", "superlu")
+
+
+class NotPositiveDefinite(ArithmeticError):
+    """The factorization failed or produced a non-finite solution."""
+
+
+def _have(module):
+    try:
+        __import__(module)
+        return True
+    except Exception:  # pragma: no cover - depends on the machine
+        return False
+
+
+def available_backends():
+    out = []
+    if _have("sksparse.cholmod"):
+        out.append("cholmod")
+    if _have("cholespy"):
+        out.append("cholespy")
+    out.append("superlu")
+    return out
+
+
+class SparseCholesky:
+    """Factor ``A + shift*I`` for matrices sharing one CSC pattern, then solve.
+
+    Parameters
+    ----------
+    indptr, indices : the CSC pattern (full symmetric, sorted row indices per column).
+    backend : one of ``BACKENDS``.
+    """
+
+    def __init__(self, indptr, indices, backend="auto"):
+        if backend not in BACKENDS:
+            raise ParameterError(f"unknown linear solver {backend!r}; valid: {', '.join(BACKENDS)}")
+        if backend == "auto":
+            backend = available_backends()[0]
+        elif backend not in available_backends():
+            raise ParameterError(
+                f"linear solver {backend!r} is not installed here; available: {', '.join(available_backends())}"
+            )
+        self.backend = backend
+        self.indptr = np.asarray(indptr, np.int64)
+        self.indices = np.asarray(indices, np.int64)
+        self.n = len(indptr) - 1
+        self._analysis = None
+        self._factor = None
+        if backend == "cholespy":
+            self._ip32 = self.indptr.astype(np.int32)
+            self._ix32 = self.indices.astype(np.int32)
+
+    def _csc(self, data):
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+    def analyze(self):
+        """Symbolic analysis (fill-reducing ordering) of the pattern, for backends that reuse it."""
+        if self.backend == "cholmod" and self._analysis is None:
+            from sksparse.cholmod import analyze
+
+            A = self._csc(np.ones(len(self.indices)))
+            self._analysis = analyze(A, mode="supernodal", ordering_method="metis")
+
+    def factor(self, data):
+        """Numeric factorization of the matrix with values ``data`` (nnz,)."""
+        data = np.ascontiguousarray(data, dtype=np.float64)
+        if not np.isfinite(data).all():
+            raise NotPositiveDefinite("matrix has non-finite entries")
+        if self.backend == "cholmod":
+            from sksparse.cholmod import CholmodError
+
+            self.analyze()
+            try:
+                self._analysis.cholesky_inplace(self._csc(data))
+            except CholmodError as exc:
+                raise NotPositiveDefinite(str(exc)) from exc
+            self._factor = self._analysis
+        elif self.backend == "cholespy":
+            from cholespy import CholeskySolverD, MatrixType
+
+            try:
+                self._factor = CholeskySolverD(self.n, self._ip32, self._ix32, data, MatrixType.CSC)
+            except (RuntimeError, ValueError) as exc:
+                raise NotPositiveDefinite(str(exc)) from exc
+        else:
+            try:
+                self._factor = spla.splu(self._csc(data), permc_spec="MMD_AT_PLUS_A",
+                                         diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            except RuntimeError as exc:
+                raise NotPositiveDefinite(str(exc)) from exc
+
+    def solve(self, b):
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        if self.backend == "cholespy":
+            x = np.empty_like(b)
+            self._factor.solve(b, x)
+        elif self.backend == "cholmod":
+            x = self._factor(b)
+        else:
+            x = self._factor.solve(b)
+        if not np.isfinite(x).all():
+            raise NotPositiveDefinite("solve produced non-finite values")
+        return x

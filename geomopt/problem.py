@@ -1,0 +1,225 @@
+"""Mesh problems: rest simplices turned into per-element inverse rest matrices and volumes.
+
+A :class:`Problem` is immutable and holds only NumPy arrays computed once:
+
+* ``simplices`` (m, d+1): vertex indices, reordered internally where needed so every
+  rest element is positively oriented (the caller's connectivity is kept in
+  ``input_simplices`` for output);
+* ``rest_inv`` (m, d, d): inverse of the rest edge matrix ``[p1-p0, ..., pd-p0]`` in a local
+  frame, so that the Jacobian of a map ``x`` is ``J = [x1-x0, ..., xd-x0] @ rest_inv``;
+* ``volumes`` (m,): rest areas (d=2) or volumes (d=3);
+* ``fixed`` (k,) / ``fixed_positions`` (k, d): handles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ._errors import MeshError
+from .io import validate_simplices, validate_vertices
+
+
+def _local_frames(V, F):
+    """Flatten each 3D triangle isometrically to 2D: rest edge matrices (m, 2, 2) and areas."""
+    e1 = V[F[:, 1]] - V[F[:, 0]]
+    e2 = V[F[:, 2]] - V[F[:, 0]]
+    l1 = np.linalg.norm(e1, axis=1)
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = e1 / l1[:, None]
+        x2 = np.einsum("ij,ij->i", e2, u)
+        y2 = area2 / l1
+    Dm = np.zeros((len(F), 2, 2))
+    Dm[:, 0, 0] = l1
+    Dm[:, 0, 1] = x2
+    Dm[:, 1, 1] = y2
+    return Dm, 0.5 * area2
+
+
+def _edge_matrices(P, S):
+    """Edge matrices ``[p1-p0, ..., pd-p0]`` as columns: (m, d, d)."""
+    return np.swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
+
+
+def _check_rest_volumes(vol, what, rel_tol=1e-12):
+    """Reject degenerate (near-zero) rest elements and mixed orientations."""
+    scale = np.mean(np.abs(vol))
+    if not scale > 0:
+        raise MeshError(f"every rest {what} has zero size: the rest mesh is degenerate")
+    small = np.abs(vol) <= rel_tol * scale
+    if small.any():
+        idx = np.flatnonzero(small)
+        raise MeshError(
+            f"{idx.size} rest {what}(s) have (near-)zero size (first: {idx[:5].tolist()}); "
+            f"remove or repair them (e.g. collapse short edges) before solving"
+        )
+    neg = vol < 0
+    if neg.any() and not neg.all():
+        idx = np.flatnonzero(neg if neg.sum() <= (~neg).sum() else ~neg)
+        raise MeshError(
+            f"{idx.size} rest {what}(s) are oriented against the others (first: {idx[:5].tolist()}); "
+            f"the rest mesh must be consistently oriented and not folded"
+        )
+    return bool(neg.all())
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Problem:
+    """An injective-mapping problem over one kind of simplex.
+
+    Build one with :meth:`planar`, :meth:`surface` or :meth:`tets`; do not call the
+    constructor directly.
+    """
+
+    kind: str
+    dim: int
+    n_vertices: int
+    simplices: np.ndarray
+    input_simplices: np.ndarray
+    rest_inv: np.ndarray
+    volumes: np.ndarray
+    rest_vertices: np.ndarray
+    fixed: np.ndarray
+    fixed_positions: np.ndarray
+
+    # -- constructors ---------------------------------------------------------------
+    @classmethod
+    def planar(cls, V, F, fixed=None, fixed_positions=None):
+        """Triangles in the plane mapped to the plane.
+
+        V : (n, 2) rest positions (an (n, 3) array with z == 0 is accepted); F : (m, 3).
+        A clockwise rest mesh is handled by reordering each triangle internally.
+        """
+        V = validate_vertices(V, "rest vertices")
+        if V.shape[1] == 3:
+            if np.any(V[:, 2] != 0):
+                raise MeshError("planar problem: rest vertices have nonzero z; use Problem.surface")
+            V = V[:, :2]
+        if V.shape[1] != 2:
+            raise MeshError(f"planar problem: rest vertices must be (n, 2), got {V.shape}")
+        F = validate_simplices(F, len(V), 3, "triangles")
+        Dm = _edge_matrices(V, F)
+        flipped = _check_rest_volumes(np.linalg.det(Dm) / 2.0, "triangle")
+        S = F[:, [0, 2, 1]] if flipped else F
+        Dm = _edge_matrices(V, S)
+        return cls._make("planar", 2, V, F, S, Dm, np.linalg.det(Dm) / 2.0, fixed, fixed_positions)
+
+    @classmethod
+    def surface(cls, V, F, fixed=None, fixed_positions=None):
+        """Triangles of a 3D surface mapped to the plane (parameterization).
+
+        V : (n, 3); F : (m, 3).  Each triangle is flattened isometrically to a local 2D frame,
+        so rest triangles are positively oriented and a map is valid when every triangle
+        ``(a, b, c)`` has positive signed area in the plane.
+        """
+        V = validate_vertices(V, "rest vertices")
+        if V.shape[1] != 3:
+            raise MeshError(f"surface problem: rest vertices must be (n, 3), got {V.shape}")
+        F = validate_simplices(F, len(V), 3, "triangles")
+        Dm, area = _local_frames(V, F)
+        _check_rest_volumes(area, "triangle")
+        return cls._make("surface", 2, V, F, F, Dm, area, fixed, fixed_positions)
+
+    @classmethod
+    def tets(cls, V, T, fixed=None, fixed_positions=None):
+        """Tetrahedra mapped to 3D.  V : (n, 3); T : (m, 4).
+
+        A rest mesh whose tets are all negatively oriented (as in the LIM armadillo) is handled
+        by swapping two vertices of every tet internally; a map is then valid when each tet
+        has the same orientation as at rest.
+        """
+        V = validate_vertices(V, "rest vertices")
+        if V.shape[1] != 3:
+            raise MeshError(f"tet problem: rest vertices must be (n, 3), got {V.shape}")
+        T = validate_simplices(T, len(V), 4, "tetrahedra")
+        Dm = _edge_matrices(V, T)
+        flipped = _check_rest_volumes(np.linalg.det(Dm) / 6.0, "tetrahedron")
+        S = T[:, [0, 2, 1, 3]] if flipped else T
+        Dm = _edge_matrices(V, S)
+        return cls._make("tet", 3, V, T, S, Dm, np.linalg.det(Dm) / 6.0, fixed, fixed_positions)
+
+    @classmethod
+    def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions):
+        p = cls(
+            kind=kind,
+            dim=d,
+            n_vertices=len(V),
+            simplices=np.ascontiguousarray(S, dtype=np.int64),
+            input_simplices=np.ascontiguousarray(F_in, dtype=np.int64),
+            rest_inv=np.linalg.inv(Dm),
+            volumes=np.asarray(vol, dtype=np.float64),
+            rest_vertices=V,
+            fixed=np.zeros(0, np.int64),
+            fixed_positions=np.zeros((0, d)),
+        )
+        unused = np.setdiff1d(np.arange(len(V)), S.ravel())
+        if unused.size:
+            raise MeshError(
+                f"{unused.size} vertices are not used by any element (first: {unused[:5].tolist()}); "
+                f"remove unreferenced vertices first"
+            )
+        if fixed is not None:
+            p = p.with_fixed(fixed, fixed_positions)
+        return p
+
+    # -- handles --------------------------------------------------------------------
+    def with_fixed(self, fixed, positions) -> "Problem":
+        """A copy with vertices ``fixed`` (k,) held at ``positions`` (k, dim)."""
+        idx = np.asarray(fixed)
+        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+            raise MeshError(f"fixed vertex indices must be a 1D integer array, got {idx.dtype} {idx.shape}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_vertices):
+            bad = idx[(idx < 0) | (idx >= self.n_vertices)]
+            raise MeshError(
+                f"{bad.size} fixed vertex indices are out of range [0, {self.n_vertices}) "
+                f"(first: {bad[:5].tolist()}); handle indices are 0-based"
+            )
+        if np.unique(idx).size != idx.size:
+            raise MeshError("fixed vertex indices contain duplicates")
+        pos = np.asarray(positions, dtype=np.float64)
+        if pos.shape != (idx.size, self.dim):
+            raise MeshError(f"fixed positions must be ({idx.size}, {self.dim}), got {pos.shape}")
+        if not np.isfinite(pos).all():
+            raise MeshError("fixed positions contain NaN or inf")
+        order = np.argsort(idx)
+        return dataclasses.replace(self, fixed=idx[order], fixed_positions=pos[order])
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.simplices)
+
+    @property
+    def free_mask(self) -> np.ndarray:
+        """(n,) bool: vertices the solver may move."""
+        m = np.ones(self.n_vertices, bool)
+        m[self.fixed] = False
+        return m
+
+    def check_map(self, x) -> np.ndarray:
+        """Validate a map ``x`` (n, dim) and return it as float64 with handles in place."""
+        x = np.asarray(x)
+        if x.shape != (self.n_vertices, self.dim):
+            raise MeshError(f"map must have shape ({self.n_vertices}, {self.dim}), got {x.shape}")
+        if not np.issubdtype(x.dtype, np.floating) and not np.issubdtype(x.dtype, np.integer):
+            raise MeshError(f"map must be a float array, got dtype {x.dtype}")
+        x = x.astype(np.float64, copy=True)
+        if not np.isfinite(x).all():
+            bad = np.flatnonzero(~np.isfinite(x).all(axis=1))
+            raise MeshError(f"map has NaN/inf at {bad.size} vertices (first: {bad[:5].tolist()})")
+        x[self.fixed] = self.fixed_positions
+        return x
+
+    def signed_volumes(self, x) -> np.ndarray:
+        """(m,) signed area/volume of each element under the map, in the rest orientation."""
+        x = np.asarray(x, dtype=np.float64)
+        return np.linalg.det(_edge_matrices(x, self.simplices)) / (2.0 if self.dim == 2 else 6.0)
+
+    def count_inverted(self, x) -> int:
+        """Elements whose orientation under ``x`` is not positive, by an exact predicate."""
+        from .predicates import count_inverted
+
+        return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
