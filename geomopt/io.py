@@ -44,7 +44,11 @@ __all__ = [
 #: File extensions :func:`read_mesh` accepts (lower case).
 MESH_EXTENSIONS = (".obj", ".off", ".ply", ".stl")
 
-_FLOAT = "%.17g"  # shortest printf format that round-trips every float64
+
+
+def _write_rows(fh, prefix, A):
+    """Rows of floats, each number in the shortest form that round-trips (``repr``)."""
+    fh.writelines(prefix + " ".join(map(repr, row)) + "\n" for row in np.asarray(A, np.float64).tolist())
 _INT64_MAX = np.iinfo(np.int64).max
 _SIMPLEX_WORDS = {3: ("triangle", "triangles"), 4: ("tetrahedron", "tetrahedra")}
 
@@ -441,7 +445,7 @@ def write_obj_with_uv(path, V, F, UV):
     """Write a mesh and a per-vertex map as OBJ: ``v`` lines, one ``vt`` per vertex, ``f a/a b/b c/c``.
 
     This is the LIM 2D ``input.obj`` layout, so :func:`read_lim2d` reads it back
-    exactly.  Numbers are written with ``%.17g`` (exact round trip).  Atomic.
+    exactly.  Numbers are written in their shortest exact (round-trip) form.  Atomic.
 
     Parameters
     ----------
@@ -471,8 +475,8 @@ def write_obj_with_uv(path, V, F, UV):
     F = validate_simplices(F, V.shape[0], 3, "F")
 
     def write(fh):
-        np.savetxt(fh, V, fmt=f"v {_FLOAT} {_FLOAT} {_FLOAT}")
-        np.savetxt(fh, UV, fmt=f"vt {_FLOAT} {_FLOAT}")
+        _write_rows(fh, "v ", V)
+        _write_rows(fh, "vt ", UV)
         np.savetxt(fh, np.repeat(F + 1, 2, axis=1), fmt="f %d/%d %d/%d %d/%d")
 
     return atomic_write(path, write)
@@ -718,7 +722,7 @@ def write_vtk_tets(path, P, T):
     def write(fh):
         fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
         fh.write(f"POINTS {P.shape[0]} double\n")
-        np.savetxt(fh, P, fmt=f"{_FLOAT} {_FLOAT} {_FLOAT}")
+        _write_rows(fh, "", P)
         fh.write(f"CELLS {m} {5 * m}\n")
         np.savetxt(fh, T, fmt="4 %d %d %d %d")
         fh.write(f"CELL_TYPES {m}\n")

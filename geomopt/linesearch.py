@@ -65,7 +65,7 @@ def _cubic_roots(c3, c2, c1, c0):
     m = 2.0 * jnp.sqrt(-pm / 3.0)
     arg = jnp.clip(3.0 * q / (pm * m), -1.0, 1.0)
     th = jnp.arccos(arg) / 3.0
-    k = jnp.arange(3) * (2.0 * jnp.pi / 3.0)
+    k = jnp.arange(3)[None, :] * (2.0 * jnp.pi / 3.0)
     y3 = m[..., None] * jnp.cos(th[..., None] - k)
     three = (disc <= 0)[..., None]
     ys = jnp.where(three, y3, jnp.stack([y1, jnp.full_like(y1, jnp.inf), jnp.full_like(y1, jnp.inf)], -1))

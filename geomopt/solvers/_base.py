@@ -153,7 +153,7 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
 
     solver = Newton() if solver is None else solver
     problem = objective.problem
-    x0 = objective.gauge_fix(problem.check_map(x0))
+    x0 = problem.check_map(x0)
     params = objective.params(**(params or {}))
     report = Progress() if progress is True else (progress or None)
     vol = objective.total_volume

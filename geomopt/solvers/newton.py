@@ -97,7 +97,7 @@ class Newton(AbstractSolver):
             if d_free is None:
                 aux["cooldown"], aux["mu"] = 2, reg
             else:
-                aux["mu"] = used / 10
+                aux["mu"] = used
         if projection != "none" or d_free is None:
             value, grad, g, d_free, _ = self._direction(
                 state, "clamp" if projection == "none" else projection, [reg * 100**k for k in range(8)])
@@ -109,6 +109,9 @@ class Newton(AbstractSolver):
         decrement = 0.5 * float(-g @ d_free)
         t, xn, vn, _ = self.line_search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
+        if projection == "none" and d_free is not None:
+            # trust-region-like damping: relax after a full step, stiffen after a cut one
+            aux["mu"] = max(aux["mu"] / 10, reg) if t == 1.0 else aux["mu"] * 100
         if t == 0.0:
             if decrement <= self.rtol * max(abs(value), 1e-300) * 100:
                 # already at the minimum up to rounding

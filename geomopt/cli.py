@@ -1,0 +1,184 @@
+"""Command line: ``geomopt param``, ``geomopt untangle``, ``geomopt demo``.
+
+Every failure on bad input prints one line ``geomopt: error: ...`` and exits with status 2
+(no traceback unless ``--debug``); a solve that ends without a certified flip-free result
+exits with status 1; success exits with 0.  Outputs are written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _enable_compilation_cache():
+    """Persist compiled XLA programs across runs (start-up of a repeated command)."""
+    import jax
+
+    path = os.environ.get("GEOMOPT_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geomopt", "jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    except Exception:  # a read-only home: run without the cache
+        pass
+
+
+def _log(args, *msg):
+    if not args.quiet:
+        print(*msg, file=sys.stderr, flush=True)
+
+
+def _solver(name):
+    from . import solvers
+
+    return solvers.get_solver(name)
+
+
+def cmd_param(args) -> int:
+    from . import io
+    from .energies import get_energy
+    from .param import parameterize
+
+    energy = get_energy(args.energy)
+    solver = _solver(args.solver)
+    if args.max_steps is not None:
+        import dataclasses
+
+        solver = dataclasses.replace(solver, max_steps=args.max_steps)
+    V, F = io.read_mesh(args.input)
+    _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
+               f"solver {args.solver}, {args.weights} Tutte start")
+    res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights,
+                       progress=not args.quiet)
+    ok = res.inverted == 0 and res.outcome.value in ("converged", "max_steps")
+    if res.inverted == 0:
+        io.write_obj_with_uv(args.output, V, F, res.x)
+        if args.png:
+            _save_param_figures(res, F, args.png)
+    mean = res.energy / res.info["objective"].total_volume
+    _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
+               f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
+               f"outcome {res.outcome.value}")
+    if res.inverted:
+        _log(args, f"geomopt: error: result has {res.inverted} flipped triangles; nothing written")
+    elif res.outcome.value != "converged":
+        _log(args, f"geomopt: warning: {res.message}; wrote the flip-free map reached so far")
+    return EXIT_OK if ok and res.inverted == 0 else EXIT_FAILED
+
+
+def _save_param_figures(res, F, png):
+    import numpy as np
+
+    from . import plot
+
+    obj = res.info["objective"]
+    from ._objective import element_densities
+
+    dens = np.asarray(element_densities(obj, res.x))
+    base = Path(png)
+    plot.save_layout(base, res.x, F, np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
+                     if obj.energy.value_at_rest(2) else dens,
+                     title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
+                     label="log10 distortion")
+    conv = base.with_name(base.stem + "_convergence" + base.suffix)
+    plot.save_convergence(conv, {"projected Newton": (res.time_history, res.energy_history)},
+                          title=f"convergence ({len(F)} faces)")
+    return base, conv
+
+
+def cmd_untangle(args) -> int:
+    from .untangle import untangle_case, write_untangle_result
+
+    res, case = untangle_case(args.case, solver=args.solver, progress=not args.quiet)
+    if res.success:
+        write_untangle_result(case, res, args.output)
+    _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.info.get('outer', '?')}  "
+               f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
+               f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+    if not res.success:
+        _log(args, f"geomopt: error: not certified ({res.message}); nothing written")
+    return EXIT_OK if res.success else EXIT_FAILED
+
+
+def cmd_demo(args) -> int:
+    """Parameterize the bundled camelhead and write OBJ + UV picture + convergence plot."""
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    data = Path(__file__).with_name("data") / "camelhead.off"
+    ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
+                            energy="symmetric_dirichlet", solver="newton", weights="uniform",
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"))
+    code = cmd_param(ns)
+    if code == EXIT_OK:
+        print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
+              f"{out / 'camelhead_uv_convergence.png'}")
+    return code
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="geomopt", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def common(sp):
+        sp.add_argument("--quiet", action="store_true", help="no progress or summary output")
+        sp.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+
+    sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
+    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
+    sp.add_argument("-o", "--output", required=True, help="output OBJ with one vt per vertex")
+    sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
+    sp.add_argument("--solver", default="newton", help="solver name (default newton)")
+    sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
+                    help="Tutte weights of the start map")
+    sp.add_argument("--max-steps", type=int, default=None, help="iteration limit")
+    sp.add_argument("--png", default=None, help="also save the UV layout (and a _convergence plot)")
+    common(sp)
+    sp.set_defaults(func=cmd_param)
+
+    sp = sub.add_parser("untangle", help="untangle a LIM benchmark case (fixed handles)")
+    sp.add_argument("case", help="case folder: input.obj + handles.txt (2D) or rest.vtk + init.vtk (3D)")
+    sp.add_argument("-o", "--output", required=True, help="output OBJ (2D) or VTK (3D)")
+    sp.add_argument("--solver", default="newton", choices=["newton", "lbfgs"])
+    common(sp)
+    sp.set_defaults(func=cmd_untangle)
+
+    sp = sub.add_parser("demo", help="parameterize the bundled camelhead, write OBJ and PNGs")
+    sp.add_argument("-o", "--output", default="out", help="output folder (default ./out)")
+    common(sp)
+    sp.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from ._errors import GeomoptError
+
+    _enable_compilation_cache()
+    try:
+        return args.func(args)
+    except GeomoptError as exc:
+        if args.debug:
+            raise
+        print(f"geomopt: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("geomopt: interrupted; no output written", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal error: one line unless --debug
+        if args.debug:
+            raise
+        print(f"geomopt: internal error: {type(exc).__name__}: {exc} (rerun with --debug and "
+              f"report it)", file=sys.stderr)
+        return EXIT_FAILED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

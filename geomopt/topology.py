@@ -1,0 +1,333 @@
+"""Combinatorics of triangle meshes: edges, boundary loops, components, disk check.
+
+All functions take a face array ``F`` of shape ``(m, 3)`` (vertex indices, one row
+per triangle, counter-clockwise for a positively oriented face) and work on whole
+arrays at once; the only Python loop is the walk along boundary loops.
+
+Half-edge ``h = 3 * f + c`` of face ``f`` runs from ``F[f, c]`` to ``F[f, (c + 1) % 3]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components as _cc
+
+from ._errors import MeshError
+
+__all__ = [
+    "half_edges",
+    "unique_edges",
+    "boundary_half_edges",
+    "boundary_loops",
+    "connected_components",
+    "check_disk",
+]
+
+
+# --------------------------------------------------------------------------- validation
+
+def _as_faces(F, n_vertices=None, corners=3, name="F") -> np.ndarray:
+    """``F`` as a validated int64 array ``(m, corners)``; ``corners=None`` allows any >= 2."""
+    F = np.asarray(F)
+    if F.ndim != 2 or (corners is not None and F.shape[1] != corners) or F.shape[1] < 2:
+        want = f"(m, {corners})" if corners is not None else "(m, k)"
+        raise MeshError(f"{name} must be an integer array of shape {want}, got shape {F.shape}")
+    if F.dtype.kind not in "iu":
+        raise MeshError(f"{name} must hold integer vertex indices, got dtype {F.dtype}")
+    if F.shape[0] == 0:
+        raise MeshError(f"{name} is empty: the mesh has no elements")
+    F = F.astype(np.int64, copy=False)
+    if F.min() < 0:
+        raise MeshError(f"{name} has {int(np.count_nonzero(F < 0))} negative vertex indices")
+    if n_vertices is not None:
+        n_vertices = _as_count(n_vertices)
+        if F.max() >= n_vertices:
+            bad = int(np.count_nonzero(F >= n_vertices))
+            raise MeshError(
+                f"{name} has {bad} vertex indices >= n_vertices={n_vertices} "
+                f"(largest {int(F.max())}): faces refer to vertices that do not exist"
+            )
+    return F
+
+
+def _as_count(n) -> int:
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise MeshError(f"n_vertices must be a non-negative integer, got {n!r}")
+    return int(n)
+
+
+# --------------------------------------------------------------------------- edges
+
+def half_edges(F) -> np.ndarray:
+    """Directed edges of every face.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+
+    Returns
+    -------
+    H : (3 m, 2) int64 array
+        Row ``3 f + c`` is ``(F[f, c], F[f, (c + 1) % 3])``.
+    """
+    F = _as_faces(F)
+    return np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
+
+
+def unique_edges(F):
+    """Undirected edges, how many faces use each, and each half-edge's edge.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+
+    Returns
+    -------
+    E : (k, 2) int64 array
+        Unique undirected edges, ``E[:, 0] < E[:, 1]``, sorted lexicographically.
+    face_count : (k,) int64 array
+        Number of faces using each edge (1 = boundary, 2 = interior, > 2 = non-manifold).
+    edge_of : (m, 3) int64 array
+        ``edge_of[f, c]`` is the row of ``E`` for half-edge ``3 f + c``.
+    """
+    F = _as_faces(F)
+    H = half_edges(F)
+    lo, hi = H.min(axis=1), H.max(axis=1)
+    n = int(F.max()) + 1
+    keys, edge_of, face_count = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
+    E = np.stack([keys // n, keys % n], axis=1)
+    return E, face_count.astype(np.int64), edge_of.reshape(F.shape).astype(np.int64)
+
+
+def _twins(F: np.ndarray) -> np.ndarray:
+    """For each half-edge, the index of a half-edge running the other way, or -1.
+
+    Well defined when no directed edge occurs twice (manifold, consistently oriented).
+    """
+    H = half_edges(F)
+    n = int(F.max()) + 1
+    keys = H[:, 0] * n + H[:, 1]
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    pos = np.searchsorted(sorted_keys, H[:, 1] * n + H[:, 0])
+    pos = np.minimum(pos, keys.size - 1)
+    found = sorted_keys[pos] == H[:, 1] * n + H[:, 0]
+    return np.where(found, order[pos], -1)
+
+
+def boundary_half_edges(F) -> np.ndarray:
+    """Half-edges ``(a, b)`` whose reverse ``(b, a)`` belongs to no face.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+
+    Returns
+    -------
+    B : (k, 2) int64 array
+        Boundary half-edges in half-edge order (face-major).
+    """
+    F = _as_faces(F)
+    return half_edges(F)[_twins(F) < 0]
+
+
+# --------------------------------------------------------------------------- loops
+
+def boundary_loops(F) -> list[np.ndarray]:
+    """Boundary loops, each following the direction of the faces' half-edges.
+
+    For a consistently, positively oriented disk the loop runs counter-clockwise
+    around the interior (the faces lie to its left).
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+
+    Returns
+    -------
+    loops : list of (k_i,) int64 arrays
+        Vertex indices of each loop (the closing edge from last back to first is
+        implied), largest loop first; empty list for a closed surface.  Where a
+        vertex has several outgoing boundary half-edges (a non-manifold vertex) the
+        walk takes the first unused one, so such loops may pass a vertex twice;
+        :func:`check_disk` reports those meshes.
+    """
+    B = boundary_half_edges(F)
+    if B.shape[0] == 0:
+        return []
+    order = np.argsort(B[:, 0], kind="stable")
+    src, dst = B[order, 0], B[order, 1]
+    n = int(max(src.max(), dst.max())) + 1
+    ptr = np.searchsorted(src, np.arange(n + 1)).tolist()
+    src_l, dst_l = src.tolist(), dst.tolist()
+    cursor = ptr[:-1]  # first possibly-unused outgoing half-edge of each vertex
+    used = [False] * len(src_l)
+    loops = []
+    for start in range(len(src_l)):
+        if used[start]:
+            continue
+        loop, h = [], start
+        while True:
+            used[h] = True
+            loop.append(src_l[h])
+            v = dst_l[h]
+            c, end = cursor[v], ptr[v + 1]
+            while c < end and used[c]:
+                c += 1
+            cursor[v] = c
+            if c == end:
+                break
+            h = c
+        loops.append(np.asarray(loop, dtype=np.int64))
+    loops.sort(key=len, reverse=True)  # stable: ties keep discovery order
+    return loops
+
+
+# --------------------------------------------------------------------------- components
+
+def connected_components(F, n_vertices):
+    """Connected components of a mesh, as labels on its vertices.
+
+    Parameters
+    ----------
+    F : (m, k) int array
+        Elements (triangles ``k = 3``, tets ``k = 4``, ...).
+    n_vertices : int
+
+    Returns
+    -------
+    count : int
+        Number of components made of elements (unreferenced vertices not counted).
+    labels : (n_vertices,) int64 array
+        Component ``0 .. count - 1`` of each vertex, ``-1`` for vertices no element uses.
+    """
+    F = _as_faces(F, n_vertices, corners=None)
+    n = _as_count(n_vertices)
+    i, j = F[:, :-1].ravel(), F[:, 1:].ravel()
+    graph = sp.coo_matrix((np.ones(i.size, dtype=np.int8), (i, j)), shape=(n, n)).tocsr()
+    _, raw = _cc(graph, directed=False)
+    used = np.zeros(n, dtype=bool)
+    used[F.ravel()] = True
+    uniq, inv = np.unique(raw[used], return_inverse=True)
+    labels = np.full(n, -1, dtype=np.int64)
+    labels[used] = inv.ravel()
+    return int(uniq.size), labels
+
+
+def _fans_per_vertex(F: np.ndarray, n: int) -> np.ndarray:
+    """Number of edge-connected fans of faces around each vertex, ``(n,)`` int64.
+
+    Corners of one vertex are linked when their faces share an edge at that vertex;
+    a manifold vertex has exactly one such group.  Needs valid twins (see ``_twins``).
+    """
+    twin = _twins(F)
+    h = np.flatnonzero(twin >= 0)
+    t = twin[h]
+    # source corner of h (vertex a) <-> target corner of its twin (also vertex a)
+    i, j = h, 3 * (t // 3) + (t % 3 + 1) % 3
+    graph = sp.coo_matrix((np.ones(h.size, dtype=np.int8), (i, j)), shape=(F.size, F.size))
+    n_groups, group = _cc(graph.tocsr(), directed=False)
+    vertex_of_group = np.empty(n_groups, dtype=np.int64)
+    vertex_of_group[group] = F.ravel()
+    return np.bincount(vertex_of_group, minlength=n)
+
+
+# --------------------------------------------------------------------------- disk check
+
+def check_disk(F, n_vertices) -> np.ndarray:
+    """Check that a triangle mesh is a topological disk; return its boundary loop.
+
+    Checks, in order: valid indices, no face repeating a vertex, no unreferenced
+    vertices, manifold edges, consistent orientation, one connected component, a
+    boundary exists, manifold vertices, exactly one boundary loop, and Euler
+    characteristic ``V - E + F == 1``.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+    n_vertices : int
+
+    Returns
+    -------
+    loop : (k,) int64 array
+        The boundary loop, in half-edge direction (see :func:`boundary_loops`).
+
+    Raises
+    ------
+    MeshError
+        Naming the first failed check, with counts, and what to do about it.
+    """
+    F = _as_faces(F, n_vertices)
+    n = _as_count(n_vertices)
+    m = F.shape[0]
+
+    repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    if repeated.any():
+        raise MeshError(
+            f"{int(repeated.sum())} of {m} faces use the same vertex twice; "
+            "remove these degenerate faces"
+        )
+
+    used = np.zeros(n, dtype=bool)
+    used[F.ravel()] = True
+    if not used.all():
+        raise MeshError(
+            f"{int(n - used.sum())} of {n} vertices are not used by any face; "
+            "unreferenced vertices must be removed (e.g. trimesh's remove_unreferenced_vertices)"
+        )
+
+    E, face_count, _ = unique_edges(F)
+    if (face_count > 2).any():
+        raise MeshError(
+            f"{int((face_count > 2).sum())} non-manifold edges (used by more than 2 faces); "
+            "a disk's edges are used by 1 or 2 faces: split or remove the extra faces"
+        )
+
+    H = half_edges(F)
+    _, directed_count = np.unique(H[:, 0] * n + H[:, 1], return_counts=True)
+    if (directed_count > 1).any():
+        raise MeshError(
+            f"inconsistent face orientation: {int((directed_count > 1).sum())} edges are used "
+            "twice in the same direction; orient all faces consistently "
+            "(e.g. trimesh.repair.fix_winding), or the surface is non-orientable"
+        )
+
+    count, _ = connected_components(F, n)
+    if count > 1:
+        raise MeshError(
+            f"the mesh has {count} connected components; a disk has one: "
+            "keep one component or parameterize each separately"
+        )
+
+    twin = _twins(F)
+    n_boundary = int((twin < 0).sum())
+    if n_boundary == 0:
+        raise MeshError(
+            "the mesh has no boundary (a closed surface); cut it to a disk first"
+        )
+
+    B = H[twin < 0]
+    degree = np.bincount(B.ravel(), minlength=n)
+    bad = (degree > 2) | (_fans_per_vertex(F, n) > 1)
+    if bad.any():
+        raise MeshError(
+            f"{int(bad.sum())} non-manifold (bow-tie) vertices, whose faces do not form a "
+            "single fan; split these vertices (one copy per fan) or remove faces"
+        )
+
+    loops = boundary_loops(F)
+    if len(loops) != 1:
+        raise MeshError(
+            f"the mesh has {len(loops)} boundary loops; a disk has exactly one: "
+            "fill holes or cut between the loops"
+        )
+
+    chi = n - E.shape[0] + m
+    if chi != 1:
+        # one component, one boundary loop, orientable and manifold: chi = 1 - 2 * genus
+        raise MeshError(
+            f"Euler characteristic V - E + F = {n} - {E.shape[0]} + {m} = {chi}, not 1: "
+            f"the surface has genus {(1 - chi) // 2}; cut its handles open to get a disk"
+        )
+    return loops[0]

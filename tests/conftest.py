@@ -1,0 +1,62 @@
+"""Strict JAX configuration for the whole suite: float64 on, implicit rank promotion raises."""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def shared_path(*parts):
+    """A file under ../shared/data, or skip the test with a clear message when it is absent."""
+    p = SHARED.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"shared data not found at {p} (clone the project next to its shared/ folder)")
+    return p
+
+
+def grid(n=6, jitter=0.0, seed=0):
+    """A planar triangulated unit square: V (n*n, 2), F (2(n-1)^2, 3), CCW."""
+    xs = np.linspace(0.0, 1.0, n)
+    X, Y = np.meshgrid(xs, xs, indexing="xy")
+    V = np.stack([X.ravel(), Y.ravel()], 1)
+    if jitter:
+        rng = np.random.default_rng(seed)
+        inner = (V[:, 0] > 0) & (V[:, 0] < 1) & (V[:, 1] > 0) & (V[:, 1] < 1)
+        V[inner] += jitter / (n - 1) * rng.uniform(-1, 1, (inner.sum(), 2))
+    F = []
+    for j in range(n - 1):
+        for i in range(n - 1):
+            a, b, c, d = j * n + i, j * n + i + 1, (j + 1) * n + i, (j + 1) * n + i + 1
+            F += [[a, b, d], [a, d, c]]
+    return V, np.array(F, dtype=np.int64)
+
+
+def cube_tets(n=3):
+    """A unit cube split into 6 tets per cell (Kuhn): V ((n+1)^3, 3), T (6 n^3, 4), positive."""
+    xs = np.linspace(0.0, 1.0, n + 1)
+    V = np.stack(np.meshgrid(xs, xs, xs, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
+    T = []
+    perms = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for p in perms:
+                    c = np.array([i, j, k])
+                    tet = [idx[tuple(c)]]
+                    for axis in p:
+                        c = c.copy()
+                        c[axis] += 1
+                        tet.append(idx[tuple(c)])
+                    T.append(tet)
+    T = np.array(T, dtype=np.int64)
+    P = V[T]
+    vol = np.einsum("ij,ij->i", P[:, 1] - P[:, 0], np.cross(P[:, 2] - P[:, 0], P[:, 3] - P[:, 0]))
+    T[vol < 0] = T[vol < 0][:, [0, 2, 1, 3]]
+    return V, T
