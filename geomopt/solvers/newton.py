@@ -93,9 +93,9 @@ class Newton(AbstractSolver):
         if projection == "none":
             # Levenberg-Marquardt on the exact Hessian: the smallest shift that factors
             mu = max(aux.get("mu", reg), reg)
-            value, grad, g, d_free, used = self._direction(state, "none", [mu, 100 * mu])
+            value, grad, g, d_free, used = self._direction(state, "none", [mu, 1e2 * mu, 1e4 * mu])
             if d_free is None:
-                aux["cooldown"], aux["mu"] = 2, reg
+                aux["cooldown"], aux["mu"] = 2, 1e6 * mu
             else:
                 aux["mu"] = used
         if projection != "none" or d_free is None:
@@ -110,8 +110,13 @@ class Newton(AbstractSolver):
         t, xn, vn, _ = self.line_search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
         if projection == "none" and d_free is not None:
-            # trust-region-like damping: relax after a full step, stiffen after a cut one
-            aux["mu"] = max(aux["mu"] / 10, reg) if t == 1.0 else aux["mu"] * 100
+            # trust-region-like damping from the ratio of actual to predicted decrease
+            predicted = decrement * t * (2.0 - t)
+            rho = (value - vn) / predicted if predicted > 0 else 0.0
+            if rho > 0.75:
+                aux["mu"] = max(aux["mu"] / 10, reg)
+            elif rho < 0.25:
+                aux["mu"] = aux["mu"] * 10
         if t == 0.0:
             if decrement <= self.rtol * max(abs(value), 1e-300) * 100:
                 # already at the minimum up to rounding
