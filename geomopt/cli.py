@@ -1,8 +1,10 @@
 """Command line: ``geomopt param``, ``geomopt untangle``, ``geomopt demo``.
 
-Every failure on bad input prints one line ``geomopt: error: ...`` and exits with status 2
-(no traceback unless ``--debug``); a solve that ends without a certified flip-free result
-exits with status 1; success exits with 0.  Outputs are written atomically.
+Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
+that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
+traceback unless ``--debug``); a solve that does not end converged and flip-free (exact
+predicate) exits with status 1 and writes nothing; status 0 means the certified result was
+written.  Output paths are checked before solving and written atomically.
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ def _solver(name):
     return solvers.get_solver(name)
 
 
+def _fail(message) -> int:
+    """Report a result that is not certified (printed even with --quiet); exit status 1."""
+    print(f"geomopt: error: {message}; nothing written", file=sys.stderr, flush=True)
+    return EXIT_FAILED
+
+
 def cmd_param(args) -> int:
     from . import io
     from .energies import get_energy
@@ -52,25 +60,23 @@ def cmd_param(args) -> int:
         import dataclasses
 
         solver = dataclasses.replace(solver, max_steps=args.max_steps)
+    for path in [args.output] + ([args.png] if args.png else []):
+        io.check_output_path(path)  # before the solve, not after
     V, F = io.read_mesh(args.input)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {args.weights} Tutte start")
     res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights,
                        progress=not args.quiet)
-    ok = res.inverted == 0 and res.outcome.value in ("converged", "max_steps")
-    if res.inverted == 0:
-        io.write_obj_with_uv(args.output, V, F, res.x)
-        if args.png:
-            _save_param_figures(res, F, args.png)
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
                f"outcome {res.outcome.value}")
-    if res.inverted:
-        _log(args, f"geomopt: error: result has {res.inverted} flipped triangles; nothing written")
-    elif res.outcome.value != "converged":
-        _log(args, f"geomopt: warning: {res.message}; wrote the flip-free map reached so far")
-    return EXIT_OK if ok and res.inverted == 0 else EXIT_FAILED
+    if not res.success:
+        return _fail(f"not certified: {res.message}")
+    if args.png:
+        _save_param_figures(res, F, args.png)
+    io.write_obj_with_uv(args.output, V, F, res.x)
+    return EXIT_OK
 
 
 def _save_param_figures(res, F, png):
@@ -94,23 +100,39 @@ def _save_param_figures(res, F, png):
 
 
 def cmd_untangle(args) -> int:
+    from . import io
+    from ._errors import ParameterError
     from .untangle import untangle_case, write_untangle_result
 
-    res, case = untangle_case(args.case, solver=args.solver, progress=not args.quiet)
-    if res.success:
-        write_untangle_result(case, res, args.output)
-    _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.info.get('outer', '?')}  "
+    want = ".obj" if io.lim_case_dim(args.case) == 2 else ".vtk"
+    if Path(args.output).suffix.lower() != want:
+        raise ParameterError(f"{args.case} is a {'2D' if want == '.obj' else '3D'} case: the output "
+                             f"must be a {want} file, got {args.output}")
+    io.check_output_path(args.output)
+    case, res = untangle_case(args.case, solver=args.solver, progress=not args.quiet)
+    _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
     if not res.success:
-        _log(args, f"geomopt: error: not certified ({res.message}); nothing written")
-    return EXIT_OK if res.success else EXIT_FAILED
+        return _fail(f"not certified: {res.message}")
+    check = write_untangle_result(case, res, args.output)
+    if not check["certified"]:
+        Path(args.output).unlink(missing_ok=True)
+        return _fail(f"the written file did not certify ({check['inverted']} inverted element(s), "
+                     f"{check['handles_moved']} handle(s) moved)")
+    return EXIT_OK
 
 
 def cmd_demo(args) -> int:
     """Parameterize the bundled camelhead and write OBJ + UV picture + convergence plot."""
+    from ._errors import GeomoptError
+
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); "
+                           f"give a folder path") from exc
     data = Path(__file__).with_name("data") / "camelhead.off"
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
                             energy="symmetric_dirichlet", solver="newton", weights="uniform",
@@ -120,6 +142,16 @@ def cmd_demo(args) -> int:
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
               f"{out / 'camelhead_uv_convergence.png'}")
     return code
+
+
+def _positive_int(text) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return value
 
 
 def build_parser():
@@ -137,7 +169,7 @@ def build_parser():
     sp.add_argument("--solver", default="newton", help="solver name (default newton)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
-    sp.add_argument("--max-steps", type=int, default=None, help="iteration limit")
+    sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--png", default=None, help="also save the UV layout (and a _convergence plot)")
     common(sp)
     sp.set_defaults(func=cmd_param)
@@ -159,11 +191,15 @@ def build_parser():
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from ._errors import GeomoptError
+    from ._errors import GeomoptError, SolveError
 
     _enable_compilation_cache()
     try:
         return args.func(args)
+    except SolveError as exc:
+        if args.debug:
+            raise
+        return _fail(str(exc))
     except GeomoptError as exc:
         if args.debug:
             raise

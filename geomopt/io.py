@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import MeshError, MeshFormatError, ParameterError
+from ._errors import GeomoptError, MeshError, MeshFormatError, ParameterError
 
 __all__ = [
     "MESH_EXTENSIONS",
     "atomic_output",
     "atomic_write",
+    "check_output_path",
     "validate_vertices",
     "validate_simplices",
     "validate_indices",
@@ -38,6 +39,7 @@ __all__ = [
     "write_vtk_tets",
     "read_lim3d",
     "read_lim_case",
+    "lim_case_dim",
     "lim_cases",
 ]
 
@@ -84,13 +86,14 @@ def atomic_output(path, mode="w", encoding="utf-8"):
     ------
     ParameterError
         If ``mode`` is not ``"w"`` or ``"wb"``.
-    OSError
-        If the directory does not exist or is not writable, or ``path`` is a directory.
+    GeomoptError
+        If ``path`` cannot be written (see :func:`check_output_path`), or an ``OSError``
+        (disk full, ...) happens while writing; nothing is left at ``path`` then.
     """
     if mode not in ("w", "wb"):
         raise ParameterError(f"atomic_output mode must be 'w' or 'wb', got {mode!r}")
     path = Path(path)
-    fd, tmp = _create_temp_next_to(path)
+    fd, tmp = _open_temp_next_to(path)
     text_kwargs = {} if mode == "wb" else {"encoding": encoding, "newline": "\n"}
     try:
         with os.fdopen(fd, mode, **text_kwargs) as fh:
@@ -98,9 +101,11 @@ def atomic_output(path, mode="w", encoding="utf-8"):
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise GeomoptError(f"could not write {path} ({_one_line(exc)}); nothing was written") from exc
         raise
 
 
@@ -127,12 +132,47 @@ def atomic_write(path, write_fn, mode="w"):
     return Path(path)
 
 
-def _create_temp_next_to(path):
+def check_output_path(path):
+    """Check that ``path`` can be written, before spending time on what goes into it.
+
+    Creates and removes a temporary file beside ``path``, as :func:`atomic_output` will.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    GeomoptError
+        ``path`` is a directory, its folder does not exist, or no file can be
+        created there (permissions, read-only file system).
+    """
+    path = Path(path)
+    fd, tmp = _open_temp_next_to(path)
+    os.close(fd)
+    os.unlink(tmp)
+    return path
+
+
+def _open_temp_next_to(path):
     """Create a fresh hidden file beside ``path``; return ``(fd, temp_path)``.
 
     ``os.open`` with mode 0o666 lets the umask decide the permissions, as for any
-    newly created file (``tempfile.mkstemp`` would make it 0o600).
+    newly created file (``tempfile.mkstemp`` would make it 0o600).  Raises
+    :class:`GeomoptError` saying why ``path`` cannot be written.
     """
+    if path.is_dir():
+        raise GeomoptError(f"output {path} is a directory; give a file name (e.g. {path / 'out.obj'})")
+    folder = path.parent
+    if not folder.is_dir():
+        what = "is not a directory" if folder.exists() else "does not exist"
+        raise GeomoptError(f"cannot write {path}: the folder {folder} {what}; create it first")
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
         tmp = path.with_name(f".{path.name[:200]}.{secrets.token_hex(6)}.tmp")
@@ -140,7 +180,11 @@ def _create_temp_next_to(path):
             return os.open(tmp, flags, 0o666), tmp
         except FileExistsError:
             continue
-    raise FileExistsError(f"could not create a temporary file next to {path}")
+        except OSError as exc:
+            raise GeomoptError(
+                f"cannot write {path} ({_one_line(exc)}); check the folder's permissions"
+            ) from exc
+    raise GeomoptError(f"cannot write {path}: could not create a temporary file next to it")
 
 
 # ----------------------------------------------------------------------- validation
@@ -303,7 +347,11 @@ def validate_indices(I, n_vertices, name="handles"):
 def _existing_file(path, what):
     """Return ``Path(path)`` after checking it is an existing file (emptiness not checked)."""
     path = Path(path)
-    if not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as exc:  # e.g. a name too long for the file system
+        raise MeshFormatError(f"{what} {path} cannot be accessed ({_one_line(exc)}); check the path") from exc
+    if not exists:
         raise MeshFormatError(f"{what} {path} does not exist; check the path")
     if path.is_dir():
         raise MeshFormatError(f"{what} {path} is a directory, not a file; pass the file inside it")
@@ -315,11 +363,21 @@ def _check_not_empty(path, what):
         raise MeshFormatError(f"{what} {path} is empty (0 bytes); re-export or re-download it")
 
 
+def _read_bytes(path, what):
+    """The bytes of an existing file; an unreadable one gives a MeshFormatError."""
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise MeshFormatError(
+            f"cannot read {what} {path} ({_one_line(exc)}); check its permissions"
+        ) from exc
+
+
 def _read_text(path, what):
     """Read a small text file; reject missing, empty and binary (NUL-containing) files."""
     path = _existing_file(path, what)
     _check_not_empty(path, what)
-    data = path.read_bytes()
+    data = _read_bytes(path, what)
     if b"\x00" in data:
         raise MeshFormatError(f"{what} {path} is a binary file; a text file is expected")
     return data.decode("utf-8", errors="replace")
@@ -375,11 +433,11 @@ def read_mesh(path):
             f"{', '.join(MESH_EXTENSIONS)} (convert it, e.g. with meshio or MeshLab)"
         )
     _check_not_empty(path, "mesh file")
+    data = _read_bytes(path, "mesh file")
     import trimesh
 
     source = path
     if ext in (".obj", ".off"):  # trimesh needs the optional charset_normalizer for non-UTF-8 text
-        data = path.read_bytes()
         try:
             data.decode("utf-8")
         except UnicodeDecodeError:
@@ -615,7 +673,7 @@ def _parse_face(tokens, path, lineno):
 def _read_handles(path, n_vertices):
     """0-based vertex ids from a whitespace-separated text file; empty file -> no handles."""
     path = _existing_file(path, "handles file")
-    data = path.read_bytes()
+    data = _read_bytes(path, "handles file")
     if b"\x00" in data:
         raise MeshFormatError(
             f"handles file {path} is a binary file; expected 0-based vertex ids, one per line"
@@ -801,7 +859,7 @@ def read_lim3d(folder):
 
 
 def read_lim_case(folder):
-    """Read a 2D or 3D LIM case, deciding by which files the folder holds.
+    """Read a 2D or 3D LIM case, deciding by which files the folder holds (:func:`lim_case_dim`).
 
     Parameters
     ----------
@@ -813,6 +871,20 @@ def read_lim_case(folder):
     dict
         The reader's dict (:func:`read_lim2d` or :func:`read_lim3d`) plus ``dim``
         (2 or 3) and ``path`` (the folder).
+
+    Raises
+    ------
+    MeshFormatError
+        The folder is missing, holds neither kind of case, or both.
+    """
+    folder = Path(folder)
+    dim = lim_case_dim(folder)
+    case = read_lim2d(folder) if dim == 2 else read_lim3d(folder)
+    return {"dim": dim, "path": folder, **case}
+
+
+def lim_case_dim(folder):
+    """2 or 3: the kind of LIM case in ``folder``, judged by its file names only.
 
     Raises
     ------
@@ -833,8 +905,7 @@ def read_lim_case(folder):
             f"{folder} is not a LIM case folder: expected input.obj + handles.txt (2D) "
             f"or rest.vtk + init.vtk (3D)"
         )
-    case = read_lim2d(folder) if is_2d else read_lim3d(folder)
-    return {"dim": 2 if is_2d else 3, "path": folder, **case}
+    return 2 if is_2d else 3
 
 
 def lim_cases(root):

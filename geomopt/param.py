@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._errors import MeshError
 from ._objective import Objective
 from .problem import Problem
-from .solvers import Newton, minimize
+from .solvers import Newton, get_solver, minimize
+from .topology import check_disk
 from .tutte import tutte_embedding
 
 
@@ -39,6 +41,16 @@ def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, iters=6
     return float(np.exp(0.5 * (a + b)))
 
 
+def _to_rest_area(problem: Problem, x0) -> np.ndarray:
+    """``x0`` centred and scaled to the rest surface area (when its signed area is positive), so
+    that the scale search of :func:`optimal_scale` starts at O(1) Jacobians whatever its units."""
+    x0 = x0 - x0.mean(axis=0)
+    span = np.abs(x0).max()
+    x0 = x0 / span if span > 0 else x0
+    area = float(problem.signed_volumes(x0).sum())
+    return x0 * np.sqrt(problem.volumes.sum() / area) if area > 0 else x0
+
+
 def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
@@ -47,23 +59,43 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     ----------
     V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles (consistently oriented).
     energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet).
-    solver : a solver object (default :class:`~geomopt.solvers.Newton`).
+    solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
     weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
-    x0 : (n, 2) optional start map (must be flip-free) instead of Tutte.
+    x0 : (n, 2) optional start map instead of Tutte; with a barrier energy it must be flip-free.
+        Without ``x0`` the mesh must be a topological disk (:func:`~geomopt.topology.check_disk`).
     progress, throw : see :func:`~geomopt.solvers.minimize`.
 
     Returns
     -------
     :class:`~geomopt.solvers.Result` whose ``x`` is the (n, 2) UV map; ``info`` holds the
     start map and the scale applied to it.
+
+    Raises
+    ------
+    MeshError : invalid or non-disk mesh, invalid start map, or a start map with inverted
+        triangles for a barrier energy (infinite there).
+    ParameterError : unknown energy/solver/weights name or invalid energy parameter.
+    SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
     problem = Problem.surface(V, F)
     objective = Objective(problem, energy, **energy_params)
+    solver = Newton() if solver is None else get_solver(solver)
     if x0 is None:
-        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights=weights)
-    x0 = problem.check_map(x0)
-    x0 = x0 - x0.mean(axis=0)
+        loop = check_disk(problem.input_simplices, problem.n_vertices)
+        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
+        source = "the Tutte start map"
+    else:
+        source = "the start map x0"
+    x0 = problem.check_map(x0, "start map x0")
+    inverted = problem.count_inverted(x0)
+    if inverted and objective.energy.barrier:
+        raise MeshError(
+            f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
+            f"{objective.energy.name!r} is infinite; give a flip-free start map (omit x0 for a Tutte "
+            f"start, or untangle it first) or use an energy without a barrier"
+        )
+    x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)
-    result = minimize(objective, s * x0, solver or Newton(), progress=progress, throw=throw)
+    result = minimize(objective, s * x0, solver, progress=progress, throw=throw)
     result.info.update(start=s * x0, scale=s, problem=problem, objective=objective)
     return result

@@ -18,17 +18,22 @@ import dataclasses
 import numpy as np
 
 from ._errors import MeshError
-from .io import validate_simplices, validate_vertices
+from .io import validate_indices, validate_simplices, validate_vertices
+
+__all__ = ["Problem", "check_initial_orientation"]
 
 
 def _local_frames(V, F):
-    """Flatten each 3D triangle isometrically to 2D: rest edge matrices (m, 2, 2) and areas."""
-    e1 = V[F[:, 1]] - V[F[:, 0]]
-    e2 = V[F[:, 2]] - V[F[:, 0]]
-    l1 = np.linalg.norm(e1, axis=1)
-    n = np.cross(e1, e2)
-    area2 = np.linalg.norm(n, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    """Flatten each 3D triangle isometrically to 2D: rest edge matrices (m, 2, 2) and areas.
+
+    Degenerate or overflowing triangles give zero or non-finite areas, which the caller rejects.
+    """
+    with np.errstate(all="ignore"):
+        e1 = V[F[:, 1]] - V[F[:, 0]]
+        e2 = V[F[:, 2]] - V[F[:, 0]]
+        l1 = np.linalg.norm(e1, axis=1)
+        n = np.cross(e1, e2)
+        area2 = np.linalg.norm(n, axis=1)
         u = e1 / l1[:, None]
         x2 = np.einsum("ij,ij->i", e2, u)
         y2 = area2 / l1
@@ -41,14 +46,32 @@ def _local_frames(V, F):
 
 def _edge_matrices(P, S):
     """Edge matrices ``[p1-p0, ..., pd-p0]`` as columns: (m, d, d)."""
-    return np.swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
+    with np.errstate(all="ignore"):  # overflow shows up as non-finite sizes
+        return np.swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
+
+
+def _signed_sizes(Dm):
+    """Signed areas (d=2) or volumes (d=3) from edge matrices (m, d, d); overflow gives inf
+    (for rest shapes, :func:`_check_rest_volumes` rejects it)."""
+    d = Dm.shape[-1]
+    with np.errstate(all="ignore"):
+        return np.linalg.det(Dm) / (2.0 if d == 2 else 6.0)
 
 
 def _check_rest_volumes(vol, what, rel_tol=1e-12):
     """Reject degenerate (near-zero) rest elements and mixed orientations."""
+    if not np.isfinite(vol).all():
+        idx = np.flatnonzero(~np.isfinite(vol))
+        raise MeshError(
+            f"{idx.size} rest {what}(s) have a size that overflows float64 (first: {idx[:5].tolist()}); "
+            f"the coordinates are too large: rescale the mesh"
+        )
     scale = np.mean(np.abs(vol))
     if not scale > 0:
-        raise MeshError(f"every rest {what} has zero size: the rest mesh is degenerate")
+        raise MeshError(
+            f"every rest {what} has zero size: the rest mesh is degenerate (collinear or coincident "
+            f"vertices) or its coordinates are too small for float64 (rescale it)"
+        )
     small = np.abs(vol) <= rel_tol * scale
     if small.any():
         idx = np.flatnonzero(small)
@@ -98,14 +121,12 @@ class Problem:
             if np.any(V[:, 2] != 0):
                 raise MeshError("planar problem: rest vertices have nonzero z; use Problem.surface")
             V = V[:, :2]
-        if V.shape[1] != 2:
-            raise MeshError(f"planar problem: rest vertices must be (n, 2), got {V.shape}")
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm = _edge_matrices(V, F)
-        flipped = _check_rest_volumes(np.linalg.det(Dm) / 2.0, "triangle")
+        flipped = _check_rest_volumes(_signed_sizes(Dm), "triangle")
         S = F[:, [0, 2, 1]] if flipped else F
         Dm = _edge_matrices(V, S)
-        return cls._make("planar", 2, V, F, S, Dm, np.linalg.det(Dm) / 2.0, fixed, fixed_positions)
+        return cls._make("planar", 2, V, F, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
     @classmethod
     def surface(cls, V, F, fixed=None, fixed_positions=None):
@@ -115,9 +136,7 @@ class Problem:
         so rest triangles are positively oriented and a map is valid when every triangle
         ``(a, b, c)`` has positive signed area in the plane.
         """
-        V = validate_vertices(V, "rest vertices")
-        if V.shape[1] != 3:
-            raise MeshError(f"surface problem: rest vertices must be (n, 3), got {V.shape}")
+        V = validate_vertices(V, "surface problem: rest vertices", dim=3)
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm, area = _local_frames(V, F)
         _check_rest_volumes(area, "triangle")
@@ -131,15 +150,13 @@ class Problem:
         by swapping two vertices of every tet internally; a map is then valid when each tet
         has the same orientation as at rest.
         """
-        V = validate_vertices(V, "rest vertices")
-        if V.shape[1] != 3:
-            raise MeshError(f"tet problem: rest vertices must be (n, 3), got {V.shape}")
+        V = validate_vertices(V, "tet problem: rest vertices", dim=3)
         T = validate_simplices(T, len(V), 4, "tetrahedra")
         Dm = _edge_matrices(V, T)
-        flipped = _check_rest_volumes(np.linalg.det(Dm) / 6.0, "tetrahedron")
+        flipped = _check_rest_volumes(_signed_sizes(Dm), "tetrahedron")
         S = T[:, [0, 2, 1, 3]] if flipped else T
         Dm = _edge_matrices(V, S)
-        return cls._make("tet", 3, V, T, S, Dm, np.linalg.det(Dm) / 6.0, fixed, fixed_positions)
+        return cls._make("tet", 3, V, T, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
     @classmethod
     def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions):
@@ -168,23 +185,14 @@ class Problem:
     # -- handles --------------------------------------------------------------------
     def with_fixed(self, fixed, positions) -> "Problem":
         """A copy with vertices ``fixed`` (k,) held at ``positions`` (k, dim)."""
-        idx = np.asarray(fixed)
-        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
-            raise MeshError(f"fixed vertex indices must be a 1D integer array, got {idx.dtype} {idx.shape}")
-        idx = idx.astype(np.int64)
-        if idx.size and (idx.min() < 0 or idx.max() >= self.n_vertices):
-            bad = idx[(idx < 0) | (idx >= self.n_vertices)]
+        idx = validate_indices(fixed, self.n_vertices, "fixed vertex indices")
+        if idx.size == 0:
+            return dataclasses.replace(self, fixed=idx, fixed_positions=np.zeros((0, self.dim)))
+        pos = validate_vertices(positions, "fixed positions", dim=self.dim)
+        if len(pos) != idx.size:
             raise MeshError(
-                f"{bad.size} fixed vertex indices are out of range [0, {self.n_vertices}) "
-                f"(first: {bad[:5].tolist()}); handle indices are 0-based"
+                f"fixed positions has {len(pos)} rows for {idx.size} fixed vertices; give one position per fixed vertex"
             )
-        if np.unique(idx).size != idx.size:
-            raise MeshError("fixed vertex indices contain duplicates")
-        pos = np.asarray(positions, dtype=np.float64)
-        if pos.shape != (idx.size, self.dim):
-            raise MeshError(f"fixed positions must be ({idx.size}, {self.dim}), got {pos.shape}")
-        if not np.isfinite(pos).all():
-            raise MeshError("fixed positions contain NaN or inf")
         order = np.argsort(idx)
         return dataclasses.replace(self, fixed=idx[order], fixed_positions=pos[order])
 
@@ -199,27 +207,61 @@ class Problem:
         m[self.fixed] = False
         return m
 
-    def check_map(self, x) -> np.ndarray:
-        """Validate a map ``x`` (n, dim) and return it as float64 with handles in place."""
-        x = np.asarray(x)
-        if x.shape != (self.n_vertices, self.dim):
-            raise MeshError(f"map must have shape ({self.n_vertices}, {self.dim}), got {x.shape}")
-        if not np.issubdtype(x.dtype, np.floating) and not np.issubdtype(x.dtype, np.integer):
-            raise MeshError(f"map must be a float array, got dtype {x.dtype}")
-        x = x.astype(np.float64, copy=True)
-        if not np.isfinite(x).all():
-            bad = np.flatnonzero(~np.isfinite(x).all(axis=1))
-            raise MeshError(f"map has NaN/inf at {bad.size} vertices (first: {bad[:5].tolist()})")
+    def check_map(self, x, name="map") -> np.ndarray:
+        """Validate a map ``x`` (n, dim) and return it as a float64 copy with handles in place."""
+        x = validate_vertices(x, name, dim=self.dim)
+        if len(x) != self.n_vertices:
+            raise MeshError(f"{name} has {len(x)} rows but the mesh has {self.n_vertices} vertices; "
+                            f"give one position per vertex")
+        x = x.copy()
         x[self.fixed] = self.fixed_positions
         return x
 
     def signed_volumes(self, x) -> np.ndarray:
         """(m,) signed area/volume of each element under the map, in the rest orientation."""
         x = np.asarray(x, dtype=np.float64)
-        return np.linalg.det(_edge_matrices(x, self.simplices)) / (2.0 if self.dim == 2 else 6.0)
+        return _signed_sizes(_edge_matrices(x, self.simplices))
 
     def count_inverted(self, x) -> int:
         """Elements whose orientation under ``x`` is not positive, by an exact predicate."""
         from .predicates import count_inverted
 
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
+
+
+def check_initial_orientation(problem: Problem, x0) -> float:
+    """Check that a start map is not mirrored or collapsed as a whole; return its signed size.
+
+    A map with every element positively oriented has a positive total signed area (2D) or
+    volume (3D); when the handles pin the boundary that total is the same for every map, so a
+    start map whose total is negative (mirrored, e.g. a left-handed init for a right-handed
+    rest mesh) or zero (collapsed to a point, line or plane) cannot be untangled.  Call this
+    before untangling, after any deliberate mirroring.
+
+    Parameters
+    ----------
+    problem : Problem
+    x0 : (n, dim) array_like, the start map.
+
+    Returns
+    -------
+    float
+        The total signed area/volume of ``x0`` (positive).
+
+    Raises
+    ------
+    MeshError
+        ``x0`` is invalid (see :meth:`Problem.check_map`) or its total signed area/volume is
+        not positive.
+    """
+    x0 = problem.check_map(x0, "initial map")
+    total = float(problem.signed_volumes(x0).sum())
+    if not total > 0:
+        what = "area" if problem.dim == 2 else "volume"
+        state = "negative: it is mirrored" if total < 0 else "zero: it is collapsed"
+        raise MeshError(
+            f"the initial map's total signed {what} is {total:.6g}, {state} relative to the rest "
+            f"mesh, and untangling needs a positive total; mirror the initial map (negate one "
+            f"coordinate) or check that the rest and initial meshes belong together"
+        )
+    return total

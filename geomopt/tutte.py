@@ -15,23 +15,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._errors import MeshError, ParameterError
+from .io import validate_vertices
 from .topology import _as_faces, check_disk
 
 __all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "WEIGHTS"]
 
 WEIGHTS = ("uniform", "mean_value")
-
-
-def _as_positions(V, name="V") -> np.ndarray:
-    V = np.asarray(V)
-    if V.ndim != 2 or V.shape[1] not in (2, 3):
-        raise MeshError(f"{name} must be an array of shape (n, 2) or (n, 3), got shape {V.shape}")
-    if V.dtype.kind not in "fiu":
-        raise MeshError(f"{name} must hold real coordinates, got dtype {V.dtype}")
-    V = V.astype(np.float64, copy=False)
-    if not np.isfinite(V).all():
-        raise MeshError(f"{name} has {int((~np.isfinite(V)).sum())} NaN or inf coordinates")
-    return V
 
 
 def _as_3d(V: np.ndarray) -> np.ndarray:
@@ -68,7 +57,7 @@ def tutte_weights(V, F, weights: str = "uniform") -> sp.csr_matrix:
         raise ParameterError(
             f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
         )
-    V = _as_positions(V)
+    V = validate_vertices(V, "V")
     n = V.shape[0]
     F = _as_faces(F, n)
     # corner c of face f: vertex i, followed by j and k counter-clockwise; each (m, 3)
@@ -162,7 +151,7 @@ def tutte_embedding(V, F, weights: str = "uniform", boundary=None) -> np.ndarray
         raise ParameterError(
             f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
         )
-    V = _as_positions(V)
+    V = validate_vertices(V, "V")
     n = V.shape[0]
     F = _as_faces(F, n)
     if boundary is None:
@@ -214,10 +203,10 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     UV_scaled : (n, 2) float64 array
         ``s * UV`` with ``s = sqrt(rest area / signed map area)``.
     """
-    UV = _as_positions(UV, "UV")
+    UV = validate_vertices(UV, "UV")
     if UV.shape[1] != 2:
         raise MeshError(f"UV must be an array of shape (n, 2), got shape {UV.shape}")
-    V = _as_positions(V)
+    V = validate_vertices(V, "V")
     if V.shape[0] != UV.shape[0]:
         raise MeshError(f"UV has {UV.shape[0]} vertices but V has {V.shape[0]}")
     F = _as_faces(F, V.shape[0])

@@ -35,6 +35,12 @@ class Energy:
     rest_value: object = None
     name: str = "custom"
 
+    def __post_init__(self):
+        if not callable(self.density):
+            raise ParameterError(f"energy {self.name!r}: density must be a function psi(J, params), "
+                                 f"got {type(self.density).__name__}")
+        object.__setattr__(self, "params", _check_params(self.name, self.params))
+
     def with_params(self, **params) -> "Energy":
         """A copy with some parameters changed (validated)."""
         unknown = set(params) - set(self.params)
@@ -43,23 +49,32 @@ class Energy:
                 f"energy {self.name!r} has no parameter(s) {sorted(unknown)}; "
                 f"its parameters are {sorted(self.params)}"
             )
-        new = {**self.params, **{k: float(v) for k, v in params.items()}}
-        _check_params(self.name, new)
-        return dataclasses.replace(self, params=new)
+        return dataclasses.replace(self, params={**self.params, **params})
 
     def value_at_rest(self, d: int):
         rv = self.rest_value
         return rv(d) if callable(rv) else rv
 
 
-def _check_params(name, params):
-    for k, v in params.items():
-        if not math.isfinite(v):
+def _check_params(name, params) -> dict:
+    """``params`` as a dict of finite floats, with ``eps > 0`` and ``lam >= 0``; else ParameterError."""
+    try:
+        items = dict(params).items()
+    except (TypeError, ValueError):
+        raise ParameterError(f"energy {name!r}: params must map names to numbers, got {params!r}") from None
+    out = {}
+    for k, v in items:
+        try:
+            out[k] = float(v)
+        except (TypeError, ValueError):
+            raise ParameterError(f"energy {name!r}: parameter {k}={v!r} must be a number") from None
+        if not math.isfinite(out[k]):
             raise ParameterError(f"energy {name!r}: parameter {k}={v} must be finite")
-    if "eps" in params and not params["eps"] > 0:
-        raise ParameterError(f"energy {name!r}: eps={params['eps']} must be > 0")
-    if "lam" in params and params["lam"] < 0:
-        raise ParameterError(f"energy {name!r}: lam={params['lam']} must be >= 0")
+    if "eps" in out and not out["eps"] > 0:
+        raise ParameterError(f"energy {name!r}: eps={out['eps']} must be > 0 (e.g. 1e-3)")
+    if "lam" in out and out["lam"] < 0:
+        raise ParameterError(f"energy {name!r}: lam={out['lam']} must be >= 0")
+    return out
 
 
 dirichlet = Energy(_d.dirichlet, name="dirichlet", rest_value=lambda d: float(d))

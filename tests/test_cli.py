@@ -1,0 +1,345 @@
+"""The command line: exit status 0 only for a certified result that was written, 1 for a solve
+that did not certify (nothing written), 2 for bad input (one line, no traceback unless --debug).
+
+Most tests call :func:`geomopt.cli.main` in this process (the JIT-compiled kernels are reused
+between them); two run ``python -m geomopt`` to check the real entry point.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import geomopt.cli
+from geomopt import MeshFormatError, io
+from geomopt.predicates import count_inverted
+
+from conftest import cube_tets, grid
+
+V2, F = grid(4)  # 16 vertices, 18 triangles; vertices 5, 6, 9, 10 are interior
+V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]
+BOUNDARY = np.flatnonzero(((V2 == 0) | (V2 == 1)).any(axis=1))
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    """main() would point JAX's compilation cache at ~/.cache for the whole test process."""
+    monkeypatch.setattr(geomopt.cli, "_enable_compilation_cache", lambda: None)
+
+
+@pytest.fixture
+def cli(capsys):
+    def run(*argv):
+        code = geomopt.cli.main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+    return run
+
+
+def write_obj(path, V, faces, extra=""):
+    with open(path, "w") as fh:
+        fh.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in np.asarray(V, float).tolist())
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in np.asarray(faces).tolist())
+        fh.write(extra)
+    return path
+
+
+def one_error_line(err, *words):
+    """stderr is exactly one ``geomopt: error:`` line holding every word (no traceback)."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("geomopt: error: "), err
+    assert "Traceback" not in err
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]
+
+
+def read_uv_obj(path):
+    v, vt, f = [], [], []
+    for line in Path(path).read_text().splitlines():
+        t = line.split()
+        if t[0] == "v":
+            v.append([float(x) for x in t[1:]])
+        elif t[0] == "vt":
+            vt.append([float(x) for x in t[1:]])
+        elif t[0] == "f":
+            f.append([int(c.split("/")[0]) - 1 for c in t[1:]])
+    return np.array(v), np.array(vt), np.array(f)
+
+
+# ------------------------------------------------------------------ param: success
+
+
+def test_param_writes_a_certified_map_quietly_and_deterministically(cli, tmp_path):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    code, out, err = cli("param", mesh, "-o", tmp_path / "a.obj", "--quiet")
+    assert (code, out, err) == (0, "", "")
+    v, vt, f = read_uv_obj(tmp_path / "a.obj")
+    assert np.array_equal(v, V3) and np.array_equal(f, F) and vt.shape == (16, 2)
+    assert np.isfinite(vt).all() and count_inverted(vt, F) == 0
+    assert cli("param", mesh, "-o", tmp_path / "b.obj", "--quiet")[0] == 0
+    assert (tmp_path / "a.obj").read_bytes() == (tmp_path / "b.obj").read_bytes()
+    assert sorted(os.listdir(tmp_path)) == ["a.obj", "b.obj", "m.obj"]  # no temporary files
+
+
+# ------------------------------------------------------------------ param: bad input -> 2
+
+
+def _bad_meshes(tmp):
+    d = tmp / "folder.obj"
+    d.mkdir()
+    V = V3.copy()
+    V[5] = (V[1] + V[6]) / 2  # triangle 3 = [1, 6, 5] becomes flat
+    nan = V3.copy()
+    nan[3, 1] = np.nan
+    return {
+        "missing": (tmp / "nope.obj", ["does not exist"]),
+        "empty": (tmp / "empty.obj", ["is empty"]),
+        "directory": (d, ["is a directory"]),
+        "not a mesh": (tmp / "text.obj", ["contains no mesh"]),
+        "extension": (tmp / "mesh.xyz", ["unsupported extension '.xyz'", ".obj, .off, .ply, .stl"]),
+        "nan": (write_obj(tmp / "nan.obj", nan, F), ["1 vertices with NaN or infinite", "vertex 3"]),
+        "index": (write_obj(tmp / "oob.obj", V3, np.r_[F, [[0, 1, 40]]]), ["vertex that does not exist"]),
+        "repeated": (write_obj(tmp / "rep.obj", V3, np.r_[F, [[0, 0, 1]]]), ["use a vertex more than once"]),
+        "zero area": (write_obj(tmp / "flat.obj", V, F), ["1 rest triangle(s) have (near-)zero size", "[3]"]),
+        "non-manifold": (write_obj(tmp / "nm.obj", np.r_[V3, [[0.5, -0.5, 1.0], [0.5, -0.5, -1.0]]],
+                                   np.r_[F, [[1, 0, 16], [1, 0, 17]]]), ["1 non-manifold edges"]),
+        "components": (write_obj(tmp / "two.obj", np.r_[V3, V3 + [5.0, 0, 0]], np.r_[F, F + 16]),
+                       ["2 connected components"]),
+        "closed": (write_obj(tmp / "closed.obj", np.eye(4, 3, -1), [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]),
+                   ["closed surface"]),
+        "loops": (write_obj(tmp / "annulus.obj", V3, np.delete(F, [8, 9], axis=0)), ["2 boundary loops"]),
+    }
+
+
+def test_param_bad_input_is_one_line_exit_2_and_writes_nothing(cli, tmp_path):
+    (tmp_path / "empty.obj").write_bytes(b"")
+    (tmp_path / "text.obj").write_text("hello\nthis is not a mesh\n")
+    (tmp_path / "mesh.xyz").write_text("0 0 0\n")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    for case, (path, words) in _bad_meshes(tmp_path).items():
+        code, out, err = cli("param", path, "-o", out_dir / "uv.obj", "--quiet")
+        assert code == 2, case
+        one_error_line(err, *words)
+        assert os.listdir(out_dir) == [], case
+
+
+def test_param_unreadable_file(cli, tmp_path, monkeypatch):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    real = Path.read_bytes
+
+    def deny(self):
+        if self.name == "m.obj":
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "read_bytes", deny)  # chmod does not stop root
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")
+    assert code == 2
+    one_error_line(err, "cannot read mesh file", "Permission denied", "check its permissions")
+    assert not (tmp_path / "uv.obj").exists()
+
+
+def test_param_unknown_names_and_invalid_values(cli, tmp_path):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--energy", "sym_dir", "--quiet")
+    assert code == 2
+    one_error_line(err, "unknown energy 'sym_dir'", "valid energies: arap, dirichlet, garanzha, mips")
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--solver", "bfgs", "--quiet")
+    assert code == 2
+    one_error_line(err, "unknown solver 'bfgs'", "valid solvers:", "newton")
+    for bad in ("0", "-3", "ten"):
+        with pytest.raises(SystemExit) as info:
+            geomopt.cli.main(["param", str(mesh), "-o", str(tmp_path / "uv.obj"), "--max-steps", bad])
+        assert info.value.code == 2
+    assert os.listdir(tmp_path) == ["m.obj"]
+
+
+def test_param_output_that_cannot_be_written_fails_before_solving(cli, tmp_path, monkeypatch):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    monkeypatch.setattr("geomopt.param.parameterize", lambda *a, **k: pytest.fail("solved anyway"))
+    code, _, err = cli("param", mesh, "-o", tmp_path / "no" / "uv.obj", "--quiet")
+    assert code == 2
+    one_error_line(err, "the folder", "does not exist; create it first")
+    code, _, err = cli("param", mesh, "-o", tmp_path, "--quiet")
+    assert code == 2
+    one_error_line(err, "is a directory")
+    code, _, err = cli("param", mesh, "-o", mesh / "uv.obj", "--quiet")  # parent is a file
+    assert code == 2
+    one_error_line(err, "is not a directory")
+    assert os.listdir(tmp_path) == ["m.obj"]
+
+
+def test_param_write_failure_after_solving_leaves_nothing(cli, tmp_path, monkeypatch):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    real = io._write_rows
+
+    def disk_full(fh, prefix, A):
+        real(fh, prefix, A)  # part of the file is written...
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(io, "_write_rows", disk_full)
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")
+    assert code == 2
+    one_error_line(err, "could not write", "No space left on device", "nothing was written")
+    assert os.listdir(tmp_path) == ["m.obj"]  # neither the output nor a temporary file
+
+
+def test_param_debug_shows_the_exception(tmp_path):
+    with pytest.raises(MeshFormatError, match="does not exist"):
+        geomopt.cli.main(["param", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "x.obj"), "--debug"])
+
+
+def test_demo_output_that_is_a_file(cli, tmp_path):
+    (tmp_path / "out").write_text("a file\n")
+    code, _, err = cli("demo", "-o", tmp_path / "out", "--quiet")
+    assert code == 2
+    one_error_line(err, "cannot create the output folder")
+    assert (tmp_path / "out").read_text() == "a file\n"
+
+
+# ------------------------------------------------------------------ param: failed solve -> 1
+
+
+def test_param_solve_that_does_not_certify_exits_1_and_writes_nothing(cli, tmp_path):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    old = tmp_path / "uv.obj"
+    old.write_text("previous result\n")
+    code, _, err = cli("param", mesh, "-o", old, "--max-steps", "1", "--quiet")
+    assert code == 1
+    one_error_line(err, "not certified", "iteration limit", "nothing written")
+    assert old.read_text() == "previous result\n"
+    assert sorted(os.listdir(tmp_path)) == ["m.obj", "uv.obj"]
+
+
+# ------------------------------------------------------------------ untangle
+
+
+def lim2d(folder, init, handles, faces=F, rest=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    rest = np.c_[V2, np.zeros(len(V2))] if rest is None else rest
+    io.write_obj_with_uv(folder / "input.obj", rest, faces, init)
+    (folder / "handles.txt").write_text("".join(f"{int(h)}\n" for h in handles))
+    return folder
+
+
+def lim3d(folder, init=None, handles=None, tets=None, init_tets=None):
+    P, T = cube_tets(2)  # 27 vertices, vertex 13 is the only interior one
+    folder.mkdir(parents=True, exist_ok=True)
+    io.write_vtk_tets(folder / "rest.vtk", P, T if tets is None else tets)
+    io.write_vtk_tets(folder / "init.vtk", P if init is None else init, T if init_tets is None else init_tets)
+    handles = [i for i in range(27) if i != 13] if handles is None else handles
+    (folder / "handles.txt").write_text("".join(f"{h}\n" for h in handles))
+    return folder
+
+
+def folded_2d():
+    x = V2.copy()
+    x[5] = [0.9, 0.9]  # interior vertex thrown across: several triangles inverted
+    return x
+
+
+def test_untangle_2d_success_writes_a_certified_obj(cli, tmp_path):
+    case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
+    code, out, err = cli("untangle", case, "-o", tmp_path / "out.obj", "--quiet")
+    assert (code, err) == (0, "")
+    v, vt, f = read_uv_obj(tmp_path / "out.obj")
+    assert count_inverted(vt, f) == 0 and np.array_equal(vt[BOUNDARY], V2[BOUNDARY])
+    assert cli("untangle", case, "-o", tmp_path / "again.obj", "--quiet")[0] == 0
+    assert (tmp_path / "out.obj").read_bytes() == (tmp_path / "again.obj").read_bytes()
+
+
+def test_untangle_3d_success_writes_a_certified_vtk(cli, tmp_path):
+    P, T = cube_tets(2)
+    init = P.copy()
+    init[13] = [0.9, 0.9, 0.9]
+    case = lim3d(tmp_path / "case", init=init)
+    code, out, err = cli("untangle", case, "-o", tmp_path / "out.vtk", "--quiet")
+    assert (code, err) == (0, "")
+    Q, T2 = io.read_vtk_tets(tmp_path / "out.vtk")
+    assert np.array_equal(T2, T) and count_inverted(Q, T) == 0
+
+
+def test_untangle_that_cannot_certify_exits_1_and_writes_nothing(cli, tmp_path):
+    case = lim2d(tmp_path / "case", folded_2d(), np.arange(16))  # the folded vertex is fixed too
+    code, _, err = cli("untangle", case, "-o", tmp_path / "out.obj", "--quiet")
+    assert code == 1
+    one_error_line(err, "not certified", "nothing written")
+    assert not (tmp_path / "out.obj").exists()
+
+
+def _bad_cases(tmp):
+    P, T = cube_tets(2)
+    ok = folded_2d()
+    no_handles = lim2d(tmp / "no_handles", ok, BOUNDARY)
+    (no_handles / "handles.txt").unlink()
+    vt_short = lim2d(tmp / "vt_short", ok, BOUNDARY)
+    text = (vt_short / "input.obj").read_text().splitlines(keepends=True)
+    (vt_short / "input.obj").write_text("".join(line for i, line in enumerate(text) if i != 20))  # one vt less
+    non_tet = lim3d(tmp / "non_tet")
+    (non_tet / "init.vtk").write_text(
+        "# vtk DataFile Version 2.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 3 double\n"
+        "0 0 0\n1 0 0\n0 1 0\nCELLS 1 4\n3 0 1 2\nCELL_TYPES 1\n5\n")
+    (tmp / "empty").mkdir()
+    return {
+        "missing folder": (tmp / "nope", ".obj", ["does not exist"]),
+        "not a case": (tmp / "empty", ".obj", ["not a LIM case folder"]),
+        "no handles": (no_handles, ".obj", ["has no handles.txt"]),
+        "handles out of range": (lim2d(tmp / "oob", ok, [0, 1, 99]), ".obj", ["indices outside 0..15", "99"]),
+        "vt count": (vt_short, ".obj", ["16 'v' lines but 15 'vt' lines"]),
+        "point count": (lim3d(tmp / "points", init=P[:-1], init_tets=T[:-6]), ".vtk",
+                        ["rest.vtk has 27 points but init.vtk has 26"]),
+        "connectivity": (lim3d(tmp / "conn", init_tets=T[:, [0, 2, 1, 3]]), ".vtk", ["different connectivity"]),
+        "non-tet cells": (non_tet, ".vtk", ["non-tetrahedral cells (triangle)"]),
+        "collapsed 2D": (lim2d(tmp / "flat", np.zeros((16, 2)), BOUNDARY), ".obj",
+                         ["total signed area", "collapsed"]),
+        "mirrored 3D": (lim3d(tmp / "mirror", init=P * [-1.0, 1.0, 1.0]), ".vtk",
+                        ["total signed volume", "mirrored"]),
+        "wrong extension": (lim2d(tmp / "ext", ok, BOUNDARY), ".vtk", ["2D case", "must be a .obj file"]),
+    }
+
+
+@pytest.mark.parametrize("name", [
+    "missing folder", "not a case", "no handles", "handles out of range", "vt count", "point count",
+    "connectivity", "non-tet cells", "collapsed 2D", "mirrored 3D", "wrong extension",
+])
+def test_untangle_bad_input_is_one_line_exit_2(cli, tmp_path, name):
+    folder, ext, words = _bad_cases(tmp_path)[name]
+    out = tmp_path / "out" / f"result{ext}"
+    out.parent.mkdir()
+    code, _, err = cli("untangle", folder, "-o", out, "--quiet")
+    assert code == 2
+    one_error_line(err, *words)
+    assert os.listdir(out.parent) == []
+
+
+def test_untangle_unwritable_output_fails_before_solving(cli, tmp_path, monkeypatch):
+    case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
+    monkeypatch.setattr("geomopt.untangle.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
+    code, _, err = cli("untangle", case, "-o", tmp_path / "no" / "out.obj", "--quiet")
+    assert code == 2
+    one_error_line(err, "does not exist; create it first")
+    with pytest.raises(SystemExit) as info:
+        geomopt.cli.main(["untangle", str(case), "-o", str(tmp_path / "x.obj"), "--solver", "slim"])
+    assert info.value.code == 2
+
+
+# ------------------------------------------------------------------ the real entry point
+
+
+@pytest.mark.parametrize("command", ["param", "untangle"])
+def test_python_m_geomopt_bad_input_has_no_traceback(tmp_path, command):
+    env = {**os.environ, "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-m", "geomopt", command, str(tmp_path / "missing.obj"),
+                           "-o", str(tmp_path / "out.obj")], capture_output=True, text=True, env=env,
+                          timeout=120)
+    assert proc.returncode == 2
+    one_error_line(proc.stderr, "does not exist")
+    assert not (tmp_path / "out.obj").exists()
