@@ -95,9 +95,35 @@ def _lift_matrix(Minv):
     return jnp.concatenate([-jnp.sum(Minv, axis=1, keepdims=True), Minv], axis=1)
 
 
+def local_pairs(d):
+    """The element-local DOF pairs ``p <= q`` (DOF p = vertex a, coordinate c: p = a*d + c):
+    the element Hessian is symmetric, so only these are lifted and assembled."""
+    k = (d + 1) * d
+    p, q = np.triu_indices(k)
+    return p, q
+
+
+def _lift_upper(HJ, G):
+    """Entries ``p <= q`` (row-major upper triangle, as :func:`local_pairs`) of the element
+    Hessians ``Hx[m, a, c, b, e] = sum_jl G[m, a, j] HJ[m, c, j, e, l] G[m, b, l]``.
+
+    Written as broadcast products summed over the tiny axes j and l and static slices: XLA
+    fuses these into loops, 2.5x faster on CPU than ``einsum`` (batched small dot_general)
+    and 6x faster than gathering the pairs."""
+    m, d = G.shape[0], G.shape[2]
+    k = (d + 1) * d
+    T = sum(G[:, :, None, None, j, None] * HJ[:, None, :, j, :, :] for j in range(d))  # m a c e l
+    Hx = sum(T[:, :, :, None, :, l] * G[:, None, None, :, l, None] for l in range(d))  # m a c b e
+    Hx = Hx.reshape(m, k, k)
+    return jnp.concatenate([Hx[:, i, i:] for i in range(k)], axis=1)
+
+
 @partial(jax.jit, static_argnums=(0, 1, 2))
 def hessian_kernel(density, projection, nnz, geom, x, params, slots):
-    """Energy, gradient and the assembled CSC data of the projected Hessian."""
+    """Energy, gradient and the assembled lower-triangle CSC data of the projected Hessian.
+
+    Only the element pairs ``p <= q`` are formed (the element Hessian is symmetric); each goes
+    to the lower-triangle slot of its global (row, col)."""
     value, grad = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
     S, Minv, vol = geom
     m, k1 = S.shape
@@ -105,8 +131,7 @@ def hessian_kernel(density, projection, nnz, geom, x, params, slots):
     J = _jacobians(geom, x)
     HJ = jax.vmap(jax.hessian(density), in_axes=(0, None))(J, params).reshape(m, d * d, d * d)
     HJ = project_psd(HJ * vol[:, None, None], projection).reshape(m, d, d, d, d)
-    G = _lift_matrix(Minv)
-    Hx = jnp.einsum("mcjel,maj,mbl->macbe", HJ, G, G)  # (m, d+1, d, d+1, d)
+    Hx = _lift_upper(HJ, _lift_matrix(Minv))
     data = jnp.zeros(nnz + 1, Hx.dtype).at[slots].add(Hx.reshape(-1))[:nnz]
     return value, grad, data
 
@@ -116,12 +141,14 @@ def hessian_kernel(density, projection, nnz, geom, x, params, slots):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class HessianPattern:
-    """CSC pattern of the Hessian restricted to free DOFs (vertex-major: dof = v*d + c)."""
+    """CSC pattern of the lower triangle of the Hessian restricted to free DOFs
+    (vertex-major numbering: dof = v*d + c).  Sparse Cholesky backends read only the lower
+    triangle; :meth:`matrix` gives the full symmetric matrix."""
 
     n: int  # number of free DOFs
     indptr: np.ndarray
     indices: np.ndarray
-    slots: np.ndarray  # (m*((d+1)d)^2,) position of each element entry in data; nnz = dropped
+    slots: np.ndarray  # (m*P,) data position of each element pair p <= q; nnz = dropped
     free_dofs: np.ndarray  # (n,) global dof ids of free DOFs
     diag: np.ndarray  # (n,) data positions of the diagonal
 
@@ -129,8 +156,12 @@ class HessianPattern:
     def nnz(self) -> int:
         return len(self.indices)
 
-    def matrix(self, data) -> sp.csc_matrix:
+    def lower(self, data) -> sp.csc_matrix:
         return sp.csc_matrix((np.asarray(data), self.indices, self.indptr), shape=(self.n, self.n))
+
+    def matrix(self, data) -> sp.csc_matrix:
+        L = self.lower(data)
+        return (L + L.T - sp.diags(L.diagonal())).tocsc()
 
 
 def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
@@ -142,9 +173,10 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
     n = int(free.sum())
     dof = (problem.simplices[:, :, None] * d + np.arange(d)).reshape(len(problem.simplices), -1)
     r = red[dof]
-    rows = np.broadcast_to(r[:, :, None], r.shape + r.shape[1:]).reshape(-1)
-    cols = np.broadcast_to(r[:, None, :], r.shape + r.shape[1:]).reshape(-1)
-    valid = (rows >= 0) & (cols >= 0)
+    p, q = local_pairs(d)
+    rp, rq = r[:, p].reshape(-1), r[:, q].reshape(-1)
+    rows, cols = np.maximum(rp, rq), np.minimum(rp, rq)
+    valid = cols >= 0
     keys = cols[valid] * n + rows[valid]
     uniq, inv = np.unique(keys, return_inverse=True)
     slots = np.full(rows.shape, len(uniq), np.int64)

@@ -146,6 +146,12 @@ class Backtracking:
     shrink : float
         Backtracking factor.
     max_backtracks : int
+    expand : int
+        When the first trial is accepted, try up to this many doublings of the step while the
+        energy keeps decreasing (and, if injective, below the bound).  Projected Newton
+        overestimates curvature where it clamped negative eigenvalues and then converges
+        linearly with steps that are too short; doubling halved its iterations on bunny_cut
+        and armadillo_cut_low (151 -> 61, 149 -> 68 with the clamp projection).
     """
 
     injective: bool = True
@@ -153,6 +159,7 @@ class Backtracking:
     c1: float = 1e-4
     shrink: float = 0.5
     max_backtracks: int = 60
+    expand: int = 0
 
     def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
         """Return ``(t, x_new, value_new, n_evals)``; ``t == 0`` means failure."""
@@ -175,6 +182,19 @@ class Backtracking:
             vt = float(objective.value(xt, params))
             evals += 1
             if np.isfinite(vt) and vt <= value + self.c1 * t * slope:
+                if t == t0:
+                    # the full step was accepted: try longer ones while the energy keeps falling
+                    for _ in range(self.expand):
+                        t2 = 2.0 * t
+                        if self.injective:
+                            if t2 >= self.safety * tmax or not bool(_still_positive(S, x, dx, t2, was_positive)):
+                                break
+                        x2 = x + t2 * dx
+                        v2 = float(objective.value(x2, params))
+                        evals += 1
+                        if not (np.isfinite(v2) and v2 < vt):
+                            break
+                        t, xt, vt = t2, x2, v2
                 return t, xt, vt, evals
             t *= self.shrink
         return 0.0, x, value, evals

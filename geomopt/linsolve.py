@@ -44,11 +44,12 @@ def available_backends():
 
 
 class SparseCholesky:
-    """Factor ``A + shift*I`` for matrices sharing one CSC pattern, then solve.
+    """Factor symmetric positive-definite matrices sharing one CSC pattern (lower triangle), then
+    solve.
 
     Parameters
     ----------
-    indptr, indices : the CSC pattern (full symmetric, sorted row indices per column).
+    indptr, indices : the CSC pattern of the lower triangle (sorted row indices per column).
     backend : one of ``BACKENDS``.
     """
 
@@ -104,8 +105,9 @@ class SparseCholesky:
             except (RuntimeError, ValueError) as exc:
                 raise NotPositiveDefinite(str(exc)) from exc
         else:
+            L = self._csc(data)
             try:
-                self._factor = spla.splu(self._csc(data), permc_spec="MMD_AT_PLUS_A",
+                self._factor = spla.splu((L + L.T - sp.diags(L.diagonal())).tocsc(), permc_spec="MMD_AT_PLUS_A",
                                          diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             except RuntimeError as exc:
                 raise NotPositiveDefinite(str(exc)) from exc

@@ -28,8 +28,9 @@ class Newton(AbstractSolver):
         Hessian of elements that are indefinite there (symmetric Dirichlet has many), so
         ``adaptive`` clamps while far from the minimum and, once a full step was accepted and
         the decrement is below ``exact_below * |E|``, factors the *unprojected* Hessian: at a
-        strict minimum it is positive definite and Newton converges quadratically; if the
-        factorization fails (indefinite), it falls back to clamping for a few iterations.
+        strict minimum it is positive definite and Newton converges quadratically.  The exact
+        Hessian gets a Levenberg-Marquardt shift, relaxed after full steps and stiffened after
+        cut ones; if it does not factor (indefinite), clamping resumes for two iterations.
     linear_solver : a :data:`~geomopt.linsolve.BACKENDS` name.
     rtol : stop when the Newton decrement ``-g.d/2`` or the energy decrease is below
         ``rtol * |E|``.
@@ -45,7 +46,7 @@ class Newton(AbstractSolver):
     rtol: float = 1e-10
     max_steps: int = 200
     regularization: float = 1e-9
-    line_search: Backtracking = Backtracking()
+    line_search: Backtracking = Backtracking(expand=3)
 
     def init(self, objective, x0, params) -> State:
         x = jnp.asarray(x0)
@@ -63,7 +64,7 @@ class Newton(AbstractSolver):
     def _projection(self, state):
         if self.projection != "adaptive":
             return self.projection
-        if state is None or state.aux["cooldown"] > 0 or state.step_size != 1.0:
+        if state is None or state.aux["cooldown"] > 0 or not state.step_size >= 1.0:
             return "clamp"
         return "none" if state.decrement <= self.exact_below * abs(state.value) else "clamp"
 
@@ -93,9 +94,10 @@ class Newton(AbstractSolver):
         if projection == "none":
             # Levenberg-Marquardt on the exact Hessian: the smallest shift that factors
             mu = max(aux.get("mu", reg), reg)
-            value, grad, g, d_free, used = self._direction(state, "none", [mu, 1e2 * mu, 1e4 * mu])
-            if d_free is None:
-                aux["cooldown"], aux["mu"] = 2, 1e6 * mu
+            value, grad, g, d_free, used = self._direction(state, "none", [mu, 1e2 * mu])
+            exact = d_free is not None
+            if not exact:
+                aux["cooldown"], aux["mu"] = 2, 1e4 * mu
             else:
                 aux["mu"] = used
         if projection != "none" or d_free is None:
@@ -109,14 +111,9 @@ class Newton(AbstractSolver):
         decrement = 0.5 * float(-g @ d_free)
         t, xn, vn, _ = self.line_search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
-        if projection == "none" and d_free is not None:
-            # trust-region-like damping from the ratio of actual to predicted decrease
-            predicted = decrement * t * (2.0 - t)
-            rho = (value - vn) / predicted if predicted > 0 else 0.0
-            if rho > 0.75:
-                aux["mu"] = max(aux["mu"] / 10, reg)
-            elif rho < 0.25:
-                aux["mu"] = aux["mu"] * 10
+        if projection == "none" and exact:
+            # trust-region-like damping: relax after a full (or longer) step, stiffen after a cut
+            aux["mu"] = max(aux["mu"] / 10, reg) if t >= 1.0 else aux["mu"] * 10
         if t == 0.0:
             if decrement <= self.rtol * max(abs(value), 1e-300) * 100:
                 # already at the minimum up to rounding
