@@ -6,7 +6,7 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from . import energies, io  # noqa: E402
+from . import energies, io, predicates  # noqa: E402
 from ._errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError  # noqa: E402
 from ._objective import Objective  # noqa: E402
 from .param import parameterize  # noqa: E402
@@ -17,5 +17,5 @@ from .tutte import tutte_embedding  # noqa: E402
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
     "Objective", "Problem", "Newton", "Outcome", "Result", "minimize", "parameterize",
-    "tutte_embedding", "energies", "io",
+    "tutte_embedding", "energies", "io", "predicates",
 ]

@@ -36,6 +36,12 @@ def _cof_sq(J):
     return jnp.sum(c * c)
 
 
+def _pow_2_over_d(c, d):
+    """``c^(2/d)`` for ``c > 0`` without ``pow``: XLA on CPU does not vectorise ``pow`` and its
+    derivative (the untangling gradient was ~4x slower with it)."""
+    return c if d == 2 else jnp.exp((2.0 / 3.0) * jnp.log(c))
+
+
 def _barrier(D, value_fn):
     """``value_fn(D_safe)`` where ``D > 0``, ``+inf`` elsewhere, with finite gradients."""
     ok = D > 0
@@ -59,7 +65,7 @@ def mips(J, params):
     the AMIPS conformal term of Fu et al. 2015 in 3D); ``d`` at any similarity."""
     d = J.shape[-1]
     D = _det(J)
-    return _barrier(D, lambda Ds: jnp.sum(J * J) / Ds ** (2.0 / d))
+    return _barrier(D, lambda Ds: jnp.sum(J * J) / _pow_2_over_d(Ds, d))
 
 
 def winslow(J, params):
@@ -119,4 +125,4 @@ def garanzha(J, params):
     d = J.shape[-1]
     D = _det(J)
     c = chi(D, params["eps"])
-    return jnp.sum(J * J) / c ** (2.0 / d) + params["lam"] * (D * D + 1.0) / c
+    return jnp.sum(J * J) / _pow_2_over_d(c, d) + params["lam"] * (D * D + 1.0) / c
