@@ -16,7 +16,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-import geomopt
 from geomopt import GeomoptError, MeshError, Objective, Outcome, ParameterError, Problem, SolveError
 from geomopt import minimize, parameterize
 from geomopt.energies import REGISTRY, Energy, get_energy

@@ -1,11 +1,12 @@
 """Solvers over one interface: ``init / step / terminate`` driven by :func:`minimize`."""
 
 from ._base import AbstractSolver, Outcome, Progress, Result, State, minimize
+from .lbfgs import LBFGS
 from .newton import Newton
 
 from .._errors import ParameterError
 
-SOLVERS = {"newton": Newton}
+SOLVERS = {"newton": Newton, "lbfgs": LBFGS}
 
 
 def get_solver(name_or_solver):
@@ -18,4 +19,4 @@ def get_solver(name_or_solver):
     return SOLVERS[key]()
 
 
-__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "Outcome", "Progress", "Result", "State", "minimize", "Newton"]
+__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "Outcome", "Progress", "Result", "State", "minimize", "Newton", "LBFGS"]

@@ -1,0 +1,344 @@
+"""Synthetic meshes and tangled maps with fixed boundaries, for tests and benchmarks.
+
+Meshes (plain NumPy, every element positively oriented):
+
+* :func:`square_mesh` — a triangulated square grid;
+* :func:`disk_mesh` — a disk of concentric rings (``6 r`` vertices on ring ``r``), whose
+  boundary vertices are joined only to their boundary neighbours and to the next ring, so
+  that no triangle or interior edge has all its vertices on the boundary;
+* :func:`box_mesh` — a box of ``nx x ny x nz`` cubes, 6 tetrahedra each (Kuhn).
+
+Tangles — each returns a :class:`Tangle` (rest mesh, start map, fixed vertices) whose fixed
+vertices are the boundary, and for which an injective map exists:
+
+* :func:`rotated_interior` — interior vertices rotated about the centre (2D, or 3D about z);
+* :func:`noisy_interior` — interior vertices displaced by random noise of a few edge lengths;
+* :func:`tutte_nonconvex` — a disk's boundary mapped to a star / L-shaped / crescent polygon
+  and the interior by Tutte's barycentric embedding (flips near reflex corners);
+* :func:`random_interior` — interior vertices scattered uniformly over the bounding box;
+* :func:`twisted_box` — a rod or cube whose boundary is twisted about its axis while the
+  interior stays at rest;
+* :func:`bent_box` — a rod whose boundary is bent into an arc, interior at rest (the
+  interior sticks out of the bent boundary, as in the LIM deformation groups).
+
+These reproduce the families of the LIM benchmark (Du et al. 2020) that are not shipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ._errors import ParameterError
+
+__all__ = [
+    "Tangle", "square_mesh", "disk_mesh", "box_mesh", "boundary_vertices",
+    "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex", "twisted_box",
+    "bent_box",
+    "polygon", "POLYGONS",
+]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Tangle:
+    """A rest mesh, a (tangled) start map and its fixed vertices.
+
+    Attributes
+    ----------
+    name : str
+    rest : (n, d) rest positions.
+    simplices : (m, d+1) triangles (d=2) or tetrahedra (d=3), positively oriented at rest.
+    x0 : (n, d) start map; ``x0[fixed]`` are the prescribed handle positions.
+    fixed : (k,) int64 vertex ids.
+    """
+
+    name: str
+    rest: np.ndarray
+    simplices: np.ndarray
+    x0: np.ndarray
+    fixed: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.rest.shape[1]
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.simplices)
+
+    def problem(self):
+        """The :class:`~geomopt.problem.Problem` (planar or tets) with the handles fixed."""
+        from .problem import Problem
+
+        make = Problem.planar if self.dim == 2 else Problem.tets
+        return make(self.rest, self.simplices, self.fixed, self.x0[self.fixed])
+
+    def inverted(self) -> int:
+        """Elements of ``x0`` that are not positively oriented (exact predicate)."""
+        from .predicates import count_inverted
+
+        return count_inverted(self.x0, self.simplices)
+
+
+# ------------------------------------------------------------------------------ meshes
+
+
+def _orient(V, S):
+    """Reorder simplices so that each is positively oriented."""
+    E = V[S[:, 1:]] - V[S[:, :1]]
+    det = np.linalg.det(E)
+    S = S.copy()
+    S[det < 0] = S[det < 0][:, [0, 2, 1] + list(range(3, S.shape[1]))]
+    return S
+
+
+def square_mesh(n: int, size: float = 1.0):
+    """An ``n x n``-vertex grid on ``[0, size]^2``, each cell split along the same diagonal.
+
+    Returns ``V`` (n^2, 2), ``F`` (2 (n-1)^2, 3)."""
+    if n < 2:
+        raise ParameterError(f"square_mesh needs n >= 2, got {n}")
+    t = np.linspace(0.0, size, n)
+    X, Y = np.meshgrid(t, t, indexing="xy")
+    V = np.stack([X.ravel(), Y.ravel()], 1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="xy")
+    a = (j * n + i).ravel()
+    b, c, d = a + 1, a + n, a + n + 1
+    F = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    return V, _orient(V, F.astype(np.int64))
+
+
+def disk_mesh(rings: int, radius: float = 1.0):
+    """A unit disk of ``rings`` concentric rings: ``1 + 3 R (R + 1)`` vertices, ``6 R^2`` triangles.
+
+    Ring ``r`` holds ``6 r`` equally spaced vertices; consecutive rings are zipped by angle.
+    The boundary (last ring) vertices are the last ``6 R`` ones.  Returns ``V`` (n, 2), ``F``."""
+    if rings < 1:
+        raise ParameterError(f"disk_mesh needs rings >= 1, got {rings}")
+    V = [np.zeros((1, 2))]
+    start = [0]
+    F = []
+    count = 1
+    for r in range(1, rings + 1):
+        k = 6 * r
+        ang = 2 * np.pi * (np.arange(k) + 0.5 * (r % 2)) / k
+        V.append(radius * r / rings * np.stack([np.cos(ang), np.sin(ang)], 1))
+        start.append(count)
+        count += k
+    V = np.concatenate(V)
+    F.extend([[0, 1 + j, 1 + (j + 1) % 6] for j in range(6)])
+    for r in range(2, rings + 1):
+        inner, outer = 6 * (r - 1), 6 * r
+        ai = 2 * np.pi * (np.arange(inner) + 0.5 * ((r - 1) % 2)) / inner
+        ao = 2 * np.pi * (np.arange(outer) + 0.5 * (r % 2)) / outer
+        # merge the two rings by angle (unwrapped so both start at the same angle)
+        i = o = 0
+        si, so = start[r - 1], start[r]
+        base = min(ai[0], ao[0])
+        while i < inner or o < outer:
+            ni = ai[(i + 1) % inner] + (2 * np.pi if i + 1 >= inner else 0.0)
+            no = ao[(o + 1) % outer] + (2 * np.pi if o + 1 >= outer else 0.0)
+            if o < outer and (i >= inner or no - base <= ni - base):
+                F.append([si + i % inner, so + o % outer, so + (o + 1) % outer])
+                o += 1
+            else:
+                F.append([si + i % inner, so + o % outer, si + (i + 1) % inner])
+                i += 1
+    return V, _orient(V, np.asarray(F, dtype=np.int64))
+
+
+def box_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
+    """A box of ``nx ny nz`` cubes, each split into 6 tetrahedra around its main diagonal.
+
+    Returns ``V`` ((nx+1)(ny+1)(nz+1), 3), ``T`` (6 nx ny nz, 4)."""
+    if min(nx, ny, nz) < 1:
+        raise ParameterError(f"box_mesh needs positive sizes, got {(nx, ny, nz)}")
+    axes = [np.linspace(0.0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
+    V = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
+    ci, cj, ck = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
+    T = []
+    for perm in [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]:
+        c = [ci.copy(), cj.copy(), ck.copy()]
+        tet = [idx[c[0], c[1], c[2]]]
+        for axis in perm:
+            c[axis] = c[axis] + 1
+            tet.append(idx[c[0], c[1], c[2]])
+        T.append(np.stack(tet, 1))
+    return V, _orient(V, np.concatenate(T).astype(np.int64))
+
+
+def boundary_vertices(S, n: int) -> np.ndarray:
+    """Sorted ids of the vertices on the boundary (faces used by one element) of a triangle
+    or tet mesh ``S`` (m, 3 or 4)."""
+    S = np.asarray(S)
+    k = S.shape[1]
+    faces = np.concatenate([np.delete(S, i, axis=1) for i in range(k)])
+    faces = np.sort(faces, axis=1)
+    uniq, counts = np.unique(faces, axis=0, return_counts=True)
+    on = np.zeros(n, bool)
+    on[uniq[counts == 1].ravel()] = True
+    return np.flatnonzero(on)
+
+
+def _mean_edge(V, S):
+    k = S.shape[1]
+    e = [np.linalg.norm(V[S[:, i]] - V[S[:, j]], axis=1) for i in range(k) for j in range(i + 1, k)]
+    return float(np.mean(np.concatenate(e)))
+
+
+# ------------------------------------------------------------------------------ tangles
+
+
+def rotated_interior(V, S, angle_deg: float, name: str | None = None) -> Tangle:
+    """Rotate every interior vertex about the bounding-box centre by ``angle_deg`` (about z
+    in 3D); the boundary is fixed.  The rest mesh itself is the injective solution."""
+    V = np.asarray(V, dtype=np.float64)
+    fixed = boundary_vertices(S, len(V))
+    free = np.ones(len(V), bool)
+    free[fixed] = False
+    c = 0.5 * (V.min(0) + V.max(0))
+    a = np.deg2rad(angle_deg)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    x0 = V.copy()
+    x0[free, :2] = (V[free, :2] - c[:2]) @ R.T + c[:2]
+    return Tangle(name or f"rotated{angle_deg:g}", V, np.asarray(S), x0, fixed)
+
+
+def noisy_interior(V, S, scale: float = 2.0, seed: int = 0, name: str | None = None) -> Tangle:
+    """Displace every interior vertex by Gaussian noise of standard deviation ``scale`` mean
+    edge lengths; the boundary is fixed."""
+    V = np.asarray(V, dtype=np.float64)
+    fixed = boundary_vertices(S, len(V))
+    free = np.ones(len(V), bool)
+    free[fixed] = False
+    rng = np.random.default_rng(seed)
+    x0 = V.copy()
+    x0[free] += scale * _mean_edge(V, np.asarray(S)) * rng.standard_normal((free.sum(), V.shape[1]))
+    return Tangle(name or f"noise{scale:g}", V, np.asarray(S), x0, fixed)
+
+
+def random_interior(V, S, seed: int = 0, name: str | None = None) -> Tangle:
+    """Scatter every interior vertex uniformly over the bounding box; the boundary is fixed."""
+    V = np.asarray(V, dtype=np.float64)
+    fixed = boundary_vertices(S, len(V))
+    free = np.ones(len(V), bool)
+    free[fixed] = False
+    rng = np.random.default_rng(seed)
+    lo, hi = V.min(0), V.max(0)
+    x0 = V.copy()
+    x0[free] = lo + (hi - lo) * rng.random((free.sum(), V.shape[1]))
+    return Tangle(name or "random", V, np.asarray(S), x0, fixed)
+
+
+POLYGONS = ("star", "L", "crescent")
+
+
+def polygon(shape: str, arms: int = 5, depth: float = 0.5) -> np.ndarray:
+    """Corners (k, 2) of a simple counter-clockwise polygon: ``"star"`` (``arms`` points,
+    inner radius ``1 - depth``), ``"L"`` (unit square minus a quadrant) or ``"crescent"``."""
+    if shape == "star":
+        a = np.pi / 2 + np.pi * np.arange(2 * arms) / arms
+        r = np.where(np.arange(2 * arms) % 2 == 0, 1.0, 1.0 - depth)
+        return np.stack([r * np.cos(a), r * np.sin(a)], 1)
+    if shape == "L":
+        return np.array([[0, 0], [1, 0], [1, 0.5], [0.5, 0.5], [0.5, 1], [0, 1]], dtype=np.float64)
+    if shape == "crescent":
+        # the unit disk minus a disk of radius 0.7 centred at (0.5, 0); tips at (0.76, +-0.65)
+        tip = np.arctan2(0.65, 0.76)
+        t = np.linspace(tip, 2 * np.pi - tip, 24)
+        outer = np.stack([np.cos(t), np.sin(t)], 1)
+        a = np.arctan2(-0.65, 0.76 - 0.5) % (2 * np.pi)  # inner circle, from the lower tip ...
+        b = np.arctan2(0.65, 0.76 - 0.5)  # ... clockwise through its leftmost point to the upper tip
+        u = np.linspace(a, b, 18)[1:-1]
+        inner = 0.7 * np.stack([np.cos(u), np.sin(u)], 1) + [0.5, 0.0]
+        return np.concatenate([outer, inner])
+    raise ParameterError(f"unknown polygon {shape!r}; valid: {', '.join(POLYGONS)}")
+
+
+def _on_polygon(P, s):
+    """Points at arc-length fractions ``s`` (k,) in [0, 1) along the closed polygon P."""
+    seg = np.roll(P, -1, axis=0) - P
+    L = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(L)]) / L.sum()
+    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(P) - 1)
+    t = (s - cum[i]) / (cum[i + 1] - cum[i])
+    return P[i] + t[:, None] * seg[i]
+
+
+def tutte_nonconvex(rings: int, shape: str = "star", arms: int = 5, depth: float = 0.5,
+                    name: str | None = None) -> Tangle:
+    """A :func:`disk_mesh` whose boundary is mapped onto a non-convex polygon (by angle along the
+    boundary ring, so every polygon corner gets a vertex) and whose interior is placed by
+    Tutte's embedding with uniform weights: triangles near reflex corners fold over."""
+    V, F = disk_mesh(rings)
+    n = len(V)
+    nb = 6 * rings
+    loop = np.arange(n - nb, n)  # the outer ring, counter-clockwise by construction
+    P = polygon(shape, arms, depth)
+    # snap polygon corners to boundary vertices: distribute vertices per edge by length
+    seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
+    counts = np.maximum(1, np.floor(nb * seg / seg.sum()).astype(int))
+    while counts.sum() > nb:
+        counts[np.argmax(counts)] -= 1
+    while counts.sum() < nb:
+        counts[np.argmax(seg / counts)] += 1
+    pts = []
+    for k in range(len(P)):
+        t = np.arange(counts[k]) / counts[k]
+        pts.append(P[k] + t[:, None] * (P[(k + 1) % len(P)] - P[k]))
+    B = np.concatenate(pts)
+    # keep the rotation of the ring: the first boundary vertex has the smallest angle
+    x0 = np.zeros((n, 2))
+    x0[loop] = B
+    # Tutte: uniform weights on the mesh graph
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
+    A = ((A + A.T) > 0).astype(np.float64)
+    deg = np.asarray(A.sum(1)).ravel()
+    interior = np.arange(n - nb)
+    L = sp.diags(deg) - A
+    Lii = L[interior][:, interior].tocsc()
+    rhs = -(L[interior][:, loop] @ B)
+    x0[interior] = spla.splu(Lii).solve(rhs)
+    # rest: the disk scaled to the polygon's area, so the untangled map is area-balanced
+    area_poly = 0.5 * np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1])
+    V = V * np.sqrt(abs(area_poly) / np.pi)
+    return Tangle(name or f"tutte-{shape}", V, F, x0, loop.astype(np.int64))
+
+
+def twisted_box(n_cross: int, n_long: int, turns: float = 0.5, name: str | None = None) -> Tangle:
+    """A rod (``n_long > n_cross``) or cube of :func:`box_mesh` tets along z whose boundary is
+    twisted about the z axis by ``turns * 360`` degrees (linearly along z), interior at rest.
+    The twisted rest mesh is the injective solution when the twist per layer is moderate."""
+    V, T = box_mesh(n_cross, n_cross, n_long, size=(1.0, 1.0, n_long / n_cross))
+    fixed = boundary_vertices(T, len(V))
+    z = V[:, 2] / V[:, 2].max()
+    a = 2 * np.pi * turns * z
+    c = np.array([0.5, 0.5])
+    x0 = V.copy()
+    d = V[fixed, :2] - c
+    ca, sa = np.cos(a[fixed]), np.sin(a[fixed])
+    x0[fixed, 0] = c[0] + ca * d[:, 0] - sa * d[:, 1]
+    x0[fixed, 1] = c[1] + sa * d[:, 0] + ca * d[:, 1]
+    return Tangle(name or f"twist{turns:g}", V, T, x0, fixed)
+
+
+def bent_box(n_cross: int, n_long: int, angle_deg: float = 180.0, name: str | None = None) -> Tangle:
+    """A rod of :func:`box_mesh` tets along z whose boundary is bent about the y axis into an
+    arc of ``angle_deg`` degrees (the rod's centre line keeps its length), interior at rest.
+    The bent rest mesh is the injective solution when the bend radius exceeds the thickness."""
+    V, T = box_mesh(n_cross, n_cross, n_long, size=(1.0, 1.0, n_long / n_cross))
+    fixed = boundary_vertices(T, len(V))
+    length = V[:, 2].max()
+    phi = np.deg2rad(angle_deg)
+    R = length / phi  # radius of the centre line (x = 0.5)
+    theta = V[fixed, 2] / R
+    r = R + (V[fixed, 0] - 0.5)
+    x0 = V.copy()
+    x0[fixed, 0] = 0.5 - R + r * np.cos(theta)
+    x0[fixed, 2] = r * np.sin(theta)
+    return Tangle(name or f"bend{angle_deg:g}", V, T, x0, fixed)

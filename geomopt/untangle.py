@@ -1,0 +1,575 @@
+"""Untangling: Garanzha et al.'s regularised energy with an eps-driving outer loop.
+
+V. Garanzha, I. Kaporin, L. Kudryavtseva, F. Protais, N. Ray, D. Sokolov, "Foldover-free maps
+in 50 lines of code", ACM Trans. Graph. 40(4), 2021.
+
+Given a (possibly tangled) map with fixed handles, minimise
+
+    E_eps(x) = sum_e vol_e * ( |J|^2 / chi(det J, eps)^(2/d) + lam (det J^2 + 1) / chi(det J, eps) )
+
+(``geomopt.energies.garanzha``; the paper's code normalises it as ``(1-theta) f + theta g``,
+the same up to the factor ``1 - theta``) at fixed ``eps`` with an inner solver, then shrink
+``eps`` from the worst determinant ``D-``: with ``sigma = clip(1 - E/E_prev, min_sigma,
+max_sigma)`` and ``mu = (1 - sigma) chi(D-, eps)``, ``eps = 2 sqrt(mu (mu - D-))`` when
+``D- < mu`` (so that ``chi(D-, eps_new) = mu``), else a tiny floor.  Stop when every element
+is positively oriented and the energy changed by less than ``1e-5`` (relative) during the last
+inner solve.  ``theta`` weighs shape against area, ``lam = theta / (1 - theta)``: 1/128 in 2D
+and 1/2 in 3D as in the paper's code, whose initial ``eps`` is 1.
+
+Departures from the paper's code, each measured on the LIM sample and on generated tangles
+(see ``benchmarks/untangle.py`` and the issue notes):
+
+* ``sigma`` is clipped to ``[0.5, 0.5]`` instead of ``[0.1, 1]``: the paper's floor 0.1
+  takes 5x more outer iterations (64 vs 12 on WeberZorin14_fig19), and without a cap a first
+  inner solve that lowers the energy a lot sends ``eps`` to ~0 while elements are still
+  folded, after which the loop stalls (a random-interior disk never untangled);
+* the inner L-BFGS uses the M1QN3 diagonal seed, a loose tolerance (``1e-6``) and keeps its
+  curvature pairs across outer iterations (2-5x fewer energy evaluations in total);
+* the density is evaluated without ``pow`` (not vectorised by XLA on CPU).
+
+Before solving, the map is scaled by a power of two to a box of size ~10 (exact, so scaling
+back is exact too) and the rest mesh so that its volume equals the map's: the mean
+determinant is then 1 and ``eps0 = 1`` is meaningful whatever the input units.  In 2D, rest
+triangles with an aspect ratio above 10 are replaced by equilateral ones, as the paper's code
+does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
+``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
+at the end (bit-exact), and the result is certified with the exact orientation predicate
+(:mod:`geomopt.predicates`).
+
+``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
+once per mesh shape.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from functools import partial
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import MeshError, ParameterError, SolveError
+from ._objective import Objective, _jacobians, _total
+from .energies import garanzha
+from .energies._densities import _det
+from .linesearch import Backtracking
+from .problem import Problem
+from .solvers._base import AbstractSolver, Outcome
+from .solvers.lbfgs import LBFGS
+from .solvers.newton import Newton
+
+__all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
+           "default_solver"]
+
+BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
+EPS_FLOOR = {2: 1e-9, 3: 1e-10}
+
+
+LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
+
+
+def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
+    """The inner solver :func:`untangle` uses for ``"lbfgs"`` or ``"newton"``.
+
+    ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
+    (:class:`~geomopt.solvers.LBFGS` ``precondition="laplacian"``) from there on.  Measured
+    (warm seconds, diagonal -> Laplacian): ~1e5 elements: rotated square 104 -> 58, Tutte
+    L / star 27 -> 11 / 19 -> 11, bent rod 43 -> 13, twisted cube 12.6 -> 6.1, noisy disk
+    1.3 -> 3.0; the LIM armadillo (24k tets) 0.66 -> 1.04 and 2D cases of ~1e4 triangles
+    were slower or even with it (its host solves cost more than the iterations they save)."""
+    key = str(name).strip().lower()
+    if key == "lbfgs":
+        return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 else 3000,
+                     line_search=Backtracking(injective=False),
+                     precondition="laplacian" if n_elements >= LAPLACIAN_FROM else "diagonal")
+    if key == "newton":
+        return Newton(projection="clamp", rtol=1e-7, max_steps=100,
+                      line_search=Backtracking(injective=False))
+    raise ParameterError(f"unknown untangling solver {name!r}; valid: 'lbfgs', 'newton' or a solver object")
+
+
+@dataclasses.dataclass(frozen=True)
+class UntangleResult:
+    """The outcome of :func:`untangle`.
+
+    Attributes
+    ----------
+    x : (n, d) ndarray, the map; handles bit-identical to ``problem.fixed_positions``.
+    outcome : :class:`~geomopt.solvers.Outcome`.
+    inverted : int, elements not positively oriented in ``x`` (exact predicate).
+    initially_inverted : int, the same for the start map.
+    handles_moved : int, handles whose position differs from the prescribed one in any bit.
+    outer_iterations, inner_iterations : int.
+    seconds : time of the outer loop;  setup_seconds : scaling, kernels' compilation, solver setup.
+    min_det_rel : smallest signed area/volume of ``x`` divided by the mean absolute one.
+    energy_history, eps_history, min_det_history, inverted_history : (outer_iterations,) arrays,
+        the (scaled-domain) energy, eps used, worst det J and float-inverted count after each
+        outer iteration.
+    info : dict, extra data (scale factors, theta, solver...).
+    """
+
+    x: np.ndarray
+    outcome: Outcome
+    inverted: int
+    initially_inverted: int
+    handles_moved: int
+    outer_iterations: int
+    inner_iterations: int
+    seconds: float
+    setup_seconds: float
+    min_det_rel: float
+    energy_history: np.ndarray
+    eps_history: np.ndarray
+    min_det_history: np.ndarray
+    inverted_history: np.ndarray
+    info: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        """Converged, no inverted element (exact) and every handle exactly in place."""
+        return self.outcome is Outcome.CONVERGED and self.inverted == 0 and self.handles_moved == 0
+
+    @property
+    def message(self) -> str:
+        msg = self.info.get("reason") or self.outcome.message
+        if self.inverted:
+            msg += f"; {self.inverted} inverted element(s)"
+        if self.handles_moved:
+            msg += f"; {self.handles_moved} handle(s) moved"
+        return msg
+
+
+# --------------------------------------------------------------------- kernels
+
+
+
+
+@partial(jax.jit, static_argnums=0)
+def _outer_stats(density, geom, x, params):
+    """(energy over all elements, min det J, #elements with det J <= 0)."""
+    D = jax.vmap(_det)(_jacobians(geom, x))
+    return _total(density, geom, x, params), jnp.min(D), jnp.sum(D <= 0)
+
+
+# --------------------------------------------------------------------- helpers
+
+
+def _aspect_ratio(P):
+    """(m,) aspect ratio ``lmax (l1+l2+l3) / (4 sqrt(3) area)`` of triangles P (m, 3, k); 1 = equilateral."""
+    l = np.linalg.norm(P[:, [1, 2, 0]] - P, axis=2)
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    if P.shape[2] == 2:
+        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    else:
+        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return l.max(1) * l.sum(1) / (4.0 * np.sqrt(3.0) * area)
+
+
+def _equilateral_rest(problem: Problem, max_aspect: float) -> Problem:
+    """Replace rest triangles with aspect ratio above ``max_aspect`` by equilateral ones with the
+    mean edge length (as Garanzha et al.'s 2D code does).  Triangles only."""
+    P = problem.rest_vertices[problem.simplices]
+    ar = _aspect_ratio(P)
+    bad = ar > max_aspect
+    if not bad.any():
+        return problem
+    a = np.linalg.norm(P[bad][:, [1, 2, 0]] - P[bad], axis=2).mean(1)
+    Dm = np.zeros((bad.sum(), 2, 2))
+    Dm[:, 0, 0] = a
+    Dm[:, 0, 1] = 0.5 * a
+    Dm[:, 1, 1] = 0.5 * np.sqrt(3.0) * a
+    rest_inv, vol = problem.rest_inv.copy(), problem.volumes.copy()
+    rest_inv[bad] = np.linalg.inv(Dm)
+    vol[bad] = np.sqrt(3.0) / 4.0 * a * a
+    return dataclasses.replace(problem, rest_inv=rest_inv, volumes=vol)
+
+
+def _chi_scalar(D: float, eps: float) -> float:
+    """``geomopt.energies.chi`` for Python floats (cancellation-free for ``D <= 0``)."""
+    r = math.sqrt(eps * eps + D * D)
+    return 0.5 * (D + r) if D > 0 else eps * eps / (2.0 * (r - D))
+
+
+def _power_of_two(v: float) -> float:
+    return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
+
+
+def _bits_differ(a, b) -> int:
+    a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
+    return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
+
+
+def _reparam(solver, state, params, injective=None):
+    """The inner state with new energy parameters (memory kept where the solver has any)."""
+    if hasattr(solver, "with_params"):
+        return solver.with_params(state, params, injective=injective)
+    value = float(state.objective.value(state.x, params))
+    return dataclasses.replace(state, params=params, value=value, grad=None, iteration=0,
+                               failure=None, prev_value=float("inf"), decrement=float("inf"),
+                               step_size=float("nan"))
+
+
+def _inner_solve(solver, state):
+    if hasattr(solver, "run"):
+        state = solver.run(state)
+        return state, state.iteration
+    it = 0
+    while True:
+        done, _ = solver.terminate(state)
+        if done:
+            return state, it
+        state = solver.step(state)
+        it += 1
+
+
+# --------------------------------------------------------------------- main entry
+
+
+def untangle(
+    problem: Problem,
+    x0,
+    solver="lbfgs",
+    theta: float | None = None,
+    progress=True,
+    throw: bool = False,
+    max_outer: int = 200,
+    energy_tol: float = 1e-5,
+    eps0: float = 1.0,
+    max_aspect: float | None = 10.0,
+    keep_memory: bool = True,
+    injective_when_untangled: bool = False,
+    min_sigma: float = 0.5,
+    max_sigma: float = 0.5,
+) -> UntangleResult:
+    """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.problem.Problem` with fixed vertices (``with_fixed``).
+    x0 : (n, d) start map; its handle rows are replaced by ``problem.fixed_positions``.
+    solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object
+        (``init/step/terminate``; one with a ``run(state)`` method is driven by it).  Its line
+        search should not be injective: the start is tangled.
+    theta : shape/area balance in ``(0, 1)``; ``lam = theta / (1 - theta)``.
+        Default 1/128 in 2D, 1/2 in 3D.
+    progress : True (one line per outer iteration on stderr), False, or a callable
+        ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
+    throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
+    max_outer : outer (eps) iteration limit.
+    energy_tol : stop once untangled and ``|E_prev - E| / E`` of an inner solve is below this.
+    eps0 : initial eps (the map is normalised so the mean det J is 1).
+    max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
+        equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
+    keep_memory : keep the L-BFGS curvature pairs across outer iterations.
+    injective_when_untangled : once every element is positive, switch the inner line search
+        to the injective one (no element can flip back; compiles a second kernel).
+    min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
+        iteration shrinks ``chi(D-, eps)``.  The paper uses ``0.1`` and no cap; the default
+        halves it every outer iteration (see the module notes).
+
+    Returns
+    -------
+    :class:`UntangleResult`
+    """
+    t_setup = time.perf_counter()
+    d = problem.dim
+    if problem.fixed.size == 0:
+        raise ParameterError("untangle needs fixed vertices (handles): use Problem.with_fixed")
+    if theta is None:
+        theta = 1.0 / 128.0 if d == 2 else 0.5
+    if not 0.0 < theta < 1.0:
+        raise ParameterError(f"theta must lie in (0, 1), got {theta}")
+    if max_outer < 1:
+        raise ParameterError(f"max_outer must be >= 1, got {max_outer}")
+    if not 0.0 < min_sigma <= max_sigma < 1.0:
+        raise ParameterError(f"need 0 < min_sigma <= max_sigma < 1, got {min_sigma}, {max_sigma}")
+    if not (isinstance(solver, (str, AbstractSolver))):
+        raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
+    lam = theta / (1.0 - theta)
+    report = _Progress() if progress is True else (progress or None)
+
+    x0 = problem.check_map(x0)
+    S = problem.simplices
+    initially = problem.count_inverted(x0)
+    free = problem.free_mask
+    active = free[S].any(axis=1)
+    if isinstance(solver, str):
+        solver = default_solver(solver, d, int(active.sum()))
+    if initially and not active.all():  # elements that cannot move: one inverted = infeasible
+        dead = int(np.count_nonzero(_orient_bad(x0, S[~active])))
+        if dead:
+            return _early_result(problem, x0, initially, t_setup, dead, throw)
+
+    # ---- normalise: map by a power of two into a box of size ~BOX, rest to the map's volume
+    span = float(np.max(x0.max(axis=0) - x0.min(axis=0)))
+    k = _power_of_two(BOX / span) if span > 0 else 1.0
+    xs = x0 * k
+    map_vol = float(problem.signed_volumes(xs).sum())
+    rest_vol = float(problem.volumes.sum())
+    s = (map_vol / rest_vol) ** (1.0 / d) if map_vol > 0 else k
+    scaled = dataclasses.replace(
+        problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
+        rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
+    if max_aspect is not None and d == 2:
+        scaled = _equilateral_rest(scaled, max_aspect)
+    sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
+                              input_simplices=scaled.input_simplices[active],
+                              rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])
+    energy = garanzha.with_params(eps=eps0, lam=lam)
+    full = Objective(scaled, energy)
+    obj = Objective(sub, energy)
+    eps = float(eps0)
+    params = obj.params(eps=eps)
+    x = jnp.asarray(xs)
+    state = solver.init(obj, x, params, precompile="run") if isinstance(solver, LBFGS) else \
+        solver.init(obj, x, params)
+    state = _reparam(solver, state, params)  # compiles the re-parameterisation kernel too
+    E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
+    setup = time.perf_counter() - t_setup
+
+    # ---- the outer loop
+    t0 = time.perf_counter()
+    hist_E, hist_eps, hist_det, hist_inv = [], [], [], []
+    inner_total, outcome, reason = 0, Outcome.MAX_STEPS, None
+    floor = EPS_FLOOR.get(d, 1e-10)
+    injective = False
+    outer = 0
+    for outer in range(1, max_outer + 1):
+        E_prev = E
+        state, n_inner = _inner_solve(solver, state)
+        inner_total += n_inner
+        x = state.x
+        E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
+        nneg = int(nneg)
+        hist_E.append(E), hist_eps.append(eps), hist_det.append(detmin), hist_inv.append(nneg)
+        if report:
+            report(outer, eps, E / full.total_volume, detmin, nneg, n_inner, time.perf_counter() - t0)
+        if not (math.isfinite(E) and math.isfinite(detmin)):
+            outcome, reason = Outcome.NONFINITE, None
+            break
+        settled = abs(E_prev - E) / abs(E) < energy_tol
+        if detmin > 0 and settled:
+            if scaled.count_inverted(np.asarray(x)) == 0:
+                outcome = Outcome.CONVERGED
+                break
+        # eps update (Garanzha et al. 2021, section 4)
+        sigma = min(max(1.0 - E / E_prev, min_sigma), max_sigma)
+        mu = (1.0 - sigma) * _chi_scalar(detmin, eps)
+        eps = max(floor, 2.0 * math.sqrt(mu * (mu - detmin))) if detmin < mu else floor
+        params = obj.params(eps=eps)
+        if injective_when_untangled and not injective and detmin > 0:
+            injective = True
+            state = _reparam(solver, state, params, injective=True)
+        else:
+            state = _reparam(solver, state, params)
+        E = float(_outer_stats(energy.density, full.geom, state.x, params)[0])
+        if not keep_memory and isinstance(solver, LBFGS):
+            state = _reset_memory(state)
+    seconds = time.perf_counter() - t0
+    evaluations = int(state.aux["carry"]["nfev"]) if isinstance(getattr(state, "aux", None), dict) \
+        and "carry" in state.aux else None
+
+    # ---- back to the input frame: exact (power of two), handles written back bit for bit
+    xs_final = np.asarray(state.x, dtype=np.float64)
+    if not np.isfinite(xs_final).all():
+        outcome, xs_final = Outcome.NONFINITE, xs
+    out = xs_final / k
+    out[problem.fixed] = problem.fixed_positions
+    inverted = problem.count_inverted(out)
+    moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
+    if outcome is Outcome.CONVERGED and (inverted or moved):
+        outcome = Outcome.NOT_INJECTIVE
+    vols = problem.signed_volumes(out)
+    result = UntangleResult(
+        x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
+        outer_iterations=outer, inner_iterations=inner_total, seconds=seconds, setup_seconds=setup,
+        min_det_rel=_min_rel(vols),
+        energy_history=np.asarray(hist_E), eps_history=np.asarray(hist_eps),
+        min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
+        info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
+              "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
+              "active_elements": int(active.sum())},
+    )
+    if throw and not result.success:
+        raise SolveError(f"untangling failed: {result.message}", result)
+    return result
+
+
+def _min_rel(vols):
+    """The smallest signed size over the mean absolute one (nan for an all-degenerate map)."""
+    scale = float(np.mean(np.abs(vols)))
+    return float(vols.min() / scale) if scale > 0 else float("nan")
+
+
+def _reset_memory(state):
+    carry = state.aux["carry"]
+    carry = dict(carry, k=jnp.zeros_like(carry["k"]), H0=jnp.ones_like(carry["H0"]))
+    return dataclasses.replace(state, aux=dict(state.aux, carry=carry))
+
+
+def _orient_bad(x, S):
+    from .predicates import simplex_orientations
+
+    return simplex_orientations(x, S) != 1
+
+
+def _early_result(problem, x0, initially, t_setup, dead, throw):
+    reason = (f"{dead} inverted element(s) have every vertex fixed: no map with these handles "
+              f"is injective")
+    vols = problem.signed_volumes(x0)
+    result = UntangleResult(
+        x=x0, outcome=Outcome.NOT_INJECTIVE, inverted=initially, initially_inverted=initially,
+        handles_moved=0, outer_iterations=0, inner_iterations=0, seconds=0.0,
+        setup_seconds=time.perf_counter() - t_setup, min_det_rel=_min_rel(vols),
+        energy_history=np.zeros(0), eps_history=np.zeros(0), min_det_history=np.zeros(0),
+        inverted_history=np.zeros(0, np.int64), info={"reason": reason},
+    )
+    if throw:
+        raise SolveError(f"untangling failed: {reason}", result)
+    return result
+
+
+class _Progress:
+    """One line per outer iteration on ``stream`` (default: the current ``sys.stderr``)."""
+
+    def __init__(self, stream=None):
+        self.stream = stream
+
+    def __call__(self, outer, eps, energy, detmin, nneg, inner, seconds):
+        print(f"outer {outer:3d}  eps {eps:9.3e}  energy {energy:.8g}  min det {detmin:+.3e}  "
+              f"inverted {nneg:6d}  inner {inner:5d}  {seconds:7.2f}s",
+              file=self.stream or sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------- LIM cases
+
+
+def lim_problem(case):
+    """The untangling problem of a LIM case read by :func:`geomopt.io.read_lim_case`.
+
+    2D: the rest mesh is the ``v`` lines, treated as a surface (:meth:`Problem.surface`), the
+    start map the ``vt`` lines; a start map that is clockwise overall (negative total signed
+    area) is mirrored (``u -> -u``, exact) so that the problem's convention (positive = valid)
+    holds.  3D: :meth:`Problem.tets` (an all-negative rest mesh is handled there).
+
+    Raises
+    ------
+    MeshError
+        The start map is collapsed (zero total signed area / volume) or, in 3D, mirrored
+        relative to the rest mesh: with the boundary fixed no map can be certified.
+
+    Returns
+    -------
+    problem : :class:`~geomopt.problem.Problem` (handles at their ``init`` positions, mirrored
+        like the map).
+    x0 : (n, d) start map, in the problem's frame.
+    orientation : +1 or -1, the orientation every element must have in the input's own
+        connectivity and frame (what :func:`write_untangle_result` certifies).
+    mirror : (d,) the exact per-axis sign taking the problem's frame to the input's.
+    """
+    H = case["handles"]
+    if case["dim"] == 2:
+        F, init = case["faces"], case["init"]
+        P = init[F]
+        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        total = float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) / 2.0
+        if not (total > 0 or total < 0):
+            raise MeshError(
+                f"{case.get('path', 'the case')}: the start map's total signed area is {total:g}: the "
+                f"map is collapsed, so no orientation can be certified; give a start map ('vt' lines) "
+                f"whose fixed boundary encloses a nonzero area")
+        orientation = -1 if total < 0 else 1
+        mirror = np.array([float(orientation), 1.0])
+        problem = Problem.surface(case["rest"], F, H, init[H] * mirror)
+        return problem, init * mirror, orientation, mirror
+    problem = Problem.tets(case["rest"], case["tets"], H, case["init"][H])
+    # rest tets all negative in the input order: Problem.tets swapped two vertices of each
+    orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
+    init = np.asarray(case["init"], dtype=np.float64)
+    total = float(problem.signed_volumes(init).sum())  # in the rest orientation
+    if not total > 0:
+        what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
+        raise MeshError(
+            f"{case.get('path', 'the case')}: the start map's total signed volume relative to the rest "
+            f"mesh is {total:g}: the map is {what}; a fixed-boundary untangling needs the boundary "
+            f"to keep the rest orientation (Garanzha et al.'s code rejects such input too)")
+    return problem, init, orientation, np.ones(3)
+
+
+def untangle_case(folder, solver="lbfgs", progress=True, **options):
+    """Read a LIM case folder (:func:`geomopt.io.read_lim_case`) and untangle it
+    (:func:`lim_problem`, :func:`untangle`).
+
+    Parameters
+    ----------
+    folder : a case folder, or a case dict already read by :func:`~geomopt.io.read_lim_case`.
+    solver, progress, options : passed to :func:`untangle`.
+
+    Returns
+    -------
+    case : the dict from :func:`~geomopt.io.read_lim_case` plus ``problem`` and
+        ``orientation`` (+1 or -1: the orientation every element of the output must have in
+        the input's connectivity), as :func:`write_untangle_result` needs.
+    result : :class:`UntangleResult`, its ``x`` in the input's frame.
+    """
+    from .io import read_lim_case
+
+    case = folder if isinstance(folder, dict) else read_lim_case(folder)
+    problem, x0, orientation, mirror = lim_problem(case)
+    result = untangle(problem, x0, solver=solver, progress=progress, **options)
+    if (mirror < 0).any():
+        result = dataclasses.replace(result, x=result.x * mirror)  # negation is exact
+    return {**case, "problem": problem, "orientation": orientation}, result
+
+
+def write_untangle_result(case, result, path):
+    """Write an untangled LIM case and certify the file.
+
+    2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and ``f a/a b/b c/c``;
+    3D: ASCII VTK with the input connectivity.  Full precision, atomic (:mod:`geomopt.io`).
+    The file is read back and checked: handles bit-exact and no element inverted (exact
+    predicate, in the orientation convention of the case).
+
+    Returns
+    -------
+    dict with ``path``, ``inverted`` (in the file), ``handles_moved`` (in the file),
+    ``certified`` (both zero).
+    """
+    from .io import read_vtk_tets, write_obj_with_uv, write_vtk_tets
+    from .predicates import count_inverted
+
+    path = Path(path)
+    H = case["handles"]
+    if case["dim"] == 2:
+        F = case["faces"]
+        write_obj_with_uv(path, case["rest"], F, result.x)
+        back = _read_obj_uv(path, len(case["rest"]))
+        S = F
+        handles_ref = case["init"][H]
+    else:
+        T = case["tets"]
+        write_vtk_tets(path, result.x, T)
+        back, T2 = read_vtk_tets(path)
+        if not np.array_equal(T2, T):
+            raise MeshError(f"{path}: connectivity read back differs from the input")
+        S = T
+        handles_ref = case["init"][H]
+    inverted = count_inverted(back, S, orientation=case["orientation"])
+    moved = _bits_differ(back[H], handles_ref)
+    return {"path": path, "inverted": int(inverted), "handles_moved": moved,
+            "certified": inverted == 0 and moved == 0}
+
+
+def _read_obj_uv(path, n):
+    from .io import _parse_lim_obj
+
+    _, UV, _ = _parse_lim_obj(path)
+    if len(UV) != n:
+        raise MeshError(f"{path}: read back {len(UV)} vt lines, expected {n}")
+    return UV

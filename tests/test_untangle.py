@@ -1,0 +1,326 @@
+"""Untangling (Garanzha et al. 2021) and the L-BFGS solver.
+
+Every LIM case in ../shared/data/lim is untangled and certified: no inverted element under the
+exact predicate, handles unchanged bit for bit, also in the file written and read back.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from geomopt import generators as G
+from geomopt._errors import MeshError, ParameterError, SolveError
+from geomopt._objective import Objective
+from geomopt.io import lim_cases, read_lim2d
+from geomopt.linesearch import Backtracking
+from geomopt.predicates import count_inverted
+from geomopt.problem import Problem
+from geomopt.solvers import Newton, Outcome, minimize
+from geomopt.solvers import lbfgs as lbfgs_module
+from geomopt.solvers.lbfgs import LBFGS
+from geomopt import untangle as untangle_module
+from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
+
+LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
+CASES = lim_cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
+
+
+def _bits_equal(a, b):
+    a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
+    return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+# ----------------------------------------------------------------------------- LIM cases
+
+
+@pytest.mark.parametrize("folder", CASES or [None], ids=[c.name for c in CASES] or ["missing"])
+def test_lim_case_untangled_and_certified(folder, tmp_path):
+    if folder is None:
+        pytest.skip(f"LIM sample data not found under {LIM_ROOT} (clone the project next to shared/)")
+    case, result = untangle_case(folder, progress=False)
+    assert result.success, result.message
+    assert result.initially_inverted > 0
+    H = case["handles"]
+    # exact predicate on the returned map, in the case's own connectivity and orientation
+    S = case["faces"] if case["dim"] == 2 else case["tets"]
+    assert count_inverted(result.x, S, orientation=case["orientation"]) == 0
+    assert _bits_equal(result.x[H], case["init"][H])
+    assert result.min_det_rel > 0
+    assert len(result.energy_history) == result.outer_iterations
+    # the written file certifies too (read back: exact predicate, handles bit-exact)
+    out = tmp_path / ("result.obj" if case["dim"] == 2 else "result.vtk")
+    report = write_untangle_result(case, result, out)
+    assert report["certified"], report
+    if case["dim"] == 2:
+        back = read_lim2d_like(out)
+        assert _bits_equal(back, result.x)
+
+
+def read_lim2d_like(path):
+    """The ``vt`` lines of an OBJ written by write_untangle_result."""
+    folder = path.parent / "readback"
+    folder.mkdir()
+    shutil.copy(path, folder / "input.obj")
+    (folder / "handles.txt").write_text("")
+    return read_lim2d(folder)["init"]
+
+
+def test_lim_case_clockwise_map(tmp_path):
+    """A 2D case whose map is clockwise overall (mirrored) is solved in the mirrored frame."""
+    src = LIM_ROOT / "2D" / "Simple" / "square_rot90"
+    if not src.is_dir():
+        pytest.skip(f"LIM sample data not found under {LIM_ROOT}")
+    dst = tmp_path / "mirrored"
+    dst.mkdir()
+    shutil.copy(src / "handles.txt", dst / "handles.txt")
+    lines = []
+    for line in (src / "input.obj").read_text().splitlines():
+        t = line.split()
+        if t and t[0] == "vt":
+            u = float(t[1])
+            line = f"vt {-u!r} {t[2]}"
+        lines.append(line)
+    (dst / "input.obj").write_text("\n".join(lines) + "\n")
+    case, result = untangle_case(dst, progress=False)
+    assert case["orientation"] == -1
+    assert result.success, result.message
+    assert count_inverted(result.x, case["faces"], orientation=-1) == 0
+    assert write_untangle_result(case, result, tmp_path / "out.obj")["certified"]
+
+
+def test_lim_problem_rejects_collapsed_and_mirrored_maps():
+    V, F = G.square_mesh(4)
+    b = G.boundary_vertices(F, len(V))
+    rest = np.column_stack([V, np.zeros(len(V))])
+    with pytest.raises(MeshError, match="collapsed"):
+        lim_problem({"dim": 2, "rest": rest, "init": np.zeros_like(V), "faces": F, "handles": b})
+    P, T = G.box_mesh(2, 2, 2)
+    b = G.boundary_vertices(T, len(P))
+    with pytest.raises(MeshError, match="mirrored"):
+        lim_problem({"dim": 3, "rest": P, "init": P * [-1.0, 1.0, 1.0], "tets": T, "handles": b})
+    # a clockwise 2D map is accepted, mirrored (exactly) into the problem's frame
+    b = G.boundary_vertices(F, len(V))
+    problem, x0, orientation, mirror = lim_problem(
+        {"dim": 2, "rest": rest, "init": V * [-1.0, 1.0], "faces": F, "handles": b})
+    assert orientation == -1 and _bits_equal(x0, V)
+
+
+# ----------------------------------------------------------------------------- synthetic
+
+
+def test_square_interior_rotated_180():
+    V, F = G.square_mesh(16)
+    t = G.rotated_interior(V, F, 180.0)
+    assert t.inverted() > 0
+    problem = t.problem()
+    result = untangle(problem, t.x0, progress=False)
+    assert result.success, result.message
+    assert problem.count_inverted(result.x) == 0
+    assert _bits_equal(result.x[t.fixed], t.x0[t.fixed])
+
+
+@pytest.mark.parametrize("make", [
+    lambda: G.rotated_interior(*G.box_mesh(5, 5, 5), 180.0),
+    lambda: G.twisted_box(4, 4, 0.5),
+], ids=["cube-rotated", "cube-twisted"])
+def test_cube_interior_tangled(make):
+    t = make()
+    assert t.inverted() > 0
+    problem = t.problem()
+    result = untangle(problem, t.x0, progress=False)
+    assert result.success, result.message
+    assert count_inverted(result.x, t.simplices) == 0
+    assert _bits_equal(result.x[t.fixed], t.x0[t.fixed])
+
+
+@pytest.mark.parametrize("solver", ["newton", LBFGS(precondition="laplacian", rtol=1e-6, gtol=1e-6)],
+                         ids=["newton", "lbfgs-laplacian"])
+def test_tutte_onto_star_untangled_with_other_inner_solvers(solver):
+    """Projected Newton (non-injective line search) and Laplacian-preconditioned L-BFGS
+    also untangle."""
+    t = G.tutte_nonconvex(6, "star", arms=5, depth=0.6)
+    assert t.inverted() > 0
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False)
+    assert result.success, result.message
+
+
+def test_progress_lines_and_result_fields(capsys):
+    t = G.rotated_interior(*G.square_mesh(8), 90.0)
+    result = untangle(t.problem(), t.x0, progress=True)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == result.outer_iterations
+    assert all(line.startswith("outer") and "eps" in line and "inverted" in line for line in err)
+    assert result.outcome is Outcome.CONVERGED and result.handles_moved == 0
+    assert result.inner_iterations >= result.outer_iterations
+    assert len(result.eps_history) == len(result.min_det_history) == result.outer_iterations
+    assert result.min_det_history[-1] > 0 and result.inverted_history[-1] == 0
+    assert result.seconds > 0 and result.setup_seconds >= 0
+
+
+def test_infeasible_reports_and_throws():
+    """A tangled triangle whose vertices are all fixed cannot be repaired."""
+    V, F = G.square_mesh(3)
+    x0 = V.copy()
+    x0[[0, 1]] = x0[[1, 0]]  # swap two corners: their triangle is inverted, all its vertices fixed
+    problem = Problem.planar(V, F, np.arange(len(V)), x0)
+    result = untangle(problem, x0, progress=False)
+    assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
+    assert "every vertex fixed" in result.message
+    with pytest.raises(SolveError):
+        untangle(problem, x0, progress=False, throw=True)
+
+
+def test_bad_arguments():
+    t = G.rotated_interior(*G.square_mesh(4), 90.0)
+    with pytest.raises(ParameterError):
+        untangle(t.problem(), t.x0, solver="gradient-descent", progress=False)
+    with pytest.raises(ParameterError):
+        untangle(t.problem(), t.x0, theta=1.5, progress=False)
+    free = Problem.planar(t.rest, t.simplices)
+    with pytest.raises(ParameterError):
+        untangle(free, t.x0, progress=False)
+
+
+def test_outer_loop_compiles_once():
+    """eps and lambda are traced: a second untangling of the same mesh shape compiles nothing,
+    and one untangling compiles each kernel once however many outer iterations it runs."""
+    t = G.tutte_nonconvex(7, "L")
+    kernels = [lbfgs_module._run_kernel, lbfgs_module._vg_kernel, lbfgs_module._init_kernel,
+               untangle_module._outer_stats]
+    before = [k._cache_size() for k in kernels]
+    r1 = untangle(t.problem(), t.x0, progress=False)
+    mid = [k._cache_size() for k in kernels]
+    assert r1.success and r1.outer_iterations > 2
+    assert all(m - b <= 1 for b, m in zip(before, mid))
+    r2 = untangle(t.problem(), t.x0, progress=False)
+    assert [k._cache_size() for k in kernels] == mid
+    assert r2.outer_iterations == r1.outer_iterations
+    np.testing.assert_array_equal(r2.x, r1.x)
+
+
+def test_generators_are_valid():
+    for V, S in (G.square_mesh(5), G.disk_mesh(4), G.box_mesh(2, 3, 4)):
+        assert count_inverted(V, S) == 0
+    V, F = G.disk_mesh(5)
+    b = G.boundary_vertices(F, len(V))
+    np.testing.assert_array_equal(b, np.arange(len(V) - 30, len(V)))
+    assert not np.isin(F, b).all(axis=1).any()  # no triangle with every vertex on the boundary
+    for t in (G.noisy_interior(V, F, 2.0), G.tutte_nonconvex(5, "crescent"),
+              G.bent_box(2, 8, 180.0), G.random_interior(V, F)):
+        assert t.inverted() > 0
+        assert _bits_equal(t.x0[t.fixed], t.problem().fixed_positions)
+
+
+# ----------------------------------------------------------------------------- L-BFGS
+
+
+def _cotan_laplacian(V, F):
+    """The cotangent Laplacian (n, n), positive semi-definite: 1/2 sum cot over each edge."""
+    n = len(V)
+    rows, cols, vals = [], [], []
+    for k in range(3):
+        i, j, o = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
+        a, b = V[i] - V[o], V[j] - V[o]
+        cot = (a * b).sum(1) / np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+        rows += [i, j, i, j]
+        cols += [j, i, i, j]
+        vals += [-0.5 * cot, -0.5 * cot, 0.5 * cot, 0.5 * cot]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
+def test_lbfgs_reaches_the_harmonic_map():
+    """Dirichlet energy with a fixed boundary: the minimiser solves the cotangent Laplace
+    equation, which scipy solves directly."""
+    V, F = G.disk_mesh(8)
+    b = G.boundary_vertices(F, len(V))
+    target = V.copy()
+    target[b] = V[b] * [1.5, 0.8] + 0.2 * V[b, ::-1] ** 2
+    problem = Problem.planar(V, F, b, target[b])
+    L = _cotan_laplacian(V, F).tocsc()
+    inner = np.setdiff1d(np.arange(len(V)), b)
+    X = target.copy()
+    X[inner] = spla.spsolve(L[inner][:, inner], -L[inner][:, b] @ target[b])
+    obj = Objective(problem, "dirichlet")
+    result = minimize(obj, V, LBFGS(rtol=0.0, gtol=1e-12, max_steps=5000), progress=False)
+    assert result.outcome is Outcome.CONVERGED, result.message
+    np.testing.assert_allclose(result.x, X, atol=1e-8)
+    assert _bits_equal(result.x[b], target[b])
+    # run() (the whole loop in one jitted while_loop) gives the same iterates as step()
+    s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=5000)
+    state = s.run(s.init(obj, jnp.asarray(problem.check_map(V)), obj.params(), precompile="run"))
+    assert state.iteration == result.iterations
+    np.testing.assert_allclose(np.asarray(state.x), result.x, rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("precondition", ["scalar", "diagonal", "laplacian"])
+@pytest.mark.parametrize("c2", [0.9, 0.0])
+def test_lbfgs_variants_converge(precondition, c2):
+    V, F = G.square_mesh(6)
+    b = G.boundary_vertices(F, len(V))
+    problem = Problem.planar(V, F, b, V[b] * 1.3)
+    obj = Objective(problem, "dirichlet")
+    result = minimize(obj, V, LBFGS(precondition=precondition, c2=c2, gtol=1e-10, rtol=1e-14),
+                      progress=False)
+    assert result.outcome is Outcome.CONVERGED
+    np.testing.assert_allclose(result.x, V * 1.3, atol=1e-7)
+
+
+def test_lbfgs_laplacian_preconditioner_is_exact_for_dirichlet():
+    """For the Dirichlet energy the Laplacian seed is the inverse Hessian: the first step
+    lands on the minimum."""
+    V, F = G.disk_mesh(10)
+    b = G.boundary_vertices(F, len(V))
+    target = V.copy()
+    target[b] = V[b] * [1.4, 0.9]
+    problem = Problem.planar(V, F, b, target[b])
+    obj = Objective(problem, "dirichlet")
+    result = minimize(obj, V, LBFGS(precondition="laplacian", gtol=1e-10, rtol=0.0), progress=False)
+    assert result.outcome is Outcome.CONVERGED and result.iterations <= 3
+    np.testing.assert_allclose(result.x, V * [1.4, 0.9], atol=1e-9)
+
+
+def test_lbfgs_injective_line_search_keeps_orientation():
+    """With the injective line search L-BFGS minimises a barrier energy from a flip-free start
+    without ever flipping; it reaches Newton's minimum."""
+    V, F = G.disk_mesh(5)
+    b = G.boundary_vertices(F, len(V))
+    target = V.copy()
+    target[b] = V[b] * [1.6, 0.7]
+    problem = Problem.planar(V, F, b, target[b])
+    x0 = V * [1.6, 0.7]  # an affine start: flip-free
+    obj = Objective(problem, "symmetric_dirichlet")
+    seen = []
+
+    def progress(state, elapsed, mean_energy):
+        seen.append(problem.count_inverted(np.asarray(state.x)))
+
+    solver = LBFGS(line_search=Backtracking(injective=True), rtol=1e-14, gtol=1e-10, max_steps=3000)
+    result = minimize(obj, x0, solver, progress=progress)
+    assert result.success and max(seen) == 0
+    newton = minimize(obj, x0, Newton(), progress=False)
+    assert result.energy == pytest.approx(newton.energy, rel=1e-9)
+
+
+def test_lbfgs_bad_configuration():
+    with pytest.raises(ParameterError):
+        LBFGS(history=0)
+    with pytest.raises(ParameterError):
+        LBFGS(precondition="bfgs")
+    with pytest.raises(ParameterError):
+        LBFGS(c2=1.0)
+
+
+def test_lbfgs_stops_at_a_stationary_start():
+    V, F = G.square_mesh(4)
+    b = G.boundary_vertices(F, len(V))
+    obj = Objective(Problem.planar(V, F, b, V[b]), "dirichlet")
+    result = minimize(obj, V, LBFGS(), progress=False)  # the identity is already harmonic
+    assert result.outcome is Outcome.CONVERGED and result.iterations <= 1
+    np.testing.assert_allclose(result.x, V, atol=1e-12)
