@@ -34,6 +34,16 @@ def _rest_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
+def _checked_input(V, F, weights):
+    """Validated ``(V, F)`` after checking the weights name."""
+    if weights not in WEIGHTS:
+        raise ParameterError(
+            f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
+        )
+    V = validate_vertices(V, "V")
+    return V, _as_faces(F, V.shape[0])
+
+
 def tutte_weights(V, F, weights: str = "uniform") -> sp.csr_matrix:
     """Positive edge weights of the Tutte embedding, as a sparse matrix.
 
@@ -53,13 +63,8 @@ def tutte_weights(V, F, weights: str = "uniform") -> sp.csr_matrix:
     W : (n, n) scipy.sparse.csr_matrix
         ``W[i, j] > 0`` for every edge ``ij``, zero diagonal; rows are not normalised.
     """
-    if weights not in WEIGHTS:
-        raise ParameterError(
-            f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
-        )
-    V = validate_vertices(V, "V")
+    V, F = _checked_input(V, F, weights)
     n = V.shape[0]
-    F = _as_faces(F, n)
     # corner c of face f: vertex i, followed by j and k counter-clockwise; each (m, 3)
     i, j, k = F, np.roll(F, -1, axis=1), np.roll(F, -2, axis=1)
     if weights == "uniform":
@@ -147,13 +152,8 @@ def tutte_embedding(V, F, weights: str = "uniform", boundary=None) -> np.ndarray
     ParameterError
         Unknown ``weights``.
     """
-    if weights not in WEIGHTS:
-        raise ParameterError(
-            f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
-        )
-    V = validate_vertices(V, "V")
+    V, F = _checked_input(V, F, weights)
     n = V.shape[0]
-    F = _as_faces(F, n)
     if boundary is None:
         loop = check_disk(F, n)
     else:
