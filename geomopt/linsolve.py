@@ -12,6 +12,10 @@ Backends (chosen by measurement, see the README and issue notes):
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -19,6 +23,38 @@ import scipy.sparse.linalg as spla
 from ._errors import ParameterError
 
 BACKENDS = ("auto", "cholmod", "cholespy", "superlu")
+
+
+def _c_fflush():
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except Exception:  # pragma: no cover - no C library to flush
+        pass
+
+
+@contextlib.contextmanager
+def _silence_c_output():
+    """Mute what C code writes to file descriptors 1 and 2: cholespy prints a CHOLMOD warning
+    for every indefinite matrix, which the adaptive Newton tries on purpose."""
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = [os.dup(1), os.dup(2)]
+    except (OSError, ValueError, AttributeError):  # no real descriptors: nothing to mute
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        _c_fflush()  # C stdio buffers the message: drop it while still muted
+        for fd, copy in zip((1, 2), saved):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 class NotPositiveDefinite(ArithmeticError):
@@ -101,7 +137,8 @@ class SparseCholesky:
             from cholespy import CholeskySolverD, MatrixType
 
             try:
-                self._factor = CholeskySolverD(self.n, self._ip32, self._ix32, data, MatrixType.CSC)
+                with _silence_c_output():
+                    self._factor = CholeskySolverD(self.n, self._ip32, self._ix32, data, MatrixType.CSC)
             except (RuntimeError, ValueError) as exc:
                 raise NotPositiveDefinite(str(exc)) from exc
         else:
