@@ -12,7 +12,6 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from geomopt import generators as G
@@ -27,6 +26,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
+from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
 CASES = lim_cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
@@ -221,18 +221,6 @@ def test_generators_are_valid():
 # ----------------------------------------------------------------------------- L-BFGS
 
 
-def _cotan_laplacian(V, F):
-    """The cotangent Laplacian (n, n), positive semi-definite: 1/2 sum cot over each edge."""
-    n = len(V)
-    rows, cols, vals = [], [], []
-    for k in range(3):
-        i, j, o = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
-        a, b = V[i] - V[o], V[j] - V[o]
-        cot = (a * b).sum(1) / np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-        rows += [i, j, i, j]
-        cols += [j, i, i, j]
-        vals += [-0.5 * cot, -0.5 * cot, 0.5 * cot, 0.5 * cot]
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
 def test_lbfgs_reaches_the_harmonic_map():
@@ -243,7 +231,7 @@ def test_lbfgs_reaches_the_harmonic_map():
     target = V.copy()
     target[b] = V[b] * [1.5, 0.8] + 0.2 * V[b, ::-1] ** 2
     problem = Problem.planar(V, F, b, target[b])
-    L = _cotan_laplacian(V, F).tocsc()
+    L = cot_laplacian(V, F).tocsc()
     inner = np.setdiff1d(np.arange(len(V)), b)
     X = target.copy()
     X[inner] = spla.spsolve(L[inner][:, inner], -L[inner][:, b] @ target[b])
