@@ -11,11 +11,11 @@ from ._errors import GeomoptError, MeshError, MeshFormatError, ParameterError, S
 from ._objective import Objective  # noqa: E402
 from .param import parameterize  # noqa: E402
 from .problem import Problem  # noqa: E402
-from .solvers import Newton, Outcome, Result, minimize  # noqa: E402
+from .solvers import AQP, CM, LBFGS, SLIM, Newton, Outcome, Result, minimize  # noqa: E402
 from .tutte import tutte_embedding  # noqa: E402
 
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
-    "Objective", "Problem", "Newton", "Outcome", "Result", "minimize", "parameterize",
+    "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
     "tutte_embedding", "energies", "io", "predicates",
 ]

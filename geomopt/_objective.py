@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._eigh import eigh
+from ._geometry import dets
 from ._errors import ParameterError
 from .energies import Energy, get_energy
 from .problem import Problem
@@ -40,12 +41,7 @@ def _jacobians(geom, x):
 
 
 def _dets(geom, x):
-    S = geom[0]
-    X = x[S]
-    E = X[:, 1:] - X[:, :1]  # rows = edges; det(E) = det(E^T)
-    if E.shape[-1] == 2:
-        return E[:, 0, 0] * E[:, 1, 1] - E[:, 0, 1] * E[:, 1, 0]
-    return jnp.einsum("ij,ij->i", E[:, 0], jnp.cross(E[:, 1], E[:, 2]))
+    return dets(geom[0], x)
 
 
 def _total(density, geom, x, params):
@@ -90,6 +86,18 @@ def project_psd(H, method):
     return (Q * w[..., None, :]) @ jnp.swapaxes(Q, -1, -2)
 
 
+def element_blocks(density, projection, J, params, vol):
+    """(m, d*d, d*d) J-space element blocks ``vol * H_e``: the density's Hessian projected by
+    ``projection`` (a :data:`PROJECTIONS` name), or a proxy object (SLIM, CM;
+    :mod:`geomopt.solvers.proxies`) called as ``projection(density, J, params)``."""
+    m, d = J.shape[0], J.shape[-1]
+    if callable(projection):
+        H = jax.vmap(projection, in_axes=(None, 0, None))(density, J, params).reshape(m, d * d, d * d)
+        return H * vol[:, None, None]
+    H = jax.vmap(jax.hessian(density), in_axes=(0, None))(J, params).reshape(m, d * d, d * d)
+    return project_psd(H * vol[:, None, None], projection)
+
+
 def _lift_matrix(Minv):
     """G (m, d+1, d) with ``J = X^T G`` for element vertex positions X (d+1, d)."""
     return jnp.concatenate([-jnp.sum(Minv, axis=1, keepdims=True), Minv], axis=1)
@@ -129,8 +137,7 @@ def hessian_kernel(density, projection, nnz, geom, x, params, slots):
     m, k1 = S.shape
     d = k1 - 1
     J = _jacobians(geom, x)
-    HJ = jax.vmap(jax.hessian(density), in_axes=(0, None))(J, params).reshape(m, d * d, d * d)
-    HJ = project_psd(HJ * vol[:, None, None], projection).reshape(m, d, d, d, d)
+    HJ = element_blocks(density, projection, J, params, vol).reshape(m, d, d, d, d)
     Hx = _lift_upper(HJ, _lift_matrix(Minv))
     data = jnp.zeros(nnz + 1, Hx.dtype).at[slots].add(Hx.reshape(-1))[:nnz]
     return value, grad, data

@@ -1,25 +1,29 @@
-"""Injectivity-preserving line search.
+"""The injective search: one line search, jittable, shared by every solver.
+
+A solver is a *descent* (how a direction ``d`` is made) plus this *search* (how far to go
+along it), in the spirit of optimistix's ``AbstractDescent`` / ``AbstractSearch``.
 
 ``max_injective_step`` returns the largest ``t`` such that no element that is positively
-oriented at ``x`` reaches ``det J = 0`` on ``x + s*dx`` for ``s`` in ``[0, t)``: the smallest
+oriented at ``x`` reaches ``det J = 0`` on ``x + s*d`` for ``s`` in ``[0, t)``: the smallest
 positive root of ``det(A + s B)``, a quadratic in 2D and a cubic in 3D (Smith & Schaefer
-2015, "Bijective parameterization with free boundaries").  ``backtracking`` then starts at
-``min(1, safety * t_max)`` and halves until the Armijo condition holds and every element
-that was positive is still positive.
+2015, "Bijective parameterization with free boundaries").  :class:`InjectiveSearch` starts
+at ``min(t0, safety * t_max)``, then backtracks (Armijo) or brackets (weak Wolfe, when the
+solver wants curvature information, ``c2 > 0``), rejecting any trial point at which an
+element that was positive is not, and optionally expands an accepted first trial.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from functools import partial
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+from jax import lax
 
-
-def _edges(S, x):
-    X = x[S]
-    return X[:, 1:] - X[:, :1]  # rows = edges, (m, d, d)
+from ._errors import ParameterError
+from ._geometry import det, dets, edge_rows
 
 
 def _smallest_positive(roots):
@@ -92,21 +96,21 @@ def max_injective_step(S, x, dx):
 
     S (m, d+1) simplices; x, dx (n, d).  Returns ``inf`` when nothing blocks the step.
     """
-    A = _edges(S, x)
-    B = _edges(S, dx)
+    return _max_injective_step(S, x, dx)
+
+
+def _max_injective_step(S, x, dx):
+    A = edge_rows(S, x)
+    B = edge_rows(S, dx)
     if A.shape[-1] == 2:
-        c0 = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-        c2 = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+        c0, c2 = det(A), det(B)
         c1 = A[:, 0, 0] * B[:, 1, 1] + B[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * B[:, 1, 0] - B[:, 0, 1] * A[:, 1, 0]
         roots = _quadratic_roots(c2, c1, c0)
     else:
-        def det3(M):
-            return jnp.einsum("ij,ij->i", M[:, 0], jnp.cross(M[:, 1], M[:, 2]))
-
         def cof(M):  # rows of the cofactor matrix, so that tr(adj(M) N) = sum(cof(M) * N)
             return jnp.stack([jnp.cross(M[:, 1], M[:, 2]), jnp.cross(M[:, 2], M[:, 0]), jnp.cross(M[:, 0], M[:, 1])], 1)
 
-        c0, c3 = det3(A), det3(B)
+        c0, c3 = det(A), det(B)
         c1 = jnp.sum(cof(A) * B, axis=(1, 2))
         c2 = jnp.sum(cof(B) * A, axis=(1, 2))
         roots = _cubic_roots(c3, c2, c1, c0)
@@ -114,87 +118,172 @@ def max_injective_step(S, x, dx):
     return jnp.min(jnp.where(c0 > 0, t, jnp.inf))
 
 
-@jax.jit
-def _still_positive(S, x, dx, t, was_positive):
-    """True when every element positive at x is positive at x + s dx for s in {t/4, t/2, 3t/4, t}."""
-    A, B = _edges(S, x), _edges(S, dx)
+def still_positive(S, x, dx, t, was_positive):
+    """True when every element positive at x is positive at x + s dx for s in {t/4, t/2, 3t/4, t}
+    (a float guard on top of the closed-form bound, which rounding can make a hair too long)."""
+    A, B = edge_rows(S, x), edge_rows(S, dx)
     ok = jnp.bool_(True)
     for s in (0.25, 0.5, 0.75, 1.0):
-        M = A + (s * t) * B
-        if M.shape[-1] == 2:
-            det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
-        else:
-            det = jnp.einsum("ij,ij->i", M[:, 0], jnp.cross(M[:, 1], M[:, 2]))
-        ok = ok & jnp.all(jnp.where(was_positive, det > 0, True))
+        ok = ok & jnp.all(jnp.where(was_positive, det(A + (s * t) * B) > 0, True))
     return ok
 
 
+def _check_config(name, value, lo=None, hi=None, integer=False, lo_open=False, hi_open=False):
+    """A finite number (an int if ``integer``) in the given range, else ParameterError."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if integer:
+        ok = ok and float(value).is_integer()
+    if ok and lo is not None:
+        ok = value > lo if lo_open else value >= lo
+    if ok and hi is not None:
+        ok = value < hi if hi_open else value <= hi
+    if not ok:
+        rng = f"{'(' if lo_open else '['}{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}{')' if hi_open else ']'}"
+        raise ParameterError(f"{name} must be {'a whole number' if integer else 'a finite number'} in {rng}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
 @dataclasses.dataclass(frozen=True)
-class Backtracking:
-    """Armijo backtracking, optionally capped by the injective step bound.
+class InjectiveSearch:
+    """The line search every geomopt solver uses.
 
     Attributes
     ----------
     injective : bool
-        Cap the first trial at ``safety * t_max`` and reject trial points at which an element
-        that was positively oriented is not (default True).  Untangling from a tangled start
-        with a finite energy may turn it off.
-    safety : float
-        Fraction of ``t_max`` to start from (0.9 by default, as in Smith & Schaefer 2015).
-    c1 : float
+        Cap the first trial at ``safety * t_max`` (the first root of an element's det along
+        the direction) and reject trial points at which an element that was positively
+        oriented is not (default True).  Untangling from a tangled start with a finite
+        energy turns it off.
+    safety : float in (0, 1]
+        Fraction of ``t_max`` to start from (0.9, as in Smith & Schaefer 2015).
+    c1 : float in (0, 1)
         Armijo sufficient-decrease constant.
-    shrink : float
+    c2 : float in [0, 1)
+        Curvature constant of the weak Wolfe condition (``c1 < c2``); ``0`` (default) means
+        Armijo backtracking only.  Quasi-Newton solvers want ``0.9``.
+    shrink : float in (0, 1)
         Backtracking factor.
-    max_backtracks : int
-    expand : int
-        When the first trial is accepted, try up to this many doublings of the step while the
-        energy keeps decreasing (and, if injective, below the bound).  Projected Newton
+    max_steps : int >= 1
+        Trial points per search.
+    expand : int >= 0
+        When the first trial is accepted, try up to this many doublings of the step while
+        the energy keeps decreasing (and, if injective, below the bound).  Projected Newton
         overestimates curvature where it clamped negative eigenvalues and then converges
         linearly with steps that are too short; doubling halved its iterations on bunny_cut
         and armadillo_cut_low (151 -> 61, 149 -> 68 with the clamp projection).
+
+    Notes
+    -----
+    :meth:`search` is a pure JAX function (``lax.while_loop``) that solvers call inside their
+    jitted kernels; calling the object runs it on an :class:`~geomopt.Objective` (one jitted
+    kernel, one host sync).  The object is hashable: it is a static argument of the kernels.
     """
 
     injective: bool = True
     safety: float = 0.9
     c1: float = 1e-4
+    c2: float = 0.0
     shrink: float = 0.5
-    max_backtracks: int = 60
+    max_steps: int = 60
     expand: int = 0
 
-    def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
-        """Return ``(t, x_new, value_new, n_evals)``; ``t == 0`` means failure."""
-        S = objective.geom[0]
-        slope = float(jnp.vdot(grad, dx))
-        t = t0
-        was_positive = None
+    def __post_init__(self):
+        if not isinstance(self.injective, bool):
+            raise ParameterError(f"InjectiveSearch injective must be True or False, got {self.injective!r}")
+        set_ = partial(object.__setattr__, self)
+        set_("safety", _check_config("InjectiveSearch safety", self.safety, 0, 1, lo_open=True))
+        set_("c1", _check_config("InjectiveSearch c1", self.c1, 0, 1, lo_open=True, hi_open=True))
+        set_("c2", _check_config("InjectiveSearch c2", self.c2, 0, 1, hi_open=True))
+        if self.c2 and not self.c2 > self.c1:
+            raise ParameterError(f"InjectiveSearch needs c1 < c2 (got c1={self.c1}, c2={self.c2})")
+        set_("shrink", _check_config("InjectiveSearch shrink", self.shrink, 0, 1, lo_open=True, hi_open=True))
+        set_("max_steps", _check_config("InjectiveSearch max_steps", self.max_steps, 1, None, integer=True))
+        set_("expand", _check_config("InjectiveSearch expand", self.expand, 0, 64, integer=True))
+
+    def search(self, value_and_grad, S, x, f, g, d, t0=1.0):
+        """Search along ``d`` from ``x`` (pure JAX; call inside ``jit``).
+
+        Parameters
+        ----------
+        value_and_grad : callable ``x -> (E, grad)`` (grad zero on fixed DOFs).
+        S : (m, d+1) simplices (for the injective bound); x, d, g : (n, dim); f : E(x).
+        t0 : the first trial step before the injective cap.
+
+        Returns
+        -------
+        t, x_t, f_t, g_t : the accepted step and the point, energy and gradient there
+            (``t == 0`` and ``x`` itself when nothing was accepted);
+        ok : bool, a step was accepted;  evals : number of energy evaluations.
+        """
+        c1, c2, shrink, expand = self.c1, self.c2, self.shrink, self.expand
+        slope = jnp.vdot(g, d)
+        inf = jnp.array(jnp.inf, x.dtype)
         if self.injective:
-            tmax = float(max_injective_step(S, x, dx))
-            t = min(t0, self.safety * tmax)
-            was_positive = objective.dets(x) > 0
-        evals = 0
-        for _ in range(self.max_backtracks):
-            if t <= 0 or not np.isfinite(t):
-                break
-            xt = x + t * dx
-            if self.injective and not bool(_still_positive(S, x, dx, t, was_positive)):
-                t *= self.shrink
-                continue
-            vt = float(objective.value(xt, params))
-            evals += 1
-            if np.isfinite(vt) and vt <= value + self.c1 * t * slope:
-                if t == t0:
-                    # the full step was accepted: try longer ones while the energy keeps falling
-                    for _ in range(self.expand):
-                        t2 = 2.0 * t
-                        if self.injective:
-                            if t2 >= self.safety * tmax or not bool(_still_positive(S, x, dx, t2, was_positive)):
-                                break
-                        x2 = x + t2 * dx
-                        v2 = float(objective.value(x2, params))
-                        evals += 1
-                        if not (np.isfinite(v2) and v2 < vt):
-                            break
-                        t, xt, vt = t2, x2, v2
-                return t, xt, vt, evals
-            t *= self.shrink
-        return 0.0, x, value, evals
+            tcap = self.safety * _max_injective_step(S, x, d)
+            was_pos = dets(S, x) > 0
+        else:
+            tcap, was_pos = inf, None
+        t = jnp.minimum(jnp.asarray(t0, x.dtype), tcap)
+
+        def body(c):
+            t = c["t"]
+            xt = x + t * d
+            ft, gt = value_and_grad(xt)
+            pos = still_positive(S, x, d, t, was_pos) if self.injective else jnp.bool_(True)
+            good = pos & jnp.isfinite(ft)
+            armijo = good & (ft <= f + c1 * t * slope)
+            curv = (jnp.vdot(gt, d) >= c2 * slope) if c2 > 0 else jnp.bool_(True)
+            at_cap = t >= tcap * (1.0 - 1e-12)
+            expanding = c["phase"] == 1
+            # the search phase: accept an Armijo (+ curvature) point, else bracket / backtrack
+            accept = armijo & (curv | at_cap)
+            start_expand = accept & (c["i"] == 0) & (expand > 0) & (2.0 * t < tcap)
+            improve = jnp.where(expanding, good & (ft < c["bf"]), armijo & (ft < c["bf"]))
+            hi = jnp.where(armijo, c["hi"], t)
+            lo = jnp.where(armijo, t, c["lo"])
+            t_search = jnp.where(
+                armijo,
+                jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), jnp.minimum(2.0 * t, tcap)),
+                jnp.where(lo > 0, 0.5 * (lo + hi), shrink * t),
+            )
+            n_exp = c["n_exp"] + jnp.where(expanding & improve, 1, 0)
+            more = (n_exp < expand) & (2.0 * t < tcap)
+            done = jnp.where(expanding, ~improve | ~more, accept & ~start_expand)
+            t_next = jnp.where(expanding | start_expand, 2.0 * t, t_search)
+            return {
+                "i": c["i"] + 1, "t": jnp.where(done, t, t_next), "lo": lo, "hi": hi, "done": done,
+                "phase": jnp.where(start_expand, 1, c["phase"]), "n_exp": n_exp,
+                "bt": jnp.where(improve, t, c["bt"]), "bf": jnp.where(improve, ft, c["bf"]),
+                "bx": jnp.where(improve, xt, c["bx"]), "bg": jnp.where(improve, gt, c["bg"]),
+            }
+
+        c0 = {"i": jnp.int32(0), "t": t, "lo": jnp.zeros_like(t), "hi": inf, "done": jnp.bool_(False),
+              "phase": jnp.int32(0), "n_exp": jnp.int32(0),
+              "bt": jnp.zeros_like(t), "bf": jnp.asarray(f, x.dtype), "bx": x, "bg": g}
+        c = lax.while_loop(lambda c: ~c["done"] & (c["i"] < self.max_steps), body, c0)
+        # on a Wolfe failure take the best Armijo point seen (if any)
+        return c["bt"], c["bx"], c["bf"], c["bg"], c["bt"] > 0, c["i"]
+
+    def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
+        """Search on an :class:`~geomopt.Objective`: ``(t, x_new, value_new, grad_new, evals)``;
+        ``t == 0`` means no acceptable step."""
+        t, xn, fn, gn, _, n = _search_kernel(self, objective.energy.density, objective.geom,
+                                             objective._free, params, x, value, grad, dx, t0)
+        return float(t), xn, float(fn), gn, int(n)
+
+
+def objective_value_and_grad(density, geom, free, params):
+    """``x -> (E(x), grad E(x) * free)`` for the search (pure JAX)."""
+    from ._objective import _total
+
+    def vg(x):
+        v, g = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+        return v, g * free
+
+    return vg
+
+
+@partial(jax.jit, static_argnums=(0, 1))
+def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
+    vg = objective_value_and_grad(density, geom, free, params)
+    return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0)

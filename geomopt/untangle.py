@@ -54,14 +54,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
+from ._geometry import det
 from ._objective import Objective, _jacobians, _total
 from .energies import garanzha
-from .energies._densities import _det
-from .linesearch import Backtracking
+from .linesearch import InjectiveSearch
 from .problem import Problem
-from .solvers._base import AbstractSolver, Outcome
-from .solvers.lbfgs import LBFGS
-from .solvers.newton import Newton
+from .solvers import LBFGS, AbstractSolver, Newton, Outcome
 
 __all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
            "default_solver"]
@@ -85,11 +83,11 @@ def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
     key = str(name).strip().lower()
     if key == "lbfgs":
         return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 else 3000,
-                     line_search=Backtracking(injective=False),
+                     search=InjectiveSearch(injective=False, c2=0.9),
                      precondition="laplacian" if n_elements >= LAPLACIAN_FROM else "diagonal")
     if key == "newton":
         return Newton(projection="clamp", rtol=1e-7, max_steps=100,
-                      line_search=Backtracking(injective=False))
+                      search=InjectiveSearch(injective=False))
     raise ParameterError(f"unknown untangling solver {name!r}; valid: 'lbfgs', 'newton' or a solver object")
 
 
@@ -152,7 +150,7 @@ class UntangleResult:
 @partial(jax.jit, static_argnums=0)
 def _outer_stats(density, geom, x, params):
     """(energy over all elements, min det J, #elements with det J <= 0)."""
-    D = jax.vmap(_det)(_jacobians(geom, x))
+    D = det(_jacobians(geom, x))
     return _total(density, geom, x, params), jnp.min(D), jnp.sum(D <= 0)
 
 
@@ -203,29 +201,6 @@ def _power_of_two(v: float) -> float:
 def _bits_differ(a, b) -> int:
     a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
     return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
-
-
-def _reparam(solver, state, params, injective=None):
-    """The inner state with new energy parameters (memory kept where the solver has any)."""
-    if hasattr(solver, "with_params"):
-        return solver.with_params(state, params, injective=injective)
-    value = float(state.objective.value(state.x, params))
-    return dataclasses.replace(state, params=params, value=value, grad=None, iteration=0,
-                               failure=None, prev_value=float("inf"), decrement=float("inf"),
-                               step_size=float("nan"))
-
-
-def _inner_solve(solver, state):
-    if hasattr(solver, "run"):
-        state = solver.run(state)
-        return state, state.iteration
-    it = 0
-    while True:
-        done, _ = solver.terminate(state)
-        if done:
-            return state, it
-        state = solver.step(state)
-        it += 1
 
 
 # --------------------------------------------------------------------- main entry
@@ -327,9 +302,9 @@ def untangle(
     eps = float(eps0)
     params = obj.params(eps=eps)
     x = jnp.asarray(xs)
-    state = solver.init(obj, x, params, precompile="run") if isinstance(solver, LBFGS) else \
-        solver.init(obj, x, params)
-    state = _reparam(solver, state, params)  # compiles the re-parameterisation kernel too
+    state = solver.init(obj, x, params)
+    state = solver.with_params(state, params)  # compiles the re-parameterisation kernel too
+    state = solver.run(state, max_steps=0)  # and the inner loop
     E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
     setup = time.perf_counter() - t_setup
 
@@ -342,7 +317,9 @@ def untangle(
     outer = 0
     for outer in range(1, max_outer + 1):
         E_prev = E
-        state, n_inner = _inner_solve(solver, state)
+        it0 = state.iteration
+        state = solver.run(state)
+        n_inner = state.iteration - it0
         inner_total += n_inner
         x = state.x
         E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
@@ -364,16 +341,15 @@ def untangle(
         eps = max(floor, 2.0 * math.sqrt(mu * (mu - detmin))) if detmin < mu else floor
         params = obj.params(eps=eps)
         if injective_when_untangled and not injective and detmin > 0:
-            injective = True
-            state = _reparam(solver, state, params, injective=True)
-        else:
-            state = _reparam(solver, state, params)
+            injective = True  # from now on no element may flip back
+            solver = dataclasses.replace(solver, search=dataclasses.replace(solver.search, injective=True))
+        state = solver.with_params(state, params)
         E = float(_outer_stats(energy.density, full.geom, state.x, params)[0])
-        if not keep_memory and isinstance(solver, LBFGS):
-            state = _reset_memory(state)
+        if not keep_memory:
+            state = solver.forget(state)
     seconds = time.perf_counter() - t0
-    evaluations = int(state.aux["carry"]["nfev"]) if isinstance(getattr(state, "aux", None), dict) \
-        and "carry" in state.aux else None
+    evaluations = state.evaluations
+
 
     # ---- back to the input frame: exact (power of two), handles written back bit for bit
     xs_final = np.asarray(state.x, dtype=np.float64)
@@ -405,12 +381,6 @@ def _min_rel(vols):
     """The smallest signed size over the mean absolute one (nan for an all-degenerate map)."""
     scale = float(np.mean(np.abs(vols)))
     return float(vols.min() / scale) if scale > 0 else float("nan")
-
-
-def _reset_memory(state):
-    carry = state.aux["carry"]
-    carry = dict(carry, k=jnp.zeros_like(carry["k"]), H0=jnp.ones_like(carry["H0"]))
-    return dataclasses.replace(state, aux=dict(state.aux, carry=carry))
 
 
 def _orient_bad(x, S):

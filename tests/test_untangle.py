@@ -18,7 +18,7 @@ from geomopt import generators as G
 from geomopt._errors import MeshError, ParameterError, SolveError
 from geomopt._objective import Objective
 from geomopt.io import lim_cases, read_lim2d
-from geomopt.linesearch import Backtracking
+from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
 from geomopt.problem import Problem
 from geomopt.solvers import Newton, Outcome, minimize
@@ -254,7 +254,7 @@ def test_lbfgs_variants_converge(precondition, c2):
     b = G.boundary_vertices(F, len(V))
     problem = Problem.planar(V, F, b, V[b] * 1.3)
     obj = Objective(problem, "dirichlet")
-    result = minimize(obj, V, LBFGS(precondition=precondition, c2=c2, gtol=1e-10, rtol=1e-14),
+    result = minimize(obj, V, LBFGS(precondition=precondition, search=InjectiveSearch(c2=c2), gtol=1e-10, rtol=1e-14),
                       progress=False)
     assert result.outcome is Outcome.CONVERGED
     np.testing.assert_allclose(result.x, V * 1.3, atol=1e-7)
@@ -289,7 +289,7 @@ def test_lbfgs_injective_line_search_keeps_orientation():
     def progress(state, elapsed, mean_energy):
         seen.append(problem.count_inverted(np.asarray(state.x)))
 
-    solver = LBFGS(line_search=Backtracking(injective=True), rtol=1e-14, gtol=1e-10, max_steps=3000)
+    solver = LBFGS(search=InjectiveSearch(injective=True, c2=0.9), rtol=1e-14, gtol=1e-10, max_steps=3000)
     result = minimize(obj, x0, solver, progress=progress)
     assert result.success and max(seen) == 0
     newton = minimize(obj, x0, Newton(), progress=False)
@@ -302,7 +302,7 @@ def test_lbfgs_bad_configuration():
     with pytest.raises(ParameterError):
         LBFGS(precondition="bfgs")
     with pytest.raises(ParameterError):
-        LBFGS(c2=1.0)
+        LBFGS(search=InjectiveSearch(c2=1.0))
 
 
 def test_lbfgs_stops_at_a_stationary_start():

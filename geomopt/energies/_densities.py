@@ -16,16 +16,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import lax
 
+from .._geometry import det
 
-def _det(J):
-    d = J.shape[-1]
-    if d == 2:
-        return J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
-    return (
-        J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1])
-        - J[0, 1] * (J[1, 0] * J[2, 2] - J[1, 2] * J[2, 0])
-        + J[0, 2] * (J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0])
-    )
+
+_det = det  # one determinant for the whole library (geomopt._geometry)
 
 
 def _cof_sq(J):

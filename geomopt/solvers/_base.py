@@ -1,12 +1,20 @@
-"""Solver interface (``init / step / terminate``), outcomes, results and the driver loop.
+"""Solver interface, outcomes, results and the one driver loop.
 
-Solvers are immutable configuration objects (DESIGN.md §1, in the style of optimistix):
+A solver is an immutable configuration object (DESIGN.md §1, in the style of optimistix): a
+*descent* (how it makes a direction: projected Newton, L-BFGS, SLIM, AQP, CM, an optimistix
+descent) plus the shared :class:`~geomopt.linesearch.InjectiveSearch` in its ``search``
+field (how far it goes).  Every solver has
 
 * ``init(objective, x0, params) -> State``
 * ``step(state) -> State``
 * ``terminate(state) -> (bool, Outcome | None)``
+* ``run(state, max_steps=None) -> State``: iterate until ``terminate`` says stop (one jitted
+  ``lax.while_loop`` for solvers that are fully jittable, a host loop otherwise);
+* ``with_params(state, params) -> State``: the same point with new energy parameters
+  (what continuation loops such as untangling's eps loop need; memory is kept where a solver
+  has any).
 
-:func:`minimize` owns the loop, progress output, history and timings, so a notebook can
+:func:`minimize` owns the loop, progress, history, timings and ``throw``; a notebook can
 also drive ``init`` / ``step`` by hand.
 """
 
@@ -15,13 +23,19 @@ from __future__ import annotations
 import abc
 import dataclasses
 import enum
+import math
 import sys
 import time
 from typing import Any, Callable
 
+import jax.numpy as jnp
 import numpy as np
 
-from .._errors import SolveError
+from .._errors import ParameterError, SolveError
+from ..linesearch import InjectiveSearch, _check_config
+
+#: a map whose extent grows by more than this factor over its start (and rest) extent diverged
+DIVERGENCE_FACTOR = 1e6
 
 
 class Outcome(enum.Enum):
@@ -30,6 +44,7 @@ class Outcome(enum.Enum):
     LINE_SEARCH_FAILED = "line_search_failed"
     NONFINITE = "nonfinite"
     NOT_INJECTIVE = "not_injective"
+    DIVERGED = "diverged"
 
     @property
     def message(self) -> str:
@@ -40,31 +55,71 @@ class Outcome(enum.Enum):
             "badly scaled or the energy non-smooth)",
             "nonfinite": "the energy or gradient became NaN/inf (check the input and the start map)",
             "not_injective": "the result has inverted or degenerate elements",
+            "diverged": "the solve diverged: the map grew without bound while the energy kept "
+            "falling (the energy is unbounded below here: check its parameters, e.g. lam >= 0, "
+            "or fix vertices)",
         }[self.value]
 
 
 @dataclasses.dataclass(frozen=True)
 class State:
-    """The state of one solve: the current map and what the solver keeps between steps."""
+    """The state of one solve: the current map and what the solver keeps between steps.
+
+    ``aux`` holds the descent's own data (L-BFGS memory, a factorization...): read it only
+    through the solver."""
 
     objective: Any
     params: dict
     x: Any  # (n, d) jax array
     value: float
-    grad: Any  # (n, d) jax array, zero on fixed vertices
+    grad: Any  # (n, d) jax array, zero on fixed vertices (None: not evaluated yet)
     iteration: int = 0
     step_size: float = float("nan")
     decrement: float = float("inf")  # Newton decrement^2 / 2 or its analogue
     prev_value: float = float("inf")
     failure: Outcome | None = None
-    aux: Any = None  # solver-specific (L-BFGS memory, ...)
+    evaluations: int = 1
+    extent0: float = float("inf")  # reference size for the divergence test
+    energy_floor: float = 1e-300  # |E| below this counts as this (1e-12 |E(x0)|): energies reaching 0
+    aux: Any = None
+
+
+def map_extent(x) -> float:
+    """The largest side of the bounding box of a map (n, d)."""
+    x = np.asarray(x)
+    return float(np.max(x.max(axis=0) - x.min(axis=0))) if x.size else 0.0
+
+
+def reference_extent(objective, x0) -> float:
+    """max(extent of the start map, extent of the rest mesh, tiny): the divergence test's unit."""
+    rest = map_extent(objective.problem.rest_vertices)
+    return max(map_extent(x0), rest, 1e-300)
+
+
+def converged(value, prev_value, decrement, rtol, iteration, floor=1e-300):
+    """The shared stopping test (host floats or traced arrays): the decrement, or the last
+    energy decrease, is below ``rtol`` relative to ``max(|E|, floor)``."""
+    scale = jnp.maximum(jnp.abs(value), floor)
+    drop = prev_value - value
+    return (decrement <= rtol * scale) | ((iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale))
 
 
 class AbstractSolver(abc.ABC):
-    """A minimiser of an :class:`~geomopt._objective.Objective`."""
+    """A minimiser of an :class:`~geomopt._objective.Objective`: a descent plus ``search``."""
 
     max_steps: int
     rtol: float
+    search: InjectiveSearch
+
+    def _check(self):
+        """Validate the shared configuration (called by every subclass's ``__post_init__``)."""
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclasses
+        name = type(self).__name__
+        set_("max_steps", _check_config(f"{name} max_steps", self.max_steps, 1, None, integer=True))
+        set_("rtol", _check_config(f"{name} rtol", self.rtol, 0, 1, hi_open=True))
+        if not isinstance(self.search, InjectiveSearch):
+            raise ParameterError(f"{name} search must be a geomopt.linesearch.InjectiveSearch, "
+                                 f"got {type(self.search).__name__}")
 
     @abc.abstractmethod
     def init(self, objective, x0, params) -> State: ...
@@ -73,19 +128,45 @@ class AbstractSolver(abc.ABC):
     def step(self, state: State) -> State: ...
 
     def terminate(self, state: State):
-        """Stop on failure, on a relative decrement/energy change below ``rtol``, or the limit."""
+        """Stop on failure, non-finite values, divergence, convergence or the step limit."""
         if state.failure is not None:
             return True, state.failure
-        if not np.isfinite(state.value):
+        if not math.isfinite(state.value):
             return True, Outcome.NONFINITE
-        scale = max(abs(state.value), 1e-300)
-        if state.decrement <= self.rtol * scale:
-            return True, Outcome.CONVERGED
-        if state.iteration > 0 and 0 <= state.prev_value - state.value <= 0.01 * self.rtol * scale:
+        if map_extent(state.x) > DIVERGENCE_FACTOR * state.extent0:
+            return True, Outcome.DIVERGED
+        if bool(converged(state.value, state.prev_value, state.decrement, self.rtol, state.iteration,
+                          state.energy_floor)):
             return True, Outcome.CONVERGED
         if state.iteration >= self.max_steps:
             return True, Outcome.MAX_STEPS
         return False, None
+
+    def run(self, state: State, max_steps: int | None = None) -> State:
+        """Iterate until :meth:`terminate` stops (or ``max_steps`` more iterations)."""
+        limit = None if max_steps is None else state.iteration + int(max_steps)
+        while not self.terminate(state)[0] and (limit is None or state.iteration < limit):
+            state = self.step(state)
+        return state
+
+    def with_params(self, state: State, params) -> State:
+        """``state`` re-evaluated under new energy parameters; counters restart."""
+        obj = state.objective
+        value, grad = obj.value_and_grad(state.x, params)
+        return dataclasses.replace(state, params=params, value=float(value), grad=grad, iteration=0,
+                                   failure=None, prev_value=float("inf"), decrement=float("inf"),
+                                   step_size=float("nan"))
+
+    def forget(self, state: State) -> State:
+        """``state`` with any memory the descent keeps (curvature pairs...) cleared."""
+        return state
+
+    def _start(self, objective, x0, params, aux=None) -> State:
+        """The common start state: value and gradient at ``x0``."""
+        x = jnp.asarray(x0, dtype=jnp.float64)
+        value, grad = objective.value_and_grad(x, params)
+        return State(objective, params, x, float(value), grad, extent0=reference_extent(objective, x0),
+                     energy_floor=max(1e-12 * abs(float(value)), 1e-300), aux=aux)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +180,8 @@ class Result:
     inverted : int, elements not positively oriented (exact predicate).
     energy : float, final total energy;  energy_history : per-iteration energies.
     iterations : int;  seconds : solve time;  setup_seconds : pattern + JIT compilation.
+    time_history : (iterations + 1,) seconds since the solve started, per iteration.
+    grad_history : per-iteration gradient norms (free DOFs).
     """
 
     x: np.ndarray
@@ -110,6 +193,7 @@ class Result:
     seconds: float
     setup_seconds: float
     time_history: np.ndarray
+    grad_history: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     info: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -125,53 +209,81 @@ class Result:
 
 
 class Progress:
-    """Per-iteration log lines on a stream (None = silent)."""
+    """Per-iteration progress: a tqdm bar when ``stream`` is a terminal, else one line per
+    ``every`` iterations; ``stream=None`` is silent."""
 
-    def __init__(self, stream=sys.stderr, every: int = 1, prefix: str = ""):
-        self.stream, self.every, self.prefix = stream, every, prefix
+    def __init__(self, stream=None, every: int = 1, prefix: str = "", total: int | None = None):
+        self.stream = stream if stream is not None else sys.stderr
+        self.every, self.prefix, self.total = every, prefix, total
+        self._bar = None
+        isatty = getattr(self.stream, "isatty", None)
+        if isatty is not None and isatty():
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, file=self.stream, desc=prefix or "geomopt", leave=False)
 
     def __call__(self, state: State, elapsed: float, mean_energy: float):
-        if self.stream is None or state.iteration % self.every:
+        if self._bar is not None:
+            self._bar.update(1)
+            self._bar.set_postfix(energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
             return
-        print(
-            f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
-            f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
-            file=self.stream,
-            flush=True,
-        )
+        if state.iteration % self.every:
+            return
+        print(f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
+              f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
+              file=self.stream, flush=True)
+
+    def close(self):
+        if self._bar is not None:
+            self._bar.close()
+
+
+def _grad_norm(state) -> float:
+    return float(jnp.sqrt(jnp.vdot(state.grad, state.grad))) if state.grad is not None else float("nan")
 
 
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
              throw: bool = False) -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
 
-    ``params`` overrides the energy's parameters; ``progress`` is True (log to stderr),
-    False, or a callable ``(state, elapsed, mean_energy)``.  With ``throw=True`` a result
-    that is not converged and injective raises :class:`~geomopt.SolveError`.
+    Parameters
+    ----------
+    objective : :class:`~geomopt.Objective`.
+    x0 : (n, d) start map (handle rows replaced by the handles' positions).
+    solver : a solver object or name (``geomopt.solvers.SOLVERS``), default ``"newton"``.
+    params : energy parameters overriding the objective's (validated like the energy's own).
+    progress : True (a bar on a terminal, lines otherwise, on stderr), False, or a callable
+        ``(state, elapsed, mean_energy)``.
+    throw : raise :class:`~geomopt.SolveError` unless the result is converged and injective.
     """
-    from .newton import Newton
+    from . import get_solver
 
-    solver = Newton() if solver is None else solver
+    solver = get_solver("newton" if solver is None else solver)
     problem = objective.problem
     x0 = problem.check_map(x0)
     params = objective.params(**(params or {}))
-    report = Progress() if progress is True else (progress or None)
+    report = Progress(total=solver.max_steps) if progress is True else (progress or None)
     vol = objective.total_volume
 
     t0 = time.perf_counter()
     state = solver.init(objective, x0, params)
     setup = time.perf_counter() - t0
-    history, times = [state.value], [0.0]
+    history, times, grads = [state.value], [0.0], [_grad_norm(state)]
     t0 = time.perf_counter()
-    while True:
-        done, outcome = solver.terminate(state)
-        if done:
-            break
-        state = solver.step(state)
-        history.append(state.value)
-        times.append(time.perf_counter() - t0)
-        if report:
-            report(state, times[-1], state.value / vol)
+    try:
+        while True:
+            done, outcome = solver.terminate(state)
+            if done:
+                break
+            state = solver.step(state)
+            history.append(state.value)
+            times.append(time.perf_counter() - t0)
+            grads.append(_grad_norm(state))
+            if report:
+                report(state, times[-1], state.value / vol)
+    finally:
+        if isinstance(report, Progress):
+            report.close()
     seconds = time.perf_counter() - t0
     x = np.asarray(state.x)
     if not np.isfinite(x).all():
@@ -183,7 +295,8 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     result = Result(
         x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
         energy_history=np.asarray(history), iterations=state.iteration, seconds=seconds,
-        setup_seconds=setup, time_history=np.asarray(times),
+        setup_seconds=setup, time_history=np.asarray(times), grad_history=np.asarray(grads),
+        info={"solver": solver, "evaluations": state.evaluations},
     )
     if throw and not result.success:
         raise SolveError(f"solve failed: {result.message}", result)

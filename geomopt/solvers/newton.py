@@ -1,20 +1,26 @@
-"""Projected Newton with a sparse Cholesky and the injective line search.
+"""Projected Newton (and its proxy variants SLIM and CM) with a sparse Cholesky.
 
-Per iteration: per-element Hessians by autodiff, projected to PSD in J-space, assembled
-into a fixed CSC pattern, factored (symbolic analysis reused), then the injective
-backtracking line search (Teran et al. 2005; Smith & Schaefer 2015).
+Per iteration: per-element J-space blocks (the density's Hessian projected to PSD, or a
+proxy: :mod:`geomopt.solvers.proxies`), assembled into a fixed CSC pattern, factored
+(symbolic analysis reused), then the shared injective search (Teran et al. 2005; Smith &
+Schaefer 2015).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from ..linesearch import Backtracking
-from ..linsolve import NotPositiveDefinite, SparseCholesky
+from .._errors import ParameterError
+from ..linesearch import InjectiveSearch, _check_config
+from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky
 from ._base import AbstractSolver, Outcome, State
+from .proxies import CMProxy, SLIMProxy
+
+PROJECTIONS = ("adaptive", "clamp", "abs", "none")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,11 +29,12 @@ class Newton(AbstractSolver):
 
     Attributes
     ----------
-    projection : ``"adaptive"`` (default), ``"clamp"``, ``"abs"`` or ``"none"``.  Projected
-        Newton converges only linearly near a minimum because the projection changes the
-        Hessian of elements that are indefinite there (symmetric Dirichlet has many), so
-        ``adaptive`` clamps while far from the minimum and, once a full step was accepted and
-        the decrement is below ``exact_below * |E|``, factors the *unprojected* Hessian: at a
+    projection : ``"adaptive"`` (default), ``"clamp"``, ``"abs"``, ``"none"``, or a proxy
+        object (:class:`~geomopt.solvers.proxies.SLIMProxy`, ``CMProxy``).  Projected Newton
+        converges only linearly near a minimum because the projection changes the Hessian of
+        elements that are indefinite there (symmetric Dirichlet has many), so ``adaptive``
+        clamps while far from the minimum and, once a full step was accepted and the
+        decrement is below ``exact_below * |E|``, factors the *unprojected* Hessian: at a
         strict minimum it is positive definite and Newton converges quadratically.  The exact
         Hessian gets a Levenberg-Marquardt shift, relaxed after full steps and stiffened after
         cut ones; if it does not factor (indefinite), clamping resumes for two iterations.
@@ -37,34 +44,46 @@ class Newton(AbstractSolver):
     max_steps : iteration limit.
     regularization : relative diagonal shift added to the Hessian (it is singular for a free
         boundary: rotations); increased automatically when a factorization fails.
-    line_search : :class:`~geomopt.linesearch.Backtracking`.
+    search : the :class:`~geomopt.linesearch.InjectiveSearch` (step doubling on by default).
     """
 
-    projection: str = "adaptive"
+    projection: Any = "adaptive"
     exact_below: float = 1e-4
     linear_solver: str = "auto"
     rtol: float = 1e-10
     max_steps: int = 200
     regularization: float = 1e-9
-    line_search: Backtracking = Backtracking(expand=3)
+    search: InjectiveSearch = InjectiveSearch(expand=3)
+
+    def __post_init__(self):
+        self._check()
+        if not (callable(self.projection) or self.projection in PROJECTIONS):
+            raise ParameterError(f"unknown projection {self.projection!r}; valid: {', '.join(PROJECTIONS)} "
+                                 f"or a proxy object")
+        if self.linear_solver not in BACKENDS:
+            raise ParameterError(f"unknown linear solver {self.linear_solver!r}; valid: {', '.join(BACKENDS)}")
+        object.__setattr__(self, "exact_below", _check_config("exact_below", self.exact_below, 0, None))
+        object.__setattr__(self, "regularization",
+                           _check_config("regularization", self.regularization, 0, 1, lo_open=True))
+
+    def _kernels(self):
+        return ("clamp", "none") if self.projection == "adaptive" else (self.projection,)
 
     def init(self, objective, x0, params) -> State:
-        x = jnp.asarray(x0)
         pat = objective.pattern
         chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
         chol.analyze()
-        value, grad = objective.value_and_grad(x, params)
+        state = self._start(objective, x0, params, aux={"chol": chol, "cooldown": 0})
         # compile every kernel the loop uses now, so that setup time holds the compilation
-        for projection in ("clamp", "none") if self.projection == "adaptive" else (self.projection,):
-            objective.hessian(x, params, projection)
-        self.line_search(objective, params, x, float(value), grad, jnp.zeros_like(x))
-        aux = {"chol": chol, "cooldown": 0}
-        return State(objective, params, x, float(value), grad, aux=aux)
+        for projection in self._kernels():
+            objective.hessian(state.x, params, projection)
+        self.search(objective, params, state.x, state.value, state.grad, jnp.zeros_like(state.x))
+        return state
 
     def _projection(self, state):
         if self.projection != "adaptive":
             return self.projection
-        if state is None or state.aux["cooldown"] > 0 or not state.step_size >= 1.0:
+        if state.aux["cooldown"] > 0 or not state.step_size >= 1.0:
             return "clamp"
         return "none" if state.decrement <= self.exact_below * abs(state.value) else "clamp"
 
@@ -91,7 +110,8 @@ class Newton(AbstractSolver):
         projection = self._projection(state)
         aux = dict(state.aux, cooldown=max(state.aux["cooldown"] - 1, 0))
         reg = self.regularization
-        if projection == "none":
+        exact = False
+        if isinstance(projection, str) and projection == "none":
             # Levenberg-Marquardt on the exact Hessian: the smallest shift that factors
             mu = max(aux.get("mu", reg), reg)
             value, grad, g, d_free, used = self._direction(state, "none", [mu, 1e2 * mu])
@@ -100,27 +120,59 @@ class Newton(AbstractSolver):
                 aux["cooldown"], aux["mu"] = 2, 1e4 * mu
             else:
                 aux["mu"] = used
-        if projection != "none" or d_free is None:
-            value, grad, g, d_free, _ = self._direction(
-                state, "clamp" if projection == "none" else projection, [reg * 100**k for k in range(8)])
+        if not exact:
+            fallback = "clamp" if isinstance(projection, str) and projection == "none" else projection
+            value, grad, g, d_free, _ = self._direction(state, fallback, [reg * 100**k for k in range(8)])
         if d_free is None or not np.isfinite(value):
             return dataclasses.replace(state, failure=Outcome.NONFINITE)
         dx = np.zeros(x.size)
         dx[pat.free_dofs] = d_free
         dx = jnp.asarray(dx.reshape(x.shape))
         decrement = 0.5 * float(-g @ d_free)
-        t, xn, vn, _ = self.line_search(obj, params, x, value, grad, dx)
+        t, xn, vn, gn, evals = self.search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
-        if projection == "none" and exact:
+        if exact:
             # trust-region-like damping: relax after a full (or longer) step, stiffen after a cut
             aux["mu"] = max(aux["mu"] / 10, reg) if t >= 1.0 else aux["mu"] * 10
+        evaluations = state.evaluations + evals
         if t == 0.0:
-            if decrement <= self.rtol * max(abs(value), 1e-300) * 100:
+            if decrement <= self.rtol * max(abs(value), state.energy_floor) * 100:
                 # already at the minimum up to rounding
-                return dataclasses.replace(state, iteration=it, decrement=decrement, step_size=0.0)
+                return dataclasses.replace(state, iteration=it, decrement=decrement, step_size=0.0,
+                                           evaluations=evaluations, grad=grad)
             return dataclasses.replace(state, iteration=it, failure=Outcome.LINE_SEARCH_FAILED,
-                                       decrement=decrement, step_size=0.0)
-        return dataclasses.replace(  # the next step's Hessian evaluation brings the gradient
-            state, x=xn, value=vn, grad=None, iteration=it, step_size=t,
-            decrement=decrement, prev_value=value, aux=aux,
+                                       decrement=decrement, step_size=0.0, evaluations=evaluations,
+                                       grad=grad)
+        return dataclasses.replace(
+            state, x=xn, value=vn, grad=gn, iteration=it, step_size=t,
+            decrement=decrement, prev_value=value, aux=aux, evaluations=evaluations,
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class SLIM(Newton):
+    """SLIM (Rabinovich et al. 2017): Newton steps on the reweighted Laplacian proxy whose
+    weights come from the density's singular-value derivatives
+    (:class:`~geomopt.solvers.proxies.SLIMProxy`), then the injective search.  Works for any
+    rotation-invariant density; the paper's closed form for symmetric Dirichlet."""
+
+    projection: Any = SLIMProxy()
+    rtol: float = 1e-10
+    max_steps: int = 1000
+    search: InjectiveSearch = InjectiveSearch()
+
+
+@dataclasses.dataclass(frozen=True)
+class CM(Newton):
+    """Composite majorization (Shtengel et al. 2017), 2D: Newton steps on the convex
+    majorizer of :class:`~geomopt.solvers.proxies.CMProxy`, then the injective search."""
+
+    projection: Any = CMProxy()
+    max_steps: int = 500
+    search: InjectiveSearch = InjectiveSearch()
+
+    def init(self, objective, x0, params) -> State:
+        if objective.problem.dim != 2:
+            raise ParameterError("CM (composite majorization) is defined for 2D problems (triangles); "
+                                 "use newton, lbfgs or slim for tetrahedra")
+        return super().init(objective, x0, params)
