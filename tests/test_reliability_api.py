@@ -156,3 +156,98 @@ def test_same_side_facets_counts_and_locates():
     T2[5] = T2[5, [1, 0, 2, 3]]
     count, elements = same_side_facets(T2)
     assert count == 3 and elements[5]  # tet 5 has one boundary face: 3 interior ones repeat
+
+
+# ------------------------------------------------------------------ params= is validated
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"lam": -5}, "lam=-5.0 must be >= 0"),
+    ({"eps": 0}, "eps=0.0 must be > 0"),
+    ({"lamm": 1}, r"no parameter\(s\) \['lamm'\]; its parameters are \['eps', 'lam'\]"),
+    ({"eps": float("nan")}, "must be finite"),
+    ({"eps": "small"}, "must be a number"),
+])
+def test_minimize_params_are_validated_like_the_energy(params, match):
+    V, F = grid(3)
+    obj = Objective(Problem.planar(V, F), garanzha)
+    with pytest.raises(ParameterError, match=match):
+        minimize(obj, V, params=params, progress=False)
+    with pytest.raises(ParameterError, match=match):
+        obj.params(**params)
+
+
+# ------------------------------------------------------------------ user densities
+
+
+def _vector(J, params):
+    return J.ravel()
+
+
+def _one_argument(J):
+    return jnp.sum(J * J)
+
+
+def _numpy_only(J, params):
+    return np.linalg.det(np.asarray(J))
+
+
+def _integer(J, params):
+    return jnp.sum(J > 0)
+
+
+def _complex(J, params):
+    return jnp.sum(J * J) + 1j
+
+
+def _pair(J, params):
+    return jnp.sum(J * J), jnp.sum(J)
+
+
+def _branchy(J, params):
+    return jnp.sum(J * J) if J[0, 0] > 0 else 0.0
+
+
+@pytest.mark.parametrize("density, detail", [
+    (_vector, r"shape \(4,\), not a scalar"),
+    (_one_argument, "TypeError"),
+    (_numpy_only, "TracerArrayConversionError"),
+    (_integer, "dtype int64, not float64"),
+    (_complex, "dtype complex128, not float64"),
+    (_pair, "returned tuple"),
+    (_branchy, "Error"),
+])
+def test_bad_user_density_is_refused_when_the_energy_is_built(density, detail):
+    with pytest.raises(ParameterError, match=f"invalid density: on a 2x2 J .*{detail}.*"
+                                             f"a density must be a pure JAX function psi\\(J, params\\)"):
+        Energy(density, name="bad")
+
+
+def test_density_for_one_dimension_only_is_checked_against_the_problem():
+    def corner(J, params):  # traces for 3x3 J only
+        return jnp.sum(J * J) + params["w"] * J.reshape(3, 3)[2, 2] ** 2
+
+    e = Energy(corner, params={"w": 0.5}, name="corner")
+    assert e.dims == (3,)
+    P, T = cube_tets(1)
+    Objective(Problem.tets(P, T), e)
+    V, F = grid(3)
+    with pytest.raises(ParameterError, match=r"'corner': the density works only for d=3, but the "
+                                             r"problem has 2x2 Jacobians.*TypeError"):
+        Objective(Problem.planar(V, F), e)
+
+
+def test_builtin_densities_pass_the_density_check():
+    for e in REGISTRY.values():
+        assert e.dims == (2, 3)
+
+
+def test_unhashable_density_is_refused():
+    class Psi:
+        __hash__ = None
+
+        def __call__(self, J, params):
+            return jnp.sum(J * J)
+
+    with pytest.raises(ParameterError, match="must be hashable"):
+        Energy(Psi())
