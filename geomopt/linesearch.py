@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import Instance, Int, Real, validate
+
 
 def _edges(S, x):
     X = x[S]
@@ -160,6 +162,12 @@ class Backtracking:
     shrink: float = 0.5
     max_backtracks: int = 60
     expand: int = 0
+
+    def __post_init__(self):
+        validate(self, injective=Instance(bool), safety=Real(0.0, 1.0, lo_open=True),
+                 c1=Real(0.0, 1.0, lo_open=True, hi_open=True),
+                 shrink=Real(0.0, 1.0, lo_open=True, hi_open=True), max_backtracks=Int(1),
+                 expand=Int(0))
 
     def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
         """Return ``(t, x_new, value_new, n_evals)``; ``t == 0`` means failure."""

@@ -251,3 +251,42 @@ def test_unhashable_density_is_refused():
 
     with pytest.raises(ParameterError, match="must be hashable"):
         Energy(Psi())
+
+
+# ------------------------------------------------------------------ solver configuration
+
+
+@pytest.mark.parametrize("build, match", [
+    (lambda: Newton(max_steps=-5), "Newton: max_steps must be an integer >= 1, got -5"),
+    (lambda: Newton(max_steps=2.5), "Newton: max_steps must be an integer >= 1, got 2.5"),
+    (lambda: Newton(max_steps=True), "max_steps must be an integer"),
+    (lambda: Newton(rtol=float("nan")), r"Newton: rtol must be a finite number in \[0, 1\), got nan"),
+    (lambda: Newton(projection="eig"), "Newton: projection must be one of 'adaptive', 'clamp'"),
+    (lambda: Newton(regularization=0.0), "regularization must be a finite number > 0"),
+    (lambda: Newton(exact_below=-1.0), "exact_below must be a finite number >= 0"),
+    (lambda: Newton(linear_solver="lu"), "linear_solver must be one of 'auto'"),
+    (lambda: Newton(line_search="armijo"), "line_search must be a Backtracking object"),
+    (lambda: LBFGS(max_steps=-5), "LBFGS: max_steps must be an integer >= 1"),
+    (lambda: LBFGS(rtol=float("nan")), "LBFGS: rtol must be a finite number"),
+    (lambda: LBFGS(gtol=float("inf")), "LBFGS: gtol must be a finite number"),
+    (lambda: LBFGS(history=2.5), "LBFGS: history must be an integer >= 1"),
+    (lambda: LBFGS(window=0), "LBFGS: window must be an integer >= 1"),
+    (lambda: LBFGS(c2=1e-5), "need c1 < c2"),
+    (lambda: Backtracking(shrink=2), r"Backtracking: shrink must be a finite number in \(0, 1\), got 2"),
+    (lambda: Backtracking(c1=-1), r"Backtracking: c1 must be a finite number in \(0, 1\), got -1"),
+    (lambda: Backtracking(safety=0.0), "safety must be a finite number in"),
+    (lambda: Backtracking(max_backtracks=0), "max_backtracks must be an integer >= 1"),
+    (lambda: Backtracking(expand=-1), "expand must be an integer >= 0"),
+    (lambda: Backtracking(injective="yes"), "injective must be True or False"),
+])
+def test_bad_solver_configuration_is_refused_when_built(build, match):
+    with pytest.raises(ParameterError, match=match):
+        build()
+
+
+def test_solver_configuration_is_normalised():
+    s = Newton(max_steps=1e3, rtol=np.float32(0.5), line_search=Backtracking(max_backtracks=np.int64(7)))
+    assert s.max_steps == 1000 and type(s.max_steps) is int
+    assert type(s.rtol) is float and s.line_search.max_backtracks == 7
+    assert LBFGS(history=np.int32(3)).history == 3
+    assert Backtracking(injective=np.bool_(False)).injective is False

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jax import lax
 
+from .._config import Instance, Int, OneOf, Real, validate
 from .._errors import ParameterError
 from .._objective import _total
 from ..linesearch import Backtracking, _still_positive, max_injective_step
@@ -292,15 +293,14 @@ class LBFGS(AbstractSolver):
     window: int = 1
 
     def __post_init__(self):
-        if self.window < 1:
-            raise ParameterError(f"LBFGS window must be >= 1, got {self.window}")
-        if self.history < 1:
-            raise ParameterError(f"LBFGS history must be >= 1, got {self.history}")
-        if self.precondition not in PRECONDITIONERS:
-            raise ParameterError(
-                f"unknown L-BFGS preconditioner {self.precondition!r}; valid: {', '.join(PRECONDITIONERS)}")
-        if not 0 <= self.c2 < 1:
-            raise ParameterError(f"LBFGS c2 must lie in [0, 1), got {self.c2}")
+        validate(self, history=Int(1), rtol=Real(0.0, 1.0, hi_open=True),
+                 gtol=Real(0.0, 1.0, hi_open=True), max_steps=Int(1),
+                 line_search=Instance(Backtracking), c2=Real(0.0, 1.0, hi_open=True),
+                 precondition=OneOf(PRECONDITIONERS), window=Int(1))
+        if 0 < self.c2 <= self.line_search.c1:
+            raise ParameterError(f"LBFGS: the Wolfe constants need c1 < c2, got c1={self.line_search.c1} "
+                                 f"(line_search) and c2={self.c2}; lower c1 or raise c2 (0 turns the "
+                                 f"curvature condition off)")
 
     # -- jit configuration ------------------------------------------------------------
     def _cfg(self):

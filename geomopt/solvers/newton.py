@@ -12,8 +12,10 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
+from .._config import Instance, Int, OneOf, Real, validate
+from .._objective import PROJECTIONS
 from ..linesearch import Backtracking
-from ..linsolve import NotPositiveDefinite, SparseCholesky
+from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky
 from ._base import AbstractSolver, Outcome, State
 
 
@@ -47,6 +49,12 @@ class Newton(AbstractSolver):
     max_steps: int = 200
     regularization: float = 1e-9
     line_search: Backtracking = Backtracking(expand=3)
+
+    def __post_init__(self):
+        validate(self, projection=OneOf(("adaptive",) + PROJECTIONS), exact_below=Real(0.0),
+                 linear_solver=OneOf(BACKENDS), rtol=Real(0.0, 1.0, hi_open=True),
+                 max_steps=Int(1), regularization=Real(0.0, lo_open=True),
+                 line_search=Instance(Backtracking))
 
     def init(self, objective, x0, params) -> State:
         x = jnp.asarray(x0)
