@@ -177,6 +177,59 @@ def test_minimize_params_are_validated_like_the_energy(params, match):
         obj.params(**params)
 
 
+# ------------------------------------------------------------------ divergence
+
+
+def _minus_dirichlet(J, params):
+    return -jnp.sum(J * J)
+
+
+def _minus_log(J, params):
+    return -jnp.log1p(jnp.sum(J * J))
+
+
+@pytest.mark.parametrize("density, solver", [
+    (_minus_dirichlet, "newton"), (_minus_dirichlet, "lbfgs"), (_minus_log, "lbfgs")])
+def test_energy_unbounded_below_diverges(density, solver):
+    V, F = grid(4)
+    obj = Objective(Problem.planar(V, F), Energy(density, name="unbounded"))
+    res = minimize(obj, V, solver, progress=False)
+    assert res.outcome is Outcome.DIVERGED and not res.success
+    assert np.ptp(res.x) > 1e6 and np.isfinite(res.x).all()
+    assert "diverged" in res.message and "times its start and rest size" in res.message
+    with pytest.raises(SolveError, match="diverged"):
+        minimize(obj, V, solver, progress=False, throw=True)
+
+
+def test_stalled_energy_with_a_large_decrement_is_not_convergence():
+    """Newton on -log(1 + |J|^2): the line search cuts every step 10x shorter, so the energy
+    stalls while the Newton decrement stays ~E/8; that used to end CONVERGED."""
+    V, F = grid(4)
+    obj = Objective(Problem.planar(V, F), Energy(_minus_log, name="unbounded"))
+    res = minimize(obj, V, Newton(projection="clamp", max_steps=30), progress=False)
+    assert res.outcome is not Outcome.CONVERGED and not res.success
+
+
+def test_energy_below_its_declared_lower_bound_diverges():
+    V, F = grid(3)
+    liar = Energy(lambda J, p: jnp.sum(J * J) - 10.0, name="liar", lower_bound=0.0)
+    res = minimize(Objective(Problem.planar(V, F), liar), V, progress=False)
+    assert res.outcome is Outcome.DIVERGED and "below the energy's lower bound 0" in res.message
+    with pytest.raises(ParameterError, match="lower_bound=nan must be finite"):
+        Energy(lambda J, p: jnp.sum(J * J), lower_bound=float("nan"))
+
+
+def test_large_but_bounded_motion_is_not_divergence():
+    """Handles 1e8 away from the rest mesh: the start map holds them, so the reference scale
+    is theirs and the harmonic map converges."""
+    V, F = grid(4)
+    b = np.flatnonzero(((V == 0) | (V == 1)).any(axis=1))
+    P = Problem.planar(V, F, b, V[b] * 1e8)
+    res = minimize(Objective(P, "dirichlet"), V, progress=False)
+    assert res.outcome is Outcome.CONVERGED and res.success
+    assert all(REGISTRY[n].lower_bound == 0.0 for n in REGISTRY)
+
+
 # ------------------------------------------------------------------ user densities
 
 
@@ -290,3 +343,16 @@ def test_solver_configuration_is_normalised():
     assert type(s.rtol) is float and s.line_search.max_backtracks == 7
     assert LBFGS(history=np.int32(3)).history == 3
     assert Backtracking(injective=np.bool_(False)).injective is False
+
+
+def test_minimize_accepts_solver_names():
+    V, F = grid(4)
+    b = np.flatnonzero(((V == 0) | (V == 1)).any(axis=1))
+    x0 = V.copy()
+    x0[5] += 0.05
+    obj = Objective(Problem.planar(V, F, b, V[b]), "symmetric_dirichlet")
+    by_name = minimize(obj, x0, solver="newton", progress=False)
+    assert by_name.success and np.array_equal(by_name.x, minimize(obj, x0, Newton(), progress=False).x)
+    assert minimize(obj, x0, solver=" LBFGS ", progress=False).success
+    with pytest.raises(ParameterError, match="unknown solver 'bfgs'; valid solvers: lbfgs, newton"):
+        minimize(obj, x0, solver="bfgs", progress=False)
