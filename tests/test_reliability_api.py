@@ -356,3 +356,42 @@ def test_minimize_accepts_solver_names():
     assert minimize(obj, x0, solver=" LBFGS ", progress=False).success
     with pytest.raises(ParameterError, match="unknown solver 'bfgs'; valid solvers: lbfgs, newton"):
         minimize(obj, x0, solver="bfgs", progress=False)
+
+
+# ------------------------------------------------------------------ messages
+
+
+def test_solver_settings_passed_to_parameterize_say_where_they_go():
+    V, F = grid(4)
+    V3 = np.c_[V, _bumpy(V)]
+    with pytest.raises(ParameterError, match=r"max_steps is a setting of the solver, not a parameter of "
+                                             r"the energy 'symmetric_dirichlet': pass parameterize\(\.\.\., "
+                                             r"solver=Newton\(max_steps=\.\.\.\)\)"):
+        parameterize(V3, F, max_steps=0, progress=False)
+    with pytest.raises(ParameterError, match=r"solver=LBFGS\(rtol=\.\.\.\)"):
+        parameterize(V3, F, solver="lbfgs", rtol=1e-3, progress=False)
+    with pytest.raises(ParameterError, match=r"solver=Newton\(line_search=Backtracking\(c1=\.\.\.\)\)"):
+        parameterize(V3, F, c1=0.1, progress=False)
+    with pytest.raises(ParameterError, match=r"no parameter\(s\) \['lamm'\]"):
+        parameterize(V3, F, energy="garanzha", lamm=1.0, progress=False)
+
+
+def test_inverted_tutte_start_message_has_no_api_only_remedy(monkeypatch):
+    """Rounding can fold a Tutte map of a very anisotropic mesh; simulate it."""
+    V, F = grid(4)
+    V3 = np.c_[V, _bumpy(V)]
+
+    def folded_tutte(V, F, weights, boundary):
+        x = np.asarray(V)[:, :2].copy()
+        x[5] = [0.9, 0.9]
+        return x
+
+    monkeypatch.setattr(param_module, "tutte_embedding", folded_tutte)
+    with pytest.raises(MeshError) as info:
+        parameterize(V3, F, progress=False)
+    msg = str(info.value)
+    assert "the Tutte start map has" in msg and "mean_value Tutte weights" in msg and "x0" not in msg
+    with pytest.raises(MeshError, match="try uniform Tutte weights"):
+        parameterize(V3, F, weights="mean_value", progress=False)
+    with pytest.raises(MeshError, match="omit x0 for a Tutte start"):  # the API's own start map
+        parameterize(V3, F, x0=folded_tutte(V3, F, None, None), progress=False)
