@@ -214,6 +214,7 @@ class Objective:
     def __init__(self, problem: Problem, energy: Energy | str, **params):
         self.problem = problem
         self.energy = get_energy(energy, **params)
+        self.energy.check_dim(problem.dim)
         self.geom = (
             jnp.asarray(problem.simplices),
             jnp.asarray(problem.rest_inv),
@@ -230,7 +231,9 @@ class Objective:
         self._slots = None
 
     def params(self, **override):
-        p = {**self.energy.params, **override}
+        """The energy's parameters with ``override`` applied, validated by the energy
+        (:meth:`~geomopt.energies.Energy.resolve_params`), as float64 scalars for the kernels."""
+        p = self.energy.resolve_params(**override)
         return {k: jnp.float64(v) for k, v in p.items()}
 
     @property

@@ -15,13 +15,13 @@ element that was positive is not, and optionally expands an accepted first trial
 from __future__ import annotations
 
 import dataclasses
-import math
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
+from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
 from ._geometry import det, dets, edge_rows
 
@@ -128,21 +128,6 @@ def still_positive(S, x, dx, t, was_positive):
     return ok
 
 
-def _check_config(name, value, lo=None, hi=None, integer=False, lo_open=False, hi_open=False):
-    """A finite number (an int if ``integer``) in the given range, else ParameterError."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if integer:
-        ok = ok and float(value).is_integer()
-    if ok and lo is not None:
-        ok = value > lo if lo_open else value >= lo
-    if ok and hi is not None:
-        ok = value < hi if hi_open else value <= hi
-    if not ok:
-        rng = f"{'(' if lo_open else '['}{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}{')' if hi_open else ']'}"
-        raise ParameterError(f"{name} must be {'a whole number' if integer else 'a finite number'} in {rng}, got {value!r}")
-    return int(value) if integer else float(value)
-
-
 @dataclasses.dataclass(frozen=True)
 class InjectiveSearch:
     """The line search every geomopt solver uses.
@@ -188,17 +173,12 @@ class InjectiveSearch:
     expand: int = 0
 
     def __post_init__(self):
-        if not isinstance(self.injective, bool):
-            raise ParameterError(f"InjectiveSearch injective must be True or False, got {self.injective!r}")
-        set_ = partial(object.__setattr__, self)
-        set_("safety", _check_config("InjectiveSearch safety", self.safety, 0, 1, lo_open=True))
-        set_("c1", _check_config("InjectiveSearch c1", self.c1, 0, 1, lo_open=True, hi_open=True))
-        set_("c2", _check_config("InjectiveSearch c2", self.c2, 0, 1, hi_open=True))
+        validate(self, injective=Instance(bool), safety=Real(0.0, 1.0, lo_open=True),
+                 c1=Real(0.0, 1.0, lo_open=True, hi_open=True), c2=Real(0.0, 1.0, hi_open=True),
+                 shrink=Real(0.0, 1.0, lo_open=True, hi_open=True), max_steps=Int(1), expand=Int(0))
         if self.c2 and not self.c2 > self.c1:
-            raise ParameterError(f"InjectiveSearch needs c1 < c2 (got c1={self.c1}, c2={self.c2})")
-        set_("shrink", _check_config("InjectiveSearch shrink", self.shrink, 0, 1, lo_open=True, hi_open=True))
-        set_("max_steps", _check_config("InjectiveSearch max_steps", self.max_steps, 1, None, integer=True))
-        set_("expand", _check_config("InjectiveSearch expand", self.expand, 0, 64, integer=True))
+            raise ParameterError(f"InjectiveSearch: the Wolfe constants need c1 < c2, got c1={self.c1} and "
+                                 f"c2={self.c2}; lower c1 or raise c2 (0 turns the curvature condition off)")
 
     def search(self, value_and_grad, S, x, f, g, d, t0=1.0):
         """Search along ``d`` from ``x`` (pure JAX; call inside ``jit``).

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from ._errors import MeshError
+from ._errors import MeshError, ParameterError
 from ._objective import Objective
 from .problem import Problem
 from .solvers import Newton, get_solver, minimize
@@ -51,6 +53,28 @@ def _to_rest_area(problem: Problem, x0) -> np.ndarray:
     return x0 * np.sqrt(problem.volumes.sum() / area) if area > 0 else x0
 
 
+def _check_misplaced_settings(energy, solver, energy_params):
+    """ParameterError for solver settings (``max_steps``, ``rtol``, ``c1``...) passed to
+    :func:`parameterize` as energy parameters, saying where they go."""
+    from .energies import get_energy
+    from .linesearch import InjectiveSearch
+
+    known = get_energy(energy).params
+    cls = type(solver).__name__
+    for k in energy_params:
+        if k in known:
+            continue
+        if dataclasses.is_dataclass(solver) and k in {f.name for f in dataclasses.fields(solver)}:
+            where = f"solver={cls}({k}=...)"
+        elif k in {f.name for f in dataclasses.fields(InjectiveSearch)}:
+            where = f"solver={cls}(search=InjectiveSearch({k}=...))"
+        else:
+            continue  # an unknown energy parameter: the energy's own message lists its names
+        raise ParameterError(
+            f"{k} is a setting of the solver, not a parameter of the energy "
+            f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
+
+
 def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
@@ -78,8 +102,9 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
     problem = Problem.surface(V, F)
-    objective = Objective(problem, energy, **energy_params)
     solver = Newton() if solver is None else get_solver(solver)
+    _check_misplaced_settings(energy, solver, energy_params)
+    objective = Objective(problem, energy, **energy_params)
     if x0 is None:
         loop = check_disk(problem.input_simplices, problem.n_vertices)
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
@@ -89,10 +114,16 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
     if inverted and objective.energy.barrier:
+        what = (f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
+                f"{objective.energy.name!r} is infinite")
+        if source == "the start map x0":
+            raise MeshError(f"{what}; give a flip-free start map (omit x0 for a Tutte start, or "
+                            f"untangle it first) or use an energy without a barrier")
+        other = "mean_value" if weights == "uniform" else "uniform"
         raise MeshError(
-            f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
-            f"{objective.energy.name!r} is infinite; give a flip-free start map (omit x0 for a Tutte "
-            f"start, or untangle it first) or use an energy without a barrier"
+            f"{what} (a Tutte map has none in exact arithmetic: these are rounding where its "
+            f"triangles crowd, as on very anisotropic or unevenly refined meshes); try {other} "
+            f"Tutte weights or an energy without a barrier (e.g. arap), or remesh more evenly"
         )
     x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)

@@ -1,6 +1,11 @@
 """Mesh problems: rest simplices turned into per-element inverse rest matrices and volumes.
 
-A :class:`Problem` is immutable and holds only NumPy arrays computed once:
+A :class:`Problem` is immutable and holds only NumPy arrays computed once.  Its rest mesh is
+checked so that "every element positively oriented" (what a solve certifies) means "no fold":
+no degenerate element, one orientation for all elements, and adjacent elements on opposite
+sides of their shared edge/face (a surface's faces consistently wound, no facet of more than
+two elements).
+
 
 * ``simplices`` (m, d+1): vertex indices, reordered internally where needed so every
   rest element is positively oriented (the caller's connectivity is kept in
@@ -19,6 +24,7 @@ import numpy as np
 
 from ._errors import MeshError
 from .io import validate_indices, validate_simplices, validate_vertices
+from .topology import nonmanifold_facets, same_side_facets
 
 __all__ = ["Problem", "check_initial_orientation"]
 
@@ -84,9 +90,43 @@ def _check_rest_volumes(vol, what, rel_tol=1e-12):
         idx = np.flatnonzero(neg if neg.sum() <= (~neg).sum() else ~neg)
         raise MeshError(
             f"{idx.size} rest {what}(s) are oriented against the others (first: {idx[:5].tolist()}); "
-            f"the rest mesh must be consistently oriented and not folded"
+            f"the rest mesh must be consistently oriented (no element listed clockwise among "
+            f"counter-clockwise ones) and not folded"
         )
     return bool(neg.all())
+
+
+def _check_facet_orientation(kind, S):
+    """Reject rest meshes whose elements (``S``, positively oriented in the problem's frame)
+    share an edge (triangles) or face (tets) with the same induced orientation.
+
+    Every map the solvers certify has all elements positively oriented; that means no
+    overlap only when adjacent elements lie on opposite sides of their shared facet at rest,
+    i.e. traverse it in opposite directions.  Otherwise a "flip-free" map folds there.
+    """
+    count, bad = same_side_facets(S)
+    if not count:
+        return
+    what, facet = ("tetrahedra", "face") if kind == "tet" else ("triangles", "edge")
+    many, where = nonmanifold_facets(S)
+    if many:
+        raise MeshError(
+            f"{many} non-manifold {facet}s (shared by more than two {what}; {what} "
+            f"{np.flatnonzero(where)[:6].tolist()}): every map of such a mesh folds there; split "
+            f"or remove the extra {what}")
+    idx = np.flatnonzero(bad)
+    if kind == "surface":
+        raise MeshError(
+            f"inconsistent face orientation: {count} edge(s) are traversed in the same direction "
+            f"by two triangles (triangles {idx[:6].tolist()}): a face is listed clockwise among "
+            f"counter-clockwise ones, or the surface is non-orientable; orient all faces "
+            f"consistently (e.g. trimesh.repair.fix_winding), since no map of such a mesh can be "
+            f"certified fold-free")
+    raise MeshError(
+        f"{count} rest {facet}(s) are shared by {what} lying on the same side of them "
+        f"({what} {idx[:6].tolist()}): the rest mesh overlaps itself there or repeats an element; "
+        f"remove the duplicated or overlapping {what}, since no map of such a mesh can be "
+        f"certified fold-free")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -114,7 +154,8 @@ class Problem:
         """Triangles in the plane mapped to the plane.
 
         V : (n, 2) rest positions (an (n, 3) array with z == 0 is accepted); F : (m, 3).
-        A clockwise rest mesh is handled by reordering each triangle internally.
+        A clockwise rest mesh is handled by reordering each triangle internally; a mesh with
+        both orientations, or overlapping itself, raises MeshError.
         """
         V = validate_vertices(V, "rest vertices")
         if V.shape[1] == 3:
@@ -134,7 +175,9 @@ class Problem:
 
         V : (n, 3); F : (m, 3).  Each triangle is flattened isometrically to a local 2D frame,
         so rest triangles are positively oriented and a map is valid when every triangle
-        ``(a, b, c)`` has positive signed area in the plane.
+        ``(a, b, c)`` has positive signed area in the plane.  The faces must be consistently
+        wound (adjacent faces traverse their shared edge in opposite directions), else
+        MeshError: otherwise a map with no inverted triangle still folds.
         """
         V = validate_vertices(V, "surface problem: rest vertices", dim=3)
         F = validate_simplices(F, len(V), 3, "triangles")
@@ -178,6 +221,7 @@ class Problem:
                 f"{unused.size} vertices are not used by any element (first: {unused[:5].tolist()}); "
                 f"remove unreferenced vertices first"
             )
+        _check_facet_orientation(kind, S)
         if fixed is not None:
             p = p.with_fixed(fixed, fixed_positions)
         return p

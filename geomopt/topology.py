@@ -21,6 +21,8 @@ __all__ = [
     "boundary_half_edges",
     "boundary_loops",
     "connected_components",
+    "same_side_facets",
+    "nonmanifold_facets",
     "check_disk",
 ]
 
@@ -130,6 +132,88 @@ def boundary_half_edges(F) -> np.ndarray:
     """
     F = _as_faces(F)
     return half_edges(F)[_twins(F) < 0]
+
+
+def _oriented_facets(S):
+    """(m k, k) rows: facet ``i`` of each simplex of ``S`` (m, k) with its vertices sorted, then
+    its induced orientation (0 or 1) relative to the sorted order."""
+    m, k = S.shape
+    keep = np.array([[j for j in range(k) if j != i] for i in range(k)])
+    facets = S[:, keep]  # (m, k, k-1): facet i omits corner i
+    order = np.argsort(facets, axis=-1, kind="stable")
+    facets = np.take_along_axis(facets, order, axis=-1)
+    # parity of the sorting permutation (inversions), times (-1)^i for facet i
+    inv = sum((order[..., a] > order[..., b]).astype(np.int64)
+              for a in range(k - 1) for b in range(a + 1, k - 1))
+    sign = (inv + np.arange(k)) % 2
+    return np.concatenate([facets, sign[..., None]], axis=-1).reshape(m * k, k)
+
+
+def nonmanifold_facets(S):
+    """Facets (edges of triangles, faces of tets) shared by more than two simplices.
+
+    Parameters
+    ----------
+    S : (m, k) int array, k = 3 or 4.
+
+    Returns
+    -------
+    count : int
+        Number of such facets.
+    elements : (m,) bool array
+        Simplices having such a facet.
+    """
+    S = _as_faces(S, corners=None, name="simplices")
+    m, k = S.shape
+    _, inverse, counts = np.unique(_oriented_facets(S)[:, :-1], axis=0, return_inverse=True,
+                                   return_counts=True)
+    many = counts[inverse.reshape(-1)] > 2
+    return int(np.count_nonzero(counts > 2)), many.reshape(m, k).any(axis=1)
+
+
+def same_side_facets(S):
+    """Facets that two or more simplices share with the same induced orientation.
+
+    Facet ``i`` of a simplex omits its corner ``i`` and inherits the orientation
+    ``(-1)^i`` times that of the simplex.  In a consistently oriented manifold mesh every
+    interior facet appears twice, with opposite orientations: for triangles, the two faces
+    of an edge traverse it in opposite directions.  A facet appearing twice with the same
+    orientation means an inconsistently wound element (one triangle listed clockwise among
+    counter-clockwise ones), a non-orientable surface, or, when the elements are all
+    positively oriented, two elements on the same side of the facet (the mesh folds over
+    itself); a facet of more than two elements always counts.
+
+    Parameters
+    ----------
+    S : (m, k) int array
+        Simplices with ``k`` = 3 (triangles; facets are edges) or 4 (tets; facets are
+        triangles), no repeated vertex within a row.
+
+    Returns
+    -------
+    count : int
+        Number of distinct oriented facets that occur more than once.
+    elements : (m,) bool array
+        Simplices having such a facet.
+    """
+    S = _as_faces(S, corners=None, name="simplices")
+    m, k = S.shape
+    rows = _oriented_facets(S)
+    n = int(S.max()) + 1
+    if float(n) ** (k - 1) * 2 < 2.0**62:  # one int64 key per oriented facet: fast unique
+        key = np.zeros(m * k, np.int64)
+        for c in range(k - 1):
+            key = key * n + rows[:, c]
+        key = key * 2 + rows[:, -1]
+        srt = np.sort(key)
+        dup = srt[1:][srt[1:] == srt[:-1]]
+        if dup.size == 0:  # the common case: one sort, no unique/inverse
+            return 0, np.zeros(m, bool)
+        dup = np.unique(dup)
+        return int(dup.size), np.isin(key, dup).reshape(m, k).any(axis=1)
+    _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    repeated = counts[inverse.reshape(-1)] > 1
+    return int(np.count_nonzero(counts > 1)), repeated.reshape(m, k).any(axis=1)
 
 
 # --------------------------------------------------------------------------- loops
@@ -285,10 +369,10 @@ def check_disk(F, n_vertices) -> np.ndarray:
         )
 
     H = half_edges(F)
-    _, directed_count = np.unique(H[:, 0] * n + H[:, 1], return_counts=True)
-    if (directed_count > 1).any():
+    same_direction, _ = same_side_facets(F)
+    if same_direction:
         raise MeshError(
-            f"inconsistent face orientation: {int((directed_count > 1).sum())} edges are used "
+            f"inconsistent face orientation: {same_direction} edges are used "
             "twice in the same direction; orient all faces consistently "
             "(e.g. trimesh.repair.fix_winding), or the surface is non-orientable"
         )

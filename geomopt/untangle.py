@@ -241,7 +241,10 @@ def untangle(
     eps0 : initial eps (the map is normalised so the mean det J is 1).
     max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
         equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
-    keep_memory : keep the L-BFGS curvature pairs across outer iterations.
+    keep_memory : keep the L-BFGS curvature pairs across outer iterations, except after one
+        that increased the number of inverted elements (measured on square_rot180: it stalled
+        with 64 folds under half of 14 exact rotations of its rest mesh when the pairs were
+        always kept, and untangled under all 14 with this reset, at the same cost elsewhere).
     injective_when_untangled : once every element is positive, switch the inner line search
         to the injective one (no element can flip back; compiles a second kernel).
     min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
@@ -345,11 +348,12 @@ def untangle(
             solver = dataclasses.replace(solver, search=dataclasses.replace(solver.search, injective=True))
         state = solver.with_params(state, params)
         E = float(_outer_stats(energy.density, full.geom, state.x, params)[0])
-        if not keep_memory:
+        # stale curvature pairs can steer the next solve into more folds: drop them then
+        worse = len(hist_inv) > 1 and hist_inv[-1] > hist_inv[-2]
+        if not keep_memory or worse:
             state = solver.forget(state)
     seconds = time.perf_counter() - t0
     evaluations = state.evaluations
-
 
     # ---- back to the input frame: exact (power of two), handles written back bit for bit
     xs_final = np.asarray(state.x, dtype=np.float64)
@@ -423,16 +427,24 @@ class _Progress:
 def lim_problem(case):
     """The untangling problem of a LIM case read by :func:`geomopt.io.read_lim_case`.
 
-    2D: the rest mesh is the ``v`` lines, treated as a surface (:meth:`Problem.surface`), the
-    start map the ``vt`` lines; a start map that is clockwise overall (negative total signed
-    area) is mirrored (``u -> -u``, exact) so that the problem's convention (positive = valid)
-    holds.  3D: :meth:`Problem.tets` (an all-negative rest mesh is handled there).
+    2D: the rest mesh is the ``v`` lines and the start map the ``vt`` lines.  A planar rest
+    mesh (``z == 0`` everywhere) is a :meth:`Problem.planar` problem, whose rest triangles must
+    all have the same orientation; any other rest mesh is a surface (:meth:`Problem.surface`,
+    each triangle flattened to its own frame), whose triangles must be consistently oriented
+    as a surface (adjacent faces traverse their shared edge in opposite directions).  Either
+    way a map with every triangle positively oriented then has no fold, which is what the
+    certificate claims.  A start map whose orientation is opposite to the rest mesh's
+    (negative total signed area, counted in the rest orientation) is mirrored (``u -> -u``,
+    exact) into the problem's frame.  3D: :meth:`Problem.tets` (an all-negative rest mesh is
+    handled there).
 
     Raises
     ------
     MeshError
-        The start map is collapsed (zero total signed area / volume) or, in 3D, mirrored
-        relative to the rest mesh: with the boundary fixed no map can be certified.
+        The rest mesh is degenerate or inconsistently oriented (a face listed clockwise among
+        counter-clockwise ones), the start map is collapsed (zero total signed area / volume)
+        or, in 3D, mirrored relative to the rest mesh: with the boundary fixed no map can be
+        certified.
 
     Returns
     -------
@@ -445,7 +457,11 @@ def lim_problem(case):
     """
     H = case["handles"]
     if case["dim"] == 2:
-        F, init = case["faces"], case["init"]
+        F, init, rest = case["faces"], case["init"], np.asarray(case["rest"])
+        planar = rest.ndim == 2 and (rest.shape[1] == 2 or (rest.shape[1] == 3 and not np.any(rest[:, 2])))
+        base = Problem.planar(rest, F) if planar else Problem.surface(rest, F)
+        # planar: the rest triangles may all be clockwise (Problem.planar reversed each one)
+        rest_sign = 1 if np.array_equal(base.simplices, base.input_simplices) else -1
         P = init[F]
         e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
         total = float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) / 2.0
@@ -454,9 +470,9 @@ def lim_problem(case):
                 f"{case.get('path', 'the case')}: the start map's total signed area is {total:g}: the "
                 f"map is collapsed, so no orientation can be certified; give a start map ('vt' lines) "
                 f"whose fixed boundary encloses a nonzero area")
-        orientation = -1 if total < 0 else 1
-        mirror = np.array([float(orientation), 1.0])
-        problem = Problem.surface(case["rest"], F, H, init[H] * mirror)
+        orientation = -1 if total < 0 else 1  # in the input's connectivity and frame
+        mirror = np.array([float(orientation * rest_sign), 1.0])
+        problem = base.with_fixed(H, init[H] * mirror)
         return problem, init * mirror, orientation, mirror
     problem = Problem.tets(case["rest"], case["tets"], H, case["init"][H])
     # rest tets all negative in the input order: Problem.tets swapped two vertices of each

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Callable, Mapping
+
+import jax
+import jax.numpy as jnp
 
 from .._errors import ParameterError
 from . import _densities as _d
@@ -17,8 +21,11 @@ class Energy:
     Parameters
     ----------
     density : callable ``(J (d, d), params: dict) -> scalar``
-        Written once for one element; must be a pure JAX function.  Works in 2D and 3D
-        when written in terms of ``J.shape``.
+        Written once for one element; must be a pure JAX function of a float64 ``(d, d)``
+        array and a dict of float64 scalars returning a real float64 scalar.  Works in 2D and
+        3D when written in terms of ``J.shape``; one that traces for only one ``d`` can be
+        used only on problems of that dimension.  Checked once here by tracing it
+        (``jax.eval_shape``) on 2x2 and 3x3 Jacobians.
     params : mapping of str to float
         Default parameter values (e.g. ``eps``, ``lam``).  Solvers pass them as traced
         scalars, so changing them never recompiles.
@@ -27,6 +34,16 @@ class Energy:
     rest_value : float or callable ``d -> float``, optional
         The density at a rotation, used to report a normalised energy (and in tests).
     name : str
+    lower_bound : float, optional
+        A bound ``density(J) >= lower_bound`` for every ``J`` (0 for every built-in energy),
+        or None when unknown.  A solve whose energy falls below ``lower_bound`` times the rest
+        volume ends :attr:`~geomopt.solvers.Outcome.DIVERGED`.
+
+    Raises
+    ------
+    ParameterError
+        ``density`` is not such a function for either d = 2 or d = 3, or a parameter is
+        invalid (not a finite number, ``eps <= 0``, ``lam < 0``).
     """
 
     density: Callable
@@ -34,26 +51,99 @@ class Energy:
     barrier: bool = False
     rest_value: object = None
     name: str = "custom"
+    lower_bound: float | None = None
 
     def __post_init__(self):
         if not callable(self.density):
             raise ParameterError(f"energy {self.name!r}: density must be a function psi(J, params), "
                                  f"got {type(self.density).__name__}")
+        try:
+            hash(self.density)  # the jitted kernels take it as a static argument
+        except TypeError:
+            raise ParameterError(f"energy {self.name!r}: density must be hashable (a plain function), "
+                                 f"got an unhashable {type(self.density).__name__}") from None
         object.__setattr__(self, "params", _check_params(self.name, self.params))
+        if self.lower_bound is not None:
+            lb = _finite(self.name, "lower_bound", self.lower_bound)
+            object.__setattr__(self, "lower_bound", lb)
+        if self.density not in _BUILTIN_DENSITIES:  # the built-ins are checked on first use
+            self.dims  # noqa: B018  (traces the density; raises ParameterError)
 
-    def with_params(self, **params) -> "Energy":
-        """A copy with some parameters changed (validated)."""
-        unknown = set(params) - set(self.params)
+    @property
+    def dims(self) -> tuple:
+        """The dimensions (2 and/or 3) the density traces for; ParameterError when none."""
+        return _density_dims(self.name, self.density, tuple(sorted(self.params)))[0]
+
+    def check_dim(self, d: int):
+        """Raise ParameterError unless the density supports ``(d, d)`` Jacobians."""
+        dims, errors = _density_dims(self.name, self.density, tuple(sorted(self.params)))
+        if d not in dims:
+            raise ParameterError(
+                f"energy {self.name!r}: the density works only for d={dims[0]}, but the problem "
+                f"has {d}x{d} Jacobians (tracing it on a {d}x{d} J: {errors[d]}); {_DENSITY_RULE}")
+
+    def resolve_params(self, **override) -> dict:
+        """The energy's parameters with ``override`` applied, validated like the defaults
+        (known names only, finite numbers, ``eps > 0``, ``lam >= 0``)."""
+        unknown = set(override) - set(self.params)
         if unknown:
             raise ParameterError(
                 f"energy {self.name!r} has no parameter(s) {sorted(unknown)}; "
-                f"its parameters are {sorted(self.params)}"
+                f"its parameters are {sorted(self.params) or 'none'}"
             )
-        return dataclasses.replace(self, params={**self.params, **params})
+        return _check_params(self.name, {**self.params, **override})
+
+    def with_params(self, **params) -> "Energy":
+        """A copy with some parameters changed (validated)."""
+        return dataclasses.replace(self, params=self.resolve_params(**params))
 
     def value_at_rest(self, d: int):
         rv = self.rest_value
         return rv(d) if callable(rv) else rv
+
+
+_DENSITY_RULE = ("a density must be a pure JAX function psi(J, params) of a (d, d) float64 array J "
+                 "and a dict of float64 scalars, returning a real float64 scalar (use jax.numpy, "
+                 "not numpy, and no Python branching on J's values)")
+
+
+@functools.lru_cache(maxsize=256)
+def _density_dims(name, density, param_names):
+    """``(dims, errors)``: the d in (2, 3) for which ``density`` traces to a float64 scalar, and
+    for the others what went wrong.  Raises ParameterError when it works for neither."""
+    params = {k: jax.ShapeDtypeStruct((), jnp.float64) for k in param_names}
+    errors = {}
+    for d in (2, 3):
+        try:
+            out = jax.eval_shape(density, jax.ShapeDtypeStruct((d, d), jnp.float64), params)
+        except Exception as e:  # any failure to trace: wrong signature, numpy on tracers...
+            first = (str(e).strip().splitlines() or [""])[0]
+            errors[d] = f"{type(e).__name__}: {first[:200]}"
+            continue
+        if not isinstance(out, jax.ShapeDtypeStruct):
+            errors[d] = f"it returned {type(out).__name__} {out!r}, not one array"
+        elif out.shape != ():
+            errors[d] = f"it returned an array of shape {out.shape}, not a scalar"
+        elif out.dtype != jnp.float64:
+            errors[d] = f"it returned dtype {out.dtype}, not float64"
+        else:
+            errors[d] = None
+    dims = tuple(d for d in (2, 3) if errors[d] is None)
+    if not dims:
+        raise ParameterError(
+            f"energy {name!r}: invalid density: on a 2x2 J {errors[2]}; on a 3x3 J {errors[3]}; "
+            f"{_DENSITY_RULE}")
+    return dims, errors
+
+
+def _finite(name, what, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"energy {name!r}: {what}={value!r} must be a number") from None
+    if not math.isfinite(v):
+        raise ParameterError(f"energy {name!r}: {what}={value} must be finite")
+    return v
 
 
 def _check_params(name, params) -> dict:
@@ -62,14 +152,10 @@ def _check_params(name, params) -> dict:
         items = dict(params).items()
     except (TypeError, ValueError):
         raise ParameterError(f"energy {name!r}: params must map names to numbers, got {params!r}") from None
-    out = {}
-    for k, v in items:
-        try:
-            out[k] = float(v)
-        except (TypeError, ValueError):
-            raise ParameterError(f"energy {name!r}: parameter {k}={v!r} must be a number") from None
-        if not math.isfinite(out[k]):
-            raise ParameterError(f"energy {name!r}: parameter {k}={v} must be finite")
+    bad = [k for k, _ in items if not isinstance(k, str)]
+    if bad:
+        raise ParameterError(f"energy {name!r}: parameter names must be strings, got {bad!r}")
+    out = {k: _finite(name, f"parameter {k}", v) for k, v in items}
     if "eps" in out and not out["eps"] > 0:
         raise ParameterError(f"energy {name!r}: eps={out['eps']} must be > 0 (e.g. 1e-3)")
     if "lam" in out and out["lam"] < 0:
@@ -77,18 +163,27 @@ def _check_params(name, params) -> dict:
     return out
 
 
-dirichlet = Energy(_d.dirichlet, name="dirichlet", rest_value=lambda d: float(d))
+# the built-in densities trace for d = 2 and 3 (tests/test_energies.py checks it); their
+# check runs on first use, not at import
+_BUILTIN_DENSITIES = frozenset(
+    [_d.dirichlet, _d.symmetric_dirichlet, _d.mips, _d.winslow, _d.arap, _d.garanzha])
+
+# every built-in density is >= 0 (garanzha given eps > 0 and lam >= 0, which params enforce)
+dirichlet = Energy(_d.dirichlet, name="dirichlet", rest_value=lambda d: float(d), lower_bound=0.0)
 symmetric_dirichlet = Energy(
-    _d.symmetric_dirichlet, barrier=True, name="symmetric_dirichlet", rest_value=lambda d: 2.0 * d
+    _d.symmetric_dirichlet, barrier=True, name="symmetric_dirichlet", rest_value=lambda d: 2.0 * d,
+    lower_bound=0.0,
 )
-mips = Energy(_d.mips, barrier=True, name="mips", rest_value=lambda d: float(d))
-winslow = Energy(_d.winslow, barrier=True, name="winslow", rest_value=lambda d: float(d))
-arap = Energy(_d.arap, name="arap", rest_value=0.0)
+mips = Energy(_d.mips, barrier=True, name="mips", rest_value=lambda d: float(d), lower_bound=0.0)
+winslow = Energy(_d.winslow, barrier=True, name="winslow", rest_value=lambda d: float(d),
+                 lower_bound=0.0)
+arap = Energy(_d.arap, name="arap", rest_value=0.0, lower_bound=0.0)
 garanzha = Energy(
     _d.garanzha,
     params={"eps": 1e-3, "lam": 1.0},
     name="garanzha",
     rest_value=None,  # depends on eps and lam
+    lower_bound=0.0,
 )
 
 REGISTRY: dict[str, Energy] = {

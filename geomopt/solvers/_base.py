@@ -31,8 +31,9 @@ from typing import Any, Callable
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import ParameterError, SolveError
-from ..linesearch import InjectiveSearch, _check_config
+from .._errors import SolveError
+from .._config import Instance, Int, Real, validate
+from ..linesearch import InjectiveSearch
 
 #: a map whose extent grows by more than this factor over its start (and rest) extent diverged
 DIVERGENCE_FACTOR = 1e6
@@ -55,9 +56,8 @@ class Outcome(enum.Enum):
             "badly scaled or the energy non-smooth)",
             "nonfinite": "the energy or gradient became NaN/inf (check the input and the start map)",
             "not_injective": "the result has inverted or degenerate elements",
-            "diverged": "the solve diverged: the map grew without bound while the energy kept "
-            "falling (the energy is unbounded below here: check its parameters, e.g. lam >= 0, "
-            "or fix vertices)",
+            "diverged": "the solve diverged: the energy fell without bound or below its known "
+            "lower bound (check the energy and its parameters, or fix more vertices)",
         }[self.value]
 
 
@@ -96,12 +96,36 @@ def reference_extent(objective, x0) -> float:
     return max(map_extent(x0), rest, 1e-300)
 
 
+def divergence(state: State):
+    """Why the solve in ``state`` diverged, or None.
+
+    It diverged when the map's extent exceeds ``DIVERGENCE_FACTOR`` times its reference (the
+    larger of the start map's and the rest mesh's: a minimiser of a bounded distortion energy
+    stays at the scale of the data), or when the energy is below the energy's known lower
+    bound times the rest volume (allowing for rounding).  Non-finite values are NONFINITE.
+    """
+    value, obj = state.value, state.objective
+    lb = getattr(obj.energy, "lower_bound", None)
+    if lb is not None and math.isfinite(value):
+        bound = lb * obj.total_volume
+        if value < bound - 1e-8 * max(abs(bound), obj.total_volume):
+            return f"the energy {value:.6g} is below the energy's lower bound {bound:.6g}"
+    extent = map_extent(state.x)
+    if math.isfinite(extent) and extent > DIVERGENCE_FACTOR * state.extent0:
+        return (f"the map grew to {extent:.3g} across, {extent / state.extent0:.3g} times its "
+                f"start and rest size, while the energy fell to {value:.6g}")
+    return None
+
+
 def converged(value, prev_value, decrement, rtol, iteration, floor=1e-300):
     """The shared stopping test (host floats or traced arrays): the decrement, or the last
     energy decrease, is below ``rtol`` relative to ``max(|E|, floor)``."""
     scale = jnp.maximum(jnp.abs(value), floor)
     drop = prev_value - value
-    return (decrement <= rtol * scale) | ((iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale))
+    # a stalled energy is the rounding floor only when one more Newton step would reach rtol;
+    # with a larger decrement the search is cutting steps short (e.g. unbounded below)
+    stalled = (iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale) & (decrement <= jnp.sqrt(rtol) * scale)
+    return (decrement <= rtol * scale) | stalled
 
 
 class AbstractSolver(abc.ABC):
@@ -111,15 +135,10 @@ class AbstractSolver(abc.ABC):
     rtol: float
     search: InjectiveSearch
 
-    def _check(self):
-        """Validate the shared configuration (called by every subclass's ``__post_init__``)."""
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclasses
-        name = type(self).__name__
-        set_("max_steps", _check_config(f"{name} max_steps", self.max_steps, 1, None, integer=True))
-        set_("rtol", _check_config(f"{name} rtol", self.rtol, 0, 1, hi_open=True))
-        if not isinstance(self.search, InjectiveSearch):
-            raise ParameterError(f"{name} search must be a geomopt.linesearch.InjectiveSearch, "
-                                 f"got {type(self.search).__name__}")
+    def _check(self, **rules):
+        """Validate the shared configuration and ``rules`` (every subclass's ``__post_init__``)."""
+        validate(self, max_steps=Int(1), rtol=Real(0.0, 1.0, hi_open=True), search=Instance(InjectiveSearch),
+                 **rules)
 
     @abc.abstractmethod
     def init(self, objective, x0, params) -> State: ...
@@ -133,7 +152,7 @@ class AbstractSolver(abc.ABC):
             return True, state.failure
         if not math.isfinite(state.value):
             return True, Outcome.NONFINITE
-        if map_extent(state.x) > DIVERGENCE_FACTOR * state.extent0:
+        if divergence(state) is not None:
             return True, Outcome.DIVERGED
         if bool(converged(state.value, state.prev_value, state.decrement, self.rtol, state.iteration,
                           state.energy_floor)):
@@ -203,6 +222,8 @@ class Result:
     @property
     def message(self) -> str:
         msg = self.outcome.message
+        if self.info.get("reason"):
+            msg += f" ({self.info['reason']})"
         if self.inverted:
             msg += f"; {self.inverted} inverted element(s)"
         return msg
@@ -255,6 +276,12 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     progress : True (a bar on a terminal, lines otherwise, on stderr), False, or a callable
         ``(state, elapsed, mean_energy)``.
     throw : raise :class:`~geomopt.SolveError` unless the result is converged and injective.
+
+    Returns
+    -------
+    :class:`Result`.  A solve whose map grows without bound (``DIVERGENCE_FACTOR`` times its
+    start and rest size) or whose energy falls below the energy's known lower bound stops
+    with :attr:`Outcome.DIVERGED`, its reason in ``info["reason"]`` and ``message``.
     """
     from . import get_solver
 
@@ -292,11 +319,12 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     inverted = problem.count_inverted(x)
     if outcome is Outcome.CONVERGED and inverted:
         outcome = Outcome.NOT_INJECTIVE
+    reason = divergence(state) if outcome is Outcome.DIVERGED else None
     result = Result(
         x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
         energy_history=np.asarray(history), iterations=state.iteration, seconds=seconds,
         setup_seconds=setup, time_history=np.asarray(times), grad_history=np.asarray(grads),
-        info={"solver": solver, "evaluations": state.evaluations},
+        info={"solver": solver, "evaluations": state.evaluations, **({"reason": reason} if reason else {})},
     )
     if throw and not result.success:
         raise SolveError(f"solve failed: {result.message}", result)

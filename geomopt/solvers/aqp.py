@@ -16,7 +16,8 @@ import math
 
 import jax.numpy as jnp
 
-from ..linesearch import InjectiveSearch, _check_config, max_injective_step
+from .._config import Real
+from ..linesearch import InjectiveSearch, max_injective_step
 from ._base import AbstractSolver, Outcome, State
 from ._laplacian import RestLaplacian
 
@@ -39,8 +40,7 @@ class AQP(AbstractSolver):
     search: InjectiveSearch = InjectiveSearch()
 
     def __post_init__(self):
-        self._check()
-        object.__setattr__(self, "condition", _check_config("AQP condition", self.condition, 1, None))
+        self._check(condition=Real(1.0))
 
     @property
     def theta(self) -> float:

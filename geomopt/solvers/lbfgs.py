@@ -27,7 +27,8 @@ from jax import lax
 
 from .._errors import ParameterError
 from .._objective import _total
-from ..linesearch import InjectiveSearch, _check_config
+from .._config import Int, OneOf, Real
+from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
 from ._laplacian import RestLaplacian, laplacian_solve_host
 
@@ -132,7 +133,10 @@ def _iterate(solver, density, geom, free, params, c):
     slot = c["it"] % W
     f_old = c["f_hist"][slot]  # the energy W steps ago (inf before W steps were taken)
     scale = jnp.maximum(jnp.abs(f_old), jnp.abs(fn))
-    small_f = ok & jnp.isfinite(f_old) & (f_old - fn <= W * solver.rtol * scale)
+    # a stalled energy counts only when a full step promises little more (else the search is
+    # cutting steps short: a barrier of the injective cap, an energy unbounded below)
+    small_f = ok & jnp.isfinite(f_old) & (f_old - fn <= W * solver.rtol * scale) & \
+        (-slope <= jnp.sqrt(solver.rtol) * scale)
     f_hist = c["f_hist"].at[slot].set(jnp.where(ok, fn, f))
     gn_norm = jnp.sqrt(_dot(gn, gn))
     small_g = ok & (gn_norm <= solver.gtol * c["g0"])
@@ -230,14 +234,8 @@ class LBFGS(AbstractSolver):
     window: int = 1
 
     def __post_init__(self):
-        self._check()
-        set_ = partial(object.__setattr__, self)
-        set_("window", _check_config("LBFGS window", self.window, 1, None, integer=True))
-        set_("history", _check_config("LBFGS history", self.history, 1, None, integer=True))
-        set_("gtol", _check_config("LBFGS gtol", self.gtol, 0, 1, hi_open=True))
-        if self.precondition not in PRECONDITIONERS:
-            raise ParameterError(
-                f"unknown L-BFGS preconditioner {self.precondition!r}; valid: {', '.join(PRECONDITIONERS)}")
+        self._check(history=Int(1), gtol=Real(0.0, 1.0, hi_open=True), precondition=OneOf(PRECONDITIONERS),
+                    window=Int(1))
 
     @staticmethod
     def _args(objective):

@@ -14,8 +14,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from .._config import OneOf, Real
 from .._errors import ParameterError
-from ..linesearch import InjectiveSearch, _check_config
+from ..linesearch import InjectiveSearch
 from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky
 from ._base import AbstractSolver, Outcome, State
 from .proxies import CMProxy, SLIMProxy
@@ -56,15 +57,11 @@ class Newton(AbstractSolver):
     search: InjectiveSearch = InjectiveSearch(expand=3)
 
     def __post_init__(self):
-        self._check()
+        self._check(exact_below=Real(0.0), linear_solver=OneOf(BACKENDS),
+                    regularization=Real(0.0, lo_open=True))
         if not (callable(self.projection) or self.projection in PROJECTIONS):
-            raise ParameterError(f"unknown projection {self.projection!r}; valid: {', '.join(PROJECTIONS)} "
-                                 f"or a proxy object")
-        if self.linear_solver not in BACKENDS:
-            raise ParameterError(f"unknown linear solver {self.linear_solver!r}; valid: {', '.join(BACKENDS)}")
-        object.__setattr__(self, "exact_below", _check_config("exact_below", self.exact_below, 0, None))
-        object.__setattr__(self, "regularization",
-                           _check_config("regularization", self.regularization, 0, 1, lo_open=True))
+            raise ParameterError(f"{type(self).__name__}: projection must be one of "
+                                 f"{', '.join(map(repr, PROJECTIONS))} or a proxy object, got {self.projection!r}")
 
     def _kernels(self):
         return ("clamp", "none") if self.projection == "adaptive" else (self.projection,)
