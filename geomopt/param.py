@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from ._errors import MeshError, ParameterError
+from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from .problem import Problem
-from .solvers import Newton, get_solver, minimize
+from .solvers import Newton, Result, get_solver, minimize
 from .topology import check_disk
 from .tutte import tutte_embedding
 
@@ -85,8 +85,12 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet).
     solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
     weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
-    x0 : (n, 2) optional start map instead of Tutte; with a barrier energy it must be flip-free.
-        Without ``x0`` the mesh must be a topological disk (:func:`~geomopt.topology.check_disk`).
+    x0 : the start map: ``None`` or ``"tutte"`` (default: Tutte embedding; the mesh must be a
+        topological disk, :func:`~geomopt.topology.check_disk`), ``"projection"`` (the best-fit
+        plane projection, :func:`projection_map`: folded wherever the surface turns over), or an
+        (n, 2) array (e.g. a UV map made elsewhere).  A start with folded triangles is first
+        repaired with a free boundary (:func:`repair_map`: Garanzha et al.'s regularised energy,
+        eps driven to 0, no vertex fixed), then the chosen energy is minimised from there.
     progress, throw : see :func:`~geomopt.solvers.minimize`.
 
     Returns
@@ -105,28 +109,79 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
     objective = Objective(problem, energy, **energy_params)
-    if x0 is None:
+    repaired = None
+    if x0 is None or (isinstance(x0, str) and x0 == "tutte"):
         loop = check_disk(problem.input_simplices, problem.n_vertices)
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
         source = "the Tutte start map"
+    elif isinstance(x0, str):
+        if x0 != "projection":
+            raise ParameterError(f"x0 must be 'tutte', 'projection' or an (n, 2) array, got {x0!r}")
+        x0, source = projection_map(problem.rest_vertices, problem.input_simplices), "the projection start map"
     else:
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    if inverted and objective.energy.barrier:
-        what = (f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
-                f"{objective.energy.name!r} is infinite")
-        if source == "the start map x0":
-            raise MeshError(f"{what}; give a flip-free start map (omit x0 for a Tutte start, or "
-                            f"untangle it first) or use an energy without a barrier")
-        other = "mean_value" if weights == "uniform" else "uniform"
-        raise MeshError(
-            f"{what} (a Tutte map has none in exact arithmetic: these are rounding where its "
-            f"triangles crowd, as on very anisotropic or unevenly refined meshes); try {other} "
-            f"Tutte weights or an energy without a barrier (e.g. arap), or remesh more evenly"
-        )
-    x0 = _to_rest_area(problem, x0)
+    if inverted and source != "the Tutte start map":
+        repaired = repair_map(problem, x0, progress=progress)
+        if not repaired.success:
+            result = Result(x=repaired.x, outcome=repaired.outcome, inverted=repaired.inverted,
+                            energy=float("nan"), energy_history=np.zeros(0), iterations=0,
+                            seconds=repaired.seconds, setup_seconds=repaired.setup_seconds,
+                            time_history=np.zeros(0), info={"repair": repaired, "problem": problem,
+                                                            "objective": objective})
+            if throw:
+                raise SolveError(f"repairing {source} failed: {repaired.message}", result)
+            return result
+        x0, inverted = repaired.x, 0
+    if inverted and objective.energy.barrier:    x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)
     result = minimize(objective, s * x0, solver, progress=progress, throw=throw)
-    result.info.update(start=s * x0, scale=s, problem=problem, objective=objective)
+    result.info.update(start=s * x0, scale=s, problem=problem, objective=objective, repair=repaired)
     return result
+
+
+def projection_map(V, F) -> np.ndarray:
+    """(n, 2) the projection of a surface onto its best-fit plane (principal axes of ``V``),
+    oriented so that most of its area is positively oriented.  Folded wherever the surface
+    turns over: a start for :func:`repair_map`.
+
+    Parameters
+    ----------
+    V : (n, 3) vertices;  F : (m, 3) consistently oriented triangles.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    C = V - V.mean(axis=0)
+    _, _, Wt = np.linalg.svd(C, full_matrices=False)
+    x = C @ Wt[:2].T
+    P = x[np.asarray(F)]
+    area = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]).sum()
+    return x * [1.0, -1.0] if area < 0 else x
+
+
+def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
+    """Repair a folded map with a free boundary: Garanzha et al.'s untangling with no handle.
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.Problem` (surface or planar) without fixed vertices, or ``(V, F)``.
+    x0 : (n, 2) start map with folds.  A map mirrored as a whole (negative total signed area)
+        is mirrored back first (``u -> -u``): a UV map's handedness is free.
+    theta : shape/area balance (see :func:`~geomopt.untangle.untangle`).
+
+    Returns
+    -------
+    :class:`~geomopt.untangle.UntangleResult`: ``x`` certified flip-free when ``success``.
+    """
+    from .untangle import untangle
+
+    if isinstance(problem, tuple):
+        problem = Problem.surface(*problem)
+    x0 = problem.check_map(x0, "start map x0")
+    total = float(problem.signed_volumes(x0).sum())
+    if not (total > 0 or total < 0):
+        raise MeshError("the start map's total signed area is zero (collapsed): there is nothing to "
+                        "repair from; give a start map that is not collapsed to a line or point")
+    if total < 0:
+        x0 = x0 * [-1.0, 1.0]
+    return untangle(problem, x0, solver=solver, theta=theta, progress=progress, **options)

@@ -224,9 +224,13 @@ def untangle(
 ) -> UntangleResult:
     """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
 
+    With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
+    by the objective's gauge and rotation and scale are free; the map must not be mirrored as
+    a whole (a positive total signed area/volume): mirror it first (see :func:`repair_map`).
+
     Parameters
     ----------
-    problem : :class:`~geomopt.problem.Problem` with fixed vertices (``with_fixed``).
+    problem : :class:`~geomopt.problem.Problem`, with fixed vertices (``with_fixed``) or not.
     x0 : (n, d) start map; its handle rows are replaced by ``problem.fixed_positions``.
     solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object
         (``init/step/terminate``; one with a ``run(state)`` method is driven by it).  Its line
@@ -257,8 +261,6 @@ def untangle(
     """
     t_setup = time.perf_counter()
     d = problem.dim
-    if problem.fixed.size == 0:
-        raise ParameterError("untangle needs fixed vertices (handles): use Problem.with_fixed")
     if theta is None:
         theta = 1.0 / 128.0 if d == 2 else 0.5
     if not 0.0 < theta < 1.0:
