@@ -369,6 +369,23 @@ def test_vtk_trailing_garbage_and_bad_numbers(tmp_path):
             read_vtk_tets(put(tmp_path / "m.vtk", data))
 
 
+def test_readers_restore_the_garbage_collector(tmp_path):
+    """The parsers pause the cyclic GC (speed); it must come back on, also after a refusal."""
+    import gc
+
+    good, bad = put(tmp_path / "m.off", off_bytes(SQUARE_V, SQUARE_F)), put(tmp_path / "b.off", b"OFF\n")
+    read_mesh(good)
+    with pytest.raises(MeshFormatError):
+        read_mesh(bad)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        read_mesh(good)
+        assert not gc.isenabled()  # and a caller's choice to keep it off is kept
+    finally:
+        gc.enable()
+
+
 def test_each_reader_failure_names_its_own_problem(tmp_path):
     """Class 7: no generic 'a face probably refers to a vertex that does not exist' for everything."""
     messages = []
