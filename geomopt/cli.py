@@ -143,7 +143,7 @@ def cmd_param(args) -> int:
         return _fail(f"not certified: {res.message}")
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, F, args.png, outputs)
+            _save_param_figures(res, F, args.png, outputs, args.solver)
         io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
                               format=Path(args.output).suffix[1:])
     return EXIT_OK
@@ -169,7 +169,7 @@ def _convergence_path(png):
     return base.with_name(base.stem + "_convergence" + base.suffix)
 
 
-def _save_param_figures(res, F, png, outputs):
+def _save_param_figures(res, F, png, outputs, solver_name):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
@@ -185,7 +185,7 @@ def _save_param_figures(res, F, png, outputs):
                      title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
                      label="log10 distortion", format=base.suffix[1:].lower())
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {"projected Newton": (res.time_history, res.energy_history)},
+                          {solver_name: (res.time_history, res.energy_history)},
                           title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
     return base, conv
 
