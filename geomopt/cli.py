@@ -4,17 +4,26 @@ Every failure on bad input (unreadable or invalid mesh, unknown name, invalid va
 that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
 traceback unless ``--debug``); a solve that does not end converged and flip-free (exact
 predicate) exits with status 1 and writes nothing; status 0 means the certified result was
-written.  Output paths are checked before solving and written atomically.
+written.  Every output path (derived ones included) is checked before the input is read: it
+must be a regular file or not exist.  Outputs are written atomically, all of them or none; an
+interrupt (SIGINT, SIGTERM, SIGHUP) removes the unfinished temporary files and exits with
+status 128 + the signal number.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import re
+import signal
 import sys
 from pathlib import Path
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+#: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
+PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
 
 
 def _enable_compilation_cache():
@@ -48,8 +57,60 @@ def _fail(message) -> int:
     return EXIT_FAILED
 
 
+class _Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C so that unfinished outputs are cleaned up."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame):
+    raise _Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _signals_raise():
+    """While the block runs, SIGTERM and SIGHUP raise :class:`_Interrupted` (SIGINT already raises
+    KeyboardInterrupt), so the atomic writers delete their temporary files; restored afterwards."""
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        signum = getattr(signal, name, None)
+        if signum is None:
+            continue
+        try:
+            previous[signum] = signal.signal(signum, _raise_interrupted)
+        except ValueError:  # not the main thread: leave the handlers alone
+            break
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _output_paths(output, extensions, pictures=()):
+    """Check every output before any work: ``-o`` (``extensions``) and ``pictures`` (with their
+    derived names); they must be distinct.  Returns the output path."""
+    from . import io
+    from ._errors import GeomoptError
+
+    named = [("-o output", output)] + [(what, p) for what, p in pictures]
+    seen = {}
+    for what, p in named:
+        key = os.path.join(os.path.realpath(os.path.dirname(os.path.abspath(p))), os.path.basename(p))
+        if key in seen:
+            raise GeomoptError(f"{what} {p} is the same file as the {seen[key]}; give different file names")
+        seen[key] = what
+    out = io.check_output_path(output, extensions, "output")
+    for what, p in pictures:
+        io.check_output_path(p, PICTURE_EXTENSIONS, what)
+    return out
+
+
 def cmd_param(args) -> int:
     from . import io
+    from ._errors import MeshError
     from .energies import get_energy
     from .param import parameterize
 
@@ -59,66 +120,102 @@ def cmd_param(args) -> int:
         import dataclasses
 
         solver = dataclasses.replace(solver, max_steps=args.max_steps)
-    for path in [args.output] + ([args.png] if args.png else []):
-        io.check_output_path(path)  # before the solve, not after
+    pictures = []
+    if args.png:
+        pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
+    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures)  # before reading or solving
     V, F = io.read_mesh(args.input)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {args.weights} Tutte start")
-    res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights,
-                       progress=not args.quiet)
+    if Path(args.input).suffix.lower() == ".stl":
+        _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
+                   f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
+    try:
+        res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights,
+                           progress=not args.quiet)
+    except MeshError as exc:
+        raise _for_the_command_line(exc, args) from exc
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
                f"outcome {res.outcome.value}")
     if not res.success:
         return _fail(f"not certified: {res.message}")
-    if args.png:
-        _save_param_figures(res, F, args.png)
-    io.write_obj_with_uv(args.output, V, F, res.x)
+    with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
+        if args.png:
+            _save_param_figures(res, F, args.png, outputs, args.solver)
+        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
+                              format=Path(args.output).suffix[1:])
     return EXIT_OK
 
 
-def _save_param_figures(res, F, png):
+def _for_the_command_line(exc, args):
+    """A library message that names an API the command line does not offer, reworded."""
+    from ._errors import MeshError
+
+    found = re.match(r"the Tutte start map has (\d+) inverted or degenerate triangle\(s\)", str(exc))
+    if found is None:
+        return exc
+    return MeshError(
+        f"the {args.weights} Tutte start map of {args.input} has {found.group(1)} inverted or degenerate "
+        f"triangle(s) (rounding on badly shaped triangles), where the barrier energy {args.energy!r} is "
+        f"infinite; try --weights {'uniform' if args.weights != 'uniform' else 'mean_value'}, an energy "
+        f"without a barrier, or remesh the input")
+
+
+def _convergence_path(png):
+    """The convergence picture saved beside the ``--png`` layout: ``<stem>_convergence<suffix>``."""
+    base = Path(png)
+    return base.with_name(base.stem + "_convergence" + base.suffix)
+
+
+def _save_param_figures(res, F, png, outputs, solver_name):
+    """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
-    from . import plot
-
-    obj = res.info["objective"]
+    from . import io, plot
     from ._objective import element_densities
 
+    obj = res.info["objective"]
     dens = np.asarray(element_densities(obj, res.x))
-    base = Path(png)
-    plot.save_layout(base, res.x, F, np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
+    base, conv = Path(png), _convergence_path(png)
+    plot.save_layout(outputs.enter_context(io.atomic_output(base, "wb")), res.x, F,
+                     np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
                      if obj.energy.value_at_rest(2) else dens,
                      title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                     label="log10 distortion")
-    conv = base.with_name(base.stem + "_convergence" + base.suffix)
-    plot.save_convergence(conv, {"projected Newton": (res.time_history, res.energy_history)},
-                          title=f"convergence ({len(F)} faces)")
+                     label="log10 distortion", format=base.suffix[1:].lower())
+    plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
+                          {solver_name: (res.time_history, res.energy_history)},
+                          title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
     return base, conv
 
 
 def cmd_untangle(args) -> int:
     from . import io
-    from ._errors import ParameterError
+    from ._errors import MeshError, ParameterError, SolveError
     from .untangle import untangle_case, write_untangle_result
 
     want = ".obj" if io.lim_case_dim(args.case) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{args.case} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    io.check_output_path(args.output)
-    case, res = untangle_case(args.case, solver=args.solver, progress=not args.quiet)
+    _output_paths(args.output, (want,))
+    case = io.read_lim_case(args.case)
+    if case["handles"].size == 0:
+        raise MeshError(f"{case['handles_file']} is empty: untangling needs a fixed boundary; list the "
+                        f"0-based ids of the fixed vertices in it, one per line")
+    case, res = untangle_case(case, solver=args.solver, progress=not args.quiet)
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
     if not res.success:
         return _fail(f"not certified: {res.message}")
-    check = write_untangle_result(case, res, args.output)
-    if not check["certified"]:
-        Path(args.output).unlink(missing_ok=True)
-        return _fail(f"the written file did not certify ({check['inverted']} inverted element(s), "
-                     f"{check['handles_moved']} handle(s) moved)")
+    # written beside the output and certified there: a file that does not certify never replaces it
+    with io.atomic_path(args.output) as tmp:
+        check = write_untangle_result(case, res, tmp)
+        if not check["certified"]:
+            raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
+                             f"{check['handles_moved']} handle(s) moved)")
     return EXIT_OK
 
 
@@ -163,13 +260,15 @@ def build_parser():
 
     sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
     sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
-    sp.add_argument("-o", "--output", required=True, help="output OBJ with one vt per vertex")
+    sp.add_argument("-o", "--output", required=True,
+                    help="output .obj (one vt per vertex) or .ply (binary, double x y z u v)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--solver", default="newton", help="solver name (default newton)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
-    sp.add_argument("--png", default=None, help="also save the UV layout (and a _convergence plot)")
+    sp.add_argument("--png", default=None,
+                    help="also save the UV layout (.png, .pdf or .svg) and a <name>_convergence plot")
     common(sp)
     sp.set_defaults(func=cmd_param)
 
@@ -195,7 +294,8 @@ def main(argv=None) -> int:
 
     _enable_compilation_cache()
     try:
-        return args.func(args)
+        with _signals_raise():
+            return args.func(args)
     except SolveError as exc:
         if args.debug:
             raise
@@ -205,9 +305,11 @@ def main(argv=None) -> int:
             raise
         print(f"geomopt: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("geomopt: interrupted; no output written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP through _signals_raise
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"geomopt: interrupted by {signal.Signals(signum).name}; unfinished outputs were removed",
+              file=sys.stderr)
+        return 128 + signum
     except Exception as exc:  # an internal error: one line unless --debug
         if args.debug:
             raise

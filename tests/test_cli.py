@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -102,10 +103,11 @@ def _bad_meshes(tmp):
         "missing": (tmp / "nope.obj", ["does not exist"]),
         "empty": (tmp / "empty.obj", ["is empty"]),
         "directory": (d, ["is a directory"]),
-        "not a mesh": (tmp / "text.obj", ["contains no mesh"]),
+        "not a mesh": (tmp / "text.obj", ["line 1: unknown OBJ statement 'hello'"]),
         "extension": (tmp / "mesh.xyz", ["unsupported extension '.xyz'", ".obj, .off, .ply, .stl"]),
         "nan": (write_obj(tmp / "nan.obj", nan, F), ["1 vertices with NaN or infinite", "vertex 3"]),
-        "index": (write_obj(tmp / "oob.obj", V3, np.r_[F, [[0, 1, 40]]]), ["vertex that does not exist"]),
+        "index": (write_obj(tmp / "oob.obj", V3, np.r_[F, [[0, 1, 40]]]),
+                  ["line 35: face corner '41' refers to a vertex beyond the file's 16 'v' lines"]),
         "repeated": (write_obj(tmp / "rep.obj", V3, np.r_[F, [[0, 0, 1]]]), ["use a vertex more than once"]),
         "zero area": (write_obj(tmp / "flat.obj", V, F), ["1 rest triangle(s) have (near-)zero size", "[3]"]),
         "non-manifold": (write_obj(tmp / "nm.obj", np.r_[V3, [[0.5, -0.5, 1.0], [0.5, -0.5, -1.0]]],
@@ -203,6 +205,135 @@ def test_demo_output_that_is_a_file(cli, tmp_path):
     assert code == 2
     one_error_line(err, "cannot create the output folder")
     assert (tmp_path / "out").read_text() == "a file\n"
+
+
+# ------------------------------------------------------------------ outputs (issue 10, classes 1, 5, 6)
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Reading or solving anything fails the test: output checks must come first."""
+    fail = lambda *a, **k: pytest.fail("read or solved before checking the outputs")  # noqa: E731
+    monkeypatch.setattr("geomopt.io.read_mesh", fail)
+    monkeypatch.setattr("geomopt.io.read_lim_case", fail)
+    monkeypatch.setattr("geomopt.param.parameterize", fail)
+    monkeypatch.setattr("geomopt.untangle.untangle_case", fail)
+
+
+def test_outputs_that_are_not_regular_files_are_refused_before_reading(cli, tmp_path, no_work):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    fifo = tmp_path / "pipe.obj"
+    os.mkfifo(fifo)
+    png_fifo = tmp_path / "pipe.png"
+    os.mkfifo(png_fifo)
+    (tmp_path / "conv_convergence.png").mkdir()
+    (tmp_path / "link.obj").symlink_to("/dev/null")
+    case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
+    before = sorted(os.listdir(tmp_path))
+    for argv, words in [
+        (["param", mesh, "-o", "/dev/full"], ["output /dev/full is a character device, not a regular file"]),
+        (["param", mesh, "-o", "/dev/null"], ["output /dev/null is a character device"]),
+        (["param", mesh, "-o", fifo], ["is a named pipe (FIFO), not a regular file"]),
+        (["param", mesh, "-o", tmp_path / "link.obj"], ["is a symbolic link"]),
+        (["param", mesh, "-o", tmp_path / "uv.obj", "--png", png_fifo], ["--png picture", "named pipe"]),
+        (["param", mesh, "-o", tmp_path / "uv.obj", "--png", "/dev/full"], ["--png picture", "character device"]),
+        (["param", mesh, "-o", tmp_path / "uv.obj", "--png", tmp_path / "conv.png"],
+         ["convergence picture", "conv_convergence.png is a directory"]),
+        (["untangle", case, "-o", tmp_path / "pipe.obj"], ["named pipe"]),
+        (["untangle", case, "-o", "/dev/null"], ["2D case: the output must be a .obj file"]),
+    ]:
+        code, out, err = cli(*argv, "--quiet")
+        assert code == 2, argv
+        one_error_line(err, *words)
+    assert sorted(os.listdir(tmp_path)) == before
+    assert stat.S_ISCHR(os.stat("/dev/full").st_mode) and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and stat.S_ISFIFO(os.stat(png_fifo).st_mode)
+
+
+def test_output_names_and_formats_are_checked_before_reading(cli, tmp_path, no_work):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    long_name = "n" * 246 + ".png"  # fits; its _convergence sibling (258 bytes) does not
+    for argv, words in [
+        (["-o", tmp_path / "uv.stl"], ["output", "uv.stl has extension '.stl'; supported: .obj, .ply"]),
+        (["-o", tmp_path / "uv.txt"], ["extension '.txt'"]),
+        (["-o", tmp_path / "uv"], ["has no extension; supported: .obj, .ply"]),
+        (["-o", tmp_path / ("u" * 300 + ".obj")], ["name too long for the file system"]),
+        (["-o", tmp_path / "uv.obj", "--png", tmp_path / "uv.gif"],
+         ["--png picture", "extension '.gif'; supported: .png, .pdf, .svg"]),
+        (["-o", tmp_path / "uv.obj", "--png", tmp_path / "uv.obj"], ["--png picture", "is the same file as the -o output"]),
+        (["-o", tmp_path / "uv.obj", "--png", tmp_path / long_name],
+         ["convergence picture", "name too long for the file system"]),
+        (["-o", tmp_path / "uv.obj", "--png", tmp_path / "pic"], ["--png picture", "has no extension"]),
+    ]:
+        code, _, err = cli("param", mesh, *argv, "--quiet")
+        assert code == 2, argv
+        one_error_line(err, *words)
+    assert os.listdir(tmp_path) == ["m.obj"]
+
+
+def read_ply_uv(path):
+    """x y z u v and faces of a binary PLY written by geomopt (parsed here with numpy)."""
+    head, body = Path(path).read_bytes().split(b"end_header\n", 1)
+    n = int(head.split(b"element vertex ")[1].split()[0])
+    m = int(head.split(b"element face ")[1].split()[0])
+    vert = np.frombuffer(body, np.dtype([(c, "<f8") for c in "xyzuv"]), n)
+    face = np.frombuffer(body, np.dtype([("n", "u1"), ("i", "<i4", (3,))]), m, vert.nbytes)
+    assert len(body) == vert.nbytes + face.nbytes and (face["n"] == 3).all()
+    return np.c_[vert["x"], vert["y"], vert["z"]], np.c_[vert["u"], vert["v"]], face["i"]
+
+
+def test_param_writes_the_format_the_extension_names_and_pictures_atomically(cli, tmp_path, monkeypatch):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.PLY", "--png", tmp_path / "pic.png", "--quiet")
+    assert (code, err) == (0, "")
+    v, uv, f = read_ply_uv(tmp_path / "uv.PLY")
+    assert np.array_equal(v, V3) and np.array_equal(f, F) and count_inverted(uv, F) == 0
+    assert cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")[0] == 0
+    assert np.array_equal(read_uv_obj(tmp_path / "uv.obj")[1], uv)  # the same map, every bit
+    for name in ("pic.png", "pic_convergence.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(os.listdir(tmp_path)) == ["m.obj", "pic.png", "pic_convergence.png", "uv.PLY", "uv.obj"]
+
+    # the disk fills up while the second picture is written: no picture, no output, no temporary file
+    for name in ("pic.png", "pic_convergence.png", "uv.PLY"):
+        (tmp_path / name).write_text("old\n")
+    import geomopt.plot
+
+    real = geomopt.plot.save_convergence
+
+    def disk_full(path, *a, **k):
+        real(path, *a, **k)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(geomopt.plot, "save_convergence", disk_full)
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.PLY", "--png", tmp_path / "pic.png", "--quiet")
+    assert code == 2
+    one_error_line(err, "could not write", "No space left on device", "nothing was written")
+    for name in ("pic.png", "pic_convergence.png", "uv.PLY"):
+        assert (tmp_path / name).read_text() == "old\n"
+    assert sorted(os.listdir(tmp_path)) == ["m.obj", "pic.png", "pic_convergence.png", "uv.PLY", "uv.obj"]
+
+
+def test_stl_input_is_welded_and_says_so(cli, tmp_path, monkeypatch):
+    corners = V3[F].astype(np.float32)
+    stl = tmp_path / "m.stl"
+    stl.write_bytes(b"x" * 80 + np.uint32(len(F)).tobytes() + b"".join(
+        np.zeros(3, np.float32).tobytes() + c.tobytes() + b"\0\0" for c in corners))
+    seen = {}
+
+    def stop(V, F, **kwargs):
+        seen.update(V=V, F=F)
+        raise MeshFormatError("stopped before solving")
+
+    monkeypatch.setattr("geomopt.param.parameterize", stop)
+    code, _, err = cli("param", stl, "-o", tmp_path / "uv.obj")
+    assert code == 2 and "stopped before solving" in err
+    assert "welded the 54 corners with bit-identical coordinates into 16 vertices" in err
+    order = list(dict.fromkeys(F.ravel().tolist()))  # vertices numbered by first appearance
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    assert np.array_equal(seen["V"], V3[order].astype(np.float32).astype(np.float64))
+    assert np.array_equal(seen["F"], rank[F])
 
 
 # ------------------------------------------------------------------ param: failed solve -> 1
@@ -329,6 +460,57 @@ def test_untangle_unwritable_output_fails_before_solving(cli, tmp_path, monkeypa
     with pytest.raises(SystemExit) as info:
         geomopt.cli.main(["untangle", str(case), "-o", str(tmp_path / "x.obj"), "--solver", "slim"])
     assert info.value.code == 2
+
+
+def test_untangle_empty_handles_says_what_the_cli_user_can_do(cli, tmp_path, monkeypatch):
+    case = lim2d(tmp_path / "case", folded_2d(), [])
+    monkeypatch.setattr("geomopt.untangle.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
+    code, _, err = cli("untangle", case, "-o", tmp_path / "out.obj", "--quiet")
+    assert code == 2
+    line = one_error_line(err, "handles.txt is empty", "needs a fixed boundary", "0-based ids")
+    assert "with_fixed" not in line and "Problem" not in line
+    assert not (tmp_path / "out.obj").exists()
+
+
+def test_untangle_output_that_does_not_certify_never_replaces_the_old_file(cli, tmp_path, monkeypatch):
+    case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
+    out = tmp_path / "out.obj"
+    out.write_text("previous result\n")
+    import geomopt.untangle
+
+    real = geomopt.untangle.write_untangle_result
+
+    def broken(case, res, path):
+        check = real(case, res, path)
+        assert Path(path) != out and Path(path).read_bytes().startswith(b"v ")  # written beside, not over
+        return {**check, "inverted": 1, "certified": False}
+
+    monkeypatch.setattr(geomopt.untangle, "write_untangle_result", broken)
+    code, _, err = cli("untangle", case, "-o", out, "--quiet")
+    assert code == 1
+    one_error_line(err, "the written file did not certify (1 inverted element(s)", "nothing written")
+    assert out.read_text() == "previous result\n" and sorted(os.listdir(tmp_path)) == ["case", "out.obj"]
+
+
+def test_param_inverted_tutte_start_is_reworded_for_the_cli(cli, tmp_path, monkeypatch):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    import geomopt.param
+
+    real = geomopt.param.tutte_embedding
+
+    def folded(*a, **k):
+        x = np.array(real(*a, **k))
+        x[5] = 2 * x[10] - x[5]  # an interior vertex reflected through another: inverted triangles
+        assert count_inverted(x, F) > 0
+        return x
+
+    monkeypatch.setattr(geomopt.param, "tutte_embedding", folded)
+    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--weights", "mean_value", "--quiet")
+    assert code == 2
+    line = one_error_line(err, "the mean_value Tutte start map of", "inverted or degenerate triangle(s)",
+                          "try --weights uniform")
+    assert "x0" not in line
+    assert os.listdir(tmp_path) == ["m.obj"]
 
 
 # ------------------------------------------------------------------ the real entry point

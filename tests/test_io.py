@@ -243,15 +243,15 @@ def test_read_mesh_merges_material_groups(tmp_path):
     "name, content, word",
     [
         ("empty.obj", "", "empty"),
-        ("garbage.obj", b"\x00\x01\xff\xfe garbage \x00", "no mesh"),
-        ("garbage.ply", b"\x00\x01\xff\xfe garbage \x00", "could not read"),
-        ("text.obj", "hello world\n", "no mesh"),
+        ("garbage.obj", b"\x00\x01\xff\xfe garbage \x00", "binary file"),
+        ("garbage.ply", b"\x00\x01\xff\xfe garbage \x00", "does not start with the line 'ply'"),
+        ("text.obj", "hello world\n", "line 1: unknown OBJ statement 'hello'"),
+        ("comments.obj", "# only a comment\n\n", "contains no mesh"),
         ("points.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\n", "no triangle faces"),
         ("lines.obj", "v 0 0 0\nv 1 0 0\nl 1 2\n", "no triangle faces"),
         ("points.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
          "property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n", "no triangle faces"),
-        ("short.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", "could not read"),
-        ("oob.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "out of bounds"),
+        ("short.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", "declares 3 vertices and 1 faces, but the file ends"),
         ("mesh.xyz", "0 0 0\n", ".obj, .off, .ply, .stl"),
         ("mesh", "v 0 0 0\n", "unsupported extension"),
     ],
@@ -278,6 +278,7 @@ def test_read_mesh_missing_directory_and_multi_mesh(tmp_path):
     [
         ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 2\nf 1 2 3\n", "more than once"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "line 4: face corner '7' refers to a vertex beyond the file's 3"),
     ],
 )
 def test_read_mesh_content_errors(tmp_path, text, word):
@@ -346,9 +347,10 @@ def test_read_lim2d_forms_and_empty_handles(tmp_path):
         (SQUARE_OBJ.replace("v 1 1 0", "v 1 x 0"), "0", MeshFormatError, "line 3"),
         (SQUARE_OBJ.replace("vt 1 0\n", "vt 1\n"), "0", MeshFormatError, "line 6"),
         (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f 1/1 3/3 4/4 2/2"), "0", MeshFormatError, "only triangles"),
-        (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f -4 -2 -1"), "0", MeshFormatError, "negative"),
+        (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f -5 -2 -1"), "0", MeshFormatError, "before the first vertex"),
+        (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f -4/-4 -2/-2 -1/-1"), "0", MeshFormatError, "relative"),
         (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f 1 3 x"), "0", MeshFormatError, "line 10"),
-        (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f 1 3 9"), "0", MeshError, "outside"),
+        (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f 1 3 9"), "0", MeshError, "line 10: face corner '9' refers to a vertex beyond"),
         (SQUARE_OBJ.replace("f 1/1 3/3 4/4", "f 1 3 3"), "0", MeshError, "more than once"),
         (SQUARE_OBJ.replace("vt 1 1", "vt inf 1"), "0", MeshError, "infinite"),
         (SQUARE_OBJ, "0\n4\n", MeshError, "outside"),
@@ -391,13 +393,13 @@ def test_vtk_round_trip_exact(tmp_path):
     "content, word",
     [
         (TET_VTK + "CELLS 2 9\n4 0 1 2 3\n3 0 1 2\nCELL_TYPES 2\n10\n5\n", "triangle"),
-        (TET_VTK, "could not read"),
-        (TET_VTK.replace("1 0 0\n0 1 0", "1 x 0\n0 1 0") + TET_CELLS, "could not read"),
+        (TET_VTK, "expected 'CELLS' after the points, found the end of the file"),
+        (TET_VTK.replace("1 0 0\n0 1 0", "1 x 0\n0 1 0") + TET_CELLS, "cannot read 'x' as a number"),
         ("# vtk DataFile Version 2.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 0 double\n"
          "CELLS 0 0\nCELL_TYPES 0\n", "no points"),
         (TET_VTK + "CELLS 0 0\nCELL_TYPES 0\n", "no cells"),
         ("", "empty"),
-        (b"\x00\xff\x13 not vtk", "could not read"),
+        (b"\x00\xff\x13 not vtk", "does not start with '# vtk DataFile Version"),
     ],
 )
 def test_read_vtk_tets_format_errors(tmp_path, content, word):

@@ -1,0 +1,165 @@
+"""Output paths: only regular files (or new names) are ever replaced, checks create nothing, and an
+interrupted write leaves no temporary file (issue 10, classes 1 and 6, library level; the command
+line is tested in tests/test_cli.py)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import grid
+from geomopt._errors import GeomoptError
+from geomopt.io import atomic_output, atomic_path, atomic_write, check_output_path, write_mesh_with_uv
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def snapshot(folder):
+    """Names and the folder's own mtime: creating and deleting a file changes the latter."""
+    return sorted(os.listdir(folder)), os.stat(folder).st_mtime_ns
+
+
+def special_files(tmp_path):
+    fifo = tmp_path / "pipe.obj"
+    os.mkfifo(fifo)
+    link = tmp_path / "link.obj"
+    link.symlink_to(tmp_path / "target.obj")
+    (tmp_path / "target.obj").write_text("target\n")
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(tmp_path / "s.obj"))
+    sock.close()
+    return {
+        "FIFO": (fifo, r"named pipe \(FIFO\)"),
+        "/dev/null": (Path("/dev/null"), "character device"),
+        "/dev/full": (Path("/dev/full"), "character device"),
+        "symlink": (link, "symbolic link"),
+        "socket": (tmp_path / "s.obj", "socket"),
+        "directory": (tmp_path, "is a directory"),
+    }
+
+
+def test_check_output_path_refuses_what_is_not_a_regular_file_and_creates_nothing(tmp_path):
+    cases = special_files(tmp_path)
+    before = snapshot(tmp_path)
+    for name, (path, words) in cases.items():
+        with pytest.raises(GeomoptError, match=words):
+            check_output_path(path)
+        with pytest.raises(GeomoptError, match=words):  # the writers check too, and write nothing
+            atomic_write(path, lambda fh: fh.write("x"))
+    assert snapshot(tmp_path) == before
+    assert stat.S_ISCHR(os.stat("/dev/full").st_mode) and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert stat.S_ISFIFO(os.lstat(tmp_path / "pipe.obj").st_mode)
+    assert (tmp_path / "target.obj").read_text() == "target\n" and (tmp_path / "link.obj").is_symlink()
+    check_output_path(tmp_path / "new.obj")
+    check_output_path(tmp_path / "target.obj")
+    assert snapshot(tmp_path) == before  # the checks of good paths create nothing either
+
+
+def test_check_output_path_names_and_extensions(tmp_path):
+    with pytest.raises(GeomoptError, match="name too long for the file system"):
+        check_output_path(tmp_path / ("x" * 300 + ".obj"))
+    with pytest.raises(GeomoptError, match="names a folder"):
+        check_output_path(str(tmp_path) + "/")
+    with pytest.raises(GeomoptError, match=r"extension '\.stl'; supported: \.obj, \.ply"):
+        check_output_path(tmp_path / "a.stl", (".obj", ".ply"))
+    with pytest.raises(GeomoptError, match="has no extension"):
+        check_output_path(tmp_path / "a", (".obj",))
+    assert check_output_path(tmp_path / "A.PLY", (".obj", ".ply")) == tmp_path / "A.PLY"
+    long_utf8 = tmp_path / ("\u00e9" * 120 + ".obj")  # 244 bytes: fits, and so must its temporary name
+    atomic_write(long_utf8, lambda fh: fh.write("ok\n"))
+    assert long_utf8.read_text() == "ok\n" and os.listdir(tmp_path) == [long_utf8.name]
+
+
+def test_atomic_path_replaces_only_on_success(tmp_path):
+    target = tmp_path / "out.obj"
+    target.write_text("old\n")
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("new\n")
+            raise RuntimeError("not certified")
+    assert target.read_text() == "old\n" and os.listdir(tmp_path) == ["out.obj"]
+    with atomic_path(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.startswith(".out.obj.")
+        tmp.write_text("new\n")
+    assert target.read_text() == "new\n" and os.listdir(tmp_path) == ["out.obj"]
+
+
+def test_atomic_output_refuses_a_target_that_became_special_while_writing(tmp_path):
+    target = tmp_path / "out.obj"
+    with pytest.raises(GeomoptError, match="named pipe"):
+        with atomic_output(target) as fh:
+            fh.write("data\n")
+            os.mkfifo(target)
+    assert stat.S_ISFIFO(os.lstat(target).st_mode) and os.listdir(tmp_path) == ["out.obj"]
+
+
+def test_write_mesh_with_uv_picks_the_format_by_extension(tmp_path):
+    V2, F = grid(3)
+    V = np.c_[V2, np.zeros(len(V2))]
+    write_mesh_with_uv(tmp_path / "a.obj", V, F, V2)
+    write_mesh_with_uv(tmp_path / "a.PLY", V, F, V2)
+    assert (tmp_path / "a.obj").read_bytes().startswith(b"v ")
+    assert (tmp_path / "a.PLY").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
+    with pytest.raises(GeomoptError, match="supported: .obj, .ply"):
+        write_mesh_with_uv(tmp_path / "a.off", V, F, V2)
+    assert sorted(os.listdir(tmp_path)) == ["a.PLY", "a.obj"]
+
+
+SLOW_WRITE = """
+import sys, time
+sys.path.insert(0, {tests!r})
+import numpy as np
+from types import SimpleNamespace
+from conftest import grid
+import geomopt.io, geomopt.param, geomopt.cli
+
+V2, F = grid(4)
+real = geomopt.io._write_rows
+
+def slow(fh, prefix, A):
+    real(fh, prefix, A)
+    fh.flush()
+    print("writing", flush=True)
+    time.sleep(60)
+
+geomopt.io._write_rows = slow
+geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
+    energy=1.0, info={{"objective": SimpleNamespace(total_volume=1.0)}}, iterations=1, seconds=0.0,
+    setup_seconds=0.0, inverted=0, outcome=SimpleNamespace(value="converged"), success=True, x=V2)
+sys.exit(geomopt.cli.main(["param", sys.argv[1], "-o", sys.argv[2], "--quiet"]))
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_signal_during_the_write_leaves_no_temporary_file(tmp_path, signum):
+    """The command line turns SIGTERM/SIGHUP (and SIGINT) into an exception: the temporary file goes."""
+    V2, F = grid(4)
+    mesh = tmp_path / "m.obj"
+    mesh.write_text("".join(f"v {x!r} {y!r} 0.0\n" for x, y in V2.tolist())
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    out = tmp_path / "uv.obj"
+    out.write_text("previous result\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    script = textwrap.dedent(SLOW_WRITE.format(tests=str(REPO / "tests")))
+    proc = subprocess.Popen([sys.executable, "-c", script, str(mesh), str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline() == "writing\n"
+        assert any(name.startswith(".uv.obj.") for name in os.listdir(tmp_path))  # mid-write
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signum, err
+    assert f"interrupted by {signal.Signals(signum).name}" in err and "Traceback" not in err
+    assert sorted(os.listdir(tmp_path)) == ["cache", "m.obj", "uv.obj"]
+    assert out.read_text() == "previous result\n"
