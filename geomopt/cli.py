@@ -124,17 +124,30 @@ def cmd_param(args) -> int:
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
     _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures)  # before reading or solving
-    V, F = io.read_mesh(args.input)
+    if args.init == "uv":
+        V, F, x0 = io.read_obj_uv(args.input)
+        start = "its own UV start map"
+    else:
+        V, F = io.read_mesh(args.input)
+        x0 = None if args.init == "tutte" else args.init
+        start = f"{args.weights} Tutte start" if args.init == "tutte" else "plane projection start"
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
-               f"solver {args.solver}, {args.weights} Tutte start")
+               f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
         _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
     try:
-        res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights,
+        res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
                            progress=not args.quiet)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
+    rep = res.info.get("repair")
+    if rep is not None:
+        _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s) with a free boundary: "
+                   f"{rep.outer_iterations} outer iterations, {rep.seconds:.2f} s, "
+                   f"{'certified' if rep.success else 'not certified: ' + rep.message}")
+    if rep is not None and not rep.success:
+        return _fail(f"the start map could not be repaired: {rep.message}")
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
@@ -231,7 +244,7 @@ def cmd_demo(args) -> int:
                            f"give a folder path") from exc
     data = Path(__file__).with_name("data") / "camelhead.off"
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
-                            energy="symmetric_dirichlet", solver="newton", weights="uniform",
+                            energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte",
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"))
     code = cmd_param(ns)
     if code == EXIT_OK:
@@ -266,6 +279,10 @@ def build_parser():
     sp.add_argument("--solver", default="newton", help="solver name (default newton)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
+    sp.add_argument("--init", default="tutte", choices=["tutte", "projection", "uv"],
+                    help="start map: Tutte embedding (default), the best-fit plane projection, or the "
+                         "input OBJ's own vt map; a start with folded triangles is first repaired with a "
+                         "free boundary (Garanzha et al.'s untangling)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--png", default=None,
                     help="also save the UV layout (.png, .pdf or .svg) and a <name>_convergence plot")

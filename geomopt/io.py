@@ -51,6 +51,7 @@ __all__ = [
     "validate_simplices",
     "validate_indices",
     "read_mesh",
+    "read_obj_uv",
     "write_mesh_with_uv",
     "write_obj_with_uv",
     "write_ply_with_uv",
@@ -977,6 +978,61 @@ def _read_obj(data, path):
     if not obj["counts"].size:
         raise MeshFormatError(f"{path} has no triangle faces (no 'f' lines); a triangle mesh is required")
     return obj["v"], _fan(obj["corners"], obj["counts"])
+
+
+def read_obj_uv(path):
+    """Read an OBJ mesh and its UV map (``vt``) as one map position per vertex.
+
+    The file is read as :func:`read_mesh` reads it; the UV of a vertex is the ``vt`` of its
+    face corners, which must all carry a texture index and agree on the vertex's position
+    bit for bit (one ``vt`` per vertex, or per corner where they agree).  A map cut along
+    seams (a vertex with two different UVs) is refused: it is not a map of this mesh.
+
+    Returns
+    -------
+    V : (n, 3) float64;  F : (m, 3) int64;  UV : (n, 2) float64.
+
+    Raises
+    ------
+    MeshFormatError
+        No ``vt`` lines, a corner without a texture index, a relative or out-of-range
+        texture index, a vertex used by no face, or a vertex with two different UVs.
+    """
+    path = _existing_file(path, "OBJ file")
+    if path.suffix.lower() != ".obj":
+        raise MeshFormatError(f"{path}: a UV start map is read from an OBJ file's 'vt' lines; got "
+                              f"{path.suffix!r}")
+    _check_not_empty(path, "OBJ file")
+    with _gc_paused():
+        obj = _parse_obj(_read_bytes(path, "OBJ file"), path, with_uv=True)
+    if not obj["counts"].size:
+        raise MeshFormatError(f"{path} has no triangle faces (no 'f' lines); a triangle mesh is required")
+    V, vt, corner, tex = obj["v"], obj["vt"], obj["corners"], obj["texcoords"]
+    if not vt.shape[0]:
+        raise MeshFormatError(f"{path} has no 'vt' lines: it carries no UV map to start from")
+    lines = np.repeat(obj["lines"], obj["counts"])
+    for bad, why in ((tex == -1, "has no texture index (write corners as 'a/t')"),
+                     (tex == -2, "has a relative (negative) texture index"),
+                     (tex >= vt.shape[0], f"refers to a 'vt' beyond the file's {vt.shape[0]}")):
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise MeshFormatError(f"{path}, line {lines[i]}: a face corner {why}")
+    UV = np.full((V.shape[0], 2), np.nan)
+    UV[corner] = vt[tex]
+    differ = np.flatnonzero((vt[tex].view(np.uint64) != UV[corner].view(np.uint64)).any(axis=1))
+    if differ.size:
+        v = int(corner[differ[0]])
+        raise MeshFormatError(
+            f"{path}: vertex {v + 1} has two different UVs (line {lines[differ[0]]}; {np.unique(corner[differ]).size} "
+            f"vertices in all): the UV map is cut along seams, so it is not one map of this mesh; "
+            f"weld the seams or start from --init tutte / projection")
+    unused = np.flatnonzero(np.isnan(UV[:, 0]))
+    if unused.size:
+        raise MeshFormatError(f"{path}: {unused.size} vertices are used by no face (first: {unused[0] + 1}); "
+                              f"remove unreferenced vertices")
+    V = validate_vertices(V, f"{path.name}: vertices", dim=3)
+    F = validate_simplices(_fan(corner, obj["counts"]), V.shape[0], 3, f"{path.name}: faces")
+    return V, F, validate_vertices(UV, f"{path.name}: UV map", dim=2)
 
 
 # ------------------------------------------------------------------------- OFF

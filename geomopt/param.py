@@ -134,7 +134,16 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
                 raise SolveError(f"repairing {source} failed: {repaired.message}", result)
             return result
         x0, inverted = repaired.x, 0
-    if inverted and objective.energy.barrier:    x0 = _to_rest_area(problem, x0)
+    if inverted and objective.energy.barrier:
+        what = (f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
+                f"{objective.energy.name!r} is infinite")
+        other = "mean_value" if weights == "uniform" else "uniform"
+        raise MeshError(
+            f"{what} (a Tutte map has none in exact arithmetic: these are rounding where its "
+            f"triangles crowd, as on very anisotropic or unevenly refined meshes); try {other} "
+            f"Tutte weights or an energy without a barrier (e.g. arap), or remesh more evenly"
+        )
+    x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)
     result = minimize(objective, s * x0, solver, progress=progress, throw=throw)
     result.info.update(start=s * x0, scale=s, problem=problem, objective=objective, repair=repaired)

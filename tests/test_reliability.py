@@ -204,13 +204,14 @@ def test_parameterize_rejects_non_disks_with_the_topology_message(mesh, match):
         parameterize(*mesh, progress=False)
 
 
-def test_start_map_with_inverted_triangles_and_a_barrier_energy_is_an_error():
+def test_start_map_with_inverted_triangles_is_repaired_with_a_free_boundary():
     V, F = grid(4)
     x0 = V.copy()
     x0[5] = [0.9, 0.9]  # folds the triangles around vertex 5
-    with pytest.raises(MeshError, match=r"start map x0 has \d+ inverted or degenerate triangle.*'symmetric_dirichlet'"):
-        parameterize(V3, F3, x0=x0, progress=False)
-    with pytest.raises(MeshError, match="inverted or degenerate"):
+    res = parameterize(V3, F3, x0=x0, progress=False)
+    assert res.success and res.inverted == 0
+    assert res.info["repair"].initially_inverted > 0 and res.info["repair"].success
+    with pytest.raises(MeshError, match="collapsed"):
         parameterize(V3, F3, x0=np.zeros((16, 2)), progress=False)
     with pytest.raises(MeshError, match="NaN"):
         parameterize(V3, F3, x0=np.full((16, 2), np.nan), progress=False)
