@@ -51,6 +51,49 @@ def _to_rest_area(problem: Problem, x0) -> np.ndarray:
     return x0 * np.sqrt(problem.volumes.sum() / area) if area > 0 else x0
 
 
+def start_map(objective: Objective, x0=None, weights="uniform"):
+    """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
+
+    A Tutte embedding (or ``x0``), centred, scaled to the rest surface area, then scaled by
+    :func:`optimal_scale` for the objective's energy.
+
+    Parameters
+    ----------
+    objective : :class:`~geomopt.Objective` over a 2D-target problem (surface or planar).
+    x0 : (n, 2) optional start map instead of Tutte; with a barrier energy it must be flip-free.
+        Without ``x0`` the mesh must be a topological disk (:func:`~geomopt.topology.check_disk`).
+    weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
+
+    Returns
+    -------
+    x : (n, 2) float64 start map;  scale : float, the factor :func:`optimal_scale` applied.
+
+    Raises
+    ------
+    MeshError : non-disk mesh, invalid ``x0``, or a start map with inverted triangles for a
+        barrier energy (infinite there).
+    ParameterError : unknown ``weights``.
+    """
+    problem = objective.problem
+    if x0 is None:
+        loop = check_disk(problem.input_simplices, problem.n_vertices)
+        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
+        source = "the Tutte start map"
+    else:
+        source = "the start map x0"
+    x0 = problem.check_map(x0, "start map x0")
+    inverted = problem.count_inverted(x0)
+    if inverted and objective.energy.barrier:
+        raise MeshError(
+            f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
+            f"{objective.energy.name!r} is infinite; give a flip-free start map (omit x0 for a Tutte "
+            f"start, or untangle it first) or use an energy without a barrier"
+        )
+    x0 = _to_rest_area(problem, x0)
+    s = optimal_scale(objective, x0)
+    return s * x0, s
+
+
 def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
@@ -80,22 +123,7 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     problem = Problem.surface(V, F)
     objective = Objective(problem, energy, **energy_params)
     solver = Newton() if solver is None else get_solver(solver)
-    if x0 is None:
-        loop = check_disk(problem.input_simplices, problem.n_vertices)
-        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
-        source = "the Tutte start map"
-    else:
-        source = "the start map x0"
-    x0 = problem.check_map(x0, "start map x0")
-    inverted = problem.count_inverted(x0)
-    if inverted and objective.energy.barrier:
-        raise MeshError(
-            f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
-            f"{objective.energy.name!r} is infinite; give a flip-free start map (omit x0 for a Tutte "
-            f"start, or untangle it first) or use an energy without a barrier"
-        )
-    x0 = _to_rest_area(problem, x0)
-    s = optimal_scale(objective, x0)
-    result = minimize(objective, s * x0, solver, progress=progress, throw=throw)
-    result.info.update(start=s * x0, scale=s, problem=problem, objective=objective)
+    x0, s = start_map(objective, x0, weights)
+    result = minimize(objective, x0, solver, progress=progress, throw=throw)
+    result.info.update(start=x0, scale=s, problem=problem, objective=objective)
     return result
