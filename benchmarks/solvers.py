@@ -70,6 +70,10 @@ def median_stats(runs):
     return out
 
 
+def num(v):
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
 def cell(it, t):
     if it is None:
         return "never"
@@ -86,7 +90,7 @@ def table(mesh, n_faces, rows, ref):
         lines.append("| " + " | ".join(
             [name] + [cell(r[f"it_{k}"], r[f"t_{k}"]) for k in keys]
             + [f"{r['s_per_it']:.3g}", r.get("compile", ""), f"{r['final_gap']:.1e}",
-               f"{r['flips']}/{r['max_flips']}", r["outcome"]]) + " |")
+               f"{num(r['flips'])}/{num(r['max_flips'])}", r["outcome"]]) + " |")
     if ref:
         lines.append(f"| libigl SLIM (issue) | | | | {ref[0]} / {ref[1]} | {ref[1] / ref[0]:.3g} | | | | |")
     return "\n".join(lines)
