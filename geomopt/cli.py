@@ -253,6 +253,23 @@ def cmd_demo(args) -> int:
     return code
 
 
+def cmd_compare(args) -> int:
+    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out."""
+    from .compare import compare
+
+    res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
+                  max_seconds=args.max_seconds, max_steps=args.max_steps, out=args.out,
+                  progress=not args.quiet)
+    _log(args, res.report())
+    _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
+    folded = [name for name, r in res.results.items() if r.info["flips_history"].max() > 0]
+    if folded:
+        print(f"geomopt: error: inverted elements during the solve of {', '.join(folded)} (see the "
+              f"flips column of {Path(args.out) / 'history.csv'}); files written", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
 def _positive_int(text) -> int:
     try:
         value = int(text)
@@ -296,6 +313,22 @@ def build_parser():
                     help="inner solver (default lbfgs, measured fastest for untangling)")
     common(sp)
     sp.set_defaults(func=cmd_untangle)
+
+    sp = sub.add_parser("compare", help="run several solvers from the same start, write traces and a plot")
+    sp.add_argument("mesh", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
+                                 "(fixed handles, its flip-free map as the start)")
+    sp.add_argument("--out", required=True, help="output folder: history.csv, summary.csv, <solver>.obj "
+                                                 "(.vtk for tets), convergence.png")
+    sp.add_argument("--solvers", default=None,
+                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D)")
+    sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
+    sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
+                    help="Tutte weights of the free-boundary start map")
+    sp.add_argument("--max-seconds", type=float, default=None,
+                    help="stop each solver after this many seconds of solve time (setup excluded)")
+    sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
+    common(sp)
+    sp.set_defaults(func=cmd_compare)
 
     sp = sub.add_parser("demo", help="parameterize the bundled camelhead, write OBJ and PNGs")
     sp.add_argument("-o", "--output", default="out", help="output folder (default ./out)")

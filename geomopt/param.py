@@ -75,6 +75,65 @@ def _check_misplaced_settings(energy, solver, energy_params):
             f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
 
 
+def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
+    """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
+
+    A Tutte embedding, the plane projection or a given map; a folded one (other than Tutte)
+    repaired with a free boundary (:func:`repair_map`); then centred, scaled to the rest
+    surface area and by :func:`optimal_scale` for the objective's energy.
+
+    Parameters
+    ----------
+    objective : :class:`~geomopt.Objective` over a 2D-target problem (surface or planar).
+    x0 : ``None`` / ``"tutte"``, ``"projection"`` or an (n, 2) array (see :func:`parameterize`).
+    weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
+    progress : passed to the repair's untangling.
+
+    Returns
+    -------
+    x : (n, 2) float64 start map;  scale : float, the factor :func:`optimal_scale` applied;
+    repaired : the :class:`~geomopt.untangle.UntangleResult` of the repair, or None.  When the
+    repair does not certify, ``x`` is None.
+
+    Raises
+    ------
+    MeshError : non-disk mesh, invalid ``x0``, or a Tutte start with inverted triangles for a
+        barrier energy (infinite there).
+    ParameterError : unknown ``weights`` or ``x0`` name.
+    """
+    problem = objective.problem
+    repaired = None
+    if x0 is None or (isinstance(x0, str) and x0 == "tutte"):
+        loop = check_disk(problem.input_simplices, problem.n_vertices)
+        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
+        source = "the Tutte start map"
+    elif isinstance(x0, str):
+        if x0 != "projection":
+            raise ParameterError(f"x0 must be 'tutte', 'projection' or an (n, 2) array, got {x0!r}")
+        x0, source = projection_map(problem.rest_vertices, problem.input_simplices), "the projection start map"
+    else:
+        source = "the start map x0"
+    x0 = problem.check_map(x0, "start map x0")
+    inverted = problem.count_inverted(x0)
+    if inverted and source != "the Tutte start map":
+        repaired = repair_map(problem, x0, progress=progress)
+        if not repaired.success:
+            return None, 1.0, repaired
+        x0, inverted = repaired.x, 0
+    if inverted and objective.energy.barrier:
+        what = (f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
+                f"{objective.energy.name!r} is infinite")
+        other = "mean_value" if weights == "uniform" else "uniform"
+        raise MeshError(
+            f"{what} (a Tutte map has none in exact arithmetic: these are rounding where its "
+            f"triangles crowd, as on very anisotropic or unevenly refined meshes); try {other} "
+            f"Tutte weights or an energy without a barrier (e.g. arap), or remesh more evenly"
+        )
+    x0 = _to_rest_area(problem, x0)
+    s = optimal_scale(objective, x0)
+    return s * x0, s, repaired
+
+
 def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
@@ -109,44 +168,18 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
     objective = Objective(problem, energy, **energy_params)
-    repaired = None
-    if x0 is None or (isinstance(x0, str) and x0 == "tutte"):
-        loop = check_disk(problem.input_simplices, problem.n_vertices)
-        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
-        source = "the Tutte start map"
-    elif isinstance(x0, str):
-        if x0 != "projection":
-            raise ParameterError(f"x0 must be 'tutte', 'projection' or an (n, 2) array, got {x0!r}")
-        x0, source = projection_map(problem.rest_vertices, problem.input_simplices), "the projection start map"
-    else:
-        source = "the start map x0"
-    x0 = problem.check_map(x0, "start map x0")
-    inverted = problem.count_inverted(x0)
-    if inverted and source != "the Tutte start map":
-        repaired = repair_map(problem, x0, progress=progress)
-        if not repaired.success:
-            result = Result(x=repaired.x, outcome=repaired.outcome, inverted=repaired.inverted,
-                            energy=float("nan"), energy_history=np.zeros(0), iterations=0,
-                            seconds=repaired.seconds, setup_seconds=repaired.setup_seconds,
-                            time_history=np.zeros(0), info={"repair": repaired, "problem": problem,
-                                                            "objective": objective})
-            if throw:
-                raise SolveError(f"repairing {source} failed: {repaired.message}", result)
-            return result
-        x0, inverted = repaired.x, 0
-    if inverted and objective.energy.barrier:
-        what = (f"{source} has {inverted} inverted or degenerate triangle(s), where the barrier energy "
-                f"{objective.energy.name!r} is infinite")
-        other = "mean_value" if weights == "uniform" else "uniform"
-        raise MeshError(
-            f"{what} (a Tutte map has none in exact arithmetic: these are rounding where its "
-            f"triangles crowd, as on very anisotropic or unevenly refined meshes); try {other} "
-            f"Tutte weights or an energy without a barrier (e.g. arap), or remesh more evenly"
-        )
-    x0 = _to_rest_area(problem, x0)
-    s = optimal_scale(objective, x0)
-    result = minimize(objective, s * x0, solver, progress=progress, throw=throw)
-    result.info.update(start=s * x0, scale=s, problem=problem, objective=objective, repair=repaired)
+    x0, s, repaired = start_map(objective, x0, weights, progress)
+    if x0 is None:
+        result = Result(x=repaired.x, outcome=repaired.outcome, inverted=repaired.inverted,
+                        energy=float("nan"), energy_history=np.zeros(0), iterations=0,
+                        seconds=repaired.seconds, setup_seconds=repaired.setup_seconds,
+                        time_history=np.zeros(0), info={"repair": repaired, "problem": problem,
+                                                        "objective": objective})
+        if throw:
+            raise SolveError(f"repairing the start map failed: {repaired.message}", result)
+        return result
+    result = minimize(objective, x0, solver, progress=progress, throw=throw)
+    result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired)
     return result
 
 

@@ -1,0 +1,183 @@
+"""Solver zoo benchmark: every geomopt solver and libigl's SLIM from the same Tutte start.
+
+For every mesh in ``../shared/data/meshes`` (relative to the repository root): one start map,
+the uniform Tutte embedding centred and scaled for symmetric Dirichlet
+(``benchmarks/param.py``'s ``start_map``); libigl SLIM from it (``param.py``'s ``run_slim``:
+``slim_precompute`` + ``slim_solve(data, 1)`` per iteration, each timed alone); every geomopt
+solver from it through :func:`geomopt.compare` (solve time per iteration, setup excluded,
+exact flips of every iterate).  geomopt runs once cold with ``--cold-seconds`` per solver (its
+setup time is the "compile" column; it also warms the kernels some solvers compile in their
+first steps) and ``--repeat`` times warm; medians of the warm runs are printed.
+
+Per mesh, a Markdown table: iterations and seconds to a relative gap of 1e-2, 1e-4 and 1e-6
+(the gap ``(E - E*) / E*`` to the best energy any solver reached in this run), iterations and
+seconds to the reference energy of libigl's SLIM measured in the issue (``REFERENCES``), s/it,
+compile seconds, final gap, final and maximum flips over every iterate, and the outcome.
+Energies are geomopt's symmetric Dirichlet, area-weighted mean (4 at an isometry).
+
+    python benchmarks/solvers.py --meshes camelhead bunny_cut --repeat 2 --max-seconds 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import param as bench  # noqa: E402  (benchmarks/param.py: start map, libigl SLIM, helpers)
+
+TOLS = (1e-2, 1e-4, 1e-6)
+# libigl SLIM in the issue, this machine: (iterations, seconds) to the energy E
+REFERENCES = {"camelhead": (74, 9.5, 7.448), "bunny_cut": (126, 6.6, 4.1417)}
+
+
+def first_hit(energies, target):
+    """Index of the first energy <= target, or None."""
+    hit = np.flatnonzero(np.asarray(energies) <= target)
+    return int(hit[0]) if hit.size else None
+
+
+def trace_stats(times, energies, best, iterations, seconds, ref_energy):
+    """Iterations / seconds to each tolerance and to ``ref_energy`` of one trace."""
+    stats = {"iterations": iterations, "seconds": seconds, "s_per_it": seconds / max(iterations, 1),
+             "final_gap": (energies[-1] - best) / abs(best)}
+    targets = {f"{tol:g}": best + tol * abs(best) for tol in TOLS}
+    if ref_energy is not None:
+        targets["ref"] = ref_energy
+    for key, target in targets.items():
+        k = first_hit(energies, target)
+        stats[f"it_{key}"] = k
+        stats[f"t_{key}"] = None if k is None else float(times[k])
+    return stats
+
+
+def median_stats(runs):
+    """Per key, the median over warm runs (None when any run never got there)."""
+    out = {}
+    for key in runs[0]:
+        vals = [r[key] for r in runs]
+        if all(isinstance(v, (int, float)) and v is not None for v in vals):
+            out[key] = statistics.median(vals)
+        elif all(isinstance(v, str) for v in vals):
+            out[key] = vals[0] if len(set(vals)) == 1 else "/".join(vals)
+        else:
+            out[key] = None
+    return out
+
+
+def num(v):
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
+def cell(it, t):
+    if it is None:
+        return "never"
+    return f"{it:.0f} / {bench.fmt_s(t)}"
+
+
+def table(mesh, n_faces, rows, ref):
+    keys = [f"{tol:g}" for tol in TOLS] + (["ref"] if ref else [])
+    head = (["solver"] + [f"it / s to {k}" if k != "ref" else f"it / s to E={ref[2]}" for k in keys]
+            + ["s/it", "compile s", "final gap", "flips (final/max)", "outcome"])
+    lines = [f"### {mesh} ({n_faces} triangles)", "", "| " + " | ".join(head) + " |",
+             "|" + "---|" * len(head)]
+    for name, r in rows.items():
+        lines.append("| " + " | ".join(
+            [name] + [cell(r[f"it_{k}"], r[f"t_{k}"]) for k in keys]
+            + [f"{r['s_per_it']:.3g}", r.get("compile", ""), f"{r['final_gap']:.1e}",
+               f"{num(r['flips'])}/{num(r['max_flips'])}", r["outcome"]]) + " |")
+    if ref:
+        lines.append(f"| libigl SLIM (issue) | | | | {ref[0]} / {ref[1]} | {ref[1] / ref[0]:.3g} | | | | |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--meshes", nargs="+", metavar="NAME", help="mesh names (file stems); default: all")
+    ap.add_argument("--solvers", default=None,
+                    help="comma-separated geomopt solvers (default: every one in geomopt.solvers.SOLVERS; "
+                         "those refused for a mesh, e.g. optx-bfgs's dense matrix, are listed and skipped)")
+    ap.add_argument("--max-seconds", type=float, default=60.0, help="solve-time limit per solver and run")
+    ap.add_argument("--cold-seconds", type=float, default=3.0, help="solve-time limit of the cold run")
+    ap.add_argument("--repeat", type=int, default=1, help="warm runs (median reported)")
+    ap.add_argument("--slim-iters", type=int, default=300, help="libigl SLIM iterations (default 300)")
+    ap.add_argument("--json", type=Path, help="write the per-mesh statistics here")
+    args = ap.parse_args(argv)
+    if args.repeat < 1 or args.slim_iters < 1:
+        ap.error("--repeat and --slim-iters must be at least 1")
+    try:
+        import igl  # noqa: F401
+    except ImportError:
+        sys.exit("error: libigl is not installed; pip install 'geomopt[bench]' (or pip install libigl)")
+    if not bench.MESH_DIR.is_dir():
+        sys.exit(f"error: mesh folder {bench.MESH_DIR} not found (see shared/data/meshes/SOURCES.md)")
+
+    import geomopt
+    from geomopt import Objective, ParameterError, Problem
+    from geomopt.io import check_output_path, read_mesh
+    from geomopt.solvers import SOLVERS
+
+    if args.json:
+        check_output_path(args.json)
+    available = {p.stem: p for p in sorted(bench.MESH_DIR.iterdir()) if p.suffix.lower() in bench.MESH_EXTS}
+    names = args.meshes or list(available)
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        sys.exit(f"error: unknown mesh(es) {', '.join(unknown)}; available: {', '.join(available)}")
+    wanted = args.solvers.split(",") if args.solvers else list(SOLVERS)
+
+    report = {}
+    for mesh in names:
+        V, F = read_mesh(available[mesh])
+        bench.log(f"{mesh}: {len(V)} vertices, {len(F)} triangles")
+        objective = Objective(Problem.surface(V, F), "symmetric_dirichlet")
+        x0, _ = bench.start_map(objective, V, F)
+        solvers, skipped, cold = [], {}, {}
+        for name in wanted:  # one solver at a time: compare refuses a list with any unfit solver
+            try:
+                cold[name] = geomopt.compare(V, F, x0=x0, solvers=[name], max_seconds=args.cold_seconds)
+                solvers.append(name)
+            except ParameterError as exc:
+                skipped[name] = str(exc)
+                bench.log(f"  skipped {name}: {exc}")
+        warm = []
+        for k in range(args.repeat):
+            warm.append(geomopt.compare(V, F, x0=x0, solvers=solvers, max_seconds=args.max_seconds))
+            bench.log(f"  warm run {k + 1}:\n" + warm[-1].report())
+        slim = bench.run_slim(V, F, x0, args.slim_iters, objective, objective.params())
+        ref = REFERENCES.get(mesh)
+        best = min([slim["energies"][-1]] + [c.best_mean_energy for c in warm])
+        rows = {}
+        for name in solvers:
+            runs = []
+            for c in warm:
+                r = c.results[name]
+                e = r.energy_history / c.area
+                stats = trace_stats(r.time_history, e, best, r.iterations, r.seconds, ref and ref[2])
+                stats.update(flips=r.inverted, max_flips=int(r.info["flips_history"].max()),
+                             outcome=c.outcome(name))
+                runs.append(stats)
+            rows[name] = median_stats(runs)
+            rows[name]["compile"] = f"{cold[name].results[name].setup_seconds:.2f}"
+        s = trace_stats(slim["times"], slim["energies"], best, slim["iterations"], slim["seconds"],
+                        ref and ref[2])
+        s.update(flips=slim["flips"], max_flips="n/a", outcome=f"{slim['iterations']} it",
+                 compile=f"{slim['setup_seconds']:.2f} (precompute)")
+        rows["libigl SLIM (here)"] = s
+        report[mesh] = {"n_faces": len(F), "E_best": best, "rows": rows, "skipped": skipped,
+                        "warm_seconds": {n: [c.results[n].seconds for c in warm] for n in solvers}}
+        print(table(mesh, len(F), rows, ref))
+        print(f"\nE* = {best:.10g}; medians of {args.repeat} warm run(s), at most {args.max_seconds:g} s "
+              f"per solver; skipped: {', '.join(skipped) or 'none'}\n", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
