@@ -1,4 +1,4 @@
-"""Command line: ``geomopt param``, ``geomopt untangle``, ``geomopt demo``.
+"""Command line: geomopt param, geomopt untangle, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
 that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
@@ -10,25 +10,12 @@ written.  Output paths are checked before solving and written atomically.
 from __future__ import annotations
 
 import argparse
-import os
+import json
 import sys
+import time
 from pathlib import Path
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-
-
-def _enable_compilation_cache():
-    """Persist compiled XLA programs across runs (start-up of a repeated command)."""
-    import jax
-
-    path = os.environ.get("GEOMOPT_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geomopt", "jax")
-    try:
-        os.makedirs(path, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", path)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-    except Exception:  # a read-only home: run without the cache
-        pass
 
 
 def _log(args, *msg):
@@ -70,12 +57,24 @@ def cmd_param(args) -> int:
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
                f"outcome {res.outcome.value}")
+    _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
+            energy_name=energy.name, solver=args.solver, iterations=res.iterations,
+            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
+            energy=res.energy, mean_energy=mean, flips=res.inverted, outcome=res.outcome.value,
+            message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     if args.png:
         _save_param_figures(res, F, args.png)
     io.write_obj_with_uv(args.output, V, F, res.x)
     return EXIT_OK
+
+
+def _cache_summary() -> dict:
+    from ._cache import cache_stats
+
+    st = cache_stats()
+    return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
 
 
 def _save_param_figures(res, F, png):
@@ -112,6 +111,10 @@ def cmd_untangle(args) -> int:
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+    _report(args, case=str(args.case), output=str(args.output), elements=res.info.get("elements"),
+            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
+            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
+            message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     check = write_untangle_result(case, res, args.output)
@@ -135,9 +138,10 @@ def cmd_demo(args) -> int:
     data = Path(__file__).with_name("data") / "camelhead.off"
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
                             energy="symmetric_dirichlet", solver="newton", weights="uniform",
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"))
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
+                            json=args.json, summary=args.summary)
     code = cmd_param(ns)
-    if code == EXIT_OK:
+    if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
               f"{out / 'camelhead_uv_convergence.png'}")
     return code
@@ -154,18 +158,30 @@ def _positive_int(text) -> int:
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="geomopt", description=__doc__.splitlines()[0])
+    from . import __version__
+    from ._names import ENERGIES, SOLVERS
+
+    p = argparse.ArgumentParser(
+        prog="geomopt", description="Locally injective (foldover-free) maps of triangle and tet meshes.",
+        epilog=f"energies: {', '.join(ENERGIES)}. solvers: {', '.join(SOLVERS)}. Compiled code is "
+               f"cached in $GEOMOPT_CACHE_DIR (default ~/.cache/geomopt/jax; 'off' disables it). "
+               f"Run 'geomopt COMMAND --help' for a command's options.")
+    p.add_argument("--version", action="version", version=f"geomopt {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp):
         sp.add_argument("--quiet", action="store_true", help="no progress or summary output")
+        sp.add_argument("--json", action="store_true",
+                        help="print a one-line JSON summary on stdout (also on failure)")
         sp.add_argument("--debug", action="store_true", help="show tracebacks on errors")
 
     sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
     sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
     sp.add_argument("-o", "--output", required=True, help="output OBJ with one vt per vertex")
-    sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
-    sp.add_argument("--solver", default="newton", help="solver name (default newton)")
+    sp.add_argument("--energy", default="symmetric_dirichlet", metavar="NAME",
+                    help=f"one of {', '.join(ENERGIES)} (default symmetric_dirichlet)")
+    sp.add_argument("--solver", default="newton", metavar="NAME",
+                    help=f"one of {', '.join(SOLVERS)} (default newton)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
@@ -188,21 +204,45 @@ def build_parser():
     return p
 
 
+def _report(args, **fields):
+    """Add ``fields`` to the --json summary."""
+    args.summary.update(fields)
+
+
 def main(argv=None) -> int:
+    t0 = time.perf_counter()
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.summary = {"command": args.command, "success": False}
+    code = EXIT_FAILED
+    try:
+        code = _run(args)
+        return code
+    finally:
+        if args.json:
+            _report(args, exit_status=code, success=code == EXIT_OK,
+                    wall_seconds=round(time.perf_counter() - t0, 4))
+            print(json.dumps(args.summary), flush=True)
+
+
+def _run(args) -> int:
     from ._errors import GeomoptError, SolveError
 
-    _enable_compilation_cache()
+    if args.json:
+        from ._cache import cache_stats
+
+        cache_stats()  # count persistent-cache hits and misses from here on
     try:
         return args.func(args)
     except SolveError as exc:
         if args.debug:
             raise
+        _report(args, error=str(exc))
         return _fail(str(exc))
     except GeomoptError as exc:
         if args.debug:
             raise
+        _report(args, error=str(exc))
         print(f"geomopt: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -211,6 +251,7 @@ def main(argv=None) -> int:
     except Exception as exc:  # an internal error: one line unless --debug
         if args.debug:
             raise
+        _report(args, error=f"internal error: {type(exc).__name__}: {exc}")
         print(f"geomopt: internal error: {type(exc).__name__}: {exc} (rerun with --debug and "
               f"report it)", file=sys.stderr)
         return EXIT_FAILED

@@ -14,33 +14,26 @@ from .topology import check_disk
 from .tutte import tutte_embedding
 
 
-def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, iters=60) -> float:
-    """The factor ``s`` minimising ``E(s * x)``, by golden-section search on ``log s``.
+def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
+    """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
+    ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
+    fixed golden-section search took 62).
 
     For symmetric Dirichlet this is the classic ``(sum|J^-1|^2 / sum|J|^2)^(1/4)``; the search
-    makes it work for any energy.  ``x`` is assumed centred on the problem's free vertices.
+    makes it work for any energy.  ``x`` (n, d) is assumed centred on the problem's free
+    vertices; ``xtol`` is the tolerance on ``log s``.
     """
+    from scipy.optimize import minimize_scalar
+
     params = objective.params(**(params or {}))
-    x = np.asarray(x)
+    x = objective.pad_map(np.asarray(x, dtype=np.float64))
 
     def f(t):
         v = float(objective.value(np.exp(t) * x, params))
         return v if np.isfinite(v) else np.inf
 
-    g = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = lo, hi
-    c, d = b - g * (b - a), a + g * (b - a)
-    fc, fd = f(c), f(d)
-    for _ in range(iters):
-        if fc <= fd:
-            b, d, fd = d, c, fc
-            c = b - g * (b - a)
-            fc = f(c)
-        else:
-            a, c, fc = c, d, fd
-            d = a + g * (b - a)
-            fd = f(d)
-    return float(np.exp(0.5 * (a + b)))
+    res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xtol})
+    return float(np.exp(res.x))
 
 
 def _to_rest_area(problem: Problem, x0) -> np.ndarray:
@@ -76,7 +69,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
 
 
 def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, **energy_params):
+                 x0=None, progress=True, throw=False, *, buckets=True, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
@@ -88,6 +81,9 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     x0 : (n, 2) optional start map instead of Tutte; with a barrier energy it must be flip-free.
         Without ``x0`` the mesh must be a topological disk (:func:`~geomopt.topology.check_disk`).
     progress, throw : see :func:`~geomopt.solvers.minimize`.
+    buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
+        kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
+        mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
 
     Returns
     -------
@@ -104,7 +100,7 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
-    objective = Objective(problem, energy, **energy_params)
+    objective = Objective(problem, energy, buckets=buckets, **energy_params)
     if x0 is None:
         loop = check_disk(problem.input_simplices, problem.n_vertices)
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)

@@ -59,3 +59,235 @@ def test_auto_backend_is_the_measured_winner_when_installed():
     assert linsolve.available_backends()[0] == "pardiso"
     ip, ix, _, _ = _spd_lower()
     assert linsolve.SparseCholesky(ip, ix).backend == "pardiso"
+
+
+# ------------------------------------------------------------------ size buckets (padding)
+
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+
+import geomopt  # noqa: E402
+from geomopt import _cache, _padding  # noqa: E402
+from geomopt._objective import Objective  # noqa: E402
+from geomopt.problem import Problem  # noqa: E402
+
+from conftest import grid  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def bumpy(n=12, ears=0):
+    """A bumpy disk surface on an n x n grid; ``ears`` (0-2) corner triangles removed (with
+    their corner vertex): a different mesh of the same size buckets."""
+    V2, F = grid(n)
+    V = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]
+    for xy in [(1.0, 0.0), (0.0, 1.0)][:ears]:
+        corner = int(np.flatnonzero((V[:, :2] == xy).all(axis=1))[0])
+        keep = ~(F == corner).any(axis=1)
+        assert keep.sum() == len(F) - 1  # an ear: the corner is in one triangle
+        F = F[keep]
+        used = np.zeros(len(V), bool)
+        used[F.ravel()] = True
+        remap = np.cumsum(used) - 1
+        V, F = V[used], remap[F]
+    return V, F
+
+
+def test_buckets_are_few_and_tight():
+    sizes = np.unique(np.r_[np.arange(1, 5000), np.geomspace(5000, 1e7, 2000).astype(int)])
+    b = np.array([_padding.bucket(s) for s in sizes])
+    assert (b >= sizes).all() and (np.diff(b) >= 0).all()
+    big = sizes > _padding.MINIMUM
+    assert (b[big] <= 1.25 * sizes[big]).all()
+    assert len(np.unique(b)) <= 4 * np.log2(1e7 / 64) + 2  # four per octave
+
+
+def test_padding_changes_no_energy_gradient_hessian_or_dets():
+    V, F = bumpy(9)
+    problem = Problem.surface(V, F)
+    exact, padded = Objective(problem, "symmetric_dirichlet"), Objective(problem, "symmetric_dirichlet",
+                                                                        buckets=True)
+    assert padded.sizes.padded and padded.sizes.n_padded > problem.n_vertices
+    rng = np.random.default_rng(1)
+    x = V[:, :2] + 0.01 * rng.standard_normal((len(V), 2))
+    p = exact.params()
+    for projection in ("clamp", "none"):
+        v0, g0, h0 = exact.hessian(x, p, projection)
+        v1, g1, h1 = padded.hessian(x, p, projection)
+        np.testing.assert_allclose(float(v1), float(v0), rtol=1e-14)
+        assert np.asarray(g1).shape == (len(V), 2)
+        np.testing.assert_allclose(np.asarray(g1), np.asarray(g0), rtol=1e-13, atol=1e-14)
+        np.testing.assert_allclose(np.asarray(h1), np.asarray(h0), rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(padded.dets(x)), np.asarray(exact.dets(x)), rtol=1e-15)
+    # a padded map (what solvers hold) gives the same value, and zero gradient on padded rows
+    xp = padded.pad_map(x)
+    vp, gp = padded.value_and_grad(xp, p)
+    np.testing.assert_allclose(float(vp), float(v0), rtol=1e-14)
+    assert not np.asarray(gp)[len(V):].any()
+
+
+@pytest.mark.parametrize("solver", ["newton", "lbfgs", "slim", "aqp", "cm", "optx-bfgs"])
+def test_padding_changes_no_result_or_certificate(solver):
+    V, F = bumpy(8)
+    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
+    assert runs[1].info["objective"].sizes.padded
+    a, b = runs
+    assert a.outcome == b.outcome and a.inverted == b.inverted == 0
+    if solver in ("newton", "slim", "cm"):  # first-order and quasi-Newton histories see rounding
+        assert a.iterations == b.iterations
+    else:
+        assert abs(a.iterations - b.iterations) <= 0.1 * a.iterations
+    assert b.x.shape == a.x.shape == (len(V), 2)
+    # the same map up to the solver's tolerance: padded reductions (sums with extra exact
+    # zeros) may round differently in the last bit, which an L-BFGS history amplifies
+    np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-6 * np.abs(a.x).max())
+    np.testing.assert_allclose(b.energy, a.energy, rtol=1e-10)
+
+
+# ------------------------------------------------------------------ the persistent cache
+
+
+@pytest.fixture
+def cache_at(tmp_path):
+    """Point the persistent cache at a fresh folder for one test, then restore it."""
+    before = _cache.cache_dir()
+    _cache.cache_stats()  # start counting
+
+    def use(path):
+        jax.clear_caches()  # programs compiled so far are in memory: look them up on disk again
+        return _cache.set_cache_dir(path)
+
+    yield use
+    jax.clear_caches()
+    _cache.set_cache_dir(before)
+
+
+FAST = geomopt.Newton(projection="clamp", max_steps=5)  # fewer kernels to compile
+
+
+def _misses_hits(fn):
+    s0 = _cache.cache_stats()
+    fn()
+    s1 = _cache.cache_stats()
+    return s1["misses"] - s0["misses"], s1["hits"] - s0["hits"]
+
+
+def test_a_different_mesh_of_the_same_bucket_compiles_nothing(tmp_path, cache_at):
+    A, B = bumpy(12), bumpy(12, ears=2)
+    pa, pb = Problem.surface(*A), Problem.surface(*B)
+    oa, ob = Objective(pa, "symmetric_dirichlet", buckets=True), Objective(pb, "symmetric_dirichlet",
+                                                                          buckets=True)
+    assert (pa.n_vertices, pa.n_elements) != (pb.n_vertices, pb.n_elements)
+    assert oa.sizes.n_padded == ob.sizes.n_padded and oa.sizes.m_padded == ob.sizes.m_padded
+    assert _padding.bucket(oa.pattern.nnz) == _padding.bucket(ob.pattern.nnz) and oa.pattern.nnz != ob.pattern.nnz
+    cache_at(tmp_path / "cache")
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*A, solver=FAST, progress=False))
+    assert misses > 0 and any((tmp_path / "cache").iterdir())
+    jax.clear_caches()  # a new process, as far as compiled code goes
+    misses, hits = _misses_hits(lambda: geomopt.parameterize(*B, solver=FAST, progress=False))
+    assert misses == 0 and hits > 0
+    # the control: without buckets the second mesh compiles again
+    jax.clear_caches()
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*B, solver=FAST, progress=False, buckets=False))
+    assert misses > 0
+
+
+def test_a_read_only_cache_is_read_and_never_written(tmp_path, cache_at, monkeypatch):
+    V, F = bumpy(8)
+    folder = tmp_path / "cache"
+    cache_at(folder)
+    geomopt.parameterize(V, F, solver=FAST, progress=False)
+    entries = sorted(p.name for p in folder.iterdir())
+    monkeypatch.setattr(_cache, "_writable", lambda path: False)
+    assert cache_at(folder) == str(folder)
+    misses, hits = _misses_hits(lambda: geomopt.parameterize(V, F, solver=FAST, progress=False))
+    assert misses == 0 and hits > 0
+    jax.clear_caches()
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*bumpy(16), solver=FAST, progress=False))  # another bucket
+    assert misses > 0
+    assert sorted(p.name for p in folder.iterdir()) == entries
+
+
+def test_set_cache_dir_none_turns_it_off(tmp_path, cache_at):
+    assert cache_at(None) is None and _cache.cache_dir() is None
+    assert jax.config.jax_enable_compilation_cache is False
+
+
+def _run(args, env=None, **kw):
+    env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, timeout=300,
+                          cwd=str(REPO), **kw)
+
+
+def test_cli_with_an_unwritable_cache_folder_runs_and_prints_json(tmp_path):
+    V, F = bumpy(6)
+    mesh, out = tmp_path / "m.obj", tmp_path / "uv.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])  # any valid OBJ
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the cache folder would go")
+    proc = _run(["-m", "geomopt", "param", str(mesh), "-o", str(out), "--json", "--quiet"],
+                env={"GEOMOPT_CACHE_DIR": str(blocker / "cache")})
+    assert proc.returncode == 0, proc.stderr
+    assert "Warning" not in proc.stderr and "Traceback" not in proc.stderr
+    summary = json.loads(proc.stdout)  # stdout holds exactly the summary
+    assert summary["success"] and summary["exit_status"] == 0 and summary["flips"] == 0
+    assert summary["faces"] == len(F) and summary["cache_dir"] is None and out.exists()
+
+
+def test_cli_json_reports_failures_too(tmp_path):
+    proc = _run(["-m", "geomopt", "param", str(tmp_path / "missing.obj"), "-o", str(tmp_path / "o.obj"),
+                 "--json"], env={"GEOMOPT_CACHE_DIR": "off"})
+    assert proc.returncode == 2
+    summary = json.loads(proc.stdout)
+    assert summary["success"] is False and summary["exit_status"] == 2 and "does not exist" in summary["error"]
+
+
+# ------------------------------------------------------------------ start-up
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["param", "--help"]])
+def test_help_and_version_do_not_import_jax(argv):
+    code = ("import sys\nfrom geomopt.cli import main\ntry:\n    main(%r)\nexcept SystemExit as e:\n"
+            "    assert e.code == 0\nprint('JAX' if 'jax' in sys.modules else 'NOJAX', file=sys.stderr)" % argv)
+    proc = _run(["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip().endswith("NOJAX")
+    if argv == ["--version"]:
+        assert proc.stdout.strip() == f"geomopt {geomopt.__version__}"
+    else:
+        assert "``" not in proc.stdout and ":class:" not in proc.stdout  # no reST markup
+        assert "symmetric_dirichlet" in proc.stdout and "newton" in proc.stdout
+
+
+def test_import_geomopt_does_not_import_jax_but_enables_float64():
+    proc = _run(["-c", "import sys, geomopt; assert 'jax' not in sys.modules\n"
+                       "import jax.numpy as jnp; print(jnp.zeros(1).dtype)"], env={"GEOMOPT_CACHE_DIR": "off"})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "float64"
+
+
+def test_help_lists_exactly_the_registered_energies_and_solvers():
+    from geomopt import _names
+    from geomopt.energies import REGISTRY
+    from geomopt.solvers import SOLVERS
+
+    assert set(_names.ENERGIES) == set(REGISTRY) and set(_names.SOLVERS) == set(SOLVERS)
+
+
+def test_optimal_scale_matches_the_closed_form_for_symmetric_dirichlet():
+    from geomopt.param import optimal_scale
+
+    V, F = bumpy(9)
+    problem = Problem.surface(V, F)
+    obj = Objective(problem, "symmetric_dirichlet", buckets=True)
+    x = V[:, :2] * 0.37 - V[:, :2].mean(axis=0) * 0.37
+    P = x[problem.simplices]
+    J = np.einsum("mij,mjk->mik", np.swapaxes(P[:, 1:] - P[:, :1], 1, 2), problem.rest_inv)
+    a = (problem.volumes * (J**2).sum((1, 2))).sum()
+    b = (problem.volumes * (np.linalg.inv(J) ** 2).sum((1, 2))).sum()
+    assert optimal_scale(obj, x) == pytest.approx((b / a) ** 0.25, rel=1e-6)

@@ -181,8 +181,9 @@ class AbstractSolver(abc.ABC):
         return state
 
     def _start(self, objective, x0, params, aux=None) -> State:
-        """The common start state: value and gradient at ``x0``."""
-        x = jnp.asarray(x0, dtype=jnp.float64)
+        """The common start state: value and gradient at ``x0`` (padded to the objective's
+        size bucket, see :meth:`~geomopt.Objective.pad_map`)."""
+        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
         value, grad = objective.value_and_grad(x, params)
         return State(objective, params, x, float(value), grad, extent0=reference_extent(objective, x0),
                      energy_floor=max(1e-12 * abs(float(value)), 1e-300), aux=aux)
@@ -287,7 +288,7 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
 
     solver = get_solver("newton" if solver is None else solver)
     problem = objective.problem
-    x0 = problem.check_map(x0)
+    x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._padding
     params = objective.params(**(params or {}))
     report = Progress(total=solver.max_steps) if progress is True else (progress or None)
     vol = objective.total_volume
@@ -312,10 +313,10 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
         if isinstance(report, Progress):
             report.close()
     seconds = time.perf_counter() - t0
-    x = np.asarray(state.x)
+    x = objective.unpad_map(np.asarray(state.x))
     if not np.isfinite(x).all():
         outcome = Outcome.NONFINITE
-        x = np.asarray(x0)
+        x = objective.unpad_map(np.asarray(x0))
     inverted = problem.count_inverted(x)
     if outcome is Outcome.CONVERGED and inverted:
         outcome = Outcome.NOT_INJECTIVE
