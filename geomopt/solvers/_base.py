@@ -120,11 +120,13 @@ def divergence(state: State):
 def converged(value, prev_value, decrement, rtol, iteration, floor=1e-300):
     """The shared stopping test (host floats or traced arrays): the decrement, or the last
     energy decrease, is below ``rtol`` relative to ``max(|E|, floor)``."""
-    scale = jnp.maximum(jnp.abs(value), floor)
+    host = all(isinstance(v, (int, float, np.number)) for v in (value, prev_value, decrement, iteration, floor))
+    xp = np if host else jnp  # host floats: no JAX dispatch (and no compilation) per iteration
+    scale = xp.maximum(xp.abs(value), floor)
     drop = prev_value - value
     # a stalled energy is the rounding floor only when one more Newton step would reach rtol;
     # with a larger decrement the search is cutting steps short (e.g. unbounded below)
-    stalled = (iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale) & (decrement <= jnp.sqrt(rtol) * scale)
+    stalled = (iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale) & (decrement <= xp.sqrt(rtol) * scale)
     return (decrement <= rtol * scale) | stalled
 
 
@@ -261,7 +263,7 @@ class Progress:
 
 
 def _grad_norm(state) -> float:
-    return float(jnp.sqrt(jnp.vdot(state.grad, state.grad))) if state.grad is not None else float("nan")
+    return float(np.linalg.norm(np.asarray(state.grad))) if state.grad is not None else float("nan")
 
 
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
