@@ -68,13 +68,26 @@ def _check_misplaced_settings(energy, solver, energy_params):
             f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
 
 
-def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
+def mesh_arrays(V, F=None):
+    """``(V, F)`` from a vertex array and a face array, or from one mesh object with
+    ``.vertices`` and ``.faces`` (a ``trimesh.Trimesh``, ...) given as ``V`` with ``F=None``."""
+    if F is None:
+        if hasattr(V, "vertices") and hasattr(V, "faces"):
+            return np.asarray(V.vertices), np.asarray(V.faces)
+        raise ParameterError(f"give the faces F with the vertices, or one mesh object with .vertices and "
+                             f".faces (e.g. a trimesh.Trimesh); got {type(V).__name__} and no faces")
+    return V, F
+
+
+def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, *, buckets=True, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
     ----------
-    V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles (consistently oriented).
+    V : (n, 3) float rest vertex positions, or a mesh object with ``.vertices`` and ``.faces``
+        (a ``trimesh.Trimesh``...) when ``F`` is None.
+    F : (m, 3) int triangles (consistently oriented).
     energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet).
     solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
     weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
@@ -97,6 +110,7 @@ def parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="unifo
     ParameterError : unknown energy/solver/weights name or invalid energy parameter.
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
+    V, F = mesh_arrays(V, F)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)

@@ -291,3 +291,63 @@ def test_optimal_scale_matches_the_closed_form_for_symmetric_dirichlet():
     a = (problem.volumes * (J**2).sum((1, 2))).sum()
     b = (problem.volumes * (np.linalg.inv(J) ** 2).sum((1, 2))).sum()
     assert optimal_scale(obj, x) == pytest.approx((b / a) ** 0.25, rel=1e-6)
+
+
+# ------------------------------------------------------------------ trimesh input, tet formats
+
+
+def test_parameterize_accepts_a_trimesh_or_any_vertices_faces_object():
+    import types
+
+    import trimesh
+
+    V, F = bumpy(6)
+    ref = geomopt.parameterize(V, F, progress=False)
+    mesh = trimesh.Trimesh(V, F, process=False)
+    for obj in (mesh, types.SimpleNamespace(vertices=V.tolist(), faces=F.tolist())):
+        res = geomopt.parameterize(obj, progress=False)
+        assert res.success
+        np.testing.assert_array_equal(res.x, ref.x)
+    with pytest.raises(geomopt.ParameterError, match="trimesh"):
+        geomopt.parameterize(V, progress=False)
+
+
+@pytest.mark.parametrize("ext", [".msh", ".mesh", ".vtu", ".vtk"])
+def test_tet_formats_round_trip_exactly(tmp_path, ext):
+    from geomopt import tetio
+
+    from conftest import cube_tets
+
+    V, T = cube_tets(2)
+    V = V + np.pi * 1e-3 * np.arange(len(V))[:, None]  # digits that a short float format would lose
+    path = tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+    P2, T2 = tetio.read_tets(path)
+    np.testing.assert_array_equal(P2, V)
+    np.testing.assert_array_equal(T2, T)
+    assert P2.dtype == np.float64 and T2.dtype == np.int64
+
+
+def test_tet_io_validates_like_the_rest_of_geomopt(tmp_path):
+    import meshio
+
+    from geomopt import tetio
+
+    from conftest import cube_tets
+
+    V, T = cube_tets(1)
+    with pytest.raises(geomopt.MeshError):
+        tetio.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
+    assert not any(tmp_path.iterdir())  # nothing written, no temporary left
+    with pytest.raises(geomopt.MeshFormatError, match="unknown mesh format"):
+        tetio.write_tets(tmp_path / "cube.xyz123", V, T)
+    meshio.write(str(tmp_path / "tris.vtu"), meshio.Mesh(V, [("triangle", T[:, :3])]))
+    with pytest.raises(geomopt.MeshFormatError, match="no tetrahedra"):
+        tetio.read_tets(tmp_path / "tris.vtu")
+    (tmp_path / "junk.msh").write_text("$MeshFormat\nnot a mesh\n")
+    with pytest.raises(geomopt.MeshFormatError, match="could not read"):
+        tetio.read_tets(tmp_path / "junk.msh")
+    bad = V.copy()
+    bad[0, 0] = np.nan
+    meshio.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
+    with pytest.raises(geomopt.MeshError):
+        tetio.read_tets(tmp_path / "nan.vtu")
