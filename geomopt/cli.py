@@ -65,7 +65,7 @@ def cmd_param(args) -> int:
     if not res.success:
         return _fail(f"not certified: {res.message}")
     if args.png:
-        _save_param_figures(res, F, args.png)
+        _save_param_figures(res, V, F, args.png)
     io.write_obj_with_uv(args.output, V, F, res.x)
     return EXIT_OK
 
@@ -77,7 +77,7 @@ def _cache_summary() -> dict:
     return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
 
 
-def _save_param_figures(res, F, png):
+def _save_param_figures(res, V, F, png):
     import numpy as np
 
     from . import plot
@@ -87,10 +87,10 @@ def _save_param_figures(res, F, png):
 
     dens = np.asarray(element_densities(obj, res.x))
     base = Path(png)
-    plot.save_layout(base, res.x, F, np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
-                     if obj.energy.value_at_rest(2) else dens,
-                     title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                     label="log10 distortion")
+    plot.save_param_figure(base, V, F, res.x, np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
+                           if obj.energy.value_at_rest(2) else dens,
+                           title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
+                           label="log10 distortion")
     conv = base.with_name(base.stem + "_convergence" + base.suffix)
     plot.save_convergence(conv, {"projected Newton": (res.time_history, res.energy_history)},
                           title=f"convergence ({len(F)} faces)")
@@ -106,7 +106,8 @@ def cmd_untangle(args) -> int:
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{args.case} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    io.check_output_path(args.output)
+    for path in [args.output] + ([args.png] if args.png else []):
+        io.check_output_path(path)
     case, res = untangle_case(args.case, solver=args.solver, progress=not args.quiet)
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
@@ -122,7 +123,21 @@ def cmd_untangle(args) -> int:
         Path(args.output).unlink(missing_ok=True)
         return _fail(f"the written file did not certify ({check['inverted']} inverted element(s), "
                      f"{check['handles_moved']} handle(s) moved)")
+    if args.png:
+        _save_untangle_figure(case, res, args.png)
     return EXIT_OK
+
+
+def _save_untangle_figure(case, res, png):
+    """Start and result with inverted elements (exact predicate, in the orientation the
+    output must have) marked."""
+    from . import plot
+    from .predicates import simplex_orientations
+
+    S = case["faces"] if case["dim"] == 2 else case["tets"]
+    start = case["init"][:, :2] if case["dim"] == 2 else case["init"]
+    bad = [simplex_orientations(x, S) != case["orientation"] for x in (start, res.x)]
+    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.get("path", "")))
 
 
 def cmd_demo(args) -> int:
@@ -185,7 +200,8 @@ def build_parser():
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
-    sp.add_argument("--png", default=None, help="also save the UV layout (and a _convergence plot)")
+    sp.add_argument("--png", default=None, help="also save the UV map (checkerboard on the surface beside "
+                                                "the layout) and a _convergence plot")
     common(sp)
     sp.set_defaults(func=cmd_param)
 
@@ -194,6 +210,8 @@ def build_parser():
     sp.add_argument("-o", "--output", required=True, help="output OBJ (2D) or VTK (3D)")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
+    sp.add_argument("--png", default=None,
+                    help="also save a picture of the start and the result, inverted elements in red")
     common(sp)
     sp.set_defaults(func=cmd_untangle)
 

@@ -351,3 +351,50 @@ def test_tet_io_validates_like_the_rest_of_geomopt(tmp_path):
     meshio.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
     with pytest.raises(geomopt.MeshError):
         tetio.read_tets(tmp_path / "nan.vtu")
+
+
+# ------------------------------------------------------------------ pictures
+
+
+def _image(path):
+    import matplotlib.image
+
+    img = matplotlib.image.imread(str(path))[..., :3]
+    assert img.shape[0] > 300 and img.shape[1] > 600
+    return img
+
+
+def _reddish(img):
+    """Pixels of the inverted-element red, possibly seen through a translucent surface."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return int(((r > 0.55) & (r - g > 0.3) & (r - b > 0.3)).sum())
+
+
+def test_param_png_shows_a_checkerboard_on_the_surface_beside_the_layout(tmp_path):
+    V, F = bumpy(10)
+    mesh = tmp_path / "m.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])
+    code = geomopt.cli.main(["param", str(mesh), "-o", str(tmp_path / "uv.obj"), "--png",
+                             str(tmp_path / "uv.png"), "--quiet"])
+    assert code == 0
+    img = _image(tmp_path / "uv.png")
+    left, right = img[:, : img.shape[1] // 2], img[:, img.shape[1] // 2:]
+    # checker squares (orange and white, shaded) on the surface panel only
+    orange = (np.abs(left[..., 0] - 2.0 * left[..., 2] - 0.0) > 0.3) & (left[..., 0] > left[..., 1]) & (left[..., 1] > left[..., 2] + 0.2)
+    assert orange.sum() > 2000 and (left.min(axis=-1) < 0.9).sum() > 5000
+    assert len(np.unique((right * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 50  # colour-mapped
+    assert (tmp_path / "uv_convergence.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("case", ["2D/Simple/Lshape", "3D/Deform_Armadillo/armadillo-598"])
+def test_untangle_png_marks_the_inverted_elements_of_the_start_only(tmp_path, case):
+    from conftest import shared_path
+
+    folder = shared_path("lim", *case.split("/"))
+    out = tmp_path / ("out.obj" if case.startswith("2D") else "out.vtk")
+    code = geomopt.cli.main(["untangle", str(folder), "-o", str(out), "--png", str(tmp_path / "u.png"), "--quiet"])
+    assert code == 0
+    img = _image(tmp_path / "u.png")
+    left, right = img[:, : img.shape[1] // 2], img[:, img.shape[1] // 2:]
+    assert _reddish(left) > 500 and _reddish(right) == 0  # the result has none inverted
+    assert (right.min(axis=-1) < 0.8).sum() > 2000  # the result is drawn
