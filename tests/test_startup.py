@@ -108,11 +108,11 @@ def test_buckets_are_few_and_tight():
 
 
 def test_padding_changes_no_energy_gradient_hessian_or_dets():
-    V, F = bumpy(9)
+    V, F = bumpy(10)
     problem = Problem.surface(V, F)
     exact, padded = Objective(problem, "symmetric_dirichlet"), Objective(problem, "symmetric_dirichlet",
                                                                         buckets=True)
-    assert padded.sizes.padded and padded.sizes.n_padded > problem.n_vertices
+    assert padded.sizes.n_padded > problem.n_vertices and padded.sizes.m_padded > problem.n_elements
     rng = np.random.default_rng(1)
     x = V[:, :2] + 0.01 * rng.standard_normal((len(V), 2))
     p = exact.params()
