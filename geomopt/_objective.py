@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from . import _padding
 from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
@@ -209,11 +210,14 @@ class Objective:
     rotation-invariant energies) are left to the solvers' diagonal shift: pinning a vertex
     coordinate against them creates a soft, badly conditioned mode instead (measured: 72 vs
     19 Newton iterations on camelhead).
+
+    With ``buckets=True`` (what :func:`~geomopt.parameterize` uses) the arrays are padded to
+    size buckets (:mod:`geomopt._padding`) so that meshes of similar size share compiled
+    kernels and persistent-cache entries; every method then takes maps with ``n`` rows (and
+    returns ``n`` rows, ``m`` elements) or ``n_padded`` rows, as solver states hold them.
     """
 
     def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, **params):
-        from . import _padding
-
         self.problem = problem
         self.energy = get_energy(energy, **params)
         self.energy.check_dim(problem.dim)
@@ -241,8 +245,6 @@ class Objective:
     @property
     def pattern(self) -> HessianPattern:
         if self._pattern is None:
-            from . import _padding
-
             pat = hessian_pattern(self.problem, self.free_dofs)
             sz = self.sizes
             self._nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
@@ -255,8 +257,6 @@ class Objective:
     def prepare_map(self, x) -> np.ndarray:
         """A start map ``x`` ((n, d), or (n_padded, d) as a solver state holds it) checked by
         :meth:`Problem.check_map` (float64 copy, handles in place), then padded."""
-        from . import _padding
-
         x = np.asarray(x)
         if x.ndim == 2 and x.shape[0] == self.sizes.n_padded != self.sizes.n:
             x = x[: self.sizes.n]
@@ -265,8 +265,6 @@ class Objective:
     def _pad(self, x):
         """``x`` with n_padded rows (host-side pad: no kernel per mesh size), and whether it
         had n rows to begin with."""
-        from . import _padding
-
         sz = self.sizes
         if not sz.padded or x.shape[0] == sz.n_padded:
             return x, False
