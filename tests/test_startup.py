@@ -239,6 +239,21 @@ def test_cli_with_an_unwritable_cache_folder_runs_and_prints_json(tmp_path):
     assert summary["faces"] == len(F) and summary["cache_dir"] is None and out.exists()
 
 
+def test_cli_with_a_full_cache_disk_runs_quietly(tmp_path):
+    V, F = bumpy(6)
+    mesh, out = tmp_path / "m.obj", tmp_path / "uv.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])
+    code = ("import errno, sys\nimport jax._src.lru_cache as lru\n"
+            "def put(self, key, value):\n    raise OSError(errno.ENOSPC, 'No space left on device')\n"
+            "lru.LRUCache.put = put\nfrom geomopt.cli import main\n"
+            f"sys.exit(main(['param', {str(mesh)!r}, '-o', {str(out)!r}, '--json', '--quiet']))")
+    proc = _run(["-c", code], env={"GEOMOPT_CACHE_DIR": str(tmp_path / "cache")})
+    assert proc.returncode == 0, proc.stderr
+    assert "No space" not in proc.stderr and "Warning" not in proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["success"] and summary["cache_misses"] > 0 and out.exists()
+
+
 def test_cli_json_reports_failures_too(tmp_path):
     proc = _run(["-m", "geomopt", "param", str(tmp_path / "missing.obj"), "-o", str(tmp_path / "o.obj"),
                  "--json"], env={"GEOMOPT_CACHE_DIR": "off"})
