@@ -1,22 +1,52 @@
 """geomopt: locally injective maps of triangle and tetrahedral meshes in JAX.
 
-Importing geomopt enables float64 in JAX (``jax_enable_x64``): all numerics are float64.
+Importing geomopt enables float64 in JAX (``jax_enable_x64``): all numerics are float64.  It
+also turns on JAX's persistent compilation cache, shared with the ``geomopt`` command: see
+:func:`set_cache_dir` to move or disable it (or the ``GEOMOPT_CACHE_DIR`` environment
+variable).  The import is light: JAX and the solvers load when a name that needs them is
+first used.
 """
-import jax as _jax
 
-_jax.config.update("jax_enable_x64", True)
+__version__ = "0.1.0"
 
-from . import energies, io, predicates  # noqa: E402
+from . import _cache  # noqa: E402
+
+_cache.configure()
+
+from ._cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
 from ._errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError  # noqa: E402
-from ._objective import Objective  # noqa: E402
-from .compare import Comparison, compare  # noqa: E402
-from .param import parameterize  # noqa: E402
-from .problem import Problem  # noqa: E402
-from .solvers import AQP, CM, LBFGS, SLIM, Newton, Outcome, Result, minimize  # noqa: E402
-from .tutte import tutte_embedding  # noqa: E402
+
+# public name -> module that defines it (imported on first use, PEP 562)
+_LAZY = {
+    "Objective": "._objective", "parameterize": ".param", "Problem": ".problem",
+    "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
+    "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
+    "compare": ".compare", "Comparison": ".compare",
+}
+_SUBMODULES = ("energies", "io", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
+               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")
+
+
+def __getattr__(name):
+    import importlib
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module("." + name, __name__)
+    else:
+        raise AttributeError(f"module 'geomopt' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY) | set(_SUBMODULES))
+
 
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
-    "Objective", "Problem", "compare", "Comparison", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "tutte_embedding", "energies", "io", "predicates",
+    "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
+    "compare", "Comparison", "tutte_embedding", "energies", "io", "predicates", "set_cache_dir", "cache_dir", "cache_stats",
+    "__version__",
 ]

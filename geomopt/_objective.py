@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from . import _padding
 from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
@@ -209,26 +210,31 @@ class Objective:
     rotation-invariant energies) are left to the solvers' diagonal shift: pinning a vertex
     coordinate against them creates a soft, badly conditioned mode instead (measured: 72 vs
     19 Newton iterations on camelhead).
+
+    With ``buckets=True`` (what :func:`~geomopt.parameterize` uses) the arrays are padded to
+    size buckets (:mod:`geomopt._padding`) so that meshes of similar size share compiled
+    kernels and persistent-cache entries; every method then takes maps with ``n`` rows (and
+    returns ``n`` rows, ``m`` elements) or ``n_padded`` rows, as solver states hold them.
     """
 
-    def __init__(self, problem: Problem, energy: Energy | str, **params):
+    def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, **params):
         self.problem = problem
         self.energy = get_energy(energy, **params)
         self.energy.check_dim(problem.dim)
-        self.geom = (
-            jnp.asarray(problem.simplices),
-            jnp.asarray(problem.rest_inv),
-            jnp.asarray(problem.volumes),
-        )
+        # buckets=True pads the arrays to size buckets so that meshes of similar size share
+        # compiled kernels (geomopt._padding); maps may then be given with n or n_padded rows
+        self.sizes = _padding.Sizes.of(problem, buckets)
+        self.geom = tuple(jnp.asarray(a) for a in _padding.pad_geometry(problem, self.sizes))
         self.total_volume = float(problem.volumes.sum())
         d = problem.dim
         free = np.repeat(problem.free_mask[:, None], d, axis=1)
         if problem.fixed.size == 0:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
-        self._free = jnp.asarray(free.astype(np.float64))
+        self._free = jnp.asarray(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
         self._pattern = None
         self._slots = None
+        self._nnz_padded = None
 
     def params(self, **override):
         """The energy's parameters with ``override`` applied, validated by the energy
@@ -239,28 +245,67 @@ class Objective:
     @property
     def pattern(self) -> HessianPattern:
         if self._pattern is None:
-            self._pattern = hessian_pattern(self.problem, self.free_dofs)
-            self._slots = jnp.asarray(self._pattern.slots)
+            pat = hessian_pattern(self.problem, self.free_dofs)
+            sz = self.sizes
+            self._nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
+            self._slots = jnp.asarray(_padding.pad_slots(pat.slots, pat.nnz, sz.m, sz.m_padded,
+                                                         self._nnz_padded))
+            self._pattern = pat
         return self._pattern
 
+    # -- padded maps (see geomopt._padding) ------------------------------------------
+    def prepare_map(self, x) -> np.ndarray:
+        """A start map ``x`` ((n, d), or (n_padded, d) as a solver state holds it) checked by
+        :meth:`Problem.check_map` (float64 copy, handles in place), then padded."""
+        x = np.asarray(x)
+        if x.ndim == 2 and x.shape[0] == self.sizes.n_padded != self.sizes.n:
+            x = x[: self.sizes.n]
+        return _padding.pad_rows(self.problem.check_map(x), self.sizes.n_padded)
+
+    def _pad(self, x):
+        """``x`` with n_padded rows (host-side pad: no kernel per mesh size), and whether it
+        had n rows to begin with."""
+        sz = self.sizes
+        if not sz.padded or x.shape[0] == sz.n_padded:
+            return x, False
+        return _padding.pad_rows(np.asarray(x), sz.n_padded), True
+
+    def pad_map(self, x):
+        """``x`` (n, d) with n_padded rows (padded rows on vertex 0); unchanged when it has
+        them already or the objective is not padded."""
+        return self._pad(x)[0]
+
+    def unpad_map(self, x):
+        """The first n rows of a map (or per-vertex array) held with n_padded rows."""
+        return np.asarray(x)[: self.sizes.n] if self.sizes.padded else x
+
     def value(self, x, params) -> jax.Array:
-        return energy_kernel(self.energy.density, self.geom, x, params)
+        return energy_kernel(self.energy.density, self.geom, self._pad(x)[0], params)
 
     def value_and_grad(self, x, params):
-        v, g = value_and_grad_kernel(self.energy.density, self.geom, x, params)
-        return v, g * self._free
+        """(value, grad with fixed rows zeroed); grad has as many rows as ``x``."""
+        xp, cut = self._pad(x)
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, xp, params)
+        g = g * self._free
+        return v, (self.unpad_map(g) if cut else g)
 
     def hessian(self, x, params, projection="clamp"):
-        """(value, grad (n, d) with fixed rows zeroed, CSC data of the free-DOF Hessian)."""
+        """(value, grad with fixed rows zeroed (as many rows as ``x``), CSC data (nnz,) of the
+        free-DOF Hessian in :attr:`pattern`)."""
         pat = self.pattern
+        xp, cut = self._pad(x)
         v, g, data = hessian_kernel(
-            self.energy.density, projection, pat.nnz, self.geom, x, params, self._slots
+            self.energy.density, projection, self._nnz_padded, self.geom, xp, params, self._slots
         )
-        return v, g * self._free, data
+        g = g * self._free
+        if self._nnz_padded != pat.nnz:
+            data = np.asarray(data)[: pat.nnz]
+        return v, (self.unpad_map(g) if cut else g), data
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
-        return dets_kernel(self.geom, x)
+        out = dets_kernel(self.geom, self._pad(x)[0])
+        return np.asarray(out)[: self.sizes.m] if self.sizes.padded else out
 
 
 @partial(jax.jit, static_argnums=0)
@@ -270,5 +315,6 @@ def _densities_kernel(density, geom, x, params):
 
 def element_densities(objective: Objective, x, params=None) -> jax.Array:
     """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring."""
-    return _densities_kernel(objective.energy.density, objective.geom, jnp.asarray(x),
-                             objective.params(**(params or {})))
+    out = _densities_kernel(objective.energy.density, objective.geom, objective._pad(jnp.asarray(x))[0],
+                            objective.params(**(params or {})))
+    return out[: objective.sizes.m] if objective.sizes.padded else out

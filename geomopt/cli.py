@@ -1,4 +1,4 @@
-"""Command line: ``geomopt param``, ``geomopt untangle``, ``geomopt demo``.
+"""Command line: geomopt param, geomopt untangle, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
 that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
@@ -14,30 +14,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
 PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
-
-
-def _enable_compilation_cache():
-    """Persist compiled XLA programs across runs (start-up of a repeated command)."""
-    import jax
-
-    path = os.environ.get("GEOMOPT_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geomopt", "jax")
-    try:
-        os.makedirs(path, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", path)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-    except Exception:  # a read-only home: run without the cache
-        pass
 
 
 def _log(args, *msg):
@@ -152,11 +140,16 @@ def cmd_param(args) -> int:
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
                f"outcome {res.outcome.value}")
+    _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
+            energy_name=energy.name, solver=args.solver, iterations=res.iterations,
+            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
+            energy=res.energy, mean_energy=mean, flips=res.inverted, outcome=res.outcome.value,
+            message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, F, args.png, outputs, args.solver)
+            _save_param_figures(res, V, F, args.png, outputs, args.solver)
         io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
                               format=Path(args.output).suffix[1:])
     return EXIT_OK
@@ -182,7 +175,14 @@ def _convergence_path(png):
     return base.with_name(base.stem + "_convergence" + base.suffix)
 
 
-def _save_param_figures(res, F, png, outputs, solver_name):
+def _cache_summary() -> dict:
+    from ._cache import cache_stats
+
+    st = cache_stats()
+    return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
+
+
+def _save_param_figures(res, V, F, png, outputs, solver_name):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
@@ -192,11 +192,11 @@ def _save_param_figures(res, F, png, outputs, solver_name):
     obj = res.info["objective"]
     dens = np.asarray(element_densities(obj, res.x))
     base, conv = Path(png), _convergence_path(png)
-    plot.save_layout(outputs.enter_context(io.atomic_output(base, "wb")), res.x, F,
-                     np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
-                     if obj.energy.value_at_rest(2) else dens,
-                     title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                     label="log10 distortion", format=base.suffix[1:].lower())
+    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, res.x,
+                           np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
+                           if obj.energy.value_at_rest(2) else dens,
+                           title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
+                           label="log10 distortion", format=base.suffix[1:].lower())
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
                           {solver_name: (res.time_history, res.energy_history)},
                           title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
@@ -212,7 +212,7 @@ def cmd_untangle(args) -> int:
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{args.case} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    _output_paths(args.output, (want,))
+    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [])
     case = io.read_lim_case(args.case)
     if case["handles"].size == 0:
         raise MeshError(f"{case['handles_file']} is empty: untangling needs a fixed boundary; list the "
@@ -221,15 +221,35 @@ def cmd_untangle(args) -> int:
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+    _report(args, case=str(args.case), output=str(args.output), elements=res.info.get("elements"),
+            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
+            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
+            message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
-    with io.atomic_path(args.output) as tmp:
+    with contextlib.ExitStack() as outputs:
+        tmp = outputs.enter_context(io.atomic_path(args.output))
         check = write_untangle_result(case, res, tmp)
         if not check["certified"]:
             raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
                              f"{check['handles_moved']} handle(s) moved)")
+        if args.png:
+            _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
+                                  Path(args.png).suffix[1:].lower())
     return EXIT_OK
+
+
+def _save_untangle_figure(case, res, png, format=None):
+    """Start and result with inverted elements (exact predicate, in the orientation the
+    output must have) marked."""
+    from . import plot
+    from .predicates import simplex_orientations
+
+    S = case["faces"] if case["dim"] == 2 else case["tets"]
+    start = case["init"][:, :2] if case["dim"] == 2 else case["init"]
+    bad = [simplex_orientations(x, S) != case["orientation"] for x in (start, res.x)]
+    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.get("path", "")), format=format)
 
 
 def cmd_demo(args) -> int:
@@ -245,9 +265,10 @@ def cmd_demo(args) -> int:
     data = Path(__file__).with_name("data") / "camelhead.off"
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte",
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"))
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
+                            json=args.json, summary=args.summary)
     code = cmd_param(ns)
-    if code == EXIT_OK:
+    if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
               f"{out / 'camelhead_uv_convergence.png'}")
     return code
@@ -281,19 +302,31 @@ def _positive_int(text) -> int:
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="geomopt", description=__doc__.splitlines()[0])
+    from . import __version__
+    from ._names import ENERGIES, SOLVERS
+
+    p = argparse.ArgumentParser(
+        prog="geomopt", description="Locally injective (foldover-free) maps of triangle and tet meshes.",
+        epilog=f"energies: {', '.join(ENERGIES)}. solvers: {', '.join(SOLVERS)}. Compiled code is "
+               f"cached in $GEOMOPT_CACHE_DIR (default ~/.cache/geomopt/jax; 'off' disables it). "
+               f"Run 'geomopt COMMAND --help' for a command's options.")
+    p.add_argument("--version", action="version", version=f"geomopt {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp):
         sp.add_argument("--quiet", action="store_true", help="no progress or summary output")
+        sp.add_argument("--json", action="store_true",
+                        help="print a one-line JSON summary on stdout (also on failure)")
         sp.add_argument("--debug", action="store_true", help="show tracebacks on errors")
 
     sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
     sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
     sp.add_argument("-o", "--output", required=True,
                     help="output .obj (one vt per vertex) or .ply (binary, double x y z u v)")
-    sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
-    sp.add_argument("--solver", default="newton", help="solver name (default newton)")
+    sp.add_argument("--energy", default="symmetric_dirichlet", metavar="NAME",
+                    help=f"one of {', '.join(ENERGIES)} (default symmetric_dirichlet)")
+    sp.add_argument("--solver", default="newton", metavar="NAME",
+                    help=f"one of {', '.join(SOLVERS)} (default newton)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the start map")
     sp.add_argument("--init", default="tutte", choices=["tutte", "projection", "uv"],
@@ -302,7 +335,8 @@ def build_parser():
                          "free boundary (Garanzha et al.'s untangling)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--png", default=None,
-                    help="also save the UV layout (.png, .pdf or .svg) and a <name>_convergence plot")
+                    help="also save the UV map (checkerboard on the surface beside the distortion layout; "
+                         ".png, .pdf or .svg) and a <name>_convergence plot")
     common(sp)
     sp.set_defaults(func=cmd_param)
 
@@ -311,6 +345,8 @@ def build_parser():
     sp.add_argument("-o", "--output", required=True, help="output OBJ (2D) or VTK (3D)")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
+    sp.add_argument("--png", default=None,
+                    help="also save a picture of the start and the result, inverted elements in red")
     common(sp)
     sp.set_defaults(func=cmd_untangle)
 
@@ -337,22 +373,46 @@ def build_parser():
     return p
 
 
+def _report(args, **fields):
+    """Add ``fields`` to the --json summary."""
+    args.summary.update(fields)
+
+
 def main(argv=None) -> int:
+    t0 = time.perf_counter()
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.summary = {"command": args.command, "success": False}
+    code = EXIT_FAILED
+    try:
+        code = _run(args)
+        return code
+    finally:
+        if args.json:
+            _report(args, exit_status=code, success=code == EXIT_OK,
+                    wall_seconds=round(time.perf_counter() - t0, 4))
+            print(json.dumps(args.summary), flush=True)
+
+
+def _run(args) -> int:
     from ._errors import GeomoptError, SolveError
 
-    _enable_compilation_cache()
+    if args.json:
+        from ._cache import cache_stats
+
+        cache_stats()  # count persistent-cache hits and misses from here on
     try:
         with _signals_raise():
             return args.func(args)
     except SolveError as exc:
         if args.debug:
             raise
+        _report(args, error=str(exc))
         return _fail(str(exc))
     except GeomoptError as exc:
         if args.debug:
             raise
+        _report(args, error=str(exc))
         print(f"geomopt: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP through _signals_raise
@@ -363,6 +423,7 @@ def main(argv=None) -> int:
     except Exception as exc:  # an internal error: one line unless --debug
         if args.debug:
             raise
+        _report(args, error=f"internal error: {type(exc).__name__}: {exc}")
         print(f"geomopt: internal error: {type(exc).__name__}: {exc} (rerun with --debug and "
               f"report it)", file=sys.stderr)
         return EXIT_FAILED

@@ -28,12 +28,6 @@ V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]
 BOUNDARY = np.flatnonzero(((V2 == 0) | (V2 == 1)).any(axis=1))
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    """main() would point JAX's compilation cache at ~/.cache for the whole test process."""
-    monkeypatch.setattr(geomopt.cli, "_enable_compilation_cache", lambda: None)
-
-
 @pytest.fixture
 def cli(capsys):
     def run(*argv):

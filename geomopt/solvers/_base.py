@@ -120,11 +120,13 @@ def divergence(state: State):
 def converged(value, prev_value, decrement, rtol, iteration, floor=1e-300):
     """The shared stopping test (host floats or traced arrays): the decrement, or the last
     energy decrease, is below ``rtol`` relative to ``max(|E|, floor)``."""
-    scale = jnp.maximum(jnp.abs(value), floor)
+    host = all(isinstance(v, (int, float, np.number)) for v in (value, prev_value, decrement, iteration, floor))
+    xp = np if host else jnp  # host floats: no JAX dispatch (and no compilation) per iteration
+    scale = xp.maximum(xp.abs(value), floor)
     drop = prev_value - value
     # a stalled energy is the rounding floor only when one more Newton step would reach rtol;
     # with a larger decrement the search is cutting steps short (e.g. unbounded below)
-    stalled = (iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale) & (decrement <= jnp.sqrt(rtol) * scale)
+    stalled = (iteration > 0) & (drop >= 0) & (drop <= 0.01 * rtol * scale) & (decrement <= xp.sqrt(rtol) * scale)
     return (decrement <= rtol * scale) | stalled
 
 
@@ -181,8 +183,9 @@ class AbstractSolver(abc.ABC):
         return state
 
     def _start(self, objective, x0, params, aux=None) -> State:
-        """The common start state: value and gradient at ``x0``."""
-        x = jnp.asarray(x0, dtype=jnp.float64)
+        """The common start state: value and gradient at ``x0`` (padded to the objective's
+        size bucket, see :meth:`~geomopt.Objective.pad_map`)."""
+        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
         value, grad = objective.value_and_grad(x, params)
         return State(objective, params, x, float(value), grad, extent0=reference_extent(objective, x0),
                      energy_floor=max(1e-12 * abs(float(value)), 1e-300), aux=aux)
@@ -260,7 +263,7 @@ class Progress:
 
 
 def _grad_norm(state) -> float:
-    return float(jnp.sqrt(jnp.vdot(state.grad, state.grad))) if state.grad is not None else float("nan")
+    return float(np.linalg.norm(np.asarray(state.grad))) if state.grad is not None else float("nan")
 
 
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
@@ -287,7 +290,7 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
 
     solver = get_solver("newton" if solver is None else solver)
     problem = objective.problem
-    x0 = problem.check_map(x0)
+    x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._padding
     params = objective.params(**(params or {}))
     report = Progress(total=solver.max_steps) if progress is True else (progress or None)
     vol = objective.total_volume
@@ -312,10 +315,10 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
         if isinstance(report, Progress):
             report.close()
     seconds = time.perf_counter() - t0
-    x = np.asarray(state.x)
+    x = objective.unpad_map(np.asarray(state.x))
     if not np.isfinite(x).all():
         outcome = Outcome.NONFINITE
-        x = np.asarray(x0)
+        x = objective.unpad_map(np.asarray(x0))
     inverted = problem.count_inverted(x)
     if outcome is Outcome.CONVERGED and inverted:
         outcome = Outcome.NOT_INJECTIVE

@@ -260,7 +260,7 @@ class LBFGS(AbstractSolver):
         """The start state.  ``precompile`` (``"step"``, ``"run"`` or None) compiles that
         kernel now, so that setup time holds the compilation."""
         density, geom, free = self._args(objective)
-        x = jnp.asarray(x0, dtype=jnp.float64)
+        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
         pre = RestLaplacian.register(objective) if self.precondition == "laplacian" else None
         extent0 = reference_extent(objective, x0)
         carry = _init_kernel(self.history, self.precondition == "diagonal", self.window, density, geom,

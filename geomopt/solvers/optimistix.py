@@ -20,6 +20,7 @@ from typing import Any, Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from .._errors import ParameterError
@@ -45,7 +46,7 @@ class ObjectiveFunction(eqx.Module):
 
 def objective_function(objective, x0) -> ObjectiveFunction:
     """The :class:`ObjectiveFunction` of an :class:`~geomopt.Objective`, fixed vertices at ``x0``."""
-    x0 = jnp.asarray(objective.problem.check_map(x0))
+    x0 = jnp.asarray(objective.prepare_map(x0))
     return ObjectiveFunction(objective.energy.density, objective.geom, objective._free, x0)
 
 
@@ -131,7 +132,7 @@ class Optimistix(AbstractSolver):
         fn = _WithAux(objective_function(objective, x0))
         search = OptxInjectiveSearch(objective.geom[0], self.search)
         osolver = eqx.tree_at(lambda s: s.search, self.solver, search)
-        y = jnp.asarray(x0, jnp.float64)
+        y = jnp.asarray(objective.pad_map(np.asarray(x0, np.float64)))
         ostate = _optx_init(osolver, fn, y, params)
         value, grad = objective.value_and_grad(y, params)
         aux = {"fn": fn, "osolver": osolver, "ostate": ostate, "done": False, "ok": True}

@@ -1,0 +1,240 @@
+"""The first minute: the whole ``geomopt param`` process against libigl's SLIM, per mesh.
+
+For every mesh in ``../shared/data/meshes`` (or ``--meshes``):
+
+* **cold**: ``python -m geomopt param MESH -o OUT --json --quiet`` with an empty persistent
+  cache folder (``GEOMOPT_CACHE_DIR``): start-up, JAX compilation, solve, write, the whole
+  process, timed from outside (wall seconds);
+* **warm**: the same command again (the cache now holds its kernels);
+* **sibling**: a *different* mesh of the same size bucket (the mesh less a few boundary ear
+  triangles, so different vertex, face and Hessian counts), same warm cache: what a user
+  meets on a new mesh of a similar size.  Its cache misses (programs compiled) are reported;
+* **SLIM**: libigl's ``slim_precompute`` + ``slim_solve(data, 1)`` from the same start map
+  (uniform Tutte, centred, scaled to the rest area, optimal scale: what ``parameterize``
+  does), until its mean symmetric Dirichlet energy is within each ``--rtols`` of what the cold
+  geomopt process reached (or ``--slim-seconds`` pass); the ratios use the last ``--rtols``
+  value (default 1e-6, as DESIGN.md's "reach the converged energy").  SLIM's time counts
+  ``slim_precompute`` and its iterations, not its process start-up.
+
+Also timed: ``geomopt --help`` (median of 7 processes), and, when scikit-sparse's CHOLMOD is
+importable, the Newton seconds per iteration with the default linear solver against CHOLMOD
+(warm kernels, same process).
+
+    python benchmarks/startup.py                      # every mesh (igea_cut: SLIM capped)
+    python benchmarks/startup.py --meshes camelhead face --json out.json
+
+Needs libigl (``pip install ".[bench]"``).  Wall times on a shared machine are noisy: the
+script reports the medians of ``--repeat`` warm and sibling runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+MESH_DIR = REPO.parent / "shared/data/meshes"
+MESH_EXTS = (".obj", ".off", ".ply", ".stl")
+
+
+def log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run_cli(args, cache):
+    """Wall seconds and the --json summary of one ``python -m geomopt`` process."""
+    env = {**os.environ, "GEOMOPT_CACHE_DIR": str(cache), "PYTHONPATH": str(REPO)}
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "geomopt", *map(str, args)], capture_output=True,
+                          text=True, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"geomopt {' '.join(map(str, args))} failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    return wall, json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def help_seconds(n=7):
+    ts = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "geomopt", "--help"], capture_output=True,
+                       env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts)
+
+
+def sibling(V, F, remove=3):
+    """The mesh less ``remove`` boundary ears (a boundary vertex used by one triangle only,
+    removed with its triangle): still a disk, with different n, m and Hessian size."""
+    for _ in range(remove):
+        counts = np.bincount(F.ravel(), minlength=len(V))
+        ears = np.flatnonzero(counts == 1)
+        if not ears.size:
+            break
+        v = ears[0]
+        F = F[~(F == v).any(axis=1)]
+        keep = np.ones(len(V), bool)
+        keep[v] = False
+        V, F = V[keep], (np.cumsum(keep) - 1)[F]
+    return V, F
+
+
+def same_bucket(A, B):
+    from geomopt import Objective, Problem
+    from geomopt._padding import bucket
+
+    oa, ob = (Objective(Problem.surface(*M), "symmetric_dirichlet", buckets=True) for M in (A, B))
+    return (oa.sizes.n_padded, oa.sizes.m_padded, bucket(oa.pattern.nnz)) == \
+        (ob.sizes.n_padded, ob.sizes.m_padded, bucket(ob.pattern.nnz))
+
+
+def start_map(V, F):
+    """What parameterize starts from: uniform Tutte, centred, rest area, optimal scale."""
+    from geomopt import Objective, Problem
+    from geomopt.param import _to_rest_area, optimal_scale
+    from geomopt.tutte import tutte_embedding
+
+    problem = Problem.surface(V, F)
+    objective = Objective(problem, "symmetric_dirichlet", buckets=True)
+    x0 = _to_rest_area(problem, tutte_embedding(V, F, "uniform"))
+    return optimal_scale(objective, x0) * x0, objective
+
+
+def slim_to(V, F, x0, objective, targets, seconds):
+    """libigl SLIM from ``x0`` until its mean energy is <= every one of ``targets``: (seconds
+    incl. precompute at which each target was first reached (None: not within ``seconds``),
+    iterations, mean energy reached, precompute seconds)."""
+    import igl
+
+    params = objective.params()
+    area = objective.total_volume
+    t0 = time.perf_counter()
+    data = igl.slim_precompute(np.asfortranarray(V, dtype=np.float64), np.asfortranarray(F, dtype=np.int32),
+                               np.asfortranarray(x0, dtype=np.float64), igl.MappingEnergyType.SYMMETRIC_DIRICHLET,
+                               np.array([], dtype=np.int32), np.zeros((0, 2), order="F"), 0.0)
+    pre = time.perf_counter() - t0
+    elapsed, it, e = pre, 0, float("inf")
+    reached = [None] * len(targets)
+    while elapsed < seconds and None in reached:
+        t0 = time.perf_counter()
+        x = igl.slim_solve(data, 1)
+        elapsed += time.perf_counter() - t0
+        it += 1
+        e = float(objective.value(np.ascontiguousarray(x), params)) / area
+        reached = [r if r is not None or e > t else elapsed for r, t in zip(reached, targets)]
+    return reached, it, e, pre
+
+
+def backend_iteration_seconds(V, F):
+    """Warm Newton seconds per iteration, default linear solver vs CHOLMOD (None if absent)."""
+    import geomopt
+    from geomopt import linsolve
+
+    out = {}
+    for backend in ("auto", "cholmod"):
+        if backend == "cholmod" and "cholmod" not in linsolve.available_backends():
+            out[backend] = None
+            continue
+        solver = geomopt.Newton(linear_solver=backend)
+        geomopt.parameterize(V, F, solver=solver, progress=False)  # compile
+        runs = [geomopt.parameterize(V, F, solver=solver, progress=False) for _ in range(2)]
+        out[backend] = statistics.median(r.seconds / max(r.iterations, 1) for r in runs)
+    out["auto_backend"] = linsolve.available_backends()[0]
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--meshes", nargs="*", help="mesh file stems (default: every mesh)")
+    ap.add_argument("--repeat", type=int, default=3, help="warm and sibling runs per mesh (median)")
+    ap.add_argument("--rtols", type=float, nargs="+", default=[1e-3, 1e-6],
+                    help="SLIM's targets: geomopt's energy * (1 + rtol); the table compares with the last")
+    ap.add_argument("--slim-seconds", type=float, default=300.0, help="SLIM's time cap per mesh")
+    ap.add_argument("--backends", action="store_true", help="also time s/iteration vs CHOLMOD")
+    ap.add_argument("--json", help="write the raw results here")
+    args = ap.parse_args(argv)
+    if not MESH_DIR.is_dir():
+        sys.exit(f"meshes not found at {MESH_DIR}: clone the project next to its shared/ folder")
+    sys.path.insert(0, str(REPO))
+    from geomopt import io
+
+    paths = sorted(p for p in MESH_DIR.iterdir() if p.suffix.lower() in MESH_EXTS)
+    if args.meshes:
+        paths = [p for p in paths if p.stem in args.meshes]
+    results = {"help_seconds": help_seconds(), "machine_load": os.getloadavg(), "meshes": []}
+    log(f"geomopt --help: {results['help_seconds']:.3f} s (median of 7)")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for path in paths:
+            V, F = io.read_mesh(path)
+            Vs, Fs = sibling(V, F)
+            sib = tmp / f"{path.stem}_sibling.obj"
+            io.write_obj_with_uv(sib, Vs, Fs, np.zeros((len(Vs), 2)))
+            bucket_ok = same_bucket((V, F), (Vs, Fs))
+            cache = tmp / f"cache_{path.stem}"
+            out = tmp / "out.obj"
+            log(f"{path.stem}: {len(F)} faces; cold run")
+            cold, summary = run_cli(["param", path, "-o", out, "--json", "--quiet"], cache)
+            warm = [run_cli(["param", path, "-o", out, "--json", "--quiet"], cache)[0] for _ in range(args.repeat)]
+            sibs = [run_cli(["param", sib, "-o", out, "--json", "--quiet"], cache) for _ in range(args.repeat)]
+            targets = [summary["mean_energy"] * (1 + r) for r in args.rtols]
+            log(f"  cold {cold:.2f} s, warm {statistics.median(warm):.2f} s, sibling "
+                f"{statistics.median(s[0] for s in sibs):.2f} s (first sibling misses "
+                f"{sibs[0][1]['cache_misses']}); SLIM to E <= {targets[-1]:.10g}")
+            x0, objective = start_map(V, F)
+            reached, it_slim, e_slim, pre = slim_to(V, F, x0, objective, targets, args.slim_seconds)
+            t_slim = reached[-1]
+            row = {"mesh": path.stem, "faces": len(F), "sibling_faces": len(Fs), "same_bucket": bucket_ok,
+                   "cold_s": cold, "warm_s": statistics.median(warm), "warm_runs": warm,
+                   "sibling_s": statistics.median(s[0] for s in sibs),
+                   "sibling_first_misses": sibs[0][1]["cache_misses"], "geomopt": summary,
+                   "slim_s": t_slim, "slim_s_by_rtol": dict(zip(map(str, args.rtols), reached)), "slim_iterations": it_slim, "slim_energy": e_slim,
+                   "slim_precompute_s": pre, "slim_cap_s": args.slim_seconds}
+            if args.backends:
+                row["s_per_iter"] = backend_iteration_seconds(V, F)
+            results["meshes"].append(row)
+            log(f"  SLIM {'never (cap)' if t_slim is None else f'{t_slim:.2f} s'} in {it_slim} it")
+    print(table(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1, default=float))
+
+
+def table(results):
+    lines = [f"geomopt --help: {results['help_seconds']:.3f} s (median of 7); load average "
+             f"{', '.join(f'{v:.1f}' for v in results['machine_load'])}", "",
+             "| mesh | #F | geomopt cold (s) | warm (s) | sibling, warm cache (s) | sibling misses "
+             "| geomopt its | SLIM to E(1+rtol) (s) | SLIM to same E (s) | SLIM its | warm / SLIM | cold / SLIM |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results["meshes"]:
+        slim = r["slim_s"]
+        s = f"{slim:.2f}" if slim is not None else f"> {r['slim_cap_s']:.0f}"
+        ratio = (lambda t: f"{t / slim:.2f}" if slim else f"< {t / r['slim_cap_s']:.2f}")
+        lines.append(f"| {r['mesh']} | {r['faces']} | {r['cold_s']:.2f} | {r['warm_s']:.2f} | "
+                     f"{r['sibling_s']:.2f}{'' if r['same_bucket'] else ' (other bucket)'} | "
+                     f"{r['sibling_first_misses']} | {r['geomopt']['iterations']} | "
+                     f"{', '.join(f'{k}: ' + ('never' if v is None else f'{v:.2f}') for k, v in r['slim_s_by_rtol'].items())} | "
+                     f"{s} | {r['slim_iterations']} | "
+                     f"{ratio(r['warm_s'])} | {ratio(r['cold_s'])} |")
+    rows = [r for r in results["meshes"] if r.get("s_per_iter")]
+    if rows:
+        lines += ["", "| mesh | default backend | s/iter default | s/iter CHOLMOD | ratio |", "|---|---|---|---|---|"]
+        for r in rows:
+            b = r["s_per_iter"]
+            ch = b.get("cholmod")
+            cholmod = "n/a" if ch is None else f"{ch:.3f}"
+            ratio = "n/a" if ch is None else f"{b['auto'] / ch:.2f}"
+            lines.append(f"| {r['mesh']} | {b['auto_backend']} | {b['auto']:.3f} | {cholmod} | {ratio} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,415 @@
+"""Issue 8: the default linear solver, the persistent compilation cache with size buckets,
+start-up without JAX, --json, trimesh input, meshio tet formats and pictures."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from geomopt import linsolve
+
+
+def _spd_lower(n=60, seed=0, shift=1.0):
+    """A sparse SPD matrix (a shifted 1D Laplacian plus random symmetric couplings): the CSC
+    pattern and data of its lower triangle, and the full matrix."""
+    rng = np.random.default_rng(seed)
+    A = sp.diags([-np.ones(n - 1), 2.0 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tolil()
+    for _ in range(n):
+        i, j = rng.integers(0, n, 2)
+        if i != j:
+            w = rng.uniform(0.1, 0.4)
+            A[i, j] -= w
+            A[j, i] -= w
+            A[i, i] += w
+            A[j, j] += w
+    A = (A + shift * sp.eye(n)).tocsc()
+    L = sp.tril(A).tocsc()
+    L.sort_indices()
+    return L.indptr, L.indices, L.data, A
+
+
+@pytest.mark.parametrize("backend", linsolve.available_backends())
+def test_backend_solves_two_factorizations_on_one_analysis(backend):
+    ip, ix, data, A = _spd_lower()
+    chol = linsolve.SparseCholesky(ip, ix, backend)
+    chol.analyze()
+    b = np.arange(A.shape[0], dtype=float)
+    for scale in (1.0, 3.0):  # two factorizations on one analysis
+        chol.factor(scale * data)
+        x = chol.solve(b)
+        np.testing.assert_allclose(scale * (A @ x), b, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("backend", linsolve.available_backends())
+def test_backend_reports_an_indefinite_matrix_then_recovers(backend):
+    ip, ix, data, A = _spd_lower()
+    chol = linsolve.SparseCholesky(ip, ix, backend)
+    bad = data.copy()
+    bad[ip[:-1]] -= 10.0  # diagonal entries (first in each column): indefinite
+    if backend == "superlu":
+        pytest.skip("SuperLU factors indefinite matrices (no positive-definiteness check)")
+    with pytest.raises(linsolve.NotPositiveDefinite):
+        chol.factor(bad)
+    chol.factor(data)
+    b = np.ones(A.shape[0])
+    np.testing.assert_allclose(A @ chol.solve(b), b, rtol=1e-10, atol=1e-10)
+
+
+def test_auto_backend_is_the_measured_winner_when_installed():
+    pytest.importorskip("pymklpardiso")
+    assert linsolve.available_backends()[0] == "pardiso"
+    ip, ix, _, _ = _spd_lower()
+    assert linsolve.SparseCholesky(ip, ix).backend == "pardiso"
+
+
+# ------------------------------------------------------------------ size buckets (padding)
+
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+
+import geomopt  # noqa: E402
+from geomopt import _cache, _padding  # noqa: E402
+from geomopt._objective import Objective  # noqa: E402
+from geomopt.problem import Problem  # noqa: E402
+
+from conftest import grid  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def bumpy(n=12, ears=0):
+    """A bumpy disk surface on an n x n grid; ``ears`` (0-2) corner triangles removed (with
+    their corner vertex): a different mesh of the same size buckets."""
+    V2, F = grid(n)
+    V = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]
+    for xy in [(1.0, 0.0), (0.0, 1.0)][:ears]:
+        corner = int(np.flatnonzero((V[:, :2] == xy).all(axis=1))[0])
+        keep = ~(F == corner).any(axis=1)
+        assert keep.sum() == len(F) - 1  # an ear: the corner is in one triangle
+        F = F[keep]
+        used = np.zeros(len(V), bool)
+        used[F.ravel()] = True
+        remap = np.cumsum(used) - 1
+        V, F = V[used], remap[F]
+    return V, F
+
+
+def test_buckets_are_few_and_tight():
+    sizes = np.unique(np.r_[np.arange(1, 5000), np.geomspace(5000, 1e7, 2000).astype(int)])
+    b = np.array([_padding.bucket(s) for s in sizes])
+    assert (b >= sizes).all() and (np.diff(b) >= 0).all()
+    big = sizes > _padding.MINIMUM
+    assert (b[big] <= 1.25 * sizes[big]).all()
+    assert len(np.unique(b)) <= 4 * np.log2(1e7 / 64) + 2  # four per octave
+
+
+def test_padding_changes_no_energy_gradient_hessian_or_dets():
+    V, F = bumpy(10)
+    problem = Problem.surface(V, F)
+    exact, padded = Objective(problem, "symmetric_dirichlet"), Objective(problem, "symmetric_dirichlet",
+                                                                        buckets=True)
+    assert padded.sizes.n_padded > problem.n_vertices and padded.sizes.m_padded > problem.n_elements
+    rng = np.random.default_rng(1)
+    x = V[:, :2] + 0.01 * rng.standard_normal((len(V), 2))
+    p = exact.params()
+    for projection in ("clamp", "none"):
+        v0, g0, h0 = exact.hessian(x, p, projection)
+        v1, g1, h1 = padded.hessian(x, p, projection)
+        np.testing.assert_allclose(float(v1), float(v0), rtol=1e-14)
+        assert np.asarray(g1).shape == (len(V), 2)
+        np.testing.assert_allclose(np.asarray(g1), np.asarray(g0), rtol=1e-13, atol=1e-14)
+        np.testing.assert_allclose(np.asarray(h1), np.asarray(h0), rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(padded.dets(x)), np.asarray(exact.dets(x)), rtol=1e-15)
+    # a padded map (what solvers hold) gives the same value, and zero gradient on padded rows
+    xp = padded.pad_map(x)
+    vp, gp = padded.value_and_grad(xp, p)
+    np.testing.assert_allclose(float(vp), float(v0), rtol=1e-14)
+    assert not np.asarray(gp)[len(V):].any()
+
+
+@pytest.mark.parametrize("solver", ["newton", "lbfgs", "slim", "aqp", "cm", "optx-bfgs"])
+def test_padding_changes_no_result_or_certificate(solver):
+    V, F = bumpy(8)
+    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
+    assert runs[1].info["objective"].sizes.padded
+    a, b = runs
+    assert a.outcome == b.outcome and a.inverted == b.inverted == 0
+    if solver in ("newton", "slim", "cm"):  # first-order and quasi-Newton histories see rounding
+        assert a.iterations == b.iterations
+    else:
+        assert abs(a.iterations - b.iterations) <= 0.1 * a.iterations
+    assert b.x.shape == a.x.shape == (len(V), 2)
+    # the same map up to the solver's tolerance: padded reductions (sums with extra exact
+    # zeros) may round differently in the last bit, which an L-BFGS history amplifies
+    np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-6 * np.abs(a.x).max())
+    np.testing.assert_allclose(b.energy, a.energy, rtol=1e-10)
+
+
+# ------------------------------------------------------------------ the persistent cache
+
+
+@pytest.fixture
+def cache_at(tmp_path):
+    """Point the persistent cache at a fresh folder for one test, then restore it."""
+    before = _cache.cache_dir()
+    _cache.cache_stats()  # start counting
+
+    def use(path):
+        jax.clear_caches()  # programs compiled so far are in memory: look them up on disk again
+        return _cache.set_cache_dir(path)
+
+    yield use
+    jax.clear_caches()
+    _cache.set_cache_dir(before)
+
+
+FAST = geomopt.Newton(projection="clamp", max_steps=5)  # fewer kernels to compile
+
+
+def _misses_hits(fn):
+    s0 = _cache.cache_stats()
+    fn()
+    s1 = _cache.cache_stats()
+    return s1["misses"] - s0["misses"], s1["hits"] - s0["hits"]
+
+
+def test_a_different_mesh_of_the_same_bucket_compiles_nothing(tmp_path, cache_at):
+    A, B = bumpy(12), bumpy(12, ears=2)
+    pa, pb = Problem.surface(*A), Problem.surface(*B)
+    oa, ob = Objective(pa, "symmetric_dirichlet", buckets=True), Objective(pb, "symmetric_dirichlet",
+                                                                          buckets=True)
+    assert (pa.n_vertices, pa.n_elements) != (pb.n_vertices, pb.n_elements)
+    assert oa.sizes.n_padded == ob.sizes.n_padded and oa.sizes.m_padded == ob.sizes.m_padded
+    assert _padding.bucket(oa.pattern.nnz) == _padding.bucket(ob.pattern.nnz) and oa.pattern.nnz != ob.pattern.nnz
+    cache_at(tmp_path / "cache")
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*A, solver=FAST, progress=False))
+    assert misses > 0 and any((tmp_path / "cache").iterdir())
+    jax.clear_caches()  # a new process, as far as compiled code goes
+    misses, hits = _misses_hits(lambda: geomopt.parameterize(*B, solver=FAST, progress=False))
+    assert misses == 0 and hits > 0
+    # the control: without buckets the second mesh compiles again
+    jax.clear_caches()
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*B, solver=FAST, progress=False, buckets=False))
+    assert misses > 0
+
+
+def test_a_read_only_cache_is_read_and_never_written(tmp_path, cache_at, monkeypatch):
+    V, F = bumpy(8)
+    folder = tmp_path / "cache"
+    cache_at(folder)
+    geomopt.parameterize(V, F, solver=FAST, progress=False)
+    entries = sorted(p.name for p in folder.iterdir())
+    monkeypatch.setattr(_cache, "_writable", lambda path: False)
+    assert cache_at(folder) == str(folder)
+    misses, hits = _misses_hits(lambda: geomopt.parameterize(V, F, solver=FAST, progress=False))
+    assert misses == 0 and hits > 0
+    jax.clear_caches()
+    misses, _ = _misses_hits(lambda: geomopt.parameterize(*bumpy(16), solver=FAST, progress=False))  # another bucket
+    assert misses > 0
+    assert sorted(p.name for p in folder.iterdir()) == entries
+
+
+def test_set_cache_dir_none_turns_it_off(tmp_path, cache_at):
+    assert cache_at(None) is None and _cache.cache_dir() is None
+    assert jax.config.jax_enable_compilation_cache is False
+
+
+def _run(args, env=None, **kw):
+    env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, timeout=300,
+                          cwd=str(REPO), **kw)
+
+
+def test_cli_with_an_unwritable_cache_folder_runs_and_prints_json(tmp_path):
+    V, F = bumpy(6)
+    mesh, out = tmp_path / "m.obj", tmp_path / "uv.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])  # any valid OBJ
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the cache folder would go")
+    proc = _run(["-m", "geomopt", "param", str(mesh), "-o", str(out), "--json", "--quiet"],
+                env={"GEOMOPT_CACHE_DIR": str(blocker / "cache")})
+    assert proc.returncode == 0, proc.stderr
+    assert "Warning" not in proc.stderr and "Traceback" not in proc.stderr
+    summary = json.loads(proc.stdout)  # stdout holds exactly the summary
+    assert summary["success"] and summary["exit_status"] == 0 and summary["flips"] == 0
+    assert summary["faces"] == len(F) and summary["cache_dir"] is None and out.exists()
+
+
+def test_cli_with_a_full_cache_disk_runs_quietly(tmp_path):
+    V, F = bumpy(6)
+    mesh, out = tmp_path / "m.obj", tmp_path / "uv.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])
+    code = ("import errno, sys\nimport jax._src.lru_cache as lru\n"
+            "def put(self, key, value):\n    raise OSError(errno.ENOSPC, 'No space left on device')\n"
+            "lru.LRUCache.put = put\nfrom geomopt.cli import main\n"
+            f"sys.exit(main(['param', {str(mesh)!r}, '-o', {str(out)!r}, '--json', '--quiet']))")
+    proc = _run(["-c", code], env={"GEOMOPT_CACHE_DIR": str(tmp_path / "cache")})
+    assert proc.returncode == 0, proc.stderr
+    assert "No space" not in proc.stderr and "Warning" not in proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["success"] and summary["cache_misses"] > 0 and out.exists()
+
+
+def test_cli_json_reports_failures_too(tmp_path):
+    proc = _run(["-m", "geomopt", "param", str(tmp_path / "missing.obj"), "-o", str(tmp_path / "o.obj"),
+                 "--json"], env={"GEOMOPT_CACHE_DIR": "off"})
+    assert proc.returncode == 2
+    summary = json.loads(proc.stdout)
+    assert summary["success"] is False and summary["exit_status"] == 2 and "does not exist" in summary["error"]
+
+
+# ------------------------------------------------------------------ start-up
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["param", "--help"]])
+def test_help_and_version_do_not_import_jax(argv):
+    code = ("import sys\nfrom geomopt.cli import main\ntry:\n    main(%r)\nexcept SystemExit as e:\n"
+            "    assert e.code == 0\nprint('JAX' if 'jax' in sys.modules else 'NOJAX', file=sys.stderr)" % argv)
+    proc = _run(["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip().endswith("NOJAX")
+    if argv == ["--version"]:
+        assert proc.stdout.strip() == f"geomopt {geomopt.__version__}"
+    else:
+        assert "``" not in proc.stdout and ":class:" not in proc.stdout  # no reST markup
+        assert "symmetric_dirichlet" in proc.stdout and "newton" in proc.stdout
+
+
+def test_import_geomopt_does_not_import_jax_but_enables_float64():
+    proc = _run(["-c", "import sys, geomopt; assert 'jax' not in sys.modules\n"
+                       "import jax.numpy as jnp; print(jnp.zeros(1).dtype)"], env={"GEOMOPT_CACHE_DIR": "off"})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "float64"
+
+
+def test_help_lists_exactly_the_registered_energies_and_solvers():
+    from geomopt import _names
+    from geomopt.energies import REGISTRY
+    from geomopt.solvers import SOLVERS
+
+    assert set(_names.ENERGIES) == set(REGISTRY) and set(_names.SOLVERS) == set(SOLVERS)
+
+
+def test_optimal_scale_matches_the_closed_form_for_symmetric_dirichlet():
+    from geomopt.param import optimal_scale
+
+    V, F = bumpy(9)
+    problem = Problem.surface(V, F)
+    obj = Objective(problem, "symmetric_dirichlet", buckets=True)
+    x = V[:, :2] * 0.37 - V[:, :2].mean(axis=0) * 0.37
+    P = x[problem.simplices]
+    J = np.einsum("mij,mjk->mik", np.swapaxes(P[:, 1:] - P[:, :1], 1, 2), problem.rest_inv)
+    a = (problem.volumes * (J**2).sum((1, 2))).sum()
+    b = (problem.volumes * (np.linalg.inv(J) ** 2).sum((1, 2))).sum()
+    assert optimal_scale(obj, x) == pytest.approx((b / a) ** 0.25, rel=1e-6)
+
+
+# ------------------------------------------------------------------ trimesh input, tet formats
+
+
+def test_parameterize_accepts_a_trimesh_or_any_vertices_faces_object():
+    import types
+
+    import trimesh
+
+    V, F = bumpy(6)
+    ref = geomopt.parameterize(V, F, progress=False)
+    mesh = trimesh.Trimesh(V, F, process=False)
+    for obj in (mesh, types.SimpleNamespace(vertices=V.tolist(), faces=F.tolist())):
+        res = geomopt.parameterize(obj, progress=False)
+        assert res.success
+        np.testing.assert_array_equal(res.x, ref.x)
+    with pytest.raises(geomopt.ParameterError, match="trimesh"):
+        geomopt.parameterize(V, progress=False)
+
+
+@pytest.mark.parametrize("ext", [".msh", ".mesh", ".vtu", ".vtk"])
+def test_tet_formats_round_trip_exactly(tmp_path, ext):
+    from geomopt import tetio
+
+    from conftest import cube_tets
+
+    V, T = cube_tets(2)
+    V = V + np.pi * 1e-3 * np.arange(len(V))[:, None]  # digits that a short float format would lose
+    path = tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+    P2, T2 = tetio.read_tets(path)
+    np.testing.assert_array_equal(P2, V)
+    np.testing.assert_array_equal(T2, T)
+    assert P2.dtype == np.float64 and T2.dtype == np.int64
+
+
+def test_tet_io_validates_like_the_rest_of_geomopt(tmp_path):
+    import meshio
+
+    from geomopt import tetio
+
+    from conftest import cube_tets
+
+    V, T = cube_tets(1)
+    with pytest.raises(geomopt.MeshError):
+        tetio.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
+    assert not any(tmp_path.iterdir())  # nothing written, no temporary left
+    with pytest.raises(geomopt.MeshFormatError, match="unknown mesh format"):
+        tetio.write_tets(tmp_path / "cube.xyz123", V, T)
+    meshio.write(str(tmp_path / "tris.vtu"), meshio.Mesh(V, [("triangle", T[:, :3])]))
+    with pytest.raises(geomopt.MeshFormatError, match="no tetrahedra"):
+        tetio.read_tets(tmp_path / "tris.vtu")
+    (tmp_path / "junk.msh").write_text("$MeshFormat\nnot a mesh\n")
+    with pytest.raises(geomopt.MeshFormatError, match="could not read"):
+        tetio.read_tets(tmp_path / "junk.msh")
+    bad = V.copy()
+    bad[0, 0] = np.nan
+    meshio.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
+    with pytest.raises(geomopt.MeshError):
+        tetio.read_tets(tmp_path / "nan.vtu")
+
+
+# ------------------------------------------------------------------ pictures
+
+
+def _image(path):
+    import matplotlib.image
+
+    img = matplotlib.image.imread(str(path))[..., :3]
+    assert img.shape[0] > 300 and img.shape[1] > 600
+    return img
+
+
+def _reddish(img):
+    """Pixels of the inverted-element red, possibly seen through a translucent surface."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return int(((r > 0.55) & (r - g > 0.3) & (r - b > 0.3)).sum())
+
+
+def test_param_png_shows_a_checkerboard_on_the_surface_beside_the_layout(tmp_path):
+    V, F = bumpy(10)
+    mesh = tmp_path / "m.obj"
+    geomopt.io.write_obj_with_uv(mesh, V, F, V[:, :2])
+    code = geomopt.cli.main(["param", str(mesh), "-o", str(tmp_path / "uv.obj"), "--png",
+                             str(tmp_path / "uv.png"), "--quiet"])
+    assert code == 0
+    img = _image(tmp_path / "uv.png")
+    left, right = img[:, : img.shape[1] // 2], img[:, img.shape[1] // 2:]
+    # checker squares (orange and white, shaded) on the surface panel only
+    orange = (np.abs(left[..., 0] - 2.0 * left[..., 2] - 0.0) > 0.3) & (left[..., 0] > left[..., 1]) & (left[..., 1] > left[..., 2] + 0.2)
+    assert orange.sum() > 2000 and (left.min(axis=-1) < 0.9).sum() > 5000
+    assert len(np.unique((right * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 50  # colour-mapped
+    assert (tmp_path / "uv_convergence.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("case", ["2D/Simple/Lshape", "3D/Deform_Armadillo/armadillo-598"])
+def test_untangle_png_marks_the_inverted_elements_of_the_start_only(tmp_path, case):
+    from conftest import shared_path
+
+    folder = shared_path("lim", *case.split("/"))
+    out = tmp_path / ("out.obj" if case.startswith("2D") else "out.vtk")
+    code = geomopt.cli.main(["untangle", str(folder), "-o", str(out), "--png", str(tmp_path / "u.png"), "--quiet"])
+    assert code == 0
+    img = _image(tmp_path / "u.png")
+    left, right = img[:, : img.shape[1] // 2], img[:, img.shape[1] // 2:]
+    assert _reddish(left) > 500 and _reddish(right) == 0  # the result has none inverted
+    assert (right.min(axis=-1) < 0.8).sum() > 2000  # the result is drawn
