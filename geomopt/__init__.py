@@ -21,7 +21,7 @@ _LAZY = {
     "Objective": "._objective", "parameterize": ".param", "Problem": ".problem",
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
-    "compare": ".compare", "Comparison": ".compare",
+    "compare": "._compare", "Comparison": "._compare",
 }
 _SUBMODULES = ("energies", "io", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
                "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")

@@ -276,7 +276,7 @@ def cmd_demo(args) -> int:
 
 def cmd_compare(args) -> int:
     """Every solver from the same start map; CSV traces, summary, maps and a plot in --out."""
-    from .compare import compare
+    from ._compare import compare
 
     res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
                   max_seconds=args.max_seconds, max_steps=args.max_steps, out=args.out,

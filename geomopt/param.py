@@ -207,7 +207,8 @@ def projection_map(V, F) -> np.ndarray:
     _, _, Wt = np.linalg.svd(C, full_matrices=False)
     x = C @ Wt[:2].T
     P = x[np.asarray(F)]
-    area = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]).sum()
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    area = np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     return x * [1.0, -1.0] if area < 0 else x
 
 

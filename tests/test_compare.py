@@ -13,7 +13,7 @@ import pytest
 import geomopt
 import geomopt.cli
 from geomopt import MeshError, ParameterError, Problem, io
-from geomopt.compare import HISTORY_COLUMNS, SUMMARY_COLUMNS, Comparison
+from geomopt._compare import HISTORY_COLUMNS, SUMMARY_COLUMNS, Comparison
 from geomopt.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
@@ -23,15 +23,10 @@ from conftest import grid
 from test_cli import one_error_line, read_uv_obj, write_obj
 
 # geomopt.compare is the function (re-exported by geomopt); the module is this:
-compare_module = importlib.import_module("geomopt.compare")
+compare_module = importlib.import_module("geomopt._compare")
 V2, F = grid(4)  # test_cli's mesh (16 vertices, 18 triangles): kernels compiled once per session
 V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # a curved disk
 FAST = "newton,aqp,lbfgs"  # quick to compile; newton's kernels are test_cli's
-
-
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    monkeypatch.setattr(geomopt.cli, "_enable_compilation_cache", lambda: None)
 
 
 @pytest.fixture

@@ -79,7 +79,7 @@ def test_cli_init_uv_and_projection(tmp_path):
 def test_read_obj_uv_refuses_seams(tmp_path):
     p = tmp_path / "seam.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nvt 5 5\n"
-                 "f 1/1 2/2 3/3\nf 2/2 4/4 3/9\n")
+                 "f 1/1 2/2 3/3\nf 2/2 4/4 3/5\n")
     with pytest.raises(MeshFormatError, match="two different UVs"):
         read_obj_uv(p)
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
