@@ -309,7 +309,7 @@ def _interior_first(F, loop):
 
 
 def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                           x0=None, progress=True, throw=False, scaffold_weight=1e-2,
+                           x0=None, progress=True, throw=False, scaffold_weight=1e-4,
                            ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-6,
                            **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
