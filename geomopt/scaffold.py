@@ -269,7 +269,7 @@ def delaunay_flips(X, T, max_rounds: int = 200, tol: float = 1e-9):
         if idx.size == 0:
             break
         # independent set: each triangle claims its worst candidate edge
-        claim = np.full(len(T), -1.0)
+        claim = np.full(len(T), -np.inf)
         np.maximum.at(claim, f1[idx], bad[idx])
         np.maximum.at(claim, f2[idx], bad[idx])
         idx = idx[(claim[f1[idx]] == bad[idx]) & (claim[f2[idx]] == bad[idx])]

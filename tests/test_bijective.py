@@ -205,6 +205,13 @@ def test_delaunay_flips_reach_a_delaunay_triangulation():
     assert flips > 0
     assert len(T2) == len(T) and count_inverted(X, T2) == 0
     assert _locally_delaunay(X, T2) and not _locally_delaunay(X, T)
+    # the float angle test only steers: a flip that would invert a triangle is refused even
+    # when the angle test asks for every flip (tol = -inf); here the quad is reflex at vertex 1
+    Xr = np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1.0], [5.0, -0.1]])
+    Tr = np.array([[0, 1, 2], [1, 0, 3]])
+    assert orient2d(Xr[[3]], Xr[[1]], Xr[[2]])[0] == -1  # the flipped triangle (3, 1, 2)
+    Tr2, flips = delaunay_flips(Xr, Tr, tol=-np.inf)
+    assert flips == 0 and np.array_equal(Tr2, Tr)
     # same triangulated region: boundary edges unchanged
     E1, c1, _ = unique_edges(T)
     E2, c2, _ = unique_edges(T2)
