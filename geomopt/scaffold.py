@@ -120,11 +120,9 @@ def _ear_clip(Q) -> list:
                        & (Y[cand] >= min(ay, by, cy)) & (Y[cand] <= max(ay, by, cy)))
                 cand = cand[box]
                 cand = cand[(cand != a) & (cand != c)]
-            if cand.size:
-                R = Q[cand]
-                A, B, C = (np.repeat(Q[[j]], cand.size, axis=0) for j in (a, i, c))
-                inside = (orient2d(A, B, R) >= 0) & (orient2d(B, C, R) >= 0) & (orient2d(C, A, R) >= 0)
-                ear = not inside.any()
+            pa, pb, pc = pts[a], pts[i], pts[c]
+            ear = not any(_turn(pa, pb, pts[r]) >= 0 and _turn(pb, pc, pts[r]) >= 0
+                          and _turn(pc, pa, pts[r]) >= 0 for r in cand.tolist())
         if ear:
             tris.append((a, i, c))
             alive[i] = False
@@ -310,7 +308,7 @@ def _interior_first(F, loop):
 
 def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                            x0=None, progress=True, throw=False, scaffold_weight=1e-4,
-                           ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-6,
+                           ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-5,
                            **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
 
