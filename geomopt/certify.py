@@ -43,7 +43,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError
-from .io import validate_vertices
+from .io import validate_indices, validate_vertices
 from .predicates import count_inverted, orient2d
 from .topology import check_disk
 
@@ -260,7 +260,8 @@ def certify_bijective(x, F, loop=None) -> Certificate:
     Raises
     ------
     MeshError
-        ``F`` is not a disk, or ``x`` has the wrong shape.
+        ``F`` is not a disk, ``x`` has the wrong shape, or ``loop`` is not a list of at least 3
+        distinct vertex ids.
     """
     t0 = time.perf_counter()
     x = np.asarray(x)
@@ -268,7 +269,12 @@ def certify_bijective(x, F, loop=None) -> Certificate:
     if x.ndim != 2 or x.shape[1] != 2 or x.dtype.kind not in "fiu":
         raise MeshError(f"the map must be a real array of shape (n, 2), got shape {x.shape} "
                         f"and dtype {x.dtype}")
-    loop = check_disk(F, len(x)) if loop is None else np.asarray(loop, dtype=np.int64)
+    if loop is None:
+        loop = check_disk(F, len(x))
+    else:
+        loop = validate_indices(loop, len(x), "boundary loop")
+        if loop.size < 3:
+            raise MeshError(f"the boundary loop needs at least 3 vertices, got {loop.size}")
     x = x.astype(np.float64, copy=False)
     inverted = count_inverted(x, F)
     P = x[loop]

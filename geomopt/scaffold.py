@@ -262,7 +262,8 @@ def delaunay_flips(X, T, max_rounds: int = 200, tol: float = 1e-9):
             break
         idx = np.flatnonzero(cand)
         # exact: both new triangles (c, a, d) and (d, b, c) positive
-        ok = (orient2d(X[c[idx]], X[a[idx]], X[d[idx]]) == 1) & (orient2d(X[d[idx]], X[b[idx]], X[c[idx]]) == 1)
+        ca, cb, cc, cd = X[a[idx]], X[b[idx]], X[c[idx]], X[d[idx]]
+        ok = (orient2d(cc, ca, cd) == 1) & (orient2d(cd, cb, cc) == 1)
         idx = idx[ok]
         if idx.size == 0:
             break
@@ -292,17 +293,17 @@ def _rest_inverse(X, T):
 
 
 def _interior_first(F, loop):
-    """A row order of ``F`` whose first triangle starts with an interior vertex, or None.
+    """A row order (m,) of ``F`` whose first triangle starts with an interior vertex if any.
 
     The objective pins the first vertex of the first element (translation); when that vertex is
-    interior, scaffold flips never change the free-DOF sparsity pattern."""
+    interior, scaffold flips never change the free-DOF sparsity pattern (else they may, and the
+    Hessian kernel recompiles for the new non-zero count: slower, still correct)."""
     on = np.zeros(int(F.max()) + 1, dtype=bool)
     on[loop] = True
     rows = np.flatnonzero(~on[F[:, 0]])
-    if rows.size == 0:
-        return None
     order = np.arange(len(F))
-    order[[0, rows[0]]] = order[[rows[0], 0]]
+    if rows.size:
+        order[[0, rows[0]]] = order[[rows[0], 0]]
     return order
 
 
@@ -324,9 +325,10 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     Parameters
     ----------
     V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles of a topological disk.
-    energy, solver, weights, progress, throw, **energy_params : as for
-        :func:`~geomopt.param.parameterize` (the solver's ``max_steps`` is replaced by
-        ``inner_steps`` per outer iteration).
+    energy, solver, weights, throw, **energy_params : as for
+        :func:`~geomopt.param.parameterize`; the solver's ``max_steps`` is replaced by
+        ``inner_steps`` (a solver that is not a dataclass with ``max_steps`` is rejected).
+    progress : bool, one line per outer iteration on stderr.
     x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
         embedding onto a circle, is).
     scaffold_weight : float > 0, the scaffold's share of the energy (its weights sum to
@@ -365,6 +367,9 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     problem = Problem.surface(V, F)
     objective = Objective(problem, energy, **energy_params)
     solver = Newton() if solver is None else get_solver(solver)
+    if not (dataclasses.is_dataclass(solver) and hasattr(solver, "max_steps")):
+        raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
+                             f"(e.g. geomopt.Newton()), got {solver!r}")
     solver = dataclasses.replace(solver, max_steps=int(inner_steps))
     loop = check_disk(problem.input_simplices, problem.n_vertices)
     if x0 is None:
@@ -381,16 +386,14 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     s = optimal_scale(objective, x0)
     x0 = s * x0
 
-    n, k = problem.n_vertices, len(loop)
+    n = problem.n_vertices
     scaffold = build_scaffold(x0[loop], ring_scale)
     ids = np.concatenate([loop, n + np.arange(len(scaffold.outer))])  # scaffold id -> vertex id
     S = ids[scaffold.triangles]
     X = np.concatenate([x0, scaffold.outer])
     weight = scaffold_weight * float(problem.volumes.sum()) / len(S)
     order = _interior_first(problem.simplices, loop)
-    mesh_rows = problem.simplices if order is None else problem.simplices[order]
-    mesh_inv = problem.rest_inv if order is None else problem.rest_inv[order]
-    mesh_vol = problem.volumes if order is None else problem.volumes[order]
+    mesh_rows, mesh_inv, mesh_vol = problem.simplices[order], problem.rest_inv[order], problem.volumes[order]
     log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if progress else (lambda *a: None)
 
     def combined(X, S):
@@ -408,7 +411,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     outcome = Outcome.MAX_STEPS
     for outer in range(1, int(max_outer) + 1):
         obj = Objective(combined(X, S), objective.energy)
-        res = minimize(obj, X, solver, params=energy_params, progress=False)
+        res = minimize(obj, X, solver, progress=False)
         iterations += res.iterations
         if res.outcome is Outcome.NONFINITE:
             outcome = res.outcome
@@ -416,7 +419,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
         X = res.x
         S, f = delaunay_flips(X, S)
         flips += f
-        energies.append(float(objective.value(X[:n], objective.params(**energy_params))))
+        energies.append(float(objective.value(X[:n], objective.params())))
         times.append(time.perf_counter() - t0)
         drop = energies[-2] - energies[-1]
         log(f"outer {outer:3d}  energy {energies[-1] / objective.total_volume:.10g}  inner "

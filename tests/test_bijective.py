@@ -143,6 +143,9 @@ def test_certificate_rejects_bad_input():
     with pytest.raises(MeshError):
         polygon_crossings(np.array([[0, 0], [1, np.nan], [0, 1]]))
     x = tutte_embedding(V, F)
+    for loop in ([0, 0, 1], [0, 1], [0, 1, len(V)]):
+        with pytest.raises(MeshError):
+            certify_bijective(x, F, loop=np.array(loop))
     x[0] = np.nan
     assert certify_bijective(x, F).injectivity == "none"
 
