@@ -19,6 +19,11 @@ exact predicates only (:func:`geomopt.predicates.orient2d`):
   Flips keep the numbers of vertices, triangles and edges, so the combined problem keeps its
   array shapes and its Hessian's non-zero count: nothing is recompiled between outer iterations.
 
+By default the solve starts without a scaffold and builds it only when a step would make the
+boundary overlap (see :func:`bijective_parameterize`, ``lazy``): the scaffold's thin triangles cut
+Newton steps to 0.1-0.3 of their length in the early, large-deformation phase (measured on
+bunny_cut), which the boundary of a Tutte start rarely needs.
+
 The enclosing polygon's vertices are free (the scaffold moves and rotates with the mesh); global
 injectivity of the result does not rest on that: it is certified at the end, exactly, by
 :func:`geomopt.certify.certify_bijective`.
@@ -34,7 +39,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
-from .certify import certify_bijective
+from .certify import certify_bijective, polygon_crossings
 from .param import optimal_scale
 from .predicates import orient2d
 from .problem import Problem
@@ -307,10 +312,28 @@ def _interior_first(F, loop):
     return order
 
 
+def _steps_while_simple(objective, x0, solver, loop):
+    """Run ``solver`` on the mesh alone while every iterate's boundary polygon stays simple.
+
+    Returns ``(x, iterations, outcome)``: the last iterate with a simple boundary, the iterations
+    taken to it, and the solver's outcome if it stopped on its own (``None`` when the next step
+    would have made the boundary overlap, or was not finite)."""
+    state = solver.init(objective, x0, objective.params())
+    while True:
+        done, outcome = solver.terminate(state)
+        if done:
+            return np.asarray(state.x), state.iteration, outcome
+        new = solver.step(state)
+        x = np.asarray(new.x)
+        if new.failure is None and (not np.isfinite(x).all() or len(polygon_crossings(x[loop]))):
+            return np.asarray(state.x), state.iteration, None
+        state = new
+
+
 def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                            x0=None, progress=True, throw=False, scaffold_weight=1e-4,
                            ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-5,
-                           **energy_params):
+                           lazy=True, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
 
     Solves the same problem as :func:`~geomopt.param.parameterize` with, around the mesh, a
@@ -321,6 +344,15 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     shape.  Each outer iteration runs up to ``inner_steps`` solver iterations on mesh +
     scaffold, then re-triangulates the scaffold (:func:`delaunay_flips`); it stops when an inner
     solve converged and the mesh energy fell by less than ``outer_rtol`` (relative).
+
+    With ``lazy`` (default) the solver first runs without a scaffold, on the mesh alone, for as
+    long as every iterate's boundary stays simple (exact check, :func:`polygon_crossings`, a few
+    milliseconds per iterate); the scaffold is built at the last such iterate when a step would
+    make the boundary overlap.  Where the free-boundary solve never overlaps, the result is the
+    plain solve's.  Every accepted iterate is bijective; between two iterates of the scaffold-free
+    phase the straight path is not checked (a step could pass the boundary through itself and
+    back), which does not matter for the returned map.  ``lazy=False`` uses the scaffold from the
+    start, so that the boundary never crosses itself along the whole path.
 
     Parameters
     ----------
@@ -335,19 +367,20 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
         ``scaffold_weight`` times the mesh area).  Smaller lets the boundary approach itself in
         fewer outer iterations; it does not change what is reachable.
     ring_scale : float > 1, size of the enclosing polygon relative to the start's convex hull.
-    inner_steps, max_outer : int >= 1;  outer_rtol : float > 0.
+    inner_steps, max_outer : int >= 1;  outer_rtol : float > 0;  lazy : bool.
 
     Returns
     -------
     :class:`~geomopt.solvers.Result` for the mesh alone: ``x`` (n, 2), ``energy`` the mesh
-    energy, ``energy_history`` / ``time_history`` the mesh energy and elapsed seconds after each
-    outer iteration (the start first), ``iterations`` the inner iterations summed.
+    energy, ``energy_history`` / ``time_history`` the mesh energy and elapsed seconds at the
+    start, after the scaffold-free phase (if ``lazy``) and after each outer iteration,
+    ``iterations`` the solver iterations summed.
     ``info["certificate"]`` is the exact :class:`~geomopt.certify.Certificate` of the result and
     ``info["injectivity"]`` is ``"global"`` when it holds; a result that is not globally
     injective has outcome ``NOT_INJECTIVE`` (never expected: the scaffold forbids it), so
     ``success`` means converged, flip-free and bijective.  ``info`` also holds ``start``,
-    ``scale``, ``problem``, ``objective`` (the mesh's), ``outer_iterations``, ``flips`` and
-    ``scaffold_triangles``.
+    ``scale``, ``problem``, ``objective`` (the mesh's), ``free_iterations`` (scaffold-free
+    phase), ``outer_iterations``, ``flips`` and ``scaffold_triangles`` (0 without a scaffold).
 
     Raises
     ------
@@ -360,6 +393,8 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
         if isinstance(value, bool) or not (isinstance(value, (int, float)) and np.isfinite(value)
                                            and value > low):
             raise ParameterError(f"{name} must be a finite number > {low:g}, got {value!r}")
+    if not isinstance(lazy, (bool, np.bool_)):
+        raise ParameterError(f"lazy must be True or False, got {lazy!r}")
     for name, value in (("inner_steps", inner_steps), ("max_outer", max_outer)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise ParameterError(f"{name} must be a positive integer, got {value!r}")
@@ -370,7 +405,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     if not (dataclasses.is_dataclass(solver) and hasattr(solver, "max_steps")):
         raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
                              f"(e.g. geomopt.Newton()), got {solver!r}")
-    solver = dataclasses.replace(solver, max_steps=int(inner_steps))
+    inner = dataclasses.replace(solver, max_steps=int(inner_steps))
     loop = check_disk(problem.input_simplices, problem.n_vertices)
     if x0 is None:
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
@@ -387,16 +422,11 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     x0 = s * x0
 
     n = problem.n_vertices
-    scaffold = build_scaffold(x0[loop], ring_scale)
-    ids = np.concatenate([loop, n + np.arange(len(scaffold.outer))])  # scaffold id -> vertex id
-    S = ids[scaffold.triangles]
-    X = np.concatenate([x0, scaffold.outer])
-    weight = scaffold_weight * float(problem.volumes.sum()) / len(S)
     order = _interior_first(problem.simplices, loop)
     mesh_rows, mesh_inv, mesh_vol = problem.simplices[order], problem.rest_inv[order], problem.volumes[order]
     log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if progress else (lambda *a: None)
 
-    def combined(X, S):
+    def combined(X, S, weight):
         simplices = np.concatenate([mesh_rows, S])
         return dataclasses.replace(
             problem, kind="planar", n_vertices=len(X), simplices=simplices,
@@ -407,26 +437,41 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     energies = [float(objective.value(x0, objective.params()))]
     times = [0.0]
     t0 = time.perf_counter()
-    iterations = flips = 0
-    outcome = Outcome.MAX_STEPS
-    for outer in range(1, int(max_outer) + 1):
-        obj = Objective(combined(X, S), objective.energy)
-        res = minimize(obj, X, solver, progress=False)
-        iterations += res.iterations
-        if res.outcome is Outcome.NONFINITE:
-            outcome = res.outcome
-            break
-        X = res.x
-        S, f = delaunay_flips(X, S)
-        flips += f
-        energies.append(float(objective.value(X[:n], objective.params())))
+    X, S = x0, np.zeros((0, 3), np.int64)
+    iterations = free = flips = 0
+    outcome = None  # None: the scaffold phase is needed
+    if lazy:
+        X, free, outcome = _steps_while_simple(objective, x0, solver, loop)
+        iterations += free
+        energies.append(float(objective.value(X, objective.params())))
         times.append(time.perf_counter() - t0)
-        drop = energies[-2] - energies[-1]
-        log(f"outer {outer:3d}  energy {energies[-1] / objective.total_volume:.10g}  inner "
-            f"{res.iterations:3d} ({res.outcome.value})  flips {f:5d}  {times[-1]:7.2f}s")
-        if res.outcome is Outcome.CONVERGED and drop <= outer_rtol * abs(energies[-1]):
-            outcome = Outcome.CONVERGED
-            break
+        log(f"free  {free:4d} iterations  energy {energies[-1] / objective.total_volume:.10g}  "
+            f"{'(boundary about to overlap: scaffold)' if outcome is None else outcome.value}  "
+            f"{times[-1]:7.2f}s")
+    if outcome is None:
+        outcome = Outcome.MAX_STEPS
+        scaffold = build_scaffold(X[loop], ring_scale)
+        ids = np.concatenate([loop, n + np.arange(len(scaffold.outer))])  # scaffold id -> vertex
+        S = ids[scaffold.triangles]
+        X = np.concatenate([X, scaffold.outer])
+        weight = scaffold_weight * objective.total_volume / len(S)
+        for outer in range(1, int(max_outer) + 1):
+            res = minimize(Objective(combined(X, S, weight), objective.energy), X, inner, progress=False)
+            iterations += res.iterations
+            if res.outcome is Outcome.NONFINITE:
+                outcome = res.outcome
+                break
+            X = res.x
+            S, f = delaunay_flips(X, S)
+            flips += f
+            energies.append(float(objective.value(X[:n], objective.params())))
+            times.append(time.perf_counter() - t0)
+            drop = energies[-2] - energies[-1]
+            log(f"outer {outer:3d}  energy {energies[-1] / objective.total_volume:.10g}  inner "
+                f"{res.iterations:3d} ({res.outcome.value})  flips {f:5d}  {times[-1]:7.2f}s")
+            if res.outcome is Outcome.CONVERGED and drop <= outer_rtol * abs(energies[-1]):
+                outcome = Outcome.CONVERGED
+                break
     x = np.asarray(X[:n])
     cert = certify_bijective(x, problem.simplices, loop)
     if outcome is Outcome.CONVERGED and not cert.globally_injective:
@@ -436,7 +481,8 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
         energy_history=np.asarray(energies), iterations=iterations,
         seconds=time.perf_counter() - t0, setup_seconds=setup, time_history=np.asarray(times),
         info=dict(start=x0, scale=s, problem=problem, objective=objective, certificate=cert,
-                  injectivity=cert.injectivity, outer_iterations=len(energies) - 1, flips=flips,
+                  injectivity=cert.injectivity, free_iterations=free,
+                  outer_iterations=len(energies) - 1 - bool(lazy), flips=flips,
                   scaffold_triangles=len(S)),
     )
     if throw and not result.success:

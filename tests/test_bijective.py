@@ -238,6 +238,7 @@ def test_plain_solve_overlaps_and_bijective_does_not(spiral):
     assert len(certify_bijective(plain.x, F).crossings) > 0  # locally injective, overlapping
     res = bijective_parameterize(V, F, x0=x0, progress=False)
     assert res.success, res.message
+    assert res.info["outer_iterations"] > 0 and res.info["scaffold_triangles"] > 0
     cert = certify_bijective(res.x, F)  # independently of the solver's own certificate
     assert cert.globally_injective and res.info["injectivity"] == "global"
     assert res.inverted == 0 and len(res.info["certificate"].crossings) == 0
@@ -250,8 +251,15 @@ def test_bijective_matches_plain_where_plain_does_not_overlap():
     V, F = g.saddle(8, order=3, amplitude=2.0)
     plain = geomopt.parameterize(V, F, progress=False)
     assert certify_bijective(plain.x, F).globally_injective
+    # lazy (default): no step overlaps, so no scaffold and exactly the plain solve
     res = bijective_parameterize(V, F, progress=False)
     assert res.success and res.info["injectivity"] == "global"
+    assert res.info["outer_iterations"] == 0 and res.info["scaffold_triangles"] == 0
+    # (the start is normalised like parameterize's up to rounding)
+    assert res.iterations == plain.iterations and abs(res.energy - plain.energy) <= 1e-9 * plain.energy
+    # with the scaffold from the start: the same optimum
+    res = bijective_parameterize(V, F, progress=False, lazy=False)
+    assert res.success and res.info["injectivity"] == "global" and res.info["outer_iterations"] > 0
     assert abs(res.energy - plain.energy) <= 1e-5 * plain.energy
 
 
@@ -261,7 +269,7 @@ def test_bijective_input_errors(spiral):
     with pytest.raises(MeshError, match="not globally injective"):
         bijective_parameterize(Vo, Fo, x0=Vo[:, :2], progress=False)
     for bad in (dict(scaffold_weight=0.0), dict(scaffold_weight=np.nan), dict(inner_steps=0),
-                dict(max_outer=True), dict(outer_rtol=-1.0), dict(ring_scale=1.0)):
+                dict(max_outer=True), dict(outer_rtol=-1.0), dict(ring_scale=1.0), dict(lazy=1)):
         with pytest.raises(ParameterError):
             bijective_parameterize(V, F, x0=V[:, :2], progress=False, **bad)
 
