@@ -22,6 +22,14 @@ vertices are the boundary, and for which an injective map exists:
   interior sticks out of the bent boundary, as in the LIM deformation groups).
 
 These reproduce the families of the LIM benchmark (Du et al. 2020) that are not shipped.
+
+Surfaces whose free-boundary flattening overlaps itself (for the bijective mode) -- each returns
+``V`` (n, 3), ``F`` (m, 3) counter-clockwise seen from +z, and is a graph over its ``xy``
+projection, so ``V[:, :2]`` is a bijective start map:
+
+* :func:`spiral_strip` — a narrow band along an Archimedean spiral, lifted into a ramp;
+* :func:`ruffled_disk` — a disk with large waves along its rim (a lettuce leaf);
+* :func:`saddle` — a (monkey) saddle over a disk.
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ __all__ = [
     "Tangle", "square_mesh", "disk_mesh", "box_mesh", "boundary_vertices",
     "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex", "twisted_box",
     "bent_box",
-    "polygon", "POLYGONS",
+    "polygon", "POLYGONS", "spiral_strip", "ruffled_disk", "saddle",
 ]
 
 
@@ -342,3 +350,83 @@ def bent_box(n_cross: int, n_long: int, angle_deg: float = 180.0, name: str | No
     x0[fixed, 0] = 0.5 - R + r * np.cos(theta)
     x0[fixed, 2] = r * np.sin(theta)
     return Tangle(name or f"bend{angle_deg:g}", V, T, x0, fixed)
+
+
+# ------------------------------------------------------------- surfaces that overlap when flattened
+
+
+def spiral_strip(turns: float = 3.0, radius: float = 1.0, spacing: float = 0.5, width: float = 0.3,
+                 lift: float = 1.7, n_across: int = 4, name=None):
+    """A band along an Archimedean spiral, lifted into a ramp: its flattening overlaps itself.
+
+    The centre line is ``r(t) = radius + spacing * t / (2 pi)`` for ``t`` in
+    ``[0, 2 pi turns]``; the band spans ``r(t) +- width / 2`` radially and rises by ``z = lift * t``.
+    Its ``xy`` projection is injective when ``width < spacing``.  Lifting shortens the band's
+    geodesic curvature from about ``1 / r`` to ``r / (r^2 + lift^2)``, so its near-isometric
+    flattening is a spiral whose successive turns lie about
+    ``spacing * |1 - lift^2 / r^2| * sqrt(1 + lift^2 / r^2)`` apart (for small ``spacing``): with
+    ``lift`` near ``r`` that is less than ``width`` and the flattened turns overlap.
+
+    Parameters
+    ----------
+    turns, radius, spacing, width, lift : float
+    n_across : int, quads across the band (>= 1), each split in two triangles; along the band
+        the quads are about as long (in 3D) as they are wide.
+
+    Returns
+    -------
+    V : (n, 3) float64;  F : (m, 3) int64, counter-clockwise in the ``xy`` projection.
+    """
+    if not (turns > 0 and radius > 0 and spacing > 0 and 0 < width < 2 * radius and lift >= 0):
+        raise ParameterError(
+            f"spiral_strip needs turns, radius, spacing > 0, 0 < width < 2 radius and lift >= 0, got "
+            f"turns={turns}, radius={radius}, spacing={spacing}, width={width}, lift={lift}")
+    if int(n_across) < 1:
+        raise ParameterError(f"spiral_strip needs n_across >= 1, got {n_across}")
+    n_across = int(n_across)
+    t_end = 2 * np.pi * turns
+    b = spacing / (2 * np.pi)
+    # arc length of the 3D centre line: |dP/dt| = sqrt(b^2 + r^2 + lift^2)
+    tt = np.linspace(0.0, t_end, 4096)
+    speed = np.sqrt(b**2 + (radius + b * tt) ** 2 + lift**2)
+    arc = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(tt))])
+    h = width / n_across
+    n_along = max(2, int(np.ceil(arc[-1] / h))) + 1
+    t = np.interp(np.linspace(0.0, arc[-1], n_along), arc, tt)
+    s = np.linspace(-width / 2, width / 2, n_across + 1)
+    T, S = np.meshgrid(t, s, indexing="ij")  # (n_along, n_across + 1)
+    R = radius + b * T + S
+    V = np.stack([R * np.cos(T), R * np.sin(T), lift * T], -1).reshape(-1, 3)
+    k = n_across + 1
+    i, j = np.meshgrid(np.arange(n_along - 1), np.arange(n_across), indexing="ij")
+    a = (i * k + j).ravel()
+    F = np.concatenate([np.stack([a, a + k, a + k + 1], 1), np.stack([a, a + k + 1, a + 1], 1)])
+    return V, _orient(V[:, :2], F.astype(np.int64))
+
+
+def _graph_over_disk(rings, height):
+    """:func:`disk_mesh` lifted to ``z = height(r, theta)``: V (n, 3), F (m, 3)."""
+    V2, F = disk_mesh(int(rings))
+    r = np.hypot(V2[:, 0], V2[:, 1])
+    th = np.arctan2(V2[:, 1], V2[:, 0])
+    return np.column_stack([V2, height(r, th)]), F
+
+
+def ruffled_disk(rings: int = 16, waves: int = 9, amplitude: float = 0.6, power: float = 3.0):
+    """A unit disk with waves along its rim: ``z = amplitude * r**power * sin(waves * theta)``.
+
+    The rim is much longer than ``2 pi``, so a near-isometric flattening must fold the rim into
+    petals, which overlap for large ``amplitude * waves``.  Returns V (n, 3), F (m, 3) (see
+    :func:`disk_mesh` for the sizes)."""
+    if int(waves) < 1 or not amplitude > 0 or not power > 0:
+        raise ParameterError(f"ruffled_disk needs waves >= 1, amplitude > 0 and power > 0, got "
+                             f"{waves}, {amplitude}, {power}")
+    return _graph_over_disk(rings, lambda r, th: amplitude * r**power * np.sin(waves * th))
+
+
+def saddle(rings: int = 16, order: int = 2, amplitude: float = 1.0):
+    """A saddle over the unit disk: ``z = amplitude * r**order * cos(order * theta)`` (order 2:
+    ``amplitude * (x^2 - y^2)``; 3: a monkey saddle).  Returns V (n, 3), F (m, 3)."""
+    if int(order) < 2 or not amplitude > 0:
+        raise ParameterError(f"saddle needs order >= 2 and amplitude > 0, got {order}, {amplitude}")
+    return _graph_over_disk(rings, lambda r, th: amplitude * r**order * np.cos(order * th))

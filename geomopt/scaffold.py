@@ -1,0 +1,491 @@
+"""Globally bijective free-boundary parameterization with a scaffold (SCAF).
+
+Jiang, Schaefer, Zorin, Panozzo (2017), "Simplicial complex augmentation framework for bijective
+maps": the region between the UV boundary and an enclosing polygon is triangulated (the
+*scaffold*), and the mesh and the scaffold are solved as one problem with the injective line
+search.  No scaffold triangle can invert, so two parts of the boundary can never cross; the
+scaffold's rest shape is reset to its current shape before each solve, and it is re-triangulated
+between solves, so it only resists a step that would close a gap.
+
+How this module builds and maintains the scaffold, without a triangulation library and with
+exact predicates only (:func:`geomopt.predicates.orient2d`):
+
+* the enclosing polygon is the convex hull of the boundary polygon scaled by ``ring_scale``
+  about an interior point; the ring between hull and scaled hull is cut into trapezoids, each
+  split into two triangles;
+* the pockets between the boundary polygon and its hull are ear-clipped;
+* every re-triangulation is a round of Lawson edge flips (each flip checked exactly to keep both
+  new triangles positive) towards the constrained Delaunay triangulation of the same vertices.
+  Flips keep the numbers of vertices, triangles and edges, so the combined problem keeps its
+  array shapes and its Hessian's non-zero count: nothing is recompiled between outer iterations.
+
+By default the solve starts without a scaffold and builds it only when a step would make the
+boundary overlap (see :func:`bijective_parameterize`, ``lazy``): the scaffold's thin triangles cut
+Newton steps to 0.1-0.3 of their length in the early, large-deformation phase (measured on
+bunny_cut), which the boundary of a Tutte start rarely needs.
+
+The enclosing polygon's vertices are free (the scaffold moves and rotates with the mesh); global
+injectivity of the result does not rest on that: it is certified at the end, exactly, by
+:func:`geomopt.certify.certify_bijective`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+import numpy as np
+
+from ._errors import MeshError, ParameterError, SolveError
+from ._objective import Objective
+from .certify import certify_bijective, polygon_crossings
+from .param import optimal_scale
+from .predicates import orient2d
+from .problem import Problem
+from .solvers import Newton, Outcome, Result, get_solver, minimize
+from .topology import check_disk, unique_edges
+from .tutte import scale_to_area, tutte_embedding
+
+__all__ = ["Scaffold", "build_scaffold", "delaunay_flips", "bijective_parameterize"]
+
+_CCW_ERR = (3.0 + 16.0 * 2.0**-53) * 2.0**-53  # Shewchuk's orient2d stage-A bound
+
+
+def _turn(a, b, c) -> int:
+    """Exact sign of ``orient2d(a, b, c)`` for three points given as float pairs (scalar path:
+    float determinant with Shewchuk's error bound, the exact predicate when uncertain)."""
+    acx, acy, bcx, bcy = a[0] - c[0], a[1] - c[1], b[0] - c[0], b[1] - c[1]
+    left, right = acx * bcy, acy * bcx
+    det = left - right
+    if abs(det) > _CCW_ERR * (abs(left) + abs(right)) and min(
+            abs(v) for v in (acx, acy, bcx, bcy) if v != 0) >= 2.0**-300:
+        return 1 if det > 0 else -1
+    return int(orient2d(np.array([a]), np.array([b]), np.array([c]))[0])
+
+
+def _hull_positions(P) -> np.ndarray:
+    """Positions (indices into ``P``) of the vertices of a simple counter-clockwise polygon
+    ``P`` (k, 2) that lie on the boundary of its convex hull, in polygon order.
+
+    Strict hull vertices by Andrew's monotone chain with exact turns; then every polygon vertex
+    on a hull edge (exactly collinear with it) is added, so that each pocket between the polygon
+    and its hull is bounded by a chain that touches the hull only at its two ends."""
+    k = len(P)
+    order = np.lexsort((P[:, 1], P[:, 0]))
+    pts = P.tolist()
+    lower, upper = [], []
+    for i in order.tolist():
+        while len(lower) >= 2 and _turn(pts[lower[-2]], pts[lower[-1]], pts[i]) <= 0:
+            lower.pop()
+        lower.append(i)
+    for i in order[::-1].tolist():
+        while len(upper) >= 2 and _turn(pts[upper[-2]], pts[upper[-1]], pts[i]) <= 0:
+            upper.pop()
+        upper.append(i)
+    strict = np.array(lower[:-1] + upper[:-1], dtype=np.int64)  # counter-clockwise hull
+    # hull vertices in polygon order (a simple polygon meets its hull boundary in hull order)
+    strict = np.sort(strict)
+    # assign every polygon position to the hull edge (strict[e], strict[e + 1]) whose chain holds it
+    pos = np.arange(k)
+    e = np.searchsorted(strict, pos, side="right") - 1  # -1: before the first hull vertex
+    e = np.where(e < 0, len(strict) - 1, e)
+    a, b = strict[e], strict[(e + 1) % len(strict)]
+    on = orient2d(P[a], P[b], P) == 0
+    return np.flatnonzero(on)  # includes the strict hull vertices (orient 0 with their own edge)
+
+
+def _ear_clip(Q) -> list:
+    """Triangles (index triples into ``Q``, counter-clockwise) of a simple counter-clockwise
+    polygon ``Q`` (p, 2), by ear clipping with exact predicates.
+
+    An ear is a strictly convex vertex whose closed triangle holds no other (reflex or flat)
+    vertex; a simple polygon with more than 3 vertices always has one (Meisters 1975)."""
+    p = len(Q)
+    if p == 3:
+        return [(0, 1, 2)]
+    pts = Q.tolist()
+    prv = [(i - 1) % p for i in range(p)]
+    nxt = [(i + 1) % p for i in range(p)]
+    alive = np.ones(p, dtype=bool)
+    reflex = np.zeros(p, dtype=bool)
+    for i in range(p):
+        reflex[i] = _turn(pts[prv[i]], pts[i], pts[nxt[i]]) <= 0
+    X, Y = Q[:, 0], Q[:, 1]
+    tris = []
+    i, left, misses = 0, p, 0
+    while left > 3:
+        a, c = prv[i], nxt[i]
+        ear = not reflex[i]
+        if ear:
+            cand = np.flatnonzero(reflex & alive)
+            if cand.size:
+                ax, ay, bx, by, cx, cy = pts[a] + pts[i] + pts[c]
+                box = ((X[cand] >= min(ax, bx, cx)) & (X[cand] <= max(ax, bx, cx))
+                       & (Y[cand] >= min(ay, by, cy)) & (Y[cand] <= max(ay, by, cy)))
+                cand = cand[box]
+                cand = cand[(cand != a) & (cand != c)]
+            pa, pb, pc = pts[a], pts[i], pts[c]
+            ear = not any(_turn(pa, pb, pts[r]) >= 0 and _turn(pb, pc, pts[r]) >= 0
+                          and _turn(pc, pa, pts[r]) >= 0 for r in cand.tolist())
+        if ear:
+            tris.append((a, i, c))
+            alive[i] = False
+            nxt[a], prv[c] = c, a
+            left -= 1
+            for j in (a, c):
+                reflex[j] = _turn(pts[prv[j]], pts[j], pts[nxt[j]]) <= 0
+            i, misses = a, 0
+        else:
+            i = c
+            misses += 1
+            if misses > left:
+                raise MeshError("ear clipping found no ear: the scaffold pocket is not a simple "
+                                "polygon (the start map's boundary must not touch itself)")
+    i = int(np.flatnonzero(alive)[0])
+    tris.append((prv[i], i, nxt[i]))
+    return tris
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scaffold:
+    """A triangulation of the ring between a boundary polygon and an enclosing polygon.
+
+    Attributes
+    ----------
+    outer : (h, 2) float64, positions of the enclosing polygon's vertices (counter-clockwise).
+    triangles : (k + h, 3) int64, counter-clockwise; ids ``0 .. k-1`` are the boundary polygon's
+        vertices (positions in its loop), ``k .. k+h-1`` the enclosing polygon's.
+    """
+
+    outer: np.ndarray
+    triangles: np.ndarray
+
+
+def build_scaffold(P, ring_scale: float = 3.0) -> Scaffold:
+    """Triangulate the region between a simple counter-clockwise polygon and an enclosing one.
+
+    Parameters
+    ----------
+    P : (k, 2) float array, the boundary polygon (simple, counter-clockwise; see
+        :func:`geomopt.certify.polygon_crossings`).
+    ring_scale : float > 1, the enclosing polygon is the convex hull of ``P`` scaled by this
+        factor about the mean of the hull vertices.
+
+    Returns
+    -------
+    :class:`Scaffold` with ``k + h`` triangles (``h`` hull vertices), every one positively
+    oriented (checked exactly), followed by :func:`delaunay_flips`.
+
+    Raises
+    ------
+    MeshError
+        ``P`` is not simple and counter-clockwise (ear clipping finds no ear), or is degenerate.
+    """
+    if not ring_scale > 1:
+        raise ParameterError(f"ring_scale must be > 1, got {ring_scale}")
+    P = np.asarray(P, dtype=np.float64)
+    k = len(P)
+    hull = _hull_positions(P)
+    if len(hull) < 3:
+        raise MeshError("the boundary polygon is degenerate (its convex hull has no area)")
+    centre = P[hull].mean(axis=0)
+    outer = centre + ring_scale * (P[hull] - centre)
+    h = len(hull)
+    tris = []
+    # ring: the trapezoid (hull[j], hull[i], outer[i], outer[j]), j = i + 1, counter-clockwise
+    # (the hull runs counter-clockwise, the ring lies to its right), split along hull[i]-outer[j]
+    i = np.arange(h)
+    j = (i + 1) % h
+    tris.append(np.stack([hull[i], k + i, k + j], axis=1))
+    tris.append(np.stack([hull[j], hull[i], k + j], axis=1))
+    # pockets: the chain from hull[t] to hull[t+1] runs with the polygon's inside on its left,
+    # so the pocket (on its right) is the reversed chain closed by the hull edge
+    for t in range(h):
+        a, b = int(hull[t]), int(hull[(t + 1) % h])
+        gap = (b - a) % k
+        if gap <= 1:
+            continue
+        chain = (a + np.arange(gap + 1)) % k
+        pocket = chain[::-1]
+        tris.append(pocket[np.asarray(_ear_clip(P[pocket]), dtype=np.int64)])
+    T = np.concatenate(tris).astype(np.int64)
+    X = np.concatenate([P, outer])
+    bad = orient2d(X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]) != 1
+    if bad.any() or len(T) != k + h:
+        raise MeshError(
+            f"could not build a valid scaffold ({int(bad.sum())} non-positive of {len(T)} "
+            f"triangles, {k + h} expected): the boundary polygon must be simple and "
+            f"counter-clockwise")
+    T, _ = delaunay_flips(X, T)
+    return Scaffold(outer, T)
+
+
+def _opposite_angles_cot(X, a, b, c):
+    """cot of the angle at ``c`` in triangles ``(a, b, c)`` (vectorised)."""
+    u, v = X[a] - X[c], X[b] - X[c]
+    cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    dot = u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return dot / cross
+
+
+def delaunay_flips(X, T, max_rounds: int = 200, tol: float = 1e-9):
+    """Lawson flips of the interior edges of a triangulation towards a Delaunay one.
+
+    An edge shared by two triangles of ``T`` is flipped when the angles opposite it sum to more
+    than pi (``cot alpha + cot beta < -tol``, evaluated in floats: it only steers quality) and both
+    new triangles are positively oriented (exact).  Edges used by one triangle of ``T`` (here the
+    mesh boundary and the enclosing polygon) are never flipped: the result is the constrained
+    Delaunay triangulation of the same vertices, up to the tolerance.  Each round flips an
+    independent set (an edge is flipped when it is the worst edge of both its triangles).
+
+    Parameters
+    ----------
+    X : (N, 2) float, vertex positions;  T : (t, 3) int, counter-clockwise triangles.
+    max_rounds : int;  tol : float.
+
+    Returns
+    -------
+    T : (t, 3) int64, the new triangles (same count);  flips : int, the number of flips.
+    """
+    T = np.array(T, dtype=np.int64)
+    flips = 0
+    for _ in range(max_rounds):
+        E, count, edge_of = unique_edges(T)
+        he = edge_of.ravel()  # half-edge 3 f + c runs T[f, c] -> T[f, c+1]; opposite T[f, c+2]
+        shared = count[he] == 2
+        hs = np.flatnonzero(shared)
+        hs = hs[np.argsort(he[hs], kind="stable")]
+        h1, h2 = hs[0::2], hs[1::2]  # the two half-edges of every interior edge
+        f1, c1, f2, c2 = h1 // 3, h1 % 3, h2 // 3, h2 % 3
+        a, b = T[f1, c1], T[f1, (c1 + 1) % 3]
+        c, d = T[f1, (c1 + 2) % 3], T[f2, (c2 + 2) % 3]
+        bad = -(_opposite_angles_cot(X, a, b, c) + _opposite_angles_cot(X, b, a, d))
+        cand = bad > tol
+        if not cand.any():
+            break
+        idx = np.flatnonzero(cand)
+        # exact: both new triangles (c, a, d) and (d, b, c) positive
+        ca, cb, cc, cd = X[a[idx]], X[b[idx]], X[c[idx]], X[d[idx]]
+        ok = (orient2d(cc, ca, cd) == 1) & (orient2d(cd, cb, cc) == 1)
+        idx = idx[ok]
+        if idx.size == 0:
+            break
+        # independent set: each triangle claims its worst candidate edge
+        claim = np.full(len(T), -np.inf)
+        np.maximum.at(claim, f1[idx], bad[idx])
+        np.maximum.at(claim, f2[idx], bad[idx])
+        idx = idx[(claim[f1[idx]] == bad[idx]) & (claim[f2[idx]] == bad[idx])]
+        # ties: keep one edge per triangle
+        _, first = np.unique(np.concatenate([f1[idx], f2[idx]]), return_index=True)
+        owner = np.zeros(2 * idx.size, dtype=bool)
+        owner[first] = True
+        idx = idx[owner[: idx.size] & owner[idx.size:]]
+        if idx.size == 0:
+            break
+        T[f1[idx]] = np.stack([c[idx], a[idx], d[idx]], axis=1)
+        T[f2[idx]] = np.stack([d[idx], b[idx], c[idx]], axis=1)
+        flips += idx.size
+    return T, flips
+
+
+def _rest_inverse(X, T):
+    """Inverse edge matrices ``[x1 - x0, x2 - x0]^-1`` (t, 2, 2) of positively oriented
+    triangles: the current shape taken as rest shape."""
+    D = np.stack([X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]], axis=2)
+    return np.linalg.inv(D)
+
+
+def _interior_first(F, loop):
+    """A row order (m,) of ``F`` whose first triangle starts with an interior vertex if any.
+
+    The objective pins the first vertex of the first element (translation); when that vertex is
+    interior, scaffold flips never change the free-DOF sparsity pattern (else they may, and the
+    Hessian kernel recompiles for the new non-zero count: slower, still correct)."""
+    on = np.zeros(int(F.max()) + 1, dtype=bool)
+    on[loop] = True
+    rows = np.flatnonzero(~on[F[:, 0]])
+    order = np.arange(len(F))
+    if rows.size:
+        order[[0, rows[0]]] = order[[rows[0], 0]]
+    return order
+
+
+def _steps_while_simple(objective, x0, solver, loop):
+    """Run ``solver`` on the mesh alone while every iterate's boundary polygon stays simple.
+
+    Returns ``(x, iterations, outcome)``: the last iterate with a simple boundary, the iterations
+    taken to it, and the solver's outcome if it stopped on its own (``None`` when the next step
+    would have made the boundary overlap, or was not finite)."""
+    state = solver.init(objective, x0, objective.params())
+    while True:
+        done, outcome = solver.terminate(state)
+        if done:
+            return np.asarray(state.x), state.iteration, outcome
+        new = solver.step(state)
+        x = np.asarray(new.x)
+        if new.failure is None and (not np.isfinite(x).all() or len(polygon_crossings(x[loop]))):
+            return np.asarray(state.x), state.iteration, None
+        state = new
+
+
+def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
+                           x0=None, progress=True, throw=False, scaffold_weight=1e-4,
+                           ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-5,
+                           lazy=True, **energy_params):
+    """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
+
+    Solves the same problem as :func:`~geomopt.param.parameterize` with, around the mesh, a
+    scaffold (SCAF, Jiang et al. 2017; see the module docstring) that keeps the boundary from
+    touching itself.  The scaffold's triangles take the same energy as the mesh, each weighted by
+    ``scaffold_weight * (mesh area) / (number of scaffold triangles)`` (as in SCAF, uniform rather
+    than by area, so small gaps resist as much as large ones), with their current shape as rest
+    shape.  Each outer iteration runs up to ``inner_steps`` solver iterations on mesh +
+    scaffold, then re-triangulates the scaffold (:func:`delaunay_flips`); it stops when an inner
+    solve converged and the mesh energy fell by less than ``outer_rtol`` (relative).
+
+    With ``lazy`` (default) the solver first runs without a scaffold, on the mesh alone, for as
+    long as every iterate's boundary stays simple (exact check, :func:`polygon_crossings`, a few
+    milliseconds per iterate); the scaffold is built at the last such iterate when a step would
+    make the boundary overlap.  Where the free-boundary solve never overlaps, the result is the
+    plain solve's.  Every accepted iterate is bijective; between two iterates of the scaffold-free
+    phase the straight path is not checked (a step could pass the boundary through itself and
+    back), which does not matter for the returned map.  ``lazy=False`` uses the scaffold from the
+    start, so that the boundary never crosses itself along the whole path.
+
+    Parameters
+    ----------
+    V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles of a topological disk.
+    energy, solver, weights, throw, **energy_params : as for
+        :func:`~geomopt.param.parameterize`; the solver's ``max_steps`` is replaced by
+        ``inner_steps`` (a solver that is not a dataclass with ``max_steps`` is rejected).
+    progress : bool, one line per outer iteration on stderr.
+    x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
+        embedding onto a circle, is).
+    scaffold_weight : float > 0, the scaffold's share of the energy (its weights sum to
+        ``scaffold_weight`` times the mesh area).  Smaller lets the boundary approach itself in
+        fewer outer iterations; it does not change what is reachable.
+    ring_scale : float > 1, size of the enclosing polygon relative to the start's convex hull.
+    inner_steps, max_outer : int >= 1;  outer_rtol : float > 0;  lazy : bool.
+
+    Returns
+    -------
+    :class:`~geomopt.solvers.Result` for the mesh alone: ``x`` (n, 2), ``energy`` the mesh
+    energy, ``energy_history`` / ``time_history`` the mesh energy and elapsed seconds at the
+    start, after the scaffold-free phase (if ``lazy``) and after each outer iteration,
+    ``iterations`` the solver iterations summed.
+    ``info["certificate"]`` is the exact :class:`~geomopt.certify.Certificate` of the result and
+    ``info["injectivity"]`` is ``"global"`` when it holds; a result that is not globally
+    injective has outcome ``NOT_INJECTIVE`` (never expected: the scaffold forbids it), so
+    ``success`` means converged, flip-free and bijective.  ``info`` also holds ``start``,
+    ``scale``, ``problem``, ``objective`` (the mesh's), ``free_iterations`` (scaffold-free
+    phase), ``outer_iterations``, ``flips`` and ``scaffold_triangles`` (0 without a scaffold).
+
+    Raises
+    ------
+    MeshError : invalid or non-disk mesh, or a start map that is not globally injective.
+    ParameterError : unknown energy/solver/weights name or an invalid parameter.
+    SolveError : only with ``throw=True``, when the result is not converged and bijective.
+    """
+    for name, value, low in (("scaffold_weight", scaffold_weight, 0.0), ("outer_rtol", outer_rtol, 0.0),
+                             ("ring_scale", ring_scale, 1.0)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float)) and np.isfinite(value)
+                                           and value > low):
+            raise ParameterError(f"{name} must be a finite number > {low:g}, got {value!r}")
+    if not isinstance(lazy, (bool, np.bool_)):
+        raise ParameterError(f"lazy must be True or False, got {lazy!r}")
+    for name, value in (("inner_steps", inner_steps), ("max_outer", max_outer)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+    t_start = time.perf_counter()
+    problem = Problem.surface(V, F)
+    objective = Objective(problem, energy, **energy_params)
+    solver = Newton() if solver is None else get_solver(solver)
+    if not (dataclasses.is_dataclass(solver) and hasattr(solver, "max_steps")):
+        raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
+                             f"(e.g. geomopt.Newton()), got {solver!r}")
+    inner = dataclasses.replace(solver, max_steps=int(inner_steps))
+    loop = check_disk(problem.input_simplices, problem.n_vertices)
+    if x0 is None:
+        x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
+    x0 = problem.check_map(x0, "start map x0")
+    cert = certify_bijective(x0, problem.simplices, loop)
+    if not cert.globally_injective:
+        raise MeshError(
+            f"the start map x0 is not globally injective ({cert.inverted} inverted triangle(s), "
+            f"{len(cert.crossings)} crossing boundary edge pair(s), boundary orientation "
+            f"{cert.orientation}); omit x0 for a Tutte start, or untangle it first")
+    x0 = x0 - x0.mean(axis=0)
+    x0 = scale_to_area(x0, problem.rest_vertices, problem.simplices)
+    s = optimal_scale(objective, x0)
+    x0 = s * x0
+
+    n = problem.n_vertices
+    order = _interior_first(problem.simplices, loop)
+    mesh_rows, mesh_inv, mesh_vol = problem.simplices[order], problem.rest_inv[order], problem.volumes[order]
+    log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if progress else (lambda *a: None)
+
+    def combined(X, S, weight):
+        simplices = np.concatenate([mesh_rows, S])
+        return dataclasses.replace(
+            problem, kind="planar", n_vertices=len(X), simplices=simplices,
+            input_simplices=simplices, rest_inv=np.concatenate([mesh_inv, _rest_inverse(X, S)]),
+            volumes=np.concatenate([mesh_vol, np.full(len(S), weight)]), rest_vertices=X)
+
+    setup = time.perf_counter() - t_start
+    energies = [float(objective.value(x0, objective.params()))]
+    times = [0.0]
+    t0 = time.perf_counter()
+    X, S = x0, np.zeros((0, 3), np.int64)
+    iterations = free = flips = 0
+    outcome = None  # None: the scaffold phase is needed
+    if lazy:
+        X, free, outcome = _steps_while_simple(objective, x0, solver, loop)
+        iterations += free
+        energies.append(float(objective.value(X, objective.params())))
+        times.append(time.perf_counter() - t0)
+        log(f"free  {free:4d} iterations  energy {energies[-1] / objective.total_volume:.10g}  "
+            f"{'(boundary about to overlap: scaffold)' if outcome is None else outcome.value}  "
+            f"{times[-1]:7.2f}s")
+    if outcome is None:
+        outcome = Outcome.MAX_STEPS
+        scaffold = build_scaffold(X[loop], ring_scale)
+        ids = np.concatenate([loop, n + np.arange(len(scaffold.outer))])  # scaffold id -> vertex
+        S = ids[scaffold.triangles]
+        X = np.concatenate([X, scaffold.outer])
+        weight = scaffold_weight * objective.total_volume / len(S)
+        for outer in range(1, int(max_outer) + 1):
+            res = minimize(Objective(combined(X, S, weight), objective.energy), X, inner, progress=False)
+            iterations += res.iterations
+            if res.outcome is Outcome.NONFINITE:
+                outcome = res.outcome
+                break
+            X = res.x
+            S, f = delaunay_flips(X, S)
+            flips += f
+            energies.append(float(objective.value(X[:n], objective.params())))
+            times.append(time.perf_counter() - t0)
+            drop = energies[-2] - energies[-1]
+            log(f"outer {outer:3d}  energy {energies[-1] / objective.total_volume:.10g}  inner "
+                f"{res.iterations:3d} ({res.outcome.value})  flips {f:5d}  {times[-1]:7.2f}s")
+            if res.outcome is Outcome.CONVERGED and drop <= outer_rtol * abs(energies[-1]):
+                outcome = Outcome.CONVERGED
+                break
+    x = np.asarray(X[:n])
+    cert = certify_bijective(x, problem.simplices, loop)
+    if outcome is Outcome.CONVERGED and not cert.globally_injective:
+        outcome = Outcome.NOT_INJECTIVE
+    result = Result(
+        x=x, outcome=outcome, inverted=cert.inverted, energy=energies[-1],
+        energy_history=np.asarray(energies), iterations=iterations,
+        seconds=time.perf_counter() - t0, setup_seconds=setup, time_history=np.asarray(times),
+        info=dict(start=x0, scale=s, problem=problem, objective=objective, certificate=cert,
+                  injectivity=cert.injectivity, free_iterations=free,
+                  outer_iterations=len(energies) - 1 - bool(lazy), flips=flips,
+                  scaffold_triangles=len(S)),
+    )
+    if throw and not result.success:
+        raise SolveError(f"bijective solve failed: {result.message}; injectivity "
+                         f"{cert.injectivity}", result)
+    return result
