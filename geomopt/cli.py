@@ -126,7 +126,7 @@ def cmd_param(args) -> int:
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
     try:
         res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
-                           progress=not args.quiet)
+                           progress=not args.quiet, bijective=args.bijective)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
     rep = res.info.get("repair")
@@ -139,12 +139,12 @@ def cmd_param(args) -> int:
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
                f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
-               f"outcome {res.outcome.value}")
+               f"injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
             energy_name=energy.name, solver=args.solver, iterations=res.iterations,
             solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
-            energy=res.energy, mean_energy=mean, flips=res.inverted, outcome=res.outcome.value,
-            message=res.message, **_cache_summary())
+            energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
+            outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
@@ -264,7 +264,7 @@ def cmd_demo(args) -> int:
                            f"give a folder path") from exc
     data = Path(__file__).with_name("data") / "camelhead.off"
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
-                            energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte",
+                            energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
                             json=args.json, summary=args.summary)
     code = cmd_param(ns)
@@ -333,6 +333,9 @@ def build_parser():
                     help="start map: Tutte embedding (default), the best-fit plane projection, or the "
                          "input OBJ's own vt map; a start with folded triangles is first repaired with a "
                          "free boundary (Garanzha et al.'s untangling)")
+    sp.add_argument("--bijective", action="store_true",
+                    help="keep the boundary from crossing itself (a scaffold around the mesh): a globally "
+                         "injective map, certified exactly")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "

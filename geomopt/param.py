@@ -139,7 +139,7 @@ def mesh_arrays(V, F=None):
 
 
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, *, buckets=True, **energy_params):
+                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
@@ -157,6 +157,11 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         repaired with a free boundary (:func:`repair_map`: Garanzha et al.'s regularised energy,
         eps driven to 0, no vertex fixed), then the chosen energy is minimised from there.
     progress, throw : see :func:`~geomopt.solvers.minimize`.
+    bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
+        :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
+        Either way ``info["certificate"]`` is the exact global certificate
+        (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
+        ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
         mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
@@ -174,6 +179,13 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
     V, F = mesh_arrays(V, F)
+    if bijective:
+        from .scaffold import bijective_parameterize
+
+        if isinstance(x0, str):
+            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array")
+        return bijective_parameterize(V, F, energy=energy, solver=solver, weights=weights, x0=x0,
+                                      progress=progress, throw=throw, **energy_params)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
@@ -189,7 +201,11 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
             raise SolveError(f"repairing the start map failed: {repaired.message}", result)
         return result
     result = minimize(objective, x0, solver, progress=progress, throw=throw)
-    result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired)
+    from .certify import certify_bijective
+
+    cert = certify_bijective(result.x, problem.input_simplices)
+    result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired,
+                       certificate=cert, injectivity=cert.injectivity)
     return result
 
 

@@ -282,3 +282,19 @@ def test_generators_validate_and_give_injective_projections():
     for V, F in (g.spiral_strip(turns=1.5), g.ruffled_disk(6), g.saddle(6)):
         assert V.shape[1] == 3
         assert certify_bijective(V[:, :2], F).globally_injective
+
+
+def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path):
+    """The plain result says it is only locally injective; --bijective gives a global map."""
+    import geomopt.cli
+    from geomopt.io import read_obj_uv, write_obj_with_uv
+
+    V, F, x0 = spiral
+    plain = geomopt.parameterize(V, F, x0=x0, progress=False)
+    assert plain.injectivity == "local" and plain.info["certificate"].crossings.size
+    src = tmp_path / "spiral.obj"
+    write_obj_with_uv(src, V, F, x0)
+    out = tmp_path / "bij.obj"
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--quiet"]) == 0
+    _, _, uv = read_obj_uv(out)
+    assert certify_bijective(uv, F).globally_injective

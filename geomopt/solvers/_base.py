@@ -223,6 +223,15 @@ class Result:
         return self.outcome is Outcome.CONVERGED and self.inverted == 0
 
     @property
+    def injectivity(self) -> str:
+        """``"global"`` (exact certificate: flip-free and the boundary does not overlap itself),
+        ``"local"`` (flip-free) or ``"none"``; global injectivity is certified where the solve
+        recorded a certificate (free-boundary parameterization), else at most ``"local"``."""
+        if self.inverted:
+            return "none"
+        return self.info.get("injectivity", "local")
+
+    @property
     def message(self) -> str:
         msg = self.outcome.message
         if self.info.get("reason"):
