@@ -64,13 +64,21 @@ def _swirl(V):
     return V + 0.05 * s[:, None] * u
 
 
-def _median(f, repeat):
-    ts = []
+CPU = {}  # key -> median CPU seconds (process time, all threads) of the last timing of key
+
+
+def _median(f, repeat, key=None):
+    """Median wall seconds of ``repeat`` calls of ``f`` and the last result; the median CPU
+    seconds go to ``CPU[key]`` (on a loaded machine they are the steadier number)."""
+    ts, cs = [], []
     out = None
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = f()
         ts.append(time.perf_counter() - t)
+        cs.append(time.process_time() - c)
+    if key:
+        CPU[key] = statistics.median(cs)
     return statistics.median(ts), out
 
 
@@ -102,24 +110,25 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     x = jnp.asarray(_swirl(V))
     assert bool((obj.dets(x) > 0).all()), "the benchmark map must be injective"
 
-    out["pattern_s"], pat = _median(lambda: hessian_pattern(P, obj.free_dofs), 3)
+    out["pattern_s"], pat = _median(lambda: hessian_pattern(P, obj.free_dofs), 3, "pattern_s")
     out["dofs"], out["nnz"] = pat.n, pat.nnz
 
     t = time.perf_counter()
     jax.block_until_ready(obj.value_and_grad(x, params))
     jax.block_until_ready(obj.hessian(x, params, "clamp"))
     out["compile_s"] = time.perf_counter() - t
-    out["energy_grad_s"], _ = _median(lambda: jax.block_until_ready(obj.value_and_grad(x, params)), repeat)
+    out["energy_grad_s"], _ = _median(lambda: jax.block_until_ready(obj.value_and_grad(x, params)),
+                                      repeat, "energy_grad_s")
     out["hessian_s"], (_, grad, data) = _median(
-        lambda: tuple(np.array(a) for a in obj.hessian(x, params, "clamp")), 3)
+        lambda: tuple(np.array(a) for a in obj.hessian(x, params, "clamp")), 3, "hessian_s")
 
     g = grad.reshape(-1)[pat.free_dofs]
     d_direct = None
     if direct:
         chol = SparseCholesky(pat.indptr, pat.indices)
         chol.analyze()
-        out["factor_s"], _ = _median(lambda: chol.factor(data), 3)
-        out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3)
+        out["factor_s"], _ = _median(lambda: chol.factor(data), 3, "factor_s")
+        out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3, "solve_s")
         newton = Newton(projection="clamp")
         state = newton.init(obj, x, params)
         dx = np.zeros(x.size)
@@ -127,29 +136,31 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         dx = jnp.asarray(dx.reshape(x.shape))
         value = float(obj.value(x, params))
         out["linesearch_s"], _ = _median(
-            lambda: newton.line_search(obj, params, x, value, jnp.asarray(grad), dx), 3)
-        out["newton_iter_s"], _ = _median(lambda: newton.step(state), 3)
+            lambda: newton.line_search(obj, params, x, value, jnp.asarray(grad), dx), 3, "linesearch_s")
+        out["direct_iter_s"], _ = _median(lambda: newton.step(state), 3, "direct_iter_s")
     if cg:
-        from geomopt._cg import CGNewton
+        from geomopt._cg import NewtonCG
 
-        cgn = CGNewton()
-        prep = cgn.prepare(obj)
-        step = lambda: cgn.direction(prep, obj, x, params, "clamp")  # noqa: E731
-        jax.block_until_ready(step())
-        _, (dcg, info) = _median(lambda: jax.block_until_ready(step()), 3)
-        out["cg_iters"] = int(info.iterations)
         newton = Newton(projection="clamp")
-        value = float(obj.value(x, params))
+        for key, solver in (("cg", NewtonCG()), ("cg_tight", NewtonCG(rtol=1e-8))):
+            op = solver.prepare(obj)
+            step = lambda: jax.block_until_ready(solver.direction(op, obj, x, params, "clamp"))  # noqa: E731
+            step()
+            out[f"{key}_step_s"], (dcg, info) = _median(step, 3, f"{key}_step_s")
+            out[f"{key}_iters"] = int(info.iterations)
 
-        def cg_iter():
-            dcg, _ = step()
-            v, gr = obj.value_and_grad(x, params)
-            return newton.line_search(obj, params, x, float(v), gr, dcg)
+            def cg_iter():
+                dcg, info = solver.direction(op, obj, x, params, "clamp")
+                return newton.line_search(obj, params, x, float(info.value), info.grad, dcg)
 
-        out["cg_iter_s"], _ = _median(cg_iter, 3)
-        if d_direct is not None:
-            dc = np.asarray(dcg).reshape(-1)[pat.free_dofs]
-            out["cg_direct_rel"] = float(np.linalg.norm(dc - d_direct) / np.linalg.norm(d_direct))
+            out[f"{key}_iter_s"], _ = _median(cg_iter, 3, f"{key}_iter_s")
+            if d_direct is not None:
+                dc = np.asarray(dcg).reshape(-1)[pat.free_dofs]
+                out[f"{key}_direct_rel"] = float(np.linalg.norm(dc - d_direct) / np.linalg.norm(d_direct))
+    out.update({k[:-2] + "_cpu_s": v for k, v in CPU.items()})
+    iters = [out[k] for k in ("direct_iter_s", "cg_iter_s") if k in out]
+    if iters:
+        out["newton_iter_s"] = min(iters)
     out["peak_mem_mb"] = round(_peak_mb(), 1)
     if untangle:
         from geomopt.untangle import untangle as run_untangle

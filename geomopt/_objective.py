@@ -286,8 +286,8 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
 
     Each vertex block of the graph is expanded to its d x d DOF entries in CSC order by
     arithmetic (no sort), the entries of fixed DOFs and the upper half of diagonal blocks are
-    dropped, and each element block is located in its row of the graph.  O(m) memory and time
-    beyond SciPy's conversions."""
+    dropped, and each off-diagonal element block is located in its row of the graph (SciPy's
+    CSR lookup).  O(m) memory and time beyond SciPy's conversions."""
     d = problem.dim
     S = problem.simplices
     nv = problem.n_vertices
@@ -296,37 +296,35 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
     red[free] = np.arange(free.sum())
     n = int(free.sum())
     ptr, idx = vertex_graph(S, nv)
-    nb = len(idx)
     deg = np.diff(ptr)
-    w = np.repeat(np.arange(nv), deg)  # column vertex of each block
-    # candidate entries (block kk, column coordinate e, row coordinate c) and their position
-    # in CSC order: column dof w*d+e, then rows in the order of the blocks of w, then c
-    kk = np.arange(nb)[:, None, None]
-    e = np.arange(d)[None, :, None]
-    c = np.arange(d)[None, None, :]
-    wk, vk = w[:, None, None], idx[:, None, None]
-    pos = d * d * ptr[wk] + e * (deg[wk] * d) + (kk - ptr[wk]) * d + c
-    keep = ((vk > wk) | (c >= e)) & free[vk * d + c] & free[wk * d + e]
-    keep_o = np.zeros(nb * d * d, bool)
-    keep_o[pos.ravel()] = np.broadcast_to(keep, pos.shape).ravel()
-    row_o = np.empty(nb * d * d, np.int64)
-    row_o[pos.ravel()] = np.broadcast_to(vk * d + c, pos.shape).ravel()
-    col_o = np.empty(nb * d * d, np.int64)
-    col_o[pos.ravel()] = np.broadcast_to(wk * d + e, pos.shape).ravel()
-    src_o = np.empty(nb * d * d, np.int64)  # block data position: (kk, c, e)
-    src_o[pos.ravel()] = np.broadcast_to((kk * d + c) * d + e, pos.shape).ravel()
-    indices = red[row_o[keep_o]]
-    cols = red[col_o[keep_o]]
+    # candidate entries in CSC order, generated sequentially: DOF column (w, e) holds, for
+    # each block k of vertex column w (rows idx[k] >= w) and each coordinate c, the row
+    # (idx[k], c); drop the fixed DOFs and the upper half of the diagonal blocks
+    seglen = np.repeat(deg * d, d)  # candidates per DOF column w*d+e
+    col = np.repeat(np.arange(nv * d), seglen)
+    j = np.arange(len(col)) - np.repeat(np.cumsum(seglen) - seglen, seglen)
+    w, e = np.divmod(col, d)
+    k, c = np.divmod(j, d)
+    k += ptr[w]
+    v = idx[k]
+    row = v * d + c
+    keep = ((v > w) | (c >= e)) & free[row] & free[col]
+    indices = red[row[keep]]
+    cols = red[col[keep]]
     indptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
     diag = np.flatnonzero(indices == cols)
-    # element blocks: locate (min, max) of each vertex pair a <= b in the graph
+    gather = ((k * d + c) * d + e)[keep]  # position (k, c, e) in the block data
+    # element blocks: the diagonal ones lead their vertex's row; locate the others
     bi, bj = block_pairs(d)
     sa, sb = S[:, bi], S[:, bj]
-    lookup = sp.csr_matrix((np.arange(1, nb + 1), idx, ptr), shape=(nv, nv))
-    blocks = np.asarray(lookup[np.minimum(sa, sb).ravel(), np.maximum(sa, sb).ravel()]).reshape(sa.shape) - 1
+    blocks = ptr[sa]
+    off = bi != bj
+    lookup = sp.csr_matrix((np.arange(len(idx)), idx, ptr), shape=(nv, nv))
+    lo, hi = np.minimum(sa[:, off], sb[:, off]), np.maximum(sa[:, off], sb[:, off])
+    blocks[:, off] = np.asarray(lookup[lo.ravel(), hi.ravel()]).reshape(lo.shape)
     return HessianPattern(n, indptr, indices, np.flatnonzero(free), diag, d, ptr, idx,
-                          blocks.astype(np.int32), sa < sb, src_o[keep_o])
+                          blocks.astype(np.int32), sa < sb, gather)
 
 
 # ---------------------------------------------------------------- the objective
