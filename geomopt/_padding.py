@@ -90,10 +90,3 @@ def pad_rows(a, rows: int, fill=None) -> np.ndarray:
     return np.concatenate([a, tail])
 
 
-def pad_slots(slots, nnz: int, m: int, m_padded: int, nnz_padded: int) -> np.ndarray:
-    """Assembly slots (m*P,) with the dropped slot ``nnz`` moved to ``nnz_padded`` and the
-    padded elements' P pairs each sent there too: (m_padded*P,)."""
-    slots = np.asarray(slots, np.int64)
-    P = slots.size // m if m else 0
-    out = np.where(slots >= nnz, nnz_padded, slots)
-    return np.concatenate([out, np.full((m_padded - m) * P, nnz_padded, np.int64)])
