@@ -312,3 +312,46 @@ def test_lbfgs_stops_at_a_stationary_start():
     result = minimize(obj, V, LBFGS(), progress=False)  # the identity is already harmonic
     assert result.outcome is Outcome.CONVERGED and result.iterations <= 1
     np.testing.assert_allclose(result.x, V, atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rest_laplacian_is_the_dirichlet_hessian(dim):
+    """The Laplacian seed's directly assembled K equals the autodiff Hessian of the Dirichlet
+    energy, per coordinate (2D: a disk; 3D: a box)."""
+    from geomopt.solvers._laplacian import rest_laplacian
+
+    if dim == 2:
+        V, F = G.disk_mesh(3)
+        problem = Problem.planar(V, F)
+    else:
+        V, T = G.box_mesh(2, 2, 3)
+        problem = Problem.tets(V, T)
+    obj = Objective(problem, "dirichlet")
+    pat = obj.pattern
+    H = pat.matrix(np.asarray(obj.hessian(jnp.zeros_like(jnp.asarray(V)), {}, "none")[2])).toarray()
+    full = np.zeros((V.size, V.size))
+    full[np.ix_(pat.free_dofs, pat.free_dofs)] = H
+    K = rest_laplacian(problem).toarray()
+    for c in range(dim):
+        dofs = np.arange(len(V)) * dim + c
+        keep = np.isin(dofs, pat.free_dofs)  # Objective pins the first vertex of a free problem
+        np.testing.assert_allclose(full[np.ix_(dofs[keep], dofs[keep])], K[np.ix_(keep, keep)], atol=1e-12)
+
+
+def test_two_loop_with_a_tracked_seed_equals_the_applied_seed():
+    """The Laplacian seed's one-solve form: carrying P y_i and P g through the first loop gives
+    the direction of applying P to q there (P a fixed SPD matrix; ring buffer wrapped)."""
+    rng = np.random.default_rng(1)
+    n, m, k = 9, 4, 7
+    A = rng.standard_normal((n, n))
+    P = A @ A.T + n * np.eye(n)
+    S, Y = rng.standard_normal((m, n, 2)), rng.standard_normal((m, n, 2))
+    rho = 1.0 / np.einsum("inc,inc->i", S, Y)
+    g = rng.standard_normal((n, 2))
+    gamma = 0.7
+    apply = lbfgs_module._two_loop(jnp.asarray(S), jnp.asarray(Y), jnp.asarray(rho), jnp.int32(k),
+                                   lambda q: gamma * (P @ q), jnp.asarray(g))
+    tracked = lbfgs_module._two_loop(jnp.asarray(S), jnp.asarray(Y), jnp.asarray(rho), jnp.int32(k),
+                                     lambda pq: gamma * pq, jnp.asarray(g),
+                                     W=jnp.asarray(np.einsum("ab,ibc->iac", P, Y)), z=jnp.asarray(P @ g))
+    np.testing.assert_allclose(np.asarray(tracked), np.asarray(apply), rtol=1e-12)

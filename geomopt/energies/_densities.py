@@ -13,20 +13,46 @@ so masked elements never produce NaN gradients.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
 from .._geometry import det
 
 
-_det = det  # one determinant for the whole library (geomopt._geometry)
+def _cofactor(J):
+    """The cofactor matrix ``C = d det J / d J`` of a (d, d) ``J`` (``C = det(J) J^-T``)."""
+    if J.shape[-1] == 2:
+        return jnp.stack([jnp.stack([J[1, 1], -J[1, 0]]), jnp.stack([-J[0, 1], J[0, 0]])])
+    return jnp.stack([jnp.cross(J[1], J[2]), jnp.cross(J[2], J[0]), jnp.cross(J[0], J[1])])
+
+
+@jax.custom_jvp
+def _det(J):
+    """``det J`` (the library's one determinant, :func:`geomopt._geometry.det`) with its
+    derivative stated as ``d det = <cof J, dJ>``.
+
+    Same values and derivatives (of every order) as differentiating ``det`` itself, but
+    cheaper: JAX transposes ``det``'s cofactor expansion into one padded slice per entry of
+    ``J``, and XLA on CPU then fuses each density's whole scalar chain (``chi``, the cube
+    root, the divisions) into the ``(m, d, d)`` gradient loop and recomputes it for each of
+    the ``d^2`` entries; here the gradient is a broadcast of one scalar per element times
+    ``cof J``, which XLA does not fuse expensive producers into.  Measured: garanzha's 3D
+    energy + gradient over 48k tets 4x faster (16 -> 4 ms of CPU time)."""
+    return det(J)
+
+
+@_det.defjvp
+def _det_jvp(primals, tangents):
+    (J,), (dJ,) = primals, tangents
+    return det(J), jnp.sum(_cofactor(J) * dJ)
 
 
 def _cof_sq(J):
     """Squared Frobenius norm of the cofactor matrix, ``|det J|^2 |J^-1|_F^2``."""
     if J.shape[-1] == 2:
         return jnp.sum(J * J)
-    c = jnp.cross(J[:, [1, 2, 0]].T, J[:, [2, 0, 1]].T)  # columns' pairwise cross products
+    c = _cofactor(J)
     return jnp.sum(c * c)
 
 

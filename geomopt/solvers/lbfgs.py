@@ -12,7 +12,8 @@ iteration loop inside ``lax.while_loop``, which removes the per-iteration Python
 The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``), the
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
 library used by Garanzha et al. 2021), or a scaled inverse of the rest Dirichlet Hessian
-(``"laplacian"``, factored once on the host and applied through ``jax.pure_callback``).
+(``"laplacian"``, factored once on the host and applied through ``jax.pure_callback``, one
+multi-right-hand-side solve per iteration: see :func:`_two_loop`).
 """
 
 from __future__ import annotations
@@ -54,20 +55,25 @@ def _value_and_grad(density, geom, free, x, params):
     return v, g * free
 
 
-def _two_loop(S, Y, rho, k, seed, g):
+def _two_loop(S, Y, rho, k, seed, g, W=None, z=None):
     """``-H g`` for the L-BFGS inverse Hessian held in ring buffers S, Y (m, n, d), newest at
-    slot ``(k-1) % m``; ``seed(q)`` applies the initial inverse Hessian."""
+    slot ``(k-1) % m``; ``seed(q)`` applies the initial inverse Hessian.
+
+    With ``W`` (m, n, d) holding ``P y_i`` and ``z = P g`` for a linear operator ``P`` (the
+    Laplacian seed's ``K^-1``), the first loop carries ``P q = z - sum a_i P y_i`` alongside
+    ``q`` and the seed is ``seed(P q)``: the same direction without applying ``P`` here."""
     m = S.shape[0]
     used = jnp.minimum(k, m)
+    tracked = W is not None
 
     def back(j, carry):
-        q, alpha = carry
+        q, pq, alpha = carry
         i = (k - 1 - j) % m
         a = rho[i] * _dot(S[i], q)
-        return q - a * Y[i], alpha.at[i].set(a)
+        return q - a * Y[i], (pq - a * W[i]) if tracked else pq, alpha.at[i].set(a)
 
-    q, alpha = lax.fori_loop(0, used, back, (g, jnp.zeros(m, g.dtype)))
-    r = seed(q)
+    q, pq, alpha = lax.fori_loop(0, used, back, (g, z if tracked else g, jnp.zeros(m, g.dtype)))
+    r = seed(pq if tracked else q)
 
     def forward(j, r):
         i = (k - used + j) % m
@@ -77,23 +83,24 @@ def _two_loop(S, Y, rho, k, seed, g):
     return -lax.fori_loop(0, used, forward, r)
 
 
+def _host_solve(pre, q):
+    """``K^-1 q`` (n, d) by the host-side Laplacian registered under ``pre`` (traced int32)."""
+    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
+
+
 def _iterate(solver, density, geom, free, params, c):
     """One L-BFGS iteration on the carry ``c`` (a dict of arrays)."""
     def vg(x):
         return _value_and_grad(density, geom, free, x, params)
     x, f, g, S, Y, rho, k, H0 = c["x"], c["f"], c["g"], c["S"], c["Y"], c["rho"], c["k"], c["H0"]
     laplacian = solver.precondition == "laplacian"
-    if laplacian:
-        def solve(q):
-            return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype),
-                                     c["pre"], q)
 
-        def seed(q):
-            return H0 * solve(q)
+    def seed(q):
+        return H0 * q
+    if laplacian:  # z = K^-1 g and W = K^-1 Y are carried: no solve for the direction
+        d = _two_loop(S, Y, rho, k, seed, g, W=c["W"], z=c["z"])
     else:
-        def seed(q):
-            return H0 * q
-    d = _two_loop(S, Y, rho, k, seed, g)
+        d = _two_loop(S, Y, rho, k, seed, g)
     slope = _dot(g, d)
     restart = ~(slope < 0) | ~jnp.all(jnp.isfinite(d))
     d = jnp.where(restart, -g, d)
@@ -109,9 +116,11 @@ def _iterate(solver, density, geom, free, params, c):
     good = ok & (sy > 1e-10 * jnp.sqrt(ss * yy)) & jnp.isfinite(sy)
     m = S.shape[0]
     slot = k % m
-    S = jnp.where(good, S.at[slot].set(s), S)
-    Y = jnp.where(good, Y.at[slot].set(y), Y)
-    rho = jnp.where(good, rho.at[slot].set(1.0 / jnp.where(good, sy, 1.0)), rho)
+    # in place (dynamic-update-slice): a select between whole buffers would copy them
+    S = S.at[slot].set(jnp.where(good, s, S[slot]))
+    Y = Y.at[slot].set(jnp.where(good, y, Y[slot]))
+    rho = rho.at[slot].set(jnp.where(good, 1.0 / jnp.where(good, sy, 1.0), rho[slot]))
+    extra = {}
     if solver.precondition == "diagonal":
         # M1QN3 diagonal update (Gilbert & Lemarechal 1989) of the seed D, as in STLBFGS
         dinvss = _dot(s * s, 1.0 / H0)
@@ -119,7 +128,12 @@ def _iterate(solver, density, geom, free, params, c):
         newH0 = 1.0 / (dyy / (sy * H0) + y * y / sy - dyy * s * s / (sy * dinvss * H0 * H0))
         newH0 = jnp.where(jnp.isfinite(newH0) & (newH0 > 0), newH0, sy / yy)
     elif laplacian:
-        yPy = _dot(y, solve(y))
+        # the one host solve of the iteration: K^-1 g at the new point, whence K^-1 y
+        z = c["z"]
+        zn = lax.cond(ok, lambda: _host_solve(c["pre"], gn), lambda: z)
+        w = zn - z
+        extra = {"z": zn, "W": c["W"].at[slot].set(jnp.where(good, w, c["W"][slot]))}
+        yPy = _dot(y, w)
         newH0 = sy / jnp.where(yPy > 0, yPy, 1.0)
     else:
         newH0 = sy / jnp.where(yy > 0, yy, 1.0)
@@ -157,7 +171,7 @@ def _iterate(solver, density, geom, free, params, c):
         "rho": rho, "k": k, "H0": H0, "it": it, "prev_f": f, "t": t, "status": status,
         "f_hist": f_hist,
         "g0": c["g0"], "dec": -0.5 * t * slope, "nfev": (c["nfev"] + nls).astype(jnp.int32),
-        "pre": c["pre"], "extent0": c["extent0"],
+        "pre": c["pre"], "extent0": c["extent0"], **extra,
     }
 
 
@@ -179,9 +193,12 @@ def _initial_status(g):
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
-def _init_kernel(m, diagonal, window, density, geom, free, params, x, pre, extent0):
+def _init_kernel(m, precondition, window, density, geom, free, params, x, pre, extent0):
     f, g = _value_and_grad(density, geom, free, x, params)
-    H0 = jnp.ones_like(x) if diagonal else jnp.ones((), x.dtype)
+    H0 = jnp.ones_like(x) if precondition == "diagonal" else jnp.ones((), x.dtype)
+    extra = {}
+    if precondition == "laplacian":
+        extra = {"z": _host_solve(pre, g), "W": jnp.zeros((m,) + x.shape, x.dtype)}
     return {
         "x": x, "f": f, "g": g, "S": jnp.zeros((m,) + x.shape, x.dtype),
         "Y": jnp.zeros((m,) + x.shape, x.dtype), "rho": jnp.zeros(m, x.dtype),
@@ -189,7 +206,7 @@ def _init_kernel(m, diagonal, window, density, geom, free, params, x, pre, exten
         "t": jnp.asarray(jnp.nan, x.dtype), "status": _initial_status(g),
         "g0": jnp.sqrt(_dot(g, g)), "dec": jnp.asarray(jnp.inf, x.dtype), "nfev": jnp.int32(1),
         "f_hist": jnp.full(window, jnp.inf, x.dtype).at[window - 1].set(f),
-        "pre": pre, "extent0": extent0,
+        "pre": pre, "extent0": extent0, **extra,
     }
 
 
@@ -263,7 +280,7 @@ class LBFGS(AbstractSolver):
         x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
         pre = RestLaplacian.register(objective) if self.precondition == "laplacian" else None
         extent0 = reference_extent(objective, x0)
-        carry = _init_kernel(self.history, self.precondition == "diagonal", self.window, density, geom,
+        carry = _init_kernel(self.history, self.precondition, self.window, density, geom,
                              free, params, x, jnp.int32(pre.handle if pre is not None else -1),
                              jnp.float64(extent0))
         if precompile == "step":
@@ -306,10 +323,13 @@ class LBFGS(AbstractSolver):
         curvature memory is kept.  Used by continuation loops (eps in untangling)."""
         density, geom, free = self._args(state.objective)
         carry = state.aux["carry"]
-        f, g = _vg_kernel(density, geom, free, params, carry["x"])
+        f, g, z = _vg_kernel(self.precondition == "laplacian", density, geom, free, params, carry["x"],
+                             carry["pre"])
         carry = dict(carry, f=f, g=g, status=_initial_status(g), prev_f=jnp.asarray(jnp.inf, f.dtype),
                      g0=jnp.sqrt(_dot(g, g)), it=jnp.int32(0),
                      f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
+        if z is not None:
+            carry["z"] = z
         state = dataclasses.replace(state, params=params, failure=None)
         return self._state(state, carry)
 
@@ -320,6 +340,8 @@ class LBFGS(AbstractSolver):
         return dataclasses.replace(state, aux=dict(state.aux, carry=carry))
 
 
-@partial(jax.jit, static_argnums=0)
-def _vg_kernel(density, geom, free, params, x):
-    return _value_and_grad(density, geom, free, x, params)
+@partial(jax.jit, static_argnums=(0, 1))
+def _vg_kernel(laplacian, density, geom, free, params, x, pre):
+    """Value, gradient and (for the Laplacian seed) ``K^-1 grad`` at ``x``."""
+    f, g = _value_and_grad(density, geom, free, x, params)
+    return f, g, (_host_solve(pre, g) if laplacian else None)
