@@ -229,9 +229,10 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     return row
 
 
-def _solve_cases(folders, outdir, solver, bucket, settings=None):
+def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None):
     """:func:`solve_case` for each folder in turn (one Dask task), under the client's JAX
-    ``settings`` (:func:`jax_settings`)."""
+    ``settings`` (:func:`jax_settings`); ``after`` is the result of the task this one waited
+    for (unused)."""
     if settings:
         _apply_jax_settings(settings)
     return [solve_case(f, outdir, solver, bucket) for f in folders]
@@ -299,7 +300,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     bucket : pad cases to size buckets (:func:`pad_to_bucket`; the default), so that each
         bucket compiles once.  The serial and the Dask runs write the same files, bit for bit.
     report : optional callable ``(row, done, total)`` called as each case finishes.
-    chunk : cases per Dask task (default: about 8 tasks per worker, at most 32 cases each).
+    chunk : cases per Dask task (default: about 8 tasks per worker, at most 16 cases each).
 
     Returns
     -------
@@ -360,50 +361,89 @@ def _apply_jax_settings(settings):
             jax.config.update(key, value)
 
 
-def _size_hint(folder):
-    """Bytes of a case's mesh files: cases of similar sizes share a bucket (nearly)."""
-    total = 0
-    for name in ("input.obj", "rest.vtk"):
-        try:
-            total += (folder / name).stat().st_size
-        except OSError:
-            pass
-    return total
+def _bucket_hint(folder):
+    """``(dim, vertices, elements)`` bucket of a case from its files' raw counts (``v`` / ``f``
+    lines, VTK ``POINTS`` / ``CELLS``), without parsing them; None when they do not say."""
+    try:
+        if (folder / "input.obj").is_file():
+            data = b"\n" + (folder / "input.obj").read_bytes()
+            return (2,) + (bucket_sizes(data.count(b"\nv "), data.count(b"\nf "), 2) or (0, 0))
+        data = (folder / "rest.vtk").read_bytes()
+        counts = []
+        for word in (b"POINTS ", b"CELLS "):
+            at = data.index(word) + len(word)
+            counts.append(int(data[at:data.index(b" ", at)]))
+        return (3,) + (bucket_sizes(counts[0], counts[1], 3) or (0, 0))
+    except (OSError, ValueError):
+        return None
+
+
+def _tasks(cases, size):
+    """Cases grouped by size bucket and cut into tasks of at most ``size`` cases, as
+    ``[(first, rest)]`` per bucket: ``first`` is a one-case task that compiles the bucket,
+    ``rest`` the tasks that should wait for it (then they load it from the persistent cache)."""
+    groups = {}
+    for i, c in enumerate(cases):
+        groups.setdefault(_bucket_hint(c), []).append(i)
+    out = []
+    for key, idx in sorted(groups.items(), key=lambda kv: (kv[0] is None, kv[0] or ())):
+        if key is None or key[1] == 0:  # unreadable, or not padded: no shared compilation
+            out.append((None, [idx[i:i + size] for i in range(0, len(idx), size)]))
+        else:
+            out.append((idx[:1], [idx[i:i + size] for i in range(1, len(idx), size)]))
+    return out
 
 
 def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
     import contextlib
     import logging
+    import uuid
 
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
         if scheduler is None:
             cluster = stack.enter_context(LocalCluster(
-                n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None,
+                n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
                 silence_logs=logging.ERROR))
             client = stack.enter_context(Client(cluster))
         else:
             try:
-                client = stack.enter_context(Client(scheduler, timeout=30))
+                client = stack.enter_context(Client(scheduler, timeout=10))
             except (OSError, TimeoutError) as exc:
                 raise GeomoptError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); check the "
                                    f"address or drop --scheduler to use a local cluster") from exc
         settings = jax_settings()
         n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
-        # cases of similar sizes in one task: a task compiles (or loads) a bucket once
-        order = sorted(range(len(cases)), key=lambda i: (lim_kind(cases[i]), _size_hint(cases[i])))
-        size = chunk or max(1, min(32, -(-len(cases) // (8 * n_workers))))
-        groups = [order[i:i + size] for i in range(0, len(order), size)]
-        futures = {client.submit(_solve_cases, [str(cases[i]) for i in g], str(outdir), solver, bucket,
-                                 settings, pure=False, key=f"geomopt-batch-{j}"): g for j, g in enumerate(groups)}
+        size = chunk or max(1, min(16, -(-len(cases) // (8 * n_workers))))
+        run_id = uuid.uuid4().hex[:12]
+        futures = {}
+
+        def submit(group, after=None, priority=0):
+            fut = client.submit(_solve_cases, [str(cases[i]) for i in group], str(outdir), solver, bucket,
+                                settings, after, pure=False, priority=priority,
+                                key=f"geomopt-batch-{run_id}-{len(futures)}")
+            futures[fut] = (group, after is not None)
+            return fut
+
+        # each bucket's first case runs first, alone: the other tasks of its bucket wait for it
+        # and then find its compiled kernels in the persistent cache (or in the worker's memory)
+        plan = _tasks(cases, size)
+        firsts = [submit(first, priority=1) if first else None for first, _ in plan]
+        for (_, rest), first in zip(plan, firsts):
+            for group in rest:
+                submit(group, after=first)
         rows = [None] * len(cases)
         done = 0
-        for fut in as_completed(futures):
-            group = futures[fut]
+        pending = as_completed(list(futures))
+        for fut in pending:
+            group, waited = futures[fut]
             try:
                 got = fut.result()
             except Exception as exc:  # noqa: BLE001 -- a worker died: its cases are rows
+                if waited:  # perhaps the task it waited for killed its worker: run it on its own
+                    pending.add(submit(group))
+                    continue
                 got = [_failed_row(cases[i], f"the worker solving it failed: {type(exc).__name__}: {exc}")
                        for i in group]
             for i, row in zip(group, got):
@@ -412,16 +452,6 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
                 if report:
                     report(row, done, len(cases))
     return rows
-
-
-def lim_kind(folder):
-    """2, 3, or 0 when the folder is no readable case (a row will say why)."""
-    from . import io
-
-    try:
-        return io.lim_case_dim(folder)
-    except GeomoptError:
-        return 0
 
 
 def _failed_row(folder, message):

@@ -101,11 +101,29 @@ def test_padding_is_fixed_positive_and_weightless():
     assert qsub.fixed[0] == q.simplices[0, 0] and np.array_equal(qsub.fixed[1:], np.arange(n, qsub.n_vertices))
 
 
+def test_untangling_stats_ignore_the_padding():
+    """The worst det J and the inverted count of the outer loop see only real elements (the
+    padding simplex has det J = 1, which would hide a larger worst det)."""
+    from geomopt import Objective
+    from geomopt.energies import garanzha
+
+    t = tangles()["square"]
+    p = t.problem()
+    full, _, x = pad_to_bucket(p, p, 2.0 * t.rest)  # every real det J = 4
+    obj = Objective(full, garanzha)
+    _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
+    assert float(worst) == pytest.approx(4.0) and int(inverted) == 0
+    x[: p.n_vertices] = t.x0  # tangled: the count is the real one
+    _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
+    assert int(inverted) == t.inverted() and float(worst) < 0
+
+
 # ------------------------------------------------------------------ batches
 
 
 def make_cases(root, names=("square", "star", "disk", "cube")):
     ts = tangles()
+    root.mkdir(parents=True)
     for name in names:
         write_lim_case(root / name, ts[name])
     (root / "no_handles").mkdir()
@@ -164,6 +182,20 @@ def test_the_dask_path_on_a_local_cluster_equals_the_serial_path(tmp_path):
         if r["output"]:
             assert (tmp_path / "dask" / r["output"]).read_bytes() == (tmp_path / "serial" / r["output"]).read_bytes()
     assert sum(r["certified"] == "yes" for r in serial) == 3
+
+
+def test_an_existing_scheduler_runs_the_batch(tmp_path):
+    """``scheduler=ADDRESS`` sends the cases to that cluster's workers (here cases that fail
+    while being read, so nothing compiles)."""
+    from distributed import LocalCluster
+
+    root = make_cases(tmp_path / "cases", names=())
+    cases = [root / "garbage", root / "no_handles"]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        rows = run_batch(cases, tmp_path / "out", scheduler=cluster.scheduler_address)
+    assert [(r["case"], r["certified"]) for r in rows] == [("garbage", "no"), ("no_handles", "no")]
+    assert BAD["garbage"] in rows[0]["message"] and BAD["no_handles"] in rows[1]["message"]
+    assert [r["case"] for r in read_summary(tmp_path / "out" / "summary.csv")] == ["garbage", "no_handles"]
 
 
 # ------------------------------------------------------------------ the command line
