@@ -204,39 +204,74 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
 
 
 def cmd_untangle(args) -> int:
-    from . import io
-    from ._errors import MeshError, ParameterError, SolveError
-    from .untangle import untangle_case, write_untangle_result
+    """One case to one file (``-o OUT.obj|OUT.vtk``), or a batch to a folder (``-o OUTDIR``)."""
+    from ._errors import ParameterError
 
-    want = ".obj" if io.lim_case_dim(args.case) == 2 else ".vtk"
+    out = Path(args.output)
+    to_file = out.suffix.lower() in (".obj", ".vtk") or (out.exists() and not out.is_dir())
+    if to_file and not args.output.endswith(("/", os.sep)):
+        if len(args.case) > 1:
+            raise ParameterError(f"{len(args.case)} case folders need an output folder: -o must name a folder "
+                                 f"(each case is written to it as <case>.obj/.vtk), got {args.output}")
+        return _untangle_one(args, args.case[0])
+    return _untangle_batch(args)
+
+
+def _untangle_one(args, folder) -> int:
+    from . import io
+    from ._errors import ParameterError
+    from .batch import check_handles, write_certified
+    from .untangle import untangle_case
+
+    want = ".obj" if io.lim_case_dim(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
-        raise ParameterError(f"{args.case} is a {'2D' if want == '.obj' else '3D'} case: the output "
+        raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [])
-    case = io.read_lim_case(args.case)
-    if case["handles"].size == 0:
-        raise MeshError(f"{case['handles_file']} is empty: untangling needs a fixed boundary; list the "
-                        f"0-based ids of the fixed vertices in it, one per line")
-    case, res = untangle_case(case, solver=args.solver, progress=not args.quiet)
+    case = io.read_lim_case(folder)
+    check_handles(case)
+    case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(args.case), output=str(args.output), elements=res.info.get("elements"),
+    _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
             outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
             setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
             message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
-    with contextlib.ExitStack() as outputs:
-        tmp = outputs.enter_context(io.atomic_path(args.output))
-        check = write_untangle_result(case, res, tmp)
-        if not check["certified"]:
-            raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
-                             f"{check['handles_moved']} handle(s) moved)")
+    with contextlib.ExitStack() as outputs:  # the picture lands only with a certified output
         if args.png:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
+        write_certified(case, res, args.output)
+    return EXIT_OK
+
+
+def _untangle_batch(args) -> int:
+    from .batch import batch_cases, run_batch
+
+    cases = batch_cases(args.case)
+    workers = args.workers or min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                  else (os.cpu_count() or 1), len(cases))
+    where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler else
+             f"{workers} local worker process(es)" if workers > 1 else "this process")
+    _log(args, f"{len(cases)} case(s) to {args.output}, on {where}")
+
+    def report(row, done, total):
+        status = "certified" if row["certified"] == "yes" else f"not certified: {row['message']}"
+        _log(args, f"[{done}/{total}] {row['case']}: {status} ({row['seconds']} s)")
+
+    rows = run_batch(cases, args.output, solver=args.solver, workers=workers, scheduler=args.scheduler,
+                     report=report)
+    failed = sum(row["certified"] != "yes" for row in rows)
+    summary = Path(args.output) / "summary.csv"
+    if failed:
+        print(f"geomopt: {failed} of {len(rows)} case(s) not certified (no output written for them); "
+              f"see {summary}", file=sys.stderr, flush=True)
+        return EXIT_FAILED
+    _log(args, f"all {len(rows)} case(s) certified; summary in {summary}")
     return EXIT_OK
 
 
@@ -343,13 +378,24 @@ def build_parser():
     common(sp)
     sp.set_defaults(func=cmd_param)
 
-    sp = sub.add_parser("untangle", help="untangle a LIM benchmark case (fixed handles)")
-    sp.add_argument("case", help="case folder: input.obj + handles.txt (2D) or rest.vtk + init.vtk (3D)")
-    sp.add_argument("-o", "--output", required=True, help="output OBJ (2D) or VTK (3D)")
+    sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles)")
+    sp.add_argument("case", nargs="+",
+                    help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D), or "
+                         "several, or folders holding case folders")
+    sp.add_argument("-o", "--output", required=True,
+                    help="one case: output OBJ (2D) or VTK (3D); otherwise an output folder, which gets "
+                         "<case folder name>.obj/.vtk per certified case and summary.csv")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
     sp.add_argument("--png", default=None,
                     help="also save a picture of the start and the result, inverted elements in red")
+    where = sp.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="batch: solve on a local Dask cluster of N worker processes (default: one "
+                            "per CPU core; 1 solves in this process)")
+    where.add_argument("--scheduler", default=None,
+                       help="batch: solve on the workers of an existing Dask scheduler (e.g. "
+                            "tcp://host:8786); they must see the case and output folders at the same paths")
     common(sp)
     sp.set_defaults(func=cmd_untangle)
 

@@ -149,9 +149,11 @@ class UntangleResult:
 
 @partial(jax.jit, static_argnums=0)
 def _outer_stats(density, geom, x, params):
-    """(energy over all elements, min det J, #elements with det J <= 0)."""
+    """(energy over all elements, min det J, #elements with det J <= 0), over the elements of
+    positive rest volume (``bucket`` padding adds elements of zero volume)."""
     D = det(_jacobians(geom, x))
-    return _total(density, geom, x, params), jnp.min(D), jnp.sum(D <= 0)
+    real = geom[2] > 0
+    return _total(density, geom, x, params), jnp.min(jnp.where(real, D, jnp.inf)), jnp.sum(real & (D <= 0))
 
 
 # --------------------------------------------------------------------- helpers
@@ -221,6 +223,7 @@ def untangle(
     injective_when_untangled: bool = False,
     min_sigma: float = 0.5,
     max_sigma: float = 0.5,
+    bucket: bool = False,
 ) -> UntangleResult:
     """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
 
@@ -254,6 +257,9 @@ def untangle(
     min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
         iteration shrinks ``chi(D-, eps)``.  The paper uses ``0.1`` and no cap; the default
         halves it every outer iteration (see the module notes).
+    bucket : pad the problem to its size bucket (:func:`geomopt.batch.pad_to_bucket`), so that
+        meshes of similar sizes share compiled kernels; same certificate, same map up to the
+        rounding of sums over elements.
 
     Returns
     -------
@@ -301,6 +307,10 @@ def untangle(
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],
                               rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])
+    if bucket:
+        from .batch import pad_to_bucket
+
+        scaled, sub, xs = pad_to_bucket(scaled, sub, xs)
     energy = garanzha.with_params(eps=eps0, lam=lam)
     full = Objective(scaled, energy)
     obj = Objective(sub, energy)
@@ -361,7 +371,7 @@ def untangle(
     xs_final = np.asarray(state.x, dtype=np.float64)
     if not np.isfinite(xs_final).all():
         outcome, xs_final = Outcome.NONFINITE, xs
-    out = xs_final / k
+    out = xs_final[: problem.n_vertices] / k  # without bucket padding
     out[problem.fixed] = problem.fixed_positions
     inverted = problem.count_inverted(out)
     moved = _bits_differ(out[problem.fixed], problem.fixed_positions)

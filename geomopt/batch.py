@@ -1,0 +1,487 @@
+"""Batches of untangling cases: size buckets, one compilation per bucket, Dask sweeps.
+
+:func:`untangle` compiles its kernels for the array shapes of each mesh (seconds per shape,
+while a small case then solves in hundredths of a second).  Here a case is padded to a size
+*bucket* (:func:`bucket_sizes`) so that every case of the same bucket runs the same compiled
+program, in one process (the in-memory JIT cache) or across processes and Dask workers
+(JAX's persistent compilation cache).  The padding changes no certificate and, up to the
+order of floating-point sums, no result (:func:`pad_to_bucket`).
+
+:func:`run_batch` solves many LIM case folders, serially or on Dask distributed (a local
+cluster of worker processes, or an existing scheduler), writing ``<case folder name>.obj``
+(2D) or ``.vtk`` (3D) per certified case and ``summary.csv`` (one row per case, in input
+order); a case that cannot be read, solved or certified is a row saying why and never stops
+the others.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io as _stdio
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import GeomoptError, MeshError, ParameterError, SolveError
+
+__all__ = ["bucket_sizes", "pad_to_bucket", "BUCKET_GROWTH", "BUCKET_MIN_ELEMENTS", "BUCKET_MAX_ELEMENTS",
+           "VERTEX_SHARE", "SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary",
+           "write_certified", "check_handles", "write_lim_case"]
+
+#: consecutive element buckets differ by this factor
+BUCKET_GROWTH = 2
+#: the smallest element bucket
+BUCKET_MIN_ELEMENTS = 256
+#: meshes with more elements are not padded: their solve, not the compilation, dominates
+BUCKET_MAX_ELEMENTS = 2**14
+#: the vertex bucket of an element bucket ``B`` is ``VERTEX_SHARE[d] * B`` (or the next one
+#: up when the mesh has more vertices): disk-like triangle meshes have about ``m / 2``
+#: vertices plus the boundary's half, box-like tet meshes ``m / 6`` to ``m / 3``, so a mesh
+#: family meets one (elements, vertices) bucket per element bucket, not two or three
+VERTEX_SHARE = {2: 0.625, 3: 0.375}
+
+
+def _bucket(count: int, smallest: int) -> int:
+    """The smallest ``smallest * BUCKET_GROWTH**k >= count`` (k >= 0)."""
+    size = smallest
+    while size < count:
+        size *= BUCKET_GROWTH
+    return size
+
+
+def bucket_sizes(n_vertices: int, n_elements: int, dim: int):
+    """The padded sizes ``(vertices, elements)`` of a mesh, or None when it is not padded.
+
+    Elements go up to the next ``BUCKET_MIN_ELEMENTS * 2**k``; vertices to
+    ``VERTEX_SHARE[dim]`` times that (times a further power of two when the mesh has more
+    vertices), always leaving room for the ``dim + 1`` vertices of the padding simplex.
+    Meshes above ``BUCKET_MAX_ELEMENTS`` elements are not padded (None).
+
+    Parameters
+    ----------
+    n_vertices, n_elements : int, the mesh's counts.
+    dim : 2 or 3.
+    """
+    if n_elements > BUCKET_MAX_ELEMENTS:
+        return None
+    elements = _bucket(n_elements, BUCKET_MIN_ELEMENTS)
+    vertices = int(VERTEX_SHARE[dim] * elements)
+    while vertices < n_vertices + dim + 1:
+        vertices *= BUCKET_GROWTH
+    return vertices, elements
+
+
+def pad_to_bucket(full, sub, x):
+    """Pad an untangling problem to its size bucket (:func:`bucket_sizes`).
+
+    ``full`` and ``sub`` are the whole problem and its active sub-problem (the same
+    vertices, ``sub`` holding the elements that have a free vertex), both padded to the
+    element bucket of ``full``; ``x`` (n, d) is the start map.  The padding:
+
+    * ``d + 1`` dummy vertices (and copies of the first of them up to the vertex bucket),
+      all fixed, at the corners ``lo, lo + s e_1, ..., lo + s e_d`` of the map's bounding box
+      (``lo`` its lowest corner, ``s`` its largest side), so the map's extent is unchanged;
+      their rest positions repeat rest vertex 0, so the rest extent is unchanged too;
+    * dummy elements on those ``d + 1`` vertices, with the inverse of their edge matrix as
+      rest matrix (``J = I``, finite energy and derivatives) and rest volume 0: they add
+      exact zeros to the energy and gradient, and never move;
+    * when ``sub`` has no fixed vertex, its gauge vertex (the one :class:`~geomopt.Objective`
+      pins, ``sub.simplices[0, 0]``) is fixed explicitly, since the dummies make the fixed
+      set non-empty.
+
+    The elements of the real mesh keep their order, so their energies, gradients and
+    orientation tests are the same numbers; only sums over all elements or vertices (the
+    energy, dot products in the solver) may round differently, as XLA splits a longer sum
+    differently.  Callers must ignore elements of zero volume in minima and counts (the
+    untangling stats do), and cut the result back to ``full.n_vertices`` rows.
+
+    Returns
+    -------
+    (full, sub, x) padded (``x`` as a new (n_bucket, d) float64 array), or the inputs
+    unchanged when the mesh is above ``BUCKET_MAX_ELEMENTS`` elements.
+    """
+    d, n = full.dim, full.n_vertices
+    sizes = bucket_sizes(n, full.n_elements, d)
+    if sizes is None:
+        return full, sub, x
+    n_pad = sizes[0] - n
+    x = np.asarray(x, dtype=np.float64)
+    lo = x.min(axis=0)
+    side = float(np.max(x.max(axis=0) - lo))
+    side = side if side > 0 else 1.0
+    corners = lo + side * np.vstack([np.zeros(d), np.eye(d)])  # (d+1, d)
+    dummies = np.vstack([corners, np.repeat(corners[:1], n_pad - d - 1, axis=0)])
+    simplex = n + np.arange(d + 1)
+    rest_inv = np.linalg.inv((dummies[1:d + 1] - dummies[0]).T)  # J = edges @ rest_inv = I
+    ids = n + np.arange(n_pad)
+
+    def pad(p, gauge):
+        extra = sizes[1] - p.n_elements
+        S = np.vstack([p.simplices, np.broadcast_to(simplex, (extra, d + 1))])
+        S_in = np.vstack([p.input_simplices, np.broadcast_to(simplex, (extra, d + 1))])
+        fixed = np.concatenate([p.fixed, gauge, ids])
+        fixed_pos = np.vstack([p.fixed_positions, x[gauge], dummies])
+        order = np.argsort(fixed, kind="stable")
+        return dataclasses.replace(
+            p, n_vertices=sizes[0], simplices=np.ascontiguousarray(S), input_simplices=np.ascontiguousarray(S_in),
+            rest_inv=np.concatenate([p.rest_inv, np.broadcast_to(rest_inv, (extra, d, d))]),
+            volumes=np.concatenate([p.volumes, np.zeros(extra)]),
+            rest_vertices=np.vstack([p.rest_vertices, np.repeat(p.rest_vertices[:1], n_pad, axis=0)]),
+            fixed=fixed[order], fixed_positions=fixed_pos[order])
+
+    no_gauge = np.zeros(0, np.int64)
+    gauge = sub.simplices[:1, 0] if sub.fixed.size == 0 and sub.n_elements else no_gauge
+    return pad(full, no_gauge), pad(sub, gauge), np.vstack([x, dummies])
+
+
+# --------------------------------------------------------------------- one case
+
+
+#: the columns of ``summary.csv``, one row per case
+SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "inverted_after",
+                   "outer_iterations", "inner_iterations", "seconds", "certified", "output", "message")
+
+
+def check_handles(case):
+    """Raise MeshError unless the case read by :func:`geomopt.io.read_lim_case` fixes some vertex
+    (a fixed-boundary untangling needs them)."""
+    if case["handles"].size == 0:
+        raise MeshError(f"{case['handles_file']} is empty: untangling needs a fixed boundary; list the "
+                        f"0-based ids of the fixed vertices in it, one per line")
+
+
+def write_certified(case, result, path):
+    """Write an untangled case to ``path`` atomically, certifying the written file first.
+
+    The file is written beside ``path`` and read back (:func:`geomopt.untangle.write_untangle_result`);
+    only a file that certifies (no inverted element, handles bit-exact) is renamed onto
+    ``path``, so a file that does not certify never replaces an older one.
+
+    Returns
+    -------
+    dict, the check of :func:`~geomopt.untangle.write_untangle_result` (``path`` the temporary).
+
+    Raises
+    ------
+    SolveError
+        The written file did not certify; nothing is left at ``path`` from this call.
+    GeomoptError
+        ``path`` cannot be written.
+    """
+    from . import io, untangle
+
+    with io.atomic_path(path) as tmp:
+        check = untangle.write_untangle_result(case, result, tmp)
+        if not check["certified"]:
+            raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
+                             f"{check['handles_moved']} handle(s) moved)")
+    return check
+
+
+def solve_case(folder, outdir, solver="lbfgs", bucket=True):
+    """Read a LIM case folder, untangle it, write ``outdir/<folder name>.obj`` (2D) or ``.vtk``
+    (3D) if it certifies (:func:`write_certified`), and return its summary row.
+
+    Never raises on a bad case (``Exception``): an unreadable, malformed, unsolvable or
+    uncertified case gives a row with ``certified = "no"``, the reason in ``message`` and no
+    file.  Interrupts (``KeyboardInterrupt``) propagate.
+
+    Parameters
+    ----------
+    folder : a case folder (:func:`geomopt.io.read_lim_case`).
+    outdir : the output folder (must exist).
+    solver : inner solver name for :func:`geomopt.untangle.untangle`.
+    bucket : pad to a size bucket (:func:`pad_to_bucket`), so that cases of similar sizes
+        share compiled kernels.
+
+    Returns
+    -------
+    dict with the keys of :data:`SUMMARY_COLUMNS` (strings and ints).
+    """
+    from . import io, untangle
+
+    start = time.perf_counter()
+    folder = Path(folder)
+    row = dict.fromkeys(SUMMARY_COLUMNS, "")
+    row.update(case=folder.name, certified="no")
+    try:
+        case = io.read_lim_case(folder)
+        check_handles(case)
+        elements = case["faces"] if case["dim"] == 2 else case["tets"]
+        row.update(dim=case["dim"], vertices=len(case["rest"]), elements=len(elements))
+        case, res = untangle.untangle_case(case, solver=solver, progress=False, bucket=bucket)
+        row.update(inverted_before=res.initially_inverted, inverted_after=res.inverted,
+                   outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations)
+        if not res.success:
+            row["message"] = f"not certified: {res.message}"
+        else:
+            output = Path(outdir) / (folder.name + (".obj" if case["dim"] == 2 else ".vtk"))
+            check = write_certified(case, res, output)
+            row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
+    except GeomoptError as exc:
+        row["message"] = str(exc)
+    except Exception as exc:  # noqa: BLE001 -- one broken case must not stop the batch
+        row["message"] = f"internal error: {type(exc).__name__}: {exc}"
+    row["seconds"] = f"{time.perf_counter() - start:.3f}"
+    return row
+
+
+def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None):
+    """:func:`solve_case` for each folder in turn (one Dask task), under the client's JAX
+    ``settings`` (:func:`jax_settings`); ``after`` is the result of the task this one waited
+    for (unused)."""
+    if settings:
+        _apply_jax_settings(settings)
+    return [solve_case(f, outdir, solver, bucket) for f in folders]
+
+
+# --------------------------------------------------------------------- many cases
+
+
+def batch_cases(paths):
+    """The case folders named by ``paths``: each a LIM case folder, or a folder searched for
+    case folders (:func:`geomopt.io.lim_cases`, sorted); in the order given.
+
+    Raises
+    ------
+    ParameterError
+        A path does not exist, holds no case, or two cases share a folder name (their outputs
+        ``<name>.obj`` would collide).
+    """
+    from . import io
+
+    found = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            raise ParameterError(f"{p} is not a folder; give LIM case folders or folders holding them")
+        cases = io.lim_cases(p)
+        if not cases:
+            raise ParameterError(f"{p} holds no LIM case folder (input.obj + handles.txt, or rest.vtk + "
+                                 f"init.vtk)")
+        found.extend(cases)
+    seen = {}
+    for c in found:
+        if c.name in seen and seen[c.name] != c.resolve():
+            raise ParameterError(f"cases {seen[c.name]} and {c} have the same folder name, so both would "
+                                 f"be written to {c.name}.obj/.vtk; rename one or run them separately")
+        seen[c.name] = c.resolve()
+    unique = {c.resolve(): c for c in found}  # a case named twice is solved once
+    return list(unique.values())
+
+
+def write_summary(path, rows):
+    """Write ``rows`` (dicts with :data:`SUMMARY_COLUMNS`) as CSV to ``path``, atomically."""
+    from . import io
+
+    buf = _stdio.StringIO()
+    writer = csv.DictWriter(buf, SUMMARY_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    io.atomic_write(path, lambda fh: fh.write(buf.getvalue()))
+    return Path(path)
+
+
+def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=True, report=None,
+              chunk=None):
+    """Untangle many LIM cases and write their outputs and ``outdir/summary.csv``.
+
+    Parameters
+    ----------
+    cases : sequence of case folders (see :func:`batch_cases`).
+    outdir : output folder, created if missing.
+    solver : inner solver name (:func:`geomopt.untangle.untangle`).
+    workers : 1: solve in this process, one case after another; N > 1: on a local Dask
+        cluster of N single-threaded worker processes.
+    scheduler : address of an existing Dask scheduler (``workers`` is then ignored); its
+        workers must import geomopt and see ``cases`` and ``outdir`` at the same paths.
+    bucket : pad cases to size buckets (:func:`pad_to_bucket`; the default), so that each
+        bucket compiles once.  The serial and the Dask runs write the same files, bit for bit.
+    report : optional callable ``(row, done, total)`` called as each case finishes.
+    chunk : cases per Dask task (default: about 8 tasks per worker, at most 16 cases each).
+
+    Returns
+    -------
+    list of summary rows (dicts), in the order of ``cases``.
+    """
+    from . import io
+
+    cases = [Path(c) for c in cases]
+    outdir = Path(outdir)
+    _make_folder(outdir)
+    summary = io.check_output_path(outdir / "summary.csv", (".csv",), "summary")
+    if scheduler is None and workers <= 1:
+        rows = []
+        for i, c in enumerate(cases):
+            rows.append(solve_case(c, outdir, solver, bucket))
+            if report:
+                report(rows[-1], i + 1, len(cases))
+    else:
+        rows = _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk)
+    write_summary(summary, rows)
+    return rows
+
+
+def _make_folder(outdir):
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise GeomoptError(f"cannot create the output folder {outdir} ({exc.strerror}); give a folder "
+                           f"path") from exc
+    if not os.access(outdir, os.W_OK | os.X_OK):
+        raise GeomoptError(f"cannot write into the output folder {outdir}; check its permissions")
+
+
+# --------------------------------------------------------------------- Dask
+
+#: JAX settings copied from this process to every Dask task's worker, so that workers compute
+#: the same numbers (x64) and share the persistent compilation cache
+JAX_SETTINGS = ("jax_enable_x64", "jax_numpy_rank_promotion", "jax_compilation_cache_dir",
+                "jax_persistent_cache_min_compile_time_secs", "jax_persistent_cache_min_entry_size_bytes")
+
+
+def jax_settings():
+    """This process's :data:`JAX_SETTINGS`, as a dict for :func:`_apply_jax_settings`."""
+    import jax
+
+    return {k: getattr(jax.config, k) for k in JAX_SETTINGS}
+
+
+def _apply_jax_settings(settings):
+    """Apply ``settings`` (from :func:`jax_settings` in the client) in a worker, once, before
+    anything compiles there; later calls find them in place."""
+    import jax
+
+    import geomopt  # noqa: F401  (x64 on, as in every geomopt process)
+
+    for key, value in settings.items():
+        if value is not None and getattr(jax.config, key) != value:
+            jax.config.update(key, value)
+
+
+def _bucket_hint(folder):
+    """``(dim, vertices, elements)`` bucket of a case from its files' raw counts (``v`` / ``f``
+    lines, VTK ``POINTS`` / ``CELLS``), without parsing them; None when they do not say."""
+    try:
+        if (folder / "input.obj").is_file():
+            data = b"\n" + (folder / "input.obj").read_bytes()
+            return (2,) + (bucket_sizes(data.count(b"\nv "), data.count(b"\nf "), 2) or (0, 0))
+        data = (folder / "rest.vtk").read_bytes()
+        counts = []
+        for word in (b"POINTS ", b"CELLS "):
+            at = data.index(word) + len(word)
+            counts.append(int(data[at:data.index(b" ", at)]))
+        return (3,) + (bucket_sizes(counts[0], counts[1], 3) or (0, 0))
+    except (OSError, ValueError):
+        return None
+
+
+def _tasks(cases, size):
+    """Cases grouped by size bucket and cut into tasks of at most ``size`` cases, as
+    ``[(first, rest)]`` per bucket: ``first`` is a one-case task that compiles the bucket,
+    ``rest`` the tasks that should wait for it (then they load it from the persistent cache)."""
+    groups = {}
+    for i, c in enumerate(cases):
+        groups.setdefault(_bucket_hint(c), []).append(i)
+    out = []
+    for key, idx in sorted(groups.items(), key=lambda kv: (kv[0] is None, kv[0] or ())):
+        if key is None or key[1] == 0:  # unreadable, or not padded: no shared compilation
+            out.append((None, [idx[i:i + size] for i in range(0, len(idx), size)]))
+        else:
+            out.append((idx[:1], [idx[i:i + size] for i in range(1, len(idx), size)]))
+    return out
+
+
+def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
+    import contextlib
+    import logging
+    import uuid
+
+    from distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if scheduler is None:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
+                silence_logs=logging.ERROR))
+            client = stack.enter_context(Client(cluster))
+        else:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout=10))
+            except (OSError, TimeoutError) as exc:
+                raise GeomoptError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); check the "
+                                   f"address or drop --scheduler to use a local cluster") from exc
+        settings = jax_settings()
+        n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
+        size = chunk or max(1, min(16, -(-len(cases) // (8 * n_workers))))
+        run_id = uuid.uuid4().hex[:12]
+        futures = {}
+
+        def submit(group, after=None, priority=0):
+            fut = client.submit(_solve_cases, [str(cases[i]) for i in group], str(outdir), solver, bucket,
+                                settings, after, pure=False, priority=priority,
+                                key=f"geomopt-batch-{run_id}-{len(futures)}")
+            futures[fut] = (group, after is not None)
+            return fut
+
+        # each bucket's first case runs first, alone: the other tasks of its bucket wait for it
+        # and then find its compiled kernels in the persistent cache (or in the worker's memory)
+        plan = _tasks(cases, size)
+        firsts = [submit(first, priority=1) if first else None for first, _ in plan]
+        for (_, rest), first in zip(plan, firsts):
+            for group in rest:
+                submit(group, after=first)
+        rows = [None] * len(cases)
+        done = 0
+        pending = as_completed(list(futures))
+        for fut in pending:
+            group, waited = futures[fut]
+            try:
+                got = fut.result()
+            except Exception as exc:  # noqa: BLE001 -- a worker died: its cases are rows
+                if waited:  # perhaps the task it waited for killed its worker: run it on its own
+                    pending.add(submit(group))
+                    continue
+                got = [_failed_row(cases[i], f"the worker solving it failed: {type(exc).__name__}: {exc}")
+                       for i in group]
+            for i, row in zip(group, got):
+                rows[i] = row
+                done += 1
+                if report:
+                    report(row, done, len(cases))
+    return rows
+
+
+def _failed_row(folder, message):
+    row = dict.fromkeys(SUMMARY_COLUMNS, "")
+    row.update(case=Path(folder).name, certified="no", message=message)
+    return row
+
+
+# --------------------------------------------------------------------- generated cases
+
+
+def write_lim_case(folder, tangle):
+    """Write a :class:`~geomopt.generators.Tangle` as a LIM case folder, exactly (round-trip).
+
+    2D: ``input.obj`` (rest ``v`` lines with z = 0, the start map as ``vt``) and
+    ``handles.txt``; 3D: ``rest.vtk``, ``init.vtk`` and ``handles.txt``.  The folder is created.
+
+    Returns
+    -------
+    pathlib.Path, the folder.
+    """
+    from . import io
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if tangle.dim == 2:
+        rest = np.c_[tangle.rest, np.zeros(len(tangle.rest))]
+        io.write_obj_with_uv(folder / "input.obj", rest, tangle.simplices, tangle.x0)
+    else:
+        io.write_vtk_tets(folder / "rest.vtk", tangle.rest, tangle.simplices)
+        io.write_vtk_tets(folder / "init.vtk", tangle.x0, tangle.simplices)
+    io.atomic_write(folder / "handles.txt", lambda fh: fh.write("".join(f"{int(h)}\n" for h in tangle.fixed)))
+    return folder

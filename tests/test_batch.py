@@ -1,0 +1,253 @@
+"""Batches of untangling cases (issue 9, parts 3-4): size buckets, summary rows, Dask.
+
+Every padded case here falls in the smallest buckets (2D: 160 vertices / 256 triangles, 3D:
+96 / 256), like the CLI tests' cases, so the suite compiles each bucket once.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+import pytest
+
+import geomopt.cli
+from geomopt import generators as G
+from geomopt import io
+from geomopt.batch import (BUCKET_MAX_ELEMENTS, SUMMARY_COLUMNS, batch_cases, bucket_sizes, pad_to_bucket,
+                           run_batch, write_lim_case)
+from geomopt.predicates import count_inverted
+from geomopt.untangle import _outer_stats, untangle
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    """main() would point JAX's compilation cache at ~/.cache for the whole test process."""
+    monkeypatch.setattr(geomopt.cli, "_enable_compilation_cache", lambda: None)
+
+
+def tangles():
+    return {
+        "square": G.rotated_interior(*G.square_mesh(8), 90.0, name="square"),
+        "star": G.tutte_nonconvex(6, "star", arms=5, depth=0.6, name="star"),
+        "disk": G.noisy_interior(*G.disk_mesh(5), 1.5, seed=3, name="disk"),
+        "cube": G.rotated_interior(*G.box_mesh(3, 3, 3), 90.0, name="cube"),
+    }
+
+
+# ------------------------------------------------------------------ buckets and padding
+
+
+def test_bucket_sizes():
+    assert bucket_sizes(64, 98, 2) == (160, 256)
+    assert bucket_sizes(64, 162, 3) == (96, 256)
+    assert bucket_sizes(300, 257, 2) == (320, 512)  # next element bucket
+    assert bucket_sizes(200, 250, 2) == (320, 256)  # more vertices than the share: next vertex bucket
+    assert bucket_sizes(157, 256, 2) == (160, 256)
+    assert bucket_sizes(158, 256, 2) == (320, 256)  # no room left for the 3 padding vertices
+    assert bucket_sizes(10, BUCKET_MAX_ELEMENTS, 3) == (6144, BUCKET_MAX_ELEMENTS)
+    assert bucket_sizes(10, BUCKET_MAX_ELEMENTS + 1, 3) is None
+
+
+@pytest.mark.parametrize("name", ["square", "star", "cube"])
+def test_padding_gives_the_same_map_up_to_the_rounding_of_sums(name):
+    """Padded and unpadded solves take the same outer and inner iterations to the same map:
+    bit for bit where XLA happens to split the longer sums alike, else within 1e-12 of the
+    map's size (the energy and the solver's dot products sum over more, zero, terms)."""
+    t = tangles()[name]
+    assert t.inverted() > 0
+    plain = untangle(t.problem(), t.x0, progress=False)
+    padded = untangle(t.problem(), t.x0, progress=False, bucket=True)
+    assert plain.success and padded.success, (plain.message, padded.message)
+    assert padded.x.shape == plain.x.shape
+    assert (padded.outer_iterations, padded.inner_iterations) == (plain.outer_iterations, plain.inner_iterations)
+    assert padded.initially_inverted == plain.initially_inverted == t.inverted()
+    np.testing.assert_allclose(padded.x, plain.x, rtol=0, atol=1e-12 * np.ptp(t.x0))
+    np.testing.assert_allclose(padded.min_det_history, plain.min_det_history, rtol=1e-9)
+    assert count_inverted(padded.x, t.simplices) == 0
+    assert np.array_equal(padded.x[t.fixed].view(np.uint64), t.x0[t.fixed].view(np.uint64))
+
+
+def test_cases_of_one_bucket_share_the_compiled_kernels():
+    from geomopt.solvers import lbfgs
+
+    ts = tangles()
+    untangle(ts["square"].problem(), ts["square"].x0, progress=False, bucket=True)
+    kernels = [lbfgs._run_kernel, lbfgs._init_kernel, lbfgs._vg_kernel, _outer_stats]
+    before = [k._cache_size() for k in kernels]
+    for name in ("star", "disk"):  # other shapes, the same bucket
+        assert untangle(ts[name].problem(), ts[name].x0, progress=False, bucket=True).success
+    assert [k._cache_size() for k in kernels] == before
+
+
+def test_padding_is_fixed_positive_and_weightless():
+    t = tangles()["star"]
+    p = t.problem()
+    full, sub, x = pad_to_bucket(p, p, t.x0)
+    n, m = p.n_vertices, p.n_elements
+    assert (full.n_vertices, full.n_elements) == bucket_sizes(n, m, 2) == x.shape[:1] + (len(full.volumes),)
+    assert np.array_equal(full.simplices[:m], p.simplices) and np.array_equal(x[:n], t.x0)
+    assert np.all(full.volumes[m:] == 0) and np.all(full.simplices[m:] >= n)
+    assert set(range(n, full.n_vertices)) <= set(full.fixed.tolist())
+    assert count_inverted(x, full.simplices[m:]) == 0  # the dummy simplex is positive
+    assert np.ptp(x, axis=0).max() == np.ptp(t.x0, axis=0).max()  # the map's extent is unchanged
+    # no handles: the gauge vertex the objective would pin is fixed explicitly
+    free = G.Tangle("free", t.rest, t.simplices, t.x0, np.zeros(0, np.int64))
+    from geomopt import Problem
+
+    q = Problem.planar(free.rest, free.simplices)
+    _, qsub, _ = pad_to_bucket(q, q, t.x0)
+    assert qsub.fixed[0] == q.simplices[0, 0] and np.array_equal(qsub.fixed[1:], np.arange(n, qsub.n_vertices))
+
+
+def test_untangling_stats_ignore_the_padding():
+    """The worst det J and the inverted count of the outer loop see only real elements (the
+    padding simplex has det J = 1, which would hide a larger worst det)."""
+    from geomopt import Objective
+    from geomopt.energies import garanzha
+
+    t = tangles()["square"]
+    p = t.problem()
+    full, _, x = pad_to_bucket(p, p, 2.0 * t.rest)  # every real det J = 4
+    obj = Objective(full, garanzha)
+    _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
+    assert float(worst) == pytest.approx(4.0) and int(inverted) == 0
+    x[: p.n_vertices] = t.x0  # tangled: the count is the real one
+    _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
+    assert int(inverted) == t.inverted() and float(worst) < 0
+
+
+# ------------------------------------------------------------------ batches
+
+
+def make_cases(root, names=("square", "star", "disk", "cube")):
+    ts = tangles()
+    root.mkdir(parents=True)
+    for name in names:
+        write_lim_case(root / name, ts[name])
+    (root / "no_handles").mkdir()
+    io.write_obj_with_uv(root / "no_handles" / "input.obj", np.c_[ts["square"].rest, np.zeros(64)],
+                         ts["square"].simplices, ts["square"].x0)
+    (root / "garbage").mkdir()
+    (root / "garbage" / "input.obj").write_text("v 0 0 0\nvt 0 0\nf 1 1 x\n")
+    (root / "garbage" / "handles.txt").write_text("0\n")
+    stuck = G.Tangle("stuck", ts["square"].rest, ts["square"].simplices, ts["square"].x0,
+                     np.arange(64))  # every vertex fixed, folded: cannot certify
+    write_lim_case(root / "stuck", stuck)
+    return root
+
+
+BAD = {"no_handles": "has no handles.txt", "garbage": "line 3", "stuck": "not certified"}
+
+
+def read_summary(path):
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        assert tuple(reader.fieldnames) == SUMMARY_COLUMNS
+        return list(reader)
+
+
+def test_a_batch_reports_bad_cases_and_certifies_the_rest(tmp_path):
+    cases = batch_cases([make_cases(tmp_path / "cases")])
+    assert [c.name for c in cases] == sorted(["square", "star", "disk", "cube", "no_handles", "garbage", "stuck"])
+    seen = []
+    rows = run_batch(cases, tmp_path / "out", report=lambda row, done, total: seen.append((row["case"], done, total)))
+    assert seen == [(c.name, i + 1, len(cases)) for i, c in enumerate(cases)]
+    by_case = {r["case"]: r for r in rows}
+    for name, words in BAD.items():
+        assert by_case[name]["certified"] == "no" and words in by_case[name]["message"], by_case[name]
+        assert not any(p.name.startswith(name) for p in (tmp_path / "out").iterdir())
+    ts = tangles()
+    for name in ("square", "star", "disk", "cube"):
+        row, t = by_case[name], ts[name]
+        assert row["certified"] == "yes" and row["message"] == "" and row["inverted_after"] == 0
+        assert (row["dim"], row["elements"], row["inverted_before"]) == (t.dim, t.n_elements, t.inverted())
+        if t.dim == 2:
+            V, UV, F = io._parse_lim_obj(tmp_path / "out" / f"{name}.obj")
+        else:
+            UV, F = io.read_vtk_tets(tmp_path / "out" / f"{name}.vtk")
+        assert count_inverted(UV, F) == 0 and np.array_equal(UV[t.fixed], t.x0[t.fixed])
+    assert read_summary(tmp_path / "out" / "summary.csv") == [{k: str(v) for k, v in r.items()} for r in rows]
+    assert not [p for p in os.listdir(tmp_path / "out") if p.startswith(".")]  # no temporary left
+
+
+def test_the_dask_path_on_a_local_cluster_equals_the_serial_path(tmp_path):
+    cases = batch_cases([make_cases(tmp_path / "cases", names=("square", "star", "disk"))])
+    serial = run_batch(cases, tmp_path / "serial")
+    dask = run_batch(cases, tmp_path / "dask", workers=2, chunk=1)
+    assert [{**r, "seconds": ""} for r in dask] == [{**r, "seconds": ""} for r in serial]
+    assert sorted(os.listdir(tmp_path / "dask")) == sorted(os.listdir(tmp_path / "serial"))
+    for r in serial:
+        if r["output"]:
+            assert (tmp_path / "dask" / r["output"]).read_bytes() == (tmp_path / "serial" / r["output"]).read_bytes()
+    assert sum(r["certified"] == "yes" for r in serial) == 3
+
+
+def test_an_existing_scheduler_runs_the_batch(tmp_path):
+    """``scheduler=ADDRESS`` sends the cases to that cluster's workers (here cases that fail
+    while being read, so nothing compiles)."""
+    from distributed import LocalCluster
+
+    root = make_cases(tmp_path / "cases", names=())
+    cases = [root / "garbage", root / "no_handles"]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        rows = run_batch(cases, tmp_path / "out", scheduler=cluster.scheduler_address)
+    assert [(r["case"], r["certified"]) for r in rows] == [("garbage", "no"), ("no_handles", "no")]
+    assert BAD["garbage"] in rows[0]["message"] and BAD["no_handles"] in rows[1]["message"]
+    assert [r["case"] for r in read_summary(tmp_path / "out" / "summary.csv")] == ["garbage", "no_handles"]
+
+
+# ------------------------------------------------------------------ the command line
+
+
+@pytest.fixture
+def cli(capsys):
+    def run(*argv):
+        code = geomopt.cli.main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+    return run
+
+
+def test_cli_batch_exit_status_and_outputs(cli, tmp_path):
+    ts = tangles()
+    good = tmp_path / "good"
+    for name in ("square", "cube"):
+        write_lim_case(good / name, ts[name])
+    code, _, err = cli("untangle", good, "-o", tmp_path / "out", "--workers", "1", "--quiet")
+    assert (code, err) == (0, "")
+    assert sorted(os.listdir(tmp_path / "out")) == ["cube.vtk", "square.obj", "summary.csv"]
+    # one case to one file gives the same bytes as the batch
+    assert cli("untangle", good / "square", "-o", tmp_path / "one.obj", "--quiet")[0] == 0
+    assert (tmp_path / "one.obj").read_bytes() == (tmp_path / "out" / "square.obj").read_bytes()
+    # some cases fail: exit 1, the others written, one line even with --quiet
+    mixed = make_cases(tmp_path / "mixed", names=("star",))
+    code, _, err = cli("untangle", mixed, good / "square", "-o", tmp_path / "out2", "--workers", "1", "--quiet")
+    assert code == 1 and err.startswith("geomopt: 3 of 5 case(s) not certified") and len(err.splitlines()) == 1
+    assert sorted(os.listdir(tmp_path / "out2")) == ["square.obj", "star.obj", "summary.csv"]
+    rows = read_summary(tmp_path / "out2" / "summary.csv")
+    assert [r["case"] for r in rows] == ["garbage", "no_handles", "star", "stuck", "square"]
+
+
+def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
+    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    ts = tangles()
+    write_lim_case(tmp_path / "a" / "square", ts["square"])
+    write_lim_case(tmp_path / "b" / "square", ts["star"])
+    (tmp_path / "empty").mkdir()
+    for argv, words in [
+        ([tmp_path / "a", tmp_path / "nope"], ["nope is not a folder"]),
+        ([tmp_path / "a", tmp_path / "empty"], ["empty holds no LIM case folder"]),
+        ([tmp_path / "a", tmp_path / "b"], ["have the same folder name"]),
+        ([tmp_path / "a" / "square", tmp_path / "b" / "square", "-o", tmp_path / "x.obj"],
+         ["2 case folders need an output folder"]),
+    ]:
+        if "-o" not in argv:
+            argv = argv + ["-o", tmp_path / "out"]
+        code, _, err = cli("untangle", *argv, "--quiet")
+        assert code == 2, argv
+        assert err.startswith("geomopt: error: ") and all(w in err for w in words), err
+    (tmp_path / "file").write_text("")
+    code, _, err = cli("untangle", tmp_path / "a", "-o", tmp_path / "file" / "sub", "--quiet")
+    assert code == 2 and "cannot create the output folder" in err
