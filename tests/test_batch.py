@@ -21,12 +21,6 @@ from geomopt.predicates import count_inverted
 from geomopt.untangle import _outer_stats, untangle
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    """main() would point JAX's compilation cache at ~/.cache for the whole test process."""
-    monkeypatch.setattr(geomopt.cli, "_enable_compilation_cache", lambda: None)
-
-
 def tangles():
     return {
         "square": G.rotated_interior(*G.square_mesh(8), 90.0, name="square"),
