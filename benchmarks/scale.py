@@ -3,33 +3,36 @@
 Usage::
 
     python benchmarks/scale.py --elements 1e4 1e5 1e6 --dim 2 3 [--repeat 10] [--cg]
-                               [--no-direct] [--untangle] [--json out.jsonl]
+                               [--no-direct] [--solve] [--untangle] [--json out.jsonl]
+    python benchmarks/scale.py --mesh ../shared/data/meshes/camelhead.off --cg --solve
 
-Every (elements, dim) configuration runs in a fresh Python process, so that its peak memory
-(``ru_maxrss``) is its own, and prints one JSON object per line on stdout with the keys
+Every configuration runs in a fresh Python process, so that its peak memory (``ru_maxrss``)
+is its own, and prints one JSON object per line on stdout with the keys
 
 * ``elements, dim, device``: the mesh (a triangulated square grid in 2D, a Kuhn box of 6 tets
-  per cube in 3D, boundary fixed, interior displaced by a smooth injective swirl) and JAX's
-  default device;
+  per cube in 3D, boundary fixed, interior displaced by a smooth injective swirl; or with
+  ``--mesh`` a surface parameterized with a free boundary from a Tutte map) and JAX's device;
 * ``energy_grad_s``: median of ``--repeat`` warm jitted energy + gradient evaluations;
 * ``hessian_s``: median of 3 warm evaluations of energy, gradient and the assembled projected
-  (clamp) Hessian data (device to host copy included);
+  (clamp) Hessian data, copied to the host;
 * ``pattern_s``: median of 3 builds of the CSC Hessian pattern;
-* ``newton_iter_s``: median of 3 projected-Newton iterations with the direct solver
-  (``geomopt.solvers.Newton(projection="clamp")``: Hessian, factorization by
-  ``SparseCholesky``, solve, injective line search), omitted with ``--no-direct``;
-* ``peak_mem_mb``: ``ru_maxrss`` of the process at the end.
+* ``newton_iter_s``: the faster of ``direct_iter_s`` (median of 3 iterations of
+  ``geomopt.solvers.Newton(projection="clamp")``: Hessian, ``SparseCholesky`` factorization,
+  solve, injective line search; skipped with ``--no-direct``) and ``cg_iter_s`` (``--cg``:
+  the CG direction of ``geomopt._cg.NewtonCG()`` and the same line search);
+* ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``/``--untangle``).
 
-and extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
+Extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
 energy + gradient + Hessian calls), ``factor_s, solve_s, linesearch_s`` (parts of the direct
-iteration, medians), with ``--cg`` ``cg_iter_s`` (median Newton iteration with the CG direction
-of ``geomopt._cg`` and the same line search), ``cg_iters`` (CG iterations of that direction),
-``cg_direct_rel`` (relative difference of the two directions; with ``--no-direct`` absent), and
-with ``--untangle`` ``untangle_outer_s`` / ``untangle_setup_s`` / ``untangle_inner`` (one outer
-iteration of :func:`geomopt.untangle.untangle` on the same mesh with its interior rotated by 90
-degrees in 2D, a box twisted by a quarter turn in 3D) and ``untangle_peak_mem_mb``.
-
-Timings on a shared machine are noisy: the medians are still only indicative.
+iteration); with ``--cg``: ``cg_step_s, cg_iters`` (the direction alone, default forcing
+term), ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to
+the direct step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than
+wall time on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s,
+newton_iters, energy, outcome`` and ``cg_solve_cg_iters`` (projected Newton to convergence,
+second run); with ``--untangle``: ``untangle_outer_s, untangle_setup_s, untangle_inner,
+untangle_inverted`` (one outer iteration of :func:`geomopt.untangle.untangle` on the mesh
+with its interior rotated by 90 degrees in 2D, a box twisted by a quarter turn in 3D) and
+``untangle_peak_mem_mb``.
 """
 
 from __future__ import annotations
@@ -86,7 +89,63 @@ def _peak_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untangle: bool):
+def _cg_newton(**kw):
+    """``geomopt.solvers.Newton`` with its direction from :class:`geomopt._cg.NewtonCG` (a
+    benchmark-only adapter until the solver offers CG: same projection, shift, line search
+    and stopping test; the direction is copied to the host, as the solver's loop does)."""
+    import dataclasses
+
+    from geomopt._cg import NewtonCG
+    from geomopt.solvers import Newton
+
+    @dataclasses.dataclass(frozen=True)
+    class CGNewtonSolver(Newton):
+        cg: NewtonCG = NewtonCG()
+        cg_iterations: list = dataclasses.field(default_factory=lambda: [0])  # total, mutable
+
+        def init(self, objective, x0, params):
+            state = super().init(objective, x0, params)
+            gref = float(np.linalg.norm(np.asarray(state.grad)))  # scale-free forcing term
+            return dataclasses.replace(state, aux=dict(state.aux, op=self.cg.prepare(objective),
+                                                       gref=max(gref, 1e-300)))
+
+        def _direction(self, state, projection, shifts):
+            obj, pat = state.objective, state.objective.pattern
+            dx, info = self.cg.direction(state.aux["op"], obj, state.x, state.params, projection,
+                                         shifts[0], gnorm_ref=state.aux["gref"])
+            self.cg_iterations[0] += int(info.iterations)
+            g = np.asarray(info.grad).reshape(-1)[pat.free_dofs]
+            return float(info.value), info.grad, g, np.asarray(dx).reshape(-1)[pat.free_dofs], shifts[0]
+
+    return CGNewtonSolver(**kw)
+
+
+def run_solves(obj, x0):
+    """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
+    seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
+    import geomopt
+    from geomopt.solvers import Newton
+
+    out = {}
+    for key, make in (("direct", lambda: Newton(projection="clamp")),
+                      ("cg", lambda: _cg_newton(projection="clamp"))):
+        for _ in range(2):  # the first run compiles
+            solver = make()
+            c = time.process_time()
+            res = geomopt.minimize(obj, x0, solver, progress=False)
+            cpu = time.process_time() - c
+        out[f"{key}_solve_s"] = round(res.seconds, 3)
+        out[f"{key}_solve_cpu_s"] = round(cpu, 3)
+        out[f"{key}_newton_iters"] = int(res.iterations)
+        out[f"{key}_energy"] = float(res.energy) / obj.total_volume
+        out[f"{key}_outcome"] = res.outcome.value
+        if key == "cg":
+            out["cg_solve_cg_iters"] = solver.cg_iterations[0]
+    return out
+
+
+def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untangle: bool,
+            solve: bool = False, mesh: str | None = None):
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -100,14 +159,22 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
 
     out = {"elements": None, "dim": dim, "device": str(jax.devices()[0].platform)}
     t = time.perf_counter()
-    V, S = _mesh(elements, dim)
-    fixed = G.boundary_vertices(S, len(V))
-    P = (Problem.planar if dim == 2 else Problem.tets)(V, S, fixed, V[fixed])
+    if mesh:  # a surface to parameterize: free boundary, Tutte start (as benchmarks/param.py)
+        from geomopt.io import read_mesh
+        from param import start_map
+
+        V, S = read_mesh(mesh)[:2]
+        P = Problem.surface(V, S)
+        out["mesh"] = mesh
+    else:
+        V, S = _mesh(elements, dim)
+        fixed = G.boundary_vertices(S, len(V))
+        P = (Problem.planar if dim == 2 else Problem.tets)(V, S, fixed, V[fixed])
     out["setup_s"] = time.perf_counter() - t
     out["elements"], out["vertices"] = int(len(S)), int(len(V))
     obj = Objective(P, "symmetric_dirichlet")
     params = obj.params()
-    x = jnp.asarray(_swirl(V))
+    x = jnp.asarray(start_map(obj, V, S)[0] if mesh else _swirl(V))
     assert bool((obj.dets(x) > 0).all()), "the benchmark map must be injective"
 
     out["pattern_s"], pat = _median(lambda: hessian_pattern(P, obj.free_dofs), 3, "pattern_s")
@@ -162,6 +229,8 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     if iters:
         out["newton_iter_s"] = min(iters)
     out["peak_mem_mb"] = round(_peak_mb(), 1)
+    if solve:
+        out.update(run_solves(obj, np.asarray(x)))
     if untangle:
         from geomopt.untangle import untangle as run_untangle
 
@@ -195,28 +264,34 @@ def main(argv=None):
     ap.add_argument("--cg", action="store_true", help="also time the CG Newton direction")
     ap.add_argument("--no-direct", action="store_true", help="skip the direct (Cholesky) Newton step")
     ap.add_argument("--untangle", action="store_true", help="also time one untangling outer iteration")
+    ap.add_argument("--solve", action="store_true",
+                    help="also solve to convergence with the direct and the CG direction")
+    ap.add_argument("--mesh", nargs="+", default=[],
+                    help="surface meshes to parameterize instead of the generated grids")
     ap.add_argument("--json", help="append the JSON lines to this file too")
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.one:
-        res = run_one(int(a.elements[0]), a.dim[0], a.repeat, a.cg, not a.no_direct, a.untangle)
+        res = run_one(int(a.elements[0]), a.dim[0], a.repeat, a.cg, not a.no_direct, a.untangle,
+                      a.solve, a.mesh[0] if a.mesh else None)
         print(json.dumps(res), flush=True)
         return 0
     status = 0
-    for dim in a.dim:
-        for n in a.elements:
-            cmd = [sys.executable, __file__, "--one", "--elements", str(int(n)), "--dim", str(dim),
-                   "--repeat", str(a.repeat)] + ["--cg"] * a.cg + ["--no-direct"] * a.no_direct \
-                + ["--untangle"] * a.untangle
-            proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
-            line = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
-            if proc.returncode or not line.startswith("{"):
-                status = 1
-                line = json.dumps({"elements": int(n), "dim": dim, "error": f"exit status {proc.returncode}"})
-            print(line, flush=True)
-            if a.json:
-                with open(a.json, "a") as f:
-                    f.write(line + "\n")
+    configs = [(n, dim, None) for dim in a.dim for n in a.elements] if not a.mesh else \
+        [(0, 2, m) for m in a.mesh]
+    for n, dim, mesh in configs:
+        cmd = [sys.executable, __file__, "--one", "--elements", str(int(n)), "--dim", str(dim),
+               "--repeat", str(a.repeat)] + ["--cg"] * a.cg + ["--no-direct"] * a.no_direct \
+            + ["--untangle"] * a.untangle + ["--solve"] * a.solve + (["--mesh", mesh] if mesh else [])
+        proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+        line = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
+        if proc.returncode or not line.startswith("{"):
+            status = 1
+            line = json.dumps({"elements": int(n), "dim": dim, "error": f"exit status {proc.returncode}"})
+        print(line, flush=True)
+        if a.json:
+            with open(a.json, "a") as f:
+                f.write(line + "\n")
     return status
 
 

@@ -11,7 +11,7 @@ cholespy).  This module computes the same direction on the device, with no host 
 * the preconditioner is block Jacobi: the shifted d x d diagonal vertex blocks, inverted in
   closed form (fixed DOFs replaced by identity rows);
 * :func:`pcg` runs preconditioned CG from zero until ``|r| <= rtol |g|`` (inexact Newton,
-  Eisenstat & Walker 1996: ``rtol = min(eta_max, sqrt(|g|))`` by default), at most
+  Eisenstat & Walker 1996: ``rtol = min(eta_max, sqrt(|g| / g_ref))`` by default), at most
   ``max_iters`` iterations, and stops early on non-positive curvature (Steihaug 1983), so
   that the direction is always a descent direction.
 
@@ -221,7 +221,7 @@ def cg_system(VB, op: CGOperator, shift):
 
 @partial(jit, static_argnums=(0, 1, 2, 3))
 def newton_cg_kernel(density, projection, chunk, n_blocks, geom, x, params, op, shift, rtol,
-                     eta_max, max_iters):
+                     eta_max, gnorm_ref, max_iters):
     """Energy, gradient and the CG projected-Newton direction at ``x``; see :class:`NewtonCG`."""
     value, grad = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
     free = op.free
@@ -229,7 +229,7 @@ def newton_cg_kernel(density, projection, chunk, n_blocks, geom, x, params, op, 
     VB = block_hessian(density, projection, chunk, geom, x, params, op.blocks, op.swap, n_blocks)
     matvec, precond = cg_system(VB, op, shift)
     gnorm = jnp.sqrt(jnp.vdot(g, g))
-    tol = jnp.where(rtol > 0, rtol, jnp.minimum(eta_max, jnp.sqrt(gnorm)))
+    tol = jnp.where(rtol > 0, rtol, jnp.minimum(eta_max, jnp.sqrt(gnorm / gnorm_ref)))
     dx, iters, res, ok = pcg(matvec, precond, -g, tol, max_iters)
     return dx, CGInfo(value, g, iters, res, tol, ok)
 
@@ -243,8 +243,10 @@ class NewtonCG:
     max_iters : CG iteration limit per Newton step (the truncated direction is still a
         descent direction).
     rtol : fixed relative residual ``|r| / |g|``; 0 (default) uses the forcing term
-        ``min(eta_max, sqrt(|g|_2))`` (Eisenstat & Walker 1996): loose far from the
-        minimum, tight near it (superlinear convergence).
+        ``min(eta_max, sqrt(|g|_2 / g_ref))`` (Eisenstat & Walker 1996): loose far from the
+        minimum, tight near it (superlinear convergence).  ``g_ref`` (``gnorm_ref`` of
+        :meth:`direction`, default 1 as in the issue) makes it scale-free: pass the first
+        gradient norm of the solve (meshes' areas here range over 5 orders of magnitude).
     eta_max : the loosest tolerance of the forcing term.
     """
 
@@ -298,15 +300,19 @@ class NewtonCG:
             free=jnp.asarray(np.asarray(objective.free_dofs, np.float64)),
             blocks=jnp.asarray(pat.blocks), swap=jnp.asarray(pat.swap))
 
-    def direction(self, op: CGOperator, objective, x, params, projection="clamp", shift=0.0):
+    def direction(self, op: CGOperator, objective, x, params, projection="clamp", shift=0.0,
+                  gnorm_ref=1.0, rtol=None):
         """``(dx, info)``: the direction (n, d), zero on fixed DOFs, and a :class:`CGInfo`.
 
         ``shift`` is the Newton regularization relative to the mean |diagonal| of the free
-        DOFs (as in :class:`~geomopt.solvers.Newton`).  ``shift``, ``params`` and the
-        configuration's numbers are traced: changing them never recompiles."""
+        DOFs (as in :class:`~geomopt.solvers.Newton`); ``gnorm_ref`` scales the forcing
+        term; ``rtol`` overrides the configuration's (e.g. an Eisenstat-Walker sequence kept
+        by the caller).  These, ``params`` and the configuration's numbers are traced:
+        changing them never recompiles."""
         if projection not in PROJECTIONS:
             raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
         return newton_cg_kernel(objective.energy.density, projection, objective.chunk,
                                 objective.pattern.n_blocks, objective.geom, jnp.asarray(x), params,
-                                op, jnp.float64(shift), jnp.float64(self.rtol),
-                                jnp.float64(self.eta_max), jnp.int32(self.max_iters))
+                                op, jnp.float64(shift), jnp.float64(self.rtol if rtol is None else rtol),
+                                jnp.float64(self.eta_max), jnp.float64(gnorm_ref),
+                                jnp.int32(self.max_iters))

