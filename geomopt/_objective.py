@@ -224,14 +224,15 @@ class Objective:
         # buckets=True pads the arrays to size buckets so that meshes of similar size share
         # compiled kernels (geomopt._padding); maps may then be given with n or n_padded rows
         self.sizes = _padding.Sizes.of(problem, buckets)
-        self.geom = tuple(jnp.asarray(a) for a in _padding.pad_geometry(problem, self.sizes))
+        # device_put, not jnp.asarray: no copy program compiled per array shape
+        self.geom = tuple(jax.device_put(a) for a in _padding.pad_geometry(problem, self.sizes))
         self.total_volume = float(problem.volumes.sum())
         d = problem.dim
         free = np.repeat(problem.free_mask[:, None], d, axis=1)
         if problem.fixed.size == 0:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
-        self._free = jnp.asarray(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
+        self._free = jax.device_put(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
         self._pattern = None
         self._slots = None
         self._nnz_padded = None
@@ -248,8 +249,8 @@ class Objective:
             pat = hessian_pattern(self.problem, self.free_dofs)
             sz = self.sizes
             self._nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
-            self._slots = jnp.asarray(_padding.pad_slots(pat.slots, pat.nnz, sz.m, sz.m_padded,
-                                                         self._nnz_padded))
+            self._slots = jax.device_put(_padding.pad_slots(pat.slots, pat.nnz, sz.m, sz.m_padded,
+                                                            self._nnz_padded))
             self._pattern = pat
         return self._pattern
 
@@ -301,6 +302,15 @@ class Objective:
         if self._nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
+
+    def compile_hessian(self, x, params, projection="clamp"):
+        """Compile (or load from the persistent cache) the kernel of :meth:`hessian` for maps
+        shaped like ``x``, without running it: a solver's set-up then holds the compilation
+        but no throw-away evaluation."""
+        if self._pattern is None:
+            self.pattern  # noqa: B018 - builds the pattern, the slots and the padded entry count
+        hessian_kernel.lower(self.energy.density, projection, self._nnz_padded, self.geom, self._pad(x)[0],
+                             params, self._slots).compile()
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
