@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -50,16 +51,22 @@ def log(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
+def _children_cpu():
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def run_cli(args, cache):
-    """Wall seconds and the --json summary of one ``python -m geomopt`` process."""
+    """(wall seconds, CPU seconds (user + sys, all threads), --json summary) of one
+    ``python -m geomopt`` process.  On a shared machine CPU time is the steadier measure."""
     env = {**os.environ, "GEOMOPT_CACHE_DIR": str(cache), "PYTHONPATH": str(REPO)}
-    t0 = time.perf_counter()
+    c0, t0 = _children_cpu(), time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "geomopt", *map(str, args)], capture_output=True,
                           text=True, env=env)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
     if proc.returncode != 0:
         raise RuntimeError(f"geomopt {' '.join(map(str, args))} failed ({proc.returncode}): {proc.stderr[-2000:]}")
-    return wall, json.loads(proc.stdout.strip().splitlines()[-1])
+    return wall, cpu, json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def help_seconds(n=7):
@@ -110,27 +117,29 @@ def start_map(V, F):
 
 
 def slim_to(V, F, x0, objective, targets, seconds):
-    """libigl SLIM from ``x0`` until its mean energy is <= every one of ``targets``: (seconds
-    incl. precompute at which each target was first reached (None: not within ``seconds``),
-    iterations, mean energy reached, precompute seconds)."""
+    """libigl SLIM from ``x0`` until its mean energy is <= every one of ``targets``: the
+    (wall, CPU) seconds incl. precompute at which each target was first reached (None: not
+    within ``seconds`` of wall time), iterations, mean energy reached, precompute seconds.
+    The energy evaluations between iterations are not counted."""
     import igl
 
     params = objective.params()
     area = objective.total_volume
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     data = igl.slim_precompute(np.asfortranarray(V, dtype=np.float64), np.asfortranarray(F, dtype=np.int32),
                                np.asfortranarray(x0, dtype=np.float64), igl.MappingEnergyType.SYMMETRIC_DIRICHLET,
                                np.array([], dtype=np.int32), np.zeros((0, 2), order="F"), 0.0)
     pre = time.perf_counter() - t0
-    elapsed, it, e = pre, 0, float("inf")
+    elapsed, cpu, it, e = pre, time.process_time() - c0, 0, float("inf")
     reached = [None] * len(targets)
     while elapsed < seconds and None in reached:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         x = igl.slim_solve(data, 1)
         elapsed += time.perf_counter() - t0
+        cpu += time.process_time() - c0
         it += 1
         e = float(objective.value(np.ascontiguousarray(x), params)) / area
-        reached = [r if r is not None or e > t else elapsed for r, t in zip(reached, targets)]
+        reached = [r if r is not None or e > t else (elapsed, cpu) for r, t in zip(reached, targets)]
     return reached, it, e, pre
 
 
@@ -146,8 +155,13 @@ def backend_iteration_seconds(V, F):
             continue
         solver = geomopt.Newton(linear_solver=backend)
         geomopt.parameterize(V, F, solver=solver, progress=False)  # compile
-        runs = [geomopt.parameterize(V, F, solver=solver, progress=False) for _ in range(2)]
-        out[backend] = statistics.median(r.seconds / max(r.iterations, 1) for r in runs)
+        per_it = []
+        for _ in range(2):
+            c0 = time.process_time()
+            r = geomopt.parameterize(V, F, solver=solver, progress=False)
+            per_it.append((r.seconds / max(r.iterations, 1), (time.process_time() - c0) / max(r.iterations, 1)))
+        out[backend] = statistics.median(p[0] for p in per_it)
+        out[backend + "_cpu"] = statistics.median(p[1] for p in per_it)  # whole parameterize / iterations
     out["auto_backend"] = linsolve.available_backends()[0]
     return out
 
@@ -183,50 +197,66 @@ def main(argv=None):
             cache = tmp / f"cache_{path.stem}"
             out = tmp / "out.obj"
             log(f"{path.stem}: {len(F)} faces; cold run")
-            cold, summary = run_cli(["param", path, "-o", out, "--json", "--quiet"], cache)
-            warm = [run_cli(["param", path, "-o", out, "--json", "--quiet"], cache)[0] for _ in range(args.repeat)]
+            cold = run_cli(["param", path, "-o", out, "--json", "--quiet"], cache)
+            summary = cold[2]
+            warm = [run_cli(["param", path, "-o", out, "--json", "--quiet"], cache) for _ in range(args.repeat)]
             sibs = [run_cli(["param", sib, "-o", out, "--json", "--quiet"], cache) for _ in range(args.repeat)]
             targets = [summary["mean_energy"] * (1 + r) for r in args.rtols]
-            log(f"  cold {cold:.2f} s, warm {statistics.median(warm):.2f} s, sibling "
-                f"{statistics.median(s[0] for s in sibs):.2f} s (first sibling misses "
-                f"{sibs[0][1]['cache_misses']}); SLIM to E <= {targets[-1]:.10g}")
+            med = (lambda runs, k: statistics.median(r[k] for r in runs))
+            log(f"  cold {cold[0]:.2f} s ({cold[1]:.2f} CPU s), warm {med(warm, 0):.2f} s ({med(warm, 1):.2f} CPU s), "
+                f"sibling {med(sibs, 0):.2f} s ({med(sibs, 1):.2f} CPU s, first sibling misses "
+                f"{sibs[0][2]['cache_misses']}); SLIM to E <= {targets[-1]:.10g}")
             x0, objective = start_map(V, F)
             reached, it_slim, e_slim, pre = slim_to(V, F, x0, objective, targets, args.slim_seconds)
-            t_slim = reached[-1]
             row = {"mesh": path.stem, "faces": len(F), "sibling_faces": len(Fs), "same_bucket": bucket_ok,
-                   "cold_s": cold, "warm_s": statistics.median(warm), "warm_runs": warm,
-                   "sibling_s": statistics.median(s[0] for s in sibs),
-                   "sibling_first_misses": sibs[0][1]["cache_misses"], "geomopt": summary,
-                   "slim_s": t_slim, "slim_s_by_rtol": dict(zip(map(str, args.rtols), reached)), "slim_iterations": it_slim, "slim_energy": e_slim,
-                   "slim_precompute_s": pre, "slim_cap_s": args.slim_seconds}
+                   "cold_s": cold[0], "cold_cpu_s": cold[1], "warm_s": med(warm, 0), "warm_cpu_s": med(warm, 1),
+                   "sibling_s": med(sibs, 0), "sibling_cpu_s": med(sibs, 1),
+                   "runs": {"warm": [r[:2] for r in warm], "sibling": [r[:2] for r in sibs]},
+                   "sibling_first_misses": sibs[0][2]["cache_misses"], "geomopt": summary,
+                   "slim": dict(zip(map(str, args.rtols), reached)), "slim_iterations": it_slim,
+                   "slim_energy": e_slim, "slim_precompute_s": pre, "slim_cap_s": args.slim_seconds}
             if args.backends:
                 row["s_per_iter"] = backend_iteration_seconds(V, F)
             results["meshes"].append(row)
-            log(f"  SLIM {'never (cap)' if t_slim is None else f'{t_slim:.2f} s'} in {it_slim} it")
+            log(f"  SLIM {reached} (wall, CPU s per rtol) in {it_slim} it")
     print(table(results))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float))
 
 
 def table(results):
+    """Markdown: wall and CPU seconds of the whole process, SLIM's time to each energy target,
+    and the ratios against SLIM's time to the last (tightest) target."""
+    rtols = list(results["meshes"][0]["slim"]) if results["meshes"] else []
     lines = [f"geomopt --help: {results['help_seconds']:.3f} s (median of 7); load average "
              f"{', '.join(f'{v:.1f}' for v in results['machine_load'])}", "",
-             "| mesh | #F | geomopt cold (s) | warm (s) | sibling, warm cache (s) | sibling misses "
-             "| geomopt its | SLIM to E(1+rtol) (s) | SLIM to same E (s) | SLIM its | warm / SLIM | cold / SLIM |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "wall s / CPU s of the whole `geomopt param` process; SLIM: slim_precompute + iterations",
+             "",
+             "| mesh | #F | geomopt cold | warm | sibling (warm cache) | sibling misses | its "
+             + "".join(f"| SLIM to rtol {r} " for r in rtols) + "| warm / SLIM (wall, CPU) | cold / SLIM (wall, CPU) |",
+             "|---" * (9 + len(rtols)) + "|"]
+
+    def ws(w, c):
+        return f"{w:.2f} / {c:.2f}"
+
     for r in results["meshes"]:
-        slim = r["slim_s"]
-        s = f"{slim:.2f}" if slim is not None else f"> {r['slim_cap_s']:.0f}"
-        ratio = (lambda t: f"{t / slim:.2f}" if slim else f"< {t / r['slim_cap_s']:.2f}")
-        lines.append(f"| {r['mesh']} | {r['faces']} | {r['cold_s']:.2f} | {r['warm_s']:.2f} | "
-                     f"{r['sibling_s']:.2f}{'' if r['same_bucket'] else ' (other bucket)'} | "
-                     f"{r['sibling_first_misses']} | {r['geomopt']['iterations']} | "
-                     f"{', '.join(f'{k}: ' + ('never' if v is None else f'{v:.2f}') for k, v in r['slim_s_by_rtol'].items())} | "
-                     f"{s} | {r['slim_iterations']} | "
-                     f"{ratio(r['warm_s'])} | {ratio(r['cold_s'])} |")
+        slim = r["slim"][rtols[-1]]
+        cells = [("never in %.0f s" % r["slim_cap_s"]) if v is None else ws(*v) for v in r["slim"].values()]
+
+        def ratio(w, c):
+            if slim is None:
+                return f"< {w / r['slim_cap_s']:.2f} (wall)"
+            return f"{w / slim[0]:.2f}, {c / slim[1]:.2f}"
+
+        lines.append(f"| {r['mesh']} | {r['faces']} | {ws(r['cold_s'], r['cold_cpu_s'])} | "
+                     f"{ws(r['warm_s'], r['warm_cpu_s'])} | {ws(r['sibling_s'], r['sibling_cpu_s'])}"
+                     f"{'' if r['same_bucket'] else ' (other bucket)'} | {r['sibling_first_misses']} | "
+                     f"{r['geomopt']['iterations']} | " + " | ".join(cells) + " | "
+                     f"{ratio(r['warm_s'], r['warm_cpu_s'])} | {ratio(r['cold_s'], r['cold_cpu_s'])} |")
     rows = [r for r in results["meshes"] if r.get("s_per_iter")]
     if rows:
-        lines += ["", "| mesh | default backend | s/iter default | s/iter CHOLMOD | ratio |", "|---|---|---|---|---|"]
+        lines += ["", "Newton seconds per iteration, warm (wall)", "",
+                  "| mesh | default backend | s/iter default | s/iter CHOLMOD | ratio |", "|---|---|---|---|---|"]
         for r in rows:
             b = r["s_per_iter"]
             ch = b.get("cholmod")

@@ -86,7 +86,7 @@ def _apply(path, writable):
             os.environ[key.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
         return
     import jax
-    from jax._src import compilation_cache
+    from jax.experimental.compilation_cache import compilation_cache
 
     jax.config.update("jax_enable_x64", True)
     for key, value in settings.items():

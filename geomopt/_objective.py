@@ -366,14 +366,15 @@ class Objective:
         # buckets=True pads the arrays to size buckets so that meshes of similar size share
         # compiled kernels (geomopt._padding); maps may then be given with n or n_padded rows
         self.sizes = _padding.Sizes.of(problem, buckets)
-        self.geom = tuple(jnp.asarray(a) for a in _padding.pad_geometry(problem, self.sizes))
+        # device_put, not jnp.asarray: no copy program compiled per array shape
+        self.geom = tuple(jax.device_put(a) for a in _padding.pad_geometry(problem, self.sizes))
         self.total_volume = float(problem.volumes.sum())
         d = problem.dim
         free = np.repeat(problem.free_mask[:, None], d, axis=1)
         if problem.fixed.size == 0:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
-        self._free = jnp.asarray(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
+        self._free = jax.device_put(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
         self._pattern = None
         self._assembly = None
         self._nnz_padded = None
@@ -399,7 +400,7 @@ class Objective:
             blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
             swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
             gather = np.concatenate([pat.gather, np.zeros(self._nnz_padded - pat.nnz, pat.gather.dtype)])
-            self._assembly = (jnp.asarray(blocks), jnp.asarray(swap), jnp.asarray(gather))
+            self._assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
             self._pattern = pat
         return self._pattern
 
@@ -450,6 +451,15 @@ class Objective:
         if self._nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
+
+    def compile_hessian(self, x, params, projection="clamp"):
+        """Compile (or load from the persistent cache) the kernel of :meth:`hessian` for maps
+        shaped like ``x``, without running it: a solver's set-up then holds the compilation
+        but no throw-away evaluation."""
+        if self._pattern is None:
+            self.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        hessian_kernel.lower(self.energy.density, projection, self.chunk, self._n_blocks_padded, self.geom,
+                             self._pad(x)[0], params, *self._assembly).compile()
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""

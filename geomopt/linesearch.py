@@ -252,6 +252,13 @@ class InjectiveSearch:
         return float(t), xn, float(fn), gn, int(n)
 
 
+    def compile(self, objective, params, x, value, grad):
+        """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
+        maps shaped like ``x``, without running a search."""
+        _search_kernel.lower(self, objective.energy.density, objective.geom, objective._free, params, x,
+                             value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0).compile()
+
+
 def objective_value_and_grad(density, geom, free, params):
     """``x -> (E(x), grad E(x) * free)`` for the search (pure JAX)."""
     from ._objective import _total

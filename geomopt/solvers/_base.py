@@ -28,6 +28,7 @@ import sys
 import time
 from typing import Any, Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -185,7 +186,9 @@ class AbstractSolver(abc.ABC):
     def _start(self, objective, x0, params, aux=None) -> State:
         """The common start state: value and gradient at ``x0`` (padded to the objective's
         size bucket, see :meth:`~geomopt.Objective.pad_map`)."""
-        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
+        # a private copy (device_put may share a NumPy buffer on CPU), without the copy
+        # program jnp.asarray compiles per shape
+        x = jax.device_put(objective.pad_map(np.array(x0, dtype=np.float64)))
         value, grad = objective.value_and_grad(x, params)
         return State(objective, params, x, float(value), grad, extent0=reference_extent(objective, x0),
                      energy_floor=max(1e-12 * abs(float(value)), 1e-300), aux=aux)

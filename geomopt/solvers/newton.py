@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from .._config import OneOf, Real
@@ -71,10 +71,11 @@ class Newton(AbstractSolver):
         chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
         chol.analyze()
         state = self._start(objective, x0, params, aux={"chol": chol, "cooldown": 0})
-        # compile every kernel the loop uses now, so that setup time holds the compilation
+        # compile (or load) every kernel the loop uses now, so that setup time holds the
+        # compilation; ahead of time: no warm-up evaluation is run
         for projection in self._kernels():
-            objective.hessian(state.x, params, projection)
-        self.search(objective, params, state.x, state.value, state.grad, jnp.zeros_like(state.x))
+            objective.compile_hessian(state.x, params, projection)
+        self.search.compile(objective, params, state.x, state.value, state.grad)
         return state
 
     def _projection(self, state):
@@ -124,7 +125,7 @@ class Newton(AbstractSolver):
             return dataclasses.replace(state, failure=Outcome.NONFINITE)
         dx = np.zeros(x.size)
         dx[pat.free_dofs] = d_free
-        dx = jnp.asarray(dx.reshape(x.shape))
+        dx = jax.device_put(dx.reshape(x.shape))  # no copy program per shape (jnp.asarray has one)
         decrement = 0.5 * float(-g @ d_free)
         t, xn, vn, gn, evals = self.search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
