@@ -25,7 +25,8 @@ from geomopt.solvers import Newton, Outcome, minimize
 from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
-from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
+from geomopt.energies import chi
+from geomopt.untangle import lim_problem, next_eps, untangle, untangle_case, write_untangle_result
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -206,6 +207,38 @@ def test_outer_loop_compiles_once():
     np.testing.assert_array_equal(r2.x, r1.x)
 
 
+def test_next_eps_cap_applies_only_while_inverted():
+    """sigma = 1 - E/E_prev = 0.99 here: with nothing inverted the paper's rule sends eps to the
+    floor; with an element still inverted the cap (0.5) halves chi(D-, eps) instead."""
+    assert next_eps(1.0, 1.0, 100.0, 0.02, floor=1e-10) == 1e-10
+    eps = next_eps(1.0, 1.0, 100.0, -0.02, floor=1e-10)
+    assert float(chi(-0.02, eps)) == pytest.approx(0.5 * float(chi(-0.02, 1.0)), rel=1e-12)
+    # untangled, but the energy barely moved: sigma = min_sigma, chi(D-, eps) halves
+    eps = next_eps(1.0, 99.0, 100.0, 0.02, floor=1e-10)
+    assert float(chi(0.02, eps)) == pytest.approx(0.5 * float(chi(0.02, 1.0)), rel=1e-12)
+
+
+def test_eps_reaches_the_floor_in_one_step_once_nothing_is_inverted():
+    """A twisted cube untangled by the first inner solve: the next eps is the floor (the cap
+    used to take it to 0.40 first: 4 outer iterations instead of 3)."""
+    t = G.twisted_box(6, 6, 0.75)
+    result = untangle(t.problem(), t.x0, progress=False)
+    assert result.success, result.message
+    assert result.inverted_history[0] == 0
+    assert result.eps_history[1] == untangle_module.EPS_FLOOR[3]
+    assert result.outer_iterations == 3
+
+
+def test_random_interior_disk_needs_the_cap_while_inverted():
+    """Without the cap, the first inner solve (energy down by orders of magnitude, half the
+    triangles still folded) sends eps to ~0 and the loop stalls with folds left; with it, this
+    disk untangles in a few outer iterations."""
+    t = G.random_interior(*G.disk_mesh(60), seed=0)
+    result = untangle(t.problem(), t.x0, progress=False, max_outer=30)
+    assert result.success, result.message
+    assert result.inverted_history[0] > 0 and result.outer_iterations <= 6
+
+
 def test_generators_are_valid():
     for V, S in (G.square_mesh(5), G.disk_mesh(4), G.box_mesh(2, 3, 4)):
         assert count_inverted(V, S) == 0
@@ -336,7 +369,8 @@ def test_rest_laplacian_is_the_dirichlet_hessian(dim):
     for c in range(dim):
         dofs = np.arange(len(V)) * dim + c
         keep = np.isin(dofs, pat.free_dofs)  # Objective pins the first vertex of a free problem
-        np.testing.assert_allclose(full[np.ix_(dofs[keep], dofs[keep])], K[np.ix_(keep, keep)], atol=1e-12)
+        np.testing.assert_allclose(full[np.ix_(dofs[keep], dofs[keep])], K[np.ix_(keep, keep)],
+                                   atol=1e-12)
 
 
 def test_two_loop_with_a_tracked_seed_equals_the_applied_seed():
