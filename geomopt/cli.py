@@ -77,15 +77,20 @@ def _signals_raise():
             signal.signal(signum, handler)
 
 
-def _output_paths(output, extensions, pictures=()):
+def _output_paths(output, extensions, pictures=(), inputs=()):
     """Check every output before any work: ``-o`` (``extensions``) and ``pictures`` (with their
-    derived names); they must be distinct.  Returns the output path."""
+    derived names); they must be distinct and none may be one of the ``inputs`` (writing it would
+    replace what the user asked to read).  Returns the output path."""
     from . import io
     from ._errors import GeomoptError
 
     named = [("-o output", output)] + [(what, p) for what, p in pictures]
     seen = {}
     for what, p in named:
+        for source in inputs:
+            if os.path.isfile(p) and os.path.isfile(source) and os.path.samefile(p, source):
+                raise GeomoptError(f"{what} {p} is the input file {source}: writing it would replace your "
+                                   "input; give the output another name")
         key = os.path.join(os.path.realpath(os.path.dirname(os.path.abspath(p))), os.path.basename(p))
         if key in seen:
             raise GeomoptError(f"{what} {p} is the same file as the {seen[key]}; give different file names")
@@ -111,7 +116,7 @@ def cmd_param(args) -> int:
     pictures = []
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
-    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures)  # before reading or solving
+    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input])  # before reading or solving
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
         start = "its own UV start map"
@@ -227,7 +232,8 @@ def _untangle_one(args, folder) -> int:
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [])
+    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
+                  [str(p) for p in Path(folder).iterdir()])
     case = io.read_lim_case(folder)
     check_handles(case)
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)

@@ -158,6 +158,24 @@ def test_param_unknown_names_and_invalid_values(cli, tmp_path):
     assert os.listdir(tmp_path) == ["m.obj"]
 
 
+def test_an_output_that_is_an_input_file_is_refused_before_reading(cli, tmp_path, no_work):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    (tmp_path / "alias.obj").hardlink_to(mesh)
+    case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
+    original = {p: p.read_bytes() for p in [mesh, case / "input.obj", case / "handles.txt"]}
+    for argv, words in [
+        (["param", mesh, "-o", mesh], ["-o output", "is the input file", "give the output another name"]),
+        (["param", mesh, "-o", tmp_path / "alias.obj"], ["is the input file"]),  # same file, other name
+        (["untangle", case, "-o", case / "input.obj"], ["is the input file", "input.obj"]),
+    ]:
+        code, _, err = cli(*argv, "--quiet")
+        assert code == 2, argv
+        one_error_line(err, *words)
+    assert {p: p.read_bytes() for p in original} == original
+    with pytest.raises(pytest.fail.Exception):  # a distinct output passes the check and reaches reading
+        cli("param", tmp_path / "alias.obj", "-o", tmp_path / "uv.obj", "--quiet")
+
+
 def test_param_output_that_cannot_be_written_fails_before_solving(cli, tmp_path, monkeypatch):
     mesh = write_obj(tmp_path / "m.obj", V3, F)
     monkeypatch.setattr("geomopt.param.parameterize", lambda *a, **k: pytest.fail("solved anyway"))
