@@ -60,3 +60,15 @@ def cube_tets(n=3):
     vol = np.einsum("ij,ij->i", P[:, 1] - P[:, 0], np.cross(P[:, 2] - P[:, 0], P[:, 3] - P[:, 0]))
     T[vol < 0] = T[vol < 0][:, [0, 2, 1, 3]]
     return V, T
+
+
+@pytest.fixture
+def cli(capsys):
+    """Run ``geomopt.cli.main(argv)`` in this process: ``cli(*argv) -> (exit code, stdout, stderr)``."""
+    import geomopt.cli
+
+    def run(*argv):
+        code = geomopt.cli.main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+    return run

@@ -195,15 +195,6 @@ def test_an_existing_scheduler_runs_the_batch(tmp_path):
 # ------------------------------------------------------------------ the command line
 
 
-@pytest.fixture
-def cli(capsys):
-    def run(*argv):
-        code = geomopt.cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return code, out, err
-    return run
-
-
 def test_cli_batch_exit_status_and_outputs(cli, tmp_path):
     ts = tangles()
     good = tmp_path / "good"

@@ -28,15 +28,6 @@ V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]
 BOUNDARY = np.flatnonzero(((V2 == 0) | (V2 == 1)).any(axis=1))
 
 
-@pytest.fixture
-def cli(capsys):
-    def run(*argv):
-        code = geomopt.cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return code, out, err
-    return run
-
-
 def write_obj(path, V, faces, extra=""):
     with open(path, "w") as fh:
         fh.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in np.asarray(V, float).tolist())

@@ -29,15 +29,6 @@ V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # a curved disk
 FAST = "newton,aqp,lbfgs"  # quick to compile; newton's kernels are test_cli's
 
 
-@pytest.fixture
-def cli(capsys):
-    def run(*argv):
-        code = geomopt.cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return code, out, err
-    return run
-
-
 def read_csv(path):
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
