@@ -1,16 +1,32 @@
-"""The rest Dirichlet Laplacian ``K`` of a problem, factored once: L-BFGS's Sobolev seed and
-AQP's proxy (Kovalsky et al. 2016).  Applied on the host (``jax.pure_callback`` from jitted
-code, by an integer handle)."""
+"""The rest Dirichlet Laplacian ``K`` of a problem: L-BFGS's Sobolev seed and AQP's proxy
+(Kovalsky et al. 2016).
+
+Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
+
+* ``"host"``: ``K`` factored once by :class:`~geomopt.linsolve.SparseCholesky` and applied on
+  the host through ``jax.pure_callback`` (by an integer handle).  Exact; the CPU default.
+* ``"device"``: ``K`` kept as a sparse operator in JAX (:class:`LaplacianOperator`) and applied
+  by Jacobi-preconditioned conjugate gradients warm-started from the previous solution, so a
+  loop on an accelerator makes no host round trip.  Approximate (to ``rtol``); the default on
+  GPU/TPU backends.
+"""
 
 from __future__ import annotations
 
 import itertools
 import weakref
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from .._errors import ParameterError
 from ..linsolve import SparseCholesky
+
+#: where K^-1 is applied: see the module docstring
+LAPLACIAN_BACKENDS = ("auto", "host", "device")
 
 
 _LIVE_PRECONDITIONERS: "weakref.WeakValueDictionary[int, RestLaplacian]" = \
@@ -35,6 +51,59 @@ def laplacian_solve_host(handle, q):
     return _LIVE_PRECONDITIONERS[int(handle)].solve(np.asarray(q))
 
 
+class LaplacianOperator(eqx.Module):
+    """``K`` on the free DOFs as a device-resident sparse operator (symmetric COO), with its
+    Jacobi preconditioner; ``rows`` picks the reduced unknowns out of the map (vertices when
+    ``per_vertex``, flat DOFs ``v * d + c`` otherwise)."""
+
+    rows: jax.Array
+    i: jax.Array
+    j: jax.Array
+    v: jax.Array
+    inv_diag: jax.Array
+    rtol: jax.Array
+    maxiter: int = eqx.field(static=True)
+    per_vertex: bool = eqx.field(static=True)
+
+    def _reduce(self, q):
+        return q[self.rows] if self.per_vertex else q.reshape(-1)[self.rows][:, None]
+
+    def _expand(self, r, like):
+        if self.per_vertex:
+            return jnp.zeros_like(like).at[self.rows].set(r)
+        return jnp.zeros(like.size, like.dtype).at[self.rows].set(r[:, 0]).reshape(like.shape)
+
+    def solve(self, q, guess):
+        """``K^-1 q`` by PCG from ``guess`` (both shaped like the map), relative tolerance
+        ``rtol`` or ``maxiter`` iterations."""
+        n = self.rows.shape[0]
+
+        def matvec(u):
+            return jax.ops.segment_sum(self.v[:, None] * u[self.j], self.i, num_segments=n)
+
+        b = self._reduce(q)
+        u, _ = jax.scipy.sparse.linalg.cg(matvec, b, self._reduce(guess), tol=self.rtol,
+                                          maxiter=self.maxiter, M=lambda r: self.inv_diag[:, None] * r)
+        return self._expand(u, q)
+
+
+def laplacian_solve(pre, q, guess):
+    """``K^-1 q`` from jitted code: ``pre`` is a host handle (int32, ``"host"``) or a
+    :class:`LaplacianOperator` (``"device"``, warm-started from ``guess``)."""
+    if isinstance(pre, LaplacianOperator):
+        return pre.solve(q, guess)
+    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
+
+
+def resolve_backend(backend: str) -> str:
+    """``"auto"`` -> ``"host"`` on CPU, ``"device"`` on an accelerator."""
+    if backend not in LAPLACIAN_BACKENDS:
+        raise ParameterError(f"laplacian backend must be one of {LAPLACIAN_BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        return "host" if jax.default_backend() == "cpu" else "device"
+    return backend
+
+
 class RestLaplacian:
     """``K^-1`` for the rest Dirichlet Hessian ``K`` of an objective's problem on its free DOFs,
     factored by :class:`~geomopt.linsolve.SparseCholesky`.
@@ -49,8 +118,9 @@ class RestLaplacian:
     (traced, so new meshes or solves never recompile); it lives as long as a solver state
     holds it."""
 
-    def __init__(self, objective):
+    def __init__(self, objective, backend: str = "host", rtol: float = 1e-3, maxiter: int = 200):
         problem, d = objective.problem, objective.problem.dim
+        self.backend = resolve_backend(backend)
         K = rest_laplacian(problem)
         free = np.asarray(objective.free_dofs, bool)
         self.per_vertex = bool(np.all(free.all(axis=1) | ~free.any(axis=1)))
@@ -61,14 +131,21 @@ class RestLaplacian:
             self.rows = np.flatnonzero(free.reshape(-1))  # dof = v * d + c
             H = sp.kron(K, sp.identity(d), format="csc")[self.rows][:, self.rows]
         n = H.shape[0]
+        self.d = d
         if n:
             # a tiny shift keeps it definite when a component has no fixed vertex
             H = (H + sp.identity(n) * (1e-12 * max(float(H.diagonal().mean()), 1e-300))).tocsc()
+        if self.backend == "device":
+            C = H.tocoo()
+            self.operator = LaplacianOperator(
+                jnp.asarray(self.rows, jnp.int32), jnp.asarray(C.row, jnp.int32), jnp.asarray(C.col, jnp.int32),
+                jnp.asarray(C.data), jnp.asarray(1.0 / H.diagonal()) if n else jnp.zeros(0),
+                jnp.float64(rtol), int(maxiter), self.per_vertex)
+        elif n:
             L = sp.tril(H).tocsc()
             L.sort_indices()
             self._chol = SparseCholesky(L.indptr, L.indices)
             self._chol.factor(L.data)
-        self.d = d
 
     def solve(self, q):
         out = np.zeros_like(q)
@@ -82,8 +159,16 @@ class RestLaplacian:
         return out
 
     @classmethod
-    def register(cls, objective):
-        pre = cls(objective)
-        pre.handle = next(_NEXT_HANDLE) % (2**31 - 1)
-        _LIVE_PRECONDITIONERS[pre.handle] = pre
+    def register(cls, objective, backend: str = "host", **kw):
+        """A RestLaplacian usable from jitted code through :attr:`token`."""
+        pre = cls(objective, backend, **kw)
+        if pre.backend == "host":
+            pre.handle = next(_NEXT_HANDLE) % (2**31 - 1)
+            _LIVE_PRECONDITIONERS[pre.handle] = pre
         return pre
+
+    @property
+    def token(self):
+        """What jitted code passes to :func:`laplacian_solve`: the host handle (int32) or the
+        device operator."""
+        return self.operator if self.backend == "device" else jnp.int32(self.handle)

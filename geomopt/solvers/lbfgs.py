@@ -12,8 +12,9 @@ iteration loop inside ``lax.while_loop``, which removes the per-iteration Python
 The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``), the
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
 library used by Garanzha et al. 2021), or a scaled inverse of the rest Dirichlet Hessian
-(``"laplacian"``, factored once on the host and applied through ``jax.pure_callback``, one
-multi-right-hand-side solve per iteration: see :func:`_two_loop`).
+(``"laplacian"``, one solve with the rest Laplacian per iteration: see :func:`_two_loop`;
+factored once on the host and applied through ``jax.pure_callback`` on CPU, by warm-started
+conjugate gradients on the device elsewhere, so the loop makes no host round trip there).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from .._objective import _total
 from .._config import Int, OneOf, Real
 from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
-from ._laplacian import RestLaplacian, laplacian_solve_host
+from ._laplacian import LAPLACIAN_BACKENDS, RestLaplacian, laplacian_solve
 
 # status codes of the jitted loop
 RUNNING, CONVERGED_F, CONVERGED_G, LS_FAILED, NONFINITE, MAX_STEPS, DIVERGED = range(7)
@@ -83,11 +84,6 @@ def _two_loop(S, Y, rho, k, seed, g, W=None, z=None):
     return -lax.fori_loop(0, used, forward, r)
 
 
-def _host_solve(pre, q):
-    """``K^-1 q`` (n, d) by the host-side Laplacian registered under ``pre`` (traced int32)."""
-    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
-
-
 def _iterate(solver, density, geom, free, params, c):
     """One L-BFGS iteration on the carry ``c`` (a dict of arrays)."""
     def vg(x):
@@ -128,9 +124,9 @@ def _iterate(solver, density, geom, free, params, c):
         newH0 = 1.0 / (dyy / (sy * H0) + y * y / sy - dyy * s * s / (sy * dinvss * H0 * H0))
         newH0 = jnp.where(jnp.isfinite(newH0) & (newH0 > 0), newH0, sy / yy)
     elif laplacian:
-        # the one host solve of the iteration: K^-1 g at the new point, whence K^-1 y
+        # the one Laplacian solve of the iteration: K^-1 g at the new point, whence K^-1 y
         z = c["z"]
-        zn = lax.cond(ok, lambda: _host_solve(c["pre"], gn), lambda: z)
+        zn = lax.cond(ok, lambda: laplacian_solve(c["pre"], gn, z), lambda: z)
         w = zn - z
         extra = {"z": zn, "W": c["W"].at[slot].set(jnp.where(good, w, c["W"][slot]))}
         yPy = _dot(y, w)
@@ -198,7 +194,7 @@ def _init_kernel(m, precondition, window, density, geom, free, params, x, pre, e
     H0 = jnp.ones_like(x) if precondition == "diagonal" else jnp.ones((), x.dtype)
     extra = {}
     if precondition == "laplacian":
-        extra = {"z": _host_solve(pre, g), "W": jnp.zeros((m,) + x.shape, x.dtype)}
+        extra = {"z": laplacian_solve(pre, g, jnp.zeros_like(g)), "W": jnp.zeros((m,) + x.shape, x.dtype)}
     return {
         "x": x, "f": f, "g": g, "S": jnp.zeros((m,) + x.shape, x.dtype),
         "Y": jnp.zeros((m,) + x.shape, x.dtype), "rho": jnp.zeros(m, x.dtype),
@@ -233,7 +229,11 @@ class LBFGS(AbstractSolver):
         ``gamma = s.y / y.K^-1 y`` (a Sobolev gradient, as in the Laplacian-preconditioned
         quasi-Newton methods of Zhu et al. 2018 and Kovalsky et al. 2016).  It makes
         L-BFGS's iteration count nearly independent of the mesh size on problems with large
-        global motions (two host solves per iteration).
+        global motions (one Laplacian solve per iteration).
+    laplacian : where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
+        host through ``jax.pure_callback``; exact), ``"device"`` (Jacobi-preconditioned CG in
+        JAX, warm-started from the previous iteration's solution, relative tolerance 1e-3: no
+        host round trip on an accelerator), or ``"auto"`` (host on CPU, device elsewhere).
     window : number of iterations the energy test looks back over (see ``rtol``).
 
     Notes
@@ -249,10 +249,11 @@ class LBFGS(AbstractSolver):
     search: InjectiveSearch = InjectiveSearch(c2=0.9)
     precondition: str = "scalar"
     window: int = 1
+    laplacian: str = "auto"
 
     def __post_init__(self):
         self._check(history=Int(1), gtol=Real(0.0, 1.0, hi_open=True), precondition=OneOf(PRECONDITIONERS),
-                    window=Int(1))
+                    window=Int(1), laplacian=OneOf(LAPLACIAN_BACKENDS))
 
     @staticmethod
     def _args(objective):
@@ -278,10 +279,10 @@ class LBFGS(AbstractSolver):
         kernel now, so that setup time holds the compilation."""
         density, geom, free = self._args(objective)
         x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
-        pre = RestLaplacian.register(objective) if self.precondition == "laplacian" else None
+        pre = RestLaplacian.register(objective, self.laplacian) if self.precondition == "laplacian" else None
         extent0 = reference_extent(objective, x0)
         carry = _init_kernel(self.history, self.precondition, self.window, density, geom,
-                             free, params, x, jnp.int32(pre.handle if pre is not None else -1),
+                             free, params, x, pre.token if pre is not None else jnp.int32(-1),
                              jnp.float64(extent0))
         if precompile == "step":
             _step_kernel(self, density, geom, free, params, carry)
@@ -324,7 +325,7 @@ class LBFGS(AbstractSolver):
         density, geom, free = self._args(state.objective)
         carry = state.aux["carry"]
         f, g, z = _vg_kernel(self.precondition == "laplacian", density, geom, free, params, carry["x"],
-                             carry["pre"])
+                             carry["pre"], carry.get("z"))
         carry = dict(carry, f=f, g=g, status=_initial_status(g), prev_f=jnp.asarray(jnp.inf, f.dtype),
                      g0=jnp.sqrt(_dot(g, g)), it=jnp.int32(0),
                      f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
@@ -341,7 +342,7 @@ class LBFGS(AbstractSolver):
 
 
 @partial(jax.jit, static_argnums=(0, 1))
-def _vg_kernel(laplacian, density, geom, free, params, x, pre):
-    """Value, gradient and (for the Laplacian seed) ``K^-1 grad`` at ``x``."""
+def _vg_kernel(laplacian, density, geom, free, params, x, pre, z):
+    """Value, gradient and (for the Laplacian seed) ``K^-1 grad`` at ``x`` (from ``z``)."""
     f, g = _value_and_grad(density, geom, free, x, params)
-    return f, g, (_host_solve(pre, g) if laplacian else None)
+    return f, g, (laplacian_solve(pre, g, z) if laplacian else None)
