@@ -338,6 +338,10 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         problem = (Problem.planar if V.shape[1] == 2 else Problem.surface)(V, faces)
         label = "mesh"
     objective = Objective(problem, energy, **energy_params)
+    if problem.fixed.size == 0 and problem.dim == 2:
+        from .param import _check_scale_aware
+
+        _check_scale_aware(energy, energy_params)
     if x0 is None:
         if problem.fixed.size or problem.dim != 2:
             raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "

@@ -138,6 +138,26 @@ def mesh_arrays(V, F=None):
     return V, F
 
 
+def _check_scale_aware(energy, energy_params):
+    """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
+    its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
+    on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
+    ``s = 1e-3`` (every scale-aware or scale-invariant distortion fails this test)."""
+    import jax.numpy as jnp
+
+    from .energies import get_energy
+
+    e = get_energy(energy)
+    params = e.resolve_params(**energy_params)
+    at = {s: float(e.density(s * jnp.eye(2), params)) for s in (1.0, 1e-3)}
+    if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
+        raise ParameterError(
+            f"energy {e.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "
+            f"{at[1.0]:.3g} at rest), so a free-boundary parameterization would collapse to a point; "
+            "use a scale-aware energy (symmetric_dirichlet, arap, mips) or fix boundary vertices "
+            "(geomopt.minimize with a Problem that has handles)")
+
+
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, *, buckets=True, bijective=False, **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
@@ -179,6 +199,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
     V, F = mesh_arrays(V, F)
+    _check_scale_aware(energy, energy_params)
     if bijective:
         from .scaffold import bijective_parameterize
 

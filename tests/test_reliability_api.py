@@ -406,3 +406,41 @@ def test_inverted_tutte_start_message_has_no_api_only_remedy(monkeypatch):
         parameterize(V3, F, weights="mean_value", progress=False)
     # the API's own folded start map is repaired (free-boundary untangling), not refused
     assert parameterize(V3, F, x0=folded_tutte(V3, F, None, None), progress=False).success
+
+
+# ------------------------------------------------------- free boundary: energies that collapse
+
+
+def _curved_disk():
+    V, F = G.disk_mesh(5)
+    return np.c_[V, 0.2 * np.sin(2.0 * V[:, 0])], F
+
+
+@pytest.mark.parametrize("energy", ["dirichlet", Energy(lambda J, p: jnp.sum(J * J) ** 2, name="quartic")])
+def test_free_boundary_parameterization_refuses_an_energy_that_shrinks_the_map(energy):
+    """Dirichlet (or any density lower at a smaller scale) has no free-boundary minimiser: the
+    map collapses to a point, which solvers used to report as converged."""
+    V, F = _curved_disk()
+    with pytest.raises(ParameterError, match="decreases when the map shrinks.*collapse"):
+        parameterize(V, F, energy=energy, progress=False)
+    with pytest.raises(ParameterError, match="decreases when the map shrinks"):
+        geomopt_compare(V, F, energy=energy, solvers=["newton"])
+    for fine in ("symmetric_dirichlet", "arap", "mips"):  # scale-aware or scale-invariant
+        param_module._check_scale_aware(fine, {})
+
+
+def geomopt_compare(*a, **k):
+    from geomopt import compare
+
+    return compare(*a, **k)
+
+
+@pytest.mark.parametrize("solver", ["newton", "aqp"])
+def test_a_map_that_collapses_is_diverged_not_converged(solver):
+    """The shared divergence rule: a map shrunk below 1e-6 of its start/rest size is
+    DIVERGED, never CONVERGED (Dirichlet with a free boundary, through minimize)."""
+    V, F = _curved_disk()
+    obj = Objective(Problem.surface(V, F), "dirichlet")
+    x0, _, _ = param_module.start_map(Objective(Problem.surface(V, F), "symmetric_dirichlet"), None, "uniform", False)
+    res = minimize(obj, x0, solver, progress=False)
+    assert res.outcome is Outcome.DIVERGED and not res.success and "collapsed" in res.message

@@ -102,7 +102,8 @@ def divergence(state: State):
 
     It diverged when the map's extent exceeds ``DIVERGENCE_FACTOR`` times its reference (the
     larger of the start map's and the rest mesh's: a minimiser of a bounded distortion energy
-    stays at the scale of the data), or when the energy is below the energy's known lower
+    stays at the scale of the data) or falls below ``1 / DIVERGENCE_FACTOR`` times it (the map
+    collapsed towards a point: e.g. Dirichlet with a free boundary), or when the energy is below the energy's known lower
     bound times the rest volume (allowing for rounding).  Non-finite values are NONFINITE.
     """
     value, obj = state.value, state.objective
@@ -115,6 +116,10 @@ def divergence(state: State):
     if math.isfinite(extent) and extent > DIVERGENCE_FACTOR * state.extent0:
         return (f"the map grew to {extent:.3g} across, {extent / state.extent0:.3g} times its "
                 f"start and rest size, while the energy fell to {value:.6g}")
+    if math.isfinite(extent) and extent * DIVERGENCE_FACTOR < state.extent0:
+        return (f"the map collapsed to {extent:.3g} across, {extent / state.extent0:.3g} times its "
+                "start and rest size (the energy is lowered by shrinking the map: with a free "
+                "boundary it has no minimiser; fix vertices or use a scale-aware energy)")
     return None
 
 

@@ -152,7 +152,7 @@ def _iterate(solver, density, geom, free, params, c):
     small_g = ok & (gn_norm <= solver.gtol * c["g0"])
     xk = jnp.where(ok, xn, x)
     extent = jnp.max(jnp.max(xk, axis=0) - jnp.min(xk, axis=0))
-    diverged = extent > DIVERGENCE_FACTOR * c["extent0"]
+    diverged = (extent > DIVERGENCE_FACTOR * c["extent0"]) | (extent * DIVERGENCE_FACTOR < c["extent0"])
     # a failed line search along a direction that promises no representable decrease means
     # the start of this iteration was already stationary up to rounding
     flat = -slope <= 1e-14 * jnp.maximum(jnp.abs(f), 1e-300)
