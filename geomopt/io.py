@@ -718,7 +718,8 @@ def read_mesh(path):
       checked as numbers and ignored), ``f`` lines with corners ``a``, ``a/t``, ``a/t/n``
       or ``a//n`` (1-based; negative indices count back from the last ``v`` line before
       the face, as the format defines).  Polygons are fan-triangulated: a face
-      ``a b c d ...`` gives ``(a, b, c), (a, c, d), ...``.  Attribute and grouping
+      ``a b c d ...`` gives ``(a, b, c), (a, c, d), ...``; a polygon whose fan would fold
+      (non-convex or twisted) is refused.  Attribute and grouping
       statements (``vt``, ``vn``, ``g``, ``o``, ``s``, ``usemtl``, ``mtllib``, ``l``, ``p``,
       ...) are ignored; free-form geometry and unknown statements are refused.  ``#``
       starts a comment; a line ending in ``\\`` continues on the next.
@@ -732,7 +733,7 @@ def read_mesh(path):
       faces from the list ``vertex_indices`` (or ``vertex_index``) of element ``face``,
       fan-triangulated.  Other elements and properties are read past and ignored.
     * **STL** (ASCII or binary): STL stores every triangle with its own three corners, so
-      corners with bit-identical coordinates are **welded** into one vertex (numbered in
+      corners with equal coordinates (-0.0 = 0.0) are **welded** into one vertex (numbered in
       order of first appearance); without welding no STL mesh is connected.  Binary STL
       stores float32.  A file holding several ``solid`` blocks is refused.
 
@@ -778,10 +779,13 @@ def read_mesh(path):
     return V, F
 
 
-def _fan(indices, counts):
+def _fan(indices, counts, V=None, path=None):
     """Fan-triangulate polygons given as flat corner ``indices`` (int64) and per-polygon ``counts`` (>= 3).
 
-    Returns (sum(counts - 2), 3) int64: polygon ``c0 c1 .. ck`` gives ``(c0, ci, ci+1)``.
+    Returns (sum(counts - 2), 3) int64: polygon ``c0 c1 .. ck`` gives ``(c0, ci, ci+1)``.  With
+    the vertex positions ``V``, a polygon whose fan folds (a fan triangle facing against the
+    polygon's Newell normal: a non-convex or twisted polygon) is refused, because the triangles
+    would not tile the polygon.
     """
     counts = np.asarray(counts, dtype=np.int64)
     if counts.size and (counts == 3).all():
@@ -790,7 +794,28 @@ def _fan(indices, counts):
     ntri = counts - 2
     first = np.repeat(starts, ntri)
     local = np.arange(int(ntri.sum())) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-    return np.stack([indices[first], indices[first + local + 1], indices[first + local + 2]], axis=1)
+    F = np.stack([indices[first], indices[first + local + 1], indices[first + local + 2]], axis=1)
+    if V is not None and indices.size and 0 <= indices.min() and indices.max() < len(V):
+        _check_fans(np.asarray(V, np.float64), indices, counts, F, np.repeat(np.arange(counts.size), ntri), path)
+    return F
+
+
+def _check_fans(V, indices, counts, F, owner, path):
+    """Refuse polygons (``counts > 3``) whose fan triangles ``F`` (polygon ``owner``) fold."""
+    P = np.zeros((V.shape[0], 3))
+    P[:, :V.shape[1]] = V
+    poly = np.repeat(np.arange(counts.size), counts)
+    nxt = np.arange(indices.size) + 1
+    nxt[np.cumsum(counts) - 1] = np.cumsum(counts) - counts  # each polygon closes on its first corner
+    normal = np.zeros((counts.size, 3))
+    np.add.at(normal, poly, np.cross(P[indices], P[indices[nxt]]))  # Newell's normal (twice the area)
+    tri = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
+    bad = (np.einsum("ij,ij->i", tri, normal[owner]) <= 0) & (counts[owner] > 3)
+    if bad.any():
+        k = int(owner[np.flatnonzero(bad)[0]])
+        raise MeshFormatError(
+            f"{path}: face {k + 1} is a polygon of {counts[k]} corners that is not convex (or is twisted): "
+            f"cutting it into a fan of triangles folds it; triangulate the mesh before reading it")
 
 
 # ------------------------------------------------------------------------- OBJ
@@ -977,7 +1002,7 @@ def _read_obj(data, path):
         raise MeshFormatError(f"{path} contains no mesh (no 'v' or 'f' lines); is it really an OBJ file?")
     if not obj["counts"].size:
         raise MeshFormatError(f"{path} has no triangle faces (no 'f' lines); a triangle mesh is required")
-    return obj["v"], _fan(obj["corners"], obj["counts"])
+    return obj["v"], _fan(obj["corners"], obj["counts"], obj["v"], path)
 
 
 def read_obj_uv(path):
@@ -1031,7 +1056,7 @@ def read_obj_uv(path):
         raise MeshFormatError(f"{path}: {unused.size} vertices are used by no face (first: {unused[0] + 1}); "
                               f"remove unreferenced vertices")
     V = validate_vertices(V, f"{path.name}: vertices", dim=3)
-    F = validate_simplices(_fan(corner, obj["counts"]), V.shape[0], 3, f"{path.name}: faces")
+    F = validate_simplices(_fan(corner, obj["counts"], V, path), V.shape[0], 3, f"{path.name}: faces")
     return V, F, validate_vertices(UV, f"{path.name}: UV map", dim=2)
 
 
@@ -1084,7 +1109,7 @@ def _read_off(data, path):
     widths = {3 + (3 if normal else 0) + c + (2 if st else 0) for c in ((3, 4) if colour else (0,))}
     expected = " or ".join(map(str, sorted(widths)))
     V = _off_vertices(vrows, widths, expected, path)
-    return V, _off_faces(frows, path)
+    return V, _off_faces(frows, path, V)
 
 
 def _off_vertices(rows, widths, expected, path):
@@ -1096,7 +1121,7 @@ def _off_vertices(rows, widths, expected, path):
     return _floats(flat, lambda i: f"{path}, line {rows[i // 3][0]}").reshape(-1, 3)
 
 
-def _off_faces(rows, path):
+def _off_faces(rows, path, V=None):
     sizes = [len(t) for _, t in rows]
     heads = _ints([t[0] for _, t in rows], lambda i: f"{path}, line {rows[i][0]}")
     for (lineno, tokens), k, size in zip(rows, heads.tolist(), sizes):
@@ -1113,7 +1138,7 @@ def _off_faces(rows, path):
     if colours:
         owner = np.repeat(np.arange(len(rows)), np.array(sizes) - 1 - heads)
         _floats(colours, lambda i: f"{path}, line {rows[owner[i]][0]} (face colour)")
-    return _fan(index, heads)
+    return _fan(index, heads, V, path)
 
 
 # ------------------------------------------------------------------------- PLY
@@ -1398,7 +1423,7 @@ def _ply_mesh(found, elements, path):
         i = int(np.flatnonzero(counts < 3)[0])
         raise MeshFormatError(f"{path}: face {i} has {counts[i]} vertices; a face needs at least 3 (in a "
                               f"binary file this is also what element counts that do not match the body give)")
-    return V, _fan(flat.astype(np.int64), counts)
+    return V, _fan(flat.astype(np.int64), counts, V, path)
 
 
 # ------------------------------------------------------------------------- STL
@@ -1407,7 +1432,7 @@ _STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("a
 
 
 def _read_stl(data, path):
-    """``(V, F)`` of an ASCII or binary STL file, corners welded by bit-identical coordinates."""
+    """``(V, F)`` of an ASCII or binary STL file, corners welded by equal coordinates."""
     binary_size = 84 + 50 * int.from_bytes(data[80:84], "little") if len(data) >= 84 else None
     text = data.removeprefix(_UTF8_BOM)
     looks_ascii = text.lstrip()[:5].lower() == b"solid" and not any(
@@ -1469,8 +1494,9 @@ def _stl_ascii_corners(data, path):
 
 
 def _weld(corners):
-    """Merge corners with bit-identical coordinates: ``(V (n, 3), F (m, 3))``, vertices in first-seen order."""
-    corners = np.ascontiguousarray(corners, dtype=np.float64)
+    """Merge corners with equal coordinates (bit-identical once -0.0 is read as +0.0): ``(V (n, 3),
+    F (m, 3))``, vertices in first-seen order."""
+    corners = np.ascontiguousarray(corners, dtype=np.float64) + 0.0  # -0.0 + 0.0 = +0.0: equal corners weld
     keys = corners.view(np.dtype((np.void, corners.dtype.itemsize * 3))).ravel()
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")

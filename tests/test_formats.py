@@ -191,6 +191,23 @@ def test_polygons_are_fan_triangulated_exactly_in_every_format(tmp_path):
         read_mesh(put(tmp_path / "two.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"))
 
 
+def test_a_polygon_whose_fan_folds_is_refused_in_every_format(tmp_path):
+    """A concave pentagon: its fan from the first corner has a triangle facing backwards, so the
+    triangles would not tile it (a folded rest mesh); convex polygons and quads still read."""
+    V = np.array([[0.0, 0, 0], [2, 0, 0], [2, 2, 0], [1, 0.5, 0], [0, 2, 0]])
+    files = {
+        "p.obj": b"".join(f"v {x} {y} {z}\n".encode() for x, y, z in V) + b"f 1 2 3 4 5\n",
+        "p.off": b"OFF\n5 1 0\n" + b"".join(f"{x} {y} {z}\n".encode() for x, y, z in V) + b"5 0 1 2 3 4\n",
+        "p.ply": ply_header("ascii", 5, 1) + b"".join(f"{x} {y} {z}\n".encode() for x, y, z in V)
+        + b"5 0 1 2 3 4\n",
+    }
+    for name, data in files.items():
+        with pytest.raises(MeshFormatError, match="face 1 is a polygon of 5 corners that is not convex"):
+            read_mesh(put(tmp_path / name, data))
+    _, F = read_mesh(put(tmp_path / "q.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0.3\nv 0 1 0\nf 1 2 3 4\n"))  # skew quad
+    assert F.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
 @pytest.mark.parametrize("text, error, word", [
     ("v 0 0 0 x\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", MeshFormatError, "line 1: 'v' line has 4 numbers|line 1: cannot read 'x'"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 x\n", MeshFormatError, "line 4: cannot read face corner 'x'"),
@@ -306,8 +323,10 @@ def test_stl_corners_are_welded_by_bit_identical_coordinates(tmp_path):
         np.testing.assert_array_equal(V2, V)
         np.testing.assert_array_equal(F2, SQUARE_F)
     minus = stl_ascii_bytes(V, SQUARE_F).replace(b"vertex 0.0 0.0 0.0", b"vertex -0.0 0.0 0.0", 1)
-    V3, F3 = read_mesh(put(tmp_path / "m.stl", minus))  # -0.0 and 0.0 differ in their bits
-    assert len(V3) == 5 and F3.tolist() == [[0, 1, 2], [3, 2, 4]]
+    assert minus != stl_ascii_bytes(V, SQUARE_F)
+    V3, F3 = read_mesh(put(tmp_path / "m.stl", minus))  # -0.0 == 0.0: welded (a mirrored export)
+    np.testing.assert_array_equal(V3, V)
+    np.testing.assert_array_equal(F3, SQUARE_F)
 
 
 def test_stl_errors(tmp_path):
