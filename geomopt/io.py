@@ -1494,10 +1494,11 @@ def _stl_ascii_corners(data, path):
 
 
 def _weld(corners):
-    """Merge corners with equal coordinates (bit-identical once -0.0 is read as +0.0): ``(V (n, 3),
-    F (m, 3))``, vertices in first-seen order."""
-    corners = np.ascontiguousarray(corners, dtype=np.float64) + 0.0  # -0.0 + 0.0 = +0.0: equal corners weld
-    keys = corners.view(np.dtype((np.void, corners.dtype.itemsize * 3))).ravel()
+    """Merge corners with equal coordinates (-0.0 = +0.0): ``(V (n, 3), F (m, 3))``, vertices in
+    first-seen order with the first corner's exact bits."""
+    corners = np.ascontiguousarray(corners, dtype=np.float64)
+    equal = corners + 0.0  # -0.0 + 0.0 = +0.0: equal corners weld; a vertex keeps its first corner's bits
+    keys = equal.view(np.dtype((np.void, corners.dtype.itemsize * 3))).ravel()
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
