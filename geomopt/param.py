@@ -96,8 +96,9 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     """
     problem = objective.problem
     repaired = None
+    # every start: a free-boundary map is certified as a disk's, so say so before any solving
+    loop = check_disk(problem.input_simplices, problem.n_vertices)
     if x0 is None or (isinstance(x0, str) and x0 == "tutte"):
-        loop = check_disk(problem.input_simplices, problem.n_vertices)
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
         source = "the Tutte start map"
     elif isinstance(x0, str):

@@ -444,3 +444,21 @@ def test_a_map_that_collapses_is_diverged_not_converged(solver):
     x0, _, _ = param_module.start_map(Objective(Problem.surface(V, F), "symmetric_dirichlet"), None, "uniform", False)
     res = minimize(obj, x0, solver, progress=False)
     assert res.outcome is Outcome.DIVERGED and not res.success and "collapsed" in res.message
+
+
+@pytest.mark.parametrize("x0", ["projection", "array"])
+def test_a_non_disk_is_refused_before_any_repair_or_solve(x0, monkeypatch):
+    """Free-boundary maps are certified as a disk's: a closed surface or an annulus is refused
+    up front for every start (it used to be repaired for up to 200 outer iterations first)."""
+    octa = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
+    octa_F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    V, F = G.square_mesh(6)
+    keep = ~np.all(np.isin(F, np.flatnonzero((np.abs(V - 0.5) < 0.2).all(axis=1))), axis=1)
+    ring = (np.c_[V, np.zeros(len(V))], F[keep])
+    used = np.unique(ring[1])
+    ring = (ring[0][used], np.searchsorted(used, ring[1]))
+    monkeypatch.setattr(param_module, "repair_map", lambda *a, **k: pytest.fail("repaired a non-disk"))
+    for (P, T), words in (((octa, octa_F), "no boundary"), (ring, "boundary loops")):
+        start = x0 if x0 == "projection" else np.random.default_rng(0).normal(size=(len(P), 2))
+        with pytest.raises(MeshError, match=words):
+            parameterize(P, T, x0=start, progress=False)
