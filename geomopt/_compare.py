@@ -356,7 +356,9 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         if case is not None:
             source = source if given else f"the map of LIM case {case}"
             hint = (f"untangle it first (geomopt untangle {case} -o DIR/input.obj, copy its handles "
-                    f"file into DIR, then compare DIR)")
+                    f"file into DIR, then compare DIR)" if problem.dim == 2 else
+                    f"untangle it first (geomopt untangle {case} -o DIR/init.vtk, copy its rest.vtk and "
+                    f"handles file into DIR, then compare DIR)")
         else:
             hint = "untangle it first (geomopt.untangle) or give a flip-free x0"
         raise MeshError(f"{source} has {inverted} inverted or degenerate {what}; compare needs a "

@@ -360,6 +360,9 @@ class Objective:
     """
 
     def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, **params):
+        if not isinstance(problem, Problem):
+            raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
+                                 f"Problem.tets), got {type(problem).__name__}")
         self.problem = problem
         self.energy = get_energy(energy, **params)
         self.energy.check_dim(problem.dim)

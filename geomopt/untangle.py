@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import sys
 import time
 from functools import partial
@@ -300,6 +301,8 @@ def untangle(
         raise ParameterError(f"theta must lie in (0, 1), got {theta}")
     if max_outer < 1:
         raise ParameterError(f"max_outer must be >= 1, got {max_outer}")
+    if not (isinstance(energy_tol, numbers.Real) and 0.0 < energy_tol < 1.0):
+        raise ParameterError(f"energy_tol must be a number in (0, 1), got {energy_tol!r}")
     if not 0.0 < min_sigma <= max_sigma < 1.0:
         raise ParameterError(f"need 0 < min_sigma <= max_sigma < 1, got {min_sigma}, {max_sigma}")
     if not (isinstance(solver, (str, AbstractSolver))):
@@ -388,6 +391,8 @@ def untangle(
         worse = len(hist_inv) > 1 and hist_inv[-1] > hist_inv[-2]
         if not keep_memory or worse:
             state = solver.forget(state)
+    if outcome is Outcome.MAX_STEPS:
+        reason = f"stopped at the outer-iteration limit (max_outer={max_outer}) before it settled"
     seconds = time.perf_counter() - t0
     evaluations = state.evaluations
 

@@ -462,3 +462,15 @@ def test_a_non_disk_is_refused_before_any_repair_or_solve(x0, monkeypatch):
         start = x0 if x0 == "projection" else np.random.default_rng(0).normal(size=(len(P), 2))
         with pytest.raises(MeshError, match=words):
             parameterize(P, T, x0=start, progress=False)
+
+
+def test_small_api_misuses_get_clear_errors():
+    V, F = G.square_mesh(4)
+    with pytest.raises(ParameterError, match="Objective needs a geomopt.Problem.*got str"):
+        Objective("pr", "arap")
+    t = G.rotated_interior(V, F, 90)
+    for bad in (float("nan"), 0.0, 2.0, "1e-5"):
+        with pytest.raises(ParameterError, match="energy_tol"):
+            untangle(t.problem(), t.x0, energy_tol=bad, progress=False)
+    res = untangle(t.problem(), t.x0, max_outer=1, progress=False)  # cannot settle in one
+    assert not res.success and "outer-iteration limit (max_outer=1)" in res.message
