@@ -18,7 +18,7 @@ from geomopt.linesearch import InjectiveSearch, still_positive
 from geomopt.predicates import count_inverted
 from geomopt.solvers import AQP, CM, LBFGS, SLIM, SOLVERS, Newton, get_solver
 from geomopt.solvers.lbfgs import _two_loop
-from geomopt.solvers.proxies import CMProxy, SLIMProxy, slim_weights, true_hessian_block
+from geomopt.solvers.proxies import CMProxy, SLIMProxy, slim_weights, svd2, true_hessian_block
 
 from conftest import grid
 from test_newton import developable_patch
@@ -136,6 +136,22 @@ def test_slim_weights_equal_the_closed_form_for_symmetric_dirichlet(d):
     for J in _random_jacobians(d):
         w2, (_, s, _) = slim_weights(density, J, {})
         np.testing.assert_allclose(w2, 1 + s**-1 + s**-2 + s**-3, rtol=1e-9)
+
+
+def test_closed_form_svd2_matches_lapack():
+    """Singular values (the small one to relative accuracy), orthogonal factors and the
+    reconstruction, over random scales, inverted and nearly degenerate Jacobians."""
+    rng = np.random.default_rng(5)
+    J = rng.standard_normal((500, 2, 2)) * rng.uniform(1e-3, 1e3, (500, 1, 1))
+    J[:4] = [np.eye(2), [[1.0, 0.0], [0.0, 1e-9]], [[0.0, -1.0], [1.0, 0.0]], [[2.0, 1e-12], [0.0, -3.0]]]
+    U, s, Vt = (np.asarray(a) for a in jax.vmap(svd2)(jnp.asarray(J)))
+    ref = np.linalg.svd(J, compute_uv=False)
+    np.testing.assert_allclose(s, ref, rtol=1e-11)
+    np.testing.assert_allclose(np.einsum("nij,nj,njk->nik", U, s, Vt), J,
+                               atol=1e-14 * np.abs(J).max())
+    for Q in (U, np.swapaxes(Vt, 1, 2)):
+        np.testing.assert_allclose(np.einsum("nji,njk->nik", Q, Q), np.broadcast_to(np.eye(2), Q.shape),
+                                   atol=1e-14)
 
 
 @pytest.mark.parametrize("d", [2, 3])
