@@ -168,6 +168,23 @@ def test_slim_proxy_gradient_matches_the_energy(d):
         assert np.linalg.eigvalsh(H).min() > 0
 
 
+def test_aqp_proxy_is_scaled_to_the_energys_rest_curvature():
+    """AQP's Laplacian proxy is scaled by the density's rest curvature (4 for symmetric
+    Dirichlet), so near the minimum the search accepts its first trial t = 1 instead of halving
+    a step four times too long in every iteration."""
+    from geomopt.solvers.aqp import rest_curvature
+
+    for name, c in (("symmetric_dirichlet", 4.0), ("dirichlet", 1.0), ("arap", 1.0)):
+        for d in (2, 3):
+            assert rest_curvature(get_energy(name).density, {}, d) == pytest.approx(c, rel=1e-12)
+    problem, x0, _ = _affine_problem(2)
+    steps = []
+    res = minimize(Objective(problem, "symmetric_dirichlet"), x0, AQP(),
+                   progress=lambda state, *_: steps.append(state.step_size))
+    assert res.success
+    assert np.median(steps[len(steps) // 2:]) == 1.0, steps
+
+
 def test_cm_proxy_is_psd_and_majorizes_along_lines():
     rng = np.random.default_rng(3)
     for name in ("symmetric_dirichlet", "mips"):
