@@ -24,7 +24,7 @@ and seconds to a relative gap of ``--refine-tol`` (default 1e-4) to the best ene
 resolution.  AQP's proxy (the rest Laplacian) is resolution-independent, so its count should stay
 nearly flat, while SLIM's grows (Kovalsky et al. 2016).
 
-    python benchmarks/solvers.py --refine ruffled --refine-rings 16 32 64
+    python benchmarks/solvers.py --refine saddle --refine-amplitude 2.5 --refine-rings 16 --refine-levels 2
     python benchmarks/solvers.py --refine bunny_cut --refine-levels 2
 """
 
@@ -129,7 +129,8 @@ def refinement_shapes(args):
     from geomopt.generators import ruffled_disk, saddle
     from geomopt.io import read_mesh
 
-    generated = {"ruffled": ruffled_disk, "saddle": saddle}
+    amp = {} if args.refine_amplitude is None else {"amplitude": args.refine_amplitude}
+    generated = {"ruffled": lambda r: ruffled_disk(r, **amp), "saddle": lambda r: saddle(r, **amp)}
     if args.refine in generated and not args.refine_levels:
         return [(f"{args.refine} rings={r}", *generated[args.refine](r)) for r in args.refine_rings]
     if args.refine in generated:
@@ -205,6 +206,8 @@ def main(argv=None):
     ap.add_argument("--refine-levels", type=int, default=0,
                     help="midpoint subdivisions (the exact same surface): of a mesh (default 1), or of a "
                          "generated shape at the first --refine-rings (default 0: generate at every ring count)")
+    ap.add_argument("--refine-amplitude", type=float, help="amplitude of the generated shape (its default: "
+                    "ruffled 0.6, saddle 1)")
     ap.add_argument("--refine-tol", type=float, default=1e-4, help="relative gap counted (default 1e-4)")
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.slim_iters < 1:
