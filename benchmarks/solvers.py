@@ -144,7 +144,8 @@ def refinement_shapes(args):
                      f"got {args.refine!r}")
         V, F = read_mesh(path)
         out = [(args.refine, V, F)]
-    for k in range(args.refine_levels or 1 if args.refine not in generated else args.refine_levels):
+    levels = args.refine_levels if args.refine in generated else (args.refine_levels or 1)
+    for k in range(levels):
         V, F = midpoint_subdivide(V, F)
         out.append((f"{out[0][0]} subdivided x{k + 1}", V, F))
     return out
@@ -178,8 +179,8 @@ def refine_report(args):
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         lines.append("| " + " | ".join([row["shape"], str(row["n_faces"])] + [
-            cell(row[n]["iterations"], row[n]["seconds"]) + ("" if row[n]["flips"] == 0 else f" ({row[n]['flips']} flips)")
-            for n in wanted]) + " |")
+            cell(row[n]["iterations"], row[n]["seconds"])
+            + ("" if row[n]["flips"] == 0 else f" ({row[n]['flips']} flips)") for n in wanted]) + " |")
     print("\n".join(lines))
     print(f"\nrelative gap to the best energy of the listed solvers at each resolution; at most "
           f"{args.max_seconds:g} s per solver", flush=True)
@@ -199,8 +200,10 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=1, help="warm runs (median reported)")
     ap.add_argument("--slim-iters", type=int, default=300, help="libigl SLIM iterations (default 300)")
     ap.add_argument("--json", type=Path, help="write the per-mesh statistics here")
-    ap.add_argument("--refine", metavar="SHAPE", help="iterations under refinement instead: 'ruffled' or "
-                    "'saddle' (geomopt.generators, at --refine-rings) or a mesh name (and --refine-levels midpoint subdivisions)")
+    ap.add_argument("--refine", metavar="SHAPE",
+                    help="iterations under refinement instead: 'ruffled' or 'saddle' (geomopt.generators, at "
+                         "--refine-rings) or a mesh name (and --refine-levels midpoint subdivisions); default "
+                         "solvers aqp,slim,newton")
     ap.add_argument("--refine-rings", type=int, nargs="+", default=[16, 32, 64],
                     help="resolutions of a generated shape (disk rings; 6 rings^2 triangles), default 16 32 64")
     ap.add_argument("--refine-levels", type=int, default=0,
