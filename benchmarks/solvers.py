@@ -16,6 +16,16 @@ compile seconds, final gap, final and maximum flips over every iterate, and the 
 Energies are geomopt's symmetric Dirichlet, area-weighted mean (4 at an isometry).
 
     python benchmarks/solvers.py --meshes camelhead bunny_cut --repeat 2 --max-seconds 60
+
+``--refine``: iteration counts under refinement instead (no libigl): the same shape at several
+resolutions (a generated ruffled disk or saddle at ``--refine-rings``, or a shared mesh and its midpoint
+subdivisions), the chosen solvers (default aqp, slim, newton) from the Tutte start, iterations
+and seconds to a relative gap of ``--refine-tol`` (default 1e-4) to the best energy at that
+resolution.  AQP's proxy (the rest Laplacian) is resolution-independent, so its count should stay
+nearly flat, while SLIM's grows (Kovalsky et al. 2016).
+
+    python benchmarks/solvers.py --refine saddle --refine-amplitude 2.5 --refine-rings 16 --refine-levels 2
+    python benchmarks/solvers.py --refine bunny_cut --refine-levels 2
 """
 
 from __future__ import annotations
@@ -96,6 +106,89 @@ def table(mesh, n_faces, rows, ref):
     return "\n".join(lines)
 
 
+def midpoint_subdivide(V, F):
+    """One 1-to-4 midpoint subdivision: the same piecewise-flat surface, 4x the triangles.
+
+    V (n, 3), F (m, 3) -> V (n + edges, 3), F (4m, 3), orientation kept."""
+    F = np.asarray(F, np.int64)
+    n = len(V)
+    # the three edges of each face (opposite corners 0, 1, 2): (1,2), (2,0), (0,1)
+    pairs = np.stack([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]], axis=1).reshape(-1, 2)
+    key = np.sort(pairs, axis=1)
+    edges, idx = np.unique(key, axis=0, return_inverse=True)
+    mid = n + idx.reshape(-1, 3)  # (m, 3): midpoint vertex opposite each corner
+    V = np.concatenate([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])])
+    a, b, c = F.T
+    ma, mb, mc = mid.T  # ma on edge (b, c), mb on (c, a), mc on (a, b)
+    F = np.concatenate([np.stack(t, 1) for t in ((a, mc, mb), (b, ma, mc), (c, mb, ma), (ma, mb, mc))])
+    return V, F
+
+
+def refinement_shapes(args):
+    """[(label, V, F)] of one shape at several resolutions."""
+    from geomopt.generators import ruffled_disk, saddle
+    from geomopt.io import read_mesh
+
+    amp = {} if args.refine_amplitude is None else {"amplitude": args.refine_amplitude}
+    generated = {"ruffled": lambda r: ruffled_disk(r, **amp), "saddle": lambda r: saddle(r, **amp)}
+    if args.refine in generated and not args.refine_levels:
+        return [(f"{args.refine} rings={r}", *generated[args.refine](r)) for r in args.refine_rings]
+    if args.refine in generated:
+        r = args.refine_rings[0]
+        V, F = generated[args.refine](r)
+        out = [(f"{args.refine} rings={r}", V, F)]
+    else:
+        path = next((p for p in bench.MESH_DIR.iterdir() if p.stem == args.refine), None)
+        if path is None:
+            sys.exit(f"error: --refine takes 'ruffled', 'saddle' or a mesh name in {bench.MESH_DIR}, "
+                     f"got {args.refine!r}")
+        V, F = read_mesh(path)
+        out = [(args.refine, V, F)]
+    levels = args.refine_levels if args.refine in generated else (args.refine_levels or 1)
+    for k in range(levels):
+        V, F = midpoint_subdivide(V, F)
+        out.append((f"{out[0][0]} subdivided x{k + 1}", V, F))
+    return out
+
+
+def refine_report(args):
+    """The ``--refine`` table: iterations (and seconds) to ``--refine-tol`` per resolution."""
+    import geomopt
+    from geomopt import Objective, Problem
+
+    wanted = args.solvers.split(",") if args.solvers else ["aqp", "slim", "newton"]
+    shapes = refinement_shapes(args)
+    rows = []
+    for label, V, F in shapes:
+        objective = Objective(Problem.surface(V, F), "symmetric_dirichlet")
+        x0, _ = bench.start_map(objective, V, F)
+        # compile what the solvers compile in their first steps (per size), outside the timings
+        geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.cold_seconds)
+        c = geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.max_seconds)
+        best = c.best_mean_energy
+        row = {"shape": label, "n_faces": len(F), "E_best": best}
+        for name in wanted:
+            r = c.results[name]
+            e = r.energy_history / c.area
+            hit = first_hit(e, best + args.refine_tol * abs(best))
+            row[name] = {"iterations": hit, "seconds": None if hit is None else float(r.time_history[hit]),
+                         "outcome": c.outcome(name), "flips": r.inverted}
+        rows.append(row)
+        bench.log(f"  {label}: {len(F)} triangles, E* = {best:.10g}")
+    head = ["shape", "#F"] + [f"{n}: it / s to {args.refine_tol:g}" for n in wanted]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        lines.append("| " + " | ".join([row["shape"], str(row["n_faces"])] + [
+            cell(row[n]["iterations"], row[n]["seconds"])
+            + ("" if row[n]["flips"] == 0 else f" ({row[n]['flips']} flips)") for n in wanted]) + " |")
+    print("\n".join(lines))
+    print(f"\nrelative gap to the best energy of the listed solvers at each resolution; at most "
+          f"{args.max_seconds:g} s per solver", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1, default=str))
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--meshes", nargs="+", metavar="NAME", help="mesh names (file stems); default: all")
@@ -107,9 +200,29 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=1, help="warm runs (median reported)")
     ap.add_argument("--slim-iters", type=int, default=300, help="libigl SLIM iterations (default 300)")
     ap.add_argument("--json", type=Path, help="write the per-mesh statistics here")
+    ap.add_argument("--refine", metavar="SHAPE",
+                    help="iterations under refinement instead: 'ruffled' or 'saddle' (geomopt.generators, at "
+                         "--refine-rings) or a mesh name (and --refine-levels midpoint subdivisions); default "
+                         "solvers aqp,slim,newton")
+    ap.add_argument("--refine-rings", type=int, nargs="+", default=[16, 32, 64],
+                    help="resolutions of a generated shape (disk rings; 6 rings^2 triangles), default 16 32 64")
+    ap.add_argument("--refine-levels", type=int, default=0,
+                    help="midpoint subdivisions (the exact same surface): of a mesh (default 1), or of a "
+                         "generated shape at the first --refine-rings (default 0: generate at every ring count)")
+    ap.add_argument("--refine-amplitude", type=float, help="amplitude of the generated shape (its default: "
+                    "ruffled 0.6, saddle 1)")
+    ap.add_argument("--refine-tol", type=float, default=1e-4, help="relative gap counted (default 1e-4)")
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.slim_iters < 1:
         ap.error("--repeat and --slim-iters must be at least 1")
+    if args.json:
+        from geomopt.io import check_output_path
+
+        check_output_path(args.json)
+    if args.refine:
+        if not bench.MESH_DIR.is_dir() and args.refine not in ("ruffled", "saddle"):
+            sys.exit(f"error: mesh folder {bench.MESH_DIR} not found (see shared/data/meshes/SOURCES.md)")
+        return refine_report(args)
     try:
         import igl  # noqa: F401
     except ImportError:
@@ -119,11 +232,9 @@ def main(argv=None):
 
     import geomopt
     from geomopt import Objective, ParameterError, Problem
-    from geomopt.io import check_output_path, read_mesh
+    from geomopt.io import read_mesh
     from geomopt.solvers import SOLVERS
 
-    if args.json:
-        check_output_path(args.json)
     available = {p.stem: p for p in sorted(bench.MESH_DIR.iterdir()) if p.suffix.lower() in bench.MESH_EXTS}
     names = args.meshes or list(available)
     unknown = [n for n in names if n not in available]

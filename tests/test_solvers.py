@@ -18,7 +18,7 @@ from geomopt.linesearch import InjectiveSearch, still_positive
 from geomopt.predicates import count_inverted
 from geomopt.solvers import AQP, CM, LBFGS, SLIM, SOLVERS, Newton, get_solver
 from geomopt.solvers.lbfgs import _two_loop
-from geomopt.solvers.proxies import CMProxy, SLIMProxy, slim_weights, true_hessian_block
+from geomopt.solvers.proxies import CMProxy, SLIMProxy, slim_weights, svd2, true_hessian_block
 
 from conftest import grid
 from test_newton import developable_patch
@@ -138,6 +138,22 @@ def test_slim_weights_equal_the_closed_form_for_symmetric_dirichlet(d):
         np.testing.assert_allclose(w2, 1 + s**-1 + s**-2 + s**-3, rtol=1e-9)
 
 
+def test_closed_form_svd2_matches_lapack():
+    """Singular values (the small one to relative accuracy), orthogonal factors and the
+    reconstruction, over random scales, inverted and nearly degenerate Jacobians."""
+    rng = np.random.default_rng(5)
+    J = rng.standard_normal((500, 2, 2)) * rng.uniform(1e-3, 1e3, (500, 1, 1))
+    J[:4] = [np.eye(2), [[1.0, 0.0], [0.0, 1e-9]], [[0.0, -1.0], [1.0, 0.0]], [[2.0, 1e-12], [0.0, -3.0]]]
+    U, s, Vt = (np.asarray(a) for a in jax.vmap(svd2)(jnp.asarray(J)))
+    ref = np.linalg.svd(J, compute_uv=False)
+    np.testing.assert_allclose(s, ref, rtol=1e-11)
+    np.testing.assert_allclose(np.einsum("nij,nj,njk->nik", U, s, Vt), J,
+                               atol=1e-14 * np.abs(J).max())
+    for Q in (U, np.swapaxes(Vt, 1, 2)):
+        np.testing.assert_allclose(np.einsum("nji,njk->nik", Q, Q), np.broadcast_to(np.eye(2), Q.shape),
+                                   atol=1e-14)
+
+
 @pytest.mark.parametrize("d", [2, 3])
 def test_slim_proxy_gradient_matches_the_energy(d):
     """|W(J - R)|^2 with R = U V^T has the energy's gradient at J: the global step is a
@@ -150,6 +166,23 @@ def test_slim_proxy_gradient_matches_the_energy(d):
         grad_proxy = (H @ (J - R).reshape(-1)).reshape(d, d)  # d/dJ of (J-R):H:(J-R)/2
         np.testing.assert_allclose(grad_proxy, jax.grad(density)(J, {}), rtol=1e-8, atol=1e-10)
         assert np.linalg.eigvalsh(H).min() > 0
+
+
+def test_aqp_proxy_is_scaled_to_the_energys_rest_curvature():
+    """AQP's Laplacian proxy is scaled by the density's rest curvature (4 for symmetric
+    Dirichlet), so near the minimum the search accepts its first trial t = 1 instead of halving
+    a step four times too long in every iteration."""
+    from geomopt.solvers.aqp import rest_curvature
+
+    for name, c in (("symmetric_dirichlet", 4.0), ("dirichlet", 1.0), ("arap", 1.0)):
+        for d in (2, 3):
+            assert rest_curvature(get_energy(name).density, {}, d) == pytest.approx(c, rel=1e-12)
+    problem, x0, _ = _affine_problem(2)
+    steps = []
+    res = minimize(Objective(problem, "symmetric_dirichlet"), x0, AQP(),
+                   progress=lambda state, *_: steps.append(state.step_size))
+    assert res.success
+    assert np.median(steps[len(steps) // 2:]) == 1.0, steps
 
 
 def test_cm_proxy_is_psd_and_majorizes_along_lines():
