@@ -68,7 +68,7 @@ def test_cases_of_one_bucket_share_the_compiled_kernels():
 
     ts = tangles()
     untangle(ts["square"].problem(), ts["square"].x0, progress=False, bucket=True)
-    kernels = [lbfgs._run_kernel, lbfgs._init_kernel, lbfgs._vg_kernel, _outer_stats]
+    kernels = [lbfgs._run_kernel, lbfgs._reparam_kernel, _outer_stats]
     before = [k._cache_size() for k in kernels]
     for name in ("star", "disk"):  # other shapes, the same bucket
         assert untangle(ts[name].problem(), ts[name].x0, progress=False, bucket=True).success

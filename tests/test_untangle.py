@@ -194,7 +194,7 @@ def test_outer_loop_compiles_once():
     """eps and lambda are traced: a second untangling of the same mesh shape compiles nothing,
     and one untangling compiles each kernel once however many outer iterations it runs."""
     t = G.tutte_nonconvex(7, "L")
-    kernels = [lbfgs_module._run_kernel, lbfgs_module._vg_kernel, lbfgs_module._init_kernel,
+    kernels = [lbfgs_module._run_kernel, lbfgs_module._reparam_kernel,
                untangle_module._outer_stats]
     before = [k._cache_size() for k in kernels]
     r1 = untangle(t.problem(), t.x0, progress=False)
