@@ -6,9 +6,11 @@ exact predicate, handles unchanged bit for bit, also in the file written and rea
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -257,6 +259,23 @@ def test_generators_are_valid():
 
 
 
+@contextlib.contextmanager
+def lowered_programs():
+    """The programs JAX lowers in the block (each in-memory compilation-cache miss, whether
+    XLA then compiles it or loads it from the persistent cache), as a list of event names."""
+    seen = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
+            seen.append(event)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield seen
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
 def test_lbfgs_reaches_the_harmonic_map():
     """Dirichlet energy with a fixed boundary: the minimiser solves the cotangent Laplace
     equation, which scipy solves directly."""
@@ -274,9 +293,14 @@ def test_lbfgs_reaches_the_harmonic_map():
     assert result.outcome is Outcome.CONVERGED, result.message
     np.testing.assert_allclose(result.x, X, atol=1e-8)
     assert _bits_equal(result.x[b], target[b])
-    # run() (the whole loop in one jitted while_loop) gives the same iterates as step()
-    s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=5000)
-    state = s.run(s.init(obj, jnp.asarray(problem.check_map(V)), obj.params(), precompile="run"))
+    # run() (the whole loop in one jitted while_loop) gives the same iterates as step(), with
+    # the same programs (step is the loop with a limit of one more iteration), which a solver
+    # differing only in max_steps shares too: stepping and running again lowers nothing
+    s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=4000)
+    with lowered_programs() as lowered:
+        state = s.init(obj, jnp.asarray(problem.check_map(V)), obj.params(), precompile=None)
+        state = s.run(s.step(state))
+    assert lowered == []
     assert state.iteration == result.iterations
     np.testing.assert_allclose(np.asarray(state.x), result.x, rtol=0, atol=1e-13)
 
