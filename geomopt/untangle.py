@@ -343,7 +343,7 @@ def untangle(
     obj = Objective(sub, energy)
     eps = float(eps0)
     params = obj.params(eps=eps)
-    x = jnp.asarray(xs)
+    x = jax.device_put(xs)  # no per-shape copy program (jnp.asarray compiles one); xs is not written
     state = solver.init(obj, x, params)
     state = solver.with_params(state, params)  # compiles the re-parameterisation kernel too
     state = solver.run(state, max_steps=0)  # and the inner loop

@@ -299,7 +299,9 @@ class LBFGS(AbstractSolver):
         density, geom, free = self._args(objective)
         if precompile not in ("step", "run", None):
             raise ParameterError(f"precompile must be 'step', 'run' or None, got {precompile!r}")
-        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
+        # a private copy put on the device as it is (jnp.asarray would compile a copy program
+        # per shape)
+        x = jax.device_put(np.array(objective.pad_map(np.asarray(x0, dtype=np.float64))))
         pre = RestLaplacian.register(objective) if self.precondition == "laplacian" else None
         extent0 = reference_extent(objective, x0)
         blank = _blank_carry(self.history, self.precondition, self.window, x,
