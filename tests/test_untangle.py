@@ -262,12 +262,12 @@ def test_generators_are_valid():
 @contextlib.contextmanager
 def lowered_programs():
     """The programs JAX lowers in the block (each in-memory compilation-cache miss, whether
-    XLA then compiles it or loads it from the persistent cache), as a list of event names."""
+    XLA then compiles it or loads it from the persistent cache), as a list of program names."""
     seen = []
 
     def listen(event, duration, **kwargs):
         if event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
-            seen.append(event)
+            seen.append(kwargs.get("fun_name", event))
 
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
@@ -297,8 +297,9 @@ def test_lbfgs_reaches_the_harmonic_map():
     # the same programs (step is the loop with a limit of one more iteration), which a solver
     # differing only in max_steps shares too: stepping and running again lowers nothing
     s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=4000)
+    x0 = jnp.asarray(problem.check_map(V))
     with lowered_programs() as lowered:
-        state = s.init(obj, jnp.asarray(problem.check_map(V)), obj.params(), precompile=None)
+        state = s.init(obj, x0, obj.params(), precompile=None)
         state = s.run(s.step(state))
     assert lowered == []
     assert state.iteration == result.iterations
