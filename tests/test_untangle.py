@@ -199,7 +199,11 @@ def test_outer_loop_compiles_once():
     kernels = [lbfgs_module._run_kernel, lbfgs_module._reparam_kernel,
                untangle_module._outer_stats]
     before = [k._cache_size() for k in kernels]
-    r1 = untangle(t.problem(), t.x0, progress=False)
+    with lowered_programs() as lowered:
+        r1 = untangle(t.problem(), t.x0, progress=False)
+    # only the kernels the loop runs (no step kernel, no per-shape copy programs)
+    assert set(lowered) <= {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)",
+                            "jit(convert_element_type)"}, lowered
     mid = [k._cache_size() for k in kernels]
     assert r1.success and r1.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
