@@ -3,11 +3,13 @@
 One iteration (Nocedal & Wright 2006, Algorithms 7.4 and 7.5) is the two-loop recursion
 over a fixed-size ring buffer of correction pairs (``lax.fori_loop``), the shared
 :class:`~geomopt.linesearch.InjectiveSearch` (weak Wolfe by default: it brackets by bisection /
-doubling, Lewis & Overton 2013), and the memory update.  Everything runs in one jitted
-function keyed on the density, the array shapes and the solver (a hashable configuration);
-energy parameters are traced, so changing eps / lambda never recompiles.  :meth:`LBFGS.run` runs the whole
-iteration loop inside ``lax.while_loop``, which removes the per-iteration Python dispatch
-(the untangling outer loop uses it).
+doubling, Lewis & Overton 2013), and the memory update.  Two jitted programs per mesh shape
+do everything: the iteration loop (``lax.while_loop`` up to a traced limit: :meth:`LBFGS.run`
+runs it to the end without per-iteration Python dispatch, :meth:`LBFGS.step` one iteration
+further) and the evaluation that starts a solve or re-parameterises it (``init``,
+``with_params``).  They are keyed on the density, the array shapes and the solver's
+configuration less ``max_steps``; energy parameters are traced, so changing eps / lambda never
+recompiles.
 
 The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``), the
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
@@ -251,8 +253,9 @@ class LBFGS(AbstractSolver):
 
     Notes
     -----
-    ``step`` runs one jitted iteration; :meth:`run` runs up to ``max_steps`` iterations in a
-    single jitted ``lax.while_loop`` and stops on the same tests as ``terminate``.
+    ``step`` runs one iteration and :meth:`run` up to ``max_steps`` iterations, both in the
+    same jitted ``lax.while_loop`` (a traced limit), which stops on the same tests as
+    ``terminate``.
     """
 
     history: int = 10
