@@ -7,9 +7,9 @@ Usage::
 
 For each case it runs :func:`geomopt.untangle.untangle` once cold (compilation included) and
 ``--repeat`` times warm, and prints one row: elements, initially inverted elements, outer
-iterations, inner iterations, energy (and gradient) evaluations, median warm seconds (the whole untangling call: problem set-up,
-normalisation, outer loop, certification; file reading excluded),
-compile seconds (cold minus warm), the smallest signed area/volume relative to the mean, and
+iterations, inner iterations, energy (and gradient) evaluations, median warm seconds (the
+whole untangling call: problem set-up, normalisation, outer loop, certification; file
+reading excluded), compile seconds (cold minus warm), the smallest signed area/volume relative to the mean, and
 whether the result is certified (zero inverted elements by the exact predicate, handles
 bit-identical).  Reference times are the authors' C++ code (L-BFGS, one thread) on the
 project's 2-core machine.  Timings on a shared machine are noisy: compare medians.
