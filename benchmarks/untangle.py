@@ -7,9 +7,9 @@ Usage::
 
 For each case it runs :func:`geomopt.untangle.untangle` once cold (compilation included) and
 ``--repeat`` times warm, and prints one row: elements, initially inverted elements, outer
-iterations, inner iterations, median warm seconds (the whole untangling call: problem set-up,
-normalisation, outer loop, certification; file reading excluded),
-compile seconds (cold minus warm), the smallest signed area/volume relative to the mean, and
+iterations, inner iterations, energy (and gradient) evaluations, median warm seconds (the
+whole untangling call: problem set-up, normalisation, outer loop, certification; file
+reading excluded), compile seconds (cold minus warm), the smallest signed area/volume relative to the mean, and
 whether the result is certified (zero inverted elements by the exact predicate, handles
 bit-identical).  Reference times are the authors' C++ code (L-BFGS, one thread) on the
 project's 2-core machine.  Timings on a shared machine are noisy: compare medians.
@@ -83,7 +83,8 @@ def run_case(name, call, repeat):
     w = statistics.median(warm) if warm else cold
     return {
         "name": name, "elements": len(S), "inverted0": result.initially_inverted,
-        "outer": result.outer_iterations, "inner": result.inner_iterations, "warm": w,
+        "outer": result.outer_iterations, "inner": result.inner_iterations,
+        "evals": result.info.get("evaluations", 0), "warm": w,
         "warm_min": min(warm) if warm else cold, "compile": max(cold - w, 0.0),
         "min_det": result.min_det_rel, "certified": certified,
     }
@@ -109,14 +110,14 @@ def family_call(tangle, solver):
     return call
 
 
-HEADER = (f"{'case':28s} {'group':10s} {'elements':>9s} {'inv0':>6s} {'outer':>5s} {'inner':>6s} "
+HEADER = (f"{'case':28s} {'group':10s} {'elements':>9s} {'inv0':>6s} {'outer':>5s} {'inner':>6s} {'evals':>6s} "
           f"{'warm s':>8s} {'compile s':>9s} {'ref s':>6s} {'min det':>8s}  certified")
 
 
 def row(r, group):
     ref = REFERENCE_SECONDS.get(r["name"])
     return (f"{r['name']:28s} {group:10s} {r['elements']:9d} {r['inverted0']:6d} {r['outer']:5d} "
-            f"{r['inner']:6d} {r['warm']:8.3f} {r['compile']:9.2f} {ref if ref else '':>6} "
+            f"{r['inner']:6d} {r['evals']:6d} {r['warm']:8.3f} {r['compile']:9.2f} {ref if ref else '':>6} "
             f"{r['min_det']:8.1e}  {'yes' if r['certified'] else 'NO'}")
 
 

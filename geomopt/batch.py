@@ -338,8 +338,9 @@ def _make_folder(outdir):
 
 #: JAX settings copied from this process to every Dask task's worker, so that workers compute
 #: the same numbers (x64) and share the persistent compilation cache
-JAX_SETTINGS = ("jax_enable_x64", "jax_numpy_rank_promotion", "jax_compilation_cache_dir",
-                "jax_persistent_cache_min_compile_time_secs", "jax_persistent_cache_min_entry_size_bytes")
+JAX_SETTINGS = ("jax_enable_x64", "jax_numpy_rank_promotion", "jax_enable_compilation_cache",
+                "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+                "jax_persistent_cache_min_entry_size_bytes")
 
 
 def jax_settings():
@@ -350,15 +351,19 @@ def jax_settings():
 
 
 def _apply_jax_settings(settings):
-    """Apply ``settings`` (from :func:`jax_settings` in the client) in a worker, once, before
-    anything compiles there; later calls find them in place."""
+    """Apply ``settings`` (from :func:`jax_settings` in the client) in a worker; later calls
+    find them in place.  A worker whose persistent cache was already opened elsewhere (an
+    existing scheduler's worker that ran other work) reopens it in the client's folder."""
     import jax
+    from jax.experimental.compilation_cache import compilation_cache
 
     import geomopt  # noqa: F401  (x64 on, as in every geomopt process)
 
-    for key, value in settings.items():
-        if value is not None and getattr(jax.config, key) != value:
-            jax.config.update(key, value)
+    changed = [k for k, v in settings.items() if v is not None and getattr(jax.config, k) != v]
+    for key in changed:
+        jax.config.update(key, settings[key])
+    if any("cache" in key for key in changed):
+        compilation_cache.reset_cache()  # the next compilation opens the client's folder
 
 
 def _bucket_hint(folder):

@@ -6,6 +6,7 @@ exact predicate, handles unchanged bit for bit, also in the file written and rea
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 
@@ -195,10 +196,14 @@ def test_outer_loop_compiles_once():
     """eps and lambda are traced: a second untangling of the same mesh shape compiles nothing,
     and one untangling compiles each kernel once however many outer iterations it runs."""
     t = G.tutte_nonconvex(7, "L")
-    kernels = [lbfgs_module._run_kernel, lbfgs_module._vg_kernel, lbfgs_module._init_kernel,
+    kernels = [lbfgs_module._run_kernel, lbfgs_module._reparam_kernel,
                untangle_module._outer_stats]
     before = [k._cache_size() for k in kernels]
-    r1 = untangle(t.problem(), t.x0, progress=False)
+    with lowered_programs() as lowered:
+        r1 = untangle(t.problem(), t.x0, progress=False)
+    # only the kernels the loop runs (no step kernel, no per-shape copy programs)
+    assert set(lowered) <= {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)",
+                            "jit(convert_element_type)"}, lowered
     mid = [k._cache_size() for k in kernels]
     assert r1.success and r1.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
@@ -258,6 +263,23 @@ def test_generators_are_valid():
 
 
 
+@contextlib.contextmanager
+def lowered_programs():
+    """The programs JAX lowers in the block (each in-memory compilation-cache miss, whether
+    XLA then compiles it or loads it from the persistent cache), as a list of program names."""
+    seen = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
+            seen.append(kwargs.get("fun_name", event))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield seen
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
 def test_lbfgs_reaches_the_harmonic_map():
     """Dirichlet energy with a fixed boundary: the minimiser solves the cotangent Laplace
     equation, which scipy solves directly."""
@@ -275,9 +297,15 @@ def test_lbfgs_reaches_the_harmonic_map():
     assert result.outcome is Outcome.CONVERGED, result.message
     np.testing.assert_allclose(result.x, X, atol=1e-8)
     assert _bits_equal(result.x[b], target[b])
-    # run() (the whole loop in one jitted while_loop) gives the same iterates as step()
-    s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=5000)
-    state = s.run(s.init(obj, jnp.asarray(problem.check_map(V)), obj.params(), precompile="run"))
+    # run() (the whole loop in one jitted while_loop) gives the same iterates as step(), with
+    # the same programs (step is the loop with a limit of one more iteration), which a solver
+    # differing only in max_steps shares too: stepping and running again lowers nothing
+    s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=4000)
+    x0 = jnp.asarray(problem.check_map(V))
+    with lowered_programs() as lowered:
+        state = s.init(obj, x0, obj.params(), precompile=None)
+        state = s.run(s.step(state))
+    assert lowered == []
     assert state.iteration == result.iterations
     np.testing.assert_allclose(np.asarray(state.x), result.x, rtol=0, atol=1e-13)
 

@@ -3,11 +3,13 @@
 One iteration (Nocedal & Wright 2006, Algorithms 7.4 and 7.5) is the two-loop recursion
 over a fixed-size ring buffer of correction pairs (``lax.fori_loop``), the shared
 :class:`~geomopt.linesearch.InjectiveSearch` (weak Wolfe by default: it brackets by bisection /
-doubling, Lewis & Overton 2013), and the memory update.  Everything runs in one jitted
-function keyed on the density, the array shapes and the solver (a hashable configuration);
-energy parameters are traced, so changing eps / lambda never recompiles.  :meth:`LBFGS.run` runs the whole
-iteration loop inside ``lax.while_loop``, which removes the per-iteration Python dispatch
-(the untangling outer loop uses it).
+doubling, Lewis & Overton 2013), and the memory update.  Two jitted programs per mesh shape
+do everything: the iteration loop (``lax.while_loop`` up to a traced limit: :meth:`LBFGS.run`
+runs it to the end without per-iteration Python dispatch, :meth:`LBFGS.step` one iteration
+further) and the evaluation that starts a solve or re-parameterises it (``init``,
+``with_params``).  They are keyed on the density, the array shapes and the solver's
+configuration less ``max_steps``; energy parameters are traced, so changing eps / lambda never
+recompiles.
 
 The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``), the
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
@@ -20,6 +22,7 @@ conjugate gradients on the device elsewhere, so the loop makes no host round tri
 from __future__ import annotations
 
 import dataclasses
+import functools
 from functools import partial
 
 import jax
@@ -32,7 +35,7 @@ from .._objective import _total
 from .._config import Int, OneOf, Real
 from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
-from ._laplacian import LAPLACIAN_BACKENDS, RestLaplacian, laplacian_solve
+from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
 
 # status codes of the jitted loop
 RUNNING, CONVERGED_F, CONVERGED_G, LS_FAILED, NONFINITE, MAX_STEPS, DIVERGED = range(7)
@@ -172,12 +175,10 @@ def _iterate(solver, density, geom, free, params, c):
 
 
 @partial(jax.jit, static_argnums=(0, 1))
-def _step_kernel(solver, density, geom, free, params, carry):
-    return _iterate(solver, density, geom, free, params, carry)
-
-
-@partial(jax.jit, static_argnums=(0, 1))
 def _run_kernel(solver, density, geom, free, params, carry, max_it):
+    """Iterations while the status is RUNNING and ``it < max_it`` (traced): ``step`` is one
+    call with ``max_it = it + 1``, so one compiled program serves ``step`` and ``run``.
+    ``solver`` is the key of :meth:`LBFGS._kernel_key` (``max_steps`` left out)."""
     def cond(c):
         return (c["status"] == RUNNING) & (c["it"] < max_it)
 
@@ -188,22 +189,36 @@ def _initial_status(g):
     return jnp.where(jnp.all(g == 0), CONVERGED_G, RUNNING).astype(jnp.int32)
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3))
-def _init_kernel(m, precondition, window, density, geom, free, params, x, pre, extent0):
-    f, g = _value_and_grad(density, geom, free, x, params)
-    H0 = jnp.ones_like(x) if precondition == "diagonal" else jnp.ones((), x.dtype)
-    extra = {}
-    if precondition == "laplacian":
-        extra = {"z": laplacian_solve(pre, g, jnp.zeros_like(g)), "W": jnp.zeros((m,) + x.shape, x.dtype)}
-    return {
-        "x": x, "f": f, "g": g, "S": jnp.zeros((m,) + x.shape, x.dtype),
-        "Y": jnp.zeros((m,) + x.shape, x.dtype), "rho": jnp.zeros(m, x.dtype),
-        "k": jnp.int32(0), "H0": H0, "it": jnp.int32(0), "prev_f": jnp.asarray(jnp.inf, x.dtype),
-        "t": jnp.asarray(jnp.nan, x.dtype), "status": _initial_status(g),
-        "g0": jnp.sqrt(_dot(g, g)), "dec": jnp.asarray(jnp.inf, x.dtype), "nfev": jnp.int32(1),
-        "f_hist": jnp.full(window, jnp.inf, x.dtype).at[window - 1].set(f),
-        "pre": pre, "extent0": extent0, **extra,
+def _blank_carry(m, precondition, window, x, pre, extent0):
+    """The carry of :func:`_iterate` before the first evaluation, built on the host (nothing
+    to compile): empty memory, unit seed, counters at zero; ``f``, ``g`` and the evaluation
+    dependent entries are set by :func:`_reparam_kernel`.  ``x`` (n, d) float64."""
+    n, d = x.shape
+    f8 = np.float64
+    carry = {
+        "x": x, "f": f8(np.nan), "g": np.zeros((n, d)), "S": np.zeros((m, n, d)), "Y": np.zeros((m, n, d)),
+        "rho": np.zeros(m), "k": np.int32(0), "H0": np.ones((n, d)) if precondition == "diagonal" else f8(1.0),
+        "it": np.int32(0), "prev_f": f8(np.inf), "t": f8(np.nan), "status": np.int32(RUNNING),
+        "g0": f8(np.nan), "dec": f8(np.inf), "nfev": np.int32(1), "f_hist": np.full(window, np.inf),
+        "pre": pre if isinstance(pre, LaplacianOperator) else np.int32(pre), "extent0": f8(extent0),
     }
+    if precondition == "laplacian":
+        carry.update(z=np.zeros((n, d)), W=np.zeros((m, n, d)))
+    return jax.device_put(carry)
+
+
+@partial(jax.jit, static_argnums=(0, 1))
+def _reparam_kernel(laplacian, density, geom, free, params, carry):
+    """``carry`` re-evaluated at its ``x`` under ``params``: value, gradient (and for the
+    Laplacian seed ``K^-1 grad``), status, and the counters and energy window restarted; the
+    curvature memory and the evaluation count are kept.  Serves ``init`` and ``with_params``."""
+    f, g = _value_and_grad(density, geom, free, carry["x"], params)
+    out = dict(carry, f=f, g=g, status=_initial_status(g), prev_f=jnp.asarray(jnp.inf, f.dtype),
+               g0=jnp.sqrt(_dot(g, g)), it=jnp.int32(0),
+               f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
+    if laplacian:  # warm start (device CG) from the last K^-1 g
+        out["z"] = laplacian_solve(carry["pre"], g, carry["z"])
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,8 +253,9 @@ class LBFGS(AbstractSolver):
 
     Notes
     -----
-    ``step`` runs one jitted iteration; :meth:`run` runs up to ``max_steps`` iterations in a
-    single jitted ``lax.while_loop`` and stops on the same tests as ``terminate``.
+    ``step`` runs one iteration and :meth:`run` up to ``max_steps`` iterations, both in the
+    same jitted ``lax.while_loop`` (a traced limit), which stops on the same tests as
+    ``terminate``.
     """
 
     history: int = 10
@@ -273,41 +289,51 @@ class LBFGS(AbstractSolver):
             evaluations=int(nfev), aux=dict(state.aux, carry=carry, status=int(status)),
         )
 
+    @functools.cached_property
+    def _kernel_key(self):
+        """The static key of :func:`_run_kernel`: this configuration less ``max_steps`` (a
+        traced limit there), so solvers that differ only in it share the compiled loop."""
+        return dataclasses.replace(self, max_steps=1)
+
     # -- the interface ----------------------------------------------------------------
     def init(self, objective, x0, params, *, precompile: str | None = "step") -> State:
-        """The start state.  ``precompile`` (``"step"``, ``"run"`` or None) compiles that
-        kernel now, so that setup time holds the compilation."""
+        """The start state.  ``precompile`` (``"step"``, ``"run"`` or None) compiles the
+        iteration kernel now (``step`` and ``run`` share it), so that setup time holds the
+        compilation."""
         density, geom, free = self._args(objective)
-        x = jnp.asarray(objective.pad_map(np.asarray(x0, dtype=np.float64)))
+        if precompile not in ("step", "run", None):
+            raise ParameterError(f"precompile must be 'step', 'run' or None, got {precompile!r}")
+        # a private copy put on the device as it is (jnp.asarray would compile a copy program
+        # per shape)
+        x = jax.device_put(np.array(objective.pad_map(np.asarray(x0, dtype=np.float64))))
         pre = RestLaplacian.register(objective, self.laplacian) if self.precondition == "laplacian" else None
         extent0 = reference_extent(objective, x0)
-        carry = _init_kernel(self.history, self.precondition, self.window, density, geom,
-                             free, params, x, pre.token if pre is not None else jnp.int32(-1),
-                             jnp.float64(extent0))
-        if precompile == "step":
-            _step_kernel(self, density, geom, free, params, carry)
-        elif precompile == "run":
-            _run_kernel(self, density, geom, free, params, carry, jnp.int32(0))
-        elif precompile is not None:
-            raise ParameterError(f"precompile must be 'step', 'run' or None, got {precompile!r}")
+        blank = _blank_carry(self.history, self.precondition, self.window, x,
+                             pre.token if pre is not None else -1, extent0)
+        carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, params, blank)
+        if precompile is not None:  # zero iterations: compiles (or loads) the loop, changes nothing
+            _run_kernel(self._kernel_key, density, geom, free, params, carry, jnp.int32(0))
         state = State(objective, params, x, float(carry["f"]), carry["g"], extent0=extent0,
                       aux={"carry": carry, "status": RUNNING, "preconditioner": pre})
         return self._state(state, carry)
 
-    def step(self, state: State) -> State:
+    def _iterations(self, state: State, limit: int) -> State:
         density, geom, free = self._args(state.objective)
-        carry = _step_kernel(self, density, geom, free, state.params, state.aux["carry"])
+        carry = _run_kernel(self._kernel_key, density, geom, free, state.params, state.aux["carry"],
+                            jnp.int32(limit))
         return self._state(state, carry)
+
+    def step(self, state: State) -> State:
+        """One iteration (none when the state has stopped: see :meth:`terminate`)."""
+        return self._iterations(state, state.iteration + 1)
 
     def run(self, state: State, max_steps: int | None = None) -> State:
         """Iterate inside one jitted loop until ``terminate`` would stop (or ``max_steps``
         more iterations); returns the final state."""
         if state.aux["status"] != RUNNING:
             return state
-        density, geom, free = self._args(state.objective)
         limit = self.max_steps if max_steps is None else min(self.max_steps, state.iteration + int(max_steps))
-        carry = _run_kernel(self, density, geom, free, state.params, state.aux["carry"], jnp.int32(limit))
-        return self._state(state, carry)
+        return self._iterations(state, limit)
 
     def terminate(self, state: State):
         status = state.aux["status"]
@@ -323,26 +349,14 @@ class LBFGS(AbstractSolver):
         """The state with new energy parameters (value and gradient re-evaluated); the
         curvature memory is kept.  Used by continuation loops (eps in untangling)."""
         density, geom, free = self._args(state.objective)
-        carry = state.aux["carry"]
-        f, g, z = _vg_kernel(self.precondition == "laplacian", density, geom, free, params, carry["x"],
-                             carry["pre"], carry.get("z"))
-        carry = dict(carry, f=f, g=g, status=_initial_status(g), prev_f=jnp.asarray(jnp.inf, f.dtype),
-                     g0=jnp.sqrt(_dot(g, g)), it=jnp.int32(0),
-                     f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
-        if z is not None:
-            carry["z"] = z
+        carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, params,
+                                state.aux["carry"])
         state = dataclasses.replace(state, params=params, failure=None)
         return self._state(state, carry)
 
     def forget(self, state: State) -> State:
         """The state with the curvature memory cleared (a restart)."""
         carry = state.aux["carry"]
-        carry = dict(carry, k=jnp.zeros_like(carry["k"]), H0=jnp.ones_like(carry["H0"]))
+        # host-built constants: no per-shape fill kernel to compile or dispatch
+        carry = dict(carry, **jax.device_put({"k": np.int32(0), "H0": np.ones(carry["H0"].shape)}))
         return dataclasses.replace(state, aux=dict(state.aux, carry=carry))
-
-
-@partial(jax.jit, static_argnums=(0, 1))
-def _vg_kernel(laplacian, density, geom, free, params, x, pre, z):
-    """Value, gradient and (for the Laplacian seed) ``K^-1 grad`` at ``x`` (from ``z``)."""
-    f, g = _value_and_grad(density, geom, free, x, params)
-    return f, g, (laplacian_solve(pre, g, z) if laplacian else None)
