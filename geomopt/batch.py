@@ -312,6 +312,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     outdir = Path(outdir)
     _make_folder(outdir)
     summary = io.check_output_path(outdir / "summary.csv", (".csv",), "summary")
+    _refuse_outputs_over_inputs(cases, outdir)
     if scheduler is None and workers <= 1:
         rows = []
         for i, c in enumerate(cases):
@@ -322,6 +323,26 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
         rows = _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk)
     write_summary(summary, rows)
     return rows
+
+
+def _refuse_outputs_over_inputs(cases, outdir):
+    """No output (``<case>.obj/.vtk``, ``summary.csv``) may be a file of any case folder (of the
+    batch, or the output folder itself when it is a LIM case): writing it would replace that
+    case's input."""
+    inputs = {}
+    own = (outdir / "input.obj").is_file() or (outdir / "rest.vtk").is_file() or (outdir / "init.vtk").is_file()
+    for c in list(cases) + ([outdir] if own else []):
+        for f in (c.iterdir() if c.is_dir() else ()):
+            if f.is_file():
+                st = f.stat()
+                inputs[(st.st_dev, st.st_ino)] = f
+    outputs = [outdir / "summary.csv"] + [outdir / (c.name + ext) for c in cases for ext in (".obj", ".vtk")]
+    for out in outputs:
+        if out.is_file():
+            st = out.stat()
+            if (st.st_dev, st.st_ino) in inputs:
+                raise GeomoptError(f"output {out} is the input file {inputs[(st.st_dev, st.st_ino)]}: writing "
+                                   "it would replace a case's input; give an output folder outside the case folders")
 
 
 def _make_folder(outdir):

@@ -249,3 +249,16 @@ def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
     (tmp_path / "file").write_text("")
     code, _, err = cli("untangle", tmp_path / "a", "-o", tmp_path / "file" / "sub", "--quiet")
     assert code == 2 and "cannot create the output folder" in err
+
+
+def test_a_batch_never_writes_over_a_case_input(cli, tmp_path, monkeypatch):
+    """A case folder named ``input`` inside case ``R``, output folder ``R/``: ``R/input.obj``
+    would be written over case R's own input.  Refused before anything is solved or written."""
+    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    ts = tangles()
+    write_lim_case(tmp_path / "R", ts["square"])
+    write_lim_case(tmp_path / "R" / "input", ts["star"])
+    before = {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()}
+    code, _, err = cli("untangle", tmp_path / "R" / "input", "-o", str(tmp_path / "R") + "/", "--quiet")
+    assert code == 2 and "is the input file" in err and "replace a case's input" in err, err
+    assert {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()} == before
