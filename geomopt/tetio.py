@@ -8,6 +8,7 @@ extension  read                                        written
 ``.vtu``   VTK XML unstructured grid (meshio)          binary base64, zlib, ``Float64`` (meshio)
 ``.msh``   Gmsh ASCII, versions 2.2 and 4.1            Gmsh 4.1 ASCII (meshio)
 ``.mesh``  Medit ASCII (``MeshVersionFormatted`` 1/2)  Medit ASCII, version 2 (meshio)
+           (version 1: single-precision coordinates)
 =========  ==========================================  ===========================================
 
 Gmsh and Medit files are checked here, line by line, before meshio reads their numbers:
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import stat
 import warnings
 from io import StringIO
@@ -99,69 +101,111 @@ def _detail(exc, printed):
 # ------------------------------------------------------------------------ checks
 
 
-def _lines(data, path, what):
-    """``[(line number, tokens)]`` of the non-blank lines of an ASCII mesh file."""
-    if b"\x00" in data:
-        raise MeshFormatError(f"{what} {path} contains NUL bytes: it is a binary file; only ASCII "
-                              f"{what} files are supported (re-export as ASCII)")
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise MeshFormatError(f"{path}, line {line}: a non-ASCII byte; {what} files are ASCII text") from None
-    return [(i, toks) for i, toks in enumerate((line.split() for line in text.split("\n")), 1) if toks]
+class _Rows:
+    """The non-blank lines of an ASCII mesh file, split into tokens in a few passes (no list per line).
+
+    Row ``r`` (a non-blank line) is file line ``lineno[r]`` and holds the tokens
+    ``tokens[start[r]:start[r] + count[r]]`` (bytes); ``first[r]`` is its first token.
+    """
+
+    def __init__(self, data, path, what):
+        if b"\x00" in data:
+            raise MeshFormatError(f"{what} file {path} contains NUL bytes: it is a binary file; only ASCII "
+                                  f"{what} files are supported (re-export it as ASCII)")
+        if not data.isascii():
+            at = next(i for i, b in enumerate(data) if b > 127)
+            line = data.count(b"\n", 0, at) + 1
+            raise MeshFormatError(f"{path}, line {line}: a non-ASCII byte; {what} files are ASCII text")
+        raw = np.frombuffer(data, np.uint8)
+        space = np.isin(raw, np.frombuffer(b" \t\n\r\x0b\x0c", np.uint8))  # what bytes.split() splits on
+        begins = ~space
+        begins[1:] &= space[:-1]
+        line = np.cumsum(raw == 10) - (raw == 10)
+        per_line = np.bincount(line[begins], minlength=int(line[-1]) + 1)
+        self.path = path
+        self.lineno = np.flatnonzero(per_line) + 1
+        self.count = per_line[per_line > 0]
+        self.start = np.concatenate([[0], np.cumsum(self.count)[:-1]]).astype(np.int64)
+        self.tokens = data.split()
+        self.first = [self.tokens[s] for s in self.start.tolist()]
+
+    def __len__(self):
+        return len(self.count)
+
+    def at(self, r):
+        """Line ``r``'s tokens as text, for messages."""
+        return b" ".join(self.tokens[self.start[r]:self.start[r] + self.count[r]]).decode()[:60]
+
+    def width(self, a, b, width, what):
+        """Rows ``a:b`` must hold ``width`` tokens each."""
+        bad = np.flatnonzero(self.count[a:b] != width)
+        if bad.size:
+            r = a + int(bad[0])
+            raise MeshFormatError(f"{self.path}, line {self.lineno[r]}: the {what} entry has {self.count[r]} "
+                                  f"values, expected {width}")
+
+    def ints(self, a, b, what, column=None):
+        """Integers of rows ``a:b`` (all their tokens, or token ``column`` of each), int64."""
+        if b <= a:
+            return np.zeros(0, dtype=np.int64)
+        if column is None:
+            toks = self.tokens[self.start[a]:self.start[b - 1] + self.count[b - 1]]
+        else:
+            toks = [self.tokens[s + column] for s in self.start[a:b].tolist()]
+        if b"".join(toks).replace(b"-", b"").isdigit():
+            with contextlib.suppress(ValueError, OverflowError):
+                return np.array(toks, dtype=np.int64)
+        for r in range(a, b):  # find the culprit for the message
+            row = self.tokens[self.start[r]:self.start[r] + self.count[r]]
+            for t in (row if column is None else row[column:column + 1]):
+                if not (t.replace(b"-", b"", t.startswith(b"-")).isdigit() and abs(int(t)) < 2**63):
+                    raise MeshFormatError(f"{self.path}, line {self.lineno[r]}: expected an integer ({what}), "
+                                          f"found {t.decode()[:40]!r}")
+        raise AssertionError("unreachable")
 
 
-def _int(token, path, lineno, what):
-    try:
-        value = int(token)
-    except ValueError:
-        raise MeshFormatError(f"{path}, line {lineno}: expected an integer ({what}), found {token!r}") from None
-    return value
+def _counted(rows, a, held, count, section):
+    """Section ``section`` opened on row ``a`` declares ``count`` entries and holds ``held``."""
+    if held != count:
+        fix = "fix the count" if held > count else "the file is truncated or the count is wrong"
+        raise MeshFormatError(f"{rows.path}: section {section} (line {rows.lineno[a]}) declares {count} entries "
+                              f"but holds {held}; {fix}")
 
 
-def _gmsh_sections(rows, path):
-    """``{name: [(first line, body rows)]}`` of a Gmsh file; each ``$X`` must be closed by ``$EndX``."""
-    sections, i = {}, 0
-    while i < len(rows):
-        lineno, toks = rows[i]
-        if not toks[0].startswith("$") or toks[0].startswith("$End"):
-            raise MeshFormatError(f"{path}, line {lineno}: {' '.join(toks)[:60]!r} outside a section; "
+def _gmsh_sections(rows):
+    """``{name: [(a, b)]}``: the body rows ``a:b`` of each ``$name`` ... ``$Endname`` section."""
+    marks = [r for r, t in enumerate(rows.first) if t[:1] == b"$"] + [len(rows)]
+    sections, expect = {}, 0
+    for k in range(0, len(marks) - 1, 2):
+        r, end = marks[k], marks[k + 1]
+        if r != expect or rows.first[r].startswith(b"$End"):
+            bad = expect if r != expect else r
+            raise MeshFormatError(f"{rows.path}, line {rows.lineno[bad]}: {rows.at(bad)!r} outside a section; "
                                   f"expected a section start such as $Nodes")
-        name, start = toks[0][1:], i + 1
-        i = start
-        while i < len(rows) and not rows[i][1][0].startswith("$"):
-            i += 1
-        if i == len(rows) or rows[i][1][0] != f"$End{name}":
-            found = f"{rows[i][1][0]!r} on line {rows[i][0]}" if i < len(rows) else "the end of the file"
-            raise MeshFormatError(f"{path}: section ${name} (line {lineno}) is not closed by $End{name} "
-                                  f"(found {found}); the file is truncated or malformed")
-        sections.setdefault(name, []).append((lineno, rows[start:i]))
-        i += 1
+        name = rows.first[r][1:].decode()
+        if end == len(rows) or rows.first[end] != f"$End{name}".encode():
+            found = f"{rows.first[end].decode()!r} on line {rows.lineno[end]}" if end < len(rows) else \
+                "the end of the file"
+            raise MeshFormatError(f"{rows.path}: section ${name} (line {rows.lineno[r]}) is not closed by "
+                                  f"$End{name} (found {found}); the file is truncated or malformed")
+        sections.setdefault(name, []).append((r + 1, end))
+        expect = end + 1
+    if expect != len(rows):
+        raise MeshFormatError(f"{rows.path}, line {rows.lineno[expect]}: {rows.at(expect)!r} outside a section; "
+                              f"expected a section start such as $Nodes")
     return sections
 
 
-def _check_width(rows, width, path, section):
-    """Every row in ``rows`` has ``width`` tokens."""
-    bad = next((r for r in rows if len(r[1]) != width), None)
-    if bad is not None:
-        raise MeshFormatError(f"{path}, line {bad[0]}: the {section} entry has {len(bad[1])} values, "
-                              f"expected {width}")
-
-
-def _counted(body, count, path, section, lineno):
-    if len(body) != count:
-        fix = "fix the count" if len(body) > count else "the file is truncated or the count is wrong"
-        raise MeshFormatError(f"{path}: section {section} (line {lineno}) declares {count} entries but holds "
-                              f"{len(body)}; {fix}")
-
-
-def _element_nodes(gtype, lineno, path):
-    """How many nodes a Gmsh element of type ``gtype`` has (refuses unknown types)."""
-    nodes = _GMSH_NODES.get(gtype)
-    if nodes is None:
-        raise MeshFormatError(f"{path}, line {lineno}: unsupported Gmsh element type {gtype}; "
-                              f"a tetrahedral mesh (type 4) is expected")
+def _gmsh_nodes_per_element(types, rows, a):
+    """Nodes of each Gmsh element type in ``types`` (refuses unknown types)."""
+    table = np.full(max(_GMSH_NODES) + 1, -1)
+    table[list(_GMSH_NODES)] = list(_GMSH_NODES.values())
+    known = (types >= 0) & (types < len(table))
+    nodes = np.where(known, table[np.where(known, types, 0)], -1)
+    if (nodes < 0).any():
+        i = int(np.flatnonzero(nodes < 0)[0])
+        raise MeshFormatError(f"{rows.path}, line {rows.lineno[a + i]}: unsupported Gmsh element type "
+                              f"{types[i]}; a tetrahedral mesh (type 4) is expected")
     return nodes
 
 
@@ -178,169 +222,163 @@ def _check_gmsh(data, path):
     if fmt[1] != b"0":
         raise MeshFormatError(f"{path} is a binary Gmsh file; only ASCII .msh files are read exactly "
                               f"(re-save it from Gmsh as ASCII, e.g. `gmsh in.msh -save -format msh41 -bin 0`)")
-    sections = _gmsh_sections(_lines(data, path, "Gmsh"), path)
+    rows = _Rows(data, path, "Gmsh")
+    sections = _gmsh_sections(rows)
     for name in ("Nodes", "Elements"):
         if len(sections.get(name, ())) != 1:
             raise MeshFormatError(f"{path} has {len(sections.get(name, ()))} ${name} sections; exactly one "
                                   f"is required")
-    (nline, nodes), (eline, elems) = sections["Nodes"][0], sections["Elements"][0]
-    if not nodes or not elems:
-        raise MeshFormatError(f"{path}: an empty $Nodes or $Elements section")
-    if fmt[0] == b"2.2":
-        tags, tet_nodes = _gmsh22(nodes, nline, elems, eline, path)
-    else:
-        tags, tet_nodes = _gmsh41(nodes, nline, elems, eline, path)
+        a, b = sections[name][0]
+        if a == b:
+            raise MeshFormatError(f"{path}: section ${name} (line {rows.lineno[a - 1]}) is empty")
+    read = _gmsh22 if fmt[0] == b"2.2" else _gmsh41
+    tags, tet_nodes = read(rows, sections["Nodes"][0], sections["Elements"][0])
     if len(np.unique(tags)) != len(tags):
         raise MeshFormatError(f"{path}: a node tag is defined twice in $Nodes; tags must be unique")
-    if tet_nodes.size and not np.isin(tet_nodes, tags).all():
-        missing = int(tet_nodes[~np.isin(tet_nodes, tags)][0])
-        raise MeshFormatError(f"{path}: a tetrahedron refers to node tag {missing}, which $Nodes does not define")
+    undefined = ~np.isin(tet_nodes, tags)
+    if undefined.any():
+        raise MeshFormatError(f"{path}: a tetrahedron refers to node tag {int(tet_nodes[undefined][0])}, which "
+                              f"$Nodes does not define")
     return len(tags), tet_nodes.shape[0]
 
 
-def _gmsh22(nodes, nline, elems, eline, path):
-    """Node tags and tet node tags of MSH 2.2 sections (counts, widths checked)."""
-    _check_width(nodes[:1], 1, path, "$Nodes count")
-    _counted(nodes[1:], _int(nodes[0][1][0], path, nodes[0][0], "node count"), path, "$Nodes", nline)
-    _check_width(nodes[1:], 4, path, "$Nodes")
-    tags = np.array([_int(t[0], path, ln, "node tag") for ln, t in nodes[1:]], dtype=np.int64)
-    _check_width(elems[:1], 1, path, "$Elements count")
-    _counted(elems[1:], _int(elems[0][1][0], path, elems[0][0], "element count"), path, "$Elements", eline)
-    tets = []
-    for ln, t in elems[1:]:
-        if len(t) < 3:
-            raise MeshFormatError(f"{path}, line {ln}: an element needs at least 3 values (tag, type, tags)")
-        gtype, ntags = _int(t[1], path, ln, "element type"), _int(t[2], path, ln, "number of tags")
-        width = 3 + ntags + _element_nodes(gtype, ln, path)
-        if len(t) != width:
-            raise MeshFormatError(f"{path}, line {ln}: an element of type {gtype} with {ntags} tags needs "
-                                  f"{width} values, found {len(t)}")
-        if gtype == _GMSH_TET:
-            tets.append([_int(v, path, ln, "node tag") for v in t[-4:]])
-    return tags, np.array(tets, dtype=np.int64).reshape(-1, 4)
+def _gmsh22(rows, nodes, elems):
+    """Node tags and ``(m, 4)`` tet node tags of MSH 2.2 sections (counts and widths checked)."""
+    (a, b), (c, d) = nodes, elems
+    rows.width(a, a + 1, 1, "$Nodes count")
+    _counted(rows, a - 1, b - a - 1, int(rows.ints(a, a + 1, "node count")[0]), "$Nodes")
+    rows.width(a + 1, b, 4, "$Nodes")
+    tags = rows.ints(a + 1, b, "node tag", column=0)
+    rows.width(c, c + 1, 1, "$Elements count")
+    _counted(rows, c - 1, d - c - 1, int(rows.ints(c, c + 1, "element count")[0]), "$Elements")
+    short = np.flatnonzero(rows.count[c + 1:d] < 3)
+    if short.size:
+        raise MeshFormatError(f"{rows.path}, line {rows.lineno[c + 1 + short[0]]}: an element needs at least 3 "
+                              f"values (tag, type, number of tags)")
+    values = rows.ints(c + 1, d, "element")
+    at = rows.start[c + 1:d] - rows.start[c + 1]
+    types, ntags = values[at + 1], values[at + 2]
+    width = 3 + ntags + _gmsh_nodes_per_element(types, rows, c + 1)
+    bad = np.flatnonzero(rows.count[c + 1:d] != width)
+    if bad.size:
+        i = int(bad[0])
+        raise MeshFormatError(f"{rows.path}, line {rows.lineno[c + 1 + i]}: an element of type {types[i]} with "
+                              f"{ntags[i]} tags needs {width[i]} values, found {rows.count[c + 1 + i]}")
+    ends = (at + rows.count[c + 1:d])[types == _GMSH_TET]
+    return tags, values[ends[:, None] - 4 + np.arange(4)]
 
 
-def _gmsh41(nodes, nline, elems, eline, path):
-    """Node tags and tet node tags of MSH 4.1 sections (block counts, widths checked)."""
-    def header(rows, section, line):
-        _check_width(rows[:1], 4, path, f"{section} header")
-        return [_int(v, path, rows[0][0], f"{section} header") for v in rows[0][1]]
+def _gmsh41(rows, nodes, elems):
+    """Node tags and ``(m, 4)`` tet node tags of MSH 4.1 sections (block counts and widths checked)."""
+    (a, b), (c, d) = nodes, elems
 
-    nblocks, total, lo, hi = header(nodes, "$Nodes", nline)
-    at, tags = 1, []
-    for _ in range(nblocks):
-        _check_width(nodes[at:at + 1], 4, path, "$Nodes block header")
-        if at >= len(nodes):
-            raise MeshFormatError(f"{path}: $Nodes (line {nline}) declares {nblocks} blocks but holds fewer")
-        dim, _, parametric, n = (_int(v, path, nodes[at][0], "$Nodes block header") for v in nodes[at][1])
-        block_tags, coords = nodes[at + 1:at + 1 + n], nodes[at + 1 + n:at + 1 + 2 * n]
-        if len(coords) != n:
-            raise MeshFormatError(f"{path}: a $Nodes block (line {nodes[at][0]}) declares {n} nodes but the "
-                                  f"section ends first")
-        _check_width(block_tags, 1, path, "$Nodes tag")
-        _check_width(coords, 3 + (dim if parametric else 0), path, "$Nodes coordinate")
-        tags += [_int(t[0], path, ln, "node tag") for ln, t in block_tags]
-        at += 1 + 2 * n
-    if at != len(nodes) or len(tags) != total:
-        raise MeshFormatError(f"{path}: section $Nodes (line {nline}) declares {total} nodes in {nblocks} "
-                              f"blocks but its blocks hold {len(tags)} nodes in {at} of {len(nodes)} lines; "
-                              f"fix the counts")
-    if tags and (min(tags), max(tags)) != (lo, hi):
-        raise MeshFormatError(f"{path}: section $Nodes (line {nline}) holds node tags {min(tags)}..{max(tags)} "
-                              f"but its header says {lo}..{hi}; fix the header")
-    nblocks, total, _, _ = header(elems, "$Elements", eline)
-    at, count, tets = 1, 0, []
-    for _ in range(nblocks):
-        if at >= len(elems):
-            raise MeshFormatError(f"{path}: $Elements (line {eline}) declares {nblocks} blocks but holds fewer")
-        _check_width(elems[at:at + 1], 4, path, "$Elements block header")
-        _, _, gtype, n = (_int(v, path, elems[at][0], "$Elements block header") for v in elems[at][1])
-        rows = elems[at + 1:at + 1 + n]
-        if len(rows) != n:
-            raise MeshFormatError(f"{path}: an $Elements block (line {elems[at][0]}) declares {n} elements "
-                                  f"but the section ends first")
+    def header(r, what):
+        rows.width(r, r + 1, 4, what)
+        return rows.ints(r, r + 1, what).tolist()
+
+    def blocks(first, stop, nblocks, what, size):
+        r = first + 1
+        for _ in range(nblocks):
+            if r >= stop:
+                raise MeshFormatError(f"{rows.path}: {what} (line {rows.lineno[first - 1]}) declares {nblocks} "
+                                      f"blocks but holds fewer")
+            block = header(r, f"{what} block header")
+            n = block[3]
+            if r + 1 + size(n) > stop:
+                raise MeshFormatError(f"{rows.path}: a {what} block (line {rows.lineno[r]}) declares {n} "
+                                      f"entries but the section ends first")
+            yield r + 1, block
+            r += 1 + size(n)
+        if r != stop:
+            raise MeshFormatError(f"{rows.path}, line {rows.lineno[r]}: {what} (line {rows.lineno[first - 1]}) "
+                                  f"holds more blocks than the {nblocks} it declares; fix the counts")
+
+    nblocks, total, lo, hi = header(a, "$Nodes header")
+    tags = []
+    for r, (dim, _, parametric, n) in blocks(a, b, nblocks, "$Nodes", lambda n: 2 * n):
+        rows.width(r, r + n, 1, "$Nodes tag")
+        rows.width(r + n, r + 2 * n, 3 + (dim if parametric else 0), "$Nodes coordinate")
+        tags.append(rows.ints(r, r + n, "node tag"))
+    tags = np.concatenate(tags) if tags else np.zeros(0, dtype=np.int64)
+    if len(tags) != total:
+        raise MeshFormatError(f"{rows.path}: section $Nodes (line {rows.lineno[a - 1]}) declares {total} nodes "
+                              f"but its blocks hold {len(tags)}; fix the counts")
+    if tags.size and (tags.min(), tags.max()) != (lo, hi):
+        raise MeshFormatError(f"{rows.path}: section $Nodes (line {rows.lineno[a - 1]}) holds node tags "
+                              f"{tags.min()}..{tags.max()} but its header says {lo}..{hi}; fix the header")
+    nblocks, total, _, _ = header(c, "$Elements header")
+    count, tets = 0, []
+    for r, (_, _, gtype, n) in blocks(c, d, nblocks, "$Elements", lambda n: n):
         if n:
-            _check_width(rows, 1 + _element_nodes(gtype, rows[0][0], path), path, f"type-{gtype} element")
-        if gtype == _GMSH_TET:
-            tets += [[_int(v, path, ln, "node tag") for v in t[1:]] for ln, t in rows]
+            width = 1 + int(_gmsh_nodes_per_element(np.array([gtype]), rows, r - 1)[0])
+            rows.width(r, r + n, width, f"type-{gtype} element")
+            if gtype == _GMSH_TET:
+                tets.append(rows.ints(r, r + n, "element").reshape(n, 5)[:, 1:])
         count += n
-        at += 1 + n
-    if at != len(elems) or count != total:
-        raise MeshFormatError(f"{path}: section $Elements (line {eline}) declares {total} elements in {nblocks} "
-                              f"blocks but its blocks hold {count} elements in {at} of {len(elems)} lines; "
-                              f"fix the counts")
-    return np.array(tags, dtype=np.int64), np.array(tets, dtype=np.int64).reshape(-1, 4)
-
-
-def _medit_keyword(token):
-    """Whether a Medit token is a keyword (a word that is not a number such as ``nan``)."""
-    return token[0].isalpha() and token.lower() not in ("nan", "inf", "infinity")
+    if count != total:
+        raise MeshFormatError(f"{rows.path}: section $Elements (line {rows.lineno[c - 1]}) declares {total} "
+                              f"elements but its blocks hold {count}; fix the counts")
+    return tags, np.concatenate(tets) if tets else np.zeros((0, 4), dtype=np.int64)
 
 
 def _check_medit(data, path):
     """Check a Medit ASCII file's structure; return ``(vertex count, tet count)``."""
-    rows = [(ln, t) for ln, t in _lines(data, path, "Medit") if not t[0].startswith("#")]
-    if not rows or rows[0][1][0] != "MeshVersionFormatted":
+    rows = _Rows(re.sub(rb"(?m)^[ \t]*#[^\n]*", b"", data), path, "Medit")  # comment lines, kept as blank
+    keyword = np.array([t[:1].isalpha() and t.lower() not in (b"nan", b"inf", b"infinity") for t in rows.first],
+                       dtype=bool)
+    if not len(rows) or rows.first[0] != b"MeshVersionFormatted":
         raise MeshFormatError(f"{path} does not start with MeshVersionFormatted; it is not an ASCII Medit file")
-    i, version, dim, counts, end, last = 0, None, None, {}, None, None
-    while i < len(rows):
-        ln, t = rows[i]
-        key = t[0]
+    r, version, dim, counts, last = 0, None, None, {}, None
+    while r < len(rows):
+        key, line = rows.first[r].decode(), rows.lineno[r]
+        if not keyword[r]:
+            raise MeshFormatError(f"{path}, line {line}: section {last[0]} (line {last[1]}) declares {last[2]} "
+                                  f"entries but more follow; fix the count")
         if key in ("MeshVersionFormatted", "Dimension"):
-            if len(t) == 1 and i + 1 < len(rows):
-                t, i = t + rows[i + 1][1], i + 1
-            if len(t) != 2:
-                raise MeshFormatError(f"{path}, line {ln}: {key} needs one integer")
-            value = _int(t[1], path, ln, key)
-            if key == "MeshVersionFormatted":
-                if value not in (1, 2):
-                    raise MeshFormatError(f"{path}, line {ln}: MeshVersionFormatted {value} is not supported "
-                                          f"(1 or 2)")
-                version = value
-            elif value != 3:
-                raise MeshFormatError(f"{path}, line {ln}: Dimension {value}; a tetrahedral mesh needs "
-                                      f"Dimension 3")
-            else:
-                dim = value
-            i += 1
+            on_next = rows.count[r] == 1 and r + 1 < len(rows) and rows.count[r + 1] == 1 and not keyword[r + 1]
+            if rows.count[r] != 2 and not on_next:
+                raise MeshFormatError(f"{path}, line {line}: {key} needs one integer")
+            value = int(rows.ints(r + on_next, r + on_next + 1, key, column=0 if on_next else 1)[0])
+            if key == "MeshVersionFormatted" and value not in (1, 2):
+                raise MeshFormatError(f"{path}, line {line}: MeshVersionFormatted {value} is not supported (1 or 2)")
+            if key == "Dimension" and value != 3:
+                raise MeshFormatError(f"{path}, line {line}: Dimension {value}; a tetrahedral mesh needs Dimension 3")
+            version, dim = (value, dim) if key == "MeshVersionFormatted" else (version, value)
+            r += 1 + on_next
             continue
         if key == "End":
-            end = i
+            if r != len(rows) - 1:
+                raise MeshFormatError(f"{path}, line {rows.lineno[r + 1]}: text after End")
             break
-        if not _medit_keyword(key) and last is not None:
-            raise MeshFormatError(f"{path}, line {ln}: section {last[0]} (line {last[1]}) declares {last[2]} "
-                                  f"entries but more follow; fix the count")
         if key not in _MEDIT_SECTIONS:
-            raise MeshFormatError(f"{path}, line {ln}: unsupported Medit section {key!r}; supported: "
+            raise MeshFormatError(f"{path}, line {line}: unsupported Medit section {key!r}; supported: "
                                   f"{', '.join(_MEDIT_SECTIONS)}, End")
-        if len(t) != 1 or i + 1 >= len(rows) or len(rows[i + 1][1]) != 1:
-            raise MeshFormatError(f"{path}, line {ln}: expected {key} alone on its line and its count alone "
+        if rows.count[r] != 1 or r + 1 >= len(rows) or rows.count[r + 1] != 1:
+            raise MeshFormatError(f"{path}, line {line}: expected {key} alone on its line and its count alone "
                                   f"on the next")
         if dim is None or version is None:
-            raise MeshFormatError(f"{path}, line {ln}: {key} before MeshVersionFormatted and Dimension")
-        n = _int(rows[i + 1][1][0], path, rows[i + 1][0], f"{key} count")
+            raise MeshFormatError(f"{path}, line {line}: {key} before MeshVersionFormatted and Dimension")
+        n = int(rows.ints(r + 1, r + 2, f"{key} count")[0])
         width, indices = _MEDIT_SECTIONS[key]
         width = dim + 1 if width is None else dim if width == "dim" else width
-        body = rows[i + 2:i + 2 + n]
-        _counted([r for r in body if not _medit_keyword(r[1][0])], n, path, key, ln)
-        _check_width(body, width, path, key)
-        counts[key], last = n, (key, ln, n)
+        a, b = r + 2, min(r + 2 + n, len(rows))
+        inside = np.flatnonzero(keyword[a:b])
+        _counted(rows, r, int(inside[0]) if inside.size else b - a, n, key)
+        rows.width(a, b, width, key)
+        counts[key], last = n, (key, line, n)
         if indices and n:
-            ref = np.array([t[:indices] for _, t in body], dtype=np.int64)
-            if key == "Tetrahedra" or key == "Corners" or key == "RequiredVertices":
-                nv = counts.get("Vertices")
-                if nv is None:
-                    raise MeshFormatError(f"{path}, line {ln}: {key} before Vertices")
-                bad = (ref < 1) | (ref > nv)
-                if bad.any():
-                    row = int(np.flatnonzero(bad.any(axis=1))[0])
-                    raise MeshFormatError(f"{path}, line {body[row][0]}: {key} entry {row + 1} refers to vertex "
-                                          f"{int(ref[row][bad[row]][0])}; Medit vertices are numbered 1..{nv}")
-        i += 2 + n
-    if end is None:
+            if "Vertices" not in counts:
+                raise MeshFormatError(f"{path}, line {line}: {key} before Vertices")
+            ref = rows.ints(a, b, f"{key} entry").reshape(n, width)[:, :indices]
+            nv = counts["Vertices"]
+            bad = (ref < 1) | (ref > nv)
+            if bad.any():
+                i = int(np.flatnonzero(bad.any(axis=1))[0])
+                raise MeshFormatError(f"{path}, line {rows.lineno[a + i]}: {key} entry {i + 1} refers to vertex "
+                                      f"{int(ref[i][bad[i]][0])}; Medit vertices are numbered 1..{nv}")
+        r = b
+    else:
         raise MeshFormatError(f"{path} has no End keyword; the file is truncated")
-    if end != len(rows) - 1:
-        raise MeshFormatError(f"{path}, line {rows[end + 1][0]}: text after End")
     if "Vertices" not in counts:
         raise MeshFormatError(f"{path} has no Vertices section")
     return counts["Vertices"], counts.get("Tetrahedra", 0)

@@ -110,10 +110,12 @@ MALFORMED = {
     "msh_duplicate_tag": ("msh", MSH22.replace("\n2 0.0", "\n1 0.0", 1), "node tag is defined twice"),
     "msh_junk": ("msh", "$MeshFormat\nnot a mesh\n", "version 'not' is not supported"),
     "msh_stray_text": ("msh", MSH22 + "hello\n", "'hello' outside a section"),
+    "msh_stray_text_between": ("msh", MSH22.replace("$EndMeshFormat\n", "$EndMeshFormat\nhello 1\n"),
+                               "line 4: 'hello 1' outside a section"),
     # Gmsh 4.1
     "msh41_node_count": ("msh", MSH41.replace("1 8 1 8\n", "1 9 1 9\n"), r"\$Nodes .* declares 9 nodes"),
     "msh41_tag_range": ("msh", MSH41.replace("1 8 1 8\n", "1 8 1 9\n"), r"node tags 1\.\.8 but its header says 1\.\.9"),
-    "msh41_block_count": ("msh", MSH41.replace("3 1 4 6\n", "3 1 4 5\n"), r"\$Elements .* declares 6 elements"),
+    "msh41_block_count": ("msh", MSH41.replace("3 1 4 6\n", "3 1 4 5\n"), r"\$Elements \(line 24\) holds more blocks than the 1 it declares"),
     "msh41_elements_short": ("msh", MSH41.replace("\n6 1 ", "\n6 ", 1), "type-4 element entry has 4 values, expected 5"),
     # Medit
     "mesh_fewer": ("mesh", MEDIT.replace("Tetrahedra\n6\n", "Tetrahedra\n5\n"), "Tetrahedra .* declares 5 entries but more follow"),
@@ -123,6 +125,8 @@ MALFORMED = {
     "mesh_after_end": ("mesh", MEDIT + "Triangles\n0\n", "text after End"),
     "mesh_idx0": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n0 "), "refers to vertex 0; Medit vertices are numbered 1..8"),
     "mesh_idx9": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n9 "), "refers to vertex 9"),
+    "mesh_float_index": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n1.5 "), r"line 15: expected an integer \(Tetrahedra entry\), found '1.5'"),
+    "mesh_plus_index": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n+1 "), "found '\\+1'"),
     "mesh_width": ("mesh", MEDIT.replace(" 0\n", "\n", 1), "the Vertices entry has 3 values, expected 4"),
     "mesh_dim2": ("mesh", MEDIT.replace("Dimension 3", "Dimension 2"), "needs Dimension 3"),
     "mesh_unknown_section": ("mesh", MEDIT.replace("End\n", "Foo\n0\nEnd\n"), "unsupported Medit section 'Foo'"),
@@ -204,7 +208,9 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, mon
     target = tmp_path / "c.vtu"
     target.write_text("old")
 
-    def broken(*args, **kwargs):
+    def broken(filename, *args, **kwargs):
+        with open(filename, "w") as fh:
+            fh.write("<VTKFile half")  # a partial file, then a failure
         raise meshio.WriteError("disk on fire")
 
     monkeypatch.setattr(meshio.vtu, "write", broken)
