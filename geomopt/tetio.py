@@ -61,6 +61,8 @@ _MEDIT_SECTIONS = {
     "Corners": (1, 1), "RequiredVertices": (1, 1), "Ridges": (1, 0), "NormalAtVertices": (2, 0),
     "TangentAtVertices": (2, 0), "Normals": ("dim", 0), "Tangents": ("dim", 0),
 }
+#: A decimal number as C's strtod reads it (what meshio's numpy parsing takes), or nan/inf.
+_NUMBER = re.compile(rb"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|(?i:nan|inf|infinity))")
 _VOLUME_CELLS = {"tetra10", "hexahedron", "hexahedron20", "hexahedron27", "wedge", "wedge15", "wedge18",
                  "pyramid", "pyramid13", "pyramid14"}
 
@@ -163,6 +165,19 @@ class _Rows:
                                           f"found {t.decode()[:40]!r}")
         raise AssertionError("unreachable")
 
+    def numbers(self, a, b, what):
+        """Rows ``a:b`` must hold plain decimal numbers (meshio then reads their values)."""
+        if b <= a:
+            return
+        toks = self.tokens[self.start[a]:self.start[b - 1] + self.count[b - 1]]
+        if not b"".join(toks).translate(None, b"0123456789+-.eE"):
+            return  # only number characters: meshio reads them or refuses them
+        for r in range(a, b):
+            for t in self.tokens[self.start[r]:self.start[r] + self.count[r]]:
+                if not _NUMBER.fullmatch(t):
+                    raise MeshFormatError(f"{self.path}, line {self.lineno[r]}: expected a number ({what}), "
+                                          f"found {t.decode()[:40]!r}")
+
 
 def _counted(rows, a, held, count, section):
     """Section ``section`` opened on row ``a`` declares ``count`` entries and holds ``held``."""
@@ -232,22 +247,23 @@ def _check_gmsh(data, path):
         if a == b:
             raise MeshFormatError(f"{path}: section ${name} (line {rows.lineno[a - 1]}) is empty")
     read = _gmsh22 if fmt[0] == b"2.2" else _gmsh41
-    tags, tet_nodes = read(rows, sections["Nodes"][0], sections["Elements"][0])
+    tags, nodes, tet_nodes = read(rows, sections["Nodes"][0], sections["Elements"][0])
     if len(np.unique(tags)) != len(tags):
         raise MeshFormatError(f"{path}: a node tag is defined twice in $Nodes; tags must be unique")
-    undefined = ~np.isin(tet_nodes, tags)
+    undefined = ~np.isin(nodes, tags)
     if undefined.any():
-        raise MeshFormatError(f"{path}: a tetrahedron refers to node tag {int(tet_nodes[undefined][0])}, which "
+        raise MeshFormatError(f"{path}: an element refers to node tag {int(nodes[undefined][0])}, which "
                               f"$Nodes does not define")
     return len(tags), tet_nodes.shape[0]
 
 
 def _gmsh22(rows, nodes, elems):
-    """Node tags and ``(m, 4)`` tet node tags of MSH 2.2 sections (counts and widths checked)."""
+    """Node tags, every element's node tags (flat) and ``(m, 4)`` tet node tags of MSH 2.2 sections."""
     (a, b), (c, d) = nodes, elems
     rows.width(a, a + 1, 1, "$Nodes count")
     _counted(rows, a - 1, b - a - 1, int(rows.ints(a, a + 1, "node count")[0]), "$Nodes")
     rows.width(a + 1, b, 4, "$Nodes")
+    rows.numbers(a + 1, b, "$Nodes")
     tags = rows.ints(a + 1, b, "node tag", column=0)
     rows.width(c, c + 1, 1, "$Elements count")
     _counted(rows, c - 1, d - c - 1, int(rows.ints(c, c + 1, "element count")[0]), "$Elements")
@@ -264,12 +280,14 @@ def _gmsh22(rows, nodes, elems):
         i = int(bad[0])
         raise MeshFormatError(f"{rows.path}, line {rows.lineno[c + 1 + i]}: an element of type {types[i]} with "
                               f"{ntags[i]} tags needs {width[i]} values, found {rows.count[c + 1 + i]}")
+    first_node = np.repeat(at + 3 + ntags, rows.count[c + 1:d])  # per value: where its row's nodes begin
+    nodes = values[np.arange(len(values)) >= first_node]
     ends = (at + rows.count[c + 1:d])[types == _GMSH_TET]
-    return tags, values[ends[:, None] - 4 + np.arange(4)]
+    return tags, nodes, values[ends[:, None] - 4 + np.arange(4)]
 
 
 def _gmsh41(rows, nodes, elems):
-    """Node tags and ``(m, 4)`` tet node tags of MSH 4.1 sections (block counts and widths checked)."""
+    """Node tags, every element's node tags (flat) and ``(m, 4)`` tet node tags of MSH 4.1 sections."""
     (a, b), (c, d) = nodes, elems
 
     def header(r, what):
@@ -298,6 +316,7 @@ def _gmsh41(rows, nodes, elems):
     for r, (dim, _, parametric, n) in blocks(a, b, nblocks, "$Nodes", lambda n: 2 * n):
         rows.width(r, r + n, 1, "$Nodes tag")
         rows.width(r + n, r + 2 * n, 3 + (dim if parametric else 0), "$Nodes coordinate")
+        rows.numbers(r + n, r + 2 * n, "$Nodes coordinate")
         tags.append(rows.ints(r, r + n, "node tag"))
     tags = np.concatenate(tags) if tags else np.zeros(0, dtype=np.int64)
     if len(tags) != total:
@@ -307,18 +326,20 @@ def _gmsh41(rows, nodes, elems):
         raise MeshFormatError(f"{rows.path}: section $Nodes (line {rows.lineno[a - 1]}) holds node tags "
                               f"{tags.min()}..{tags.max()} but its header says {lo}..{hi}; fix the header")
     nblocks, total, _, _ = header(c, "$Elements header")
-    count, tets = 0, []
+    count, nodes, tets = 0, [], []
     for r, (_, _, gtype, n) in blocks(c, d, nblocks, "$Elements", lambda n: n):
         if n:
             width = 1 + int(_gmsh_nodes_per_element(np.array([gtype]), rows, r - 1)[0])
             rows.width(r, r + n, width, f"type-{gtype} element")
+            nodes.append(rows.ints(r, r + n, "element").reshape(n, width)[:, 1:])
             if gtype == _GMSH_TET:
-                tets.append(rows.ints(r, r + n, "element").reshape(n, 5)[:, 1:])
+                tets.append(nodes[-1])
         count += n
     if count != total:
         raise MeshFormatError(f"{rows.path}: section $Elements (line {rows.lineno[c - 1]}) declares {total} "
                               f"elements but its blocks hold {count}; fix the counts")
-    return tags, np.concatenate(tets) if tets else np.zeros((0, 4), dtype=np.int64)
+    nodes = np.concatenate([x.ravel() for x in nodes]) if nodes else np.zeros(0, dtype=np.int64)
+    return tags, nodes, np.concatenate(tets) if tets else np.zeros((0, 4), dtype=np.int64)
 
 
 def _check_medit(data, path):
@@ -365,6 +386,7 @@ def _check_medit(data, path):
         inside = np.flatnonzero(keyword[a:b])
         _counted(rows, r, int(inside[0]) if inside.size else b - a, n, key)
         rows.width(a, b, width, key)
+        rows.numbers(a, b, key)
         counts[key], last = n, (key, line, n)
         if indices and n:
             if "Vertices" not in counts:

@@ -95,6 +95,7 @@ def test_gmsh_boundary_faces_beside_the_tets_are_ignored_other_volume_cells_refu
 
 
 _ELEM_LINE = "$Elements\n6\n"
+_FIRST41 = MSH41.split("3 1 4 6\n")[1].split("\n")[0]  # the first element line of MSH41
 MALFORMED = {
     # Gmsh 2.2
     "msh_fewer_elems": ("msh", MSH22.replace(_ELEM_LINE, "$Elements\n5\n"), r"\$Elements .* declares 5 entries but holds 6"),
@@ -103,7 +104,16 @@ MALFORMED = {
     "msh_no_end_elements": ("msh", MSH22.replace("$EndElements\n", ""), r"\$Elements .* not closed by \$EndElements"),
     "msh_no_end_nodes": ("msh", MSH22.replace("$EndNodes\n", ""), r"\$Nodes .* not closed by \$EndNodes"),
     "msh_undefined_node": ("msh", MSH22.replace("\n8 1.0 1.0 1.0\n", "\n100 1.0 1.0 1.0\n"),
-                           "refers to node tag 8, which \\$Nodes does not define"),
+                           "an element refers to node tag 8, which \\$Nodes does not define"),
+    "msh_triangle_undefined_node": ("msh", MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace(
+        "$EndElements", "7 2 2 0 1 1 2 99\n$EndElements"), "an element refers to node tag 99"),
+    "msh41_undefined_node": ("msh", MSH41.replace(f"3 1 4 6\n{_FIRST41}\n", f"3 1 4 6\n{_FIRST41[:-1]}9\n"),
+                             "an element refers to node tag 9"),
+    "msh_bad_coordinate": ("msh", MSH22.replace("\n2 0.0 0.0 1.0\n", "\n2 0.0 0,0 1.0\n"),
+                           r"line 7: expected a number \(\$Nodes\), found '0,0'"),
+    "msh41_bad_coordinate": ("msh", MSH41.replace("\n0.0 0.0 1.0\n", "\n0.0 1.0x 1.0\n"), "found '1.0x'"),
+    "mesh_bad_coordinate": ("mesh", MEDIT.replace("\n0.0 0.0 1.0 0\n", "\n0.0 0x10 1.0 0\n"),
+                            r"line 6: expected a number \(Vertices\), found '0x10'"),
     "msh_short_element": ("msh", MSH22.replace("\n1 4 2 0 1 ", "\n1 4 2 0 ", 1), "needs 9 values, found 8"),
     "msh_binary": ("msh", MSH22.replace("2.2 0 8", "2.2 1 8"), "binary Gmsh file; only ASCII"),
     "msh_version_40": ("msh", MSH22.replace("2.2 0 8", "4 0 8"), "version '4' is not supported"),
