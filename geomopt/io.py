@@ -1764,7 +1764,8 @@ def read_vtk_tets(path):
     other; ``METADATA`` and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` /
     ``CELL_DATA`` sections after the cells are ignored.  Points declared ``float`` are
     float32 (then widened), as VTK reads them; files written by :func:`write_vtk_tets`
-    declare ``double`` and round-trip exactly.  Text conventions as in the module notes.
+    declare ``double`` and round-trip exactly.  Keywords (``POINTS``, ``cells``...) and type
+    names are case-insensitive, as in VTK's own reader.  Text conventions as in the module notes.
 
     Parameters
     ----------
@@ -1922,6 +1923,12 @@ class _VtkCursor:
                                   f"fix the count")
 
 
+def _vtk_keyword(tokens):
+    """A line's first token in upper case (``None`` for no tokens): VTK's own reader compares
+    keywords case-insensitively (vtkDataReader lower-cases each keyword before comparing)."""
+    return tokens[0].upper() if tokens else None
+
+
 def _vtk_type(token, cursor, section):
     code = _VTK_TYPES.get(token.upper())
     if code is None:
@@ -1940,7 +1947,7 @@ def _vtk_skip_optional(cursor):
     """Skip METADATA blocks (to the next blank line) and dataset FIELD data."""
     while True:
         tokens = cursor.peek()
-        if tokens[:1] == [b"METADATA"]:
+        if _vtk_keyword(tokens) == b"METADATA":
             cursor.line()
             while cursor.pos < len(cursor.data):
                 end = cursor.data.find(b"\n", cursor.pos)
@@ -1949,7 +1956,7 @@ def _vtk_skip_optional(cursor):
                 cursor.pos = end + 1
                 if blank:
                     break
-        elif tokens[:1] == [b"FIELD"]:
+        elif _vtk_keyword(tokens) == b"FIELD":
             cursor.line()
             for _ in range(_vtk_count(tokens, 2, cursor, "FIELD")):
                 array = cursor.line()
@@ -1984,7 +1991,7 @@ def _parse_vtk(data, path):
                               f"grids (tetrahedral meshes) are supported")
     _vtk_skip_optional(cursor)
     tokens = cursor.line()
-    if tokens[:1] != [b"POINTS"] or len(tokens) != 3:
+    if _vtk_keyword(tokens) != b"POINTS" or len(tokens) != 3:
         raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
                               f"{_show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     n = _vtk_count(tokens, 1, cursor, "POINTS")
@@ -1992,16 +1999,16 @@ def _parse_vtk(data, path):
     cursor.expect_keyword("POINTS")
     _vtk_skip_optional(cursor)
     tokens = cursor.line()
-    if tokens[:1] != [b"CELLS"] or len(tokens) != 3:
+    if _vtk_keyword(tokens) != b"CELLS" or len(tokens) != 3:
         raise MeshFormatError(f"{path}: expected 'CELLS' after the points, found "
                               f"{_show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
-    if cursor.peek()[:1] == [b"OFFSETS"]:  # version 5: offsets + connectivity
+    if _vtk_keyword(cursor.peek()) == b"OFFSETS":  # version 5: offsets + connectivity
         t = cursor.line()
         offsets = cursor.values(a, _vtk_type(t[1] if len(t) > 1 else b"?", cursor, "OFFSETS"), "OFFSETS")
         cursor.expect_keyword("OFFSETS")
         t = cursor.line()
-        if t[:1] != [b"CONNECTIVITY"] or len(t) != 2:
+        if _vtk_keyword(t) != b"CONNECTIVITY" or len(t) != 2:
             raise MeshFormatError(f"{path}: expected 'CONNECTIVITY type' after OFFSETS")
         conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64)
         offsets = offsets.astype(np.int64)
@@ -2031,7 +2038,7 @@ def _parse_vtk(data, path):
     cursor.expect_keyword("CELLS")
     _vtk_skip_optional(cursor)
     tokens = cursor.line()
-    if tokens[:1] != [b"CELL_TYPES"]:
+    if _vtk_keyword(tokens) != b"CELL_TYPES":
         raise MeshFormatError(f"{path}: expected 'CELL_TYPES' after the cells, found "
                               f"{_show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     m = _vtk_count(tokens, 1, cursor, "CELL_TYPES")

@@ -328,47 +328,6 @@ def test_parameterize_accepts_a_trimesh_or_any_vertices_faces_object():
         geomopt.parameterize(V, progress=False)
 
 
-@pytest.mark.parametrize("ext", [".msh", ".mesh", ".vtu", ".vtk"])
-def test_tet_formats_round_trip_exactly(tmp_path, ext):
-    from geomopt import tetio
-
-    from conftest import cube_tets
-
-    V, T = cube_tets(2)
-    V = V + np.pi * 1e-3 * np.arange(len(V))[:, None]  # digits that a short float format would lose
-    path = tetio.write_tets(tmp_path / f"cube{ext}", V, T)
-    P2, T2 = tetio.read_tets(path)
-    np.testing.assert_array_equal(P2, V)
-    np.testing.assert_array_equal(T2, T)
-    assert P2.dtype == np.float64 and T2.dtype == np.int64
-
-
-def test_tet_io_validates_like_the_rest_of_geomopt(tmp_path):
-    import meshio
-
-    from geomopt import tetio
-
-    from conftest import cube_tets
-
-    V, T = cube_tets(1)
-    with pytest.raises(geomopt.MeshError):
-        tetio.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
-    assert not any(tmp_path.iterdir())  # nothing written, no temporary left
-    with pytest.raises(geomopt.MeshFormatError, match="unknown mesh format"):
-        tetio.write_tets(tmp_path / "cube.xyz123", V, T)
-    meshio.write(str(tmp_path / "tris.vtu"), meshio.Mesh(V, [("triangle", T[:, :3])]))
-    with pytest.raises(geomopt.MeshFormatError, match="no tetrahedra"):
-        tetio.read_tets(tmp_path / "tris.vtu")
-    (tmp_path / "junk.msh").write_text("$MeshFormat\nnot a mesh\n")
-    with pytest.raises(geomopt.MeshFormatError, match="could not read"):
-        tetio.read_tets(tmp_path / "junk.msh")
-    bad = V.copy()
-    bad[0, 0] = np.nan
-    meshio.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
-    with pytest.raises(geomopt.MeshError):
-        tetio.read_tets(tmp_path / "nan.vtu")
-
-
 # ------------------------------------------------------------------ pictures
 
 

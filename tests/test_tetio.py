@@ -1,0 +1,251 @@
+"""geomopt.tetio: each advertised tet format read exactly or refused, written so it reads back exactly."""
+
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import tetio
+
+from conftest import cube_tets
+
+# one cube of 6 tets in Gmsh 2.2 / 4.1 and Medit (vertices 1-based)
+_P1, _T1 = cube_tets(1)
+
+
+def _msh22(tags=range(1, 9)):
+    """The cube in MSH 2.2 ASCII; node i gets tag ``tags[i]``."""
+    tags = list(tags)
+    nodes = "".join(f"{tags[i]} {x!r} {y!r} {z!r}\n" for i, (x, y, z) in enumerate(_P1.tolist()))
+    elems = "".join(f"{k + 1} 4 2 0 1 {' '.join(str(tags[v]) for v in t)}\n" for k, t in enumerate(_T1))
+    return (f"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n8\n{nodes}$EndNodes\n"
+            f"$Elements\n6\n{elems}$EndElements\n")
+
+
+def _msh41(tags=range(1, 9)):
+    """The cube in MSH 4.1 ASCII (one node block, one element block); node i gets tag ``tags[i]``."""
+    tags = list(tags)
+    return (f"$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 8 {min(tags)} {max(tags)}\n3 1 0 8\n"
+            + "".join(f"{t}\n" for t in tags) + "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in _P1.tolist())
+            + "$EndNodes\n$Elements\n1 6 1 6\n3 1 4 6\n"
+            + "".join(f"{k + 1} {' '.join(str(tags[v]) for v in t)}\n" for k, t in enumerate(_T1))
+            + "$EndElements\n")
+
+
+MSH22, MSH41 = _msh22(), _msh41()
+MEDIT = ("MeshVersionFormatted 2\nDimension 3\nVertices\n8\n"
+         + "".join(f"{x!r} {y!r} {z!r} 0\n" for x, y, z in _P1.tolist())
+         + "Tetrahedra\n6\n" + "".join(f"{' '.join(str(v + 1) for v in t)} 1\n" for t in _T1) + "End\n")
+
+
+def _jittered(n=2):
+    V, T = cube_tets(n)
+    return V + np.pi * 1e-3 * np.arange(len(V))[:, None], T  # digits that a short float format would lose
+
+
+@pytest.mark.parametrize("ext", [".vtk", ".vtu", ".msh", ".mesh"])
+def test_every_format_round_trips_bit_exactly_and_creates_only_the_file(tmp_path, ext):
+    V, T = _jittered()
+    path = tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+    assert [p.name for p in tmp_path.iterdir()] == [f"cube{ext}"]
+    P2, T2 = tetio.read_tets(path)
+    np.testing.assert_array_equal(P2, V)
+    np.testing.assert_array_equal(T2, T)
+    assert P2.dtype == np.float64 and T2.dtype == np.int64
+    if ext == ".msh":
+        assert path.read_text().startswith("$MeshFormat\n4.1 0 8\n")  # ASCII, checkable on reading
+
+
+def test_gmsh_22_and_41_and_medit_text_read_exactly(tmp_path):
+    for name, text in (("a.msh", MSH22), ("b.msh", MSH41), ("c.mesh", MEDIT)):
+        (tmp_path / name).write_text(text)
+        P, T = tetio.read_tets(tmp_path / name)
+        np.testing.assert_array_equal(P, _P1)
+        np.testing.assert_array_equal(T, _T1)
+
+
+def test_gmsh_22_written_by_meshio_reads_exactly(tmp_path):
+    import meshio
+
+    V, T = _jittered()
+    meshio.gmsh.write(str(tmp_path / "c.msh"), meshio.Mesh(V, [("tetra", T)]), fmt_version="2.2", binary=False)
+    P2, T2 = tetio.read_tets(tmp_path / "c.msh")
+    np.testing.assert_array_equal(P2, V)
+    np.testing.assert_array_equal(T2, T)
+
+
+def test_gmsh_node_tags_need_not_be_contiguous(tmp_path):
+    tags = [7, 3, 100, 42, 5, 9, 11, 2]  # legal: unique, any order, gaps
+    (tmp_path / "a.msh").write_text(_msh22(tags))
+    (tmp_path / "b.msh").write_text(_msh41(tags))
+    for name in ("a.msh", "b.msh"):
+        P, T = tetio.read_tets(tmp_path / name)
+        np.testing.assert_array_equal(P, _P1)  # file order
+        np.testing.assert_array_equal(T, _T1)  # tags mapped to those rows
+
+
+def test_gmsh_boundary_faces_beside_the_tets_are_ignored_other_volume_cells_refused(tmp_path):
+    text = MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace("$EndElements", "7 2 2 0 1 1 2 3\n$EndElements")
+    (tmp_path / "a.msh").write_text(text)
+    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "a.msh")[1], _T1)
+    text = MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace(
+        "$EndElements", "7 5 2 0 1 1 2 3 4 5 6 7 8\n$EndElements")
+    (tmp_path / "b.msh").write_text(text)
+    with pytest.raises(geomopt.MeshFormatError, match="non-tetrahedral volume cells.*hexahedron"):
+        tetio.read_tets(tmp_path / "b.msh")
+
+
+_ELEM_LINE = "$Elements\n6\n"
+_FIRST41 = MSH41.split("3 1 4 6\n")[1].split("\n")[0]  # the first element line of MSH41
+MALFORMED = {
+    # Gmsh 2.2
+    "msh_fewer_elems": ("msh", MSH22.replace(_ELEM_LINE, "$Elements\n5\n"), r"\$Elements .* declares 5 entries but holds 6"),
+    "msh_more_elems": ("msh", MSH22.replace(_ELEM_LINE, "$Elements\n7\n"), r"declares 7 entries but holds 6; the file is truncated"),
+    "msh_fewer_nodes": ("msh", MSH22.replace("$Nodes\n8\n", "$Nodes\n7\n"), r"\$Nodes .* declares 7 entries but holds 8"),
+    "msh_no_end_elements": ("msh", MSH22.replace("$EndElements\n", ""), r"\$Elements .* not closed by \$EndElements"),
+    "msh_no_end_nodes": ("msh", MSH22.replace("$EndNodes\n", ""), r"\$Nodes .* not closed by \$EndNodes"),
+    "msh_undefined_node": ("msh", MSH22.replace("\n8 1.0 1.0 1.0\n", "\n100 1.0 1.0 1.0\n"),
+                           "an element refers to node tag 8, which \\$Nodes does not define"),
+    "msh_triangle_undefined_node": ("msh", MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace(
+        "$EndElements", "7 2 2 0 1 1 2 99\n$EndElements"), "an element refers to node tag 99"),
+    "msh41_undefined_node": ("msh", MSH41.replace(f"3 1 4 6\n{_FIRST41}\n", f"3 1 4 6\n{_FIRST41[:-1]}9\n"),
+                             "an element refers to node tag 9"),
+    "msh_bad_coordinate": ("msh", MSH22.replace("\n2 0.0 0.0 1.0\n", "\n2 0.0 0,0 1.0\n"),
+                           r"line 7: expected a number \(\$Nodes\), found '0,0'"),
+    "msh41_bad_coordinate": ("msh", MSH41.replace("\n0.0 0.0 1.0\n", "\n0.0 1.0x 1.0\n"), "found '1.0x'"),
+    "mesh_bad_coordinate": ("mesh", MEDIT.replace("\n0.0 0.0 1.0 0\n", "\n0.0 0x10 1.0 0\n"),
+                            r"line 6: expected a number \(Vertices\), found '0x10'"),
+    "msh_short_element": ("msh", MSH22.replace("\n1 4 2 0 1 ", "\n1 4 2 0 ", 1), "needs 9 values, found 8"),
+    "msh_binary": ("msh", MSH22.replace("2.2 0 8", "2.2 1 8"), "binary Gmsh file; only ASCII"),
+    "msh_version_40": ("msh", MSH22.replace("2.2 0 8", "4 0 8"), "version '4' is not supported"),
+    "msh_duplicate_tag": ("msh", MSH22.replace("\n2 0.0", "\n1 0.0", 1), "node tag is defined twice"),
+    "msh_junk": ("msh", "$MeshFormat\nnot a mesh\n", "version 'not' is not supported"),
+    "msh_stray_text": ("msh", MSH22 + "hello\n", "'hello' outside a section"),
+    "msh_stray_text_between": ("msh", MSH22.replace("$EndMeshFormat\n", "$EndMeshFormat\nhello 1\n"),
+                               "line 4: 'hello 1' outside a section"),
+    # Gmsh 4.1
+    "msh41_node_count": ("msh", MSH41.replace("1 8 1 8\n", "1 9 1 9\n"), r"\$Nodes .* declares 9 nodes"),
+    "msh41_tag_range": ("msh", MSH41.replace("1 8 1 8\n", "1 8 1 9\n"), r"node tags 1\.\.8 but its header says 1\.\.9"),
+    "msh41_block_count": ("msh", MSH41.replace("3 1 4 6\n", "3 1 4 5\n"), r"\$Elements \(line 24\) holds more blocks than the 1 it declares"),
+    "msh41_elements_short": ("msh", MSH41.replace("\n6 1 ", "\n6 ", 1), "type-4 element entry has 4 values, expected 5"),
+    # Medit
+    "mesh_fewer": ("mesh", MEDIT.replace("Tetrahedra\n6\n", "Tetrahedra\n5\n"), "Tetrahedra .* declares 5 entries but more follow"),
+    "mesh_more": ("mesh", MEDIT.replace("Tetrahedra\n6\n", "Tetrahedra\n7\n"), "Tetrahedra .* declares 7 entries but holds 6"),
+    "mesh_vfew": ("mesh", MEDIT.replace("Vertices\n8\n", "Vertices\n7\n"), "Vertices .* declares 7 entries but more follow"),
+    "mesh_noend": ("mesh", MEDIT.replace("End\n", ""), "has no End keyword"),
+    "mesh_after_end": ("mesh", MEDIT + "Triangles\n0\n", "text after End"),
+    "mesh_idx0": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n0 "), "refers to vertex 0; Medit vertices are numbered 1..8"),
+    "mesh_idx9": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n9 "), "refers to vertex 9"),
+    "mesh_float_index": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n1.5 "), r"line 15: expected an integer \(Tetrahedra entry\), found '1.5'"),
+    "mesh_plus_index": ("mesh", MEDIT.replace("\nTetrahedra\n6\n1 ", "\nTetrahedra\n6\n+1 "), "found '\\+1'"),
+    "mesh_width": ("mesh", MEDIT.replace(" 0\n", "\n", 1), "the Vertices entry has 3 values, expected 4"),
+    "mesh_dim2": ("mesh", MEDIT.replace("Dimension 3", "Dimension 2"), "needs Dimension 3"),
+    "mesh_unknown_section": ("mesh", MEDIT.replace("End\n", "Foo\n0\nEnd\n"), "unsupported Medit section 'Foo'"),
+    # legacy VTK (through geomopt.io's reader)
+    "vtk_celltypes_short": ("vtk", None, "CELL_TYPES section declares 6 values but the file ends after 5"),
+    "vtk_two_points": ("vtk", None, "expected 'CELLS' after the points, found 'POINTS"),
+    # VTK XML
+    "vtu_truncated": ("vtu", None, "could not read .* as VTK XML unstructured grid: meshio's reader stopped"),
+}
+
+
+def _malformed_text(name, tmp_path):
+    ext, text, _ = MALFORMED[name]
+    if text is not None:
+        return text
+    if ext == "vtk":
+        geomopt.io.write_vtk_tets(tmp_path / "ok.vtk", _P1, _T1)
+        good = (tmp_path / "ok.vtk").read_text()
+        if name == "vtk_celltypes_short":
+            return good.rsplit("10\n", 1)[0]
+        points = good[good.index("POINTS"):good.index("CELLS")]
+        return good.replace("CELLS", points + "CELLS")
+    tetio.write_tets(tmp_path / "ok.vtu", _P1, _T1)
+    good = (tmp_path / "ok.vtu").read_text()
+    return good[: len(good) // 2]
+
+
+@pytest.mark.parametrize("name", list(MALFORMED))
+def test_malformed_files_are_refused_with_a_message_saying_what_is_wrong(tmp_path, capfd, name):
+    ext, _, message = MALFORMED[name]
+    path = tmp_path / f"{name}.{ext}"
+    path.write_text(_malformed_text(name, tmp_path))
+    with pytest.raises(geomopt.MeshFormatError, match=message) as info:
+        tetio.read_tets(path)
+    assert str(path) in str(info.value)
+    assert capfd.readouterr() == ("", "")  # meshio's own messages are not printed
+
+
+def test_vtk_keywords_are_case_insensitive_as_in_vtk_itself(tmp_path):
+    geomopt.io.write_vtk_tets(tmp_path / "up.vtk", _P1, _T1)
+    text = (tmp_path / "up.vtk").read_text()
+    (tmp_path / "low.vtk").write_text(text.replace("POINTS", "points").replace("CELLS", "cells")
+                                      .replace("CELL_TYPES", "cell_types").replace("double", "DOUBLE"))
+    for read in (geomopt.io.read_vtk_tets, tetio.read_tets):
+        P, T = read(tmp_path / "low.vtk")
+        np.testing.assert_array_equal(P, _P1)
+        np.testing.assert_array_equal(T, _T1)
+
+
+_UNSUPPORTED = [".stl", ".off", ".ply", ".obj", ".ugrid", ".xdmf", ".med", ".h5m", ".inp", ""]
+
+
+@pytest.mark.parametrize("ext", _UNSUPPORTED)
+def test_unsupported_extensions_are_refused_on_write_and_read_creating_nothing(tmp_path, ext):
+    V, T = _jittered(1)
+    with pytest.raises(geomopt.MeshFormatError, match=r"supported tet-mesh formats: \.vtk .*\.vtu .*\.msh .*\.mesh"):
+        tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+    assert not any(tmp_path.iterdir())
+    (tmp_path / f"cube{ext}").write_text(MSH22)
+    with pytest.raises(geomopt.MeshFormatError, match="supported tet-mesh formats"):
+        tetio.read_tets(tmp_path / f"cube{ext}")
+
+
+def test_meshio_warnings_are_not_printed(tmp_path, capfd):
+    # meshio warns (on stderr, through rich) about Medit sections it skips; the read is still exact
+    (tmp_path / "a.mesh").write_text(MEDIT.replace("End\n", "RequiredVertices\n2\n1\n2\nEnd\n"))
+    P, T = tetio.read_tets(tmp_path / "a.mesh")
+    np.testing.assert_array_equal(T, _T1)
+    V, T = _jittered(1)
+    for ext in (".msh", ".mesh", ".vtu"):
+        tetio.write_tets(tmp_path / f"w{ext}", V, T)
+    assert capfd.readouterr() == ("", "")
+
+
+def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkeypatch):
+    import meshio
+
+    V, T = _jittered(1)
+    target = tmp_path / "c.vtu"
+    target.write_text("old")
+
+    def broken(filename, *args, **kwargs):
+        with open(filename, "w") as fh:
+            fh.write("<VTKFile half")  # a partial file, then a failure
+        raise meshio.WriteError("disk on fire")
+
+    monkeypatch.setattr(meshio.vtu, "write", broken)
+    with pytest.raises(geomopt.GeomoptError, match="could not write .*c.vtu.*disk on fire.*nothing was written"):
+        tetio.write_tets(target, V, T)
+    assert [p.name for p in tmp_path.iterdir()] == ["c.vtu"] and target.read_text() == "old"
+
+
+def test_invalid_arrays_and_contents_are_mesh_errors(tmp_path):
+    import meshio
+
+    V, T = cube_tets(1)
+    with pytest.raises(geomopt.MeshError):
+        tetio.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
+    assert not any(tmp_path.iterdir())
+    meshio.vtu.write(str(tmp_path / "tris.vtu"), meshio.Mesh(V, [("triangle", T[:, :3])]))
+    with pytest.raises(geomopt.MeshFormatError, match="no tetrahedra"):
+        tetio.read_tets(tmp_path / "tris.vtu")
+    bad = V.copy()
+    bad[0, 0] = np.nan
+    meshio.vtu.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
+    with pytest.raises(geomopt.MeshError):
+        tetio.read_tets(tmp_path / "nan.vtu")
+    with pytest.raises(geomopt.MeshFormatError, match="does not exist"):
+        tetio.read_tets(tmp_path / "missing.msh")
+    (tmp_path / "empty.mesh").write_text("")
+    with pytest.raises(geomopt.MeshFormatError, match="empty"):
+        tetio.read_tets(tmp_path / "empty.mesh")
