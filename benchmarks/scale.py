@@ -20,7 +20,7 @@ is its own, and prints one JSON object per line on stdout with the keys
   ``geomopt.solvers.Newton(projection="clamp")``: Hessian, ``SparseCholesky`` factorization,
   solve, injective line search; skipped with ``--no-direct``) and ``cg_iter_s`` (``--cg``:
   the CG direction of ``geomopt._cg.NewtonCG()`` and the same line search);
-* ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``/``--untangle``).
+* ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``).
 
 Extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
 energy + gradient + Hessian calls), ``factor_s, solve_s, linesearch_s`` (parts of the direct
@@ -29,10 +29,11 @@ term), ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative 
 the direct step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than
 wall time on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s,
 newton_iters, energy, outcome`` and ``cg_solve_cg_iters`` (projected Newton to convergence,
-second run); with ``--untangle``: ``untangle_outer_s, untangle_setup_s, untangle_inner,
-untangle_inverted`` (one outer iteration of :func:`geomopt.untangle.untangle` on the mesh
-with its interior rotated by 90 degrees in 2D, a box twisted by a quarter turn in 3D) and
-``untangle_peak_mem_mb``.
+second run).  ``--untangle`` measures instead, alone in the process: ``untangle_outer_s,
+untangle_setup_s, untangle_cpu_s, untangle_inner, untangle_inverted`` (before, after) and
+``untangle_peak_mem_mb`` for one outer iteration of :func:`geomopt.untangle.untangle` (its
+default solver) on the mesh with its interior rotated by 90 degrees in 2D, the box's
+boundary twisted by a quarter turn in 3D.
 """
 
 from __future__ import annotations
@@ -172,6 +173,8 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         P = (Problem.planar if dim == 2 else Problem.tets)(V, S, fixed, V[fixed])
     out["setup_s"] = time.perf_counter() - t
     out["elements"], out["vertices"] = int(len(S)), int(len(V))
+    if untangle:  # alone in its process, so that the peak memory is its own
+        return _round(dict(out, **run_untangle_outer(V, S, fixed)))
     obj = Objective(P, "symmetric_dirichlet")
     params = obj.params()
     x = jnp.asarray(start_map(obj, V, S)[0] if mesh else _swirl(V))
@@ -231,18 +234,28 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     out["peak_mem_mb"] = round(_peak_mb(), 1)
     if solve:
         out.update(run_solves(obj, np.asarray(x)))
-    if untangle:
-        from geomopt.untangle import untangle as run_untangle
+    return _round(out)
 
-        tangle = G.rotated_interior(V, S, 90.0) if dim == 2 else \
-            G.Tangle("twist", V, S, _twist(V, fixed), fixed)
-        res = run_untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
-        out["untangle_outer_s"] = res.seconds
-        out["untangle_setup_s"] = res.setup_seconds
-        out["untangle_inner"] = int(res.inner_iterations)
-        out["untangle_inverted"] = [int(res.initially_inverted), int(res.inverted)]
-        out["untangle_peak_mem_mb"] = round(_peak_mb(), 1)
-    return {k: (round(v, 4) if isinstance(v, float) and k != "peak_mem_mb" else v) for k, v in out.items()}
+
+def _round(out):
+    return {k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in out.items()}
+
+
+def run_untangle_outer(V, S, fixed):
+    """One outer iteration of :func:`geomopt.untangle.untangle` (default solver) on the mesh
+    with its interior rotated by 90 degrees (2D) or its boundary twisted (3D)."""
+    from geomopt import generators as G
+    from geomopt.untangle import untangle
+
+    tangle = G.rotated_interior(V, S, 90.0) if V.shape[1] == 2 else \
+        G.Tangle("twist", V, S, _twist(V, fixed), fixed)
+    c = time.process_time()
+    res = untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
+    return {"untangle_outer_s": res.seconds, "untangle_setup_s": res.setup_seconds,
+            "untangle_cpu_s": time.process_time() - c, "untangle_inner": int(res.inner_iterations),
+            "untangle_inverted": [int(res.initially_inverted), int(res.inverted)],
+            "untangle_solver": type(res.info["solver"]).__name__,
+            "untangle_peak_mem_mb": round(_peak_mb(), 1)}
 
 
 def _twist(V, fixed):
@@ -263,7 +276,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=10, help="warm energy + gradient runs (median)")
     ap.add_argument("--cg", action="store_true", help="also time the CG Newton direction")
     ap.add_argument("--no-direct", action="store_true", help="skip the direct (Cholesky) Newton step")
-    ap.add_argument("--untangle", action="store_true", help="also time one untangling outer iteration")
+    ap.add_argument("--untangle", action="store_true",
+                    help="time one untangling outer iteration instead (alone in its process)")
     ap.add_argument("--solve", action="store_true",
                     help="also solve to convergence with the direct and the CG direction")
     ap.add_argument("--mesh", nargs="+", default=[],
@@ -271,6 +285,8 @@ def main(argv=None):
     ap.add_argument("--json", help="append the JSON lines to this file too")
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.mesh and a.untangle:
+        ap.error("--untangle uses the generated meshes (their boundary is the handle set), not --mesh")
     if a.one:
         res = run_one(int(a.elements[0]), a.dim[0], a.repeat, a.cg, not a.no_direct, a.untangle,
                       a.solve, a.mesh[0] if a.mesh else None)

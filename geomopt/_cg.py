@@ -119,11 +119,9 @@ def block_matvec(ell, over, op: CGOperator, p):
 
 
 def _inverse_spd(D):
-    """Inverse of symmetric positive-definite blocks D (..., d, d), d <= 3, by cofactors; a
+    """Inverse of symmetric positive-definite blocks D (..., d, d), d = 2 or 3, by cofactors; a
     block that is singular to rounding gets the inverse of its (positive) diagonal instead."""
     d = D.shape[-1]
-    if d == 1:
-        return 1.0 / D
     if d == 2:
         a, b, c = D[..., 0, 0], D[..., 0, 1], D[..., 1, 1]
         det = a * c - b * b
@@ -139,7 +137,7 @@ def _inverse_spd(D):
         det = sum(D[..., 0, j] * C[0][j] for j in range(3))
         adj = jnp.stack([jnp.stack([C[j][i] for j in range(3)], -1) for i in range(3)], -2)
     else:
-        raise ParameterError(f"block Jacobi supports d <= 3, got d={d}")
+        raise ParameterError(f"block Jacobi supports d = 2 or 3, got d={d}")
     diag = jnp.diagonal(D, axis1=-2, axis2=-1)
     scale = jnp.prod(jnp.abs(diag), axis=-1)
     ok = det > 1e-12 * scale
