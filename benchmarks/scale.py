@@ -16,24 +16,29 @@ is its own, and prints one JSON object per line on stdout with the keys
 * ``hessian_s``: median of 3 warm evaluations of energy, gradient and the assembled projected
   (clamp) Hessian data, copied to the host;
 * ``pattern_s``: median of 3 builds of the CSC Hessian pattern;
-* ``newton_iter_s``: the faster of ``direct_iter_s`` (median of 3 iterations of
-  ``geomopt.solvers.Newton(projection="clamp")``: Hessian, ``SparseCholesky`` factorization,
-  solve, injective line search; skipped with ``--no-direct``) and ``cg_iter_s`` (``--cg``:
-  the CG direction of ``geomopt._cg.NewtonCG()`` and the same line search);
+* ``newton_iter_s``: one iteration of ``geomopt.solvers.Newton(projection="clamp")`` (its
+  ``step``: Hessian, direction, injective line search, stopping test) with the linear solver
+  that ``linear_solver="auto"`` picks here (``newton_pick``,
+  :func:`geomopt.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
+  Cholesky, PARDISO; skipped with ``--no-direct``) or ``cg_iter_s`` (``--cg``:
+  ``linear_solver="cg"``); the median of 3 iterations after the first, which is what a user
+  pays per iteration; when the pick was not measured, the faster of the two;
 * ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``).
 
 Extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
-energy + gradient + Hessian calls), ``factor_s, solve_s, linesearch_s`` (parts of the direct
-iteration); with ``--cg``: ``cg_step_s, cg_iters`` (the direction alone, default forcing
-term), ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to
-the direct step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than
-wall time on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s,
-newton_iters, energy, outcome`` and ``cg_solve_cg_iters`` (projected Newton to convergence,
-second run).  ``--untangle`` measures instead, alone in the process: ``untangle_outer_s,
-untangle_setup_s, untangle_cpu_s, untangle_inner, untangle_inverted`` (before, after) and
-``untangle_peak_mem_mb`` for one outer iteration of :func:`geomopt.untangle.untangle` (its
-default solver) on the mesh with its interior rotated by 90 degrees in 2D, the box's
-boundary twisted by a quarter turn in 3D.
+energy + gradient + Hessian calls), ``analyze_s`` (the Cholesky's symbolic analysis, once per
+mesh), ``direct_init_s`` / ``cg_init_s`` (``Newton.init``: analysis or CG operator, ahead of
+time compilation from the warm in-process cache), ``*_first_iter_s`` (the first iteration
+after ``init``), ``factor_s, solve_s, linesearch_s`` (parts of the direct iteration); with
+``--cg``: ``cg_step_s, cg_iters`` (the CG direction alone with Newton's forcing term),
+``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to the direct
+step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than wall time
+on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton_iters,
+energy, outcome`` (projected Newton to convergence, second run).  ``--untangle`` measures
+instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
+untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
+outer iteration of :func:`geomopt.untangle.untangle` (its default solver) on the mesh with
+its interior rotated by 90 degrees in 2D, the box's boundary twisted by a quarter turn in 3D.
 """
 
 from __future__ import annotations
@@ -90,48 +95,17 @@ def _peak_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _cg_newton(**kw):
-    """``geomopt.solvers.Newton`` with its direction from :class:`geomopt._cg.NewtonCG` (a
-    benchmark-only adapter until the solver offers CG: same projection, shift, line search
-    and stopping test; the direction is copied to the host, as the solver's loop does)."""
-    import dataclasses
-
-    from geomopt._cg import NewtonCG
-    from geomopt.solvers import Newton
-
-    @dataclasses.dataclass(frozen=True)
-    class CGNewtonSolver(Newton):
-        cg: NewtonCG = NewtonCG()
-        cg_iterations: list = dataclasses.field(default_factory=lambda: [0])  # total, mutable
-
-        def init(self, objective, x0, params):
-            state = super().init(objective, x0, params)
-            gref = float(np.linalg.norm(np.asarray(state.grad)))  # scale-free forcing term
-            return dataclasses.replace(state, aux=dict(state.aux, op=self.cg.prepare(objective),
-                                                       gref=max(gref, 1e-300)))
-
-        def _direction(self, state, projection, shifts):
-            obj, pat = state.objective, state.objective.pattern
-            dx, info = self.cg.direction(state.aux["op"], obj, state.x, state.params, projection,
-                                         shifts[0], gnorm_ref=state.aux["gref"])
-            self.cg_iterations[0] += int(info.iterations)
-            g = np.asarray(info.grad).reshape(-1)[pat.free_dofs]
-            return float(info.value), info.grad, g, np.asarray(dx).reshape(-1)[pat.free_dofs], shifts[0]
-
-    return CGNewtonSolver(**kw)
-
-
 def run_solves(obj, x0):
     """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
     seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
     import geomopt
+    from geomopt.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
-    for key, make in (("direct", lambda: Newton(projection="clamp")),
-                      ("cg", lambda: _cg_newton(projection="clamp"))):
+    for key, solver in (("direct", Newton(projection="clamp", linear_solver=available_backends()[0])),
+                        ("cg", Newton(projection="clamp", linear_solver="cg"))):
         for _ in range(2):  # the first run compiles
-            solver = make()
             c = time.process_time()
             res = geomopt.minimize(obj, x0, solver, progress=False)
             cpu = time.process_time() - c
@@ -140,8 +114,6 @@ def run_solves(obj, x0):
         out[f"{key}_newton_iters"] = int(res.iterations)
         out[f"{key}_energy"] = float(res.energy) / obj.total_volume
         out[f"{key}_outcome"] = res.outcome.value
-        if key == "cg":
-            out["cg_solve_cg_iters"] = solver.cg_iterations[0]
     return out
 
 
@@ -154,7 +126,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
 
     from geomopt import generators as G
     from geomopt._objective import Objective, hessian_pattern
-    from geomopt.linsolve import SparseCholesky
+    from geomopt.linsolve import SparseCholesky, available_backends, newton_linear_solver
     from geomopt.problem import Problem
     from geomopt.solvers import Newton
 
@@ -196,40 +168,48 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     d_direct = None
     if direct:
         chol = SparseCholesky(pat.indptr, pat.indices)
+        out["analyze_s"], _ = _median(lambda: SparseCholesky(pat.indptr, pat.indices).analyze(),
+                                      1, "analyze_s")
         chol.analyze()
         out["factor_s"], _ = _median(lambda: chol.factor(data), 3, "factor_s")
         out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3, "solve_s")
-        newton = Newton(projection="clamp")
-        state = newton.init(obj, x, params)
+        newton = Newton(projection="clamp", linear_solver=available_backends()[0])
+        out["direct_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "direct_init_s")
         dx = np.zeros(x.size)
         dx[pat.free_dofs] = d_direct
         dx = jnp.asarray(dx.reshape(x.shape))
         value = float(obj.value(x, params))
         out["linesearch_s"], _ = _median(
-            lambda: newton.line_search(obj, params, x, value, jnp.asarray(grad), dx), 3, "linesearch_s")
+            lambda: newton.search(obj, params, x, value, jnp.asarray(grad), dx), 3, "linesearch_s")
+        out["direct_first_iter_s"], _ = _median(lambda: newton.step(state), 1, "direct_first_iter_s")
         out["direct_iter_s"], _ = _median(lambda: newton.step(state), 3, "direct_iter_s")
     if cg:
         from geomopt._cg import NewtonCG
 
-        newton = Newton(projection="clamp")
-        for key, solver in (("cg", NewtonCG()), ("cg_tight", NewtonCG(rtol=1e-8))):
-            op = solver.prepare(obj)
-            step = lambda: jax.block_until_ready(solver.direction(op, obj, x, params, "clamp"))  # noqa: E731
+        newton = Newton(projection="clamp", linear_solver="cg")
+        out["cg_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "cg_init_s")
+        out["cg_first_iter_s"], _ = _median(lambda: newton.step(state), 1, "cg_first_iter_s")
+        out["cg_iter_s"], _ = _median(lambda: newton.step(state), 3, "cg_iter_s")
+        # the direction alone, with Newton's forcing term (from the first gradient norm, as
+        # in a solve) and with a tight tolerance
+        gref = state.aux["gref"]
+        for key, solver in (("cg", newton.cg), ("cg_tight", NewtonCG(rtol=1e-8))):
+            op = state.aux["op"]
+            step = lambda: jax.block_until_ready(  # noqa: E731
+                solver.direction(op, obj, x, params, "clamp", newton.regularization, gref))
             step()
             out[f"{key}_step_s"], (dcg, info) = _median(step, 3, f"{key}_step_s")
             out[f"{key}_iters"] = int(info.iterations)
-
-            def cg_iter():
-                dcg, info = solver.direction(op, obj, x, params, "clamp")
-                return newton.line_search(obj, params, x, float(info.value), info.grad, dcg)
-
-            out[f"{key}_iter_s"], _ = _median(cg_iter, 3, f"{key}_iter_s")
             if d_direct is not None:
                 dc = np.asarray(dcg).reshape(-1)[pat.free_dofs]
                 out[f"{key}_direct_rel"] = float(np.linalg.norm(dc - d_direct) / np.linalg.norm(d_direct))
     out.update({k[:-2] + "_cpu_s": v for k, v in CPU.items()})
+    out["newton_pick"] = newton_linear_solver(dim, pat.n, out["device"])
+    pick = "cg_iter_s" if out["newton_pick"] == "cg" else "direct_iter_s"
     iters = [out[k] for k in ("direct_iter_s", "cg_iter_s") if k in out]
-    if iters:
+    if pick in out:
+        out["newton_iter_s"] = out[pick]
+    elif iters:
         out["newton_iter_s"] = min(iters)
     out["peak_mem_mb"] = round(_peak_mb(), 1)
     if solve:

@@ -262,10 +262,14 @@ class NewtonCG:
 
     @staticmethod
     def prepare(objective) -> CGOperator:
-        """The device arrays of ``objective``'s block operator (build once per mesh)."""
+        """The device arrays of ``objective``'s block operator (build once per mesh), padded
+        like the objective (:mod:`geomopt._padding`): ``n_padded`` vertex rows, the padded
+        vertices with no block (their rows stay zero and fixed)."""
         pat = objective.pattern
-        nv = objective.free_dofs.shape[0]
+        blocks, swap, nb_all = objective.block_assembly
+        nv = objective.free_mask.shape[0]
         ptr, idx, nb = pat.vertex_ptr, pat.vertex_idx, pat.n_blocks
+        ptr = np.concatenate([ptr, np.full(nv + 1 - len(ptr), ptr[-1], ptr.dtype)])
         cols = np.repeat(np.arange(nv), np.diff(ptr))
         off = np.flatnonzero(idx != cols)
         # the symmetric matrix by rows: lower blocks (row idx) and their transposes (row cols)
@@ -283,7 +287,8 @@ class NewtonCG:
         over_of = np.array([np.sum(np.maximum(widths - K, 0) * counts) for K in widths])
         K = max(int(np.argmin(nv * widths + 2 * over_of)), 1)
         inl = slot < K
-        ell_src = np.full((nv, K), nb, np.int64)
+        # empty slots point at the zero block appended after all (padded) blocks
+        ell_src = np.full((nv, K), nb_all, np.int64)
         ell_col = np.zeros((nv, K), np.int64)
         ell_t = np.zeros((nv, K), bool)
         ell_src[row[inl], slot[inl]] = src[inl]
@@ -294,23 +299,30 @@ class NewtonCG:
         return CGOperator(
             ell_src=i32(ell_src), ell_col=i32(ell_col), ell_t=jnp.asarray(ell_t),
             over_row=i32(row[~inl]), over_src=i32(src[~inl]), over_col=i32(col[~inl]),
-            over_t=jnp.asarray(tr[~inl]), diag=i32(np.where(used, ptr[:-1], nb)),
-            free=jnp.asarray(np.asarray(objective.free_dofs, np.float64)),
-            blocks=jnp.asarray(pat.blocks), swap=jnp.asarray(pat.swap))
+            over_t=jnp.asarray(tr[~inl]), diag=i32(np.where(used, ptr[:-1], nb_all)),
+            free=objective.free_mask, blocks=blocks, swap=swap)
+
+    def _args(self, op, objective, x, params, projection, shift, gnorm_ref, rtol):
+        if projection not in PROJECTIONS:
+            raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
+        return (objective.energy.density, projection, objective.chunk, objective.block_assembly[2],
+                objective.geom, objective.pad_map(jnp.asarray(x)), params, op, jnp.float64(shift),
+                jnp.float64(self.rtol if rtol is None else rtol), jnp.float64(self.eta_max),
+                jnp.float64(gnorm_ref), jnp.int32(self.max_iters))
 
     def direction(self, op: CGOperator, objective, x, params, projection="clamp", shift=0.0,
                   gnorm_ref=1.0, rtol=None):
-        """``(dx, info)``: the direction (n, d), zero on fixed DOFs, and a :class:`CGInfo`.
+        """``(dx, info)``: the direction (n_padded, d), zero on fixed DOFs, and a :class:`CGInfo`.
 
-        ``shift`` is the Newton regularization relative to the mean |diagonal| of the free
-        DOFs (as in :class:`~geomopt.solvers.Newton`); ``gnorm_ref`` scales the forcing
-        term; ``rtol`` overrides the configuration's (e.g. an Eisenstat-Walker sequence kept
-        by the caller).  These, ``params`` and the configuration's numbers are traced:
-        changing them never recompiles."""
-        if projection not in PROJECTIONS:
-            raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
-        return newton_cg_kernel(objective.energy.density, projection, objective.chunk,
-                                objective.pattern.n_blocks, objective.geom, jnp.asarray(x), params,
-                                op, jnp.float64(shift), jnp.float64(self.rtol if rtol is None else rtol),
-                                jnp.float64(self.eta_max), jnp.float64(gnorm_ref),
-                                jnp.int32(self.max_iters))
+        ``x`` has n or n_padded rows (:meth:`~geomopt.Objective.pad_map`); ``shift`` is the
+        Newton regularization relative to the mean |diagonal| of the free DOFs (as in
+        :class:`~geomopt.solvers.Newton`); ``gnorm_ref`` scales the forcing term; ``rtol``
+        overrides the configuration's (e.g. an Eisenstat-Walker sequence kept by the caller).
+        These, ``params`` and the configuration's numbers are traced: changing them never
+        recompiles."""
+        return newton_cg_kernel(*self._args(op, objective, x, params, projection, shift, gnorm_ref, rtol))
+
+    def compile(self, op: CGOperator, objective, x, params, projection="clamp"):
+        """Compile (or load from the persistent cache) the kernel of :meth:`direction` for
+        maps shaped like ``x`` without running it (a solver's set-up holds the compilation)."""
+        newton_cg_kernel.lower(*self._args(op, objective, x, params, projection, 0.0, 1.0, None)).compile()

@@ -189,3 +189,35 @@ class SparseCholesky:
         if not np.isfinite(x).all():
             raise NotPositiveDefinite("solve produced non-finite values")
         return x
+
+
+#: Free DOFs from which ``Newton(linear_solver="auto")`` takes the CG direction on the CPU,
+#: per dimension (None: never); see :func:`newton_linear_solver`.
+CG_FROM_DOFS = {2: None, 3: 50_000}
+
+
+def newton_linear_solver(dim: int, n_free: int, platform: str = "cpu") -> str:
+    """How :class:`~geomopt.solvers.Newton` (``linear_solver="auto"``) makes its direction:
+    ``"cg"`` (:class:`geomopt._cg.NewtonCG`, in JAX) or ``"direct"`` (:class:`SparseCholesky`).
+
+    Parameters
+    ----------
+    dim : 2 (triangles) or 3 (tets);  n_free : free DOFs;  platform : JAX's backend name.
+
+    The rule, by measurement (``benchmarks/scale.py --cg --solve``, CPU seconds per Newton
+    iteration and per solve to convergence, PARDISO with METIS, 2-core machine; table in
+    benchmarks/README.md):
+
+    * off the CPU: ``"cg"`` (the direct step would copy the Hessian to the host; not
+      measured on a GPU here);
+    * triangles: ``"direct"`` at every size.  A 2D factorization costs little more than the
+      Hessian (10^6 triangles, 10^6 DOFs: factor 2.2 s, Hessian 0.6 s) while CG needs
+      hundreds of iterations (the condition number grows like the DOF count);
+    * tets: ``"cg"`` from ``CG_FROM_DOFS[3]`` free DOFs (3D fill makes the factorization grow
+      like n^2: 1.2 s at 47k DOFs, 1.4 GB of factor), where block-Jacobi CG converges in tens
+      of iterations and costs about one Hessian evaluation.
+    """
+    if platform != "cpu":
+        return "cg"
+    limit = CG_FROM_DOFS.get(int(dim))
+    return "cg" if limit is not None and n_free >= limit else "direct"
