@@ -165,6 +165,8 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         lambda: tuple(np.array(a) for a in obj.hessian(x, params, "clamp")), 3, "hessian_s")
 
     g = grad.reshape(-1)[pat.free_dofs]
+    # Newton's relative diagonal shift, so that the direct and CG steps solve one system
+    data[pat.diag] += Newton.regularization * np.mean(np.abs(data[pat.diag]))
     d_direct = None
     if direct:
         chol = SparseCholesky(pat.indptr, pat.indices)

@@ -62,7 +62,8 @@ class Newton(AbstractSolver):
     max_steps: int = 200
     regularization: float = 1e-9
     search: InjectiveSearch = InjectiveSearch(expand=3)
-    cg: NewtonCG = NewtonCG(eta_max=0.01)  # measured: fewer Newton iterations pay (README, scale)
+    # eta_max 0.01, not 0.5: measured 4 instead of 8 Newton iterations, 1.9x less CPU (10^5 tets)
+    cg: NewtonCG = NewtonCG(eta_max=0.01)
 
     def __post_init__(self):
         self._check(exact_below=Real(0.0), linear_solver=OneOf(BACKENDS + ("cg",)),
