@@ -48,15 +48,17 @@ __all__ = ["NewtonCG", "CGOperator", "CGInfo", "pcg"]
 class CGOperator(NamedTuple):
     """Device arrays describing the block operator of one mesh (a pytree), in a hybrid
     ELL + COO layout: row vertex ``v`` of the symmetric block matrix keeps its first ``K``
-    blocks in slots ``ell_*[v, :K]`` (padding: the zero block ``n_blocks``), the blocks of rows
-    with more than ``K`` go to the ``over_*`` lists.  A product is then gathers and a dense
-    reduction (no scatter) for nearly all blocks: 2x faster than scattering on CPU.
+    blocks in slots ``ell_*[v, :K]`` (padding: the zero block appended after the objective's
+    ``n_blocks`` blocks, bucket-padded like its arrays), the blocks of rows with more than
+    ``K`` go to the ``over_*`` lists.  A product is then gathers and a dense reduction (no
+    scatter) for nearly all blocks: 2x faster than scattering on CPU.  ``n_vertices`` is the
+    objective's padded vertex count (padded vertices have no block and are fixed).
 
     ell_src, ell_col : (n_vertices, K) int32, the lower block (index into the vertex blocks)
         and the column vertex of each slot;  ell_t : (n_vertices, K) bool, the slot holds the
         block's transpose (an upper block).
     over_row, over_src, over_col : (n_over,) int32;  over_t : (n_over,) bool, the overflow.
-    diag : (n_vertices,) int32, the diagonal block of each vertex (``n_blocks`` if unused).
+    diag : (n_vertices,) int32, the diagonal block of each vertex (the zero block if unused).
     free : (n_vertices, d) float64, 1 on free DOFs.
     blocks, swap : the element-to-block map of :class:`~geomopt._objective.HessianPattern`.
     """
