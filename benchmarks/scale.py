@@ -16,23 +16,29 @@ is its own, and prints one JSON object per line on stdout with the keys
 * ``hessian_s``: median of 3 warm evaluations of energy, gradient and the assembled projected
   (clamp) Hessian data, copied to the host;
 * ``pattern_s``: median of 3 builds of the CSC Hessian pattern;
-* ``newton_iter_s``: the faster of ``direct_iter_s`` (median of 3 iterations of
-  ``geomopt.solvers.Newton(projection="clamp")``: Hessian, ``SparseCholesky`` factorization,
-  solve, injective line search; skipped with ``--no-direct``) and ``cg_iter_s`` (``--cg``:
-  the CG direction of ``geomopt._cg.NewtonCG()`` and the same line search);
-* ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``/``--untangle``).
+* ``newton_iter_s``: one iteration of ``geomopt.solvers.Newton(projection="clamp")`` (its
+  ``step``: Hessian, direction, injective line search, stopping test) with the linear solver
+  that ``linear_solver="auto"`` picks here (``newton_pick``,
+  :func:`geomopt.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
+  Cholesky, PARDISO; skipped with ``--no-direct``) or ``cg_iter_s`` (``--cg``:
+  ``linear_solver="cg"``); the median of 3 iterations after the first, which is what a user
+  pays per iteration; when the pick was not measured, the faster of the two;
+* ``peak_mem_mb``: ``ru_maxrss`` of the process after these (before ``--solve``).
 
 Extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
-energy + gradient + Hessian calls), ``factor_s, solve_s, linesearch_s`` (parts of the direct
-iteration); with ``--cg``: ``cg_step_s, cg_iters`` (the direction alone, default forcing
-term), ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to
-the direct step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than
-wall time on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s,
-newton_iters, energy, outcome`` and ``cg_solve_cg_iters`` (projected Newton to convergence,
-second run); with ``--untangle``: ``untangle_outer_s, untangle_setup_s, untangle_inner,
-untangle_inverted`` (one outer iteration of :func:`geomopt.untangle.untangle` on the mesh
-with its interior rotated by 90 degrees in 2D, a box twisted by a quarter turn in 3D) and
-``untangle_peak_mem_mb``.
+energy + gradient + Hessian calls), ``analyze_s`` (the Cholesky's symbolic analysis, once per
+mesh), ``direct_init_s`` / ``cg_init_s`` (``Newton.init``: analysis or CG operator, ahead of
+time compilation from the warm in-process cache), ``*_first_iter_s`` (the first iteration
+after ``init``), ``factor_s, solve_s, linesearch_s`` (parts of the direct iteration); with
+``--cg``: ``cg_step_s, cg_iters`` (the CG direction alone with Newton's forcing term),
+``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to the direct
+step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than wall time
+on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton_iters,
+energy, outcome`` (projected Newton to convergence, second run).  ``--untangle`` measures
+instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
+untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
+outer iteration of :func:`geomopt.untangle.untangle` (its default solver) on the mesh with
+its interior rotated by 90 degrees in 2D, the box's boundary twisted by a quarter turn in 3D.
 """
 
 from __future__ import annotations
@@ -89,48 +95,17 @@ def _peak_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _cg_newton(**kw):
-    """``geomopt.solvers.Newton`` with its direction from :class:`geomopt._cg.NewtonCG` (a
-    benchmark-only adapter until the solver offers CG: same projection, shift, line search
-    and stopping test; the direction is copied to the host, as the solver's loop does)."""
-    import dataclasses
-
-    from geomopt._cg import NewtonCG
-    from geomopt.solvers import Newton
-
-    @dataclasses.dataclass(frozen=True)
-    class CGNewtonSolver(Newton):
-        cg: NewtonCG = NewtonCG()
-        cg_iterations: list = dataclasses.field(default_factory=lambda: [0])  # total, mutable
-
-        def init(self, objective, x0, params):
-            state = super().init(objective, x0, params)
-            gref = float(np.linalg.norm(np.asarray(state.grad)))  # scale-free forcing term
-            return dataclasses.replace(state, aux=dict(state.aux, op=self.cg.prepare(objective),
-                                                       gref=max(gref, 1e-300)))
-
-        def _direction(self, state, projection, shifts):
-            obj, pat = state.objective, state.objective.pattern
-            dx, info = self.cg.direction(state.aux["op"], obj, state.x, state.params, projection,
-                                         shifts[0], gnorm_ref=state.aux["gref"])
-            self.cg_iterations[0] += int(info.iterations)
-            g = np.asarray(info.grad).reshape(-1)[pat.free_dofs]
-            return float(info.value), info.grad, g, np.asarray(dx).reshape(-1)[pat.free_dofs], shifts[0]
-
-    return CGNewtonSolver(**kw)
-
-
 def run_solves(obj, x0):
     """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
     seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
     import geomopt
+    from geomopt.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
-    for key, make in (("direct", lambda: Newton(projection="clamp")),
-                      ("cg", lambda: _cg_newton(projection="clamp"))):
+    for key, solver in (("direct", Newton(projection="clamp", linear_solver=available_backends()[0])),
+                        ("cg", Newton(projection="clamp", linear_solver="cg"))):
         for _ in range(2):  # the first run compiles
-            solver = make()
             c = time.process_time()
             res = geomopt.minimize(obj, x0, solver, progress=False)
             cpu = time.process_time() - c
@@ -139,8 +114,6 @@ def run_solves(obj, x0):
         out[f"{key}_newton_iters"] = int(res.iterations)
         out[f"{key}_energy"] = float(res.energy) / obj.total_volume
         out[f"{key}_outcome"] = res.outcome.value
-        if key == "cg":
-            out["cg_solve_cg_iters"] = solver.cg_iterations[0]
     return out
 
 
@@ -153,7 +126,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
 
     from geomopt import generators as G
     from geomopt._objective import Objective, hessian_pattern
-    from geomopt.linsolve import SparseCholesky
+    from geomopt.linsolve import SparseCholesky, available_backends, newton_linear_solver
     from geomopt.problem import Problem
     from geomopt.solvers import Newton
 
@@ -172,6 +145,8 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         P = (Problem.planar if dim == 2 else Problem.tets)(V, S, fixed, V[fixed])
     out["setup_s"] = time.perf_counter() - t
     out["elements"], out["vertices"] = int(len(S)), int(len(V))
+    if untangle:  # alone in its process, so that the peak memory is its own
+        return _round(dict(out, **run_untangle_outer(V, S, fixed)))
     obj = Objective(P, "symmetric_dirichlet")
     params = obj.params()
     x = jnp.asarray(start_map(obj, V, S)[0] if mesh else _swirl(V))
@@ -190,59 +165,79 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         lambda: tuple(np.array(a) for a in obj.hessian(x, params, "clamp")), 3, "hessian_s")
 
     g = grad.reshape(-1)[pat.free_dofs]
+    # Newton's relative diagonal shift, so that the direct and CG steps solve one system
+    data[pat.diag] += Newton.regularization * np.mean(np.abs(data[pat.diag]))
     d_direct = None
     if direct:
         chol = SparseCholesky(pat.indptr, pat.indices)
+        out["analyze_s"], _ = _median(lambda: SparseCholesky(pat.indptr, pat.indices).analyze(),
+                                      1, "analyze_s")
         chol.analyze()
         out["factor_s"], _ = _median(lambda: chol.factor(data), 3, "factor_s")
         out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3, "solve_s")
-        newton = Newton(projection="clamp")
-        state = newton.init(obj, x, params)
+        newton = Newton(projection="clamp", linear_solver=available_backends()[0])
+        out["direct_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "direct_init_s")
         dx = np.zeros(x.size)
         dx[pat.free_dofs] = d_direct
         dx = jnp.asarray(dx.reshape(x.shape))
         value = float(obj.value(x, params))
         out["linesearch_s"], _ = _median(
-            lambda: newton.line_search(obj, params, x, value, jnp.asarray(grad), dx), 3, "linesearch_s")
+            lambda: newton.search(obj, params, x, value, jnp.asarray(grad), dx), 3, "linesearch_s")
+        out["direct_first_iter_s"], _ = _median(lambda: newton.step(state), 1, "direct_first_iter_s")
         out["direct_iter_s"], _ = _median(lambda: newton.step(state), 3, "direct_iter_s")
     if cg:
         from geomopt._cg import NewtonCG
 
-        newton = Newton(projection="clamp")
-        for key, solver in (("cg", NewtonCG()), ("cg_tight", NewtonCG(rtol=1e-8))):
-            op = solver.prepare(obj)
-            step = lambda: jax.block_until_ready(solver.direction(op, obj, x, params, "clamp"))  # noqa: E731
+        newton = Newton(projection="clamp", linear_solver="cg")
+        out["cg_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "cg_init_s")
+        out["cg_first_iter_s"], _ = _median(lambda: newton.step(state), 1, "cg_first_iter_s")
+        out["cg_iter_s"], _ = _median(lambda: newton.step(state), 3, "cg_iter_s")
+        # the direction alone, with Newton's forcing term (from the first gradient norm, as
+        # in a solve) and with a tight tolerance
+        gref = state.aux["gref"]
+        for key, solver in (("cg", newton.cg), ("cg_tight", NewtonCG(rtol=1e-8))):
+            op = state.aux["op"]
+            step = lambda: jax.block_until_ready(  # noqa: E731
+                solver.direction(op, obj, x, params, "clamp", newton.regularization, gref))
             step()
             out[f"{key}_step_s"], (dcg, info) = _median(step, 3, f"{key}_step_s")
             out[f"{key}_iters"] = int(info.iterations)
-
-            def cg_iter():
-                dcg, info = solver.direction(op, obj, x, params, "clamp")
-                return newton.line_search(obj, params, x, float(info.value), info.grad, dcg)
-
-            out[f"{key}_iter_s"], _ = _median(cg_iter, 3, f"{key}_iter_s")
             if d_direct is not None:
                 dc = np.asarray(dcg).reshape(-1)[pat.free_dofs]
                 out[f"{key}_direct_rel"] = float(np.linalg.norm(dc - d_direct) / np.linalg.norm(d_direct))
     out.update({k[:-2] + "_cpu_s": v for k, v in CPU.items()})
+    out["newton_pick"] = newton_linear_solver(dim, pat.n, out["device"])
+    pick = "cg_iter_s" if out["newton_pick"] == "cg" else "direct_iter_s"
     iters = [out[k] for k in ("direct_iter_s", "cg_iter_s") if k in out]
-    if iters:
+    if pick in out:
+        out["newton_iter_s"] = out[pick]
+    elif iters:
         out["newton_iter_s"] = min(iters)
     out["peak_mem_mb"] = round(_peak_mb(), 1)
     if solve:
         out.update(run_solves(obj, np.asarray(x)))
-    if untangle:
-        from geomopt.untangle import untangle as run_untangle
+    return _round(out)
 
-        tangle = G.rotated_interior(V, S, 90.0) if dim == 2 else \
-            G.Tangle("twist", V, S, _twist(V, fixed), fixed)
-        res = run_untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
-        out["untangle_outer_s"] = res.seconds
-        out["untangle_setup_s"] = res.setup_seconds
-        out["untangle_inner"] = int(res.inner_iterations)
-        out["untangle_inverted"] = [int(res.initially_inverted), int(res.inverted)]
-        out["untangle_peak_mem_mb"] = round(_peak_mb(), 1)
-    return {k: (round(v, 4) if isinstance(v, float) and k != "peak_mem_mb" else v) for k, v in out.items()}
+
+def _round(out):
+    return {k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in out.items()}
+
+
+def run_untangle_outer(V, S, fixed):
+    """One outer iteration of :func:`geomopt.untangle.untangle` (default solver) on the mesh
+    with its interior rotated by 90 degrees (2D) or its boundary twisted (3D)."""
+    from geomopt import generators as G
+    from geomopt.untangle import untangle
+
+    tangle = G.rotated_interior(V, S, 90.0) if V.shape[1] == 2 else \
+        G.Tangle("twist", V, S, _twist(V, fixed), fixed)
+    c = time.process_time()
+    res = untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
+    return {"untangle_outer_s": res.seconds, "untangle_setup_s": res.setup_seconds,
+            "untangle_cpu_s": time.process_time() - c, "untangle_inner": int(res.inner_iterations),
+            "untangle_inverted": [int(res.initially_inverted), int(res.inverted)],
+            "untangle_solver": type(res.info["solver"]).__name__,
+            "untangle_peak_mem_mb": round(_peak_mb(), 1)}
 
 
 def _twist(V, fixed):
@@ -263,7 +258,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=10, help="warm energy + gradient runs (median)")
     ap.add_argument("--cg", action="store_true", help="also time the CG Newton direction")
     ap.add_argument("--no-direct", action="store_true", help="skip the direct (Cholesky) Newton step")
-    ap.add_argument("--untangle", action="store_true", help="also time one untangling outer iteration")
+    ap.add_argument("--untangle", action="store_true",
+                    help="time one untangling outer iteration instead (alone in its process)")
     ap.add_argument("--solve", action="store_true",
                     help="also solve to convergence with the direct and the CG direction")
     ap.add_argument("--mesh", nargs="+", default=[],
@@ -271,6 +267,8 @@ def main(argv=None):
     ap.add_argument("--json", help="append the JSON lines to this file too")
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.mesh and a.untangle:
+        ap.error("--untangle uses the generated meshes (their boundary is the handle set), not --mesh")
     if a.one:
         res = run_one(int(a.elements[0]), a.dim[0], a.repeat, a.cg, not a.no_direct, a.untangle,
                       a.solve, a.mesh[0] if a.mesh else None)

@@ -48,15 +48,17 @@ __all__ = ["NewtonCG", "CGOperator", "CGInfo", "pcg"]
 class CGOperator(NamedTuple):
     """Device arrays describing the block operator of one mesh (a pytree), in a hybrid
     ELL + COO layout: row vertex ``v`` of the symmetric block matrix keeps its first ``K``
-    blocks in slots ``ell_*[v, :K]`` (padding: the zero block ``n_blocks``), the blocks of rows
-    with more than ``K`` go to the ``over_*`` lists.  A product is then gathers and a dense
-    reduction (no scatter) for nearly all blocks: 2x faster than scattering on CPU.
+    blocks in slots ``ell_*[v, :K]`` (padding: the zero block appended after the objective's
+    ``n_blocks`` blocks, bucket-padded like its arrays), the blocks of rows with more than
+    ``K`` go to the ``over_*`` lists.  A product is then gathers and a dense reduction (no
+    scatter) for nearly all blocks: 2x faster than scattering on CPU.  ``n_vertices`` is the
+    objective's padded vertex count (padded vertices have no block and are fixed).
 
     ell_src, ell_col : (n_vertices, K) int32, the lower block (index into the vertex blocks)
         and the column vertex of each slot;  ell_t : (n_vertices, K) bool, the slot holds the
         block's transpose (an upper block).
     over_row, over_src, over_col : (n_over,) int32;  over_t : (n_over,) bool, the overflow.
-    diag : (n_vertices,) int32, the diagonal block of each vertex (``n_blocks`` if unused).
+    diag : (n_vertices,) int32, the diagonal block of each vertex (the zero block if unused).
     free : (n_vertices, d) float64, 1 on free DOFs.
     blocks, swap : the element-to-block map of :class:`~geomopt._objective.HessianPattern`.
     """
@@ -119,11 +121,9 @@ def block_matvec(ell, over, op: CGOperator, p):
 
 
 def _inverse_spd(D):
-    """Inverse of symmetric positive-definite blocks D (..., d, d), d <= 3, by cofactors; a
+    """Inverse of symmetric positive-definite blocks D (..., d, d), d = 2 or 3, by cofactors; a
     block that is singular to rounding gets the inverse of its (positive) diagonal instead."""
     d = D.shape[-1]
-    if d == 1:
-        return 1.0 / D
     if d == 2:
         a, b, c = D[..., 0, 0], D[..., 0, 1], D[..., 1, 1]
         det = a * c - b * b
@@ -139,7 +139,7 @@ def _inverse_spd(D):
         det = sum(D[..., 0, j] * C[0][j] for j in range(3))
         adj = jnp.stack([jnp.stack([C[j][i] for j in range(3)], -1) for i in range(3)], -2)
     else:
-        raise ParameterError(f"block Jacobi supports d <= 3, got d={d}")
+        raise ParameterError(f"block Jacobi supports d = 2 or 3, got d={d}")
     diag = jnp.diagonal(D, axis1=-2, axis2=-1)
     scale = jnp.prod(jnp.abs(diag), axis=-1)
     ok = det > 1e-12 * scale
@@ -264,10 +264,14 @@ class NewtonCG:
 
     @staticmethod
     def prepare(objective) -> CGOperator:
-        """The device arrays of ``objective``'s block operator (build once per mesh)."""
+        """The device arrays of ``objective``'s block operator (build once per mesh), padded
+        like the objective (:mod:`geomopt._padding`): ``n_padded`` vertex rows, the padded
+        vertices with no block (their rows stay zero and fixed)."""
         pat = objective.pattern
-        nv = objective.free_dofs.shape[0]
+        blocks, swap, nb_all = objective.block_assembly
+        nv = objective.free_mask.shape[0]
         ptr, idx, nb = pat.vertex_ptr, pat.vertex_idx, pat.n_blocks
+        ptr = np.concatenate([ptr, np.full(nv + 1 - len(ptr), ptr[-1], ptr.dtype)])
         cols = np.repeat(np.arange(nv), np.diff(ptr))
         off = np.flatnonzero(idx != cols)
         # the symmetric matrix by rows: lower blocks (row idx) and their transposes (row cols)
@@ -285,7 +289,8 @@ class NewtonCG:
         over_of = np.array([np.sum(np.maximum(widths - K, 0) * counts) for K in widths])
         K = max(int(np.argmin(nv * widths + 2 * over_of)), 1)
         inl = slot < K
-        ell_src = np.full((nv, K), nb, np.int64)
+        # empty slots point at the zero block appended after all (padded) blocks
+        ell_src = np.full((nv, K), nb_all, np.int64)
         ell_col = np.zeros((nv, K), np.int64)
         ell_t = np.zeros((nv, K), bool)
         ell_src[row[inl], slot[inl]] = src[inl]
@@ -296,23 +301,30 @@ class NewtonCG:
         return CGOperator(
             ell_src=i32(ell_src), ell_col=i32(ell_col), ell_t=jnp.asarray(ell_t),
             over_row=i32(row[~inl]), over_src=i32(src[~inl]), over_col=i32(col[~inl]),
-            over_t=jnp.asarray(tr[~inl]), diag=i32(np.where(used, ptr[:-1], nb)),
-            free=jnp.asarray(np.asarray(objective.free_dofs, np.float64)),
-            blocks=jnp.asarray(pat.blocks), swap=jnp.asarray(pat.swap))
+            over_t=jnp.asarray(tr[~inl]), diag=i32(np.where(used, ptr[:-1], nb_all)),
+            free=objective.free_mask, blocks=blocks, swap=swap)
+
+    def _args(self, op, objective, x, params, projection, shift, gnorm_ref, rtol):
+        if projection not in PROJECTIONS:
+            raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
+        return (objective.energy.density, projection, objective.chunk, objective.block_assembly[2],
+                objective.geom, objective.pad_map(jnp.asarray(x)), params, op, jnp.float64(shift),
+                jnp.float64(self.rtol if rtol is None else rtol), jnp.float64(self.eta_max),
+                jnp.float64(gnorm_ref), jnp.int32(self.max_iters))
 
     def direction(self, op: CGOperator, objective, x, params, projection="clamp", shift=0.0,
                   gnorm_ref=1.0, rtol=None):
-        """``(dx, info)``: the direction (n, d), zero on fixed DOFs, and a :class:`CGInfo`.
+        """``(dx, info)``: the direction (n_padded, d), zero on fixed DOFs, and a :class:`CGInfo`.
 
-        ``shift`` is the Newton regularization relative to the mean |diagonal| of the free
-        DOFs (as in :class:`~geomopt.solvers.Newton`); ``gnorm_ref`` scales the forcing
-        term; ``rtol`` overrides the configuration's (e.g. an Eisenstat-Walker sequence kept
-        by the caller).  These, ``params`` and the configuration's numbers are traced:
-        changing them never recompiles."""
-        if projection not in PROJECTIONS:
-            raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
-        return newton_cg_kernel(objective.energy.density, projection, objective.chunk,
-                                objective.pattern.n_blocks, objective.geom, jnp.asarray(x), params,
-                                op, jnp.float64(shift), jnp.float64(self.rtol if rtol is None else rtol),
-                                jnp.float64(self.eta_max), jnp.float64(gnorm_ref),
-                                jnp.int32(self.max_iters))
+        ``x`` has n or n_padded rows (:meth:`~geomopt.Objective.pad_map`); ``shift`` is the
+        Newton regularization relative to the mean |diagonal| of the free DOFs (as in
+        :class:`~geomopt.solvers.Newton`); ``gnorm_ref`` scales the forcing term; ``rtol``
+        overrides the configuration's (e.g. an Eisenstat-Walker sequence kept by the caller).
+        These, ``params`` and the configuration's numbers are traced: changing them never
+        recompiles."""
+        return newton_cg_kernel(*self._args(op, objective, x, params, projection, shift, gnorm_ref, rtol))
+
+    def compile(self, op: CGOperator, objective, x, params, projection="clamp"):
+        """Compile (or load from the persistent cache) the kernel of :meth:`direction` for
+        maps shaped like ``x`` without running it (a solver's set-up holds the compilation)."""
+        newton_cg_kernel.lower(*self._args(op, objective, x, params, projection, 0.0, 1.0, None)).compile()

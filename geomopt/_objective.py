@@ -407,6 +407,20 @@ class Objective:
             self._pattern = pat
         return self._pattern
 
+    @property
+    def block_assembly(self):
+        """``(blocks, swap, n_blocks)``: the element-to-vertex-block map with which the kernels
+        assemble the Hessian (:func:`block_hessian`), padded like :attr:`geom`: ``blocks``
+        (m_padded, (d+1)(d+2)/2) int32 and ``swap`` (same shape) bool device arrays (padded
+        elements add zero blocks to block 0), ``n_blocks`` the padded block count."""
+        self.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        return self._assembly[0], self._assembly[1], self._n_blocks_padded
+
+    @property
+    def free_mask(self) -> jax.Array:
+        """(n_padded, d) float64 device array: 1 on free DOFs, 0 on fixed and padded ones."""
+        return self._free
+
     # -- padded maps (see geomopt._padding) ------------------------------------------
     def prepare_map(self, x) -> np.ndarray:
         """A start map ``x`` ((n, d), or (n_padded, d) as a solver state holds it) checked by

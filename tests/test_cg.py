@@ -154,3 +154,64 @@ def test_newton_cg_rejects_bad_configuration():
     obj, x = _case("fixed")
     with pytest.raises(ParameterError, match="projection"):
         NewtonCG().direction(NewtonCG.prepare(obj), obj, x, obj.params(), "clip")
+
+
+def test_cg_direction_on_a_bucket_padded_objective():
+    """With size buckets (padded elements, vertices and blocks, as ``parameterize`` uses) the
+    CG direction is still the direct step, on the padded rows too (zero there)."""
+    obj0, x = _case("fixed")
+    obj = Objective(obj0.problem, "symmetric_dirichlet", buckets=True)
+    assert obj.sizes.padded and obj.block_assembly[2] > obj.pattern.n_blocks
+    p = obj.params()
+    cg = NewtonCG(rtol=1e-13, max_iters=5000)
+    dx, info = cg.direction(cg.prepare(obj), obj, x, p, "clamp", 1e-9)
+    assert dx.shape == (obj.sizes.n_padded, 2) and not np.any(np.asarray(dx)[obj.sizes.n:])
+    d_direct, _ = _direct(obj, x, p, "clamp", 1e-9)
+    d_cg = np.asarray(dx).reshape(-1)[obj.pattern.free_dofs]
+    assert np.linalg.norm(d_cg - d_direct) <= 1e-8 * np.linalg.norm(d_direct)
+
+
+@pytest.mark.parametrize("kind", ["fixed", "tets"])
+def test_newton_with_cg_solves_like_the_direct_newton(kind):
+    """``Newton(linear_solver="cg")`` is the same solver (projection, line search, stopping)
+    with the CG direction: it converges to the direct Newton's minimum."""
+    import geomopt
+    from geomopt.solvers import Newton
+
+    obj, x = _case(kind)
+    res = {(ls, pr): geomopt.minimize(obj, np.asarray(x), Newton(projection=pr, linear_solver=ls),
+                                      progress=False)
+           for ls, pr in (("superlu", "clamp"), ("cg", "clamp"), ("cg", "adaptive"))}
+    direct = res["superlu", "clamp"]
+    for pr in ("clamp", "adaptive"):
+        r = res["cg", pr]
+        assert r.outcome.value == "converged" and r.inverted == 0
+        assert r.energy == pytest.approx(direct.energy, rel=1e-9)
+        # Newton's convergence, not a first-order method's: as many iterations, give or take
+        assert 2 <= r.iterations <= direct.iterations + 2
+
+
+def test_auto_linear_solver_rule(monkeypatch):
+    """``newton_linear_solver`` picks what its docstring says, and ``Newton`` follows it."""
+    from geomopt import ParameterError, linsolve
+    from geomopt.solvers import SLIM, Newton
+
+    rule = linsolve.newton_linear_solver
+    assert rule(2, 10**7, "cpu") == "direct"  # triangles: the factorization at every size
+    lim = linsolve.CG_FROM_DOFS[3]
+    assert rule(3, lim - 1, "cpu") == "direct" and rule(3, lim, "cpu") == "cg"
+    assert rule(2, 10, "gpu") == "cg" and rule(3, 10, "cuda") == "cg"
+    obj, x = _case("tets")
+    n_free = int(obj.free_dofs.sum())
+    assert not Newton().uses_cg(obj)
+    state = Newton().init(obj, x, obj.params())
+    assert "chol" in state.aux and "cg" not in state.aux
+    monkeypatch.setitem(linsolve.CG_FROM_DOFS, 3, n_free)
+    assert Newton().uses_cg(obj) and Newton(projection="clamp").uses_cg(obj)
+    state = Newton(projection="clamp").init(obj, x, obj.params())
+    assert "cg" in state.aux and "chol" not in state.aux
+    assert not Newton(linear_solver="pardiso" if "pardiso" in linsolve.available_backends()
+                      else "superlu").uses_cg(obj)
+    assert not SLIM().uses_cg(obj)  # proxies always factor
+    with pytest.raises(ParameterError, match="proxy"):
+        SLIM(linear_solver="cg").uses_cg(obj)

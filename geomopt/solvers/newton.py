@@ -17,7 +17,8 @@ import numpy as np
 from .._config import OneOf, Real
 from .._errors import ParameterError
 from ..linesearch import InjectiveSearch
-from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky
+from .._cg import NewtonCG
+from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
 from ._base import AbstractSolver, Outcome, State
 from .proxies import CMProxy, SLIMProxy
 
@@ -39,13 +40,19 @@ class Newton(AbstractSolver):
         strict minimum it is positive definite and Newton converges quadratically.  The exact
         Hessian gets a Levenberg-Marquardt shift, relaxed after full steps and stiffened after
         cut ones; if it does not factor (indefinite), clamping resumes for two iterations.
-    linear_solver : a :data:`~geomopt.linsolve.BACKENDS` name.
+    linear_solver : a :data:`~geomopt.linsolve.BACKENDS` name (a sparse Cholesky), or
+        ``"cg"``: the direction by block-Jacobi preconditioned CG in JAX
+        (:class:`geomopt._cg.NewtonCG`, inexact Newton; PSD projections only, not proxies).
+        ``"auto"`` picks by device, dimension and size (:func:`geomopt.linsolve.newton_linear_solver`:
+        CG off the CPU and for large tet meshes, else the fastest Cholesky installed).
     rtol : stop when the Newton decrement ``-g.d/2`` or the energy decrease is below
         ``rtol * |E|``.
     max_steps : iteration limit.
     regularization : relative diagonal shift added to the Hessian (it is singular for a free
         boundary: rotations); increased automatically when a factorization fails.
     search : the :class:`~geomopt.linesearch.InjectiveSearch` (step doubling on by default).
+    cg : the :class:`geomopt._cg.NewtonCG` configuration (iteration limit, forcing term) of
+        the CG direction.
     """
 
     projection: Any = "adaptive"
@@ -55,9 +62,11 @@ class Newton(AbstractSolver):
     max_steps: int = 200
     regularization: float = 1e-9
     search: InjectiveSearch = InjectiveSearch(expand=3)
+    # eta_max 0.01, not 0.5: measured 4 instead of 8 Newton iterations, 1.9x less CPU (10^5 tets)
+    cg: NewtonCG = NewtonCG(eta_max=0.01)
 
     def __post_init__(self):
-        self._check(exact_below=Real(0.0), linear_solver=OneOf(BACKENDS),
+        self._check(exact_below=Real(0.0), linear_solver=OneOf(BACKENDS + ("cg",)),
                     regularization=Real(0.0, lo_open=True))
         if not (callable(self.projection) or self.projection in PROJECTIONS):
             raise ParameterError(f"{type(self).__name__}: projection must be one of "
@@ -66,7 +75,29 @@ class Newton(AbstractSolver):
     def _kernels(self):
         return ("clamp", "none") if self.projection == "adaptive" else (self.projection,)
 
+    def uses_cg(self, objective) -> bool:
+        """Whether the direction comes from CG (``linear_solver="cg"``, or ``"auto"`` and
+        :func:`~geomopt.linsolve.newton_linear_solver` says so) rather than a Cholesky."""
+        if callable(self.projection):  # the proxies assemble for a factorization
+            if self.linear_solver == "cg":
+                raise ParameterError(f"{type(self).__name__}: linear_solver='cg' needs a PSD projection "
+                                     f"({', '.join(map(repr, PROJECTIONS))}), not a proxy")
+            return False
+        if self.linear_solver != "auto":
+            return self.linear_solver == "cg"
+        n_free = int(np.count_nonzero(objective.free_dofs))
+        return newton_linear_solver(objective.problem.dim, n_free, jax.default_backend()) == "cg"
+
     def init(self, objective, x0, params) -> State:
+        if self.uses_cg(objective):
+            cg = self.cg
+            state = self._start(objective, x0, params, aux={"cooldown": 0, "op": cg.prepare(objective)})
+            gref = max(float(np.linalg.norm(np.asarray(state.grad))), 1e-300)  # scale-free forcing
+            state = dataclasses.replace(state, aux=dict(state.aux, cg=cg, gref=gref))
+            for projection in self._kernels():
+                cg.compile(state.aux["op"], objective, state.x, params, projection)
+            self.search.compile(objective, params, state.x, state.value, state.grad)
+            return state
         pat = objective.pattern
         chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
         chol.analyze()
@@ -88,6 +119,8 @@ class Newton(AbstractSolver):
     def _direction(self, state, projection, shifts):
         """Newton direction on the free DOFs with the first diagonal shift (relative to the mean
         diagonal) in ``shifts`` that factors; ``(value, grad, g, d, shift)``, d None on failure."""
+        if "cg" in state.aux:
+            return self._cg_direction(state, projection, shifts)
         obj, pat, chol = state.objective, state.objective.pattern, state.aux["chol"]
         value, grad, data = obj.hessian(state.x, state.params, projection)
         data = np.array(data)
@@ -102,6 +135,18 @@ class Newton(AbstractSolver):
             except NotPositiveDefinite:
                 continue
         return float(value), grad, g, None, None
+
+    def _cg_direction(self, state, projection, shifts):
+        """:meth:`_direction` by CG: the first shift whose system CG finds positive definite
+        along its iterates (always the first for a PSD projection)."""
+        obj, pat, aux = state.objective, state.objective.pattern, state.aux
+        for shift in shifts:
+            dx, info = aux["cg"].direction(aux["op"], obj, state.x, state.params, projection, shift,
+                                           gnorm_ref=aux["gref"])
+            g = np.asarray(info.grad).reshape(-1)[pat.free_dofs]
+            if bool(info.curvature) or projection != "none":
+                return float(info.value), info.grad, g, np.asarray(dx).reshape(-1)[pat.free_dofs], shift
+        return float(info.value), info.grad, g, None, None
 
     def step(self, state: State) -> State:
         obj, params, x, pat = state.objective, state.params, state.x, state.objective.pattern
