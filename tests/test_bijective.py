@@ -284,8 +284,11 @@ def test_generators_validate_and_give_injective_projections():
         assert certify_bijective(V[:, :2], F).globally_injective
 
 
-def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path):
-    """The plain result says it is only locally injective; --bijective gives a global map."""
+def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path, capsys):
+    """The plain result says it is only locally injective, and `geomopt param` says so even with
+    --quiet, pointing to --bijective; --bijective gives a global map and no warning."""
+    import json
+
     import geomopt.cli
     from geomopt.io import read_obj_uv, write_obj_with_uv
 
@@ -294,7 +297,19 @@ def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path):
     assert plain.injectivity == "local" and plain.info["certificate"].crossings.size
     src = tmp_path / "spiral.obj"
     write_obj_with_uv(src, V, F, x0)
+    out = tmp_path / "plain.obj"
+    capsys.readouterr()
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "only locally injective" in err and "--bijective" in err
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["injectivity"] == "local" and summary["boundary_crossings"] > 0
     out = tmp_path / "bij.obj"
-    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--quiet"]) == 0
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--json"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
+    assert summary["injectivity"] == "global" and summary["boundary_crossings"] == 0
+    assert "only locally injective" not in cap.err
     _, _, uv = read_obj_uv(out)
     assert certify_bijective(uv, F).globally_injective
