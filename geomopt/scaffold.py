@@ -290,6 +290,111 @@ def delaunay_flips(X, T, max_rounds: int = 200, tol: float = 1e-9):
     return T, flips
 
 
+def _size_field(P, grading):
+    """Target edge length at points, (q, 2) -> (q,): the length of the boundary edges at the
+    nearest vertex of the closed polygon ``P`` (k, 2), plus ``grading`` times the distance to it."""
+    from scipy.spatial import cKDTree
+
+    length = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)  # edge i: P[i] -> P[i + 1]
+    local = 0.5 * (length + np.roll(length, 1))
+    tree = cKDTree(P)
+
+    def size(Q):
+        d, i = tree.query(Q)
+        return local[i] + grading * d
+
+    return size
+
+
+def refine_scaffold(X, T, k, grading=0.5, ratio=1.5, max_points=None, max_rounds=40):
+    """Add Steiner points inside a scaffold until its triangles are about as large as the
+    boundary edges near them, growing by ``grading`` per unit of distance from the boundary.
+
+    Without interior vertices every scaffold triangle has all its corners on the mesh boundary
+    or the enclosing polygon, so it cannot deform on its own: where the boundary slides along
+    itself, the long thin triangles of a pocket collapse within a fraction of a step and cap the
+    injective line search (0.06-0.3 of a Newton step on bunny_cut).  With interior vertices the
+    Newton step extends the boundary's motion elastically into the scaffold.
+
+    Each round splits every triangle whose longest edge exceeds ``ratio`` times the target size
+    at its centroid (an independent set of them): at the midpoint of that edge when it is shared
+    by two triangles (both are split, longest-edge bisection), at the centroid when the edge is
+    on the mesh boundary or the enclosing polygon; every new triangle is checked positive exactly
+    (a split that fails the check is skipped).  Each round ends with :func:`delaunay_flips`.
+
+    Parameters
+    ----------
+    X : (N, 2) float, vertex positions, the first ``k`` the boundary polygon's (counter-clockwise).
+    T : (t, 3) int, counter-clockwise scaffold triangles.
+    k : int, number of boundary polygon vertices;  grading, ratio : float > 0.
+    max_points : int, cap on the Steiner points added (default ``4 k``);  max_rounds : int.
+
+    Returns
+    -------
+    X : (N + s, 2) float64 with the ``s`` Steiner points appended;  T : (t + 2 s, 3) int64.
+    """
+    X = np.array(X, dtype=np.float64)
+    T = np.array(T, dtype=np.int64)
+    size = _size_field(X[:k], grading)
+    budget = 4 * k if max_points is None else int(max_points)
+    added = 0
+    for _ in range(max_rounds):
+        E, count, edge_of = unique_edges(T)
+        A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
+        L = np.stack([np.linalg.norm(B - A, axis=1), np.linalg.norm(C - B, axis=1),
+                      np.linalg.norm(A - C, axis=1)], axis=1)  # edge c runs T[c] -> T[c + 1]
+        longest = np.argmax(L, axis=1)
+        lmax = L[np.arange(len(T)), longest]
+        over = lmax / (ratio * size((A + B + C) / 3.0))
+        cand = np.flatnonzero(over > 1.0)
+        if cand.size == 0 or added >= budget:
+            break
+        cand = cand[np.argsort(-over[cand], kind="stable")][: budget - added]
+        he = edge_of.ravel()
+        other = np.full(len(T) * 3, -1, dtype=np.int64)  # twin half-edge, -1 on a constrained edge
+        hs = np.flatnonzero(count[he] == 2)
+        hs = hs[np.argsort(he[hs], kind="stable")]
+        other[hs[0::2]], other[hs[1::2]] = hs[1::2], hs[0::2]
+        twin = other[3 * cand + longest[cand]]  # half-edge of the neighbour, -1 if constrained
+        used = np.zeros(len(T), dtype=bool)
+        X_new, T_new, T_set = [], [], {}
+        n0 = len(X)
+        for f, c, h in zip(cand.tolist(), longest[cand].tolist(), twin.tolist()):
+            g = h // 3 if h >= 0 else -1
+            if used[f] or (g >= 0 and used[g]):
+                continue
+            a, b, o = T[f, c], T[f, (c + 1) % 3], T[f, (c + 2) % 3]
+            v = n0 + len(X_new)
+            if g < 0 and a < k and b < k:
+                continue  # a mesh boundary edge: it cannot be split
+            m = 0.5 * (X[a] + X[b])  # midpoint of the longest edge a-b
+            tris = [(a, v, o), (v, b, o)]
+            pts = {a: X[a], b: X[b], o: X[o], v: m}
+            if g >= 0:  # shared with the neighbour (b, a, q): split it too
+                q = T[g, (h % 3 + 2) % 3]
+                tris += [(b, v, q), (v, a, q)]
+                pts[q] = X[q]
+            if any(_turn(pts[i], pts[j], pts[l]) != 1 for i, j, l in tris):
+                continue
+            used[f] = True
+            T_set[f] = tris[0]
+            T_new.append(tris[1])
+            if g >= 0:
+                used[g] = True
+                T_set[g] = tris[2]
+                T_new.append(tris[3])
+            X_new.append(m)
+            added += 1
+        if not X_new:
+            break
+        for f, tri in T_set.items():
+            T[f] = tri
+        X = np.concatenate([X, np.asarray(X_new)])
+        T = np.concatenate([T, np.asarray(T_new, dtype=np.int64)])
+        T, _ = delaunay_flips(X, T)
+    return X, T
+
+
 def _rest_inverse(X, T):
     """Inverse edge matrices ``[x1 - x0, x2 - x0]^-1`` (t, 2, 2) of positively oriented
     triangles: the current shape taken as rest shape."""
@@ -312,6 +417,35 @@ def _interior_first(F, loop):
     return order
 
 
+#: fractions of a scaffold-free step tried when the whole step makes the boundary overlap, and
+#: how many shortened steps in a row are taken before the scaffold is built (bunny_cut: 3 free
+#: iterations without shortening, 5 with; the scaffold phase then starts nearer the optimum)
+_SHORTEN = (0.5, 0.25)
+_MAX_CUTS = 2
+
+
+def _simple(P) -> bool:
+    """Whether the polygon ``P`` (k, 2) is finite and simple (exact)."""
+    return bool(np.isfinite(P).all()) and len(polygon_crossings(P)) == 0
+
+
+def _shortened(state, new, loop, fractions):
+    """``new`` moved back along the step from ``state`` to the first of ``fractions`` of it at
+    which the boundary is simple and the energy below ``state``'s, or None.  The injective
+    line search bounded the whole step, so no triangle inverts on a part of it."""
+    obj, x, dx = state.objective, state.x, new.x - state.x
+    for s in fractions:
+        xs = x + s * dx
+        if not _simple(np.asarray(xs)[loop]):
+            continue
+        value, grad = obj.value_and_grad(xs, state.params)
+        value = float(value)
+        if value < state.value:
+            return dataclasses.replace(new, x=xs, value=value, grad=grad,
+                                       step_size=s * new.step_size)
+    return None
+
+
 def _steps_while_simple(objective, x0, solver, loop):
     """Run ``solver`` on the mesh alone while every iterate's boundary polygon stays simple.
 
@@ -319,14 +453,19 @@ def _steps_while_simple(objective, x0, solver, loop):
     taken to it, and the solver's outcome if it stopped on its own (``None`` when the next step
     would have made the boundary overlap, or was not finite)."""
     state = solver.init(objective, x0, objective.params())
+    cut = 0  # consecutive steps shortened to keep the boundary simple
     while True:
         done, outcome = solver.terminate(state)
         if done:
             return np.asarray(state.x), state.iteration, outcome
         new = solver.step(state)
-        x = np.asarray(new.x)
-        if new.failure is None and (not np.isfinite(x).all() or len(polygon_crossings(x[loop]))):
-            return np.asarray(state.x), state.iteration, None
+        if new.failure is None and not _simple(np.asarray(new.x)[loop]):
+            new = _shortened(state, new, loop, _SHORTEN) if cut < _MAX_CUTS else None
+            if new is None:
+                return np.asarray(state.x), state.iteration, None
+            cut += 1
+        else:
+            cut = 0
         state = new
 
 
@@ -451,9 +590,11 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     if outcome is None:
         outcome = Outcome.MAX_STEPS
         scaffold = build_scaffold(X[loop], ring_scale)
-        ids = np.concatenate([loop, n + np.arange(len(scaffold.outer))])  # scaffold id -> vertex
-        S = ids[scaffold.triangles]
-        X = np.concatenate([X, scaffold.outer])
+        k = len(loop)
+        Xs, Ts = refine_scaffold(np.concatenate([X[loop], scaffold.outer]), scaffold.triangles, k)
+        ids = np.concatenate([loop, n + np.arange(len(Xs) - k)])  # scaffold id -> vertex
+        S = ids[Ts]
+        X = np.concatenate([X, Xs[k:]])
         weight = scaffold_weight * objective.total_volume / len(S)
         for outer in range(1, int(max_outer) + 1):
             res = minimize(Objective(combined(X, S, weight), objective.energy), X, inner, progress=False)
