@@ -325,7 +325,8 @@ def refine_scaffold(X, T, k, grading=1.0, ratio=1.5, max_points=None, max_rounds
     when the edge is shared (longest-edge bisection), that triangle alone when the edge is on
     the enclosing polygon (which gains a vertex); a triangle whose longest edge is a mesh
     boundary edge is not split.  Every new triangle is checked positive exactly (a split that
-    fails the check is skipped).  Each round ends with :func:`delaunay_flips`.
+    fails the check is skipped).  Each round ends with a few rounds of :func:`delaunay_flips`,
+    the refinement with all of them.
 
     Parameters
     ----------
@@ -345,7 +346,7 @@ def refine_scaffold(X, T, k, grading=1.0, ratio=1.5, max_points=None, max_rounds
     budget = 4 * k if max_points is None else int(max_points)
     added = 0
     for _ in range(max_rounds):
-        E, count, edge_of = unique_edges(T)
+        _, count, edge_of = unique_edges(T)
         A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
         L = np.stack([np.linalg.norm(B - A, axis=1), np.linalg.norm(C - B, axis=1),
                       np.linalg.norm(A - C, axis=1)], axis=1)  # edge c runs T[c] -> T[c + 1]
@@ -389,7 +390,10 @@ def refine_scaffold(X, T, k, grading=1.0, ratio=1.5, max_points=None, max_rounds
         T = np.concatenate([T, np.stack([v, b, o], axis=1),
                             np.stack([v[shared], a[shared], q[shared]], axis=1)])
         added += len(f)
-        T, _ = delaunay_flips(X, T)
+        # a few flip rounds between splits keep the shapes good (bunny_cut: 5th percentile of the
+        # smallest angle 10.8 degrees, 13 with full flips); all of them only at the end
+        T, _ = delaunay_flips(X, T, max_rounds=5)
+    T, _ = delaunay_flips(X, T)
     return X, T
 
 
