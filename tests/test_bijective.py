@@ -317,6 +317,16 @@ def test_a_scaffold_free_step_that_would_overlap_is_shortened(spiral):
     assert fractions == [0.5, 0.25]
 
 
+def test_bijective_with_a_quasi_newton_solver(spiral):
+    """L-BFGS keeps a memory of whole steps: after a shortened scaffold-free step it restarts
+    (else its pairs describe a step not taken), and its inner solves keep its own tolerance."""
+    V, F, x0 = spiral
+    res = bijective_parameterize(V, F, x0=x0, progress=False, solver="lbfgs")
+    assert res.success and res.info["injectivity"] == "global", res.message
+    newton = bijective_parameterize(V, F, x0=x0, progress=False)
+    assert abs(res.energy - newton.energy) <= 1e-3 * newton.energy  # L-BFGS: 2.5e-4 above
+
+
 def test_bijective_matches_plain_where_plain_does_not_overlap():
     V, F = g.saddle(8, order=3, amplitude=2.0)
     plain = geomopt.parameterize(V, F, progress=False)
