@@ -32,7 +32,7 @@ fallback, and float comparisons, which are exact).  The broad phase is a uniform
 is entered in the cells its bounding box covers (vectorised NumPy), the entries are sorted by
 cell, and each pair of edges in a cell is a candidate; a pair is kept only in the cell holding the
 lower-left corner of the intersection of the two bounding boxes, which both boxes cover (the floor
-of a rounded quotient is monotone) and which removes duplicates without a second sort.
+of a rounded product with 1 / cell size is monotone) and which removes duplicates without a second sort.
 """
 
 from __future__ import annotations
