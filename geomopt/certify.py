@@ -32,7 +32,7 @@ fallback, and float comparisons, which are exact).  The broad phase is a uniform
 is entered in the cells its bounding box covers (vectorised NumPy), the entries are sorted by
 cell, and each pair of edges in a cell is a candidate; a pair is kept only in the cell holding the
 lower-left corner of the intersection of the two bounding boxes, which both boxes cover (the floor
-of a rounded quotient is monotone) and which removes duplicates without a second sort.
+of a rounded product with 1 / cell size is monotone) and which removes duplicates without a second sort.
 """
 
 from __future__ import annotations
@@ -73,15 +73,18 @@ def _segments_meet(a, b, c, d) -> np.ndarray:
     return (o1 * o2 <= 0) & (o3 * o4 <= 0)
 
 
-def _adjacent_overlaps(P) -> np.ndarray:
+def _adjacent_overlaps(P, ex, ey) -> np.ndarray:
     """Indices ``i`` such that edges ``i`` and ``i + 1`` (mod k) share more than their common
     vertex ``P[i + 1]``: collinear and not pointing in strictly opposite directions from it (this
-    includes a zero-length edge).  Exact: the sign of a float difference is exact."""
-    x, y = P[:, 0], P[:, 1]
-    xv, yv = np.roll(x, -1), np.roll(y, -1)  # the shared vertex of edges i and i + 1
-    ux, uy = np.sign(x - xv), np.sign(y - yv)  # directions from it, per axis
-    wx, wy = np.sign(np.roll(x, -2) - xv), np.sign(np.roll(y, -2) - yv)
-    opposite = (ux == -wx) & (uy == -wy) & ((ux != 0) | (uy != 0))
+    includes a zero-length edge).  ``ex, ey`` (k,) are the edge vectors ``P[i + 1] - P[i]``.
+    Exact: the sign of a float difference is exact.
+
+    From the shared vertex, edge ``i`` points along ``-e_i`` and edge ``i + 1`` along
+    ``e_(i+1)``; these are strictly opposite per axis when ``e_i`` is not zero and has the
+    signs of ``e_(i+1)``, and then the edges cannot overlap."""
+    sx = (ex > 0).view(np.int8) - (ex < 0).view(np.int8)
+    sy = (ey > 0).view(np.int8) - (ey < 0).view(np.int8)
+    opposite = (sx == np.roll(sx, -1)) & (sy == np.roll(sy, -1)) & ((sx != 0) | (sy != 0))
     rest = np.flatnonzero(~opposite)  # strictly opposite directions never overlap
     k = len(P)
     flat = orient2d(P[rest], P[(rest + 1) % k], P[(rest + 2) % k]) == 0
@@ -95,49 +98,67 @@ def _grid_candidates(lox, loy, hix, hiy):
 
     Uniform grid; the cell size starts at ``_CELL_SCALE`` times the mean box size and is doubled
     until there are at most ``_MAX_CELLS_PER_EDGE`` (edge, cell) entries per edge, so that a few
-    very long edges cannot blow the grid up."""
+    very long edges cannot blow the grid up.  The entries are sorted as one int64 each, the cell
+    id in the high bits and the edge in the low ones (``np.sort`` of integers is several times
+    faster than ``argsort`` and leaves nothing to gather), and the pairs of a cell are found by
+    comparing every entry with the one ``s`` places on, ``s = 1, 2, ...``, on a shrinking index
+    set (work proportional to the entries plus the pairs)."""
     k = lox.size
     ox, oy = lox.min(), loy.min()
     span = max(hix.max() - ox, hiy.max() - oy)
     h = _CELL_SCALE * float(np.mean(np.maximum(hix - lox, hiy - loy)))
     if not h > 0:
         h = span / k if span > 0 else 1.0
+    bits = max(int(k - 1).bit_length(), 1)  # edge ids take the low bits of an entry
     while True:
-        x0 = np.floor((lox - ox) / h).astype(np.int64)
-        y0 = np.floor((loy - oy) / h).astype(np.int64)
-        wx = np.floor((hix - ox) / h).astype(np.int64) - x0 + 1
-        wy = np.floor((hiy - oy) / h).astype(np.int64) - y0 + 1
+        # coordinates >= 0, so truncation is the floor; a rounded product is monotone in its
+        # argument, which the de-duplication below relies on
+        inv = 1.0 / h
+        x0 = ((lox - ox) * inv).astype(np.int64)
+        y0 = ((loy - oy) * inv).astype(np.int64)
+        wx = ((hix - ox) * inv).astype(np.int64) - x0 + 1
+        wy = ((hiy - oy) * inv).astype(np.int64) - y0 + 1
         per = wx * wy
-        if per.sum() <= _MAX_CELLS_PER_EDGE * k or h >= span:
+        nx = int((x0 + wx).max()) + 1
+        cells = nx * (int((y0 + wy).max()) + 1)
+        if (per.sum() <= _MAX_CELLS_PER_EDGE * k and cells.bit_length() + bits <= 62) or h >= span:
             break
         h *= 2.0
-    nx = int((x0 + wx).max()) + 1
-    # one entry (key = cell id) per (edge, covered cell); single-cell edges need no expansion
+    # one entry (cell << bits | edge) per (edge, covered cell); single-cell edges need no expansion
     multi = np.flatnonzero(per > 1)
     cnt = per[multi] - 1  # cells after the first
     edge_m = np.repeat(multi, cnt)
     local = np.arange(edge_m.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + 1
     w = wx[edge_m]
     key_m = (y0[edge_m] + local // w) * nx + x0[edge_m] + local % w
-    key = np.concatenate([y0 * nx + x0, key_m])  # every edge's first cell, then the others
-    edge = np.concatenate([np.arange(k), edge_m])
-    order = np.argsort(key)
-    key, edge = key[order], edge[order]
-    # runs of equal keys; entry p pairs with the later entries of its run
-    starts = np.flatnonzero(key[1:] != key[:-1]) + 1
-    run_len = np.diff(np.concatenate([[0], starts, [key.size]]))
-    count = np.repeat(np.cumsum(run_len), run_len) - np.arange(key.size) - 1
-    first = np.repeat(np.arange(key.size), count)
-    second = np.arange(first.size) - np.repeat(np.cumsum(count) - count - 1, count) + first
-    i, j = edge[first], edge[second]
-    d = np.abs(i - j)
-    keep = (d != 1) & (d != k - 1)  # consecutive edges are tested by _adjacent_overlaps
-    i, j, cell = i[keep], j[keep], key[first[keep]]
-    keep = (lox[i] <= hix[j]) & (lox[j] <= hix[i]) & (loy[i] <= hiy[j]) & (loy[j] <= hiy[i])
-    i, j, cell = i[keep], j[keep], cell[keep]
+    entry = np.concatenate([((y0 * nx + x0) << bits) | np.arange(k), (key_m << bits) | edge_m])
+    entry.sort()
+    key = np.append(entry >> bits, -1)  # a sentinel cell ends the last run
+    edge = entry & ((1 << bits) - 1)  # ascending within a cell
+    if cells < 2**31:  # halve the memory traffic of the pair search
+        key, edge = key.astype(np.int32), edge.astype(np.int32)
+    # entry p pairs with p + s while the cell is the same (the keys are sorted); consecutive
+    # edges (tested by _adjacent_overlaps) and pairs whose boxes do not overlap are dropped at once
+    I, J, K = [], [], []
+    p = np.flatnonzero(key[1:] == key[:-1])
+    s = 1
+    while p.size:
+        i, j = edge[p], edge[p + s]
+        d = j - i  # > 0
+        keep = (d != 1) & (d != k - 1)
+        i, j, q = i[keep], j[keep], p[keep]
+        keep = (lox[i] <= hix[j]) & (lox[j] <= hix[i]) & (loy[i] <= hiy[j]) & (loy[j] <= hiy[i])
+        I.append(i[keep])
+        J.append(j[keep])
+        K.append(key[q[keep]])
+        s += 1
+        p = p[key[p + s] == key[p]]
+    if not I:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    i, j, cell = (np.concatenate(a).astype(np.int64) for a in (I, J, K))
     # keep a pair only in the cell of the lower-left corner of the boxes' intersection
-    cx = np.floor((np.maximum(lox[i], lox[j]) - ox) / h).astype(np.int64)
-    cy = np.floor((np.maximum(loy[i], loy[j]) - oy) / h).astype(np.int64)
+    cx = ((np.maximum(lox[i], lox[j]) - ox) * inv).astype(np.int64)
+    cy = ((np.maximum(loy[i], loy[j]) - oy) * inv).astype(np.int64)
     keep = cy * nx + cx == cell
     return i[keep], j[keep]
 
@@ -167,14 +188,13 @@ def polygon_crossings(P) -> np.ndarray:
     x, y = P[:, 0].copy(), P[:, 1].copy()
     xn, yn = np.roll(x, -1), np.roll(y, -1)
     pairs = []
-    adj = _adjacent_overlaps(P)
+    adj = _adjacent_overlaps(P, xn - x, yn - y)
     if adj.size:
         a, b = adj, (adj + 1) % k
         pairs.append(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
     if k > 3:
         i, j = _grid_candidates(np.minimum(x, xn), np.minimum(y, yn), np.maximum(x, xn), np.maximum(y, yn))
-        Q = np.roll(P, -1, axis=0)
-        hit = _segments_meet(P[i], Q[i], P[j], Q[j])
+        hit = _segments_meet(P[i], P[(i + 1) % k], P[j], P[(j + 1) % k])
         i, j = i[hit], j[hit]
         pairs.append(np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1))
     if not pairs:

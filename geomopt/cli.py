@@ -149,15 +149,35 @@ def cmd_param(args) -> int:
             energy_name=energy.name, solver=args.solver, iterations=res.iterations,
             solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
             energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
+            boundary_crossings=_boundary_crossings(res),
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
+    if res.injectivity == "local":
+        _warn_overlap(res, args)
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
             _save_param_figures(res, V, F, args.png, outputs, args.solver)
         io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
                               format=Path(args.output).suffix[1:])
     return EXIT_OK
+
+
+def _warn_overlap(res, args):
+    """Say (even with --quiet) that a flip-free UV map is not a bijection: its boundary overlaps
+    itself, so two parts of the surface share UV coordinates; and what to do about it."""
+    count = _boundary_crossings(res)
+    print(f"geomopt: warning: the UV map is only locally injective (no flipped triangle), not "
+          f"globally: its boundary crosses itself"
+          f"{'' if count is None else f' ({count} crossing boundary edge pair(s))'}, so parts of "
+          f"the surface overlap in UV; rerun with --bijective for a map certified globally "
+          f"injective", file=sys.stderr, flush=True)
+
+
+def _boundary_crossings(res):
+    """Crossing boundary edge pairs by the result's global certificate, None without one."""
+    cert = res.info.get("certificate")
+    return None if cert is None else len(cert.crossings)
 
 
 def _for_the_command_line(exc, args):

@@ -10,7 +10,8 @@ from geomopt import generators as g
 from geomopt._errors import MeshError, ParameterError
 from geomopt.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.predicates import count_inverted, orient2d
-from geomopt.scaffold import _ear_clip, bijective_parameterize, build_scaffold, delaunay_flips
+from geomopt.scaffold import (_ear_clip, _shortened, bijective_parameterize, build_scaffold,
+                               delaunay_flips, refine_scaffold)
 from geomopt.topology import check_disk, unique_edges
 from geomopt.tutte import tutte_embedding
 
@@ -175,6 +176,44 @@ def test_scaffold_closes_a_bijective_disk(shape):
     assert set(cert.loop.tolist()) == set(range(k, k + h))
 
 
+def _min_angles(X, T):
+    A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
+
+    def angle(u, v):
+        cos = (u * v).sum(1) / np.linalg.norm(u, axis=1) / np.linalg.norm(v, axis=1)
+        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    return np.minimum(np.minimum(angle(B - A, C - A), angle(A - B, C - B)), angle(A - C, B - C))
+
+
+@pytest.mark.parametrize("shape", ["spiral", "star"])
+def test_refined_scaffold_is_a_graded_conforming_triangulation(shape):
+    P = _spiral_polygon() if shape == "spiral" else g.polygon(shape)
+    if shape == "star":  # fine boundary edges: the scaffold must grade from them
+        P = np.concatenate([np.linspace(P[i], P[(i + 1) % len(P)], 8, endpoint=False) for i in range(len(P))])
+    k = len(P)
+    sc = build_scaffold(P)
+    X0 = np.concatenate([P, sc.outer])
+    X, T = refine_scaffold(X0, sc.triangles, k)
+    assert np.array_equal(X[: len(X0)], X0) and len(X) > len(X0)  # Steiner points appended
+    assert count_inverted(X, T) == 0
+    # still a disk around the polygon: no hanging vertex, the mesh boundary edges unsplit, and the
+    # outer loop is the enclosing polygon with (only) midpoints added
+    inside = np.asarray(_ear_clip(P), dtype=np.int64)
+    cert = certify_bijective(X, np.concatenate([inside, T]))
+    assert cert.globally_injective
+    assert set(range(k, len(X0))) <= set(cert.loop.tolist()) and min(cert.loop) >= k
+    # much better shaped than the unrefined scaffold, whose triangles are long and thin
+    before, after = _min_angles(X0, sc.triangles), _min_angles(X, T)
+    assert np.percentile(after, 5) > 3 * np.percentile(before, 5)
+    assert np.percentile(after, 5) > 10.0 and np.median(after) > 30.0
+    # graded: triangles at the boundary are about as large as its edges, far ones much larger
+    edge = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).max()
+    L = np.linalg.norm(X[T] - X[np.roll(T, -1, axis=1)], axis=2).max(axis=1)
+    touching = (T < k).any(axis=1)
+    assert L[touching].max() <= 4 * edge and L[~touching].max() > 10 * edge
+
+
 def test_scaffold_rejects_a_clockwise_polygon():
     with pytest.raises(MeshError):
         build_scaffold(_spiral_polygon()[::-1])
@@ -247,6 +286,47 @@ def test_plain_solve_overlaps_and_bijective_does_not(spiral):
     assert np.all(np.diff(res.energy_history) <= 1e-12 * res.energy_history[0])
 
 
+def test_a_scaffold_free_step_that_would_overlap_is_shortened(spiral):
+    """The lazy phase halves (then quarters) a step whose end has an overlapping boundary, and
+    gives up (None: build the scaffold) when neither fraction keeps the boundary simple."""
+    from geomopt.param import start_map
+
+    V, F, x0 = spiral
+    problem = geomopt.Problem.surface(V, F)
+    objective = geomopt.Objective(problem, "symmetric_dirichlet")
+    loop = check_disk(F, len(V))
+    x0, _, _ = start_map(objective, x0)
+    solver = geomopt.Newton()
+    state = solver.init(objective, x0, objective.params())
+    fractions = []
+    for _ in range(30):
+        new = solver.step(state)
+        if len(polygon_crossings(np.asarray(new.x)[loop])):
+            short = _shortened(state, new, loop, (0.5, 0.25))
+            if short is None:
+                break
+            s = short.step_size / new.step_size
+            fractions.append(s)
+            np.testing.assert_allclose(np.asarray(short.x), np.asarray(state.x + s * (new.x - state.x)))
+            assert len(polygon_crossings(np.asarray(short.x)[loop])) == 0 and short.value < state.value
+            assert short.value == pytest.approx(float(objective.value(short.x, objective.params())))
+            new = short
+        state = new
+    else:
+        pytest.fail("the spiral's boundary never came to overlap")
+    assert fractions == [0.5, 0.25]
+
+
+def test_bijective_with_a_quasi_newton_solver(spiral):
+    """L-BFGS keeps a memory of whole steps: after a shortened scaffold-free step it restarts
+    (else its pairs describe a step not taken), and its inner solves keep its own tolerance."""
+    V, F, x0 = spiral
+    res = bijective_parameterize(V, F, x0=x0, progress=False, solver="lbfgs")
+    assert res.success and res.info["injectivity"] == "global", res.message
+    newton = bijective_parameterize(V, F, x0=x0, progress=False)
+    assert abs(res.energy - newton.energy) <= 1e-3 * newton.energy  # L-BFGS: 2.5e-4 above
+
+
 def test_bijective_matches_plain_where_plain_does_not_overlap():
     V, F = g.saddle(8, order=3, amplitude=2.0)
     plain = geomopt.parameterize(V, F, progress=False)
@@ -284,8 +364,11 @@ def test_generators_validate_and_give_injective_projections():
         assert certify_bijective(V[:, :2], F).globally_injective
 
 
-def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path):
-    """The plain result says it is only locally injective; --bijective gives a global map."""
+def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path, capsys):
+    """The plain result says it is only locally injective, and `geomopt param` says so even with
+    --quiet, pointing to --bijective; --bijective gives a global map and no warning."""
+    import json
+
     import geomopt.cli
     from geomopt.io import read_obj_uv, write_obj_with_uv
 
@@ -294,7 +377,19 @@ def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path):
     assert plain.injectivity == "local" and plain.info["certificate"].crossings.size
     src = tmp_path / "spiral.obj"
     write_obj_with_uv(src, V, F, x0)
+    out = tmp_path / "plain.obj"
+    capsys.readouterr()
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "only locally injective" in err and "--bijective" in err
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["injectivity"] == "local" and summary["boundary_crossings"] > 0
     out = tmp_path / "bij.obj"
-    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--quiet"]) == 0
+    assert geomopt.cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--json"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
+    assert summary["injectivity"] == "global" and summary["boundary_crossings"] == 0
+    assert "only locally injective" not in cap.err
     _, _, uv = read_obj_uv(out)
     assert certify_bijective(uv, F).globally_injective
