@@ -149,7 +149,8 @@ def _check_scale_aware(energy, energy_params):
     from .energies import get_energy
 
     e = get_energy(energy)
-    params = e.resolve_params(**energy_params)
+    # unknown or misplaced names are reported by the caller's own checks, with better advice
+    params = e.resolve_params(**{k: v for k, v in energy_params.items() if k in e.params})
     at = {s: float(e.density(s * jnp.eye(2), params)) for s in (1.0, 1e-3)}
     if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
         raise ParameterError(
