@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import ParameterError
-from ._objective import PROJECTIONS, _total, block_hessian, jit
+from ._objective import PROJECTIONS, total_energy, block_hessian, jit
 
 __all__ = ["NewtonCG", "CGOperator", "CGInfo", "pcg"]
 
@@ -223,7 +223,7 @@ def cg_system(VB, op: CGOperator, shift):
 def newton_cg_kernel(density, projection, chunk, n_blocks, geom, x, params, op, shift, rtol,
                      eta_max, gnorm_ref, max_iters):
     """Energy, gradient and the CG projected-Newton direction at ``x``; see :class:`NewtonCG`."""
-    value, grad = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
     free = op.free
     g = grad * free
     VB = block_hessian(density, projection, chunk, geom, x, params, op.blocks, op.swap, n_blocks)

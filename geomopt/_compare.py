@@ -339,9 +339,9 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         label = "mesh"
     objective = Objective(problem, energy, **energy_params)
     if problem.fixed.size == 0 and problem.dim == 2:
-        from .param import _check_scale_aware
+        from .param import check_scale_aware
 
-        _check_scale_aware(energy, energy_params)
+        check_scale_aware(energy, energy_params)
     if x0 is None:
         if problem.fixed.size or problem.dim != 2:
             raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "

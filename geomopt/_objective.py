@@ -50,7 +50,7 @@ CPU_CHUNK = 1024
 # ---------------------------------------------------------------- jitted kernels
 
 
-def _jacobians(geom, x):
+def jacobians(geom, x):
     S, Minv, _ = geom
     X = x[S]  # (m, d+1, d)
     Ds = jnp.swapaxes(X[:, 1:] - X[:, :1], 1, 2)  # columns = edges
@@ -61,20 +61,20 @@ def _dets(geom, x):
     return dets(geom[0], x)
 
 
-def _total(density, geom, x, params):
+def total_energy(density, geom, x, params):
     vol = geom[2]
-    psi = jax.vmap(density, in_axes=(0, None))(_jacobians(geom, x), params)
+    psi = jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
     return jnp.sum(vol * psi)
 
 
 @partial(jit, static_argnums=0)
 def energy_kernel(density, geom, x, params):
-    return _total(density, geom, x, params)
+    return total_energy(density, geom, x, params)
 
 
 @partial(jit, static_argnums=0)
 def value_and_grad_kernel(density, geom, x, params):
-    return jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+    return jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
 
 
 @jit
@@ -177,7 +177,7 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 def hessian_kernel(density, projection, chunk, n_blocks, geom, x, params, blocks, swap, gather):
     """Energy, gradient and the assembled lower-triangle CSC data (nnz,) of the projected
     Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's ``gather``."""
-    value, grad = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
     VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks)
     return value, grad, VB.reshape(-1)[gather]
 
@@ -486,7 +486,7 @@ class Objective:
 
 @partial(jit, static_argnums=0)
 def _densities_kernel(density, geom, x, params):
-    return jax.vmap(density, in_axes=(0, None))(_jacobians(geom, x), params)
+    return jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
 
 
 def element_densities(objective: Objective, x, params=None) -> jax.Array:

@@ -1688,7 +1688,7 @@ def read_lim2d(folder):
     for p in (obj_path, handles_path):
         if not p.exists():
             raise MeshFormatError(f"2D LIM case {folder} has no {p.name}; expected input.obj and handles.txt")
-    rest, init, faces = _parse_lim_obj(obj_path)
+    rest, init, faces = parse_lim_obj(obj_path)
     n = rest.shape[0]
     return {
         "rest": validate_vertices(rest, f"{obj_path}: 'v' positions", dim=3),
@@ -1699,7 +1699,7 @@ def read_lim2d(folder):
     }
 
 
-def _parse_lim_obj(path):
+def parse_lim_obj(path):
     """A LIM ``input.obj``: ``(rest (n, 3), init (n, 2), faces (m, 3))`` as read, not yet validated."""
     path = _existing_file(path, "OBJ file")
     _check_not_empty(path, "OBJ file")

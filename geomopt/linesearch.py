@@ -96,10 +96,10 @@ def max_injective_step(S, x, dx):
 
     S (m, d+1) simplices; x, dx (n, d).  Returns ``inf`` when nothing blocks the step.
     """
-    return _max_injective_step(S, x, dx)
+    return injective_step_bound(S, x, dx)
 
 
-def _max_injective_step(S, x, dx):
+def injective_step_bound(S, x, dx):
     A = edge_rows(S, x)
     B = edge_rows(S, dx)
     if A.shape[-1] == 2:
@@ -199,7 +199,7 @@ class InjectiveSearch:
         slope = jnp.vdot(g, d)
         inf = jnp.array(jnp.inf, x.dtype)
         if self.injective:
-            tcap = self.safety * _max_injective_step(S, x, d)
+            tcap = self.safety * injective_step_bound(S, x, d)
             was_pos = dets(S, x) > 0
         else:
             tcap, was_pos = inf, None
@@ -261,10 +261,10 @@ class InjectiveSearch:
 
 def objective_value_and_grad(density, geom, free, params):
     """``x -> (E(x), grad E(x) * free)`` for the search (pure JAX)."""
-    from ._objective import _total
+    from ._objective import total_energy
 
     def vg(x):
-        v, g = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+        v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
         return v, g * free
 
     return vg

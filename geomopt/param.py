@@ -139,7 +139,7 @@ def mesh_arrays(V, F=None):
     return V, F
 
 
-def _check_scale_aware(energy, energy_params):
+def check_scale_aware(energy, energy_params):
     """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
     on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
@@ -201,7 +201,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
     V, F = mesh_arrays(V, F)
-    _check_scale_aware(energy, energy_params)
+    check_scale_aware(energy, energy_params)
     if bijective:
         from .scaffold import bijective_parameterize
 

@@ -29,7 +29,7 @@ __all__ = [
 
 # --------------------------------------------------------------------------- validation
 
-def _as_faces(F, n_vertices=None, corners=3, name="F") -> np.ndarray:
+def as_faces(F, n_vertices=None, corners=3, name="F") -> np.ndarray:
     """``F`` as a validated int64 array ``(m, corners)``; ``corners=None`` allows any >= 2."""
     F = np.asarray(F)
     if F.ndim != 2 or (corners is not None and F.shape[1] != corners) or F.shape[1] < 2:
@@ -73,7 +73,7 @@ def half_edges(F) -> np.ndarray:
     H : (3 m, 2) int64 array
         Row ``3 f + c`` is ``(F[f, c], F[f, (c + 1) % 3])``.
     """
-    F = _as_faces(F)
+    F = as_faces(F)
     return np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
 
 
@@ -93,7 +93,7 @@ def unique_edges(F):
     edge_of : (m, 3) int64 array
         ``edge_of[f, c]`` is the row of ``E`` for half-edge ``3 f + c``.
     """
-    F = _as_faces(F)
+    F = as_faces(F)
     H = half_edges(F)
     lo, hi = H.min(axis=1), H.max(axis=1)
     n = int(F.max()) + 1
@@ -130,7 +130,7 @@ def boundary_half_edges(F) -> np.ndarray:
     B : (k, 2) int64 array
         Boundary half-edges in half-edge order (face-major).
     """
-    F = _as_faces(F)
+    F = as_faces(F)
     return half_edges(F)[_twins(F) < 0]
 
 
@@ -163,7 +163,7 @@ def nonmanifold_facets(S):
     elements : (m,) bool array
         Simplices having such a facet.
     """
-    S = _as_faces(S, corners=None, name="simplices")
+    S = as_faces(S, corners=None, name="simplices")
     m, k = S.shape
     _, inverse, counts = np.unique(_oriented_facets(S)[:, :-1], axis=0, return_inverse=True,
                                    return_counts=True)
@@ -196,7 +196,7 @@ def same_side_facets(S):
     elements : (m,) bool array
         Simplices having such a facet.
     """
-    S = _as_faces(S, corners=None, name="simplices")
+    S = as_faces(S, corners=None, name="simplices")
     m, k = S.shape
     rows = _oriented_facets(S)
     n = int(S.max()) + 1
@@ -286,7 +286,7 @@ def connected_components(F, n_vertices):
     labels : (n_vertices,) int64 array
         Component ``0 .. count - 1`` of each vertex, ``-1`` for vertices no element uses.
     """
-    F = _as_faces(F, n_vertices, corners=None)
+    F = as_faces(F, n_vertices, corners=None)
     n = _as_count(n_vertices)
     i, j = F[:, :-1].ravel(), F[:, 1:].ravel()
     graph = sp.coo_matrix((np.ones(i.size, dtype=np.int8), (i, j)), shape=(n, n)).tocsr()
@@ -342,7 +342,7 @@ def check_disk(F, n_vertices) -> np.ndarray:
     MeshError
         Naming the first failed check, with counts, and what to do about it.
     """
-    F = _as_faces(F, n_vertices)
+    F = as_faces(F, n_vertices)
     n = _as_count(n_vertices)
     m = F.shape[0]
 

@@ -16,7 +16,7 @@ import scipy.sparse.linalg as spla
 
 from ._errors import MeshError, ParameterError
 from .io import validate_vertices
-from .topology import _as_faces, check_disk
+from .topology import as_faces, check_disk
 
 __all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "WEIGHTS"]
 
@@ -41,7 +41,7 @@ def _checked_input(V, F, weights):
             f"unknown Tutte weights {weights!r}; valid: {', '.join(map(repr, WEIGHTS))}"
         )
     V = validate_vertices(V, "V")
-    return V, _as_faces(F, V.shape[0])
+    return V, as_faces(F, V.shape[0])
 
 
 def tutte_weights(V, F, weights: str = "uniform") -> sp.csr_matrix:
@@ -209,7 +209,7 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     V = validate_vertices(V, "V")
     if V.shape[0] != UV.shape[0]:
         raise MeshError(f"UV has {UV.shape[0]} vertices but V has {V.shape[0]}")
-    F = _as_faces(F, V.shape[0])
+    F = as_faces(F, V.shape[0])
     a, b, c = UV[F[:, 0]], UV[F[:, 1]], UV[F[:, 2]]
     u, v = b - a, c - a
     map_area = 0.5 * float(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]))

@@ -60,7 +60,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
 from ._geometry import det
-from ._objective import Objective, _jacobians, _total
+from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem
@@ -156,9 +156,9 @@ class UntangleResult:
 def _outer_stats(density, geom, x, params):
     """(energy over all elements, min det J, #elements with det J <= 0), over the elements of
     positive rest volume (``bucket`` padding adds elements of zero volume)."""
-    D = det(_jacobians(geom, x))
+    D = det(jacobians(geom, x))
     real = geom[2] > 0
-    return _total(density, geom, x, params), jnp.min(jnp.where(real, D, jnp.inf)), jnp.sum(real & (D <= 0))
+    return total_energy(density, geom, x, params), jnp.min(jnp.where(real, D, jnp.inf)), jnp.sum(real & (D <= 0))
 
 
 # --------------------------------------------------------------------- helpers
@@ -597,9 +597,9 @@ def write_untangle_result(case, result, path):
 
 
 def _read_obj_uv(path, n):
-    from .io import _parse_lim_obj
+    from .io import parse_lim_obj
 
-    _, UV, _ = _parse_lim_obj(path)
+    _, UV, _ = parse_lim_obj(path)
     if len(UV) != n:
         raise MeshError(f"{path}: read back {len(UV)} vt lines, expected {n}")
     return UV

@@ -31,7 +31,7 @@ import numpy as np
 from jax import lax
 
 from .._errors import ParameterError
-from .._objective import _total
+from .._objective import total_energy
 from .._config import Int, OneOf, Real
 from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
@@ -55,7 +55,7 @@ def _dot(a, b):
 
 
 def _value_and_grad(density, geom, free, x, params):
-    v, g = jax.value_and_grad(_total, argnums=2)(density, geom, x, params)
+    v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
     return v, g * free
 
 

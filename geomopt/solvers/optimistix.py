@@ -25,8 +25,8 @@ import optimistix as optx
 
 from .._errors import ParameterError
 from .._geometry import dets
-from .._objective import _total
-from ..linesearch import InjectiveSearch, _max_injective_step, still_positive
+from .._objective import total_energy
+from ..linesearch import InjectiveSearch, injective_step_bound, still_positive
 from ._base import AbstractSolver, Outcome, State, reference_extent
 
 
@@ -41,7 +41,7 @@ class ObjectiveFunction(eqx.Module):
 
     def __call__(self, y, args):
         x = jnp.where(self.free > 0, y, self.x_fixed)
-        return _total(self.density, self.geom, x, args)
+        return total_energy(self.density, self.geom, x, args)
 
 
 def objective_function(objective, x0) -> ObjectiveFunction:
@@ -73,7 +73,7 @@ class OptxInjectiveSearch(optx.AbstractSearch):
         slope = f_info.compute_grad_dot(diff)
         f, fe = f_info.as_min(), f_eval_info.as_min()
         if cfg.injective:
-            tmax = _max_injective_step(self.simplices, y, diff)
+            tmax = injective_step_bound(self.simplices, y, diff)
             pos = (cfg.safety * tmax >= 1.0) & still_positive(self.simplices, y, diff, 1.0,
                                                                dets(self.simplices, y) > 0)
             cut = jnp.minimum(cfg.shrink, cfg.safety * tmax)
