@@ -84,6 +84,7 @@ class CGInfo(NamedTuple):
     residual : final ``|r| / |g|`` (2-norms on the free DOFs).
     rtol : the tolerance used.
     curvature : False when CG stopped on non-positive curvature ``p.A p <= 0``.
+    slope : ``grad . dx`` (the directional derivative; ``-slope / 2`` is the Newton decrement).
     """
 
     value: jax.Array
@@ -92,6 +93,7 @@ class CGInfo(NamedTuple):
     residual: jax.Array
     rtol: jax.Array
     curvature: jax.Array
+    slope: jax.Array
 
 
 # ------------------------------------------------------------------- linear algebra
@@ -231,7 +233,7 @@ def newton_cg_kernel(density, projection, chunk, n_blocks, geom, x, params, op, 
     gnorm = jnp.sqrt(jnp.vdot(g, g))
     tol = jnp.where(rtol > 0, rtol, jnp.minimum(eta_max, jnp.sqrt(gnorm / gnorm_ref)))
     dx, iters, res, ok = pcg(matvec, precond, -g, tol, max_iters)
-    return dx, CGInfo(value, g, iters, res, tol, ok)
+    return dx, CGInfo(value, g, iters, res, tol, ok, jnp.vdot(g, dx))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -215,3 +215,19 @@ def test_auto_linear_solver_rule(monkeypatch):
     assert not SLIM().uses_cg(obj)  # proxies always factor
     with pytest.raises(ParameterError, match="proxy"):
         SLIM(linear_solver="cg").uses_cg(obj)
+
+
+def test_newton_cg_keeps_the_direction_on_the_device():
+    """The CG path's decrement is ``-g.dx / 2``, computed with the direction on the device
+    (only scalars come back to the host), and the step descends."""
+    from geomopt.solvers import Newton
+
+    obj, x = _case("tets")
+    solver = Newton(projection="clamp", linear_solver="cg")
+    state = solver.init(obj, np.asarray(x), obj.params())
+    nxt = solver.step(state)
+    dx, info = state.aux["cg"].direction(state.aux["op"], obj, state.x, state.params, "clamp",
+                                         solver.regularization, gnorm_ref=state.aux["gref"])
+    g = np.asarray(info.grad)
+    assert nxt.decrement == pytest.approx(-0.5 * float(np.vdot(g, np.asarray(dx))), rel=1e-12)
+    assert nxt.decrement > 0 and nxt.value < state.value

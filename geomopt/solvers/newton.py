@@ -117,8 +117,9 @@ class Newton(AbstractSolver):
         return "none" if state.decrement <= self.exact_below * abs(state.value) else "clamp"
 
     def _direction(self, state, projection, shifts):
-        """Newton direction on the free DOFs with the first diagonal shift (relative to the mean
-        diagonal) in ``shifts`` that factors; ``(value, grad, g, d, shift)``, d None on failure."""
+        """Newton direction with the first diagonal shift (relative to the mean diagonal) in
+        ``shifts`` that factors: ``(value, grad, dx, decrement, shift)``, ``dx`` (shaped like
+        ``x``, zero on fixed DOFs, on the device) None on failure."""
         if "cg" in state.aux:
             return self._cg_direction(state, projection, shifts)
         obj, pat, chol = state.objective, state.objective.pattern, state.aux["chol"]
@@ -131,25 +132,29 @@ class Newton(AbstractSolver):
                 d_ = data.copy()
                 d_[pat.diag] += shift * scale
                 chol.factor(d_)
-                return float(value), grad, g, -chol.solve(g), shift
             except NotPositiveDefinite:
                 continue
-        return float(value), grad, g, None, None
+            d_free = -chol.solve(g)
+            dx = np.zeros(state.x.size)
+            dx[pat.free_dofs] = d_free
+            # device_put: no copy program per shape (jnp.asarray compiles one)
+            return float(value), grad, jax.device_put(dx.reshape(state.x.shape)), 0.5 * float(-g @ d_free), shift
+        return float(value), grad, None, None, None
 
     def _cg_direction(self, state, projection, shifts):
-        """:meth:`_direction` by CG: the first shift whose system CG finds positive definite
-        along its iterates (always the first for a PSD projection)."""
-        obj, pat, aux = state.objective, state.objective.pattern, state.aux
+        """:meth:`_direction` by CG, all on the device (only scalars come to the host): the
+        first shift whose system CG finds positive definite along its iterates (always the
+        first for a PSD projection)."""
+        obj, aux = state.objective, state.aux
         for shift in shifts:
             dx, info = aux["cg"].direction(aux["op"], obj, state.x, state.params, projection, shift,
                                            gnorm_ref=aux["gref"])
-            g = np.asarray(info.grad).reshape(-1)[pat.free_dofs]
             if bool(info.curvature) or projection != "none":
-                return float(info.value), info.grad, g, np.asarray(dx).reshape(-1)[pat.free_dofs], shift
-        return float(info.value), info.grad, g, None, None
+                return float(info.value), info.grad, dx, -0.5 * float(info.slope), shift
+        return float(info.value), info.grad, None, None, None
 
     def step(self, state: State) -> State:
-        obj, params, x, pat = state.objective, state.params, state.x, state.objective.pattern
+        obj, params, x = state.objective, state.params, state.x
         projection = self._projection(state)
         aux = dict(state.aux, cooldown=max(state.aux["cooldown"] - 1, 0))
         reg = self.regularization
@@ -157,21 +162,17 @@ class Newton(AbstractSolver):
         if isinstance(projection, str) and projection == "none":
             # Levenberg-Marquardt on the exact Hessian: the smallest shift that factors
             mu = max(aux.get("mu", reg), reg)
-            value, grad, g, d_free, used = self._direction(state, "none", [mu, 1e2 * mu])
-            exact = d_free is not None
+            value, grad, dx, decrement, used = self._direction(state, "none", [mu, 1e2 * mu])
+            exact = dx is not None
             if not exact:
                 aux["cooldown"], aux["mu"] = 2, 1e4 * mu
             else:
                 aux["mu"] = used
         if not exact:
             fallback = "clamp" if isinstance(projection, str) and projection == "none" else projection
-            value, grad, g, d_free, _ = self._direction(state, fallback, [reg * 100**k for k in range(8)])
-        if d_free is None or not np.isfinite(value):
+            value, grad, dx, decrement, _ = self._direction(state, fallback, [reg * 100**k for k in range(8)])
+        if dx is None or not np.isfinite(value):
             return dataclasses.replace(state, failure=Outcome.NONFINITE)
-        dx = np.zeros(x.size)
-        dx[pat.free_dofs] = d_free
-        dx = jax.device_put(dx.reshape(x.shape))  # no copy program per shape (jnp.asarray has one)
-        decrement = 0.5 * float(-g @ d_free)
         t, xn, vn, gn, evals = self.search(obj, params, x, value, grad, dx)
         it = state.iteration + 1
         if exact:
