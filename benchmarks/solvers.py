@@ -19,10 +19,11 @@ Energies are geomopt's symmetric Dirichlet, area-weighted mean (4 at an isometry
 
 ``--refine``: iteration counts under refinement instead (no libigl): the same shape at several
 resolutions (a generated ruffled disk or saddle at ``--refine-rings``, or a shared mesh and its midpoint
-subdivisions), the chosen solvers (default aqp, slim, newton) from the Tutte start, iterations
+subdivisions), the chosen solvers (default aqp, slim, newton, lbfgs) from the Tutte start
+(``--refine-start``: mean-value weights by default), iterations
 and seconds to a relative gap of ``--refine-tol`` (default 1e-4) to the best energy at that
 resolution.  AQP's proxy (the rest Laplacian) is resolution-independent, so its count should stay
-nearly flat, while SLIM's grows (Kovalsky et al. 2016).
+nearly flat, while L-BFGS's grows (Kovalsky et al. 2016, beside L-BFGS and accelerated gradient descent).
 
     python benchmarks/solvers.py --refine saddle --refine-amplitude 2.5 --refine-rings 16 --refine-levels 2
     python benchmarks/solvers.py --refine bunny_cut --refine-levels 2
@@ -155,13 +156,14 @@ def refine_report(args):
     """The ``--refine`` table: iterations (and seconds) to ``--refine-tol`` per resolution."""
     import geomopt
     from geomopt import Objective, Problem
+    from geomopt.param import start_map
 
-    wanted = args.solvers.split(",") if args.solvers else ["aqp", "slim", "newton"]
+    wanted = args.solvers.split(",") if args.solvers else ["aqp", "slim", "newton", "lbfgs"]
     shapes = refinement_shapes(args)
     rows = []
     for label, V, F in shapes:
         objective = Objective(Problem.surface(V, F), "symmetric_dirichlet")
-        x0, _ = bench.start_map(objective, V, F)
+        x0 = start_map(objective, None, args.refine_start)[0]
         # compile what the solvers compile in their first steps (per size), outside the timings
         geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.cold_seconds)
         c = geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.max_seconds)
@@ -211,6 +213,9 @@ def main(argv=None):
                          "generated shape at the first --refine-rings (default 0: generate at every ring count)")
     ap.add_argument("--refine-amplitude", type=float, help="amplitude of the generated shape (its default: "
                     "ruffled 0.6, saddle 1)")
+    ap.add_argument("--refine-start", choices=("mean_value", "uniform"), default="mean_value",
+                    help="Tutte weights of the start map (default mean_value: it converges under refinement, "
+                         "the uniform one does not on irregular meshes, so each resolution would start elsewhere)")
     ap.add_argument("--refine-tol", type=float, default=1e-4, help="relative gap counted (default 1e-4)")
     args = ap.parse_args(argv)
     if args.repeat < 1 or args.slim_iters < 1:

@@ -6,15 +6,24 @@ first moves along the momentum ``v = x_k - x_{k-1}`` by ``theta`` (capped by the
 bound along ``v``, dropped when it raises the energy), then takes the proxy step
 ``d = -K^-1 grad E(y)`` from that point ``y`` with the shared injective search.  Because the
 proxy does not change with the mesh's resolution, the iteration count stays nearly flat when
-the same shape is refined (while no element's injectivity bound blocks the proxy step: the
-Laplacian ignores the barrier, so a strongly distorted start spends its first iterations on
-steps the bound cuts short, more of them on finer meshes; ``benchmarks/solvers.py --refine``).
+the same shape is refined, as long as the start map converges under refinement too (a
+uniform Tutte map does not on irregular meshes: on the saddle its smallest singular value
+shrinks by ~30% per subdivision; the mean-value one converges) and the minimum does not get
+harder on the finer mesh (the ruffled disk: SLIM's and AQP's counts both grow there, only
+Newton's stays flat; ``benchmarks/solvers.py --refine``).
 
 ``K`` is the Hessian of the Dirichlet energy ``|J|^2``; the proxy is ``c K`` with ``c`` the
 energy's curvature at rest relative to Dirichlet's (:func:`rest_curvature`; 4 for symmetric
 Dirichlet), so that the line search's first trial ``t = 1`` is the proxy's minimiser near
 the solution instead of a step ``1/c`` too long that Armijo halves ``log2 c`` times in every
 iteration.
+
+The search caps the first trial at a quarter of the flip bound (``InjectiveSearch(safety=0.25)``,
+not the 0.9 of the other solvers).  The Laplacian proxy does not see the barrier, so the bound
+is often what limits its step; at 0.9 the blocking element loses ~90% of its area in one step
+and the next gradient is dominated by its barrier, giving alternating tiny steps (measured:
+Tutte-started saddle at 1.5k/6k/25k triangles, iterations to 1e-4 of the minimum 9/15/22 at 0.9,
+9/9/11 at 0.25; camelhead 704 -> 210, face 911 -> 55; ``benchmarks/solvers.py --refine``).
 """
 
 from __future__ import annotations
@@ -51,13 +60,14 @@ class AQP(AbstractSolver):
     condition : the condition number ``kappa`` the acceleration is tuned for:
         ``theta = (1 - 1/sqrt(kappa)) / (1 + 1/sqrt(kappa))`` (Nesterov; Kovalsky et al. 2016).
     rtol, max_steps : as for every solver (relative energy decrease / decrement test).
-    search : the :class:`~geomopt.linesearch.InjectiveSearch`.
+    search : the :class:`~geomopt.linesearch.InjectiveSearch` (default: first trial at most a
+        quarter of the flip bound, see the module notes).
     """
 
     condition: float = 100.0
     rtol: float = 1e-10
     max_steps: int = 2000
-    search: InjectiveSearch = InjectiveSearch()
+    search: InjectiveSearch = InjectiveSearch(safety=0.25)
 
     def __post_init__(self):
         self._check(condition=Real(1.0))
