@@ -41,6 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._errors import ParameterError
+from .topology import boundary_vertices  # noqa: F401  (re-exported: the generators' fixed sets)
 
 __all__ = [
     "Tangle", "square_mesh", "disk_mesh", "box_mesh", "boundary_vertices",
@@ -177,19 +178,6 @@ def box_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
             tet.append(idx[c[0], c[1], c[2]])
         T.append(np.stack(tet, 1))
     return V, _orient(V, np.concatenate(T).astype(np.int64))
-
-
-def boundary_vertices(S, n: int) -> np.ndarray:
-    """Sorted ids of the vertices on the boundary (faces used by one element) of a triangle
-    or tet mesh ``S`` (m, 3 or 4)."""
-    S = np.asarray(S)
-    k = S.shape[1]
-    faces = np.concatenate([np.delete(S, i, axis=1) for i in range(k)])
-    faces = np.sort(faces, axis=1)
-    uniq, counts = np.unique(faces, axis=0, return_counts=True)
-    on = np.zeros(n, bool)
-    on[uniq[counts == 1].ravel()] = True
-    return np.flatnonzero(on)
 
 
 def _mean_edge(V, S):

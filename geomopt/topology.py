@@ -19,6 +19,7 @@ __all__ = [
     "half_edges",
     "unique_edges",
     "boundary_half_edges",
+    "boundary_vertices",
     "boundary_loops",
     "connected_components",
     "same_side_facets",
@@ -217,6 +218,19 @@ def same_side_facets(S):
 
 
 # --------------------------------------------------------------------------- loops
+
+def boundary_vertices(S, n: int) -> np.ndarray:
+    """Sorted ids of the vertices on the boundary (faces used by one element) of a triangle
+    or tet mesh ``S`` (m, 3 or 4)."""
+    S = np.asarray(S)
+    k = S.shape[1]
+    faces = np.concatenate([np.delete(S, i, axis=1) for i in range(k)])
+    faces = np.sort(faces, axis=1)
+    uniq, counts = np.unique(faces, axis=0, return_counts=True)
+    on = np.zeros(n, bool)
+    on[uniq[counts == 1].ravel()] = True
+    return np.flatnonzero(on)
+
 
 def boundary_loops(F) -> list[np.ndarray]:
     """Boundary loops, each following the direction of the faces' half-edges.

@@ -65,6 +65,7 @@ from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem
 from .solvers import LBFGS, AbstractSolver, Newton, Outcome
+from .topology import boundary_vertices
 
 __all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
            "default_solver", "next_eps"]
@@ -486,9 +487,9 @@ def lim_problem(case):
     ------
     MeshError
         The rest mesh is degenerate or inconsistently oriented (a face listed clockwise among
-        counter-clockwise ones), the start map is collapsed (zero total signed area / volume)
-        or, in 3D, mirrored relative to the rest mesh: with the boundary fixed no map can be
-        certified.
+        counter-clockwise ones), the start map is collapsed (zero total signed area) or, in 3D
+        with every boundary vertex a handle, its total signed volume is not positive: no map
+        with that boundary can be certified.
 
     Returns
     -------
@@ -523,12 +524,15 @@ def lim_problem(case):
     orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
     init = np.asarray(case["init"], dtype=np.float64)
     total = float(problem.signed_volumes(init).sum())  # in the rest orientation
-    if not total > 0:
+    # with every boundary vertex fixed the total is the same for every map: not positive = no
+    # untangled map exists; with part of the boundary free, the free vertices can restore it
+    if not total > 0 and np.isin(boundary_vertices(problem.simplices, problem.n_vertices), H).all():
         what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
         raise MeshError(
             f"{case.get('path', 'the case')}: the start map's total signed volume relative to the rest "
-            f"mesh is {total:g}: the map is {what}; a fixed-boundary untangling needs the boundary "
-            f"to keep the rest orientation (Garanzha et al.'s code rejects such input too)")
+            f"mesh is {total:g}: the map is {what}, and with the whole boundary fixed no map can "
+            f"change that total (Garanzha et al.'s code rejects such input too); check that the "
+            f"rest and initial meshes belong together")
     return problem, init, orientation, np.ones(3)
 
 

@@ -115,6 +115,22 @@ def test_lim_problem_rejects_collapsed_and_mirrored_maps():
     assert orientation == -1 and _bits_equal(x0, V)
 
 
+def test_lim_problem_accepts_a_negative_total_when_part_of_the_boundary_is_free():
+    """The total signed volume is fixed only when the whole boundary is: a tet whose free
+    apex was pushed through its fixed base has a negative total and is untangled, not refused
+    as mirrored."""
+    P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1]])
+    T = np.array([[0, 1, 2, 3]])
+    init = P * [1.0, 1.0, -1.0]
+    case = {"dim": 3, "rest": P, "init": init, "tets": T, "handles": np.array([0, 1, 2])}
+    problem, x0, orientation, _ = lim_problem(case)
+    assert float(problem.signed_volumes(x0).sum()) < 0 and orientation == 1
+    result = untangle(problem, x0, progress=False)
+    assert result.success and count_inverted(result.x, T) == 0
+    with pytest.raises(MeshError, match="whole boundary fixed"):
+        lim_problem(dict(case, handles=np.arange(4)))
+
+
 # ----------------------------------------------------------------------------- synthetic
 
 
