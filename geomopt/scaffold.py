@@ -553,6 +553,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     t_start = time.perf_counter()
     problem = Problem.surface(V, F)
     objective = Objective(problem, energy, **energy_params)
+    named = solver is None or isinstance(solver, str)
     solver = Newton() if solver is None else get_solver(solver)
     if not (dataclasses.is_dataclass(solver) and hasattr(solver, "max_steps")):
         raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
@@ -561,6 +562,13 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     # quasi-Newton decrement is a poorer estimate: L-BFGS stopped 2.6e-4 high on the spiral)
     rtol = max(solver.rtol, 0.1 * outer_rtol) if isinstance(solver, Newton) else solver.rtol
     inner = dataclasses.replace(solver, max_steps=int(inner_steps), rtol=rtol)
+    if named and inner.search.safety < 0.9:
+        # AQP's and L-BFGS's default search stops a quarter of the way to the first collapse
+        # (it keeps real triangles away from their barrier); the steps the scaffold blocks are
+        # its own air triangles', which the next scaffold replaces: at 0.25 L-BFGS on the spiral
+        # hit max_outer (100), at 0.9 it converged in 59 outer iterations.  A search passed in
+        # a solver object is kept.
+        inner = dataclasses.replace(inner, search=dataclasses.replace(inner.search, safety=0.9))
     loop = check_disk(problem.input_simplices, problem.n_vertices)
     if x0 is None:
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
