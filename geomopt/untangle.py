@@ -318,11 +318,26 @@ def untangle(
     active = free[S].any(axis=1)
     if isinstance(solver, str):
         solver = default_solver(solver, d, int(active.sum()))
+    if initially and problem.fixed.size:
+        # with every boundary vertex a handle the total signed size is the same for every map;
+        # an injective map needs it positive (it is then the sum of positive sizes)
+        vols = problem.signed_volumes(x0)
+        total = math.fsum(vols)
+        if (total <= 1e-12 * float(np.abs(vols).sum())
+                and np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all()):
+            what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
+            return _early_result(
+                problem, x0, initially, t_setup, throw,
+                f"the fixed boundary encloses a total signed {'area' if d == 2 else 'volume'} of "
+                f"{total:g}: it is {what}, and with every boundary vertex fixed no map can change "
+                f"that total, so none is injective; mirror the handle positions or free part of "
+                f"the boundary")
     if initially and not active.all():  # elements that cannot move: one inverted = infeasible
         dead = int(np.count_nonzero(_orient_bad(x0, S[~active])))
         if dead:
-            return _early_result(problem, x0, initially, t_setup, dead, throw)
-
+            return _early_result(problem, x0, initially, t_setup, throw,
+                                 f"{dead} inverted element(s) have every vertex fixed: no map with "
+                                 f"these handles is injective")
     # ---- normalise: map by a power of two into a box of size ~BOX, rest to the map's volume
     span = float(np.max(x0.max(axis=0) - x0.min(axis=0)))
     k = _power_of_two(BOX / span) if span > 0 else 1.0
@@ -438,9 +453,7 @@ def _orient_bad(x, S):
     return simplex_orientations(x, S) != 1
 
 
-def _early_result(problem, x0, initially, t_setup, dead, throw):
-    reason = (f"{dead} inverted element(s) have every vertex fixed: no map with these handles "
-              f"is injective")
+def _early_result(problem, x0, initially, t_setup, throw, reason):
     vols = problem.signed_volumes(x0)
     result = UntangleResult(
         x=x0, outcome=Outcome.NOT_INJECTIVE, inverted=initially, initially_inverted=initially,

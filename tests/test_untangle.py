@@ -196,6 +196,26 @@ def test_infeasible_reports_and_throws():
         untangle(problem, x0, progress=False, throw=True)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_mirrored_fixed_boundary_refused_at_once(dim):
+    """Every boundary vertex fixed, boundary mirrored: no injective map; said at once, not after
+    max_outer iterations (it ran 200 outer iterations to 'outer-iteration limit' before)."""
+    V, S = G.disk_mesh(4) if dim == 2 else G.box_mesh(3, 3, 3)
+    bnd = G.boundary_vertices(S, len(V))
+    x0 = V.copy()
+    x0[:, 0] = -x0[:, 0]
+    make = Problem.planar if dim == 2 else Problem.tets
+    problem = make(V, S, bnd, x0[bnd])
+    result = untangle(problem, x0, progress=False)
+    assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
+    assert result.outer_iterations == 0 and "mirrored" in result.message
+    with pytest.raises(SolveError, match="no map can change"):
+        untangle(problem, x0, progress=False, throw=True)
+    # one boundary vertex free: the total is no longer fixed, so no refusal at setup
+    free_one = make(V, S, bnd[1:], x0[bnd[1:]])
+    assert "mirrored" not in untangle(free_one, x0, progress=False, max_outer=1).message
+
+
 def test_bad_arguments():
     t = G.rotated_interior(*G.square_mesh(4), 90.0)
     with pytest.raises(ParameterError):
