@@ -247,3 +247,34 @@ def count_inverted(X, S, orientation: int = 1) -> int:
     if isinstance(orientation, (bool, np.bool_)) or orientation not in (1, -1):
         raise ParameterError(f"orientation must be +1 or -1, got {orientation!r}")
     return int(np.count_nonzero(simplex_orientations(X, S) != orientation))
+
+
+def vertex_windings(X, F) -> np.ndarray:
+    """How many times the triangles around each vertex wind around it, exactly.
+
+    For a map with every triangle positively oriented, an interior vertex whose fan winds
+    ``k > 1`` times is a branch point (angle sum ``2 pi k``): no triangle is inverted, yet the
+    map is not locally injective there (the fan covers a neighbourhood ``k`` times).
+
+    Each corner ``(v, a, b)`` of a counter-clockwise triangle is counted when its angular
+    sector ``[a - v, b - v)`` contains the direction ``+x``, that is when ``a_y <= v_y < b_y``
+    (exact float comparisons; valid for positively oriented triangles only).
+
+    Parameters
+    ----------
+    X : (n, 2) float array, the map.
+    F : (m, 3) int array, triangles positively oriented under ``X``.
+
+    Returns
+    -------
+    windings : (n,) int64; 1 at every interior vertex of a locally injective map.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    out = np.zeros(len(X), dtype=np.int64)
+    y = X[:, 1]
+    for k in range(3):
+        v, a, b = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
+        hit = (y[a] <= y[v]) & (y[v] < y[b])
+        np.add.at(out, v[hit], 1)
+    return out

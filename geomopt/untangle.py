@@ -425,6 +425,19 @@ def untangle(
     moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
     if outcome is Outcome.CONVERGED and (inverted or moved):
         outcome = Outcome.NOT_INJECTIVE
+    branches = 0
+    if d == 2 and not inverted:  # every triangle positive: an interior fan may still wind twice
+        from .predicates import vertex_windings
+
+        interior = np.ones(problem.n_vertices, dtype=bool)
+        interior[boundary_vertices(S, problem.n_vertices)] = False
+        branches = int(np.count_nonzero(vertex_windings(out, S)[interior] != 1))
+        if branches and outcome is Outcome.CONVERGED:
+            outcome = Outcome.NOT_INJECTIVE
+            reason = (f"no triangle is inverted, but {branches} interior vertex(es) are branch "
+                      f"points (their triangles wind around them more than once): the map is not "
+                      f"locally injective; the fixed boundary probably winds more than once, "
+                      f"check the handle positions")
     vols = problem.signed_volumes(out)
     result = UntangleResult(
         x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
@@ -434,7 +447,7 @@ def untangle(
         min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
         info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
               "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
-              "active_elements": int(active.sum())},
+              "active_elements": int(active.sum()), "branch_vertices": branches},
     )
     if throw and not result.success:
         raise SolveError(f"untangling failed: {result.message}", result)

@@ -216,6 +216,30 @@ def test_mirrored_fixed_boundary_refused_at_once(dim):
     assert "mirrored" not in untangle(free_one, x0, progress=False, max_outer=1).message
 
 
+def test_boundary_winding_twice_is_not_success():
+    """A fixed boundary that winds twice has no locally injective map; untangling reaches every
+    triangle positive around a branch vertex (angle sum 4 pi), which was reported as success."""
+    from geomopt.predicates import vertex_windings
+
+    V, F = G.disk_mesh(10)
+    t = G.random_interior(V, F, seed=5)
+    bnd = G.boundary_vertices(F, len(V))
+    ang = np.arctan2(V[bnd, 1], V[bnd, 0])
+    r = 1.0 + 0.5 * np.cos(7.0 * ang)
+    x0 = t.x0.copy()
+    x0[bnd] = np.c_[np.cos(2.0 * ang) * r, np.sin(2.0 * ang) * r]
+    interior = np.setdiff1d(np.arange(len(V)), bnd)
+    assert (vertex_windings(V, F)[interior] == 1).all()
+    Vs, Fs = G.square_mesh(5)  # grid: neighbours at exactly the vertex's height (half-open sectors)
+    inner_s = np.setdiff1d(np.arange(len(Vs)), G.boundary_vertices(Fs, len(Vs)))
+    assert (vertex_windings(Vs, Fs)[inner_s] == 1).all()
+    result = untangle(Problem.planar(V, F, bnd, x0[bnd]), x0, progress=False)
+    assert result.inverted == 0  # the local predicate alone is satisfied...
+    assert (vertex_windings(result.x, F)[interior] > 1).any()
+    assert not result.success and result.outcome is Outcome.NOT_INJECTIVE  # ...but no success
+    assert "branch" in result.message and result.info["branch_vertices"] >= 1
+
+
 def test_bad_arguments():
     t = G.rotated_interior(*G.square_mesh(4), 90.0)
     with pytest.raises(ParameterError):
