@@ -10,8 +10,10 @@ from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from .problem import Problem
 from .solvers import Newton, Result, get_solver, minimize
+from .certify import polygon_crossings, polygon_orientation
+from .predicates import branch_vertices
 from .topology import check_disk
-from .tutte import tutte_embedding
+from .tutte import circle_boundary, tutte_embedding
 
 
 def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
@@ -109,7 +111,10 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    if inverted and source != "the Tutte start map":
+    # a flip-free map can still wind twice around an interior vertex (a branch point): no
+    # flip-free step removes it, so it is repaired like a fold
+    branched = not inverted and source != "the Tutte start map" and len(branch_vertices(x0, problem.simplices))
+    if (inverted or branched) and source != "the Tutte start map":
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired
@@ -252,7 +257,9 @@ def projection_map(V, F) -> np.ndarray:
 
 
 def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
-    """Repair a folded map with a free boundary: Garanzha et al.'s untangling with no handle.
+    """Repair a folded map: Garanzha et al.'s untangling with the boundary held on a simple
+    polygon (the map's own boundary when it is one, else a circle), which is freed afterwards by
+    the parameterization.
 
     Parameters
     ----------
@@ -276,4 +283,23 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
                         "repair from; give a start map that is not collapsed to a line or point")
     if total < 0:
         x0 = x0 * [-1.0, 1.0]
-    return untangle(problem, x0, solver=solver, theta=theta, progress=progress, **options)
+    # untangled with a free boundary, a map can end with every triangle positive around a vertex
+    # whose fan winds twice (a branch point), which flip-free steps never remove; with the
+    # boundary fixed to a simple counter-clockwise polygon a flip-free map is a bijection onto
+    # it.  So the boundary is fixed: where it is, when it is such a polygon, else (or when that
+    # fails) on a circle by rest arc length spanning the map's extent, around its centroid.  The
+    # parameterization frees it afterwards.
+    loop = check_disk(problem.input_simplices, problem.n_vertices)
+    boundaries = []
+    if len(polygon_crossings(x0[loop])) == 0 and polygon_orientation(x0[loop]) == 1:
+        boundaries.append(x0[loop])
+    radius = 0.5 * float(np.max(x0.max(axis=0) - x0.min(axis=0)))  # a folded map's area means little
+    boundaries.append(x0.mean(axis=0) + radius * circle_boundary(problem.rest_vertices, loop))
+    for B in boundaries:
+        start = x0.copy()
+        start[loop] = B
+        res = untangle(problem.with_fixed(loop, B), start, solver=solver, theta=theta,
+                       progress=progress, **options)
+        if res.success:
+            break
+    return dataclasses.replace(res, initially_inverted=problem.count_inverted(x0))  # the map given

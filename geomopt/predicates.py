@@ -278,3 +278,23 @@ def vertex_windings(X, F) -> np.ndarray:
         hit = (y[a] <= y[v]) & (y[v] < y[b])
         np.add.at(out, v[hit], 1)
     return out
+
+
+def branch_vertices(X, F) -> np.ndarray:
+    """Interior vertices of a 2D map with every triangle positive whose fan winds around them
+    more than once (:func:`vertex_windings` != 1): where the map is not locally injective.
+
+    Parameters
+    ----------
+    X : (n, 2) float array;  F : (m, 3) int array, positively oriented under ``X``.
+
+    Returns
+    -------
+    (k,) int64 vertex ids, sorted.
+    """
+    from .topology import boundary_vertices
+
+    X = np.asarray(X, dtype=np.float64)
+    interior = np.ones(len(X), dtype=bool)
+    interior[boundary_vertices(F, len(X))] = False
+    return np.flatnonzero(interior & (vertex_windings(X, F) != 1))

@@ -92,7 +92,7 @@ def tutte_weights(V, F, weights: str = "uniform") -> sp.csr_matrix:
     return sp.csr_matrix((np.concatenate([w1.ravel(), w2.ravel()]), (rows, cols)), shape=(n, n))
 
 
-def _circle(V: np.ndarray, loop: np.ndarray) -> np.ndarray:
+def circle_boundary(V: np.ndarray, loop: np.ndarray) -> np.ndarray:
     """Boundary positions on the unit circle by cumulative arc length, ``(k, 2)``."""
     seg = np.linalg.norm(V[np.roll(loop, -1)] - V[loop], axis=1)
     if not (seg > 0).all():
@@ -163,7 +163,7 @@ def tutte_embedding(V, F, weights: str = "uniform", boundary=None) -> np.ndarray
             raise MeshError(f"{unused} vertices are not used by any face; remove them first")
 
     UV = np.zeros((n, 2))
-    UV[loop] = _circle(V, loop)
+    UV[loop] = circle_boundary(V, loop)
     is_interior = np.ones(n, dtype=bool)
     is_interior[loop] = False
     interior = np.flatnonzero(is_interior)

@@ -40,7 +40,7 @@ does.  Elements whose vertices are all fixed are left out of the inner energy (b
 at the end (bit-exact), and the result is certified with the exact orientation predicate
 (:mod:`geomopt.predicates`); in 2D, an interior vertex whose positive triangles wind around it
 more than once (a branch point, :func:`~geomopt.predicates.vertex_windings`) also fails it
-when every boundary vertex is a handle (otherwise it is only counted in ``info``).
+(counted in ``info['branch_vertices']``).
 
 ``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
 once per mesh shape.
@@ -137,8 +137,8 @@ class UntangleResult:
 
     @property
     def success(self) -> bool:
-        """Converged, no inverted element (exact), every handle exactly in place (and in 2D with
-        the whole boundary fixed, no branch vertex; ``info['branch_vertices']`` counts them)."""
+        """Converged, no inverted element (exact), every handle exactly in place and, in 2D, no
+        interior branch vertex (``info['branch_vertices']``)."""
         return self.outcome is Outcome.CONVERGED and self.inverted == 0 and self.handles_moved == 0
 
     @property
@@ -430,20 +430,18 @@ def untangle(
         outcome = Outcome.NOT_INJECTIVE
     branches = 0
     if d == 2 and not inverted:  # every triangle positive: an interior fan may still wind twice
-        from .predicates import vertex_windings
+        from .predicates import branch_vertices
 
-        interior = np.ones(problem.n_vertices, dtype=bool)
-        bnd = boundary_vertices(S, problem.n_vertices)
-        interior[bnd] = False
-        branches = int(np.count_nonzero(vertex_windings(out, S)[interior] != 1))
-        # a free or partly free boundary can also end with branch vertices (e.g. repair_map on
-        # tests/test_freeboundary.py's cases); there they are counted in info, not failed yet
-        if branches and outcome is Outcome.CONVERGED and np.isin(bnd, problem.fixed).all():
+        branches = len(branch_vertices(out, S))
+        if branches and outcome is Outcome.CONVERGED:
             outcome = Outcome.NOT_INJECTIVE
+            hint = ("the fixed boundary probably winds more than once, check the handle positions"
+                    if np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all() else
+                    "flip-free motion cannot remove them; start from a map whose boundary is a simple "
+                    "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
             reason = (f"no triangle is inverted, but {branches} interior vertex(es) are branch "
                       f"points (their triangles wind around them more than once): the map is not "
-                      f"locally injective; the fixed boundary probably winds more than once, "
-                      f"check the handle positions")
+                      f"locally injective; {hint}")
     vols = problem.signed_volumes(out)
     result = UntangleResult(
         x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
