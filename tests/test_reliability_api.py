@@ -474,3 +474,18 @@ def test_small_api_misuses_get_clear_errors():
             untangle(t.problem(), t.x0, energy_tol=bad, progress=False)
     res = untangle(t.problem(), t.x0, max_outer=1, progress=False)  # cannot settle in one
     assert not res.success and "outer-iteration limit (max_outer=1)" in res.message
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # the mean of an empty diagonal warned
+@pytest.mark.parametrize("solver", ["newton", "slim", "cm", "lbfgs", "aqp"])
+def test_every_vertex_a_handle(solver):
+    """No free DOF: the direct-step solvers raised the sparse backend's bare ValueError
+    ('n must be positive'); now every solver returns the handles' map, a success only when it
+    is injective."""
+    V, F = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]])
+    good = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=2.0 * V)
+    r = minimize(Objective(good, "symmetric_dirichlet"), 2.0 * V, solver, progress=False)
+    assert r.success and r.inverted == 0 and np.array_equal(r.x, 2.0 * V)
+    mirrored = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=V[[0, 2, 1]])
+    r = minimize(Objective(mirrored, "symmetric_dirichlet"), V[[0, 2, 1]], solver, progress=False)
+    assert not r.success and r.inverted == 1
