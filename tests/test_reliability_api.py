@@ -489,3 +489,16 @@ def test_every_vertex_a_handle(solver):
     mirrored = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=V[[0, 2, 1]])
     r = minimize(Objective(mirrored, "symmetric_dirichlet"), V[[0, 2, 1]], solver, progress=False)
     assert not r.success and r.inverted == 1
+
+
+@pytest.mark.parametrize("bad", [dict(progress="yes"), dict(progress=2), dict(params=[("lam", 1.0)])])
+def test_progress_and_params_type_refused(bad):
+    """A non-callable progress failed with a bare TypeError at the first report (after the
+    set-up and compilation), a non-mapping params with one from the ** unpacking."""
+    V, F = grid(3)
+    problem = Problem.planar(V, F)
+    with pytest.raises(ParameterError, match="progress must be|params must be"):
+        minimize(Objective(problem, "symmetric_dirichlet"), V, "lbfgs", **bad)
+    if "progress" in bad:
+        with pytest.raises(ParameterError, match="untangle: progress must be"):
+            untangle(problem, V, **bad)
