@@ -502,3 +502,17 @@ def test_progress_and_params_type_refused(bad):
     if "progress" in bad:
         with pytest.raises(ParameterError, match="untangle: progress must be"):
             untangle(problem, V, **bad)
+
+
+def test_parameterize_progress_callable_with_folded_start():
+    """parameterize forwarded a minimize-style progress callable to the repair's untangle,
+    whose callback takes other arguments: TypeError on any folded start."""
+    V, F = grid(6)
+    x0 = V.copy()
+    x0[7] += [0.5, 0.4]  # folds the triangles around vertex 7
+    energies = []
+    r = parameterize(np.c_[V, _bumpy(V)], F, x0=x0, progress=lambda state, elapsed, e: energies.append(e))
+    assert r.info["repair"] is not None and r.success and r.inverted == 0
+    assert len(energies) == r.iterations
+    with pytest.raises(ParameterError, match="parameterize: progress must be"):
+        parameterize(np.c_[V, _bumpy(V)], F, progress="yes")
