@@ -122,6 +122,8 @@ class SparseCholesky:
 
     def analyze(self):
         """Symbolic analysis (fill-reducing ordering) of the pattern, for backends that reuse it."""
+        if self.n == 0:  # no free DOF (every vertex a handle): nothing to factor, backends refuse n=0
+            return
         if self.backend == "pardiso" and self._analysis is None:
             from pymklpardiso import MTYPE_REAL_SYM_POSDEF
             from pymklpardiso._mkl_pardiso import PardisoSolver
@@ -143,6 +145,9 @@ class SparseCholesky:
         data = np.ascontiguousarray(data, dtype=np.float64)
         if not np.isfinite(data).all():
             raise NotPositiveDefinite("matrix has non-finite entries")
+        if self.n == 0:
+            self._factor = None
+            return
         if self.backend == "pardiso":
             self.analyze()
             try:
@@ -177,6 +182,8 @@ class SparseCholesky:
 
     def solve(self, b):
         b = np.ascontiguousarray(b, dtype=np.float64)
+        if self.n == 0:
+            return np.zeros_like(b)
         if self.backend == "pardiso":
             x = self._factor.solve(b)
         elif self.backend == "cholespy":

@@ -12,6 +12,7 @@ from .problem import Problem
 from .solvers import Newton, Result, get_solver, minimize
 from .certify import polygon_crossings, polygon_orientation
 from .predicates import branch_vertices
+from .solvers._base import check_progress
 from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
 
@@ -183,7 +184,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         (n, 2) array (e.g. a UV map made elsewhere).  A start with folded triangles is first
         repaired with a free boundary (:func:`repair_map`: Garanzha et al.'s regularised energy,
         eps driven to 0, no vertex fixed), then the chosen energy is minimised from there.
-    progress, throw : see :func:`~geomopt.solvers.minimize`.
+    progress, throw : see :func:`~geomopt.solvers.minimize`.  A callable sees the minimisation
+        only: the repair of a folded start reports (as :func:`~geomopt.untangle.untangle` does)
+        only with ``progress=True``.
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
         :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
         Either way ``info["certificate"]`` is the exact global certificate
@@ -207,6 +210,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     """
     V, F = mesh_arrays(V, F)
     check_scale_aware(energy, energy_params)
+    check_progress(progress, "parameterize")
     if bijective:
         from .scaffold import bijective_parameterize
 
@@ -218,7 +222,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
     objective = Objective(problem, energy, buckets=buckets, **energy_params)
-    x0, s, repaired = start_map(objective, x0, weights, progress)
+    # untangle's callback has another signature than minimize's: only True goes to the repair
+    x0, s, repaired = start_map(objective, x0, weights, progress is True)
     if x0 is None:
         result = Result(x=repaired.x, outcome=repaired.outcome, inverted=repaired.inverted,
                         energy=float("nan"), energy_history=np.zeros(0), iterations=0,

@@ -67,6 +67,7 @@ from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem
 from .solvers import LBFGS, AbstractSolver, Newton, Outcome
+from .solvers._base import check_progress
 from .topology import boundary_vertices
 
 __all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
@@ -311,6 +312,7 @@ def untangle(
         raise ParameterError(f"need 0 < min_sigma <= max_sigma < 1, got {min_sigma}, {max_sigma}")
     if not (isinstance(solver, (str, AbstractSolver))):
         raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
+    check_progress(progress, "untangle")
     lam = theta / (1.0 - theta)
     report = _Progress() if progress is True else (progress or None)
 

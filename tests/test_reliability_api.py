@@ -474,3 +474,45 @@ def test_small_api_misuses_get_clear_errors():
             untangle(t.problem(), t.x0, energy_tol=bad, progress=False)
     res = untangle(t.problem(), t.x0, max_outer=1, progress=False)  # cannot settle in one
     assert not res.success and "outer-iteration limit (max_outer=1)" in res.message
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # the mean of an empty diagonal warned
+@pytest.mark.parametrize("solver", ["newton", "slim", "cm", "lbfgs", "aqp"])
+def test_every_vertex_a_handle(solver):
+    """No free DOF: the direct-step solvers raised the sparse backend's bare ValueError
+    ('n must be positive'); now every solver returns the handles' map, a success only when it
+    is injective."""
+    V, F = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]])
+    good = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=2.0 * V)
+    r = minimize(Objective(good, "symmetric_dirichlet"), 2.0 * V, solver, progress=False)
+    assert r.success and r.inverted == 0 and np.array_equal(r.x, 2.0 * V)
+    mirrored = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=V[[0, 2, 1]])
+    r = minimize(Objective(mirrored, "symmetric_dirichlet"), V[[0, 2, 1]], solver, progress=False)
+    assert not r.success and r.inverted == 1
+
+
+@pytest.mark.parametrize("bad", [dict(progress="yes"), dict(progress=2), dict(params=[("lam", 1.0)])])
+def test_progress_and_params_type_refused(bad):
+    """A non-callable progress failed with a bare TypeError at the first report (after the
+    set-up and compilation), a non-mapping params with one from the ** unpacking."""
+    V, F = grid(3)
+    problem = Problem.planar(V, F)
+    with pytest.raises(ParameterError, match="progress must be|params must be"):
+        minimize(Objective(problem, "symmetric_dirichlet"), V, "lbfgs", **bad)
+    if "progress" in bad:
+        with pytest.raises(ParameterError, match="untangle: progress must be"):
+            untangle(problem, V, **bad)
+
+
+def test_parameterize_progress_callable_with_folded_start():
+    """parameterize forwarded a minimize-style progress callable to the repair's untangle,
+    whose callback takes other arguments: TypeError on any folded start."""
+    V, F = grid(6)
+    x0 = V.copy()
+    x0[7] += [0.5, 0.4]  # folds the triangles around vertex 7
+    energies = []
+    r = parameterize(np.c_[V, _bumpy(V)], F, x0=x0, progress=lambda state, elapsed, e: energies.append(e))
+    assert r.info["repair"] is not None and r.success and r.inverted == 0
+    assert len(energies) == r.iterations
+    with pytest.raises(ParameterError, match="parameterize: progress must be"):
+        parameterize(np.c_[V, _bumpy(V)], F, progress="yes")

@@ -26,13 +26,14 @@ import enum
 import math
 import sys
 import time
+from collections.abc import Mapping
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import SolveError
+from .._errors import ParameterError, SolveError
 from .._config import Instance, Int, Real, validate
 from ..linesearch import InjectiveSearch
 
@@ -283,6 +284,14 @@ def _grad_norm(state) -> float:
     return float(np.linalg.norm(np.asarray(state.grad))) if state.grad is not None else float("nan")
 
 
+def check_progress(progress, where="minimize"):
+    """Refuse a ``progress`` argument that is neither a bool nor a callable (it used to fail
+    with a bare TypeError at the first report, after the set-up and compilation)."""
+    if not (isinstance(progress, (bool, np.bool_)) or progress is None or callable(progress)):
+        raise ParameterError(f"{where}: progress must be True, False or a callable (see its "
+                             f"docstring), got {progress!r}")
+
+
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
              throw: bool = False) -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
@@ -306,6 +315,10 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     from . import get_solver
 
     solver = get_solver("newton" if solver is None else solver)
+    check_progress(progress)
+    if params is not None and not isinstance(params, Mapping):
+        raise ParameterError(f"minimize: params must be a mapping of energy parameter names to values "
+                             f"(e.g. {{'lam': 1.0}}) or None, got {type(params).__name__}")
     problem = objective.problem
     x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._padding
     params = objective.params(**(params or {}))

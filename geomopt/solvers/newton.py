@@ -126,7 +126,7 @@ class Newton(AbstractSolver):
         value, grad, data = obj.hessian(state.x, state.params, projection)
         data = np.array(data)
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
-        scale = max(float(np.mean(np.abs(data[pat.diag]))), 1e-300)
+        scale = max(float(np.mean(np.abs(data[pat.diag]))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
         for shift in shifts:
             try:
                 d_ = data.copy()
