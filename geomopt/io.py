@@ -1449,11 +1449,14 @@ def _read_stl(data, path):
         return _weld(corners.astype(np.float64))
     if looks_ascii:
         return _weld(_stl_ascii_corners(data, path))
+    # many binary STL headers begin with 'solid' too: then it is the binary bytes that rule out ASCII
+    not_ascii = ("it starts with 'solid' but holds binary bytes" if text.lstrip()[:5].lower() == b"solid"
+                 else "it does not start with 'solid'")
     if binary_size is None:
-        raise MeshFormatError(f"{path} is too short ({len(data)} bytes) for a binary STL and does not start "
-                              f"with 'solid'; it is not an STL file")
+        raise MeshFormatError(f"{path} is too short ({len(data)} bytes) for a binary STL and is not ASCII STL "
+                              f"({not_ascii}); it is not an STL file")
     raise MeshFormatError(
-        f"{path} is not ASCII STL (it does not start with 'solid') and not a valid binary STL: its header "
+        f"{path} is not ASCII STL ({not_ascii}) and not a valid binary STL: its header "
         f"declares {(binary_size - 84) // 50} triangles = {binary_size} bytes, but the file has {len(data)} "
         f"bytes (truncated, or trailing data)")
 
