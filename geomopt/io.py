@@ -126,15 +126,19 @@ def _temp_path(path):
     return path.with_name(f".{name}.{secrets.token_hex(6)}.tmp")
 
 
-def _output_problem(path, what):
+def _output_problem(path, what, extensions=None):
     """Why ``path`` cannot be an output file, or ``None``; creates nothing.
+
+    ``extensions`` (as in :func:`check_output_path`) picks the example file name that a
+    message suggests; without it the example keeps ``path``'s own extension.
 
     An output must be a regular file or not exist; its folder must exist and be writable;
     its name (and the temporary name beside it) must fit the file system.
     """
     text = os.fspath(path)
+    example = "out" + (extensions[0] if extensions else (Path(text).suffix or ".obj"))
     if text == "" or text.endswith(("/", os.sep)):
-        return f"{what} {text!r} names a folder; give a file name (e.g. {os.path.join(text or '.', 'out.obj')})"
+        return f"{what} {text!r} names a folder; give a file name (e.g. {os.path.join(text or '.', example)})"
     path = Path(path)
     try:
         mode = os.lstat(path).st_mode
@@ -148,7 +152,7 @@ def _output_problem(path, what):
                     f"({len(os.fsencode(path.name))} bytes); choose a shorter name")
         return f"cannot access {what} {path} ({_one_line(exc)}); check the path"
     if mode is not None and stat.S_ISDIR(mode):
-        return f"{what} {path} is a directory; give a file name (e.g. {path / 'out.obj'})"
+        return f"{what} {path} is a directory; give a file name (e.g. {path / example})"
     if mode is not None and not stat.S_ISREG(mode):
         return (f"{what} {path} is {_file_kind(mode)}, not a regular file; geomopt replaces its output "
                 f"files, so give the path of a regular file or of one that does not exist yet")
@@ -214,7 +218,7 @@ def check_output_path(path, extensions=None, what="output"):
         its folder does not exist or is not writable (permissions, read-only file system),
         or its name is too long for the file system.
     """
-    problem = _output_problem(path, what)
+    problem = _output_problem(path, what, extensions)
     if problem:
         raise GeomoptError(problem)
     path = Path(path)
@@ -1445,11 +1449,14 @@ def _read_stl(data, path):
         return _weld(corners.astype(np.float64))
     if looks_ascii:
         return _weld(_stl_ascii_corners(data, path))
+    # many binary STL headers begin with 'solid' too: then it is the binary bytes that rule out ASCII
+    not_ascii = ("it starts with 'solid' but holds binary bytes" if text.lstrip()[:5].lower() == b"solid"
+                 else "it does not start with 'solid'")
     if binary_size is None:
-        raise MeshFormatError(f"{path} is too short ({len(data)} bytes) for a binary STL and does not start "
-                              f"with 'solid'; it is not an STL file")
+        raise MeshFormatError(f"{path} is too short ({len(data)} bytes) for a binary STL and is not ASCII STL "
+                              f"({not_ascii}); it is not an STL file")
     raise MeshFormatError(
-        f"{path} is not ASCII STL (it does not start with 'solid') and not a valid binary STL: its header "
+        f"{path} is not ASCII STL ({not_ascii}) and not a valid binary STL: its header "
         f"declares {(binary_size - 84) // 50} triangles = {binary_size} bytes, but the file has {len(data)} "
         f"bytes (truncated, or trailing data)")
 

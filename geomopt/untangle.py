@@ -479,7 +479,8 @@ def _early_result(problem, x0, initially, t_setup, throw, reason):
         handles_moved=0, outer_iterations=0, inner_iterations=0, seconds=0.0,
         setup_seconds=time.perf_counter() - t_setup, min_det_rel=_min_rel(vols),
         energy_history=np.zeros(0), eps_history=np.zeros(0), min_det_history=np.zeros(0),
-        inverted_history=np.zeros(0, np.int64), info={"reason": reason},
+        inverted_history=np.zeros(0, np.int64),
+        info={"reason": reason, "elements": problem.n_elements},
     )
     if throw:
         raise SolveError(f"untangling failed: {reason}", result)

@@ -273,6 +273,21 @@ def test_read_mesh_missing_directory_and_multi_mesh(tmp_path):
         read_mesh(write(tmp_path / "two.stl", two))
 
 
+def test_binary_stl_with_a_solid_header_and_a_wrong_count_is_described_truly(tmp_path):
+    """Its header starts with 'solid' (common); the refusal said it did not."""
+    record = np.zeros(1, [("n", "<f4", 3), ("c", "<f4", (3, 3)), ("a", "<u2")])
+    record["c"] = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    header = b"solid exported by some CAD".ljust(80, b" ")
+    for count in (2, 0):  # declares 2 (or 0) triangles, holds 1
+        data = header + np.uint32(count).tobytes() + record.tobytes()
+        with pytest.raises(MeshFormatError, match="starts with 'solid' but holds binary bytes"):
+            read_mesh(write(tmp_path / "wrong.stl", data))
+    with pytest.raises(MeshFormatError, match="does not start with 'solid'"):
+        read_mesh(write(tmp_path / "wrong.stl", b"x" * 80 + np.uint32(2).tobytes() + record.tobytes()))
+    with pytest.raises(MeshFormatError, match="too short.*starts with 'solid' but holds binary"):
+        read_mesh(write(tmp_path / "short.stl", b"solid \x00\x01"))
+
+
 @pytest.mark.parametrize(
     "text, word",
     [

@@ -64,6 +64,17 @@ def test_check_output_path_refuses_what_is_not_a_regular_file_and_creates_nothin
     assert snapshot(tmp_path) == before  # the checks of good paths create nothing either
 
 
+def test_a_folder_given_as_output_gets_an_example_name_of_the_right_kind(tmp_path):
+    """The suggested file name has an allowed extension (it said 'out.obj' for a picture)."""
+    (tmp_path / "pics.png").mkdir()
+    for path, example in ((tmp_path / "pics.png", "pics.png/out.png"), (f"{tmp_path}/", "/out.png")):
+        with pytest.raises(GeomoptError) as info:
+            check_output_path(path, (".png", ".pdf", ".svg"), what="--png picture")
+        assert example in str(info.value) and "out.obj" not in str(info.value)
+    with pytest.raises(GeomoptError, match=r"pics\.png/out\.png"):  # no list: the path's own extension
+        check_output_path(tmp_path / "pics.png")
+
+
 def test_check_output_path_names_and_extensions(tmp_path):
     with pytest.raises(GeomoptError, match="name too long for the file system"):
         check_output_path(tmp_path / ("x" * 300 + ".obj"))

@@ -192,6 +192,7 @@ def test_infeasible_reports_and_throws():
     result = untangle(problem, x0, progress=False)
     assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
     assert "every vertex fixed" in result.message
+    assert result.info["elements"] == len(F)  # the CLI summary prints it (it printed '?')
     with pytest.raises(SolveError):
         untangle(problem, x0, progress=False, throw=True)
 
