@@ -136,7 +136,7 @@ def cmd_param(args) -> int:
         raise _for_the_command_line(exc, args) from exc
     rep = res.info.get("repair")
     if rep is not None:
-        _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s) with a free boundary: "
+        _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
                    f"{rep.outer_iterations} outer iterations, {rep.seconds:.2f} s, "
                    f"{'certified' if rep.success else 'not certified: ' + rep.message}")
     if rep is not None and not rep.success:

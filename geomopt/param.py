@@ -74,8 +74,8 @@ def _check_misplaced_settings(energy, solver, energy_params):
 def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
 
-    A Tutte embedding, the plane projection or a given map; a folded one (other than Tutte)
-    repaired with a free boundary (:func:`repair_map`); then centred, scaled to the rest
+    A Tutte embedding, the plane projection or a given map; a folded one (other than Tutte, or
+    one with branch points) repaired (:func:`repair_map`); then centred, scaled to the rest
     surface area and by :func:`optimal_scale` for the objective's energy.
 
     Parameters
@@ -182,8 +182,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         topological disk, :func:`~geomopt.topology.check_disk`), ``"projection"`` (the best-fit
         plane projection, :func:`projection_map`: folded wherever the surface turns over), or an
         (n, 2) array (e.g. a UV map made elsewhere).  A start with folded triangles is first
-        repaired with a free boundary (:func:`repair_map`: Garanzha et al.'s regularised energy,
-        eps driven to 0, no vertex fixed), then the chosen energy is minimised from there.
+        repaired (:func:`repair_map`: Garanzha et al.'s regularised energy, eps driven to 0, the
+        boundary held on a simple polygon), then the chosen energy is minimised from there.
     progress, throw : see :func:`~geomopt.solvers.minimize`.  A callable sees the minimisation
         only: the repair of a folded start reports (as :func:`~geomopt.untangle.untangle` does)
         only with ``progress=True``.
