@@ -114,8 +114,7 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     inverted = problem.count_inverted(x0)
     # a flip-free map can still wind twice around an interior vertex (a branch point): no
     # flip-free step removes it, so it is repaired like a fold
-    branched = not inverted and source != "the Tutte start map" and len(branch_vertices(x0, problem.simplices))
-    if (inverted or branched) and source != "the Tutte start map":
+    if source != "the Tutte start map" and (inverted or len(branch_vertices(x0, problem.simplices))):
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired

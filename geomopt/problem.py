@@ -19,14 +19,15 @@ two elements).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from ._errors import MeshError
 from .io import validate_indices, validate_simplices, validate_vertices
-from .topology import nonmanifold_facets, same_side_facets
+from .topology import boundary_vertices, nonmanifold_facets, same_side_facets
 
-__all__ = ["Problem", "check_initial_orientation"]
+__all__ = ["Problem", "check_initial_orientation", "fixed_total_problem"]
 
 
 def _local_frames(V, F):
@@ -309,3 +310,25 @@ def check_initial_orientation(problem: Problem, x0) -> float:
             f"coordinate) or check that the rest and initial meshes belong together"
         )
     return total
+
+
+def fixed_total_problem(problem: Problem, x) -> str | None:
+    """Why no injective map exists when every boundary vertex is a handle and ``x``'s total
+    signed area/volume is not positive, or None.
+
+    With the whole boundary fixed that total is the same for every map, and an injective map
+    (every element positive) needs it positive; with part of the boundary free the free
+    vertices can change it, so nothing is said then.
+    """
+    if not problem.fixed.size:
+        return None
+    vols = problem.signed_volumes(x)
+    total = math.fsum(vols)
+    if total > 1e-12 * float(np.abs(vols).sum()):
+        return None
+    if not np.isin(boundary_vertices(problem.simplices, problem.n_vertices), problem.fixed).all():
+        return None
+    what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
+    return (f"the fixed boundary encloses a total signed {'area' if problem.dim == 2 else 'volume'} "
+            f"of {total:g}: the map is {what}, and with the whole boundary fixed no map can "
+            f"change that total, so none is injective")

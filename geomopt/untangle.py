@@ -65,7 +65,7 @@ from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
-from .problem import Problem
+from .problem import Problem, fixed_total_problem
 from .solvers import LBFGS, AbstractSolver, Newton, Outcome
 from .solvers._base import check_progress
 from .topology import boundary_vertices
@@ -323,20 +323,10 @@ def untangle(
     active = free[S].any(axis=1)
     if isinstance(solver, str):
         solver = default_solver(solver, d, int(active.sum()))
-    if initially and problem.fixed.size:
-        # with every boundary vertex a handle the total signed size is the same for every map;
-        # an injective map needs it positive (it is then the sum of positive sizes)
-        vols = problem.signed_volumes(x0)
-        total = math.fsum(vols)
-        if (total <= 1e-12 * float(np.abs(vols).sum())
-                and np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all()):
-            what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
-            return _early_result(
-                problem, x0, initially, t_setup, throw,
-                f"the fixed boundary encloses a total signed {'area' if d == 2 else 'volume'} of "
-                f"{total:g}: it is {what}, and with every boundary vertex fixed no map can change "
-                f"that total, so none is injective; mirror the handle positions or free part of "
-                f"the boundary")
+    why = fixed_total_problem(problem, x0) if initially else None
+    if why:
+        return _early_result(problem, x0, initially, t_setup, throw,
+                             f"{why}; mirror the handle positions or free part of the boundary")
     if initially and not active.all():  # elements that cannot move: one inverted = infeasible
         dead = int(np.count_nonzero(_orient_bad(x0, S[~active])))
         if dead:
@@ -556,16 +546,10 @@ def lim_problem(case):
     # rest tets all negative in the input order: Problem.tets swapped two vertices of each
     orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
     init = np.asarray(case["init"], dtype=np.float64)
-    total = float(problem.signed_volumes(init).sum())  # in the rest orientation
-    # with every boundary vertex fixed the total is the same for every map: not positive = no
-    # untangled map exists; with part of the boundary free, the free vertices can restore it
-    if not total > 0 and np.isin(boundary_vertices(problem.simplices, problem.n_vertices), H).all():
-        what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
-        raise MeshError(
-            f"{case.get('path', 'the case')}: the start map's total signed volume relative to the rest "
-            f"mesh is {total:g}: the map is {what}, and with the whole boundary fixed no map can "
-            f"change that total (Garanzha et al.'s code rejects such input too); check that the "
-            f"rest and initial meshes belong together")
+    why = fixed_total_problem(problem, init)  # in the rest orientation
+    if why:
+        raise MeshError(f"{case.get('path', 'the case')}: {why} (Garanzha et al.'s code rejects such input "
+                        f"too); check that the rest and initial meshes belong together")
     return problem, init, orientation, np.ones(3)
 
 
