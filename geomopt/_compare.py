@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import io
-from ._errors import GeomoptError, MeshError, ParameterError
+from ._errors import MeshError, ParameterError
 from ._objective import Objective
 from .problem import Problem
 from .solvers import CM, Outcome, Progress, Result, get_solver
@@ -159,14 +159,16 @@ class Comparison:
 
     def write(self, out) -> dict:
         """Write ``history.csv``, ``summary.csv``, a map per solver and ``convergence.png``
-        into the folder ``out`` (created if missing), each atomically.
+        into the folder ``out`` (created if missing, not its parents: :func:`geomopt.io.check_outputs`),
+        each atomically.
 
         Returns
         -------
         dict file kind (``"history"``, ``"summary"``, ``"convergence"``, or a solver name) ->
         pathlib.Path.
         """
-        out = _prepare_folder(out, self.output_names())
+        io.check_outputs(_output_names(list(self.results), self.objective.problem.dim, out), folder=out)
+        out = io.create_output_folder(out)
         problem = self.objective.problem
         paths = {"history": out / "history.csv", "summary": out / "summary.csv"}
         _write_csv(paths["history"], HISTORY_COLUMNS, self.history_rows())
@@ -216,8 +218,9 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     max_seconds : float > 0, stop a solver once its solve time (setup excluded) reaches this;
         its outcome is then ``"max_seconds"`` (``Result.outcome`` ``MAX_STEPS``).
     max_steps : int >= 1, iteration limit of every solver (default: each solver's own).
-    out : folder to :meth:`~Comparison.write` the files into; it is created and every output
-        path checked *before* solving.
+    out : folder to :meth:`~Comparison.write` the files into; every output path is checked
+        *before* solving (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``,
+        and the folder's parent must exist), the folder is created after solving.
     progress : True: per-iteration progress and one line per solver on stderr.
 
     Returns
@@ -235,8 +238,9 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     named = _solvers(solvers, problem, max_steps)
     if max_seconds is not None:
         max_seconds = _positive(max_seconds, "max_seconds")
-    if out is not None:
-        _prepare_folder(out, _output_names(list(named), problem.dim))
+    if out is not None:  # before solving; the folder itself is created only to write into it
+        io.check_outputs(_output_names(list(named), problem.dim, out), [mesh] if isinstance(mesh, (str, Path))
+                         else [], folder=out)
     label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, " \
             f"{objective.energy.name}"
     results = {}
@@ -414,24 +418,11 @@ def _positive(value, name) -> float:
 # ------------------------------------------------------------------------------ outputs
 
 
-def _output_names(names, dim):
+def _output_names(names, dim, out=None):
+    """The file names :meth:`Comparison.write` writes (as paths in ``out`` when given)."""
     ext = ".obj" if dim == 2 else ".vtk"
-    return ["history.csv", "summary.csv", "convergence.png"] + [n + ext for n in names]
-
-
-def _prepare_folder(out, names) -> Path:
-    """Create ``out`` (with parents) and check that every file in ``names`` can be written."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise GeomoptError(f"output {out} exists and is not a folder; give a folder path for --out")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); give a folder "
-                           f"path you can write") from exc
-    for name in names:
-        io.check_output_path(out / name)
-    return out
+    names = ["history.csv", "summary.csv", "convergence.png"] + [n + ext for n in names]
+    return names if out is None else [Path(out) / n for n in names]
 
 
 def _write_csv(path, columns, rows):

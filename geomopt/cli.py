@@ -4,8 +4,10 @@ Every failure on bad input (unreadable or invalid mesh, unknown name, invalid va
 that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
 traceback unless ``--debug``); a solve that does not end converged and flip-free (exact
 predicate) exits with status 1 and writes nothing; status 0 means the certified result was
-written.  Every output path (derived ones included) is checked before the input is read: it
-must be a regular file or not exist.  Outputs are written atomically, all of them or none; an
+written.  Every output path (derived ones included) is checked before the input is read, by
+:func:`geomopt.io.check_outputs`: it must be a regular file or not exist, and no output may be an
+input (a command creates or replaces nothing but its named outputs; an output folder is created,
+never its parents).  Outputs are written atomically, all of them or none; an
 interrupt (SIGINT, SIGTERM, SIGHUP) removes the unfinished temporary files and exits with
 status 128 + the signal number.
 """
@@ -77,28 +79,14 @@ def _signals_raise():
             signal.signal(signum, handler)
 
 
-def _output_paths(output, extensions, pictures=(), inputs=()):
-    """Check every output before any work: ``-o`` (``extensions``) and ``pictures`` (with their
-    derived names); they must be distinct and none may be one of the ``inputs`` (writing it would
-    replace what the user asked to read).  Returns the output path."""
+def _output_paths(output, extensions, pictures=(), inputs=(), folder=None):
+    """Check every output before any work (:func:`geomopt.io.check_outputs`): ``-o`` (``extensions``)
+    and ``pictures`` (``(what, path)``, derived names included), in ``folder`` when the command was
+    given an output folder.  Returns the output path."""
     from . import io
-    from ._errors import GeomoptError
 
-    named = [("-o output", output)] + [(what, p) for what, p in pictures]
-    seen = {}
-    for what, p in named:
-        for source in inputs:
-            if os.path.isfile(p) and os.path.isfile(source) and os.path.samefile(p, source):
-                raise GeomoptError(f"{what} {p} is the input file {source}: writing it would replace your "
-                                   "input; give the output another name")
-        key = os.path.join(os.path.realpath(os.path.dirname(os.path.abspath(p))), os.path.basename(p))
-        if key in seen:
-            raise GeomoptError(f"{what} {p} is the same file as the {seen[key]}; give different file names")
-        seen[key] = what
-    out = io.check_output_path(output, extensions, "output")
-    for what, p in pictures:
-        io.check_output_path(p, PICTURE_EXTENSIONS, what)
-    return out
+    files = [("-o output", output, extensions)] + [(what, p, PICTURE_EXTENSIONS) for what, p in pictures]
+    return io.check_outputs(files, inputs, folder)[0]
 
 
 def cmd_param(args) -> int:
@@ -116,7 +104,8 @@ def cmd_param(args) -> int:
     pictures = []
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
-    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input])  # before reading or solving
+    folder = getattr(args, "folder", None)  # demo: the output folder, created only to write into it
+    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
         start = "its own UV start map"
@@ -155,6 +144,8 @@ def cmd_param(args) -> int:
         return _fail(f"not certified: {res.message}")
     if res.injectivity == "local":
         _warn_overlap(res, args)
+    if folder is not None:
+        io.create_output_folder(folder)
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
             _save_param_figures(res, V, F, args.png, outputs, args.solver)
@@ -253,8 +244,7 @@ def _untangle_one(args, folder) -> int:
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
-                  [str(p) for p in Path(folder).iterdir()])
+    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [], [folder])
     case = LimCase.read(folder)
     check_handles(case)
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
@@ -316,16 +306,9 @@ def _save_untangle_figure(case, res, png, format=None):
 
 def cmd_demo(args) -> int:
     """Parameterize the bundled camelhead and write OBJ + UV picture + convergence plot."""
-    from ._errors import GeomoptError
-
     out = Path(args.output)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); "
-                           f"give a folder path") from exc
     data = Path(__file__).with_name("data") / "camelhead.off"
-    ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
+    ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
                             json=args.json, summary=args.summary)

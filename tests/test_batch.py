@@ -260,5 +260,5 @@ def test_a_batch_never_writes_over_a_case_input(cli, tmp_path, monkeypatch):
     write_lim_case(tmp_path / "R" / "input", ts["star"])
     before = {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()}
     code, _, err = cli("untangle", tmp_path / "R" / "input", "-o", str(tmp_path / "R") + "/", "--quiet")
-    assert code == 2 and "is the input file" in err and "replace a case's input" in err, err
+    assert code == 2 and "is a LIM case folder" in err and "replace a case's input" in err, err
     assert {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()} == before

@@ -29,7 +29,8 @@ safety), ``_text`` (tokenizing), ``_surface`` (OBJ/OFF/PLY/STL and the UV writer
 """
 
 from .._validate import validate_indices, validate_simplices, validate_vertices
-from ._atomic import atomic_output, atomic_path, atomic_write, check_output_path
+from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
+                      create_output_folder)
 from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_uv, read_obj_with_uv,
                        write_mesh_with_uv, write_obj_with_uv, write_ply_with_uv)
 from ._text import read_vertex_ids
@@ -43,6 +44,9 @@ __all__ = [
     "atomic_path",
     "atomic_write",
     "check_output_path",
+    "check_outputs",
+    "create_output_folder",
+    "CASE_FILES",
     "validate_vertices",
     "validate_simplices",
     "validate_indices",
