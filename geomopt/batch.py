@@ -303,6 +303,10 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     Returns
     -------
     list of summary rows (dicts), in the order of ``cases``.
+
+    An interrupt (``KeyboardInterrupt``: Ctrl-C, or SIGTERM/SIGHUP under the command line)
+    still writes ``summary.csv``: the cases that finished, and a "not solved: the batch was
+    interrupted" row for each other one; then it propagates.
     """
     from . import io
 
@@ -311,15 +315,22 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     summary = outdir / "summary.csv"
     io.check_outputs([("summary", summary, (".csv",))] + [outdir / (c.name + ext) for c in cases
                                                           for ext in (".obj", ".vtk")], cases, outdir)
-    if scheduler is None and workers <= 1:
-        io.create_output_folder(outdir)  # nothing is created before the run can start
-        rows = []
-        for i, c in enumerate(cases):
-            rows.append(solve_case(c, outdir, solver, bucket))
-            if report:
-                report(rows[-1], i + 1, len(cases))
-    else:
-        rows = _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk)
+    rows = [None] * len(cases)  # filled as cases finish
+    try:
+        if scheduler is None and workers <= 1:
+            io.create_output_folder(outdir)  # nothing is created before the run can start
+            for i, c in enumerate(cases):
+                rows[i] = solve_case(c, outdir, solver, bucket)
+                if report:
+                    report(rows[i], i + 1, len(cases))
+        else:
+            _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM/SIGHUP from the command line: say what finished
+        if outdir.is_dir():
+            write_summary(summary, [row or _failed_row(c, "not solved: the batch was interrupted before this "
+                                                          "case finished (summary incomplete)")
+                                    for row, c in zip(rows, cases)])
+        raise
     write_summary(summary, rows)
     return rows
 
@@ -389,7 +400,8 @@ def _tasks(cases, size):
     return out
 
 
-def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
+def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows):
+    """Solve ``cases`` on Dask, filling ``rows`` (one per case) as they finish."""
     import contextlib
     import logging
     import uuid
@@ -432,7 +444,6 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
         for (_, rest), first in zip(plan, firsts):
             for group in rest:
                 submit(group, after=first)
-        rows = [None] * len(cases)
         done = 0
         pending = as_completed(list(futures))
         for fut in pending:

@@ -1,15 +1,17 @@
-"""Command line: geomopt param, geomopt untangle, geomopt demo.
+"""Command line: geomopt param, geomopt untangle, geomopt compare, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
-that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
-traceback unless ``--debug``); a solve that does not end converged and flip-free (exact
+that cannot be written, a command line argparse refuses) prints one line ``geomopt: error:
+...`` and exits with status 2 (no traceback and no NumPy warning unless ``--debug``; with
+``--json`` the JSON summary is printed too); a solve that does not end converged and flip-free (exact
 predicate) exits with status 1 and writes nothing; status 0 means the certified result was
 written.  Every output path (derived ones included) is checked before the input is read, by
 :func:`geomopt.io.check_outputs`: it must be a regular file or not exist, and no output may be an
 input (a command creates or replaces nothing but its named outputs; an output folder is created,
 never its parents).  Outputs are written atomically, all of them or none; an
 interrupt (SIGINT, SIGTERM, SIGHUP) removes the unfinished temporary files and exits with
-status 128 + the signal number.
+status 128 + the signal number (a batch first writes the summary of what finished).
+``compare`` writes all its files and exits 0 only when every solver converged certified, else 1.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import re
 import signal
 import sys
 import time
+import warnings
 from pathlib import Path
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -320,7 +323,12 @@ def cmd_demo(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out."""
+    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out.
+
+    Exit status 0 only when every solver converged to a certified map (no inverted element,
+    exact predicate) and no iterate had an inverted element; else 1, after writing every file
+    (a comparison keeps its traces), with one line naming each solver and why.
+    """
     from ._compare import compare
 
     res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
@@ -328,10 +336,18 @@ def cmd_compare(args) -> int:
                   progress=not args.quiet)
     _log(args, res.report())
     _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
-    folded = [name for name, r in res.results.items() if r.info["flips_history"].max() > 0]
-    if folded:
-        print(f"geomopt: error: inverted elements during the solve of {', '.join(folded)} (see the "
-              f"flips column of {Path(args.out) / 'history.csv'}); files written", file=sys.stderr)
+    failed = {}
+    for name, r in res.results.items():
+        if r.info["flips_history"].max() > 0:
+            failed[name] = "inverted elements during the solve"
+        elif not r.success:
+            failed[name] = res.outcome(name)
+    _report(args, solvers={name: {"outcome": res.outcome(name), "certified": name not in failed}
+                           for name in res.results})
+    if failed:
+        print(f"geomopt: error: not every solver converged to a certified map: "
+              f"{'; '.join(f'{n}: {why}' for n, why in failed.items())} (see {Path(args.out) / 'summary.csv'}); "
+              f"files written", file=sys.stderr, flush=True)
         return EXIT_FAILED
     return EXIT_OK
 
@@ -350,7 +366,7 @@ def build_parser():
     from . import __version__
     from ._names import ENERGIES, SOLVERS
 
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="geomopt", description="Locally injective (foldover-free) maps of triangle and tet meshes.",
         epilog=f"energies: {', '.join(ENERGIES)}. solvers: {', '.join(SOLVERS)}. Compiled code is "
                f"cached in $GEOMOPT_CACHE_DIR (default ~/.cache/geomopt/jax; 'off' disables it). "
@@ -437,10 +453,34 @@ def _report(args, **fields):
     args.summary.update(fields)
 
 
+class _UsageError(Exception):
+    """A command line argparse refuses (raised instead of argparse's own exit)."""
+
+    def __init__(self, parser, message):
+        super().__init__(message)
+        self.parser = parser
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is raised, so that ``--json`` can still print its JSON."""
+
+    def error(self, message):
+        raise _UsageError(self, message)
+
+
 def main(argv=None) -> int:
     t0 = time.perf_counter()
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    try:
+        args = build_parser().parse_args(argv)
+    except _UsageError as exc:  # one line, exit status 2, and the JSON summary if asked
+        print(f"{exc.parser.prog}: error: {exc} (see '{exc.parser.prog} --help')", file=sys.stderr, flush=True)
+        if "--json" in argv:
+            command = next((a for a in argv if not a.startswith("-")), None)
+            print(json.dumps({"command": command, "success": False, "exit_status": EXIT_USAGE,
+                              "error": f"usage: {exc}", "wall_seconds": round(time.perf_counter() - t0, 4)}),
+                  flush=True)
+        raise SystemExit(EXIT_USAGE) from None  # as argparse itself exits
     args.summary = {"command": args.command, "success": False}
     code = EXIT_FAILED
     try:
@@ -461,7 +501,9 @@ def _run(args) -> int:
 
         cache_stats()  # count persistent-cache hits and misses from here on
     try:
-        with _signals_raise():
+        with _signals_raise(), warnings.catch_warnings():
+            if not args.debug:  # errors are one line: no NumPy RuntimeWarning (overflow, 0/0...) on stderr
+                warnings.simplefilter("ignore", RuntimeWarning)
             return args.func(args)
     except SolveError as exc:
         if args.debug:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import json
 import os
 
 import numpy as np
@@ -186,7 +187,8 @@ def test_flips_of_every_iterate_are_recorded_and_exit_1(cli, tmp_path, monkeypat
     code, _, err = cli("compare", case, "--out", tmp_path / "o", "--solvers", "lbfgs,aqp",
                        "--energy", "dirichlet", "--quiet")
     assert code == 1
-    one_error_line(err, "inverted elements during the solve of lbfgs", "files written")
+    one_error_line(err, "not every solver converged", "lbfgs: inverted elements during the solve", "files written")
+    assert "aqp" not in err
     _, rows = read_csv(tmp_path / "o" / "history.csv")
     flips = {n: [int(r[5]) for r in rows if r[0] == n] for n in ("lbfgs", "aqp")}
     assert flips["lbfgs"][0] == 0 and max(flips["lbfgs"]) > 0 and max(flips["aqp"]) == 0
@@ -247,9 +249,17 @@ def test_bad_arguments_and_outputs_fail_before_solving(cli, tmp_path, monkeypatc
 
 
 def test_max_steps_is_honoured(cli, tmp_path):
+    """A solver stopped by the limit has not converged: exit 1 (one line naming each), every file written."""
     mesh = write_obj(tmp_path / "m.obj", V3, F)
-    code, _, _ = cli("compare", mesh, "--out", tmp_path / "o", "--solvers", FAST, "--max-steps", "2", "--quiet")
-    assert code == 0
+    code, out, err = cli("compare", mesh, "--out", tmp_path / "o", "--solvers", FAST, "--max-steps", "2", "--quiet",
+                         "--json")
+    assert code == 1
+    one_error_line(err, "not every solver converged to a certified map", "newton: max_steps", "aqp: max_steps",
+                   "lbfgs: max_steps", "files written")
+    summary = json.loads(out)
+    assert summary["exit_status"] == 1 and summary["solvers"]["newton"] == {"outcome": "max_steps",
+                                                                            "certified": False}
+    assert len(os.listdir(tmp_path / "o")) == 6
     _, rows = read_csv(tmp_path / "o" / "history.csv")
     _, summary = read_csv(tmp_path / "o" / "summary.csv")
     for s in summary:

@@ -289,3 +289,41 @@ def test_every_command_refuses_a_missing_parent_and_creates_nothing(cli, tmp_pat
     code, _, err = cli("untangle", tmp_path / "cases", "-o", case, "--workers", "1", "--quiet")
     assert code == 2 and "is the input folder" in err, err
     assert tree(tmp_path) == before
+
+
+# ------------------------------------------------------- stale temporaries (issue 19, exit codes)
+
+
+def test_a_sigkill_leaves_a_temporary_that_the_next_write_of_that_output_removes(tmp_path):
+    """SIGKILL cannot be caught: the temporary stays; the next write of the same output removes it
+    (it is not locked by a live writer any more), and leaves other outputs' temporaries alone."""
+    V2, F = grid(4)
+    mesh = flat_obj(tmp_path / "m.obj")
+    out = tmp_path / "uv.obj"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    script = textwrap.dedent(SLOW_WRITE.format(tests=str(REPO / "tests")))
+    proc = subprocess.Popen([sys.executable, "-c", script, str(mesh), str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline() == "writing\n"
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    left = [n for n in os.listdir(tmp_path) if n.startswith(".uv.obj.")]
+    assert len(left) == 1 and not out.exists()
+    other = tmp_path / ".other.obj.0123456789ab.tmp"
+    other.write_text("another output's\n")
+    write_mesh_with_uv(out, np.c_[V2, np.zeros(len(V2))], F, V2)
+    assert sorted(os.listdir(tmp_path)) == sorted(["cache", "m.obj", "uv.obj", other.name])
+
+
+def test_a_temporary_held_by_a_live_writer_is_kept(tmp_path):
+    import fcntl
+
+    live = tmp_path / ".out.txt.aaaaaaaaaaaa.tmp"
+    live.write_text("")
+    with open(live) as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        atomic_write(tmp_path / "out.txt", lambda f: f.write("done\n"))
+        assert live.exists() and (tmp_path / "out.txt").read_text() == "done\n"

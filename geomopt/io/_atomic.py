@@ -11,10 +11,16 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import secrets
 import signal
 import stat
 from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # Windows: temporaries are not locked, stale ones not removed
+    fcntl = None
 
 from .._errors import GeomoptError, ParameterError
 from ._files import file_kind, one_line
@@ -53,10 +59,59 @@ def _temp_path(path):
     The name is shortened (by whole characters) to 200 bytes so that the temporary name
     fits any file system that takes ``path``'s own name.
     """
+    return path.with_name(f".{_temp_stem(path)}.{secrets.token_hex(6)}.tmp")
+
+
+def _temp_stem(path):
+    """``path``'s name, shortened by whole characters to at most 200 bytes."""
     name = path.name
     while len(os.fsencode(name)) > 200:
         name = name[:-1]
-    return path.with_name(f".{name}.{secrets.token_hex(6)}.tmp")
+    return name
+
+
+def _lock(fd, wait):
+    """Take an exclusive lock on the open temporary file ``fd`` (released when it is closed,
+    or by the kernel when the process dies), waiting for it or not; ``False`` when not taken."""
+    if fcntl is None:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except OSError:
+        return False
+    return True
+
+
+def _remove_stale_temporaries(path):
+    """Delete the temporary files of ``path`` (``.<name>.<12 hex>.tmp``, and the temporaries of
+    those) that no live writer holds.
+
+    A writer keeps its temporary file locked (:func:`_lock`) until it is renamed or deleted;
+    a process killed by SIGKILL leaves its temporary behind, unlocked: that one is removed
+    here, the next time the same output is written.  Files that cannot be locked or opened
+    are left alone.
+    """
+    if fcntl is None:
+        return
+    # a writer that writes to another atomic path's temporary makes temporaries of temporaries
+    pattern = re.compile(r"\.+" + re.escape(_temp_stem(path)) + r"(?:\.[0-9a-f]{12}\.tmp)+")
+    try:
+        names = [n for n in os.listdir(path.parent or ".") if pattern.fullmatch(n)]
+    except OSError:
+        return
+    for name in names:
+        stale = path.with_name(name)
+        try:
+            fd = os.open(stale, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            continue
+        try:
+            if _lock(fd, wait=False) and os.path.samestat(os.fstat(fd), os.lstat(stale)):
+                os.unlink(stale)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
 
 
 def _output_problem(path, what, extensions=None):
@@ -192,9 +247,9 @@ def atomic_path(path, what="output"):
         (disk full, ...) happens; nothing is left at ``path`` then.
     """
     path = Path(path)
-    held, tmp = _block_signals(), None
+    held, tmp, fd = _block_signals(), None, None
     try:
-        tmp = _create_temp_next_to(path, what)
+        tmp, fd = _create_temp_next_to(path, what)
         # from here on, a signal held back while the file was created lands inside this
         # try block, where the cleanup below sees it
         _unblock_signals(held)
@@ -214,6 +269,8 @@ def atomic_path(path, what="output"):
             raise GeomoptError(f"could not write {path} ({one_line(exc)}); nothing was written") from exc
         raise
     finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock: the file is renamed or deleted by now
         _unblock_signals(held)
 
 
@@ -284,29 +341,34 @@ def atomic_write(path, write_fn, mode="w"):
 
 
 def _create_temp_next_to(path, what):
-    """Create a fresh, empty hidden file beside ``path`` and return its path.
+    """Create a fresh, empty hidden file beside ``path``, locked; return its path and open descriptor.
 
-    ``os.open`` with mode 0o666 lets the umask decide the permissions, as for any
-    newly created file (``tempfile.mkstemp`` would make it 0o600).  Raises
-    :class:`GeomoptError` saying why ``path`` cannot be written.
+    Stale temporaries of the same output (left by a killed process) are removed first
+    (:func:`_remove_stale_temporaries`).  ``os.open`` with mode 0o666 lets the umask decide
+    the permissions, as for any newly created file (``tempfile.mkstemp`` would make it
+    0o600).  Raises :class:`GeomoptError` saying why ``path`` cannot be written.
     """
     problem = _output_problem(path, what)
     if problem:
         raise GeomoptError(problem)
+    _remove_stale_temporaries(path)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
         tmp = _temp_path(path)
         try:
-            os.close(os.open(tmp, flags, 0o666))
-            return tmp
+            fd = os.open(tmp, flags, 0o666)
         except FileExistsError:
             continue
         except OSError as exc:
             raise GeomoptError(
                 f"cannot write {path} ({one_line(exc)}); check the folder's permissions"
             ) from exc
+        _lock(fd, wait=True)  # a cleaner holds it only while it checks and deletes it
+        with contextlib.suppress(OSError):  # ... which it may have done between open and lock
+            if os.path.samestat(os.fstat(fd), os.lstat(tmp)):
+                return tmp, fd
+        os.close(fd)
     raise GeomoptError(f"cannot write {path}: could not create a temporary file next to it")
-
 
 
 # ------------------------------------------------------------------ a command's outputs
