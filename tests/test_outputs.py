@@ -327,3 +327,15 @@ def test_a_temporary_held_by_a_live_writer_is_kept(tmp_path):
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         atomic_write(tmp_path / "out.txt", lambda f: f.write("done\n"))
         assert live.exists() and (tmp_path / "out.txt").read_text() == "done\n"
+
+
+def test_a_fifo_or_folder_named_like_a_temporary_is_left_alone_without_hanging(tmp_path):
+    """Opening a FIFO for reading blocks until a writer comes: the cleanup must not hang on one."""
+    fifo = tmp_path / ".out.txt.0123456789ab.tmp"
+    os.mkfifo(fifo)
+    (tmp_path / ".out.txt.aaaaaaaaaaaa.tmp").mkdir()
+    proc = subprocess.run([sys.executable, "-c", "import sys; from geomopt.io import atomic_write; "
+                           "atomic_write(sys.argv[1], lambda fh: fh.write('x'))", str(tmp_path / "out.txt")],
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=60, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and (tmp_path / ".out.txt.aaaaaaaaaaaa.tmp").is_dir()

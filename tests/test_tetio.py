@@ -426,3 +426,61 @@ def test_medit_version_1_coordinates_are_read_as_written(tmp_path):
     got, T = tetio.read_tets(tmp_path / "v1.mesh")
     np.testing.assert_array_equal(got, P)
     assert (got.astype(np.float32) != got).any()
+
+
+# ------------------------------------------------------------------ adversarial pass (issue 19, own)
+
+
+def test_vtu_an_array_given_twice_is_refused_not_picked(tmp_path):
+    """Two 'connectivity' arrays: which one a reader takes is a guess; refused."""
+    good = _cube_vtu().decode()
+    second = '<DataArray type="Int64" Name="connectivity" NumberOfComponents="1" format="ascii">' + \
+        " ".join(map(str, _T1[:, ::-1].ravel())) + "</DataArray>"
+    (tmp_path / "d.vtu").write_text(good.replace("</Cells>", second + "</Cells>"))
+    with pytest.raises(geomopt.MeshFormatError, match="two DataArrays named 'connectivity'"):
+        tetio.read_tets(tmp_path / "d.vtu")
+
+
+def test_vtu_integer_points_read_exactly_or_refused(tmp_path):
+    """Integer coordinates are exact in float64 up to 2**53; beyond that they would be rounded."""
+    for scale, ok in ((2**52, True), (2**60 + 1, False)):
+        pts = (_P1 * scale).astype(np.int64) + (1 if not ok else 0)
+        text = _cube_vtu().decode()
+        body = " ".join(map(str, pts.ravel()))
+        start = text.index('<DataArray type="Float64" Name="Points"')
+        end = text.index("</DataArray>", start)
+        text = text[:start] + '<DataArray type="Int64" Name="Points" NumberOfComponents="3" format="ascii">' + \
+            body + text[end:]
+        (tmp_path / "i.vtu").write_text(text)
+        if ok:
+            np.testing.assert_array_equal(tetio.read_tets(tmp_path / "i.vtu")[0], pts.astype(np.float64))
+        else:
+            with pytest.raises(geomopt.MeshFormatError, match="beyond 2\\*\\*53"):
+                tetio.read_tets(tmp_path / "i.vtu")
+
+
+def test_vtu_empty_cells_are_legal_and_skipped(tmp_path):
+    """VTK_EMPTY_CELL (type 0) has no points: equal offsets there are not a duplicated offset."""
+    (tmp_path / "e.vtu").write_bytes(_vtu([(_P1, _T1.ravel(), np.r_[4 * np.arange(1, 4), 12, 4 * np.arange(4, 7)],
+                                             [10, 10, 10, 0, 10, 10, 10])]))
+    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "e.vtu")[1], _T1)
+
+
+@pytest.mark.parametrize("section, extra", [("Vertices", "Vertices\n8\n" + "9 9 9 0\n" * 8),
+                                            ("Tetrahedra", "Tetrahedra\n1\n1 2 3 5 0\n")])
+def test_medit_a_section_given_twice_is_refused(tmp_path, section, extra):
+    """A second Vertices section silently replaced the first (Medit's own reader keeps only one)."""
+    (tmp_path / "two.mesh").write_text(MEDIT.replace("End\n", extra + "End\n"))
+    with pytest.raises(geomopt.MeshFormatError, match=f"second {section} section"):
+        tetio.read_tets(tmp_path / "two.mesh")
+
+
+def test_fuzz_found_crashes_are_one_line_refusals(tmp_path):
+    """Found by mutating valid files: a number where a Medit section keyword belongs (TypeError) and
+    a non-numeric NumberOfComponents (ValueError) escaped as internal errors."""
+    (tmp_path / "n.mesh").write_text(MEDIT.replace("Dimension 3\n", "Dimension 3\n7\n"))
+    with pytest.raises(geomopt.MeshFormatError, match="line 3: expected a section keyword"):
+        tetio.read_tets(tmp_path / "n.mesh")
+    (tmp_path / "c.vtu").write_bytes(_cube_vtu().replace(b'NumberOfComponents="3"', b'NumberOfComponents="3x"'))
+    with pytest.raises(geomopt.MeshFormatError, match="expected 3 components"):
+        tetio.read_tets(tmp_path / "c.vtu")

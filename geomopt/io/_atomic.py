@@ -88,8 +88,8 @@ def _remove_stale_temporaries(path):
 
     A writer keeps its temporary file locked (:func:`_lock`) until it is renamed or deleted;
     a process killed by SIGKILL leaves its temporary behind, unlocked: that one is removed
-    here, the next time the same output is written.  Files that cannot be locked or opened
-    are left alone.
+    here, the next time the same output is written.  Anything else of such a name (a file
+    that cannot be opened or locked, a link, a folder, a FIFO) is left alone.
     """
     if fcntl is None:
         return
@@ -101,12 +101,13 @@ def _remove_stale_temporaries(path):
         return
     for name in names:
         stale = path.with_name(name)
-        try:
-            fd = os.open(stale, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        try:  # never follow a link, never wait on a FIFO
+            fd = os.open(stale, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
         except OSError:
             continue
         try:
-            if _lock(fd, wait=False) and os.path.samestat(os.fstat(fd), os.lstat(stale)):
+            st = os.fstat(fd)
+            if stat.S_ISREG(st.st_mode) and _lock(fd, wait=False) and os.path.samestat(st, os.lstat(stale)):
                 os.unlink(stale)
         except OSError:
             pass

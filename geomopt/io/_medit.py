@@ -36,10 +36,13 @@ def parse_medit(data, path):
     keyword = np.array([t[:1].isalpha() and t.lower() not in _NOT_KEYWORDS for t in rows.first], dtype=bool)
     if not len(rows) or rows.first[0] != b"MeshVersionFormatted":
         raise MeshFormatError(f"{path} does not start with MeshVersionFormatted; it is not an ASCII Medit file")
-    r, header, points, cells, last = 0, {}, None, [], None
+    r, header, points, cells, last, seen = 0, {}, None, [], None, {}
     while r < len(rows):
         key, line = rows.first[r].decode(), rows.lineno[r]
         if not keyword[r]:
+            if last is None:
+                raise MeshFormatError(f"{path}, line {line}: expected a section keyword (such as Vertices), "
+                                      f"found {rows.at(r)!r}")
             raise MeshFormatError(f"{path}, line {line}: section {last[0]} (line {last[1]}) declares {last[2]} "
                                   f"entries but more follow; fix the count")
         if key in ("MeshVersionFormatted", "Dimension"):
@@ -50,7 +53,10 @@ def parse_medit(data, path):
                 raise MeshFormatError(f"{path}, line {rows.lineno[r + 1]}: text after End")
             break
         a, b = _section(rows, r, keyword, header)
-        last = (key, line, b - a)
+        if key in seen:
+            raise MeshFormatError(f"{path}, line {line}: a second {key} section (the first is on line {seen[key]}); "
+                                  f"a Medit file holds each section once")
+        seen[key], last = line, (key, line, b - a)
         _, indices, name, dim = MEDIT_SECTIONS[key]
         if key in _REAL:
             values = rows.floats(a, b, key).reshape(b - a, -1)

@@ -150,7 +150,9 @@ def _piece(piece, file, where):
     for a in children.get("Cells", ()):
         if a.tag != "DataArray":
             raise MeshFormatError(f"{where}: unexpected <{a.tag}> in <Cells>")
-        arrays.setdefault(a.get("Name"), a)
+        if a.get("Name") in arrays:
+            raise MeshFormatError(f"{where}: <Cells> holds two DataArrays named {a.get('Name')!r}")
+        arrays[a.get("Name")] = a
     if m and not {"connectivity", "offsets", "types"} <= set(arrays):
         raise MeshFormatError(f"{where}: <Cells> needs the DataArrays connectivity, offsets and types")
     if not m:
@@ -174,8 +176,8 @@ def _cells(types, offsets, conn, n, where):
     if unknown.size:
         raise MeshFormatError(f"{where}: cell {unknown[0]} has unknown VTK cell type {types[unknown[0]]}")
     sizes = np.diff(np.r_[0, offsets])
-    if (sizes <= 0).any():
-        i = int(np.flatnonzero(sizes <= 0)[0])
+    if ((sizes <= 0) & (types != 0)).any() or (sizes < 0).any():  # type 0, an empty cell, has no points
+        i = int(np.flatnonzero(((sizes <= 0) & (types != 0)) | (sizes < 0))[0])
         raise MeshFormatError(f"{where}: cell {i} has no points (offsets must rise: offset {i} is "
                               f"{offsets[i]}, the one before {offsets[i - 1] if i else 0})")
     if offsets[-1] != len(conn):
@@ -210,7 +212,7 @@ def _array(element, file, where, expected, real=False, components=1):
     code = _TYPES[kind]
     if not real and code[0] == "f":
         raise MeshFormatError(f"{where}: indices stored as {kind}; an integer type is required")
-    if int(element.get("NumberOfComponents", "1") or "1") != components:
+    if (element.get("NumberOfComponents") or "1").strip() != str(components):
         raise MeshFormatError(f"{where}: the DataArray has {element.get('NumberOfComponents')} components, "
                               f"expected {components} components")
     fmt = element.get("format", "ascii")
@@ -229,6 +231,9 @@ def _array(element, file, where, expected, real=False, components=1):
     if expected is not None and len(values) != expected:
         raise MeshFormatError(f"{where.split(', ', 1)[0]}: {where.rsplit(', ', 1)[1]} holds {len(values)} values, "
                               f"expected {expected}")
+    if real and code[0] != "f" and values.size and np.abs(values.astype(np.float64)).max() > 2.0**53:
+        raise MeshFormatError(f"{where}: integer coordinates beyond 2**53 cannot be read exactly as float64; "
+                              f"store them as Float64")
     return values.astype(np.float64 if real else np.int64)
 
 
