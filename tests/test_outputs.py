@@ -151,6 +151,14 @@ sys.exit(geomopt.cli.main(["param", sys.argv[1], "-o", sys.argv[2], "--quiet"]))
 """
 
 
+def slow_write(tmp_path, mesh, out):
+    """``geomopt param mesh -o out`` in a process that stops (60 s) after writing part of the file."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    script = textwrap.dedent(SLOW_WRITE.format(tests=str(REPO / "tests")))
+    return subprocess.Popen([sys.executable, "-c", script, str(mesh), str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+
+
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_a_signal_during_the_write_leaves_no_temporary_file(tmp_path, signum):
     """The command line turns SIGTERM/SIGHUP (and SIGINT) into an exception: the temporary file goes."""
@@ -160,10 +168,7 @@ def test_a_signal_during_the_write_leaves_no_temporary_file(tmp_path, signum):
                     + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
     out = tmp_path / "uv.obj"
     out.write_text("previous result\n")
-    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
-    script = textwrap.dedent(SLOW_WRITE.format(tests=str(REPO / "tests")))
-    proc = subprocess.Popen([sys.executable, "-c", script, str(mesh), str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+    proc = slow_write(tmp_path, mesh, out)
     try:
         assert proc.stdout.readline() == "writing\n"
         assert any(name.startswith(".uv.obj.") for name in os.listdir(tmp_path))  # mid-write
@@ -300,10 +305,7 @@ def test_a_sigkill_leaves_a_temporary_that_the_next_write_of_that_output_removes
     V2, F = grid(4)
     mesh = flat_obj(tmp_path / "m.obj")
     out = tmp_path / "uv.obj"
-    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
-    script = textwrap.dedent(SLOW_WRITE.format(tests=str(REPO / "tests")))
-    proc = subprocess.Popen([sys.executable, "-c", script, str(mesh), str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+    proc = slow_write(tmp_path, mesh, out)
     try:
         assert proc.stdout.readline() == "writing\n"
         proc.send_signal(signal.SIGKILL)
