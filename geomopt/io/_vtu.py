@@ -31,6 +31,9 @@ _TYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "
           "Int64": "i8", "UInt64": "u8", "Float32": "f4", "Float64": "f8"}
 _VERSIONS = ("0.1", "1.0", "2.0", "2.1", "2.2")
 _APPENDED = re.compile(rb"<AppendedData\b[^>]*>")
+#: Points per cell of each VTK type code: the fixed count, -1 where the cell says, -2 for no such type.
+_FIXED = np.full(max(VTK_CELLS) + 1, -2)
+_FIXED[list(VTK_CELLS)] = [-1 if nodes is None else nodes for _, _, nodes in VTK_CELLS.values()]
 
 
 class _File:
@@ -103,7 +106,7 @@ def _xml(data, path):
                                   f"the file is truncated or malformed")
         body = body[start + 1:]
         if encoding == "base64":
-            body = re.sub(rb"\s+", b"", body)
+            body = b"".join(body.split())
         elif body.endswith(b"\n"):  # VTK ends the raw data with a line end before the closing tag
             body = body[:-1]
         appended = (body, encoding)
@@ -172,7 +175,9 @@ def _count(piece, key, where):
 
 def _cells(types, offsets, conn, n, where):
     """Cell blocks named by :data:`VTK_CELLS`, in file order; refuses what the file does not declare."""
-    unknown = np.flatnonzero(~np.isin(types, list(VTK_CELLS)))
+    known = (types >= 0) & (types < len(_FIXED))
+    fixed = _FIXED[np.where(known, types, 0)]  # points per cell of the type, -1: the cell says, -2: no type
+    unknown = np.flatnonzero(~known | (fixed == -2))
     if unknown.size:
         raise MeshFormatError(f"{where}: cell {unknown[0]} has unknown VTK cell type {types[unknown[0]]}")
     sizes = np.diff(np.r_[0, offsets])
@@ -182,7 +187,6 @@ def _cells(types, offsets, conn, n, where):
                               f"{offsets[i]}, the one before {offsets[i - 1] if i else 0})")
     if offsets[-1] != len(conn):
         raise MeshFormatError(f"{where}: connectivity holds {len(conn)} values but the offsets use {offsets[-1]}")
-    fixed = np.array([VTK_CELLS[int(t)][2] if VTK_CELLS[int(t)][2] is not None else -1 for t in types])
     bad = np.flatnonzero((fixed >= 0) & (sizes != fixed))
     if bad.size:
         i = int(bad[0])
@@ -192,7 +196,8 @@ def _cells(types, offsets, conn, n, where):
         v = int(conn[(conn < 0) | (conn >= n)][0])
         raise MeshFormatError(f"{where}: connectivity names point index {v}, outside the piece's points 0..{n - 1}")
     cells, starts = [], offsets - sizes
-    for t in dict.fromkeys(types.tolist()):
+    codes, first = np.unique(types, return_index=True)
+    for t in codes[np.argsort(first)].tolist():  # each type once, in order of first appearance
         name, dim, nodes = VTK_CELLS[t]
         chosen = types == t
         block = None
@@ -219,7 +224,7 @@ def _array(element, file, where, expected, real=False, components=1):
     if fmt == "ascii":
         values = _ascii(element.text or "", code, where)
     elif fmt == "binary":
-        text = re.sub(r"\s+", "", element.text or "").encode()
+        text = "".join((element.text or "").split()).encode()
         raw, used = _base64(text, 0, file, where)
         if used != len(text):
             raise MeshFormatError(f"{where}: the binary data holds more than its header declares")
