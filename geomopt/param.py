@@ -10,8 +10,7 @@ from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from .problem import Problem
 from .solvers import Newton, Result, get_solver, minimize
-from .certify import polygon_crossings, polygon_orientation
-from .predicates import branch_vertices
+from .certify import local_certificate, polygon_crossings, polygon_orientation
 from .solvers._base import check_progress
 from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
@@ -112,9 +111,9 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    # a flip-free map can still wind twice around an interior vertex (a branch point): no
-    # flip-free step removes it, so it is repaired like a fold
-    if source != "the Tutte start map" and (inverted or len(branch_vertices(x0, problem.simplices))):
+    # a flip-free map can still wind twice around an interior vertex (a branch point), which no
+    # flip-free step removes, or overlap around a boundary vertex: repaired like a fold
+    if source != "the Tutte start map" and (inverted or not local_certificate(x0, problem.simplices).ok):
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired
