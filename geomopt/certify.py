@@ -101,8 +101,8 @@ def _adjacent_overlaps(P, ex, ey) -> np.ndarray:
 
 def _grid_candidates(lox, loy, hix, hiy):
     """Candidate pairs ``(i, j)`` of non-consecutive edges whose bounding boxes
-    ``[lox, hix] x [loy, hiy]`` (each (k,)) overlap, touching included; each pair once, in no
-    particular order.
+    ``[lox, hix] x [loy, hiy]`` (each (k,), coordinates within [-1, 1]) overlap, touching
+    included; each pair once, in no particular order.
 
     Uniform grid; the cell size starts at ``_CELL_SCALE`` times the mean box size and is doubled
     until there are at most ``_MAX_CELLS_PER_EDGE`` (edge, cell) entries per edge, so that a few
@@ -117,6 +117,7 @@ def _grid_candidates(lox, loy, hix, hiy):
     h = _CELL_SCALE * float(np.mean(np.maximum(hix - lox, hiy - loy)))
     if not h > 0:
         h = span / k if span > 0 else 1.0
+    h = max(h, span * 2.0**-24)  # at most 2**24 cells a side: counts fit int64 (and 1 / h is finite)
     bits = max(int(k - 1).bit_length(), 1)  # edge ids take the low bits of an entry
     while True:
         # coordinates >= 0, so truncation is the floor; a rounded product is monotone in its
@@ -129,7 +130,7 @@ def _grid_candidates(lox, loy, hix, hiy):
         per = wx * wy
         nx = int((x0 + wx).max()) + 1
         cells = nx * (int((y0 + wy).max()) + 1)
-        if (per.sum() <= _MAX_CELLS_PER_EDGE * k and cells.bit_length() + bits <= 62) or h >= span:
+        if (per.sum(dtype=np.float64) <= _MAX_CELLS_PER_EDGE * k and cells.bit_length() + bits <= 62) or h >= span:
             break
         h *= 2.0
     # one entry (cell << bits | edge) per (edge, covered cell); single-cell edges need no expansion
@@ -197,6 +198,13 @@ def polygon_crossings(P) -> np.ndarray:
     xn, yn = np.roll(x, -1), np.roll(y, -1)
     pairs = []
     adj = _adjacent_overlaps(P, xn - x, yn - y)
+    # the broad phase sees the polygon scaled by a power of two to a box within [-1, 1]: a
+    # monotone map of each coordinate (exact, or rounded for tiny coordinates beside huge ones),
+    # which keeps every box overlap, and keeps the grid's arithmetic away from overflow
+    # (1 / h for subnormal coordinates) and from underflow; the exact tests see P itself
+    top = float(np.max(np.abs(P)))
+    if top > 0:
+        x, y, xn, yn = (np.ldexp(a, -int(np.frexp(top)[1])) for a in (x, y, xn, yn))
     if adj.size:
         a, b = adj, (adj + 1) % k
         pairs.append(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
