@@ -49,7 +49,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError, ParameterError
-from .io import validate_indices, validate_vertices
+from ._validate import validate_indices, validate_vertices
 from .predicates import orient2d, simplex_orientations
 from .stars import fan_overlaps_2d, star_overlaps_3d
 from .topology import check_disk

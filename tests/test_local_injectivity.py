@@ -436,7 +436,7 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
     """Issue 19 item 1: a ball whose fixed boundary wraps twice around its axis, every tet
     positive, was certified by untangle and by the CLI (exit 0, file written)."""
     from geomopt import cli, generators
-    from geomopt.batch import write_lim_case
+    from geomopt.lim import LimCase
     from geomopt.solvers import Outcome
     from geomopt.untangle import untangle
 
@@ -446,7 +446,7 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
     assert res.inverted == 0 and res.outcome is Outcome.NOT_INJECTIVE and not res.success
     assert "interior edge" in res.message and res.info["branch_vertices"] >= 1
     tangle = generators.Tangle("wound", V, T, X, bnd)
-    folder = write_lim_case(tmp_path / "wound", tangle)
+    folder = LimCase.from_tangle(tangle).write(tmp_path / "wound")
     out = tmp_path / "out.vtk"
     assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet"]) == 1
     assert not out.exists()

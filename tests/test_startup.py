@@ -367,9 +367,9 @@ def test_untangle_png_marks_the_inverted_elements_of_the_start_only(tmp_path, ca
 
     if case == "twisted_box":  # (the LIM armadillo has no locally injective map: tests/test_untangle.py)
         from geomopt import generators
-        from geomopt.batch import write_lim_case
+        from geomopt.lim import LimCase
 
-        folder = write_lim_case(tmp_path / "twisted", generators.twisted_box(4, 12, turns=0.5))
+        folder = LimCase.from_tangle(generators.twisted_box(4, 12, turns=0.5)).write(tmp_path / "twisted")
     else:
         folder = shared_path("lim", *case.split("/"))
     out = tmp_path / ("out.obj" if case.startswith("2D") else "out.vtk")
