@@ -201,3 +201,25 @@ def test_local_certificate_scale_invariant():
         for e in (-1060, -1030, 600, 1000):
             got = local_certificate(X * 2.0**e, S)
             assert (got.ok, got.inverted, got.message) == (want.ok, want.inverted, want.message), e
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-310, 2.0**-1060])
+def test_bijective_start_at_extreme_scales(scale, tmp_path):
+    """Issue 19: ``--bijective`` with a start map scaled by 1e300 or 1e-310 failed ('the map's total
+    signed area is nan / 0') where the plain run succeeded: the start's area overflowed or
+    underflowed before it was scaled to the rest area."""
+    from geomopt import cli
+    from geomopt import generators as G
+    from geomopt.io import read_obj_with_uv, write_obj_with_uv
+    from geomopt.param import parameterize
+    from geomopt.tutte import tutte_embedding
+
+    V, F = G.ruffled_disk(6)
+    x0 = tutte_embedding(V, F) * scale
+    for bijective in (False, True):
+        res = parameterize(V, F, x0=x0, bijective=bijective, progress=False)
+        assert res.success and res.injectivity == "global", (bijective, res.message)
+    src, out = tmp_path / "in.obj", tmp_path / "out.obj"
+    write_obj_with_uv(src, V, F, x0)
+    assert cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--quiet"]) == 0
+    assert np.isfinite(read_obj_with_uv(out)[1]).all()
