@@ -512,3 +512,63 @@ def test_ball_and_half_ball_pinched_at_a_vertex():
     # a boundary vertex whose half ball holds both +-u and covers once: fine (the count runs)
     X, T = _pinched([(Px, _cap(Px, F, [1, 0, 0], -0.3))])
     assert local_certificate(X, T).ok
+
+
+# ------------------------------------------------------------------------------ adversarial
+
+
+def test_bowtie_fans_touching_along_a_ray_overlap():
+    """Two fans at one vertex, the second starting exactly where the first ends (same ray,
+    exact directions): their boundary edges overlap near the vertex."""
+    X = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0, 2], [-1, 1], [-1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 5], [0, 5, 6]])
+    assert count_inverted(X, F) == 0
+    assert local_certificate(X, F).boundary_overlaps.tolist() == [0]
+    X[4] = [-0.5, 2]  # the second fan starts just past the first one's end: disjoint
+    assert local_certificate(X, F).ok
+
+
+def test_3d_boundary_edge_exactly_a_full_turn():
+    """A slit cylinder: the tets around the axis edge turn exactly once between two boundary
+    faces lying on the same half-plane (the slit's two sides, exact coordinates)."""
+    R = np.array([[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1], [2, 0]], float)
+    for last, bad in (([2, 0], True), ([1, 0], True), ([2, -1e-9], False)):
+        R[-1] = last
+        X = np.vstack([[0, 0, 0], [0, 0, 1], np.c_[R, np.full(len(R), 0.5)]])
+        T = orient_tets(X, [[0, 1, 2 + i, 3 + i] for i in range(len(R) - 1)])
+        assert count_inverted(X, T) == 0
+        assert (local_certificate(X, T).boundary_edge_overlaps.tolist() == [[0, 1]]) == bad, last
+
+
+def test_non_manifold_edge_with_two_fans():
+    """Two fans of tets around one edge (their faces are all distinct, so a Problem accepts the
+    mesh): fine while the fans are disjoint, not when one reaches into the other."""
+    def two_fans(second):
+        first = np.radians([0, 40, 80])
+        th = np.concatenate([first, np.radians(second)])
+        R = np.c_[np.cos(th), np.sin(th), np.zeros(len(th))]
+        X = np.vstack([[0, 0, -1.0], [0, 0, 1.0], R])
+        T = [[0, 1, 2, 3], [0, 1, 3, 4], [0, 1, 5, 6], [0, 1, 6, 7]]
+        return X, orient_tets(X, T)
+
+    X, T = two_fans([180, 220, 260])
+    assert local_certificate(X, T).ok
+    X, T = two_fans([60, 120, 160])  # starts inside the first fan
+    assert local_certificate(X, T).boundary_edge_overlaps.tolist() == [[0, 1]]
+    X, T = two_fans([300, 340, 380])  # ends inside the first fan
+    assert local_certificate(X, T).boundary_edge_overlaps.tolist() == [[0, 1]]
+
+
+def test_near_degenerate_wrapped_ball():
+    """The wrapped ball with its rings squeezed towards the axis (tets within a few ulps of flat)
+    and at huge and tiny exact scales: the verdict follows the exact orientations."""
+    V, T, X, axis = wrapped_cylinder(2.0, sectors=10, levels=2)
+    for squeeze in (1e-6, 1e-12):
+        Y = X.copy()
+        Y[:, :2] *= squeeze
+        Y[axis, :2] = 0.0
+        cert = local_certificate(Y, T)
+        assert cert.inverted == 0 and len(cert.branch_edges) == len(axis) - 1
+        for e in (-1000, 900):
+            got = local_certificate(Y * 2.0**e, T)
+            assert (got.inverted, len(got.branch_edges)) == (0, len(axis) - 1)

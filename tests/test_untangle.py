@@ -280,9 +280,11 @@ def test_outer_loop_compiles_once():
     before = [k._cache_size() for k in kernels]
     with lowered_programs() as lowered:
         r1 = untangle(t.problem(), t.x0, progress=False)
-    # only the kernels the loop runs (no step kernel, no per-shape copy programs)
-    assert set(lowered) <= {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)",
-                            "jit(convert_element_type)"}, lowered
+    # only the kernels the loop runs (no step kernel, no per-shape copy programs); jax < 0.5
+    # (the floor, 0.4.38) names no program in its events: there the cache sizes below decide
+    names = {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)", "jit(convert_element_type)"}
+    if not any(name.startswith("/jax/") for name in lowered):
+        assert set(lowered) <= names, lowered
     mid = [k._cache_size() for k in kernels]
     assert r1.success and r1.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
@@ -353,10 +355,15 @@ def lowered_programs():
             seen.append(kwargs.get("fun_name", event))
 
     jax.monitoring.register_event_duration_secs_listener(listen)
+    unregister = getattr(jax.monitoring, "unregister_event_duration_listener", None)
+    if unregister is None:  # jax < 0.5 (the floor, 0.4.38): only the private name
+        from jax._src import monitoring
+
+        unregister = monitoring._unregister_event_duration_listener_by_callback
     try:
         yield seen
     finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
+        unregister(listen)
 
 
 def test_lbfgs_reaches_the_harmonic_map():
