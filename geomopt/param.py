@@ -9,7 +9,7 @@ import numpy as np
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from .problem import Problem
-from .solvers import Newton, Result, get_solver, minimize
+from .solvers import Newton, Outcome, Result, get_solver, minimize
 from .certify import local_certificate, polygon_crossings, polygon_orientation
 from .solvers._base import check_progress
 from .topology import check_disk
@@ -237,6 +237,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     cert = certify_bijective(result.x, problem.input_simplices)
     result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired,
                        certificate=cert, injectivity=cert.injectivity)
+    if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
+        result.info["reason"] += ("; the free boundary folded over itself there, which the bijective "
+                                  "mode prevents (bijective=True, geomopt param --bijective)")
     return result
 
 

@@ -572,3 +572,32 @@ def test_near_degenerate_wrapped_ball():
         for e in (-1000, 900):
             got = local_certificate(Y * 2.0**e, T)
             assert (got.inverted, len(got.branch_edges)) == (0, len(axis) - 1)
+
+
+def test_parameterize_repairs_a_start_whose_boundary_fan_overlaps():
+    """A flip-free start map whose free boundary turns 1.5 times around a vertex is not a valid
+    start (it is not locally injective); param repairs it like a folded one, and the result
+    certifies."""
+    from geomopt.param import parameterize
+
+    rest, F = exact_fan(0.75, 12)
+    V = np.c_[rest, np.zeros(len(rest))]
+    X, _ = exact_fan(1.5, 12)
+    assert count_inverted(X, F) == 0 and not local_certificate(X, F).ok
+    res = parameterize(V, F, x0=X, progress=False)
+    assert res.info["repair"] is not None
+    assert res.success and res.injectivity == "global" and local_certificate(res.x, F).ok
+
+
+def test_compare_refuses_positive_but_overlapping_results():
+    """geomopt.compare certified with the orientation test alone: every vertex fixed on a fan
+    turning 1.5 times, each solver 'converged' on it."""
+    from geomopt._compare import compare
+
+    X, F = exact_fan(1.5, 12)
+    rest, _ = exact_fan(0.75, 12)
+    problem = Problem.planar(rest, F, np.arange(len(X)), X)
+    comp = compare(problem, x0=X, solvers=["newton", "lbfgs"])
+    for name, res in comp.results.items():
+        assert res.inverted == 0 and not res.success, name
+        assert "boundary vertex 0" in res.message

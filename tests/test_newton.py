@@ -100,4 +100,5 @@ def test_bunny_cut_from_shared_data_flip_free():
     # The bijective mode's scaffold forbids that (tests/test_bijective.py)
     cert = res.info["local_certificate"]
     assert not res.success and res.injectivity == "none" and "boundary vertex" in res.message
+    assert "--bijective" in res.message
     assert len(cert.boundary_overlaps) == 4 and len(cert.branch_vertices) == 0
