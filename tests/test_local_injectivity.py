@@ -368,7 +368,7 @@ def test_boundary_vertex_star_lying_over_itself(turns, r2, dz, bad):
     branch_edges, branch_vertices, boundary_edges, overlaps = star_overlaps_3d(X, T)
     assert len(branch_edges) == len(branch_vertices) == len(boundary_edges) == 0
     assert overlaps.tolist() == ([0] if bad else [])
-    for e in (-1060, 1000):  # exact scalings keep the verdict (integer-free data: still exact)
+    for e in (-1000, 1000):  # exact scalings (the data stay normal floats) keep the verdict
         assert star_overlaps_3d(X * 2.0**e, T)[3].tolist() == overlaps.tolist()
 
 
@@ -601,3 +601,46 @@ def test_compare_refuses_positive_but_overlapping_results():
     for name, res in comp.results.items():
         assert res.inverted == 0 and not res.success, name
         assert "boundary vertex 0" in res.message
+
+
+def _max_cover(X, T, v, directions):
+    """Largest number of tets at ``v`` whose cone contains one of the ``directions`` (float)."""
+    best = 0
+    star = T[(T == v).any(axis=1)]
+    count = np.zeros(len(directions), int)
+    for t in star:
+        a, b, c = (X[u] - X[v] for u in t if u != v)
+        M = np.array([a, b, c]).T
+        if np.linalg.det(M) < 0:
+            M = M[:, [1, 0, 2]]
+        coef = np.linalg.solve(M, directions.T)
+        count += (coef > 1e-9).all(axis=0)
+    best = max(best, int(count.max()))
+    return best
+
+
+def test_boundary_stars_match_a_sampled_direction_oracle():
+    """Random maps of half-ball stars (a disk link wrapped up to twice around an axis, with
+    noise): wherever sampled directions are covered twice the certificate fails the vertex, and
+    where it passes no sampled direction is covered twice."""
+    P, F = sphere_link(k=10, rings=5)
+    cap = _cap(P, F, [0, 0, 1], -0.45)
+    X0, T = star_of(P, cap)
+    rng = np.random.default_rng(5)
+    dirs = rng.normal(size=(4000, 3))
+    seen = {True: 0, False: 0}
+    for _ in range(200):
+        th = np.arctan2(P[:, 1], P[:, 0]) * rng.uniform(1.0, 2.2)
+        r = np.hypot(P[:, 0], P[:, 1])
+        Q = np.c_[r * np.cos(th), r * np.sin(th), P[:, 2]] + rng.normal(0, rng.uniform(0.0, 0.15), P.shape)
+        X = np.vstack([[0, 0, 0.0], Q])
+        if count_inverted(X, T):
+            continue
+        cert = local_certificate(X, T)
+        covered = _max_cover(X, T, 0, dirs)
+        if covered >= 2:
+            assert not cert.ok
+        if cert.ok:
+            assert covered <= 1
+        seen[cert.ok] += 1
+    assert seen[True] > 10 and seen[False] > 10, seen
