@@ -157,13 +157,17 @@ def _face_signs(X, T):
     return np.stack([_first_nonzero(normal_signs(*(P[:, k] for k in face))) for face in _FACES], axis=1)
 
 
+def _parity(perm) -> int:
+    """0 for an even permutation (a sequence of distinct numbers), 1 for an odd one."""
+    return sum(perm[a] > perm[b] for a in range(len(perm)) for b in range(a + 1, len(perm))) % 2
+
+
 def _sigma(S, i, j, k):
     """Sign of ``n . u`` for the ordered face ``(i, j, k)`` of local corners: the stored face's
     sign times the parity of the reordering."""
     missing = 6 - i - j - k
     stored = _FACES[missing]
-    perm = [stored.index(x) for x in (i, j, k)]
-    odd = sum(perm[a] > perm[b] for a in range(3) for b in range(a + 1, 3)) % 2
+    odd = _parity([stored.index(x) for x in (i, j, k)])
     return -S[:, missing] if odd else S[:, missing]
 
 
@@ -282,8 +286,6 @@ def _boundary_edge_failures(X, T, tet, face, on_boundary):
     return _chain_failures(center_s, start, center_e, end, (wc, wcd[:, 0], wcd[:, 1]), covers, coincide)
 
 
-def _parity(perm) -> int:
-    return sum(perm[a] > perm[b] for a in range(len(perm)) for b in range(a + 1, len(perm))) % 2
 
 
 def _in_arc(X, v, p1, p2, x):
