@@ -38,6 +38,7 @@ import numpy as np
 from . import io
 from ._errors import MeshError, ParameterError
 from ._objective import Objective
+from .certify import local_certificate
 from .problem import Problem
 from .solvers import CM, Outcome, Progress, Result, get_solver
 
@@ -291,15 +292,19 @@ def _run(name, solver, objective, x0, max_seconds, progress) -> Result:
     x = np.asarray(state.x)
     if not np.isfinite(x).all():
         outcome, x = Outcome.NONFINITE, np.asarray(x0)
-    inverted = problem.count_inverted(x)
-    if outcome is Outcome.CONVERGED and inverted:
+    cert = local_certificate(x, problem.simplices)  # exact: orientations, fans, stars
+    inverted = cert.inverted
+    if outcome is Outcome.CONVERGED and not cert.ok:
         outcome = Outcome.NOT_INJECTIVE
     result = Result(x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
                     energy_history=np.asarray(energies, np.float64), iterations=state.iteration,
                     seconds=solve, setup_seconds=setup, time_history=np.asarray(times),
                     grad_history=np.asarray(grads), info={"solver": solver, "stopped": stopped,
                                                           "flips_history": np.asarray(flips, np.int64),
-                                                          "evaluations": state.evaluations})
+                                                          "evaluations": state.evaluations,
+                                                          "local_certificate": cert,
+                                                          **({"reason": cert.message} if inverted == 0 and
+                                                             not cert.ok else {})})
     if progress:
         print(f"{name}: {result.iterations} it, {solve:.2f} s + setup {setup:.2f} s, energy "
               f"{result.energy / objective.total_volume:.10g}, max flips {max(flips)}, "

@@ -37,11 +37,50 @@ PROJECTIONS = ("clamp", "abs", "none")
 #: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
 #: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
 #: that off made energy + gradient of 10^6 triangles 1.45x faster (CPU time 0.076 -> 0.052 s)
-#: and changes nothing elsewhere (the option only exists for CPU).
+#: and changes nothing elsewhere (the option only exists for CPU).  jaxlib before 0.8.1 does
+#: not know it and refuses to compile with it: see :func:`xla_options`.
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
-#: ``jax.jit`` with :data:`XLA_OPTIONS`.
-jit = partial(jax.jit, compiler_options=XLA_OPTIONS)
+
+@functools.cache
+def xla_options() -> dict:
+    """:data:`XLA_OPTIONS` if the running jaxlib accepts them, else ``{}``: decided once per
+    process by compiling an identity (about 20 ms, at the first kernel call, not at import)."""
+    try:
+        jax.jit(lambda v: v, compiler_options=XLA_OPTIONS).lower(np.float64(0.0)).compile()
+    except Exception:  # noqa: BLE001 -- the error type differs across jaxlib versions
+        return {}
+    return dict(XLA_OPTIONS)
+
+
+class _Kernel:
+    """``jax.jit(fun, compiler_options=xla_options(), **options)``, made at the first call (so
+    that importing geomopt compiles nothing); attributes (``lower``, ``_cache_size``...) are
+    the jitted function's."""
+
+    def __init__(self, fun, options):
+        self._fun, self._options, self._jitted = fun, options, None
+        functools.update_wrapper(self, fun)
+
+    def _kernel(self):
+        if self._jitted is None:
+            self._jitted = jax.jit(self._fun, compiler_options=xla_options(), **self._options)
+        return self._jitted
+
+    def __call__(self, *args, **kwargs):
+        return self._kernel()(*args, **kwargs)
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self._kernel(), name)
+
+
+def jit(fun=None, **options):
+    """``jax.jit`` with :func:`xla_options` (usable as ``@jit`` or ``partial(jit, ...)``)."""
+    if fun is None:
+        return partial(jit, **options)
+    return _Kernel(fun, options)
 
 #: Elements per chunk of the per-element Hessian work on CPU (see :func:`block_hessian`).
 CPU_CHUNK = 1024

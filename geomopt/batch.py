@@ -157,7 +157,7 @@ def write_certified(case, result, path):
     """Write an untangled case to ``path`` atomically, certifying the written file first.
 
     The file is written beside ``path`` and read back (:func:`geomopt.untangle.write_untangle_result`);
-    only a file that certifies (no inverted element, handles bit-exact) is renamed onto
+    only a file that certifies (locally injective, handles bit-exact) is renamed onto
     ``path``, so a file that does not certify never replaces an older one.
 
     Returns
@@ -176,8 +176,7 @@ def write_certified(case, result, path):
     with io.atomic_path(path) as tmp:
         check = untangle.write_untangle_result(case, result, tmp)
         if not check["certified"]:
-            raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
-                             f"{check['handles_moved']} handle(s) moved)")
+            raise SolveError(f"the written file did not certify: {check['message']}")
     return check
 
 

@@ -75,10 +75,25 @@ def _have(module):
         return False
 
 
+#: What :class:`SparseCholesky` calls on py-mkl-pardiso's (private) ``_mkl_pardiso.PardisoSolver``,
+#: tested with py-mkl-pardiso 0.0.6: a release without it falls back to the next backend.
+PARDISO_API = ("set_iparm", "set_pattern", "run_phase", "refactor_values", "solve")
+
+
+def _have_pardiso():
+    try:
+        from pymklpardiso import MTYPE_REAL_SYM_POSDEF  # noqa: F401
+        from pymklpardiso._mkl_pardiso import PardisoSolver
+    except Exception:  # noqa: BLE001 -- not installed, or its layout changed
+        return False
+    return all(callable(getattr(PardisoSolver, name, None)) for name in PARDISO_API)
+
+
 def available_backends():
-    """Installed backends, fastest first (the order ``auto`` uses)."""
+    """Installed backends, fastest first (the order ``auto`` uses).  PARDISO counts only when
+    py-mkl-pardiso offers the calls geomopt makes (:data:`PARDISO_API`)."""
     out = []
-    if _have("pymklpardiso"):
+    if _have_pardiso():
         out.append("pardiso")
     if _have("sksparse.cholmod"):
         out.append("cholmod")

@@ -9,9 +9,8 @@ import numpy as np
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from .problem import Problem
-from .solvers import Newton, Result, get_solver, minimize
-from .certify import polygon_crossings, polygon_orientation
-from .predicates import branch_vertices
+from .solvers import Newton, Outcome, Result, get_solver, minimize
+from .certify import local_certificate, polygon_crossings, polygon_orientation
 from .solvers._base import check_progress
 from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
@@ -112,9 +111,9 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    # a flip-free map can still wind twice around an interior vertex (a branch point): no
-    # flip-free step removes it, so it is repaired like a fold
-    if source != "the Tutte start map" and (inverted or len(branch_vertices(x0, problem.simplices))):
+    # a flip-free map can still wind twice around an interior vertex (a branch point), which no
+    # flip-free step removes, or overlap around a boundary vertex: repaired like a fold
+    if source != "the Tutte start map" and (inverted or not local_certificate(x0, problem.simplices).ok):
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired
@@ -238,6 +237,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     cert = certify_bijective(result.x, problem.input_simplices)
     result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired,
                        certificate=cert, injectivity=cert.injectivity)
+    if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
+        result.info["reason"] += ("; the free boundary folded over itself there, which the bijective "
+                                  "mode prevents (bijective=True, geomopt param --bijective)")
     return result
 
 

@@ -38,9 +38,11 @@ triangles with an aspect ratio above 10 are replaced by equilateral ones, as the
 does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
 ``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
 at the end (bit-exact), and the result is certified with the exact orientation predicate
-(:mod:`geomopt.predicates`); in 2D, an interior vertex whose positive triangles wind around it
-more than once (a branch point, :func:`~geomopt.predicates.vertex_windings`) also fails it
-(counted in ``info['branch_vertices']``).
+(:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
+a map with every element positive can still wind twice around an interior vertex (2D) or edge
+(3D), or overlap itself around a boundary vertex or edge; such a map is ``NOT_INJECTIVE``
+(interior failures counted in ``info['branch_vertices']``, the certificate in
+``info['local_certificate']``).
 
 ``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
 once per mesh shape.
@@ -64,6 +66,7 @@ import numpy as np
 from ._errors import MeshError, ParameterError, SolveError
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
+from .certify import local_certificate
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
@@ -139,8 +142,8 @@ class UntangleResult:
 
     @property
     def success(self) -> bool:
-        """Converged, no inverted element (exact), every handle exactly in place and, in 2D, no
-        interior branch vertex (``info['branch_vertices']``)."""
+        """Converged, no inverted element (exact), every handle exactly in place and locally
+        injective around every vertex and edge (``info['local_certificate']``)."""
         return self.outcome is Outcome.CONVERGED and self.inverted == 0 and self.handles_moved == 0
 
     @property
@@ -417,24 +420,18 @@ def untangle(
         outcome, xs_final = Outcome.NONFINITE, xs
     out = xs_final[: problem.n_vertices] / k  # without bucket padding
     out[problem.fixed] = problem.fixed_positions
-    inverted = problem.count_inverted(out)
+    cert = local_certificate(out, S)  # exact: orientations, and fans/stars around vertices and edges
+    inverted = cert.inverted
     moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
-    if outcome is Outcome.CONVERGED and (inverted or moved):
+    if outcome is Outcome.CONVERGED and (not cert.ok or moved):
         outcome = Outcome.NOT_INJECTIVE
-    branches = 0
-    if d == 2 and not inverted:  # every triangle positive: an interior fan may still wind twice
-        from .predicates import branch_vertices
-
-        branches = len(branch_vertices(out, S))
-        if branches and outcome is Outcome.CONVERGED:
-            outcome = Outcome.NOT_INJECTIVE
-            hint = ("the fixed boundary probably winds more than once, check the handle positions"
-                    if np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all() else
-                    "flip-free motion cannot remove them; start from a map whose boundary is a simple "
-                    "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
-            reason = (f"no triangle is inverted, but {branches} interior vertex(es) are branch "
-                      f"points (their triangles wind around them more than once): the map is not "
-                      f"locally injective; {hint}")
+    branches = len(cert.branch_vertices) + len(cert.branch_edges)
+    if not inverted and not cert.ok and outcome is Outcome.NOT_INJECTIVE:
+        hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
+                "positions" if np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all() else
+                "flip-free motion cannot remove it; start from a map whose boundary is a simple "
+                "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
+        reason = f"no element is inverted, but {cert.message}; {hint}"
     vols = problem.signed_volumes(out)
     result = UntangleResult(
         x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
@@ -444,7 +441,8 @@ def untangle(
         min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
         info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
               "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
-              "active_elements": int(active.sum()), "branch_vertices": branches},
+              "active_elements": int(active.sum()), "branch_vertices": branches,
+              "local_certificate": cert},
     )
     if throw and not result.success:
         raise SolveError(f"untangling failed: {result.message}", result)
@@ -585,16 +583,15 @@ def write_untangle_result(case, result, path):
 
     2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and ``f a/a b/b c/c``;
     3D: ASCII VTK with the input connectivity.  Full precision, atomic (:mod:`geomopt.io`).
-    The file is read back and checked: handles bit-exact and no element inverted (exact
-    predicate, in the orientation convention of the case).
+    The file is read back and checked: handles bit-exact and locally injective (exact
+    predicates, in the orientation convention of the case: :func:`~geomopt.certify.local_certificate`).
 
     Returns
     -------
     dict with ``path``, ``inverted`` (in the file), ``handles_moved`` (in the file),
-    ``certified`` (both zero).
+    ``certified`` (both zero and the map locally injective), ``message`` (why not, or "").
     """
     from .io import read_vtk_tets, write_obj_with_uv, write_vtk_tets
-    from .predicates import count_inverted
 
     path = Path(path)
     H = case["handles"]
@@ -612,10 +609,11 @@ def write_untangle_result(case, result, path):
             raise MeshError(f"{path}: connectivity read back differs from the input")
         S = T
         handles_ref = case["init"][H]
-    inverted = count_inverted(back, S, orientation=case["orientation"])
+    cert = local_certificate(back, S, orientation=case["orientation"])
     moved = _bits_differ(back[H], handles_ref)
-    return {"path": path, "inverted": int(inverted), "handles_moved": moved,
-            "certified": inverted == 0 and moved == 0}
+    message = "; ".join(filter(None, [cert.message, f"{moved} handle(s) moved" if moved else ""]))
+    return {"path": path, "inverted": cert.inverted, "handles_moved": moved,
+            "certified": cert.ok and moved == 0, "message": message}
 
 
 def _read_obj_uv(path, n):

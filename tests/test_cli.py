@@ -489,12 +489,13 @@ def test_untangle_output_that_does_not_certify_never_replaces_the_old_file(cli, 
     def broken(case, res, path):
         check = real(case, res, path)
         assert Path(path) != out and Path(path).read_bytes().startswith(b"v ")  # written beside, not over
-        return {**check, "inverted": 1, "certified": False}
+        return {**check, "inverted": 1, "certified": False,
+                "message": "1 element(s) inverted or degenerate (first: element 0)"}
 
     monkeypatch.setattr(geomopt.untangle, "write_untangle_result", broken)
     code, _, err = cli("untangle", case, "-o", out, "--quiet")
     assert code == 1
-    one_error_line(err, "the written file did not certify (1 inverted element(s)", "nothing written")
+    one_error_line(err, "the written file did not certify: 1 element(s) inverted", "nothing written")
     assert out.read_text() == "previous result\n" and sorted(os.listdir(tmp_path)) == ["case", "out.obj"]
 
 

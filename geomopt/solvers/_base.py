@@ -35,6 +35,7 @@ import numpy as np
 
 from .._errors import ParameterError, SolveError
 from .._config import Instance, Int, Real, validate
+from ..certify import local_certificate
 from ..linesearch import InjectiveSearch
 
 #: a map whose extent grows by more than this factor over its start (and rest) extent diverged
@@ -57,7 +58,8 @@ class Outcome(enum.Enum):
             "line_search_failed": "the line search found no acceptable step (the problem may be "
             "badly scaled or the energy non-smooth)",
             "nonfinite": "the energy or gradient became NaN/inf (check the input and the start map)",
-            "not_injective": "the result has inverted or degenerate elements",
+            "not_injective": "the result is not locally injective (inverted or degenerate elements, "
+            "or elements overlapping around a vertex or edge)",
             "diverged": "the solve diverged: the energy fell without bound or below its known "
             "lower bound (check the energy and its parameters, or fix more vertices)",
         }[self.value]
@@ -229,6 +231,8 @@ class Result:
 
     @property
     def success(self) -> bool:
+        """Converged and certified locally injective (``minimize`` turns an uncertified
+        converged map into ``NOT_INJECTIVE``)."""
         return self.outcome is Outcome.CONVERGED and self.inverted == 0
 
     @property
@@ -236,7 +240,8 @@ class Result:
         """``"global"`` (exact certificate: flip-free and the boundary does not overlap itself),
         ``"local"`` (flip-free) or ``"none"``; global injectivity is certified where the solve
         recorded a certificate (free-boundary parameterization), else at most ``"local"``."""
-        if self.inverted:
+        local = self.info.get("local_certificate")
+        if self.inverted or (local is not None and not local.ok):
             return "none"
         return self.info.get("injectivity", "local")
 
@@ -349,15 +354,19 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     if not np.isfinite(x).all():
         outcome = Outcome.NONFINITE
         x = objective.unpad_map(np.asarray(x0))
-    inverted = problem.count_inverted(x)
-    if outcome is Outcome.CONVERGED and inverted:
+    cert = local_certificate(x, problem.simplices)  # exact: orientations, fans, stars
+    inverted = cert.inverted
+    if outcome is Outcome.CONVERGED and not cert.ok:
         outcome = Outcome.NOT_INJECTIVE
     reason = divergence(state) if outcome is Outcome.DIVERGED else None
+    if outcome is Outcome.NOT_INJECTIVE and not inverted:
+        reason = cert.message
     result = Result(
         x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
         energy_history=np.asarray(history), iterations=state.iteration, seconds=seconds,
         setup_seconds=setup, time_history=np.asarray(times), grad_history=np.asarray(grads),
-        info={"solver": solver, "evaluations": state.evaluations, **({"reason": reason} if reason else {})},
+        info={"solver": solver, "evaluations": state.evaluations, "local_certificate": cert,
+              **({"reason": reason} if reason else {})},
     )
     if throw and not result.success:
         raise SolveError(f"solve failed: {result.message}", result)
