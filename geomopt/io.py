@@ -379,7 +379,13 @@ def _create_temp_next_to(path, what):
 
 
 def _as_array(A, name):
-    """``np.asarray`` that turns ragged/odd input into a MeshError."""
+    """``np.asarray`` that turns ragged/odd input into a MeshError (a traced JAX value into a
+    ParameterError saying what can be traced)."""
+    from ._tracing import refuse_traced
+
+    refuse_traced(f"{name}: this check", "connectivity and indices must be concrete (close over them); "
+                  "rest vertices and handle positions may be traced in Problem.planar/surface/tets, and "
+                  "solves are differentiated with geomopt.implicit", A)
     try:
         return np.asarray(A)
     except (ValueError, TypeError) as exc:
