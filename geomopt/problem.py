@@ -39,7 +39,7 @@ import numpy as np
 from ._errors import MeshError, ParameterError
 from ._geometry import det as _det
 from ._tracing import StaticKey, digest, is_traced
-from .io import validate_indices, validate_simplices, validate_vertices
+from ._validate import validate_indices, validate_simplices, validate_vertices
 from .topology import boundary_vertices, nonmanifold_facets, same_side_facets
 
 __all__ = ["Problem", "check_initial_orientation", "check_rest_values", "fixed_total_problem"]
