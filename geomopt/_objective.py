@@ -37,6 +37,7 @@ from ._geometry import dets
 from ._errors import ParameterError
 from ._tracing import StaticKey, is_traced, refuse_traced
 from .energies import Energy, get_energy
+from .linsolve import SparseCholesky
 from .problem import Problem
 
 PROJECTIONS = ("clamp", "abs", "none")
@@ -387,7 +388,7 @@ class Objective:
     parameters: ``params`` is a dict of scalars, traced or not), calling the pure function
     there and the tuned jitted kernel on concrete arrays.  An Objective is a JAX pytree
     whose leaves are its problem's arrays (rest geometry, handle positions), the element
-    weights and the padded rest geometry: build it from a :class:`~geomopt.Problem` with
+    weights, the energy parameters given as traced values, and the padded rest geometry: build it from a :class:`~geomopt.Problem` with
     traced rest vertices to differentiate with respect to the rest shape (e.g.
     ``jax.grad(lambda V: Objective(Problem.surface(V, F), e).value(x))(V)``), or
     ``jax.vmap`` over a batch of rest shapes of one connectivity.  The host-side methods
@@ -407,7 +408,10 @@ class Objective:
         if not isinstance(problem, Problem):
             raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
                                  f"Problem.tets), got {type(problem).__name__}")
-        energy = get_energy(energy, **params)
+        # traced parameters are leaves of the objective, concrete ones part of its energy
+        traced = {k: v for k, v in params.items() if is_traced(v)}
+        energy = get_energy(energy, **{k: v for k, v in params.items() if k not in traced})
+        energy.resolve_params(**traced)  # known names
         energy.check_dim(problem.dim)
         mesh = _Mesh(problem, _padding.Sizes.of(problem, buckets))
         w = _check_weights(element_weights, problem.n_elements)
@@ -415,17 +419,17 @@ class Objective:
         _, Minv, vol = _padding.pad_geometry(problem, mesh.sizes, vol)
         # device_put, not jnp.asarray: no copy program compiled per array shape
         Minv, vol = (a if is_traced(a) else jax.device_put(a) for a in (Minv, vol))
-        self._set(problem, w, Minv, vol, StaticKey((_energy_key(energy), mesh.key), (energy, mesh)))
+        self._set(problem, w, traced, Minv, vol, StaticKey((_energy_key(energy), mesh.key), (energy, mesh)))
 
-    def _set(self, problem, weights, Minv, vol, static):
-        self.problem, self.element_weights, self._static = problem, weights, static
+    def _set(self, problem, weights, overrides, Minv, vol, static):
+        self.problem, self.element_weights, self._overrides, self._static = problem, weights, overrides, static
         self.energy, self._mesh = static.payload
         self.geom = (self._mesh.simplices, Minv, vol)
         #: elements per chunk of the Hessian work (:func:`block_hessian`; 0: all at once)
         self.chunk = CPU_CHUNK if jax.default_backend() == "cpu" else 0
 
     def tree_flatten(self):
-        return (self.problem, self.element_weights, self.geom[1], self.geom[2]), self._static
+        return (self.problem, self.element_weights, self._overrides, self.geom[1], self.geom[2]), self._static
 
     @classmethod
     def tree_unflatten(cls, static, leaves):
@@ -459,7 +463,7 @@ class Objective:
         """The energy's parameters with ``override`` applied, validated by the energy
         (:meth:`~geomopt.energies.Energy.resolve_params`; traced values pass unchecked), as
         float64 scalars for the kernels."""
-        p = self.energy.resolve_params(**override)
+        p = self.energy.resolve_params(**{**self._overrides, **override})
         return {k: jnp.asarray(v, jnp.float64) for k, v in p.items()}
 
     @property
@@ -475,6 +479,11 @@ class Objective:
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
         return m.assembly[0], m.assembly[1], m.n_blocks_padded
+
+    def cholesky(self, backend: str = "auto"):
+        """A :class:`~geomopt.linsolve.SparseCholesky` on :attr:`pattern`, its symbolic analysis
+        done once per mesh and backend and shared by every copy of this objective."""
+        return self._mesh.cholesky(backend)
 
     # -- padded maps (see geomopt._padding) ------------------------------------------
     def prepare_map(self, x) -> np.ndarray:
@@ -585,17 +594,27 @@ class _Mesh:
     def __init__(self, problem: Problem, sizes: _padding.Sizes):
         self.key = (problem._static, sizes)
         self.sizes = sizes
-        self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded))
         d = problem.dim
         free = np.repeat(problem.free_mask[:, None], d, axis=1)
         if problem.fixed.size == 0:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
-        self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
+        with jax.ensure_compile_time_eval():  # concrete device arrays, also when built under a trace
+            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded))
+            self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
         # the pattern needs the connectivity only (never the problem's possibly traced arrays)
         self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
                                                    n_vertices=problem.n_vertices)
         self._pattern = None
+        self._cholesky = {}
+
+    def cholesky(self, backend):
+        if backend not in self._cholesky:
+            pat = self.pattern
+            chol = SparseCholesky(pat.indptr, pat.indices, backend)
+            chol.analyze()
+            self._cholesky[backend] = chol
+        return self._cholesky[backend]
 
     @property
     def pattern(self) -> HessianPattern:
@@ -610,7 +629,8 @@ class _Mesh:
             blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
             swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
             gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
-            self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
+            with jax.ensure_compile_time_eval():
+                self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
             self._pattern = pat
         return self._pattern
 

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
+from ._tracing import refuse_traced
 from ._objective import Objective
 from .problem import Problem
 from .solvers import Newton, Result, get_solver, minimize
@@ -166,7 +167,8 @@ def check_scale_aware(energy, energy_params):
 
 
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, **energy_params):
+                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
+                 **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
@@ -191,6 +193,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         Either way ``info["certificate"]`` is the exact global certificate
         (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
+    element_weights : (m,) positive per-triangle weights of the energy (see
+        :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
         mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
@@ -207,20 +211,23 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     ParameterError : unknown energy/solver/weights name or invalid energy parameter.
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
+    refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
+                  "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)
     V, F = mesh_arrays(V, F)
     check_scale_aware(energy, energy_params)
     check_progress(progress, "parameterize")
     if bijective:
         from .scaffold import bijective_parameterize
 
-        if isinstance(x0, str):
-            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array")
+        if isinstance(x0, str) or element_weights is not None:
+            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
+                                 "with no element_weights")
         return bijective_parameterize(V, F, energy=energy, solver=solver, weights=weights, x0=x0,
                                       progress=progress, throw=throw, **energy_params)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
-    objective = Objective(problem, energy, buckets=buckets, **energy_params)
+    objective = Objective(problem, energy, buckets=buckets, element_weights=element_weights, **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
     x0, s, repaired = start_map(objective, x0, weights, progress is True)
     if x0 is None:
