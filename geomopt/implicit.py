@@ -32,26 +32,34 @@ forward solve and the sparse solve run on the host through ``jax.pure_callback``
   well-chosen DOFs are pinned (column-pivoted QR on ``N``), which leaves a matrix that is
   positive definite exactly when ``H`` is positive definite modulo ``N``, then the solution
   is projected onto ``N``'s orthogonal complement.
-* Refusals (:class:`~geomopt.SolveError`, never a silent wrong gradient): a forward solve that
-  did not succeed (converged and certified injective); a map whose Newton decrement
-  ``g.H^+ g / 2`` exceeds :data:`DECREMENT_RTOL` ``* |E|`` (not a tight enough optimum for
-  the theorem); an exact Hessian that is not positive definite modulo the gauge (a saddle
-  or a degenerate minimum: the map is then not a differentiable function of its inputs).
-  Under ``jax.jit`` these surface as JAX's runtime error carrying the SolveError's message.
+* **The map returned** is the solve's map refined by one exact Newton step modulo the gauge
+  (``x - H^+ g``, kept only when still flip-free by the exact predicate): the optimum to
+  rounding, so that the derivative and re-solves agree (an energy-based stopping rule leaves
+  the map accurate to about the square root of the machine precision only).
+* Refusals (:class:`~geomopt.SolveError`, never a silent wrong gradient), by the forward: a
+  solve that did not succeed (converged and certified injective); a map whose Newton
+  decrement ``g.H^+ g / 2`` exceeds :data:`DECREMENT_RTOL` ``* |E|`` (not a tight enough
+  optimum for the theorem); an exact Hessian that is not positive definite modulo the gauge
+  (a saddle or a degenerate minimum: the map is then not a differentiable function of its
+  inputs).  Under ``jax.jit`` these surface as JAX's runtime error carrying the message.
 
 **Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
 (:func:`geomopt.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linsolve`,
 its symbolic analysis shared with every solve of the mesh, :meth:`~geomopt.Objective.cholesky`)
 or block-Jacobi CG (:mod:`geomopt._cg`, whose positive-definiteness test only sees its Krylov
-space).  One factorization serves the decrement test and every cotangent of the same map
-(``jax.jacrev`` rows); the forward solve's last numeric factorization is of another matrix
-(the previous iterate, shifted) and is not reused.
+space).  The forward's refinement factors the exact Hessian once; the adjoint reuses that
+factorization while the refining step stayed below :data:`REUSE_STEP` times the shortest edge
+(the Hessian at the returned map then agrees with it to about that relative precision), else
+it factors again at the returned map; either way one factorization serves every cotangent of
+the same map (``jax.jacrev`` rows).  The forward solver's own last factorization is of another
+matrix (the previous iterate, shifted) and is not used.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import itertools
 import threading
 from functools import partial
@@ -74,7 +82,14 @@ __all__ = ["argmin", "minimize", "parameterize", "untangle", "gauge_motions", "D
 #: an optimum to differentiate (Newton's default stopping rule ends far below it)
 DECREMENT_RTOL = 1e-10
 #: relative residual of the CG adjoint solve
-CG_RTOL = 1e-12
+CG_RTOL = 1e-10
+#: the forward's factorization is reused by the adjoint when its refining step moved no vertex
+#: by more than this times the shortest edge of the map
+REUSE_STEP = 1e-8
+
+
+def _shortest_edge(x, S) -> float:
+    return float(np.linalg.norm(x[S[:, 1:]] - x[S[:, :1]], axis=-1).min())
 
 
 # --------------------------------------------------------------------- the core
@@ -186,12 +201,16 @@ def _forward(solve, linear_solver, objective, params, x0):
     x, ctx = solve(obj, params, x0)
     ctx = dict(ctx or {})
     obj = ctx.setdefault("objective", obj)
-    system = AdjointSystem(obj, params, np.asarray(x, np.float64), linear_solver)
+    x = np.asarray(x, np.float64)
+    system = AdjointSystem(obj, params, x, linear_solver)
     x1 = x + system.step
     if obj.problem.count_inverted(x1) == 0:
-        x = x1  # the backward assembles its system at this map
-    else:
-        ctx["system"] = system
+        # the factorization at x serves the adjoint at x1 while the step is at rounding level
+        # (the Hessian then agrees to about that relative precision), else it is redone there
+        if np.abs(system.step).max() > REUSE_STEP * _shortest_edge(x1, obj.problem.simplices):
+            system = None
+        x = x1
+    ctx["system"] = system
     with _lock:
         token = next(_counter)
         _CONTEXTS[token] = ctx
@@ -209,7 +228,7 @@ def _adjoint(linear_solver, token, objective, params, x, xbar):
     system = ctx.get("system")
     if system is None:
         obj = ctx.get("objective") or _concrete(objective)
-        system = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver)
+        system = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
         ctx["system"] = system
     return system.solve(np.asarray(xbar, np.float64))
 
@@ -217,12 +236,17 @@ def _adjoint(linear_solver, token, objective, params, x, xbar):
 # --------------------------------------------------------------------- the gauge
 
 
-def _symmetries(energy, params, d, samples=4, rtol=1e-9):
+def _symmetries(energy, params, d):
+    return _symmetries_of(energy.density, tuple(sorted(params.items())), d)
+
+
+@functools.lru_cache(maxsize=64)
+def _symmetries_of(density, params, d, samples=4, rtol=1e-9):
     """(rotation, scale): whether the density is invariant under ``J -> R J`` (rotations of the
     map) and ``J -> s J``, tested on random Jacobians with ``det J > 0``."""
     rng = np.random.default_rng(0)
-    p = {k: jnp.float64(v) for k, v in params.items()}
-    psi = jax.jit(jax.vmap(energy.density, in_axes=(0, None)))
+    p = {k: jnp.float64(v) for k, v in params}
+    psi = jax.vmap(density, in_axes=(0, None))
     J = np.eye(d) + 0.3 * rng.standard_normal((samples, d, d))
     J[np.linalg.det(J) < 0, 0] *= -1
     A = rng.standard_normal((d, d))
@@ -262,7 +286,7 @@ def _null(A, rtol=1e-10):
     """Orthonormal basis of the null space of ``A`` (k, r): (r, r - rank)."""
     if A.shape[0] == 0:
         return np.eye(A.shape[1])
-    _, s, Vt = np.linalg.svd(A)
+    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # no (k, k) U for tall A
     rank = int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))
     return Vt[rank:].T
 
@@ -301,13 +325,15 @@ class AdjointSystem:
     """The exact Hessian at an optimum, the gauge pinned, factored or applied by CG: solves
     ``H lam = P xbar`` for any number of cotangents (see the module notes).
 
-    Raises SolveError on construction when ``x`` is not a tight optimum or ``H`` is not
-    positive definite modulo the gauge."""
+    Raises SolveError on construction when ``H`` is not positive definite modulo the gauge
+    or, with ``check``, ``x`` is not a tight optimum (then :attr:`step` is the Newton step
+    ``-H^+ g`` (n, d) and :attr:`decrement` ``g.H^+ g / 2``)."""
 
     objective: Objective
     params: dict
     x: np.ndarray
     linear_solver: str = "auto"
+    check: bool = True  # test the decrement (and compute the refining step)
 
     def __post_init__(self):
         obj, x = self.objective, self.x
@@ -335,7 +361,8 @@ class AdjointSystem:
             except NotPositiveDefinite:
                 raise SolveError(self._not_pd()) from None
             self.grad = np.asarray(obj.unpad_map(grad))
-        self._check_decrement()
+        if self.check:
+            self._check_decrement()
 
     def _pin(self, data, pat):
         """Replace the rows and columns of the pinned free DOFs by identity ones, in place."""
