@@ -24,7 +24,7 @@ _LAZY = {
     "compare": "._compare", "Comparison": "._compare",
 }
 _SUBMODULES = ("energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
-               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")
+               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit")
 
 
 def __getattr__(name):
@@ -47,6 +47,6 @@ def __dir__():
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "compare", "Comparison", "tutte_embedding", "energies", "io", "predicates", "set_cache_dir", "cache_dir", "cache_stats",
+    "compare", "Comparison", "tutte_embedding", "energies", "io", "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",
     "__version__",
 ]
