@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _padding
+from . import _x64
 from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
@@ -59,6 +60,7 @@ def jit(fn=None, *, static_argnums=()):
 
     @functools.wraps(fn)
     def call(*args):
+        _x64.require()  # never in float32 (geomopt._x64)
         if is_traced([a for i, a in enumerate(args) if i not in static]):
             return fn(*args)
         return jitted(*args)
@@ -560,6 +562,7 @@ class Objective:
         return out[: self.sizes.m] if is_traced(out) else np.asarray(out)[: self.sizes.m]
 
 
+_x64.float64_methods("__init__", "params", "value", "value_and_grad", "hessian", "compile_hessian", "dets")(Objective)
 jax.tree_util.register_pytree_node(Objective, Objective.tree_flatten, Objective.tree_unflatten)
 
 
@@ -640,6 +643,7 @@ def _densities_kernel(density, geom, x, params):
     return jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
 
 
+@_x64.float64
 def element_densities(objective: Objective, x, params=None) -> jax.Array:
     """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring."""
     out = _densities_kernel(objective.energy.density, objective.geom, objective._pad(jnp.asarray(x))[0],

@@ -24,9 +24,8 @@ _SIMPLEX_WORDS = {3: ("triangle", "triangles"), 4: ("tetrahedron", "tetrahedra")
 def _as_array(A, name):
     """``np.asarray`` that turns ragged/odd input into a MeshError (a traced JAX value into a
     ParameterError saying what can be traced)."""
-    refuse_traced(f"{name}: this check", "connectivity and indices must be concrete (close over them); "
-                  "rest vertices and handle positions may be traced in Problem.planar/surface/tets, and "
-                  "solves are differentiated with geomopt.implicit", A)
+    refuse_traced(f"the check of {name}", "connectivity and indices must be concrete (close over them); traceable: "
+                  "rest vertices and handles in Problem.planar/surface/tets, Objective.value, geomopt.implicit", A)
     try:
         return np.asarray(A)
     except (ValueError, TypeError) as exc:

@@ -43,6 +43,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError
+from ._tracing import refuse_traced
 from ._validate import validate_indices, validate_vertices
 from .predicates import count_inverted, orient2d
 from .topology import check_disk
@@ -284,6 +285,8 @@ def certify_bijective(x, F, loop=None) -> Certificate:
         distinct vertex ids.
     """
     t0 = time.perf_counter()
+    refuse_traced("certify_bijective (exact predicates)", "it certifies concrete maps; inside a trace use "
+                  "Objective.dets(x) (float determinants)", x)
     x = np.asarray(x)
     F = np.asarray(F)
     if x.ndim != 2 or x.shape[1] != 2 or x.dtype.kind not in "fiu":

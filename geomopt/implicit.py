@@ -73,6 +73,7 @@ from ._cg import NewtonCG, cg_system, pcg
 from ._errors import ParameterError, SolveError
 from ._objective import Objective, block_hessian, jit
 from ._tracing import is_traced
+from ._x64 import float64, pure_callback
 from .linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
 from .problem import check_rest_values
 
@@ -95,6 +96,7 @@ def _shortest_edge(x, S) -> float:
 # --------------------------------------------------------------------- the core
 
 
+@float64
 def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto"):
     """The minimiser ``x*`` (n, d) of ``objective`` found by ``solve``, differentiable with
     respect to ``objective`` (its pytree leaves: rest geometry, element weights, handle
@@ -154,7 +156,7 @@ def _host(fn, shapes, *args):
     if not is_traced(args):
         out = fn(*args)
         return jax.tree_util.tree_map(lambda o, s: jnp.asarray(o, s.dtype), out, shapes)
-    return jax.pure_callback(fn, shapes, *args, vmap_method="sequential")
+    return pure_callback(fn, shapes, *args, vmap_method="sequential")
 
 
 @jax.jit
@@ -194,6 +196,7 @@ def _floats(params) -> dict:
     return {k: float(np.asarray(v)) for k, v in params.items()}
 
 
+@float64
 def _forward(solve, linear_solver, objective, params, x0):
     """Solve, then refine the map by one exact Newton step modulo the gauge (module notes)."""
     params = _floats(params)
@@ -219,6 +222,7 @@ def _forward(solve, linear_solver, objective, params, x0):
     return np.asarray(x, np.float64), np.int64(token)
 
 
+@float64
 def _adjoint(linear_solver, token, objective, params, x, xbar):
     """``lam = H^+ P xbar`` (n, d) at the optimum ``x`` (module notes)."""
     with _lock:
@@ -581,6 +585,7 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
     shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((2,), jnp.float64),
               jax.ShapeDtypeStruct((m,), jnp.bool_))
 
+    @float64
     def untangled(problem, theta, x0):
         problem = check_rest_values(jax.tree_util.tree_map(np.asarray, problem))
         result = run(problem, np.asarray(x0), solver=solver, theta=float(theta), progress=False, **options)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
+from ._x64 import float64
 from ._objective import Objective
 from .problem import Problem
 from .solvers import Newton, Result, get_solver, minimize
@@ -18,6 +19,7 @@ from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
 
 
+@float64
 def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
     """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
     ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
@@ -29,6 +31,8 @@ def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e
     """
     from scipy.optimize import minimize_scalar
 
+    refuse_traced("optimal_scale (a host search)", "start maps have zero derivative: compute them from concrete "
+                  "values", objective, x, params)
     params = objective.params(**(params or {}))
     x = objective.pad_map(np.asarray(x, dtype=np.float64))
 
@@ -72,6 +76,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
             f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
 
 
+@float64
 def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
 
@@ -145,6 +150,7 @@ def mesh_arrays(V, F=None):
     return V, F
 
 
+@float64
 def check_scale_aware(energy, energy_params):
     """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
@@ -166,6 +172,7 @@ def check_scale_aware(energy, energy_params):
             "(geomopt.minimize with a Problem that has handles)")
 
 
+@float64
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
                  **energy_params):
@@ -267,6 +274,7 @@ def projection_map(V, F) -> np.ndarray:
     return x * [1.0, -1.0] if area < 0 else x
 
 
+@float64
 def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
     """Repair a folded map: Garanzha et al.'s untangling with the boundary held on a simple
     polygon (the map's own boundary when it is one, else a circle), which is freed afterwards by

@@ -38,7 +38,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._geometry import det as _det
-from ._tracing import StaticKey, digest, is_traced
+from ._tracing import StaticKey, digest, is_traced, refuse_traced
 from ._validate import validate_indices, validate_simplices, validate_vertices
 from .topology import boundary_vertices, nonmanifold_facets, same_side_facets
 
@@ -290,7 +290,9 @@ class Problem:
         return x
 
     def signed_volumes(self, x) -> np.ndarray:
-        """(m,) signed area/volume of each element under the map, in the rest orientation."""
+        """(m,) signed area/volume of each element under the map, in the rest orientation
+        (NumPy; traceable: :meth:`geomopt.Objective.dets`)."""
+        refuse_traced("Problem.signed_volumes", "inside a trace use Objective.dets(x)", x)
         x = np.asarray(x, dtype=np.float64)
         return _signed_sizes(_edge_matrices(x, self.simplices))
 
@@ -298,6 +300,8 @@ class Problem:
         """Elements whose orientation under ``x`` is not positive, by an exact predicate."""
         from .predicates import count_inverted
 
+        refuse_traced("Problem.count_inverted (exact predicates)", "it certifies concrete maps; inside a trace "
+                      "use Objective.dets(x) (float determinants)", x)
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
 
 

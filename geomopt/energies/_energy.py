@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from .._errors import ParameterError
 from .._tracing import is_traced
+from .._x64 import float64
 from . import _densities as _d
 
 
@@ -109,6 +110,7 @@ _DENSITY_RULE = ("a density must be a pure JAX function psi(J, params) of a (d, 
                  "not numpy, and no Python branching on J's values)")
 
 
+@float64
 @functools.lru_cache(maxsize=256)
 def _density_dims(name, density, param_names):
     """``(dims, errors)``: the d in (2, 3) for which ``density`` traces to a float64 scalar, and
