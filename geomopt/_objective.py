@@ -416,7 +416,7 @@ class Objective:
         energy.resolve_params(**traced)  # known names
         energy.check_dim(problem.dim)
         mesh = _Mesh(problem, _padding.Sizes.of(problem, buckets))
-        w = _check_weights(element_weights, problem.n_elements)
+        w = check_element_weights(element_weights, problem.n_elements)
         vol = problem.volumes if w is None else problem.volumes * w
         _, Minv, vol = _padding.pad_geometry(problem, mesh.sizes, vol)
         # device_put, not jnp.asarray: no copy program compiled per array shape
@@ -573,8 +573,9 @@ def _energy_key(energy: Energy) -> tuple:
             rest if rest is None or callable(rest) else float(rest), tuple(sorted(energy.params.items())))
 
 
-def _check_weights(w, m):
-    """Per-element weights as (m,) float64 (positive and finite when concrete), or None."""
+def check_element_weights(w, m):
+    """Per-element weights as (m,) float64 (positive and finite when concrete; ParameterError
+    otherwise), or None."""
     if w is None:
         return None
     if not is_traced(w):

@@ -71,7 +71,7 @@ import scipy.linalg
 
 from ._cg import NewtonCG, cg_system, pcg
 from ._errors import ParameterError, SolveError
-from ._objective import Objective, block_hessian, jit
+from ._objective import Objective, block_hessian, check_element_weights, jit
 from ._tracing import is_traced
 from ._x64 import float64, pure_callback
 from .linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
@@ -186,9 +186,7 @@ def _concrete(objective: Objective) -> Objective:
     obj = jax.tree_util.tree_map(jax.device_put, objective)
     check_rest_values(obj.problem)
     if obj.element_weights is not None:
-        w = np.asarray(obj.element_weights)
-        if not (np.isfinite(w).all() and (w > 0).all()):
-            raise ParameterError("element_weights must be finite and > 0")
+        check_element_weights(np.asarray(obj.element_weights), obj.problem.n_elements)
     return obj
 
 

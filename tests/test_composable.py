@@ -60,7 +60,7 @@ def test_jax_hessian_equals_the_assembled_unprojected_hessian(kind):
     obj = Objective(build(V), "symmetric_dirichlet")
     p = obj.params()
     n, d = x.shape
-    H = np.asarray(jax.hessian(lambda x: obj.value(x, p))(jnp.asarray(x))).reshape(n * d, n * d)
+    H = np.asarray(jax.jit(jax.hessian(lambda x: obj.value(x, p)))(jnp.asarray(x))).reshape(n * d, n * d)
     free = obj.free_dofs.reshape(-1)
     _, _, data = obj.hessian(x, p, "none")
     Ha = obj.pattern.matrix(np.asarray(data)).toarray()
