@@ -38,6 +38,7 @@ import numpy as np
 from . import io
 from ._errors import MeshError, ParameterError
 from ._objective import Objective
+from ._x64 import float64
 from .certify import local_certificate
 from .problem import Problem
 from .solvers import CM, Outcome, Progress, Result, get_solver
@@ -192,6 +193,7 @@ class Comparison:
 # ------------------------------------------------------------------------------ running
 
 
+@float64
 def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=None, weights="uniform",
             max_seconds=None, max_steps=None, out=None, progress=False, **energy_params) -> Comparison:
     """Run several solvers on one problem from the same start map and trace each iteration.

@@ -49,6 +49,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError, ParameterError
+from ._tracing import refuse_traced
 from ._validate import validate_indices, validate_vertices
 from .predicates import orient2d, simplex_orientations
 from .stars import fan_overlaps_2d, star_overlaps_3d
@@ -417,6 +418,8 @@ def certify_bijective(x, F, loop=None) -> Certificate:
         distinct vertex ids.
     """
     t0 = time.perf_counter()
+    refuse_traced("certify_bijective (exact predicates)", "it certifies concrete maps; inside a trace use "
+                  "Objective.dets(x) (float determinants)", x)
     x = np.asarray(x)
     F = np.asarray(F)
     if x.ndim != 2 or x.shape[1] != 2 or x.dtype.kind not in "fiu":

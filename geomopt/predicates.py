@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._errors import MeshError, ParameterError
+from ._tracing import refuse_traced
 
 __all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted"]
 
@@ -246,6 +247,7 @@ def simplex_orientations(X, S) -> np.ndarray:
     s : (m,) int8 array
         ``orient2d(X[S[:, 0]], X[S[:, 1]], X[S[:, 2]])`` or the ``orient3d`` analogue.
     """
+    refuse_traced("exact orientation predicates", "they certify concrete maps; inside a trace use Objective.dets(x) (float determinants)", X)
     X = np.asarray(X)
     if X.ndim != 2 or X.shape[1] not in (2, 3):
         raise MeshError(f"X must be an array of shape (n, 2) or (n, 3), got shape {X.shape}")

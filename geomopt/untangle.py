@@ -64,6 +64,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
+from ._tracing import refuse_traced
+from ._x64 import float64
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
 from .certify import local_certificate
@@ -244,6 +246,7 @@ def _bits_differ(a, b) -> int:
 # --------------------------------------------------------------------- main entry
 
 
+@float64
 def untangle(
     problem: Problem,
     x0,
@@ -302,6 +305,8 @@ def untangle(
     -------
     :class:`UntangleResult`
     """
+    refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
+                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, theta)
     t_setup = time.perf_counter()
     d = problem.dim
     if theta is None:
@@ -552,6 +557,7 @@ def lim_problem(case):
     return problem, init, orientation, np.ones(3)
 
 
+@float64
 def untangle_case(folder, solver="lbfgs", progress=True, **options):
     """Read a LIM case folder (:meth:`geomopt.lim.LimCase.read`) and untangle it
     (:func:`lim_problem`, :func:`untangle`).

@@ -34,6 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ParameterError, SolveError
+from .._tracing import refuse_traced
+from .._x64 import float64, float64_methods
 from .._config import Instance, Int, Real, validate
 from ..certify import local_certificate
 from ..linesearch import InjectiveSearch
@@ -145,6 +147,11 @@ class AbstractSolver(abc.ABC):
     max_steps: int
     rtol: float
     search: InjectiveSearch
+
+    def __init_subclass__(cls, **kwargs):
+        # solvers driven by hand (init / step) run in float64 like minimize (geomopt._x64)
+        super().__init_subclass__(**kwargs)
+        float64_methods("init", "step", "run", "with_params", "forget")(cls)
 
     def _check(self, **rules):
         """Validate the shared configuration and ``rules`` (every subclass's ``__post_init__``)."""
@@ -297,6 +304,7 @@ def check_progress(progress, where="minimize"):
                              f"docstring), got {progress!r}")
 
 
+@float64
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
              throw: bool = False) -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
@@ -319,6 +327,8 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     """
     from . import get_solver
 
+    refuse_traced("geomopt.minimize", "for a map differentiable in the objective (rest shape, handles, weights) "
+                  "and params use geomopt.implicit.minimize", objective, x0, params)
     solver = get_solver("newton" if solver is None else solver)
     check_progress(progress)
     if params is not None and not isinstance(params, Mapping):

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 
 from .._errors import ParameterError
 from ..linsolve import SparseCholesky
+from .._x64 import pure_callback
 
 #: where K^-1 is applied: see the module docstring
 LAPLACIAN_BACKENDS = ("auto", "host", "device")
@@ -92,7 +93,7 @@ def laplacian_solve(pre, q, guess):
     :class:`LaplacianOperator` (``"device"``, warm-started from ``guess``)."""
     if isinstance(pre, LaplacianOperator):
         return pre.solve(q, guess)
-    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
+    return pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
 
 
 def resolve_backend(backend: str) -> str:
