@@ -23,7 +23,7 @@ _LAZY = {
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
     "compare": "._compare", "Comparison": "._compare",
 }
-_SUBMODULES = ("energies", "io", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
+_SUBMODULES = ("data", "energies", "io", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
                "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")
 
 
@@ -47,6 +47,6 @@ def __dir__():
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "compare", "Comparison", "tutte_embedding", "energies", "io", "predicates", "set_cache_dir", "cache_dir", "cache_stats",
+    "compare", "Comparison", "tutte_embedding", "data", "energies", "io", "predicates", "set_cache_dir", "cache_dir", "cache_stats",
     "__version__",
 ]

@@ -22,6 +22,11 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = [
+    "main", "build_parser", "cmd_param", "cmd_untangle", "cmd_compare", "cmd_demo", "EXIT_OK",
+    "EXIT_FAILED", "EXIT_USAGE", "PICTURE_EXTENSIONS",
+]
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).

@@ -25,6 +25,11 @@ from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
 from ._geometry import det, dets, edge_rows
 
+__all__ = [
+    "InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive",
+    "objective_value_and_grad",
+]
+
 
 def _smallest_positive(roots):
     r = jnp.where(jnp.isfinite(roots) & (roots > 0), roots, jnp.inf)

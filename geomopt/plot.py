@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = [
+    "save_param_figure", "save_layout", "save_untangle_figure", "save_convergence", "checker_colors",
+    "INVERTED",
+]
+
 
 def _plt():
     import matplotlib
@@ -130,6 +135,8 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
     S : (m, d+1) elements.
     inverted_start, inverted_result : (m,) bool, elements not positively oriented.
 
+    Notes
+    -----
     2D draws the triangles (inverted ones filled red).  3D draws, for each map, the boundary
     surface (translucent), the surface of the half of the mesh below the median of the first
     coordinate (a cut showing the inside), and every inverted tet in red.

@@ -40,6 +40,8 @@ from ._errors import GeomoptError, MeshFormatError
 from .io import (atomic_path, check_output_path, read_vtk_tets, validate_simplices, validate_vertices,
                  write_vtk_tets)
 
+__all__ = ["read_tets", "write_tets", "FORMATS"]
+
 #: The tet-mesh formats geomopt reads and writes: extension -> description.
 FORMATS = {
     ".vtk": "legacy VTK",

@@ -261,7 +261,7 @@ def untangle(
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
     by the objective's gauge and rotation and scale are free; the map must not be mirrored as
-    a whole (a positive total signed area/volume): mirror it first (see :func:`repair_map`).
+    a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
 
     Parameters
     ----------

@@ -42,6 +42,9 @@ DIVERGENCE_FACTOR = 1e6
 
 
 class Outcome(enum.Enum):
+    """How a solve ended; :attr:`message` says it in words.  Only ``CONVERGED`` with no
+    inverted element (exact predicate) is a success (:attr:`Result.success`)."""
+
     CONVERGED = "converged"
     MAX_STEPS = "max_steps"
     LINE_SEARCH_FAILED = "line_search_failed"
