@@ -148,24 +148,34 @@ def cmd_param(args) -> int:
         return _fail(f"the start map could not be repaired: {rep.message}")
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
-               f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
-               f"injective {res.injectivity}  outcome {res.outcome.value}")
+               f"compile seconds {res.setup_seconds:.2f}  energy {res.energy:.10g}  mean energy {mean:.10g}  "
+               f"flips {res.inverted}  injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
             energy_name=energy.name, solver=args.solver, iterations=res.iterations,
             solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
             energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
-            boundary_crossings=_boundary_crossings(res),
+            boundary_crossings=_boundary_crossings(res), uv_range=args.uv_range,
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     if res.injectivity == "local":
         _warn_overlap(res, args)
+    uv = _unit_square(res.x) if args.uv_range == "unit" else res.x
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, V, F, args.png, outputs, args.solver)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
+            _save_param_figures(res, V, F, uv, args.png, outputs, args)
+        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
                               format=Path(args.output).suffix[1:])
     return EXIT_OK
+
+
+def _unit_square(uv):
+    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
+    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect."""
+    import numpy as np
+
+    lo = uv.min(axis=0)
+    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
 
 
 def _warn_overlap(res, args):
@@ -212,7 +222,7 @@ def _cache_summary() -> dict:
     return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
 
 
-def _save_param_figures(res, V, F, png, outputs, solver_name):
+def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
@@ -221,15 +231,19 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
 
     obj = res.info["objective"]
     dens = np.asarray(element_densities(obj, res.x))
+    rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
-    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, res.x,
-                           np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
-                           if obj.energy.value_at_rest(2) else dens,
-                           title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                           label="log10 distortion", format=base.suffix[1:].lower())
+    title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
+             f"{res.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
+             f"injective {res.injectivity}")
+    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
+                           np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
+                           label="log10(density / its isometric value)" if rest else
+                           f"{obj.energy.name} density", format=base.suffix[1:].lower())
+    vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {solver_name: (res.time_history, res.energy_history)},
-                          title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
+                          {args.solver: (res.time_history, res.energy_history / vol, res.grad_history / vol)},
+                          ylabel=f"mean {obj.energy.name} energy", title=title, format=conv.suffix[1:].lower())
     return base, conv
 
 
@@ -329,11 +343,13 @@ def cmd_demo(args) -> int:
     except OSError as exc:
         raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); "
                            f"give a folder path") from exc
-    data = Path(__file__).with_name("data") / "camelhead.off"
+    from .data import path as bundled
+
+    data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
-                            json=args.json, summary=args.summary)
+                            uv_range="raw", json=args.json, summary=args.summary)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
@@ -404,6 +420,10 @@ def build_parser():
                     help="keep the boundary from crossing itself (a scaffold around the mesh): a globally "
                          "injective map, certified exactly")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
+    sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
+                    help="UVs written as solved (raw, the default: a map of about the surface's own "
+                         "size) or moved and scaled uniformly into the unit square (unit; the energy "
+                         "reported is the raw map's)")
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "
                          ".png, .pdf or .svg) and a <name>_convergence plot")

@@ -485,7 +485,7 @@ class _Progress:
         self.stream = stream
 
     def __call__(self, outer, eps, energy, detmin, nneg, inner, seconds):
-        print(f"outer {outer:3d}  eps {eps:9.3e}  energy {energy:.8g}  min det {detmin:+.3e}  "
+        print(f"outer {outer:3d}  eps {eps:9.3e}  mean energy {energy:.8g}  min det {detmin:+.3e}  "
               f"inverted {nneg:6d}  inner {inner:5d}  {seconds:7.2f}s",
               file=self.stream or sys.stderr, flush=True)
 

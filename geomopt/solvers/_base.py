@@ -270,11 +270,11 @@ class Progress:
     def __call__(self, state: State, elapsed: float, mean_energy: float):
         if self._bar is not None:
             self._bar.update(1)
-            self._bar.set_postfix(energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
+            self._bar.set_postfix(mean_energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
             return
         if state.iteration % self.every:
             return
-        print(f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
+        print(f"{self.prefix}iter {state.iteration:4d}  mean energy {mean_energy:.10g}  "
               f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
               file=self.stream, flush=True)
 
