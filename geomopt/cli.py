@@ -280,10 +280,12 @@ def _untangle_one(args, folder) -> int:
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
-            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
-            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
-            message=res.message, **_cache_summary())
+    _report(args, case=str(folder), output=str(args.output), dim=LimCase.dim_of(folder), vertices=len(res.x),
+            elements=res.info.get("elements"), inverted_before=res.initially_inverted, inverted=res.inverted,
+            outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
+            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
+            handles_moved=res.handles_moved, min_det_rel=res.min_det_rel, outcome=res.outcome.value,
+            certified=bool(res.success), message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -313,6 +315,8 @@ def _untangle_batch(args) -> int:
                      report=report)
     failed = sum(row["certified"] != "yes" for row in rows)
     summary = Path(args.output) / "summary.csv"
+    _report(args, output=str(args.output), summary=str(summary), workers=workers, scheduler=args.scheduler,
+            cases=len(rows), certified=len(rows) - failed, not_certified=failed, rows=rows, **_cache_summary())
     if failed:
         print(f"geomopt: {failed} of {len(rows)} case(s) not certified (no output written for them); "
               f"see {summary}", file=sys.stderr, flush=True)
@@ -358,20 +362,49 @@ def cmd_demo(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out."""
-    from ._compare import compare
+    """Every solver from the same start map, on one mesh or several: traces, summary, LaTeX
+    table, manifest, maps and the convergence figure in -o (see geomopt._compare)."""
+    from ._compare import ComparisonSet, compare, compare_meshes, exit_status
 
-    res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
-                  max_seconds=args.max_seconds, max_steps=args.max_steps, out=args.out,
-                  progress=not args.quiet)
+    options = dict(solvers=args.solvers, energy=args.energy, weights=args.weights, max_seconds=args.max_seconds,
+                   max_steps=args.max_steps, reference=args.reference, repeat=args.repeat,
+                   tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
+                   log_x=args.log_x, progress=not args.quiet)
+    if len(args.mesh) == 1:
+        res = compare(args.mesh[0], out=args.output, **options)
+    else:
+        res = compare_meshes(args.mesh, out=args.output, **options)
     _log(args, res.report())
-    _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
-    folded = [name for name, r in res.results.items() if r.info["flips_history"].max() > 0]
-    if folded:
-        print(f"geomopt: error: inverted elements during the solve of {', '.join(folded)} (see the "
-              f"flips column of {Path(args.out) / 'history.csv'}); files written", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+    files = res.output_names(options["formats"])
+    _log(args, f"wrote {', '.join(files)} in {args.output}")
+    items = res.comparisons if isinstance(res, ComparisonSet) else {Path(args.mesh[0]).name: res}
+    _report(args, output=str(args.output), files=files, repeat=args.repeat, tolerances=options["tolerances"],
+            meshes=[{"mesh": key, "label": c.label, "elements": c.objective.problem.n_elements,
+                     "energy_name": c.objective.energy.name, "rest_area": c.area,
+                     "reference": {"source": c.reference.source, "energy": c.reference.energy,
+                                   "mean_energy": c.reference_mean_energy},
+                     "solvers": c.summary_rows()} for key, c in items.items()])
+    code = exit_status(res)
+    if code:
+        bad = [f"{key}: {row['solver']} ({row['outcome']}{'' if row['certified'] else ', not certified'})"
+               for key, c in items.items() for row in c.summary_rows()
+               if row["outcome"] != "converged" or not row["certified"]]
+        print(f"geomopt: error: not every solver converged with a certified map: {'; '.join(bad)}; files written",
+              file=sys.stderr, flush=True)
+    return code
+
+
+def _names(text):
+    return tuple(s.strip().lower() for s in text.split(",") if s.strip())
+
+
+def _floats(text, option):
+    from ._errors import ParameterError
+
+    try:
+        return tuple(float(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise ParameterError(f"{option} takes comma-separated numbers (e.g. 1e-2,1e-4,1e-6), got {text!r}") from None
 
 
 def _positive_int(text) -> int:
@@ -451,19 +484,30 @@ def build_parser():
     common(sp)
     sp.set_defaults(func=cmd_untangle)
 
-    sp = sub.add_parser("compare", help="run several solvers from the same start, write traces and a plot")
-    sp.add_argument("mesh", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
-                                 "(fixed handles, its flip-free map as the start)")
-    sp.add_argument("--out", required=True, help="output folder: history.csv, summary.csv, <solver>.obj "
-                                                 "(.vtk for tets), convergence.png")
+    sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
+                                         "traces, table, manifest and a figure")
+    sp.add_argument("mesh", nargs="+", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
+                                            "(fixed handles, its flip-free map as the start); several: one "
+                                            "sub-folder each plus a combined table and figure")
+    sp.add_argument("-o", "--output", "--out", dest="output", required=True,
+                    help="output folder: history.csv, summary.csv, table.tex, manifest.json, <solver>.obj "
+                         "(.vtk for tets), convergence.<format>")
     sp.add_argument("--solvers", default=None,
-                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D)")
+                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm,optx-lbfgs; cm only in 2D)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the free-boundary start map")
+    sp.add_argument("--reference", default="auto",
+                    help="what gaps are measured to: auto (a tight Newton solve, the default), best (the "
+                         "lowest energy any solver reached) or a mean energy")
+    sp.add_argument("--repeat", type=_positive_int, default=1, help="runs per solver; times are medians")
+    sp.add_argument("--tolerances", default="1e-2,1e-4,1e-6",
+                    help="relative gaps the table reports iterations and seconds to (default 1e-2,1e-4,1e-6)")
     sp.add_argument("--max-seconds", type=float, default=None,
                     help="stop each solver after this many seconds of solve time (setup excluded)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
+    sp.add_argument("--format", default="png", help="figure formats, comma-separated: png, pdf, svg (default png)")
+    sp.add_argument("--log-x", action="store_true", help="log scale on the seconds and iteration axes")
     common(sp)
     sp.set_defaults(func=cmd_compare)
 
@@ -490,9 +534,19 @@ def main(argv=None) -> int:
         return code
     finally:
         if args.json:
+            from ._manifest import SCHEMA_VERSION, versions
+
             _report(args, exit_status=code, success=code == EXIT_OK,
-                    wall_seconds=round(time.perf_counter() - t0, 4))
-            print(json.dumps(args.summary), flush=True)
+                    wall_seconds=round(time.perf_counter() - t0, 4), schema_version=SCHEMA_VERSION,
+                    versions=versions())
+            print(json.dumps(args.summary, default=_json_default), flush=True)
+
+
+def _json_default(value):
+    """NumPy scalars and arrays, paths and other objects in --json output."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
 
 
 def _run(args) -> int:
