@@ -60,8 +60,8 @@ def _draw(row, comparison, name, run, log_x):
     gap = comparison.gap(name, run)
     it = np.arange(len(gap)) + (1 if log_x else 0)
     keep = gap > 0
-    every = max(1, len(gap) // 25)
-    style = dict(color=colour, marker=marker, ms=4, lw=1.4, markevery=every)
+    # markers evenly spaced along the drawn curve (a fraction of the axes), on linear and log axes
+    style = dict(color=colour, marker=marker, ms=4, lw=1.4, markevery=0.07)
     t = run.time_history
     if log_x:  # the start (t = 0) has no place on a log axis
         keep_t = keep & (t > 0)
@@ -77,8 +77,8 @@ def _decorate(row, comparison, label, log_x):
     row[0].set_title(f"{label}\n{comparison.describe_reference()}", fontsize=10, loc="left")
     row[0].set_xlabel("solve seconds (wall" + (f"; the run of median time of {reps}" if reps > 1 else "") +
                       "; setup excluded)")
-    row[1].set_xlabel("iteration")
-    row[2].set_xlabel("iteration")
+    row[1].set_xlabel("iteration + 1" if log_x else "iteration")
+    row[2].set_xlabel("iteration + 1" if log_x else "iteration")
     row[0].set_ylabel("relative gap (E - E_ref) / |E_ref|")
     row[2].set_ylabel("gradient norm |grad E| (free DOFs)")
     for ax in row:

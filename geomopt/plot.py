@@ -15,11 +15,25 @@ import numpy as np
 from ._render import render_uv_checker
 
 __all__ = [
-    "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
+    "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "INVERTED",
 ]
 
 INVERTED = "#d62728"  # red: inverted elements in every picture
+
+
+def distortion(problem, x) -> dict:
+    """Per element of ``problem`` (:class:`~geomopt.Problem`) under the map ``x`` (n, d), from
+    the singular values of its Jacobian ``J``: ``"conformal"`` (m,) ``sigma_max / sigma_min``
+    (1 for a similarity, inf for a degenerate element) and ``"area"`` (m,) ``det J``, the
+    signed ratio of mapped to rest area (volume): 1 where area is preserved, <= 0 inverted."""
+    S, x = problem.simplices, np.asarray(x, np.float64)
+    E = np.stack([x[S[:, k]] - x[S[:, 0]] for k in range(1, S.shape[1])], axis=-1)
+    J = E @ problem.rest_inv
+    s = np.linalg.svd(J, compute_uv=False)
+    with np.errstate(divide="ignore"):
+        conformal = np.where(s[:, -1] > 0, s[:, 0] / np.where(s[:, -1] > 0, s[:, -1], 1.0), np.inf)
+    return {"conformal": conformal, "area": np.linalg.det(J)}
 
 
 def _figure(width, height, dpi=100):

@@ -85,3 +85,15 @@ def test_param_uv_range_unit(cli, tmp_path):
     assert np.allclose(unit.min(axis=0), 0.0) and np.isclose(np.ptp(unit, axis=0).max(), 1.0)
     scale = np.ptp(raw, axis=0).max()
     assert np.allclose(unit * scale + raw.min(axis=0), raw)  # the same map, moved and scaled uniformly
+
+
+def test_distortion_of_a_similarity_and_a_stretch():
+    from geomopt import Problem
+
+    problem = Problem.surface(V3, F)
+    flat = Problem.planar(V3[:, :2], F)
+    d = plot.distortion(flat, 2.0 * V3[:, :2] @ np.array([[0.6, -0.8], [0.8, 0.6]]))  # rotate, scale 2
+    assert np.allclose(d["conformal"], 1.0) and np.allclose(d["area"], 4.0)
+    d = plot.distortion(flat, V3[:, :2] * [3.0, 1.0])
+    assert np.allclose(d["conformal"], 3.0) and np.allclose(d["area"], 3.0)
+    assert plot.distortion(problem, V3[:, :2])["area"].shape == (len(F),)
