@@ -31,9 +31,18 @@ def public_modules() -> list[str]:
     return names
 
 
+def _public_home(obj):
+    """The public module whose ``__all__`` lists ``obj`` (its API page renders it), or None."""
+    for name in public_modules():
+        module = importlib.import_module(name)
+        if name != "geomopt" and any(getattr(module, n, None) is obj for n in getattr(module, "__all__", ())):
+            return name
+    return None
+
+
 def _top_level_page() -> str:
-    """``geomopt``'s own docstring, then each re-exported name: rendered here when it is
-    defined in a private module, else a link to the page of the public module defining it."""
+    """``geomopt``'s own docstring, then each re-exported name: a link to the page of the public
+    module that documents it, or rendered here when only private modules define it."""
     import geomopt
 
     lines = ["# geomopt", "", "::: geomopt", "    options:", "      members: false",
@@ -43,11 +52,16 @@ def _top_level_page() -> str:
         obj = getattr(geomopt, name)
         if inspect.ismodule(obj):
             lines.append(f"- [`geomopt.{name}`][{obj.__name__}]: module")
-        elif hasattr(obj, "__module__") and not obj.__module__.startswith("geomopt._"):
-            lines.append(f"- [`geomopt.{name}`][{obj.__module__}.{name}] (from `{obj.__module__}`)")
-        elif hasattr(obj, "__module__"):
+            continue
+        if not hasattr(obj, "__module__"):
+            continue
+        home = _public_home(obj)
+        if home is not None:
+            lines.append(f"- [`geomopt.{name}`][{home}.{name}] (documented in `{home}`)")
+        else:
             lines.append(f"- [`geomopt.{name}`][{obj.__module__}.{name}]")
-            rendered += [f"::: {obj.__module__}.{name}", "    options:", "      show_root_full_path: false", ""]
+            rendered += [f"::: {obj.__module__}.{name}", "    options:", "      show_root_heading: true",
+                         "      show_root_full_path: false", ""]
     return "\n".join(lines + [""] + rendered)
 
 
