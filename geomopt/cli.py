@@ -27,6 +27,11 @@ import time
 import warnings
 from pathlib import Path
 
+__all__ = [
+    "main", "build_parser", "cmd_param", "cmd_untangle", "cmd_compare", "cmd_demo", "EXIT_OK",
+    "EXIT_FAILED", "EXIT_USAGE", "PICTURE_EXTENSIONS",
+]
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
@@ -135,13 +140,13 @@ def cmd_param(args) -> int:
         return _fail(f"the start map could not be repaired: {rep.message}")
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
-               f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
-               f"injective {res.injectivity}  outcome {res.outcome.value}")
+               f"compile seconds {res.setup_seconds:.2f}  energy {res.energy:.10g}  mean energy {mean:.10g}  "
+               f"flips {res.inverted}  injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
             energy_name=energy.name, solver=args.solver, iterations=res.iterations,
             solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
             energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
-            boundary_crossings=_boundary_crossings(res),
+            boundary_crossings=_boundary_crossings(res), uv_range=args.uv_range,
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
@@ -149,12 +154,22 @@ def cmd_param(args) -> int:
         _warn_overlap(res, args)
     if folder is not None:
         io.create_output_folder(folder)
+    uv = _unit_square(res.x) if args.uv_range == "unit" else res.x
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, V, F, args.png, outputs, args.solver)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
+            _save_param_figures(res, V, F, uv, args.png, outputs, args)
+        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
                               format=Path(args.output).suffix[1:])
     return EXIT_OK
+
+
+def _unit_square(uv):
+    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
+    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect."""
+    import numpy as np
+
+    lo = uv.min(axis=0)
+    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
 
 
 def _warn_overlap(res, args):
@@ -201,7 +216,7 @@ def _cache_summary() -> dict:
     return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
 
 
-def _save_param_figures(res, V, F, png, outputs, solver_name):
+def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
@@ -210,15 +225,19 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
 
     obj = res.info["objective"]
     dens = np.asarray(element_densities(obj, res.x))
+    rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
-    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, res.x,
-                           np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
-                           if obj.energy.value_at_rest(2) else dens,
-                           title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                           label="log10 distortion", format=base.suffix[1:].lower())
+    title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
+             f"{res.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
+             f"injective {res.injectivity}")
+    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
+                           np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
+                           label="log10(density / its isometric value)" if rest else
+                           f"{obj.energy.name} density", format=base.suffix[1:].lower())
+    vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {solver_name: (res.time_history, res.energy_history)},
-                          title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
+                          {args.solver: (res.time_history, res.energy_history / vol, res.grad_history / vol)},
+                          ylabel=f"mean {obj.energy.name} energy", title=title, format=conv.suffix[1:].lower())
     return base, conv
 
 
@@ -254,10 +273,12 @@ def _untangle_one(args, folder) -> int:
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
-            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
-            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
-            message=res.message, **_cache_summary())
+    _report(args, case=str(folder), output=str(args.output), dim=LimCase.dim_of(folder), vertices=len(res.x),
+            elements=res.info.get("elements"), inverted_before=res.initially_inverted, inverted=res.inverted,
+            outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
+            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
+            handles_moved=res.handles_moved, min_det_rel=res.min_det_rel, outcome=res.outcome.value,
+            certified=bool(res.success), message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -287,6 +308,8 @@ def _untangle_batch(args) -> int:
                      report=report)
     failed = sum(row["certified"] != "yes" for row in rows)
     summary = Path(args.output) / "summary.csv"
+    _report(args, output=str(args.output), summary=str(summary), workers=workers, scheduler=args.scheduler,
+            cases=len(rows), certified=len(rows) - failed, not_certified=failed, rows=rows, **_cache_summary())
     if failed:
         print(f"geomopt: {failed} of {len(rows)} case(s) not certified (no output written for them); "
               f"see {summary}", file=sys.stderr, flush=True)
@@ -310,11 +333,13 @@ def _save_untangle_figure(case, res, png, format=None):
 def cmd_demo(args) -> int:
     """Parameterize the bundled camelhead and write OBJ + UV picture + convergence plot."""
     out = Path(args.output)
-    data = Path(__file__).with_name("data") / "camelhead.off"
+    from .data import path as bundled
+
+    data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
-                            json=args.json, summary=args.summary)
+                            uv_range="raw", json=args.json, summary=args.summary)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
@@ -323,33 +348,52 @@ def cmd_demo(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out.
+    """Every solver from the same start map, on one mesh or several: traces, summary, LaTeX
+    table, manifest, maps and the convergence figure in -o (see geomopt._compare).
 
-    Exit status 0 only when every solver converged to a certified map (no inverted element,
-    exact predicate) and no iterate had an inverted element; else 1, after writing every file
-    (a comparison keeps its traces), with one line naming each solver and why.
-    """
-    from ._compare import compare
+    Exit status 0 only when every solver converged to a certified map and no iterate had an
+    inverted element; else 1, after writing every file, with one line naming each solver and why."""
+    from ._compare import ComparisonSet, compare, compare_meshes, exit_status
 
-    res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
-                  max_seconds=args.max_seconds, max_steps=args.max_steps, out=args.out,
-                  progress=not args.quiet)
+    options = dict(solvers=args.solvers, energy=args.energy, weights=args.weights, max_seconds=args.max_seconds,
+                   max_steps=args.max_steps, reference=args.reference, repeat=args.repeat,
+                   tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
+                   log_x=args.log_x, progress=not args.quiet)
+    if len(args.mesh) == 1:
+        res = compare(args.mesh[0], out=args.output, **options)
+    else:
+        res = compare_meshes(args.mesh, out=args.output, **options)
     _log(args, res.report())
-    _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
-    failed = {}
-    for name, r in res.results.items():
-        if r.info["flips_history"].max() > 0:
-            failed[name] = "inverted elements during the solve"
-        elif not r.success:
-            failed[name] = res.outcome(name)
-    _report(args, solvers={name: {"outcome": res.outcome(name), "certified": name not in failed}
-                           for name in res.results})
-    if failed:
-        print(f"geomopt: error: not every solver converged to a certified map: "
-              f"{'; '.join(f'{n}: {why}' for n, why in failed.items())} (see {Path(args.out) / 'summary.csv'}); "
-              f"files written", file=sys.stderr, flush=True)
-        return EXIT_FAILED
-    return EXIT_OK
+    files = res.output_names(options["formats"])
+    _log(args, f"wrote {', '.join(files)} in {args.output}")
+    items = res.comparisons if isinstance(res, ComparisonSet) else {Path(args.mesh[0]).name: res}
+    _report(args, output=str(args.output), files=files, repeat=args.repeat, tolerances=options["tolerances"],
+            meshes=[{"mesh": key, "label": c.label, "elements": c.objective.problem.n_elements,
+                     "energy_name": c.objective.energy.name, "rest_area": c.area,
+                     "reference": {"source": c.reference.source, "energy": c.reference.energy,
+                                   "mean_energy": c.reference_mean_energy},
+                     "solvers": c.summary_rows()} for key, c in items.items()])
+    code = exit_status(res)
+    if code:
+        bad = [f"{key}: {row['solver']} ({row['outcome']}{'' if row['certified'] else ', not certified'})"
+               for key, c in items.items() for row in c.summary_rows()
+               if row["outcome"] != "converged" or not row["certified"]]
+        print(f"geomopt: error: not every solver converged with a certified map: {'; '.join(bad)}; files written",
+              file=sys.stderr, flush=True)
+    return code
+
+
+def _names(text):
+    return tuple(s.strip().lower() for s in text.split(",") if s.strip())
+
+
+def _floats(text, option):
+    from ._errors import ParameterError
+
+    try:
+        return tuple(float(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise ParameterError(f"{option} takes comma-separated numbers (e.g. 1e-2,1e-4,1e-6), got {text!r}") from None
 
 
 def _positive_int(text) -> int:
@@ -398,6 +442,10 @@ def build_parser():
                     help="keep the boundary from crossing itself (a scaffold around the mesh): a globally "
                          "injective map, certified exactly")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
+    sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
+                    help="UVs written as solved (raw, the default: a map of about the surface's own "
+                         "size) or moved and scaled uniformly into the unit square (unit; the energy "
+                         "reported is the raw map's)")
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "
                          ".png, .pdf or .svg) and a <name>_convergence plot")
@@ -425,19 +473,30 @@ def build_parser():
     common(sp)
     sp.set_defaults(func=cmd_untangle)
 
-    sp = sub.add_parser("compare", help="run several solvers from the same start, write traces and a plot")
-    sp.add_argument("mesh", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
-                                 "(fixed handles, its flip-free map as the start)")
-    sp.add_argument("--out", required=True, help="output folder: history.csv, summary.csv, <solver>.obj "
-                                                 "(.vtk for tets), convergence.png")
+    sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
+                                         "traces, table, manifest and a figure")
+    sp.add_argument("mesh", nargs="+", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
+                                            "(fixed handles, its flip-free map as the start); several: one "
+                                            "sub-folder each plus a combined table and figure")
+    sp.add_argument("-o", "--output", "--out", dest="output", required=True,
+                    help="output folder: history.csv, summary.csv, table.tex, manifest.json, <solver>.obj "
+                         "(.vtk for tets), convergence.<format>")
     sp.add_argument("--solvers", default=None,
-                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D)")
+                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm,optx-lbfgs; cm only in 2D)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the free-boundary start map")
+    sp.add_argument("--reference", default="auto",
+                    help="what gaps are measured to: auto (a tight Newton solve, the default), best (the "
+                         "lowest energy any solver reached) or a mean energy")
+    sp.add_argument("--repeat", type=_positive_int, default=1, help="runs per solver; times are medians")
+    sp.add_argument("--tolerances", default="1e-2,1e-4,1e-6",
+                    help="relative gaps the table reports iterations and seconds to (default 1e-2,1e-4,1e-6)")
     sp.add_argument("--max-seconds", type=float, default=None,
                     help="stop each solver after this many seconds of solve time (setup excluded)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
+    sp.add_argument("--format", default="png", help="figure formats, comma-separated: png, pdf, svg (default png)")
+    sp.add_argument("--log-x", action="store_true", help="log scale on the seconds and iteration axes")
     common(sp)
     sp.set_defaults(func=cmd_compare)
 
@@ -488,9 +547,19 @@ def main(argv=None) -> int:
         return code
     finally:
         if args.json:
+            from ._manifest import SCHEMA_VERSION, versions
+
             _report(args, exit_status=code, success=code == EXIT_OK,
-                    wall_seconds=round(time.perf_counter() - t0, 4))
-            print(json.dumps(args.summary), flush=True)
+                    wall_seconds=round(time.perf_counter() - t0, 4), schema_version=SCHEMA_VERSION,
+                    versions=versions())
+            print(json.dumps(args.summary, default=_json_default), flush=True)
+
+
+def _json_default(value):
+    """NumPy scalars and arrays, paths and other objects in --json output."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
 
 
 def _run(args) -> int:

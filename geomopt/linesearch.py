@@ -26,6 +26,11 @@ from ._errors import ParameterError
 from ._x64 import float64
 from ._geometry import det, dets, edge_rows
 
+__all__ = [
+    "InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive",
+    "objective_value_and_grad",
+]
+
 
 def _smallest_positive(roots):
     r = jnp.where(jnp.isfinite(roots) & (roots > 0), roots, jnp.inf)

@@ -28,6 +28,11 @@ import scipy.sparse.linalg as spla
 
 from ._errors import ParameterError
 
+__all__ = [
+    "SparseCholesky", "NotPositiveDefinite", "available_backends", "newton_linear_solver", "BACKENDS",
+    "CG_FROM_DOFS",
+]
+
 BACKENDS = ("auto", "pardiso", "cholmod", "cholespy", "superlu")
 
 
@@ -224,23 +229,25 @@ def newton_linear_solver(dim: int, n_free: int, platform: str = "cpu") -> str:
 
     Parameters
     ----------
-    dim : 2 (triangles) or 3 (tets);  n_free : free DOFs;  platform : JAX's backend name.
+    dim : 2 (triangles) or 3 (tets).
+    n_free : free DOFs.
+    platform : JAX's backend name.
 
+    Notes
+    -----
     The rule, by measurement: CPU seconds (all threads) of warm projected-Newton solves to
     convergence (clamp, symmetric Dirichlet, the swirled grids of ``benchmarks/scale.py``,
     PARDISO with METIS vs CG with Newton's forcing term ``eta_max=0.01``; same Newton
     iteration counts), 2-core machine at load 6-10, 2026-11-22:
 
-    ==========  =========  ======  =====
-    mesh        free DOFs  direct  CG
-    ==========  =========  ======  =====
-    10^4 tris   9.8k       0.21    0.18
-    10^5 tris   99k        1.61    2.92
-    10^4 tets   4.0k       0.48    0.44
-    2x10^4 tets 8.2k       1.11    0.87
-    3x10^4 tets 12k        1.62    1.27
-    10^5 tets   47k        9.73    4.55
-    ==========  =========  ======  =====
+    | mesh        | free DOFs | direct | CG   |
+    |-------------|-----------|--------|------|
+    | 10^4 tris   | 9.8k      | 0.21   | 0.18 |
+    | 10^5 tris   | 99k       | 1.61   | 2.92 |
+    | 10^4 tets   | 4.0k      | 0.48   | 0.44 |
+    | 2x10^4 tets | 8.2k      | 1.11   | 0.87 |
+    | 3x10^4 tets | 12k       | 1.62   | 1.27 |
+    | 10^5 tets   | 47k       | 9.73   | 4.55 |
 
     (untangling the twisted 2x10^4-tet box with ``solver="newton"``: 3.7 s direct, 2.9 s CG,
     same 15 inner iterations.)  Hence:

@@ -17,6 +17,11 @@ from .solvers._base import check_progress
 from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
 
+__all__ = [
+    "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
+    "check_scale_aware",
+]
+
 
 @float64
 def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:

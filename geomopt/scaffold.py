@@ -1,6 +1,6 @@
 """Globally bijective free-boundary parameterization with a scaffold (SCAF).
 
-Jiang, Schaefer, Zorin, Panozzo (2017), "Simplicial complex augmentation framework for bijective
+Jiang, Schaefer, Panozzo (2017), "Simplicial complex augmentation framework for bijective
 maps": the region between the UV boundary and an enclosing polygon is triangulated (the
 *scaffold*), and the mesh and the scaffold are solved as one problem with the injective line
 search.  No scaffold triangle can invert, so two parts of the boundary can never cross; the

@@ -268,7 +268,7 @@ def untangle(
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
     by the objective's gauge and rotation and scale are free; the map must not be mirrored as
-    a whole (a positive total signed area/volume): mirror it first (see :func:`repair_map`).
+    a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
 
     Parameters
     ----------
@@ -488,7 +488,7 @@ class _Progress:
         self.stream = stream
 
     def __call__(self, outer, eps, energy, detmin, nneg, inner, seconds):
-        print(f"outer {outer:3d}  eps {eps:9.3e}  energy {energy:.8g}  min det {detmin:+.3e}  "
+        print(f"outer {outer:3d}  eps {eps:9.3e}  mean energy {energy:.8g}  min det {detmin:+.3e}  "
               f"inverted {nneg:6d}  inner {inner:5d}  {seconds:7.2f}s",
               file=self.stream or sys.stderr, flush=True)
 

@@ -45,6 +45,9 @@ DIVERGENCE_FACTOR = 1e6
 
 
 class Outcome(enum.Enum):
+    """How a solve ended; :attr:`message` says it in words.  Only ``CONVERGED`` with no
+    inverted element (exact predicate) is a success (:attr:`Result.success`)."""
+
     CONVERGED = "converged"
     MAX_STEPS = "max_steps"
     LINE_SEARCH_FAILED = "line_search_failed"
@@ -279,12 +282,15 @@ class Progress:
     def __call__(self, state: State, elapsed: float, mean_energy: float):
         if self._bar is not None:
             self._bar.update(1)
-            self._bar.set_postfix(energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
+            shown = {"step": f"{state.step_size:.2g}"} if math.isfinite(state.step_size) else {}
+            self._bar.set_postfix(mean_energy=f"{mean_energy:.8g}", **shown, refresh=False)
             return
         if state.iteration % self.every:
             return
-        print(f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
-              f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
+        # a solver that does not report a quantity (optimistix's: step, decrement) leaves it out
+        extra = "".join(f"  {name} {value:.3g}" for name, value in
+                        (("step", state.step_size), ("decrement", state.decrement)) if math.isfinite(value))
+        print(f"{self.prefix}iter {state.iteration:4d}  mean energy {mean_energy:.10g}{extra}  {elapsed:7.2f}s",
               file=self.stream, flush=True)
 
     def close(self):

@@ -37,6 +37,8 @@ from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
 from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
 
+__all__ = ["LBFGS", "PRECONDITIONERS"]
+
 # status codes of the jitted loop
 RUNNING, CONVERGED_F, CONVERGED_G, LS_FAILED, NONFINITE, MAX_STEPS, DIVERGED = range(7)
 _OUTCOMES = {
