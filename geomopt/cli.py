@@ -245,18 +245,29 @@ def cmd_untangle(args) -> int:
 def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
+    from ._timing import compile_seconds
     from .batch import check_handles, write_certified
     from .untangle import untangle_case
 
+    split = args.timing
+    split.mark_imported()
+    compiled = compile_seconds()  # starts counting JAX's compilation
     want = ".obj" if io.lim_case_dim(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
                   [str(p) for p in Path(folder).iterdir()])
-    case = io.read_lim_case(folder)
-    check_handles(case)
+    with split.phase("read"):
+        case = io.read_lim_case(folder)
+        check_handles(case)
+    compiled = compile_seconds() - compiled
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
+    compiled = compile_seconds() - compiled
+    split.add("compile", compiled)
+    split.add("setup", res.setup_seconds - compiled)
+    split.add("solve", res.seconds)
+    split.add("certify", res.info.get("certify_seconds", 0.0))
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
@@ -271,7 +282,8 @@ def _untangle_one(args, folder) -> int:
         if args.png:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
-        write_certified(case, res, args.output)
+        with split.phase("write"):
+            write_certified(case, res, args.output)
     return EXIT_OK
 
 
@@ -458,6 +470,9 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.summary = {"command": args.command, "success": False}
+    from ._timing import Split
+
+    args.timing = Split()
     code = EXIT_FAILED
     try:
         code = _run(args)
@@ -465,7 +480,7 @@ def main(argv=None) -> int:
     finally:
         if args.json:
             _report(args, exit_status=code, success=code == EXIT_OK,
-                    wall_seconds=round(time.perf_counter() - t0, 4))
+                    wall_seconds=round(time.perf_counter() - t0, 4), timing=args.timing.summary())
             print(json.dumps(args.summary), flush=True)
 
 

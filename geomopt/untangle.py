@@ -408,6 +408,7 @@ def untangle(
     if outcome is Outcome.MAX_STEPS:
         reason = f"stopped at the outer-iteration limit (max_outer={max_outer}) before it settled"
     seconds = time.perf_counter() - t0
+    t_certify = time.perf_counter()
     evaluations = state.evaluations
 
     # ---- back to the input frame: exact (power of two), handles written back bit for bit
@@ -443,7 +444,8 @@ def untangle(
         min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
         info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
               "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
-              "active_elements": int(active.sum()), "branch_vertices": branches},
+              "active_elements": int(active.sum()), "branch_vertices": branches,
+              "certify_seconds": time.perf_counter() - t_certify},
     )
     if throw and not result.success:
         raise SolveError(f"untangling failed: {result.message}", result)

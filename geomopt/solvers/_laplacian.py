@@ -4,7 +4,8 @@
 Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
 * ``"host"``: ``K`` factored once by :class:`~geomopt.linsolve.SparseCholesky` and applied on
-  the host through ``jax.pure_callback`` (by an integer handle).  Exact; the CPU default.
+  the host through an XLA FFI target (:mod:`geomopt._hostcall`, by an integer handle; unlike
+  ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact; the CPU default.
 * ``"device"``: ``K`` kept as a sparse operator in JAX (:class:`LaplacianOperator`) and applied
   by Jacobi-preconditioned conjugate gradients warm-started from the previous solution, so a
   loop on an accelerator makes no host round trip.  Approximate (to ``rtol``); the default on
@@ -22,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from .. import _hostcall
 from .._errors import ParameterError
 from ..linsolve import SparseCholesky
 
@@ -47,8 +49,17 @@ def rest_laplacian(problem) -> sp.csc_matrix:
 
 
 def laplacian_solve_host(handle, q):
-    """Host side of the preconditioner (``jax.pure_callback``): ``K^-1 q`` on the free DOFs."""
+    """Host side of the preconditioner: ``K^-1 q`` on the free DOFs."""
     return _LIVE_PRECONDITIONERS[int(handle)].solve(np.asarray(q))
+
+
+def _solve_into(handle, q, out):
+    out[0][...] = laplacian_solve_host(handle, q)
+
+
+#: the XLA FFI target of the host solve (:mod:`geomopt._hostcall`: cacheable programs)
+_TARGET = "geomopt_rest_laplacian_solve"
+_hostcall.register(_TARGET, _solve_into)
 
 
 class LaplacianOperator(eqx.Module):
@@ -92,7 +103,7 @@ def laplacian_solve(pre, q, guess):
     :class:`LaplacianOperator` (``"device"``, warm-started from ``guess``)."""
     if isinstance(pre, LaplacianOperator):
         return pre.solve(q, guess)
-    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
+    return _hostcall.call(_TARGET, _solve_into, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
 
 
 def resolve_backend(backend: str) -> str:

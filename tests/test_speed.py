@@ -1,0 +1,81 @@
+"""Issue 22: cacheable host calls, the --json timing split, element quality."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import _cache, _hostcall
+from geomopt.batch import write_lim_case
+from geomopt import generators as G
+from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def fresh_cache(tmp_path):
+    before = _cache.cache_dir()
+    _cache.cache_stats()
+    jax.clear_caches()
+    _cache.set_cache_dir(tmp_path / "cache")
+    yield tmp_path / "cache"
+    jax.clear_caches()
+    _cache.set_cache_dir(before)
+
+
+def _misses(fn):
+    s0 = _cache.cache_stats()
+    out = fn()
+    return _cache.cache_stats()["misses"] - s0["misses"], out
+
+
+def test_a_program_with_the_host_laplacian_solve_is_cached_and_loaded(fresh_cache):
+    t = G.rotated_interior(*G.square_mesh(9), 90)
+    obj = geomopt.Objective(t.problem(), "dirichlet")
+    pre = RestLaplacian.register(obj, "host")
+    q = np.random.default_rng(0).standard_normal(t.x0.shape) * obj.free_dofs
+
+    def solve():
+        f = jax.jit(lambda h, q: 2.0 * laplacian_solve(h, q, q))  # a fresh function: traced anew
+        return np.asarray(f(pre.token, jnp.asarray(q)))
+
+    misses, first = _misses(solve)
+    assert misses > 0
+    np.testing.assert_allclose(first, 2.0 * pre.solve(q), rtol=1e-12)
+    jax.clear_caches()  # as a new process sees it: look the program up on disk
+    misses, again = _misses(solve)
+    assert misses == 0  # jax.pure_callback programs were never written to the cache
+    np.testing.assert_array_equal(again, first)
+
+
+def test_a_host_function_that_raises_gives_nan_and_is_recorded():
+    def broken(x, out):
+        raise RuntimeError("boom")
+
+    f = jax.jit(lambda x: _hostcall.call("geomopt_test_broken", broken, jax.ShapeDtypeStruct(x.shape, x.dtype), x))
+    out = np.asarray(f(jnp.ones(3)))
+    assert np.isnan(out).all()
+    assert _hostcall.last_error[0] == "geomopt_test_broken" and "boom" in str(_hostcall.last_error[1])
+
+
+def test_untangle_json_has_the_timing_split_from_process_start(tmp_path):
+    folder = write_lim_case(tmp_path / "case", G.noisy_interior(*G.disk_mesh(6), 1.0, seed=2))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-m", "geomopt", "untangle", str(folder), "-o", str(tmp_path / "o.obj"),
+                           "--json", "--quiet"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    split = summary["timing"]
+    for key in ("import", "read", "compile", "setup", "solve", "certify", "write", "total", "other"):
+        assert split[key] >= 0.0, key
+    assert split["import"] > 0.0 and split["compile"] > 0.0 and split["write"] > 0.0
+    parts = sum(v for k, v in split.items() if k not in ("total", "other"))
+    assert parts <= split["total"] + 1e-3 and split["total"] <= summary["wall_seconds"] + 0.5
