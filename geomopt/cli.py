@@ -247,6 +247,7 @@ def _untangle_one(args, folder) -> int:
     from ._errors import ParameterError
     from ._timing import compile_seconds
     from .batch import check_handles, write_certified
+    from .quality import element_quality
     from .untangle import untangle_case
 
     split = args.timing
@@ -268,13 +269,18 @@ def _untangle_one(args, folder) -> int:
     split.add("setup", res.setup_seconds - compiled)
     split.add("solve", res.seconds)
     split.add("certify", res.info.get("certify_seconds", 0.0))
+    with split.phase("certify"):
+        quality = element_quality(res.x, case["faces"] if case["dim"] == 2 else case["tets"], case["orientation"])
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+    _log(args, f"quality: smallest size / mean {quality['min_size_ratio']:.4g}, scaled Jacobian min "
+               f"{quality['min_scaled_jacobian']:.4g} mean {quality['mean_scaled_jacobian']:.4g}")
     _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
-            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
+            outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
+            evaluations=res.info.get("evaluations"), solve_seconds=round(res.seconds, 4),
             setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
-            message=res.message, **_cache_summary())
+            message=res.message, **quality, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it

@@ -79,3 +79,24 @@ def test_untangle_json_has_the_timing_split_from_process_start(tmp_path):
     assert split["import"] > 0.0 and split["compile"] > 0.0 and split["write"] > 0.0
     parts = sum(v for k, v in split.items() if k not in ("total", "other"))
     assert parts <= split["total"] + 1e-3 and split["total"] <= summary["wall_seconds"] + 0.5
+
+
+def test_scaled_jacobian_is_one_for_regular_simplices_and_negative_when_inverted():
+    from geomopt.quality import element_quality, scaled_jacobians, size_ratios
+
+    tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
+    tet = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    T = np.array([[0, 1, 2, 3]]) if np.linalg.det(tet[1:] - tet[0]) > 0 else np.array([[0, 2, 1, 3]])
+    np.testing.assert_allclose(scaled_jacobians(tri, [[0, 1, 2]]), [1.0])
+    np.testing.assert_allclose(scaled_jacobians(tet, T), [1.0])
+    np.testing.assert_allclose(scaled_jacobians(tri, [[0, 2, 1]]), [-1.0])
+    # a right isosceles triangle: the 45-degree corners score sin(45) * 2/sqrt(3)
+    right = np.array([[0.0, 0], [1, 0], [0, 1]])
+    np.testing.assert_allclose(scaled_jacobians(right, [[0, 1, 2]]), [np.sqrt(0.5) * 2 / np.sqrt(3)])
+    # a sliver: every corner is nearly flat, not only the first
+    sliver = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, 0.5, 1e-3]])
+    assert 0 < scaled_jacobians(sliver, [[0, 1, 2, 3]])[0] < 0.01
+    V, F = G.disk_mesh(3)
+    q = element_quality(V, F)
+    assert q["min_size_ratio"] == pytest.approx(np.min(size_ratios(V, F))) and 0 < q["min_scaled_jacobian"] <= 1
+    assert element_quality(V, F[:, ::-1], orientation=-1) == pytest.approx(q)
