@@ -100,3 +100,23 @@ def test_scaled_jacobian_is_one_for_regular_simplices_and_negative_when_inverted
     q = element_quality(V, F)
     assert q["min_size_ratio"] == pytest.approx(np.min(size_ratios(V, F))) and 0 < q["min_scaled_jacobian"] <= 1
     assert element_quality(V, F[:, ::-1], orientation=-1) == pytest.approx(q)
+
+
+def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
+    """The default untangling L-BFGS (diagonal seed below 50k elements) switches to the
+    Laplacian seed when an inner solve has not converged after STIFF_AFTER iterations: a disk
+    rotated by 180 degrees then takes a fraction of the inner iterations; a noisy one never
+    switches (same iterations as the diagonal seed alone)."""
+    from geomopt.untangle import STIFF_AFTER, default_solver, untangle
+
+    rot = G.rotated_interior(*G.disk_mesh(24), 180)
+    diag = untangle(rot.problem(), rot.x0, solver=default_solver("lbfgs", 2), progress=False)
+    auto = untangle(rot.problem(), rot.x0, progress=False)
+    assert diag.success and auto.success
+    assert diag.inner_iterations > 2 * STIFF_AFTER and auto.inner_iterations < 0.6 * diag.inner_iterations
+    assert auto.info["solver"].precondition == "laplacian"
+    noise = G.noisy_interior(*G.disk_mesh(12), 1.0, seed=3)
+    a = untangle(noise.problem(), noise.x0, progress=False)
+    b = untangle(noise.problem(), noise.x0, solver=default_solver("lbfgs", 2), progress=False)
+    assert a.success and a.inner_iterations == b.inner_iterations < STIFF_AFTER
+    assert a.info["solver"].precondition == "diagonal"
