@@ -59,7 +59,8 @@ import heldout as H  # noqa: E402
 
 from geomopt import generators as G  # noqa: E402
 from geomopt.batch import write_lim_case  # noqa: E402
-from geomopt.io import read_lim_case, read_mesh, read_vtk_tets  # noqa: E402
+from geomopt.io import read_mesh, read_vtk_tets  # noqa: E402
+from geomopt.lim import LimCase  # noqa: E402
 from geomopt.predicates import count_inverted  # noqa: E402
 from geomopt.quality import element_quality  # noqa: E402
 
@@ -112,7 +113,7 @@ def prepare(name, root):
         folder = Path(root) / name
         if not (folder / "handles.txt").exists():
             write_lim_case(folder, CASES[name]())
-    case = read_lim_case(folder)
+    case = LimCase.read(folder)
     S = case["faces"] if case["dim"] == 2 else case["tets"]
     rest = np.asarray(case["rest"])[:, : case["dim"]]
     orientation = 1 if case["dim"] == 3 or _area(case["init"], S) > 0 else -1

@@ -247,20 +247,21 @@ def _untangle_one(args, folder) -> int:
     from ._errors import ParameterError
     from ._timing import compile_seconds
     from .batch import check_handles, write_certified
+    from .lim import LimCase
     from .quality import element_quality
     from .untangle import untangle_case
 
     split = args.timing
     split.mark_imported()
     compiled = compile_seconds()  # starts counting JAX's compilation
-    want = ".obj" if io.lim_case_dim(folder) == 2 else ".vtk"
+    want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
                   [str(p) for p in Path(folder).iterdir()])
     with split.phase("read"):
-        case = io.read_lim_case(folder)
+        case = LimCase.read(folder)
         check_handles(case)
     compiled = compile_seconds() - compiled
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
