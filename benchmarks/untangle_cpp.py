@@ -116,14 +116,15 @@ def prepare(name, root):
     case = LimCase.read(folder)
     S = case["faces"] if case["dim"] == 2 else case["tets"]
     rest = np.asarray(case["rest"])[:, : case["dim"]]
-    orientation = 1 if case["dim"] == 3 or _area(case["init"], S) > 0 else -1
+    # LIM cases may list every element clockwise (2D: in the map; 3D: at rest as in the map)
+    orientation = 1 if _signed(case["init"] if case["dim"] == 2 else rest, S) > 0 else -1
     return folder, case["dim"], S, rest, orientation
 
 
-def _area(x, F):
-    P = np.asarray(x)[F]
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    return float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]))
+def _signed(x, S):
+    """The total signed area / volume of the simplices S of x."""
+    E = np.asarray(x, np.float64)[S][:, 1:] - np.asarray(x, np.float64)[S][:, :1]
+    return float(np.linalg.det(E).sum())
 
 
 def cpp_binary(path, dim):
@@ -170,7 +171,7 @@ def measure(name, a, cores):
     out_g, out_c = Path(a.root) / f"_geomopt{ext}", Path(a.root) / f"_cpp{ext}"
     run_geomopt(a.geomopt, folder, out_g)  # fills the persistent cache
     row = {"case": name, "dim": dim, "elements": len(S), "held_out": name.startswith(HELD_OUT),
-           "rest": element_quality(rest, S)}
+           "rest": element_quality(rest, S, orientation)}
     runs = {"cpp1": [], "cppN": [], "geo": [], "geo1": []}
     x_cpp = None
     for _ in range(a.repeat):

@@ -7,7 +7,8 @@ to what a user waits for:
 * ``import``: process start until the command's modules (JAX, the solvers) are imported;
 * ``read``: reading and checking the input;
 * ``compile``: JAX tracing, lowering and XLA compilation or loading from the persistent cache
-  (summed from JAX's own duration events; it happens inside set-up);
+  (summed from JAX's own duration events; it happens inside set-up, whose figure excludes it,
+  except for a program first used inside the loop, which ``solve`` also counts);
 * ``setup``: the solver's set-up less ``compile`` (scaling, patterns, factorizations);
 * ``solve``: the solve loop;
 * ``certify``: the exact checks of the result (orientation predicates, branch points);

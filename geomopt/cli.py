@@ -104,9 +104,13 @@ def _output_paths(output, extensions, pictures=(), inputs=()):
 def cmd_param(args) -> int:
     from . import io
     from ._errors import MeshError
+    from ._timing import compile_seconds
     from .energies import get_energy
     from .param import parameterize
 
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
     energy = get_energy(args.energy)
     solver = _solver(args.solver)
     if args.max_steps is not None:
@@ -117,6 +121,7 @@ def cmd_param(args) -> int:
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
     _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input])  # before reading or solving
+    t_read = time.perf_counter()
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
         start = "its own UV start map"
@@ -124,16 +129,24 @@ def cmd_param(args) -> int:
         V, F = io.read_mesh(args.input)
         x0 = None if args.init == "tutte" else args.init
         start = f"{args.weights} Tutte start" if args.init == "tutte" else "plane projection start"
+    split.add("read", time.perf_counter() - t_read)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
         _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
+    t_solve, compiled = time.perf_counter(), compile_seconds()
     try:
         res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
                            progress=not args.quiet, bijective=args.bijective)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
+    # setup: everything in parameterize but the solve and JAX's compilation (start map, scaling,
+    # patterns, analysis, the exact certificate)
+    compiled = compile_seconds() - compiled
+    split.add("compile", compiled)
+    split.add("solve", res.seconds)
+    split.add("setup", time.perf_counter() - t_solve - res.seconds - compiled)
     rep = res.info.get("repair")
     if rep is not None:
         _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
@@ -158,8 +171,9 @@ def cmd_param(args) -> int:
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
             _save_param_figures(res, V, F, args.png, outputs, args.solver)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
-                              format=Path(args.output).suffix[1:])
+        with split.phase("write"):
+            io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
+                                  format=Path(args.output).suffix[1:])
     return EXIT_OK
 
 
@@ -253,7 +267,7 @@ def _untangle_one(args, folder) -> int:
 
     split = args.timing
     split.mark_imported()
-    compiled = compile_seconds()  # starts counting JAX's compilation
+    compile_seconds()  # starts counting JAX's compilation
     want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
@@ -263,13 +277,15 @@ def _untangle_one(args, folder) -> int:
     with split.phase("read"):
         case = LimCase.read(folder)
         check_handles(case)
-    compiled = compile_seconds() - compiled
+    t_call, compiled = time.perf_counter(), compile_seconds()
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
     compiled = compile_seconds() - compiled
+    # setup: all of untangle_case but the solve loop, the certificate and JAX's compilation
+    certify = res.info.get("certify_seconds", 0.0)
     split.add("compile", compiled)
-    split.add("setup", res.setup_seconds - compiled)
     split.add("solve", res.seconds)
-    split.add("certify", res.info.get("certify_seconds", 0.0))
+    split.add("certify", certify)
+    split.add("setup", time.perf_counter() - t_call - res.seconds - certify - compiled)
     with split.phase("certify"):
         quality = element_quality(res.x, case["faces"] if case["dim"] == 2 else case["tets"], case["orientation"])
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
