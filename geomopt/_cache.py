@@ -120,11 +120,6 @@ def cache_dir() -> str | None:
     return _state["dir"]
 
 
-def cache_writable() -> bool:
-    """Whether the persistent cache folder in use may be written (False when off or read-only)."""
-    return bool(_state["writable"])
-
-
 def _count(event, **kwargs):
     # JAX's own "cache_misses" event counts writes; a miss is a lookup that was not a hit
     if event == "/jax/compilation_cache/cache_hits":

@@ -131,8 +131,3 @@ def call(name: str, fn, result: jax.ShapeDtypeStruct, *args):
         fn(*(np.asarray(a) for a in arrays), out=[out])
         return out
     return jax.pure_callback(host, result, *args)
-
-
-def targets() -> tuple:
-    """The names registered by :func:`register` in this process."""
-    return tuple(_registered)

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
-from . import _padding, _programs
+from . import _padding
 from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
@@ -41,7 +41,7 @@ PROJECTIONS = ("clamp", "abs", "none")
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 #: ``jax.jit`` with :data:`XLA_OPTIONS`.
-jit = partial(_programs.jit, compiler_options=XLA_OPTIONS)  # traced programs kept on disk
+jit = partial(jax.jit, compiler_options=XLA_OPTIONS)
 
 #: Elements per chunk of the per-element Hessian work on CPU (see :func:`block_hessian`).
 CPU_CHUNK = 1024

@@ -21,7 +21,6 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from . import _programs
 from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
 from ._geometry import det, dets, edge_rows
@@ -271,7 +270,7 @@ def objective_value_and_grad(density, geom, free, params):
     return vg
 
 
-@partial(_programs.jit, static_argnums=(0, 1))
+@partial(jax.jit, static_argnums=(0, 1))
 def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
     vg = objective_value_and_grad(density, geom, free, params)
     return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0)

@@ -61,7 +61,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _programs
 from ._errors import MeshError, ParameterError, SolveError
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
@@ -179,7 +178,7 @@ class UntangleResult:
 
 
 
-@partial(_programs.jit, static_argnums=0)
+@partial(jax.jit, static_argnums=0)
 def _outer_stats(density, geom, x, params):
     """(energy over all elements, min det J, #elements with det J <= 0), over the elements of
     positive rest volume (``bucket`` padding adds elements of zero volume)."""

@@ -132,29 +132,3 @@ def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():
         assert _density_dims(e.name, e.density, tuple(sorted(e.params)))[0] == (2, 3), e.name
         e.check_dim(2), e.check_dim(3)
 
-
-TRACES = []
-
-
-def _square_sum(scale, x):
-    TRACES.append(scale)  # runs only while JAX traces
-    return scale * jnp.sum(x * x)
-
-
-def test_kept_programs_are_loaded_by_a_new_process_without_tracing(fresh_cache):
-    from geomopt import _programs
-
-    TRACES.clear()
-    x = jnp.arange(4.0)
-    first = _programs.Program(_square_sum, static_argnums=0)
-    assert float(first(2.0, x)) == 28.0 and TRACES == [2.0]
-    kept = list((fresh_cache / "programs").iterdir())
-    assert len(kept) == 1
-    again = _programs.Program(_square_sum, static_argnums=0)  # what a new process holds
-    assert float(again(2.0, x)) == 28.0 and TRACES == [2.0]  # loaded: not traced
-    assert float(again(3.0, x)) == 42.0 and TRACES == [2.0, 3.0]  # another static argument
-    assert float(again(2.0, jnp.arange(5.0))) == 60.0 and len(TRACES) == 3  # another shape
-    # a lambda has no stable name: traced as plain jax.jit, nothing kept
-    lam = _programs.Program(lambda s, x: s * jnp.sum(x), static_argnums=0)
-    assert float(lam(2.0, x)) == 12.0
-    assert len(list((fresh_cache / "programs").iterdir())) == 3

@@ -30,7 +30,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .. import _programs
 from .._errors import ParameterError
 from .._objective import total_energy
 from .._config import Int, OneOf, Real
@@ -175,7 +174,7 @@ def _iterate(solver, density, geom, free, params, c):
     }
 
 
-@partial(_programs.jit, static_argnums=(0, 1))
+@partial(jax.jit, static_argnums=(0, 1))
 def _run_kernel(solver, density, geom, free, params, carry, max_it):
     """Iterations while the status is RUNNING and ``it < max_it`` (traced): ``step`` is one
     call with ``max_it = it + 1``, so one compiled program serves ``step`` and ``run``.
@@ -208,7 +207,7 @@ def _blank_carry(m, precondition, window, x, pre, extent0):
     return jax.device_put(carry)
 
 
-@partial(_programs.jit, static_argnums=(0, 1))
+@partial(jax.jit, static_argnums=(0, 1))
 def _reparam_kernel(laplacian, density, geom, free, params, carry):
     """``carry`` re-evaluated at its ``x`` under ``params``: value, gradient (and for the
     Laplacian seed ``K^-1 grad``), status, and the counters and energy window restarted; the
