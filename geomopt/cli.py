@@ -100,9 +100,13 @@ def _output_paths(output, extensions, pictures=(), inputs=(), folder=None):
 def cmd_param(args) -> int:
     from . import io
     from ._errors import MeshError
+    from ._timing import compile_seconds
     from .energies import get_energy
     from .param import parameterize
 
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
     energy = get_energy(args.energy)
     solver = _solver(args.solver)
     if args.max_steps is not None:
@@ -114,6 +118,7 @@ def cmd_param(args) -> int:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
     folder = getattr(args, "folder", None)  # demo: the output folder, created only to write into it
     _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
+    t_read = time.perf_counter()
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
         start = "its own UV start map"
@@ -121,16 +126,24 @@ def cmd_param(args) -> int:
         V, F = io.read_mesh(args.input)
         x0 = None if args.init == "tutte" else args.init
         start = f"{args.weights} Tutte start" if args.init == "tutte" else "plane projection start"
+    split.add("read", time.perf_counter() - t_read)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
         _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
+    t_solve, compiled = time.perf_counter(), compile_seconds()
     try:
         res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
                            progress=not args.quiet, bijective=args.bijective)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
+    # setup: everything in parameterize but the solve and JAX's compilation (start map, scaling,
+    # patterns, analysis, the exact certificate)
+    compiled = compile_seconds() - compiled
+    split.add("compile", compiled)
+    split.add("solve", res.seconds)
+    split.add("setup", time.perf_counter() - t_solve - res.seconds - compiled)
     rep = res.info.get("repair")
     if rep is not None:
         _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
@@ -158,8 +171,9 @@ def cmd_param(args) -> int:
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
             _save_param_figures(res, V, F, uv, args.png, outputs, args)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
-                              format=Path(args.output).suffix[1:])
+        with split.phase("write"):
+            io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
+                                  format=Path(args.output).suffix[1:])
     return EXIT_OK
 
 
@@ -258,27 +272,46 @@ def cmd_untangle(args) -> int:
 def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
+    from ._timing import compile_seconds
     from .batch import check_handles, write_certified
     from .lim import LimCase
+    from .quality import element_quality
     from .untangle import untangle_case
 
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
     want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [], [folder])
-    case = LimCase.read(folder)
-    check_handles(case)
+    with split.phase("read"):
+        case = LimCase.read(folder)
+        check_handles(case)
+    t_call, compiled = time.perf_counter(), compile_seconds()
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
+    compiled = compile_seconds() - compiled
+    # setup: all of untangle_case but the solve loop, the certificate and JAX's compilation
+    certify = res.info.get("certify_seconds", 0.0)
+    split.add("compile", compiled)
+    split.add("solve", res.seconds)
+    split.add("certify", certify)
+    split.add("setup", time.perf_counter() - t_call - res.seconds - certify - compiled)
+    with split.phase("certify"):
+        quality = element_quality(res.x, case["faces"] if case["dim"] == 2 else case["tets"], case["orientation"])
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+    _log(args, f"quality: smallest size / mean {quality['min_size_ratio']:.4g}, scaled Jacobian min "
+               f"{quality['min_scaled_jacobian']:.4g} mean {quality['mean_scaled_jacobian']:.4g}")
     _report(args, case=str(folder), output=str(args.output), dim=LimCase.dim_of(folder), vertices=len(res.x),
             elements=res.info.get("elements"), inverted_before=res.initially_inverted, inverted=res.inverted,
             outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
-            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
-            handles_moved=res.handles_moved, min_det_rel=res.min_det_rel, outcome=res.outcome.value,
-            certified=bool(res.success), message=res.message, **_cache_summary())
+            evaluations=res.info.get("evaluations"), solve_seconds=round(res.seconds, 4),
+            setup_seconds=round(res.setup_seconds, 4), handles_moved=res.handles_moved, min_det_rel=res.min_det_rel,
+            outcome=res.outcome.value, certified=bool(res.success), message=res.message, **quality,
+            **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -286,7 +319,8 @@ def _untangle_one(args, folder) -> int:
         if args.png:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
-        write_certified(case, res, args.output)
+        with split.phase("write"):
+            write_certified(case, res, args.output)
     return EXIT_OK
 
 
@@ -541,6 +575,9 @@ def main(argv=None) -> int:
                   flush=True)
         raise SystemExit(EXIT_USAGE) from None  # as argparse itself exits
     args.summary = {"command": args.command, "success": False}
+    from ._timing import Split
+
+    args.timing = Split()
     code = EXIT_FAILED
     try:
         code = _run(args)
@@ -550,7 +587,8 @@ def main(argv=None) -> int:
             from ._manifest import SCHEMA_VERSION, versions
 
             _report(args, exit_status=code, success=code == EXIT_OK,
-                    wall_seconds=round(time.perf_counter() - t0, 4), schema_version=SCHEMA_VERSION,
+                    wall_seconds=round(time.perf_counter() - t0, 4), timing=args.timing.summary(),
+                    schema_version=SCHEMA_VERSION,
                     versions=versions())
             print(json.dumps(args.summary, default=_json_default), flush=True)
 

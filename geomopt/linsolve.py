@@ -24,7 +24,6 @@ import sys
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ._errors import ParameterError
 
@@ -195,6 +194,8 @@ class SparseCholesky:
         else:
             L = self._csc(data)
             try:
+                import scipy.sparse.linalg as spla  # the fallback only: 0.1 s of import
+
                 self._factor = spla.splu((L + L.T - sp.diags(L.diagonal())).tocsc(), permc_spec="MMD_AT_PLUS_A",
                                          diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             except RuntimeError as exc:

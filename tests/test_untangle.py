@@ -28,7 +28,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.energies import chi
-from geomopt.untangle import lim_problem, next_eps, untangle, untangle_case, write_untangle_result
+from geomopt.untangle import default_solver, lim_problem, next_eps, untangle, untangle_case, write_untangle_result
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -321,7 +321,10 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     triangles still folded) sends eps to ~0 and the loop stalls with folds left; with it, this
     disk untangles in a few outer iterations."""
     t = G.random_interior(*G.disk_mesh(60), seed=0)
-    result = untangle(t.problem(), t.x0, progress=False, max_outer=30)
+    # the diagonal seed throughout: the default's switch to the Laplacian seed untangles this
+    # disk within its first outer iteration, where the cap does not come into play
+    solver = default_solver("lbfgs", 2)
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30)
     assert result.success, result.message
     assert result.inverted_history[0] > 0 and result.outer_iterations <= 6
 
@@ -462,7 +465,8 @@ def test_device_laplacian_lbfgs_makes_no_host_round_trip():
         state = solver.init(obj, V, obj.params(), precompile=None)
         density, geom, free = solver._args(obj)
         jaxpr = jax.make_jaxpr(lambda c: _iterate(solver, density, geom, free, state.params, c))(state.aux["carry"])
-        assert (str(jaxpr).count("pure_callback") > 0) == bool(callbacks), backend
+        host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._hostcall
+        assert (host_calls > 0) == bool(callbacks), backend
     with pytest.raises(ParameterError, match="laplacian"):
         LBFGS(laplacian="gpu")
 
