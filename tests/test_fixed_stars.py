@@ -79,6 +79,8 @@ def test_fixed_3d_edge_star_that_overlaps_is_refused(closed, field):
     X, T, rest, fixed = edge_case(2.0 if closed else 1.5, 1.0 if closed else 0.75, 10, closed)
     cert = fixed_star_certificate(X, T, fixed)
     assert not cert.ok and getattr(cert, field).tolist() == [[0, 1]]
+    for e in (-1000, 1000):  # extreme scales, exactly (powers of two)
+        assert getattr(fixed_star_certificate(np.ldexp(X, e), T, fixed), field).tolist() == [[0, 1]]
     with pytest.raises(MeshError, match=r"edge \(0, 1\).*impossible"):
         untangle(Problem.tets(rest, T, fixed, X[fixed]), X, progress=False)
 
