@@ -159,7 +159,7 @@ def backend_iteration_seconds(V, F):
         for _ in range(3):  # median of 3: one run in two can stall on a shared machine
             c0 = time.process_time()
             r = geomopt.parameterize(V, F, solver=solver, progress=False)
-            per_it.append((r.seconds / max(r.iterations, 1), (time.process_time() - c0) / max(r.iterations, 1)))
+            per_it.append((r.stats.seconds / max(r.stats.iterations, 1), (time.process_time() - c0) / max(r.stats.iterations, 1)))
         out[backend] = statistics.median(p[0] for p in per_it)
         out[backend + "_cpu"] = statistics.median(p[1] for p in per_it)  # whole parameterize / iterations
     out["auto_backend"] = linsolve.available_backends()[0]

@@ -82,9 +82,9 @@ def run_case(name, call, repeat):
     certified = result.success and inverted == 0 and handles_ok
     w = statistics.median(warm) if warm else cold
     return {
-        "name": name, "elements": len(S), "inverted0": result.initially_inverted,
-        "outer": result.outer_iterations, "inner": result.inner_iterations,
-        "evals": result.info.get("evaluations", 0), "warm": w,
+        "name": name, "elements": len(S), "inverted0": result.stats.inverted_at_start,
+        "outer": result.stats.outer_iterations, "inner": result.stats.iterations,
+        "evals": result.stats.evaluations, "warm": w,
         "warm_min": min(warm) if warm else cold, "compile": max(cold - w, 0.0),
         "min_det": result.min_det_rel, "certified": certified,
     }

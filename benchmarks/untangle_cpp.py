@@ -121,8 +121,8 @@ def main(argv=None):
             g = statistics.median(geo_s)
             if cpp_s:
                 ratios.append(g / c)
-            print(f"| {name} | {problem.n_elements} | {c:.2f} | {g:.2f} | {g / c:.2f} | {r.outer_iterations} | "
-                  f"{r.inner_iterations} | {r.info['evaluations']} | {max(cold - g, 0.0):.1f} | {ok} |", flush=True)
+            print(f"| {name} | {problem.n_elements} | {c:.2f} | {g:.2f} | {g / c:.2f} | {r.stats.outer_iterations} | "
+                  f"{r.stats.iterations} | {r.stats.evaluations} | {max(cold - g, 0.0):.1f} | {ok} |", flush=True)
     if ratios:
         print(f"\nmedian ratio {statistics.median(ratios):.2f}, largest {max(ratios):.2f} "
               f"(geomopt / C++ solve seconds, {len(ratios)} cases, load average {os.getloadavg()[0]:.1f})")

@@ -29,17 +29,15 @@ import io as _io
 import math
 import re
 import sys
-import time
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from . import io
 from ._errors import GeomoptError, MeshError, ParameterError
 from ._objective import Objective
 from .problem import Problem
-from .solvers import CM, Outcome, Progress, Result, get_solver
+from .solvers import CM, Progress, Result, get_solver, iterate
 
 __all__ = ["compare", "Comparison", "DEFAULT_SOLVERS", "HISTORY_COLUMNS", "SUMMARY_COLUMNS"]
 
@@ -49,6 +47,8 @@ HISTORY_COLUMNS = ("solver", "iteration", "time_s", "energy", "grad_norm", "flip
 SUMMARY_COLUMNS = ("solver", "outcome", "iterations", "solve_s", "compile_s", "s_per_it",
                    "final_energy", "gap", "flips", "max_flips")
 GAP_FLOOR = 1e-16  # relative gaps are drawn no lower than this (a log scale has no zero)
+#: the ``reason`` of a solve the time limit stopped (outcome MAX_STEPS)
+TIME_LIMIT = "stopped at the time limit (max_seconds)"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
 # optimistix's BFGS keeps a dense (n d) x (n d) inverse Hessian; refuse what cannot fit
 _DENSE_SOLVERS = ("optx-bfgs",)
@@ -61,10 +61,9 @@ class Comparison:
 
     Attributes
     ----------
-    results : dict solver name -> :class:`~geomopt.Result`, in run order.  Besides the usual
-        fields each ``info`` holds ``flips_history`` ((iterations + 1,) int, inverted elements
-        of every iterate, start included) and ``stopped`` (``"max_seconds"`` when the time
-        limit ended the solve, else None).
+    results : dict solver name -> :class:`~geomopt.Result`, in run order; each ``trace.flips``
+        holds the inverted elements of every iterate ((iterations + 1,) int, start included), and
+        a solve the time limit ended has ``reason`` :data:`TIME_LIMIT`.
     best_energy : float, the lowest total energy any solver reached (``E_best``).
     objective : the :class:`~geomopt.Objective` every solver minimised.
     start : (n, d) the start map every solver began from (problem frame).
@@ -93,30 +92,31 @@ class Comparison:
     def outcome(self, name) -> str:
         """``"max_seconds"`` for a solve the time limit stopped, else the outcome's value."""
         res = self.results[name]
-        return res.info.get("stopped") or res.outcome.value
+        return "max_seconds" if res.reason == TIME_LIMIT else res.outcome.value
 
     def gap(self, name) -> np.ndarray:
         """(iterations + 1,) relative gap ``(E - E_best) / |E_best|`` of every iterate."""
-        e = self.results[name].energy_history
+        e = self.results[name].trace.energy
         return (e - self.best_energy) / max(abs(self.best_energy), 1e-300)
 
     def history_rows(self):
         """Rows of ``history.csv`` (:data:`HISTORY_COLUMNS`), one per solver and iterate."""
         rows = []
         for name, r in self.results.items():
-            flips = r.info["flips_history"]
-            for k in range(len(r.energy_history)):
-                rows.append((name, k, float(r.time_history[k]), float(r.energy_history[k]) / self.area,
-                             float(r.grad_history[k]) / self.area, int(flips[k])))
+            t = r.trace
+            for k in range(len(t.energy)):
+                rows.append((name, k, float(t.seconds[k]), float(t.energy[k]) / self.area,
+                             float(t.grad_norm[k]) / self.area, int(t.flips[k])))
         return rows
 
     def summary_rows(self):
         """Rows of ``summary.csv`` (:data:`SUMMARY_COLUMNS`), one per solver."""
         rows = []
         for name, r in self.results.items():
-            rows.append((name, self.outcome(name), r.iterations, r.seconds, r.setup_seconds,
-                         r.seconds / max(r.iterations, 1), r.energy / self.area, float(self.gap(name)[-1]),
-                         r.inverted, int(np.max(r.info["flips_history"]))))
+            st = r.stats
+            rows.append((name, self.outcome(name), st.iterations, st.seconds, st.setup_seconds,
+                         st.seconds / max(st.iterations, 1), r.energy / self.area, float(self.gap(name)[-1]),
+                         r.certificate.inverted, int(np.max(r.trace.flips))))
         return rows
 
     def report(self) -> str:
@@ -141,7 +141,7 @@ class Comparison:
         left, right = fig.subplots(1, 2, sharey=True)
         for name, r in self.results.items():
             gap = np.maximum(self.gap(name), GAP_FLOOR)
-            left.semilogy(r.time_history, gap, marker=".", ms=3, label=name)
+            left.semilogy(r.trace.seconds, gap, marker=".", ms=3, label=name)
             right.semilogy(np.arange(len(gap)), gap, marker=".", ms=3, label=name)
         left.set_xlabel("solve seconds (setup excluded)")
         right.set_xlabel("iteration")
@@ -242,7 +242,7 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     results = {}
     for name, solver in named.items():
         results[name] = _run(name, solver, objective, start, max_seconds, progress)
-    finals = [np.min(r.energy_history[np.isfinite(r.energy_history)], initial=np.inf)
+    finals = [np.min(r.trace.energy[np.isfinite(r.trace.energy)], initial=np.inf)
               for r in results.values()]
     comparison = Comparison(results, float(min(finals)), objective, start, mirror, label)
     if out is not None:
@@ -251,60 +251,25 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
 
 
 def _run(name, solver, objective, x0, max_seconds, progress) -> Result:
-    """One solver through ``init`` / ``terminate`` / ``step``, timing only those calls."""
+    """One solver through :func:`~geomopt.solvers.iterate`, every iterate observed: its
+    inverted elements counted (exact) and the time limit applied; the observer's time is not
+    solve time."""
     problem = objective.problem
-    params = objective.params()
     report = Progress(prefix=f"{name} ", total=solver.max_steps, every=50) if progress else None
-    t0 = time.perf_counter()
-    state = solver.init(objective, x0, params)
-    solver.terminate(state)  # its first call compiles the stopping test's small kernels
-    setup = time.perf_counter() - t0
-    energies, times, grads = [state.value], [0.0], [_norm(state.grad)]
-    flips = [problem.count_inverted(np.asarray(state.x))]
-    solve, stopped = 0.0, None
-    try:
-        while True:
-            t0 = time.perf_counter()
-            done, outcome = solver.terminate(state)
-            solve += time.perf_counter() - t0
-            if done:
-                break
-            if max_seconds is not None and solve >= max_seconds:
-                outcome, stopped = Outcome.MAX_STEPS, "max_seconds"
-                break
-            t0 = time.perf_counter()
-            state = solver.step(state)
-            solve += time.perf_counter() - t0
-            energies.append(state.value)
-            times.append(solve)
-            grads.append(_norm(state.grad))
-            flips.append(problem.count_inverted(np.asarray(state.x)))
-            if report:
-                report(state, solve, state.value / objective.total_volume)
-    finally:
-        if report:
-            report.close()
-    x = np.asarray(state.x)
-    if not np.isfinite(x).all():
-        outcome, x = Outcome.NONFINITE, np.asarray(x0)
-    inverted = problem.count_inverted(x)
-    if outcome is Outcome.CONVERGED and inverted:
-        outcome = Outcome.NOT_INJECTIVE
-    result = Result(x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
-                    energy_history=np.asarray(energies, np.float64), iterations=state.iteration,
-                    seconds=solve, setup_seconds=setup, time_history=np.asarray(times),
-                    grad_history=np.asarray(grads), info={"solver": solver, "stopped": stopped,
-                                                          "flips_history": np.asarray(flips, np.int64),
-                                                          "evaluations": state.evaluations})
+    flips = [problem.count_inverted(np.asarray(x0))]
+
+    def observe(state, seconds):
+        flips.append(problem.count_inverted(objective.unpad_map(np.asarray(state.x))))
+        return TIME_LIMIT if max_seconds is not None and seconds >= max_seconds else None
+
+    result = iterate(solver, objective, x0, objective.params(), observe=observe, progress=report, trace=True)
+    result = dataclasses.replace(result, trace=dataclasses.replace(result.trace, flips=np.asarray(flips, np.int64)))
     if progress:
-        print(f"{name}: {result.iterations} it, {solve:.2f} s + setup {setup:.2f} s, energy "
-              f"{result.energy / objective.total_volume:.10g}, max flips {max(flips)}, "
-              f"{stopped or outcome.value}", file=sys.stderr, flush=True)
+        st = result.stats
+        how = "max_seconds" if result.reason == TIME_LIMIT else result.outcome.value
+        print(f"{name}: {st.iterations} it, {st.seconds:.2f} s + setup {st.setup_seconds:.2f} s, energy "
+              f"{result.mean_energy:.10g}, max flips {max(flips)}, {how}", file=sys.stderr, flush=True)
     return result
-
-
-def _norm(g) -> float:
-    return float(jnp.sqrt(jnp.vdot(g, g))) if g is not None else float("nan")
 
 
 # ------------------------------------------------------------------------------ inputs

@@ -26,13 +26,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _padding
-from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
 from .energies import Energy, get_energy
+from ._projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
 from .problem import Problem
-
-PROJECTIONS = ("clamp", "abs", "none")
 
 #: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
 #: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
@@ -72,9 +70,16 @@ def energy_kernel(density, geom, x, params):
     return total_energy(density, geom, x, params)
 
 
+def free_value_and_grad(density, geom, free, x, params):
+    """``(E(x), grad E(x) * free)``: the energy and its gradient on the free DOFs (``free``
+    (n, d) is 1 on free DOFs, 0 on fixed and padded ones).  Traceable."""
+    v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+    return v, g * free
+
+
 @partial(jit, static_argnums=0)
-def value_and_grad_kernel(density, geom, x, params):
-    return jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+def value_and_grad_kernel(density, geom, free, x, params):
+    return free_value_and_grad(density, geom, free, x, params)
 
 
 @jit
@@ -82,37 +87,10 @@ def dets_kernel(geom, x):
     return _dets(geom, x)
 
 
-def project_psd(H, method):
-    """Project symmetric blocks ``H`` (..., k, k) to PSD by their eigenvalues.
-
-    ``clamp``: ``max(lambda, floor)`` with a tiny relative floor (Teran et al. 2005);
-    ``abs``: ``max(|lambda|, floor)`` (Chen et al. 2024, "Stabler Neo-Hookean simulation:
-    absolute eigenvalue filtering for projected Newton"); ``none``: unchanged.
-    PSD blocks are returned unchanged up to rounding and the floor.
-    """
-    if method == "none":
-        return H
-    w, Q = eigh(H)
-    floor = 1e-10 * jnp.max(jnp.abs(w), axis=-1, keepdims=True)
-    if method == "clamp":
-        w = jnp.maximum(w, floor)
-    elif method == "abs":
-        w = jnp.maximum(jnp.abs(w), floor)
-    else:
-        raise ParameterError(f"unknown PSD projection {method!r}; valid: {', '.join(PROJECTIONS)}")
-    Qw = Q * w[..., None, :]
-    # sum_l Qw[i, l] Q[j, l] as broadcast products: 1.3x faster on CPU than a batched matmul
-    return sum(Qw[..., :, None, l] * Q[..., None, :, l] for l in range(Q.shape[-1]))
-
-
 def element_block(density, projection, J, params, vol):
-    """(d*d, d*d) J-space block ``vol * H`` of one element: the density's Hessian projected by
-    ``projection`` (a :data:`PROJECTIONS` name), or a proxy object (SLIM, CM;
-    :mod:`geomopt.solvers.proxies`) called as ``projection(density, J, params)``."""
-    d = J.shape[-1]
-    if callable(projection):
-        return projection(density, J, params).reshape(d * d, d * d) * vol
-    return project_psd(jax.hessian(density)(J, params).reshape(d * d, d * d) * vol, projection)
+    """(d*d, d*d) J-space block ``vol * H`` of one element under ``projection`` (a
+    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy)."""
+    return as_projection(projection).block(density, J, params, vol)
 
 
 def local_pairs(d):
@@ -174,10 +152,11 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 
 
 @partial(jit, static_argnums=(0, 1, 2, 3))
-def hessian_kernel(density, projection, chunk, n_blocks, geom, x, params, blocks, swap, gather):
-    """Energy, gradient and the assembled lower-triangle CSC data (nnz,) of the projected
-    Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's ``gather``."""
-    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, blocks, swap, gather):
+    """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
+    of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
+    ``gather``."""
+    value, grad = free_value_and_grad(density, geom, free, x, params)
     VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks)
     return value, grad, VB.reshape(-1)[gather]
 
@@ -453,18 +432,18 @@ class Objective:
     def value_and_grad(self, x, params):
         """(value, grad with fixed rows zeroed); grad has as many rows as ``x``."""
         xp, cut = self._pad(x)
-        v, g = value_and_grad_kernel(self.energy.density, self.geom, xp, params)
-        g = g * self._free
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, self._free, xp, params)
         return v, (self.unpad_map(g) if cut else g)
 
     def hessian(self, x, params, projection="clamp"):
         """(value, grad with fixed rows zeroed (as many rows as ``x``), CSC data (nnz,) of the
-        free-DOF Hessian in :attr:`pattern`)."""
+        free-DOF Hessian in :attr:`pattern`), each element's block made by ``projection`` (a
+        :mod:`geomopt._projection` object or name: ``"clamp"``, ``"abs"``, ``"none"`` for the
+        exact Hessian...)."""
         pat = self.pattern
         xp, cut = self._pad(x)
-        v, g, data = hessian_kernel(self.energy.density, projection, self.chunk, self._n_blocks_padded,
-                                    self.geom, xp, params, *self._assembly)
-        g = g * self._free
+        v, g, data = hessian_kernel(self.energy.density, as_projection(projection), self.chunk,
+                                    self._n_blocks_padded, self.geom, self._free, xp, params, *self._assembly)
         if self._nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
@@ -475,8 +454,8 @@ class Objective:
         but no throw-away evaluation."""
         if self._pattern is None:
             self.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.lower(self.energy.density, projection, self.chunk, self._n_blocks_padded, self.geom,
-                             self._pad(x)[0], params, *self._assembly).compile()
+        hessian_kernel.lower(self.energy.density, as_projection(projection), self.chunk, self._n_blocks_padded,
+                             self.geom, self._free, self._pad(x)[0], params, *self._assembly).compile()
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""

@@ -213,8 +213,8 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
         elements = case["faces"] if case["dim"] == 2 else case["tets"]
         row.update(dim=case["dim"], vertices=len(case["rest"]), elements=len(elements))
         case, res = untangle.untangle_case(case, solver=solver, progress=False, bucket=bucket)
-        row.update(inverted_before=res.initially_inverted, inverted_after=res.inverted,
-                   outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations)
+        row.update(inverted_before=res.stats.inverted_at_start, inverted_after=res.certificate.inverted,
+                   outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations)
         if not res.success:
             row["message"] = f"not certified: {res.message}"
         else:
@@ -378,8 +378,7 @@ def _apply_jax_settings(settings):
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
-    import geomopt  # noqa: F401  (x64 on, as in every geomopt process)
-
+    # importing this module ran geomopt's package configuration already (x64 on, the cache)
     changed = [k for k, v in settings.items() if v is not None and getattr(jax.config, k) != v]
     for key in changed:
         jax.config.update(key, settings[key])

@@ -134,21 +134,21 @@ def cmd_param(args) -> int:
                            progress=not args.quiet, bijective=args.bijective)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
-    rep = res.info.get("repair")
+    rep = res.details.repair if res.details is not None else None
     if rep is not None:
-        _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
-                   f"{rep.outer_iterations} outer iterations, {rep.seconds:.2f} s, "
+        _log(args, f"repaired the start map's {rep.stats.inverted_at_start} folded triangle(s), boundary held: "
+                   f"{rep.stats.outer_iterations} outer iterations, {rep.stats.seconds:.2f} s, "
                    f"{'certified' if rep.success else 'not certified: ' + rep.message}")
     if rep is not None and not rep.success:
         return _fail(f"the start map could not be repaired: {rep.message}")
-    mean = res.energy / res.info["objective"].total_volume
-    _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
-               f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
+    mean, st = res.mean_energy, res.stats
+    _log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  "
+               f"compile seconds {st.setup_seconds:.2f}  energy {mean:.10g}  flips {res.certificate.inverted}  "
                f"injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
-            energy_name=energy.name, solver=args.solver, iterations=res.iterations,
-            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
-            energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
+            energy_name=energy.name, solver=args.solver, iterations=st.iterations,
+            solve_seconds=round(st.seconds, 4), setup_seconds=round(st.setup_seconds, 4),
+            energy=res.energy, mean_energy=mean, flips=res.certificate.inverted, injectivity=res.injectivity,
             boundary_crossings=_boundary_crossings(res),
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
@@ -176,8 +176,8 @@ def _warn_overlap(res, args):
 
 def _boundary_crossings(res):
     """Crossing boundary edge pairs by the result's global certificate, None without one."""
-    cert = res.info.get("certificate")
-    return None if cert is None else len(cert.crossings)
+    crossings = getattr(res.certificate, "crossings", None)
+    return None if crossings is None else len(crossings)
 
 
 def _for_the_command_line(exc, args):
@@ -214,7 +214,7 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
     from . import io, plot
     from ._objective import element_densities
 
-    obj = res.info["objective"]
+    obj = res.objective
     dens = np.asarray(element_densities(obj, res.x))
     base, conv = Path(png), _convergence_path(png)
     plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, res.x,
@@ -223,7 +223,7 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
                            title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
                            label="log10 distortion", format=base.suffix[1:].lower())
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {solver_name: (res.time_history, res.energy_history)},
+                          {solver_name: (res.trace.seconds, res.trace.energy)},
                           title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
     return base, conv
 
@@ -257,12 +257,14 @@ def _untangle_one(args, folder) -> int:
     case = io.read_lim_case(folder)
     check_handles(case)
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
-    _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
-               f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
-               f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
-            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
-            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
+    st = res.stats
+    _log(args, f"elements {res.problem.n_elements}  outer iterations {st.outer_iterations}  "
+               f"seconds {st.seconds:.2f}  compile seconds {st.setup_seconds:.2f}  "
+               f"inverted {res.certificate.inverted}  certified {'yes' if res.success else 'no'}")
+    _report(args, case=str(folder), output=str(args.output), elements=res.problem.n_elements,
+            outer_iterations=st.outer_iterations, solve_seconds=round(st.seconds, 4),
+            setup_seconds=round(st.setup_seconds, 4), inverted=res.certificate.inverted,
+            certified=bool(res.success),
             message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
@@ -344,7 +346,7 @@ def cmd_compare(args) -> int:
                   progress=not args.quiet)
     _log(args, res.report())
     _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
-    folded = [name for name, r in res.results.items() if r.info["flips_history"].max() > 0]
+    folded = [name for name, r in res.results.items() if r.trace.flips.max() > 0]
     if folded:
         print(f"geomopt: error: inverted elements during the solve of {', '.join(folded)} (see the "
               f"flips column of {Path(args.out) / 'history.csv'}); files written", file=sys.stderr)
@@ -363,7 +365,7 @@ def _positive_int(text) -> int:
 
 
 def build_parser():
-    from . import __version__
+    from ._version import __version__
     from ._names import ENERGIES, SOLVERS
 
     p = argparse.ArgumentParser(

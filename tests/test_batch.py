@@ -55,10 +55,10 @@ def test_padding_gives_the_same_map_up_to_the_rounding_of_sums(name):
     padded = untangle(t.problem(), t.x0, progress=False, bucket=True)
     assert plain.success and padded.success, (plain.message, padded.message)
     assert padded.x.shape == plain.x.shape
-    assert (padded.outer_iterations, padded.inner_iterations) == (plain.outer_iterations, plain.inner_iterations)
-    assert padded.initially_inverted == plain.initially_inverted == t.inverted()
+    assert (padded.stats.outer_iterations, padded.stats.iterations) == (plain.stats.outer_iterations, plain.stats.iterations)
+    assert padded.stats.inverted_at_start == plain.stats.inverted_at_start == t.inverted()
     np.testing.assert_allclose(padded.x, plain.x, rtol=0, atol=1e-12 * np.ptp(t.x0))
-    np.testing.assert_allclose(padded.min_det_history, plain.min_det_history, rtol=1e-9)
+    np.testing.assert_allclose(padded.trace.column("min_det"), plain.trace.column("min_det"), rtol=1e-9)
     assert count_inverted(padded.x, t.simplices) == 0
     assert np.array_equal(padded.x[t.fixed].view(np.uint64), t.x0[t.fixed].view(np.uint64))
 

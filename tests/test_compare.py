@@ -13,7 +13,7 @@ import pytest
 import geomopt
 import geomopt.cli
 from geomopt import MeshError, ParameterError, Problem, io
-from geomopt._compare import HISTORY_COLUMNS, SUMMARY_COLUMNS, Comparison
+from geomopt._compare import HISTORY_COLUMNS, SUMMARY_COLUMNS, TIME_LIMIT, Comparison
 from geomopt.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
@@ -116,18 +116,18 @@ def test_api_result_agrees_with_the_files(tmp_path):
     _, rows = read_csv(tmp_path / "o" / "history.csv")
     for name, r in res.results.items():
         mine = [row for row in rows if row[0] == name]
-        assert len(mine) == r.iterations + 1 == len(r.energy_history)
-        assert [float(x[2]) for x in mine] == list(r.time_history)
-        assert [float(x[3]) for x in mine] == list(r.energy_history / area)
-        assert [float(x[4]) for x in mine] == list(r.grad_history / area)
-        assert [int(x[5]) for x in mine] == list(r.info["flips_history"])
-        assert r.seconds >= r.time_history[-1] and r.energy == r.energy_history[-1]
+        assert len(mine) == r.stats.iterations + 1 == len(r.trace.energy)
+        assert [float(x[2]) for x in mine] == list(r.trace.seconds)
+        assert [float(x[3]) for x in mine] == list(r.trace.energy / area)
+        assert [float(x[4]) for x in mine] == list(r.trace.grad_norm / area)
+        assert [int(x[5]) for x in mine] == list(r.trace.flips)
+        assert r.stats.seconds >= r.trace.seconds[-1] and r.energy == r.trace.energy[-1]
     _, summary = read_csv(tmp_path / "o" / "summary.csv")
     assert res.best_energy == min(r.energy for r in res.results.values())
     for s in summary:
         r = res.results[s[0]]
         assert s[1] == r.outcome.value == "converged"
-        assert (int(s[2]), float(s[3]), float(s[4])) == (r.iterations, r.seconds, r.setup_seconds)
+        assert (int(s[2]), float(s[3]), float(s[4])) == (r.stats.iterations, r.stats.seconds, r.stats.setup_seconds)
         assert float(s[6]) == r.energy / area and float(s[7]) == res.gap(s[0])[-1]
     _, vt, _ = read_uv_obj(tmp_path / "o" / "aqp.obj")
     assert np.array_equal(vt, res.results["aqp"].x)
@@ -260,7 +260,7 @@ def test_max_steps_is_honoured(cli, tmp_path):
 def test_max_seconds_stops_each_solver_and_says_so():
     res = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], max_seconds=1e-9)
     for name, r in res.results.items():
-        # the first terminate() call already takes longer than a nanosecond
-        assert r.iterations == 0 and res.outcome(name) == "max_seconds"
-        assert r.outcome is geomopt.Outcome.MAX_STEPS and r.info["stopped"] == "max_seconds"
+        # the first iteration already takes longer than a nanosecond
+        assert r.stats.iterations == 1 and res.outcome(name) == "max_seconds"
+        assert r.outcome is geomopt.Outcome.MAX_STEPS and r.reason == TIME_LIMIT
     assert [s[1] for s in res.summary_rows()] == ["max_seconds", "max_seconds"]

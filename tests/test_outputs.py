@@ -144,9 +144,9 @@ def slow(fh, prefix, A):
 
 geomopt.io._write_rows = slow
 geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
-    energy=1.0, info={{"objective": SimpleNamespace(total_volume=1.0)}}, iterations=1, seconds=0.0,
-    setup_seconds=0.0, inverted=0, outcome=SimpleNamespace(value="converged"), success=True, x=V2,
-    injectivity="local", message="converged")
+    energy=1.0, mean_energy=1.0, stats=SimpleNamespace(iterations=1, seconds=0.0, setup_seconds=0.0),
+    certificate=SimpleNamespace(inverted=0), details=None, outcome=SimpleNamespace(value="converged"),
+    success=True, x=V2, injectivity="local", message="converged")
 sys.exit(geomopt.cli.main(["param", sys.argv[1], "-o", sys.argv[2], "--quiet"]))
 """
 

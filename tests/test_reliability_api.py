@@ -27,7 +27,7 @@ from geomopt import param as param_module
 from geomopt.energies import REGISTRY, Energy, garanzha
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
-from geomopt.solvers import LBFGS, Newton
+from geomopt.solvers import LBFGS, Adaptive, Newton
 from geomopt.topology import same_side_facets
 from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
 
@@ -327,7 +327,7 @@ def test_unhashable_density_is_refused():
     (lambda: Newton(rtol=float("nan")), r"Newton: rtol must be a finite number in \[0, 1\), got nan"),
     (lambda: Newton(projection="eig"), "Newton: projection must be one of 'adaptive', 'clamp'"),
     (lambda: Newton(regularization=0.0), "regularization must be a finite number > 0"),
-    (lambda: Newton(exact_below=-1.0), "exact_below must be a finite number >= 0"),
+    (lambda: Newton(projection=Adaptive(exact_below=-1.0)), "Adaptive: exact_below must be a finite number >= 0"),
     (lambda: Newton(linear_solver="lu"), "linear_solver must be one of 'auto'"),
     (lambda: Newton(search="armijo"), "search must be a InjectiveSearch object"),
     (lambda: LBFGS(max_steps=-5), "LBFGS: max_steps must be an integer >= 1"),
@@ -485,10 +485,10 @@ def test_every_vertex_a_handle(solver):
     V, F = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]])
     good = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=2.0 * V)
     r = minimize(Objective(good, "symmetric_dirichlet"), 2.0 * V, solver, progress=False)
-    assert r.success and r.inverted == 0 and np.array_equal(r.x, 2.0 * V)
+    assert r.success and r.certificate.inverted == 0 and np.array_equal(r.x, 2.0 * V)
     mirrored = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=V[[0, 2, 1]])
     r = minimize(Objective(mirrored, "symmetric_dirichlet"), V[[0, 2, 1]], solver, progress=False)
-    assert not r.success and r.inverted == 1
+    assert not r.success and r.certificate.inverted == 1
 
 
 @pytest.mark.parametrize("bad", [dict(progress="yes"), dict(progress=2), dict(params=[("lam", 1.0)])])
@@ -512,7 +512,7 @@ def test_parameterize_progress_callable_with_folded_start():
     x0[7] += [0.5, 0.4]  # folds the triangles around vertex 7
     energies = []
     r = parameterize(np.c_[V, _bumpy(V)], F, x0=x0, progress=lambda state, elapsed, e: energies.append(e))
-    assert r.info["repair"] is not None and r.success and r.inverted == 0
-    assert len(energies) == r.iterations
+    assert r.details.repair is not None and r.success and r.certificate.inverted == 0
+    assert len(energies) == r.stats.iterations
     with pytest.raises(ParameterError, match="parameterize: progress must be"):
         parameterize(np.c_[V, _bumpy(V)], F, progress="yes")

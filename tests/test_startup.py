@@ -135,13 +135,13 @@ def test_padding_changes_no_energy_gradient_hessian_or_dets():
 def test_padding_changes_no_result_or_certificate(solver):
     V, F = bumpy(8)
     runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
-    assert runs[1].info["objective"].sizes.padded
+    assert runs[1].objective.sizes.padded
     a, b = runs
-    assert a.outcome == b.outcome and a.inverted == b.inverted == 0
+    assert a.outcome == b.outcome and a.certificate.inverted == b.certificate.inverted == 0
     if solver in ("newton", "slim", "cm"):  # first-order and quasi-Newton histories see rounding
-        assert a.iterations == b.iterations
+        assert a.stats.iterations == b.stats.iterations
     else:
-        assert abs(a.iterations - b.iterations) <= 0.1 * a.iterations
+        assert abs(a.stats.iterations - b.stats.iterations) <= 0.1 * a.stats.iterations
     assert b.x.shape == a.x.shape == (len(V), 2)
     # the same map up to the solver's tolerance: padded reductions (sums with extra exact
     # zeros) may round differently in the last bit, which an L-BFGS history amplifies
