@@ -97,11 +97,11 @@ def sibling(V, F, remove=3):
 
 def same_bucket(A, B):
     from geomopt import Objective, Problem
-    from geomopt._padding import bucket
+    from geomopt._padding import power_bucket
 
     oa, ob = (Objective(Problem.surface(*M), "symmetric_dirichlet", buckets=True) for M in (A, B))
-    return (oa.sizes.n_padded, oa.sizes.m_padded, bucket(oa.pattern.nnz)) == \
-        (ob.sizes.n_padded, ob.sizes.m_padded, bucket(ob.pattern.nnz))
+    return (oa.sizes.n_padded, oa.sizes.m_padded, power_bucket(oa.pattern.nnz)) == \
+        (ob.sizes.n_padded, ob.sizes.m_padded, power_bucket(ob.pattern.nnz))
 
 
 def start_map(V, F):

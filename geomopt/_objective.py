@@ -333,12 +333,14 @@ class Objective:
     19 Newton iterations on camelhead).
 
     With ``buckets=True`` (what :func:`~geomopt.parameterize` uses) the arrays are padded to
-    size buckets (:mod:`geomopt._padding`) so that meshes of similar size share compiled
-    kernels and persistent-cache entries; every method then takes maps with ``n`` rows (and
-    returns ``n`` rows, ``m`` elements) or ``n_padded`` rows, as solver states hold them.
+    size buckets (:mod:`geomopt._padding`, the one padding rule) so that meshes of similar size
+    share compiled kernels and persistent-cache entries; ``buckets`` may also be another
+    objective's ``sizes`` (a sub-problem on the same vertices padded like its whole).  Every
+    method then takes maps with ``n`` rows (and returns ``n`` rows, ``m`` elements) or
+    ``n_padded`` rows, as solver states hold them.
     """
 
-    def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, **params):
+    def __init__(self, problem: Problem, energy: Energy | str, *, buckets=False, **params):
         if not isinstance(problem, Problem):
             raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
                                  f"Problem.tets), got {type(problem).__name__}")
@@ -376,8 +378,8 @@ class Objective:
             sz = self.sizes
             # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
             # block 0, padded CSC entries gather block entry 0 and are cut off on the host
-            self._nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
-            self._n_blocks_padded = _padding.bucket(pat.n_blocks) if sz.padded else pat.n_blocks
+            self._nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
+            self._n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
             extra = sz.m_padded - sz.m
             blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
             swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
