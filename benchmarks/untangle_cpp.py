@@ -42,7 +42,7 @@ from geomopt import generators as G  # noqa: E402
 from geomopt.io import read_vtk_tets, write_vtk_tets  # noqa: E402
 from geomopt.lim import LimCase  # noqa: E402
 from geomopt.predicates import count_inverted  # noqa: E402
-from geomopt.untangle import lim_problem, untangle  # noqa: E402
+from geomopt.untangle import untangle  # noqa: E402
 
 LIM_ARMADILLO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim" / "3D" / \
     "Deform_Armadillo" / "armadillo-598"
@@ -66,7 +66,7 @@ def load(name, tmp):
     """(problem, x0, tets, orientation, init.vtk, rest.vtk) of a case."""
     if name == "armadillo-598":
         case = LimCase.read(LIM_ARMADILLO)
-        problem, x0, orientation, _ = lim_problem(case)
+        problem, x0, orientation, _ = case.to_problem()
         return problem, x0, case.simplices, orientation, LIM_ARMADILLO / "init.vtk", LIM_ARMADILLO / "rest.vtk"
     t = FAMILIES[name]()
     init, rest = Path(tmp) / f"{name}-init.vtk", Path(tmp) / f"{name}-rest.vtk"

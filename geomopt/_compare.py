@@ -68,7 +68,7 @@ class Comparison:
     objective : the :class:`~geomopt.Objective` every solver minimised.
     start : (n, d) the start map every solver began from (problem frame).
     mirror : (d,) per-axis signs from the problem frame to the input's (a LIM case given
-        clockwise is solved mirrored, :func:`~geomopt.untangle.lim_problem`); maps are
+        clockwise is solved mirrored, :meth:`~geomopt.lim.LimCase.to_problem`); maps are
         written as ``x * mirror``.
     label : str, a short description of the problem for titles.
     """
@@ -199,7 +199,7 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
 
         * a mesh file path (OBJ/OFF/PLY/STL, a disk): free-boundary parameterization;
         * a LIM case folder (``input.obj`` + ``handles.txt``, or ``rest.vtk`` + ``init.vtk``):
-          fixed handles, the case's map as the start (:func:`~geomopt.untangle.lim_problem`);
+          fixed handles, the case's map as the start (:meth:`~geomopt.lim.LimCase.to_problem`);
         * an (n, 3) (surface) or (n, 2) (planar) vertex array, with ``faces`` (m, 3):
           free-boundary parameterization;
         * a :class:`~geomopt.Problem` (handles included); ``x0`` is then required unless it
@@ -289,10 +289,8 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         label = path.name
         if path.is_dir():
             from .lim import LimCase
-            from .untangle import lim_problem
-
             case = path
-            problem, case_x0, _, mirror = lim_problem(LimCase.read(path))
+            problem, case_x0, _, mirror = LimCase.read(path).to_problem()
             x0 = case_x0 if x0 is None else io.validate_vertices(x0, "start map x0", dim=problem.dim) * mirror
         else:
             problem = Problem.surface(*io.read_mesh(path))

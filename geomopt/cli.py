@@ -245,9 +245,7 @@ def cmd_untangle(args) -> int:
 def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
-    from .batch import check_handles, write_certified
-    from .lim import LimCase
-    from .untangle import untangle_case
+    from .lim import LimCase, untangle_case
 
     want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
@@ -256,7 +254,7 @@ def _untangle_one(args, folder) -> int:
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
                   [str(p) for p in Path(folder).iterdir()])
     case = LimCase.read(folder)
-    check_handles(case)
+    case.require_handles()
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
     st = res.stats
     _log(args, f"elements {res.problem.n_elements}  outer iterations {st.outer_iterations}  "
@@ -274,7 +272,7 @@ def _untangle_one(args, folder) -> int:
         if args.png:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
-        write_certified(case, res, args.output)
+        case.write_certified(res, args.output)
     return EXIT_OK
 
 
@@ -310,10 +308,10 @@ def _save_untangle_figure(case, res, png, format=None):
     from . import plot
     from .predicates import simplex_orientations
 
-    S = case["faces"] if case["dim"] == 2 else case["tets"]
-    start = case["init"][:, :2] if case["dim"] == 2 else case["init"]
-    bad = [simplex_orientations(x, S) != case["orientation"] for x in (start, res.x)]
-    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.get("path", "")), format=format)
+    S, orientation = case.simplices, case.to_problem().orientation
+    start = case.init[:, :2] if case.dim == 2 else case.init
+    bad = [simplex_orientations(x, S) != orientation for x in (start, res.x)]
+    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.path or ""), format=format)
 
 
 def cmd_demo(args) -> int:

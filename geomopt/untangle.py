@@ -56,9 +56,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping
 from functools import partial
-from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -66,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._config import Instance, Int, Maybe, Real, validate
-from ._errors import MeshError, ParameterError, SolveError
+from ._errors import ParameterError, SolveError
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
@@ -77,8 +75,8 @@ from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Fin
 from .solvers._iterate import check_progress
 from .topology import boundary_vertices
 
-__all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "untangle_case",
-           "lim_problem", "write_untangle_result", "default_solver", "next_eps"]
+__all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
+           "next_eps", "bits_differ"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
@@ -134,9 +132,9 @@ class UntangleOptions:
         iteration shrinks ``chi(D-, eps)`` (:func:`next_eps`).  The paper uses ``0.1`` and no
         cap; the default halves it every outer iteration while elements are inverted and
         applies no cap once none is (see the module notes).
-    bucket : pad the problem to its size bucket (:func:`geomopt.batch.pad_to_bucket`), so that
-        meshes of similar sizes share compiled kernels; same certificate, same map up to the
-        rounding of sums over elements.
+    bucket : pad the problem to its size bucket (``Objective(buckets=True)``,
+        :mod:`geomopt._padding`), so that meshes of similar sizes share compiled kernels; same
+        certificate, same map up to the rounding of sums over elements.
     """
 
     theta: float | None = None
@@ -271,7 +269,8 @@ def _power_of_two(v: float) -> float:
     return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
 
 
-def _bits_differ(a, b) -> int:
+def bits_differ(a, b) -> int:
+    """Rows of ``a`` and ``b`` (k, d) that differ in any bit (handles moved: exact)."""
     a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
     return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
 
@@ -288,17 +287,17 @@ class EpsContinuation(AbstractContinuation):
 
     Parameters
     ----------
-    problem : the input :class:`~geomopt.Problem`;  scaled : its normalised copy (padded as
-        the objective is); objective : the inner objective (active elements) whose parameters
-        change;  map_scale : the power of two the map was scaled by;  xs : the scaled start.
+    problem : the input :class:`~geomopt.Problem`;  scaled : its normalised copy;  full : the
+        objective of ``scaled`` (the outer statistics); objective : the inner one (the active
+        elements, padded like ``full``), whose parameters change;  map_scale : the power of two
+        the map was scaled by;  xs : the scaled start.
     options : :class:`UntangleOptions`;  details : :class:`UntangleDetails` of the result;
     initially : inverted elements of the start map;  solver : the inner solver (its search is
     made injective once nothing is inverted with ``injective_when_untangled``).
     """
 
-    def __init__(self, problem, scaled, objective, map_scale, xs, options, details, initially, solver):
-        self.problem, self.scaled, self.objective, self.solver = problem, scaled, objective, solver
-        self.full = Objective(scaled, objective.energy)
+    def __init__(self, problem, scaled, full, objective, map_scale, xs, options, details, initially, solver):
+        self.problem, self.scaled, self.full, self.objective, self.solver = problem, scaled, full, objective, solver
         self.k, self.xs, self.options, self.details, self.initially = map_scale, xs, options, details, initially
         self.eps = float(options.eps0)
         self.floor = EPS_FLOOR.get(problem.dim, 1e-10)
@@ -321,7 +320,7 @@ class EpsContinuation(AbstractContinuation):
         if not (math.isfinite(E) and math.isfinite(detmin)):
             return Decision.stop_with(Outcome.NONFINITE, record=record)
         settled = abs(E_prev - E) / abs(E) < opts.energy_tol
-        if detmin > 0 and settled and self.scaled.count_inverted(np.asarray(state.x)) == 0:
+        if detmin > 0 and settled and self.scaled.count_inverted(self.full.unpad_map(np.asarray(state.x))) == 0:
             return Decision.stop_with(Outcome.CONVERGED, record=record)
         if len(self.inverted) >= opts.max_outer:
             return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
@@ -344,7 +343,7 @@ class EpsContinuation(AbstractContinuation):
             outcome, xs_final = Outcome.NONFINITE, self.xs
         out = xs_final[: problem.n_vertices] / k  # without bucket padding
         out[problem.fixed] = problem.fixed_positions
-        moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
+        moved = bits_differ(out[problem.fixed], problem.fixed_positions)
         cert = local_certificate(problem, out, moved)
         if outcome is Outcome.CONVERGED and not cert.valid:
             outcome = Outcome.NOT_INJECTIVE
@@ -412,9 +411,11 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
         solver = default_solver(solver, problem.dim, int(active.sum()))
     theta = opts.resolved_theta(problem.dim)
     scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
-    obj = Objective(sub, garanzha.with_params(eps=opts.eps0, lam=theta / (1.0 - theta)))
+    energy = garanzha.with_params(eps=opts.eps0, lam=theta / (1.0 - theta))
+    full = Objective(scaled, energy, buckets=opts.bucket)
+    obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
     details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()))
-    eps = EpsContinuation(problem, scaled, obj, k, xs, opts, details, initially, solver)
+    eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver)
     setup = time.perf_counter() - t_setup
     result = iterate(solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False)
@@ -467,7 +468,7 @@ def _refusal(problem, x0, initially, active) -> str | None:
 def _normalised(problem, x0, active, opts):
     """``(scaled, sub, xs, k, s)``: the map scaled by a power of two ``k`` into a box of size
     ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
-    ``max_aspect`` in 2D), ``sub`` its active elements; both padded with ``bucket``."""
+    ``max_aspect`` in 2D), ``sub`` its active elements."""
     d = problem.dim
     span = float(np.max(x0.max(axis=0) - x0.min(axis=0)))
     k = _power_of_two(BOX / span) if span > 0 else 1.0
@@ -483,10 +484,6 @@ def _normalised(problem, x0, active, opts):
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],
                               rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])
-    if opts.bucket:
-        from .batch import pad_to_bucket
-
-        scaled, sub, xs = pad_to_bucket(scaled, sub, xs)
     return scaled, sub, xs, k, s
 
 
@@ -503,140 +500,3 @@ def _early_result(problem, x0, initially, t_setup, throw, reason):
     if throw:
         raise SolveError(f"untangling failed: {reason}", result)
     return result
-
-
-# --------------------------------------------------------------------- LIM cases
-
-
-def lim_problem(case):
-    """The untangling problem of a LIM case (:class:`geomopt.lim.LimCase`, or a dict with its keys).
-
-    2D: the rest mesh is the ``v`` lines and the start map the ``vt`` lines.  A planar rest
-    mesh (``z == 0`` everywhere) is a :meth:`Problem.planar` problem, whose rest triangles must
-    all have the same orientation; any other rest mesh is a surface (:meth:`Problem.surface`,
-    each triangle flattened to its own frame), whose triangles must be consistently oriented
-    as a surface (adjacent faces traverse their shared edge in opposite directions).  Either
-    way a map with every triangle positively oriented then has no fold, which is what the
-    certificate claims.  A start map whose orientation is opposite to the rest mesh's
-    (negative total signed area, counted in the rest orientation) is mirrored (``u -> -u``,
-    exact) into the problem's frame.  3D: :meth:`Problem.tets` (an all-negative rest mesh is
-    handled there).
-
-    Raises
-    ------
-    MeshError
-        The rest mesh is degenerate or inconsistently oriented (a face listed clockwise among
-        counter-clockwise ones), the start map is collapsed (zero total signed area) or, in 3D
-        with every boundary vertex a handle, its total signed volume is not positive: no map
-        with that boundary can be certified.
-
-    Returns
-    -------
-    problem : :class:`~geomopt.problem.Problem` (handles at their ``init`` positions, mirrored
-        like the map).
-    x0 : (n, d) start map, in the problem's frame.
-    orientation : +1 or -1, the orientation every element must have in the input's own
-        connectivity and frame (what :func:`write_untangle_result` certifies).
-    mirror : (d,) the exact per-axis sign taking the problem's frame to the input's.
-    """
-    H = case["handles"]
-    if case["dim"] == 2:
-        F, init, rest = case["faces"], case["init"], np.asarray(case["rest"])
-        planar = rest.ndim == 2 and (rest.shape[1] == 2 or (rest.shape[1] == 3 and not np.any(rest[:, 2])))
-        base = Problem.planar(rest, F) if planar else Problem.surface(rest, F)
-        # planar: the rest triangles may all be clockwise (Problem.planar reversed each one)
-        rest_sign = 1 if np.array_equal(base.simplices, base.input_simplices) else -1
-        P = init[F]
-        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-        total = float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) / 2.0
-        if not (total > 0 or total < 0):
-            raise MeshError(
-                f"{case.get('path', 'the case')}: the start map's total signed area is {total:g}: the "
-                f"map is collapsed, so no orientation can be certified; give a start map ('vt' lines) "
-                f"whose fixed boundary encloses a nonzero area")
-        orientation = -1 if total < 0 else 1  # in the input's connectivity and frame
-        mirror = np.array([float(orientation * rest_sign), 1.0])
-        problem = base.with_fixed(H, init[H] * mirror)
-        return problem, init * mirror, orientation, mirror
-    problem = Problem.tets(case["rest"], case["tets"], H, case["init"][H])
-    # rest tets all negative in the input order: Problem.tets swapped two vertices of each
-    orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
-    init = np.asarray(case["init"], dtype=np.float64)
-    why = fixed_total_problem(problem, init)  # in the rest orientation
-    if why:
-        raise MeshError(f"{case.get('path', 'the case')}: {why} (Garanzha et al.'s code rejects such input "
-                        f"too); check that the rest and initial meshes belong together")
-    return problem, init, orientation, np.ones(3)
-
-
-def untangle_case(folder, solver="lbfgs", progress=True, **options):
-    """Read a LIM case folder (:meth:`geomopt.lim.LimCase.read`) and untangle it
-    (:func:`lim_problem`, :func:`untangle`).
-
-    Parameters
-    ----------
-    folder : a case folder, or a case already read (:class:`~geomopt.lim.LimCase`).
-    solver, progress, options : passed to :func:`untangle`.
-
-    Returns
-    -------
-    case : a dict with the case's keys (:class:`~geomopt.lim.LimCase`) plus ``problem`` and
-        ``orientation`` (+1 or -1: the orientation every element of the output must have in
-        the input's connectivity), as :func:`write_untangle_result` needs.
-    result : :class:`UntangleResult`, its ``x`` in the input's frame.
-    """
-    from .lim import LimCase
-
-    case = folder if isinstance(folder, Mapping) else LimCase.read(folder)
-    problem, x0, orientation, mirror = lim_problem(case)
-    result = untangle(problem, x0, solver=solver, progress=progress, **options)
-    if (mirror < 0).any():
-        result = dataclasses.replace(result, x=result.x * mirror)  # negation is exact
-    return {**case, "problem": problem, "orientation": orientation}, result
-
-
-def write_untangle_result(case, result, path):
-    """Write an untangled LIM case and certify the file.
-
-    2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and ``f a/a b/b c/c``;
-    3D: ASCII VTK with the input connectivity.  Full precision, atomic (:mod:`geomopt.io`).
-    The file is read back and checked: handles bit-exact and no element inverted (exact
-    predicate, in the orientation convention of the case).
-
-    Returns
-    -------
-    dict with ``path``, ``inverted`` (in the file), ``handles_moved`` (in the file),
-    ``certified`` (both zero).
-    """
-    from .io import read_vtk_tets, write_obj_with_uv, write_vtk_tets
-    from .predicates import count_inverted
-
-    path = Path(path)
-    H = case["handles"]
-    if case["dim"] == 2:
-        F = case["faces"]
-        write_obj_with_uv(path, case["rest"], F, result.x)
-        back = _read_obj_uv(path, len(case["rest"]))
-        S = F
-        handles_ref = case["init"][H]
-    else:
-        T = case["tets"]
-        write_vtk_tets(path, result.x, T)
-        back, T2 = read_vtk_tets(path)
-        if not np.array_equal(T2, T):
-            raise MeshError(f"{path}: connectivity read back differs from the input")
-        S = T
-        handles_ref = case["init"][H]
-    inverted = count_inverted(back, S, orientation=case["orientation"])
-    moved = _bits_differ(back[H], handles_ref)
-    return {"path": path, "inverted": int(inverted), "handles_moved": moved,
-            "certified": inverted == 0 and moved == 0}
-
-
-def _read_obj_uv(path, n):
-    from .io import read_obj_with_uv
-
-    _, UV, _ = read_obj_with_uv(path)
-    if len(UV) != n:
-        raise MeshError(f"{path}: read back {len(UV)} vt lines, expected {n}")
-    return UV

@@ -13,6 +13,7 @@ Solves use small meshes so that each kernel compiles once.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -29,7 +30,8 @@ from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
 from geomopt.solvers import LBFGS, Adaptive, Newton
 from geomopt.topology import same_side_facets
-from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
+from geomopt.lim import LimCase, untangle_case
+from geomopt.untangle import untangle
 
 from conftest import cube_tets, grid
 
@@ -48,20 +50,19 @@ def _square_case(z, faces=None):
     rest heights ``z`` (0: planar), boundary fixed."""
     V, F = G.square_mesh(6)
     t = G.rotated_interior(V, F, 90.0)
-    return {"dim": 2, "rest": np.c_[V, z * _bumpy(V)], "init": t.x0,
-            "faces": F if faces is None else faces, "handles": t.fixed}
+    return LimCase(2, np.c_[V, z * _bumpy(V)], t.x0, F if faces is None else faces, t.fixed)
 
 
 @pytest.mark.parametrize("z, match", [(0.0, "oriented against the others"),
                                       (1.0, "inconsistent face orientation")])
 def test_lim_2d_case_with_one_face_listed_clockwise_is_refused(z, match):
     case = _square_case(z)
-    F = case["faces"].copy()
+    F = case.simplices.copy()
     F[12] = F[12, [0, 2, 1]]
     with pytest.raises(MeshError, match=match):
-        lim_problem({**case, "faces": F})
+        dataclasses.replace(case, simplices=F).to_problem()
     with pytest.raises(MeshError, match=match):
-        untangle_case({**case, "faces": F}, progress=False)
+        untangle_case(dataclasses.replace(case, simplices=F), progress=False)
 
 
 @pytest.mark.parametrize("z, kind", [(0.0, "planar"), (1.0, "surface")])
@@ -71,13 +72,13 @@ def test_lim_2d_consistent_cases_are_certified_in_their_own_orientation(z, kind,
     way round (a clockwise rest, a clockwise map) is consistent and certified too."""
     case = _square_case(z)
     if reverse:
-        case["faces"] = case["faces"][:, ::-1].copy()
-    problem, x0, orientation, mirror = lim_problem(case)
+        case = dataclasses.replace(case, simplices=case.simplices[:, ::-1].copy())
+    problem, x0, orientation, mirror = case.to_problem()
     assert problem.kind == kind and orientation == (-1 if reverse else 1)
     case, result = untangle_case(case, progress=False)
     assert result.success, result.message
-    assert count_inverted(result.x, case["faces"], orientation=orientation) == 0
-    assert write_untangle_result(case, result, tmp_path / "out.obj")["certified"]
+    assert count_inverted(result.x, case.simplices, orientation=orientation) == 0
+    assert case.write_certified(result, tmp_path / "out.obj")["certified"]
 
 
 def test_lim_folder_with_one_face_reversed_is_refused(tmp_path):

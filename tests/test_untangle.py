@@ -7,6 +7,7 @@ exact predicate, handles unchanged bit for bit, also in the file written and rea
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import scipy.sparse.linalg as spla
 from geomopt import generators as G
 from geomopt._errors import MeshError, ParameterError, SolveError
 from geomopt._objective import Objective
-from geomopt.lim import LimCase
+from geomopt.lim import LimCase, untangle_case
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
 from geomopt.problem import Problem
@@ -28,7 +29,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.energies import chi
-from geomopt.untangle import lim_problem, next_eps, untangle, untangle_case, write_untangle_result
+from geomopt.untangle import next_eps, untangle
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -50,24 +51,23 @@ def test_lim_case_untangled_and_certified(folder, tmp_path):
     case, result = untangle_case(folder, progress=False)
     assert result.success, result.message
     assert result.stats.inverted_at_start > 0
-    H = case["handles"]
+    H = case.handles
     # exact predicate on the returned map, in the case's own connectivity and orientation
-    S = case["faces"] if case["dim"] == 2 else case["tets"]
-    assert count_inverted(result.x, S, orientation=case["orientation"]) == 0
-    assert _bits_equal(result.x[H], case["init"][H])
+    assert count_inverted(result.x, case.simplices, orientation=case.to_problem().orientation) == 0
+    assert _bits_equal(result.x[H], case.init[H])
     assert result.min_det_rel > 0
     assert len(result.trace.energy) == len(result.trace.phases) == result.stats.outer_iterations
     # the written file certifies too (read back: exact predicate, handles bit-exact)
-    out = tmp_path / ("result.obj" if case["dim"] == 2 else "result.vtk")
-    report = write_untangle_result(case, result, out)
-    assert report["certified"], report
-    if case["dim"] == 2:
+    out = tmp_path / ("result.obj" if case.dim == 2 else "result.vtk")
+    report = case.write_certified(result, out)
+    assert report["certified"] and report["path"] == out, report
+    if case.dim == 2:
         back = read_lim2d_like(out)
         assert _bits_equal(back, result.x)
 
 
 def read_lim2d_like(path):
-    """The ``vt`` lines of an OBJ written by write_untangle_result."""
+    """The ``vt`` lines of an OBJ written by LimCase.write_certified."""
     folder = path.parent / "readback"
     folder.mkdir()
     shutil.copy(path, folder / "input.obj")
@@ -92,10 +92,10 @@ def test_lim_case_clockwise_map(tmp_path):
         lines.append(line)
     (dst / "input.obj").write_text("\n".join(lines) + "\n")
     case, result = untangle_case(dst, progress=False)
-    assert case["orientation"] == -1
+    assert case.to_problem().orientation == -1
     assert result.success, result.message
-    assert count_inverted(result.x, case["faces"], orientation=-1) == 0
-    assert write_untangle_result(case, result, tmp_path / "out.obj")["certified"]
+    assert count_inverted(result.x, case.simplices, orientation=-1) == 0
+    assert case.write_certified(result, tmp_path / "out.obj")["certified"]
 
 
 def test_lim_problem_rejects_collapsed_and_mirrored_maps():
@@ -103,15 +103,14 @@ def test_lim_problem_rejects_collapsed_and_mirrored_maps():
     b = G.boundary_vertices(F, len(V))
     rest = np.column_stack([V, np.zeros(len(V))])
     with pytest.raises(MeshError, match="collapsed"):
-        lim_problem({"dim": 2, "rest": rest, "init": np.zeros_like(V), "faces": F, "handles": b})
+        LimCase(2, rest, np.zeros_like(V), F, b).to_problem()
     P, T = G.box_mesh(2, 2, 2)
     b = G.boundary_vertices(T, len(P))
     with pytest.raises(MeshError, match="mirrored"):
-        lim_problem({"dim": 3, "rest": P, "init": P * [-1.0, 1.0, 1.0], "tets": T, "handles": b})
+        LimCase(3, P, P * [-1.0, 1.0, 1.0], T, b).to_problem()
     # a clockwise 2D map is accepted, mirrored (exactly) into the problem's frame
     b = G.boundary_vertices(F, len(V))
-    problem, x0, orientation, mirror = lim_problem(
-        {"dim": 2, "rest": rest, "init": V * [-1.0, 1.0], "faces": F, "handles": b})
+    problem, x0, orientation, mirror = LimCase(2, rest, V * [-1.0, 1.0], F, b).to_problem()
     assert orientation == -1 and _bits_equal(x0, V)
 
 
@@ -122,13 +121,13 @@ def test_lim_problem_accepts_a_negative_total_when_part_of_the_boundary_is_free(
     P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1]])
     T = np.array([[0, 1, 2, 3]])
     init = P * [1.0, 1.0, -1.0]
-    case = {"dim": 3, "rest": P, "init": init, "tets": T, "handles": np.array([0, 1, 2])}
-    problem, x0, orientation, _ = lim_problem(case)
+    case = LimCase(3, P, init, T, np.array([0, 1, 2]))
+    problem, x0, orientation, _ = case.to_problem()
     assert float(problem.signed_volumes(x0).sum()) < 0 and orientation == 1
     result = untangle(problem, x0, progress=False)
     assert result.success and count_inverted(result.x, T) == 0
     with pytest.raises(MeshError, match="whole boundary fixed"):
-        lim_problem(dict(case, handles=np.arange(4)))
+        dataclasses.replace(case, handles=np.arange(4)).to_problem()
 
 
 # ----------------------------------------------------------------------------- synthetic
