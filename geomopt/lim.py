@@ -209,10 +209,7 @@ class LimCase(Mapping):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         if self.dim == 2:
-            rest = np.asarray(self.rest, dtype=np.float64)
-            if rest.ndim == 2 and rest.shape[1] == 2:
-                rest = np.c_[rest, np.zeros(len(rest))]
-            write_obj_with_uv(folder / "input.obj", rest, self.simplices, self.init)
+            write_obj_with_uv(folder / "input.obj", self._rest_3d(), self.simplices, self.init)
         else:
             write_vtk_tets(folder / "rest.vtk", self.rest, self.simplices)
             write_vtk_tets(folder / "init.vtk", self.init, self.simplices)
@@ -298,10 +295,16 @@ class LimCase(Mapping):
                                  f"{moved} handle(s) moved)")
         return {"path": Path(path), "inverted": int(inverted), "handles_moved": moved, "certified": True}
 
+    def _rest_3d(self) -> np.ndarray:
+        """A 2D case's rest positions as OBJ ``v`` lines: (n, 3), ``z = 0`` added to a planar
+        (n, 2) rest mesh."""
+        rest = np.asarray(self.rest, dtype=np.float64)
+        return np.c_[rest, np.zeros(len(rest))] if rest.ndim == 2 and rest.shape[1] == 2 else rest
+
     def _written(self, x, path) -> np.ndarray:
         """Write the map ``x`` to ``path`` and read it back (connectivity checked)."""
         if self.dim == 2:
-            write_obj_with_uv(path, self.rest, self.simplices, x)
+            write_obj_with_uv(path, self._rest_3d(), self.simplices, x)
             _, back, _ = read_obj_with_uv(path)
             if len(back) != len(self.rest):
                 raise MeshError(f"{path}: read back {len(back)} vt lines, expected {len(self.rest)}")

@@ -98,6 +98,27 @@ def test_lim_case_clockwise_map(tmp_path):
     assert case.write_certified(result, tmp_path / "out.obj")["certified"]
 
 
+@pytest.mark.parametrize("name", ["square", "cube"])
+def test_write_certified_refuses_a_folded_map_or_a_moved_handle(name, tmp_path):
+    """Only a file that certifies replaces the target: a folded map (the tangled start) or a
+    map with one handle moved by one ulp raises SolveError and leaves the old file as it was."""
+    t = G.rotated_interior(*(G.square_mesh(6) if name == "square" else G.box_mesh(3, 3, 3)), 90.0)
+    case = LimCase.from_tangle(t)
+    case, result = untangle_case(case, progress=False)
+    assert result.success, result.message
+    out = tmp_path / ("out.obj" if case.dim == 2 else "out.vtk")
+    assert case.write_certified(result, out)["certified"]
+    before = out.read_bytes()
+    moved = result.x.copy()
+    h = case.handles[0]
+    moved[h, 0] = np.nextafter(moved[h, 0], np.inf)
+    for bad, words in ((case.init, "inverted element"), (moved, "1 handle")):
+        with pytest.raises(SolveError, match=words):
+            case.write_certified(bad, out)
+        assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]  # no temporary left
+
+
 def test_lim_problem_rejects_collapsed_and_mirrored_maps():
     V, F = G.square_mesh(4)
     b = G.boundary_vertices(F, len(V))
