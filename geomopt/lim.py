@@ -25,9 +25,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ._errors import MeshError, MeshFormatError, SolveError
-from .io import (atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets, write_obj_with_uv,
-                 write_vtk_tets)
-from .predicates import count_inverted
+from .certify import local_certificate
+from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets,
+                 write_obj_with_uv, write_vtk_tets)
 from .problem import Problem, fixed_total_problem
 from .untangle import bits_differ, untangle
 
@@ -53,8 +53,8 @@ class LimProblem(NamedTuple):
     mirror: np.ndarray
 
 
-#: The files that mark a folder as a 2D or a 3D case.
-_MARKS_2D, _MARKS_3D = ("input.obj",), ("rest.vtk", "init.vtk")
+#: The files that mark a folder as a 2D or a 3D case (output folders never are one: geomopt.io.check_outputs).
+_MARKS_2D, _MARKS_3D = CASE_FILES[:1], CASE_FILES[1:]
 _HANDLES_3D = ("handles.txt", "handles_derived_boundary.txt")
 
 
@@ -262,9 +262,11 @@ class LimCase(Mapping):
 
         2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and
         ``f a/a b/b c/c``; 3D: ASCII VTK with the input connectivity; full precision.  The file
-        is written beside ``path`` and read back: every element must have the case's
-        orientation (exact predicate, :meth:`to_problem`'s ``orientation``) and every handle
-        its ``init`` position bit for bit.  Only a file that certifies is renamed onto
+        is written beside ``path`` and read back: the map must be locally injective (exact
+        predicates, :func:`geomopt.certify.local_certificate`: every element in the case's
+        orientation, :meth:`to_problem`'s ``orientation``, and the elements around every
+        vertex and edge covering it once) and every handle at its ``init`` position bit for
+        bit.  Only a file that certifies is renamed onto
         ``path``, so one that does not never replaces an older one.
 
         Parameters
@@ -275,8 +277,8 @@ class LimCase(Mapping):
 
         Returns
         -------
-        dict with ``path``, ``inverted`` and ``handles_moved`` (in the file, both 0) and
-        ``certified`` (True).
+        dict with ``path``, ``inverted`` and ``handles_moved`` (in the file, both 0),
+        ``certified`` (True) and ``message`` ("").
 
         Raises
         ------
@@ -288,12 +290,13 @@ class LimCase(Mapping):
         x = np.asarray(getattr(result, "x", result), dtype=np.float64)
         with atomic_path(path) as tmp:
             back = self._written(x, tmp)
-            inverted = count_inverted(back, self.simplices, orientation=self.to_problem().orientation)
+            # exact: orientations, and the elements around every vertex and edge
+            cert = local_certificate(back, self.simplices, orientation=self.to_problem().orientation)
             moved = bits_differ(back[self.handles], self.init[self.handles])
-            if inverted or moved:
-                raise SolveError(f"the written file did not certify ({inverted} inverted element(s), "
-                                 f"{moved} handle(s) moved)")
-        return {"path": Path(path), "inverted": int(inverted), "handles_moved": moved, "certified": True}
+            if not cert.ok or moved:
+                why = "; ".join(filter(None, [cert.message, f"{moved} handle(s) moved" if moved else ""]))
+                raise SolveError(f"the written file did not certify: {why}")
+        return {"path": Path(path), "inverted": 0, "handles_moved": 0, "certified": True, "message": ""}
 
     def _rest_3d(self) -> np.ndarray:
         """A 2D case's rest positions as OBJ ``v`` lines: (n, 3), ``z = 0`` added to a planar

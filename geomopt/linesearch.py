@@ -23,8 +23,11 @@ from jax import lax
 
 from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
+from ._x64 import float64
 from ._geometry import det, dets, edge_rows
 from ._objective import free_value_and_grad
+
+__all__ = ["InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive"]
 
 
 def _smallest_positive(roots):
@@ -91,6 +94,7 @@ def _cubic_roots(c3, c2, c1, c0):
     return jnp.where(small[..., None], quad, t)
 
 
+@float64
 @jax.jit
 def max_injective_step(S, x, dx):
     """Largest ``t`` keeping every element positive at ``x`` positive along ``x + t dx``.
@@ -273,6 +277,7 @@ class InjectiveSearch:
         # on a Wolfe failure take the best Armijo point seen (if any)
         return c["bt"], c["bx"], c["bf"], c["bg"], c["bt"] > 0, c["i"]
 
+    @float64
     def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
         """Search on an :class:`~geomopt.Objective`: ``(t, x_new, value_new, grad_new, evals)``;
         ``t == 0`` means no acceptable step."""
@@ -290,6 +295,7 @@ class InjectiveSearch:
         return bool(_admissible_kernel(self, objective.geom[0], x, d, jnp.asarray(t, x.dtype),
                                        jnp.asarray(f_t, x.dtype)))
 
+    @float64
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""

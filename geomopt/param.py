@@ -8,16 +8,22 @@ import numpy as np
 
 from ._config import Instance, validate
 from ._errors import MeshError, ParameterError, SolveError
+from ._tracing import refuse_traced
+from ._x64 import float64
 from ._objective import Objective
-from .certify import certify_bijective, polygon_crossings, polygon_orientation
-from .predicates import branch_vertices
+from .certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from .problem import Problem
 from .scaffold import bijective_parameterize
-from .solvers import Newton, ParamDetails, Result, RunStats, get_solver, minimize
+from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize
 from .solvers._iterate import check_progress
 from .topology import check_disk
 from .untangle import untangle
 from .tutte import circle_boundary, optimal_scale, tutte_embedding
+
+__all__ = [
+    "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
+    "check_scale_aware", "ParamOptions",
+]
 
 
 def _to_rest_area(problem: Problem, x0) -> np.ndarray:
@@ -52,6 +58,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
             f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
 
 
+@float64
 def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
 
@@ -93,9 +100,9 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    # a flip-free map can still wind twice around an interior vertex (a branch point): no
-    # flip-free step removes it, so it is repaired like a fold
-    if source != "the Tutte start map" and (inverted or len(branch_vertices(x0, problem.simplices))):
+    # a flip-free map can still wind twice around an interior vertex (a branch point), which no
+    # flip-free step removes, or overlap around a boundary vertex: repaired like a fold
+    if source != "the Tutte start map" and (inverted or not local_certificate(x0, problem.simplices).ok):
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired
@@ -125,6 +132,7 @@ def mesh_arrays(V, F=None):
     return V, F
 
 
+@float64
 def check_scale_aware(energy, energy_params):
     """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
@@ -146,8 +154,10 @@ def check_scale_aware(energy, energy_params):
             "(geomopt.minimize with a Problem that has handles)")
 
 
+@float64
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, **energy_params):
+                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
+                 **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
@@ -172,6 +182,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         Either way ``certificate`` is the exact global certificate
         (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
+    element_weights : (m,) positive per-triangle weights of the energy (see
+        :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
         mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
@@ -189,25 +201,33 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     ParameterError : unknown energy/solver/weights name or invalid energy parameter.
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
+    refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
+                  "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)
     V, F = mesh_arrays(V, F)
     ParamOptions(buckets, bijective)
     check_scale_aware(energy, energy_params)
     check_progress(progress, "parameterize")
     if bijective:
-        if isinstance(x0, str):
-            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array")
+        if isinstance(x0, str) or element_weights is not None:
+            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
+                                 "with no element_weights")
         return bijective_parameterize(V, F, energy=energy, solver=solver, weights=weights, x0=x0,
                                       progress=progress, throw=throw, **energy_params)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
-    objective = Objective(problem, energy, buckets=buckets, **energy_params)
+    objective = Objective(problem, energy, buckets=buckets, element_weights=element_weights, **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
     x0, s, repaired = start_map(objective, x0, weights, progress is True)
     if x0 is None:
         return _failed_repair(repaired, problem, objective, throw)
     result = minimize(objective, x0, solver, progress=progress, throw=throw)
-    return dataclasses.replace(result, certificate=certify_bijective(result.x, problem.input_simplices),
+    cert = certify_bijective(result.x, problem.input_simplices)
+    reason = result.reason
+    if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
+        reason += ("; the free boundary folded over itself there, which the bijective mode prevents "
+                   "(bijective=True, geomopt param --bijective)")
+    return dataclasses.replace(result, certificate=cert, reason=reason,
                                details=ParamDetails(start=x0, scale=s, repair=repaired))
 
 
@@ -254,6 +274,7 @@ def projection_map(V, F) -> np.ndarray:
     return x * [1.0, -1.0] if area < 0 else x
 
 
+@float64
 def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
     """Repair a folded map: Garanzha et al.'s untangling with the boundary held on a simple
     polygon (the map's own boundary when it is one, else a circle), which is freed afterwards by

@@ -1,6 +1,6 @@
 """Globally bijective free-boundary parameterization with a scaffold (SCAF).
 
-Jiang, Schaefer, Zorin, Panozzo (2017), "Simplicial complex augmentation framework for bijective
+Jiang, Schaefer, Panozzo (2017), "Simplicial complex augmentation framework for bijective
 maps": the region between the UV boundary and an enclosing polygon is triangulated (the
 *scaffold*), and the mesh and the scaffold are solved as one problem with the injective line
 search.  No scaffold triangle can invert, so two parts of the boundary can never cross; the
@@ -47,6 +47,7 @@ import numpy as np
 from ._config import Instance, Int, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
+from ._x64 import float64
 from .certify import certify_bijective, polygon_crossings
 from .predicates import orient2d
 from .problem import Problem
@@ -667,6 +668,7 @@ def _bijective_start(problem, objective, x0, weights, loop):
     return s * x0, s
 
 
+@float64
 def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                            x0=None, progress=True, throw=False, *, options: ScaffoldOptions | None = None,
                            **kwargs):

@@ -16,7 +16,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._errors import MeshError, ParameterError
+from ._tracing import refuse_traced
 from ._validate import validate_vertices
+from ._x64 import float64
 from .topology import as_faces, check_disk
 
 __all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "optimal_scale", "WEIGHTS", "circle_boundary"]
@@ -211,6 +213,9 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     if V.shape[0] != UV.shape[0]:
         raise MeshError(f"UV has {UV.shape[0]} vertices but V has {V.shape[0]}")
     F = as_faces(F, V.shape[0])
+    top = float(np.max(np.abs(UV))) if UV.size else 0.0
+    if top > 0:  # a power of two first (exact): maps at 1e300 or 1e-310 have an area too
+        UV = np.ldexp(UV, -int(np.frexp(top)[1]))
     a, b, c = UV[F[:, 0]], UV[F[:, 1]], UV[F[:, 2]]
     u, v = b - a, c - a
     map_area = 0.5 * float(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]))
@@ -225,6 +230,7 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     return UV * np.sqrt(rest_area / map_area)
 
 
+@float64
 def optimal_scale(objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
     """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
     ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
@@ -237,6 +243,8 @@ def optimal_scale(objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> floa
     """
     from scipy.optimize import minimize_scalar
 
+    refuse_traced("optimal_scale (a host search)", "start maps have zero derivative: compute them from concrete "
+                  "values", objective, x, params)
     params = objective.params(**(params or {}))
     x = objective.pad_map(np.asarray(x, dtype=np.float64))
 

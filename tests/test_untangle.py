@@ -29,7 +29,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.energies import chi
-from geomopt.untangle import next_eps, untangle
+from geomopt.untangle import default_solver, next_eps, untangle
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -49,6 +49,15 @@ def test_lim_case_untangled_and_certified(folder, tmp_path):
     if folder is None:
         pytest.skip(f"LIM sample data not found under {LIM_ROOT} (clone the project next to shared/)")
     case, result = untangle_case(folder, progress=False)
+    if folder.name == "armadillo-598":
+        # every tet around 5 boundary edges has all four vertices fixed, and those tets turn
+        # 1.0-1.2 times around each edge in the given handle positions (they did already in the
+        # start map): no map with these handles is locally injective, though every tet can be
+        # positive.  It used to be certified (issue 19): now it is refused, naming an edge
+        assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
+        assert result.certificate.inverted == 0 and "boundary edge" in result.message
+        assert len(result.certificate.boundary_edge_overlaps) == 5
+        return
     assert result.success, result.message
     assert result.stats.inverted_at_start > 0
     H = case.handles
@@ -112,7 +121,7 @@ def test_write_certified_refuses_a_folded_map_or_a_moved_handle(name, tmp_path):
     moved = result.x.copy()
     h = case.handles[0]
     moved[h, 0] = np.nextafter(moved[h, 0], np.inf)
-    for bad, words in ((case.init, "inverted element"), (moved, "1 handle")):
+    for bad, words in ((case.init, "inverted or degenerate"), (moved, "1 handle")):
         with pytest.raises(SolveError, match=words):
             case.write_certified(bad, out)
         assert out.read_bytes() == before
@@ -258,7 +267,7 @@ def test_boundary_winding_twice_is_not_success():
     assert result.certificate.inverted == 0  # the local predicate alone is satisfied...
     assert (vertex_windings(result.x, F)[interior] > 1).any()
     assert not result.success and result.outcome is Outcome.NOT_INJECTIVE  # ...but no success
-    assert "branch" in result.message and result.certificate.branch_vertices >= 1
+    assert "branch" in result.message and len(result.certificate.branch_vertices) >= 1
     # given as a start map, that flip-free but branched map is repaired, not optimised as it is
     from geomopt.param import parameterize
     from geomopt.predicates import branch_vertices
@@ -278,7 +287,7 @@ def test_bad_arguments():
     free = Problem.planar(t.rest, t.simplices)
     res = untangle(free, t.x0, progress=False)
     # ... but this one ends flip-free around a branch vertex: honestly not a success
-    assert res.certificate.inverted == 0 and res.certificate.branch_vertices >= 1
+    assert res.certificate.inverted == 0 and len(res.certificate.branch_vertices) >= 1
     assert not res.success and "branch" in res.message
 
 
@@ -291,9 +300,11 @@ def test_outer_loop_compiles_once():
     before = [k._cache_size() for k in kernels]
     with lowered_programs() as lowered:
         r1 = untangle(t.problem(), t.x0, progress=False)
-    # only the kernels the loop runs (no step kernel, no per-shape copy programs)
-    assert set(lowered) <= {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)",
-                            "jit(convert_element_type)"}, lowered
+    # only the kernels the loop runs (no step kernel, no per-shape copy programs); jax < 0.5
+    # (the floor, 0.4.38) names no program in its events: there the cache sizes below decide
+    names = {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)", "jit(convert_element_type)"}
+    if not any(name.startswith("/jax/") for name in lowered):
+        assert set(lowered) <= names, lowered
     mid = [k._cache_size() for k in kernels]
     assert r1.success and r1.stats.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
@@ -330,7 +341,10 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     triangles still folded) sends eps to ~0 and the loop stalls with folds left; with it, this
     disk untangles in a few outer iterations."""
     t = G.random_interior(*G.disk_mesh(60), seed=0)
-    result = untangle(t.problem(), t.x0, progress=False, max_outer=30)
+    # the diagonal seed throughout: the default's switch to the Laplacian seed untangles this
+    # disk within its first outer iteration, where the cap does not come into play
+    solver = default_solver("lbfgs", 2)
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30)
     assert result.success, result.message
     assert result.trace.column("inverted", int)[0] > 0 and result.stats.outer_iterations <= 6
 
@@ -364,10 +378,15 @@ def lowered_programs():
             seen.append(kwargs.get("fun_name", event))
 
     jax.monitoring.register_event_duration_secs_listener(listen)
+    unregister = getattr(jax.monitoring, "unregister_event_duration_listener", None)
+    if unregister is None:  # jax < 0.5 (the floor, 0.4.38): only the private name
+        from jax._src import monitoring
+
+        unregister = monitoring._unregister_event_duration_listener_by_callback
     try:
         yield seen
     finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
+        unregister(listen)
 
 
 def test_lbfgs_reaches_the_harmonic_map():
@@ -467,7 +486,8 @@ def test_device_laplacian_lbfgs_makes_no_host_round_trip():
         density, geom, free = obj.energy.density, obj.geom, obj.free_mask
         jaxpr = jax.make_jaxpr(lambda c: _iteration(solver, density, geom, free, state.params, c))(
             state.memory.carry)
-        assert (str(jaxpr).count("pure_callback") > 0) == bool(callbacks), backend
+        host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._hostcall
+        assert (host_calls > 0) == bool(callbacks), backend
     with pytest.raises(ParameterError, match="laplacian"):
         LBFGS(laplacian="gpu")
 

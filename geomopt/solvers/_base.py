@@ -33,6 +33,7 @@ from typing import Any, Mapping
 import jax
 import numpy as np
 
+from .._x64 import float64_methods
 from .._config import Instance, Int, Real, validate
 from ..linesearch import InjectiveSearch
 from ._termination import Stats, Termination
@@ -111,6 +112,11 @@ class AbstractSolver(abc.ABC):
 
     #: a jitted multi-step kernel ``advance(state, limit)`` (None: step by step)
     advance = None
+
+    def __init_subclass__(cls, **kwargs):
+        # solvers driven by hand (init / step...) run in float64 like minimize (geomopt._x64)
+        super().__init_subclass__(**kwargs)
+        float64_methods("init", "step", "advance", "reparam", "restart")(cls)
 
     def _check(self, **rules):
         """Validate the shared configuration and ``rules`` (every subclass's ``__post_init__``)."""

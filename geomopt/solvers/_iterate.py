@@ -35,6 +35,8 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from .._errors import ParameterError, SolveError
+from .._tracing import refuse_traced
+from .._x64 import float64
 from ._registry import get_solver
 from ._result import Result, RunStats, Trace, local_certificate
 from ._termination import RUNNING, Outcome, Termination
@@ -95,6 +97,7 @@ class Final(NamedTuple):
     volume: float | None = None
     details: Any = None
     inverted_at_start: int | None = None
+    certify_seconds: float = 0.0
 
 
 def certified(objective, state, outcome: Outcome | None, x0) -> Final:
@@ -107,12 +110,14 @@ def certified(objective, state, outcome: Outcome | None, x0) -> Final:
         outcome, reason = Outcome.LINE_SEARCH_FAILED, "the guard refused the next step"
     if not np.isfinite(x).all():
         outcome, x = Outcome.NONFINITE, objective.unpad_map(np.asarray(x0))
-    certificate = local_certificate(objective.problem, x)
+    t_certify = time.perf_counter()
+    certificate = local_certificate(objective.problem, x)  # exact: orientations, fans, stars
     if outcome is Outcome.CONVERGED and not certificate.locally_injective:
         outcome = Outcome.NOT_INJECTIVE
+        reason = reason or certificate.message  # names the first vertex or edge that fails
     if outcome is Outcome.DIVERGED:
         reason = Termination.reason(state.stats)
-    return Final(x, outcome, certificate, reason or "")
+    return Final(x, outcome, certificate, reason or "", certify_seconds=time.perf_counter() - t_certify)
 
 
 class AbstractContinuation:
@@ -156,12 +161,15 @@ class Progress:
             return
         if self._bar is not None:
             self._bar.update(1)
-            self._bar.set_postfix(energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
+            shown = {"step": f"{state.step_size:.2g}"} if math.isfinite(state.step_size) else {}
+            self._bar.set_postfix(mean_energy=f"{mean_energy:.8g}", **shown, refresh=False)
             return
         if state.iteration % self.every:
             return
-        print(f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
-              f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
+        # a solver that does not report a quantity (optimistix's: step, decrement) leaves it out
+        extra = "".join(f"  {name} {value:.3g}" for name, value in
+                        (("step", state.step_size), ("decrement", state.decrement)) if math.isfinite(value))
+        print(f"{self.prefix}iter {state.iteration:4d}  mean energy {mean_energy:.10g}{extra}  {elapsed:7.2f}s",
               file=self.out, flush=True)
 
     def phase(self, index: int, record, elapsed: float):
@@ -191,17 +199,18 @@ class _Run:
     def __init__(self, objective, trace, progress, observe):
         self.volume = objective.total_volume
         self.trace, self.report, self.observe = trace, progress, observe
-        self.energy, self.seconds, self.grads, self.phases = [], [], [], []
+        self.energy, self.seconds, self.cpus, self.grads, self.phases = [], [], [], [], []
         self.iterations = self.evaluations = 0
-        self.solve = 0.0
+        self.solve = self.cpu = 0.0  # wall and process-CPU seconds of the solve
 
     @contextlib.contextmanager
     def clock(self):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         try:
             yield
         finally:
             self.solve += time.perf_counter() - t
+            self.cpu += time.process_time() - c
 
     @property
     def stepwise(self) -> bool:
@@ -231,6 +240,7 @@ class _Run:
     def point(self, state, energy):
         self.energy.append(energy)
         self.seconds.append(self.solve)
+        self.cpus.append(self.cpu)
         g = state.grad
         self.grads.append(float(np.linalg.norm(np.asarray(g))) if g is not None else math.nan)
 
@@ -299,6 +309,7 @@ def _as_progress(progress, total):
     return progress or None
 
 
+@float64
 def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation | None = None,
             guard: Callable | None = None, observe: Callable | None = None, progress=False,
             trace: bool = True, throw: bool = False, label: str = "solve") -> Result:
@@ -324,11 +335,11 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     :class:`~geomopt.solvers.Result`.
     """
     report = _as_progress(progress, getattr(solver, "max_steps", None))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     state = solver.init(objective, x0, params)
     if continuation is not None:
         continuation.start(state)
-    setup = time.perf_counter() - t0
+    setup, setup_cpu = time.perf_counter() - t0, time.process_time() - c0
     run = _Run(objective, trace, report, observe)
     if trace:
         run.point(state, state.value)  # the start (not reported, not observed)
@@ -342,18 +353,19 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     else:
         final = certified(objective, state, outcome, x0)
         final = final._replace(reason=final.reason or reason)
-    return _result(final, solver, objective, state, run, setup, throw, label)
+    return _result(final, solver, objective, state, run, (setup, setup_cpu), throw, label)
 
 
 def _result(final: Final, solver, objective, state, run, setup, throw, label) -> Result:
     stats = RunStats(
         iterations=run.iterations, evaluations=run.evaluations + state.evaluations,
-        outer_iterations=len(run.phases), seconds=run.solve, setup_seconds=setup,
+        outer_iterations=len(run.phases), seconds=run.solve, setup_seconds=setup[0],
+        cpu_seconds=run.cpu, setup_cpu_seconds=setup[1],
         energy=float(state.value if final.energy is None else final.energy),
         volume=float(objective.total_volume if final.volume is None else final.volume),
-        inverted_at_start=final.inverted_at_start)
+        inverted_at_start=final.inverted_at_start, certify_seconds=final.certify_seconds)
     trace = Trace(np.asarray(run.energy, np.float64), np.asarray(run.seconds, np.float64),
-                  np.asarray(run.grads, np.float64), None, tuple(run.phases))
+                  np.asarray(run.grads, np.float64), None, tuple(run.phases), np.asarray(run.cpus, np.float64))
     result = Result(final.x, final.outcome, final.certificate, stats, trace,
                     problem=final.problem or objective.problem, objective=final.objective or objective,
                     solver=solver, reason=final.reason, details=final.details)
@@ -362,6 +374,7 @@ def _result(final: Final, solver, objective, state, run, setup, throw, label) ->
     return result
 
 
+@float64
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
              throw: bool = False) -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
@@ -384,6 +397,8 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     (``DIVERGENCE_FACTOR`` times its start and rest size) or whose energy falls below the
     energy's known lower bound ends DIVERGED, its reason in ``reason`` and ``message``.
     """
+    refuse_traced("geomopt.minimize", "for a map differentiable in the objective (rest shape, handles, weights) "
+                  "and params use geomopt.implicit.minimize", objective, x0, params)
     solver = get_solver("newton" if solver is None else solver)
     check_progress(progress)
     if params is not None and not isinstance(params, Mapping):

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import certify
 from ._termination import Outcome
 
 __all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails", "ParamDetails",
@@ -30,26 +31,23 @@ __all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails",
 
 
 @dataclasses.dataclass(frozen=True)
-class LocalCertificate:
-    """Exact checks that a map is locally injective, and that its handles are in place.
+class LocalCertificate(certify.LocalCertificate):
+    """Exact checks that a map is locally injective (:class:`geomopt.certify.LocalCertificate`:
+    every element positively oriented, and the elements around every vertex and edge covering
+    its neighbourhood once), and that its handles are in place.
 
     Attributes
     ----------
-    inverted : int, elements not positively oriented (exact orientation predicate,
-        :func:`geomopt.predicates.count_inverted`).
-    branch_vertices : int, 2D only: interior vertices whose positive triangles wind around them
-        more than once (:func:`geomopt.predicates.branch_vertices`; counted when nothing is
-        inverted).
-    handles_moved : int, fixed vertices whose position differs from the prescribed one in any bit.
+    handles_moved : int, fixed vertices whose position differs from the prescribed one in any
+        bit; the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
+        ``branch_vertices``, ``branch_edges``, ``boundary_overlaps``...).
     """
 
-    inverted: int
-    branch_vertices: int = 0
     handles_moved: int = 0
 
     @property
     def locally_injective(self) -> bool:
-        return self.inverted == 0 and self.branch_vertices == 0
+        return self.ok
 
     @property
     def globally_injective(self) -> bool:
@@ -59,24 +57,21 @@ class LocalCertificate:
     @property
     def injectivity(self) -> str:
         """``"local"`` or ``"none"``."""
-        return "local" if self.locally_injective else "none"
+        return "local" if self.ok else "none"
 
     @property
     def valid(self) -> bool:
         """Locally injective with every handle exactly in place."""
-        return self.locally_injective and self.handles_moved == 0
+        return self.ok and self.handles_moved == 0
 
 
-def local_certificate(problem, x, handles_moved: int = 0) -> LocalCertificate:
-    """The :class:`LocalCertificate` of the map ``x`` (n, d) of ``problem`` (its simplices),
-    branch points checked in 2D when no element is inverted."""
-    from ..predicates import branch_vertices
-
-    inverted = problem.count_inverted(x)
-    branches = 0
-    if problem.dim == 2 and not inverted and np.isfinite(x).all():
-        branches = len(branch_vertices(x, problem.simplices))
-    return LocalCertificate(int(inverted), int(branches), int(handles_moved))
+def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) -> LocalCertificate:
+    """The :class:`LocalCertificate` of the map ``x`` (n, d) of ``problem`` (its simplices,
+    positive when ``orientation`` is +1): :func:`geomopt.certify.local_certificate` plus
+    ``handles_moved``."""
+    exact = certify.local_certificate(x, problem.simplices, orientation)
+    return LocalCertificate(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(exact)},
+                            handles_moved=int(handles_moved))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,6 +88,9 @@ class RunStats:
     energy : the final total energy;  volume : the total rest area/volume it is measured
         against (see the module notes).
     inverted_at_start : elements inverted in the start map (exact), where the solve counted them.
+    certify_seconds : time of the final exact certificate (part of neither ``seconds`` nor
+        ``setup_seconds``).
+    cpu_seconds, setup_cpu_seconds : process-CPU seconds of the loop and of the set-up.
     """
 
     iterations: int = 0
@@ -103,6 +101,9 @@ class RunStats:
     energy: float = math.nan
     volume: float = math.nan
     inverted_at_start: int | None = None
+    certify_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    setup_cpu_seconds: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,6 +120,7 @@ class Trace:
         else None.
     phases : one record per outer iteration (a NamedTuple of the continuation, e.g.
         :class:`geomopt.untangle.UntangleRecord`); :meth:`column` reads one field of them.
+    cpu_seconds : (k,) the process-CPU seconds of the solve at each recorded point.
     """
 
     energy: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
@@ -126,6 +128,7 @@ class Trace:
     grad_norm: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     flips: np.ndarray | None = None
     phases: tuple = ()
+    cpu_seconds: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     def column(self, name: str, dtype=np.float64) -> np.ndarray:
         """(outer iterations,) field ``name`` of every phase record."""
@@ -160,6 +163,11 @@ class ParamDetails:
     scaffold_triangles: int = 0
 
 
+def _failures(cert) -> int:
+    """Interior vertices and edges around which ``cert`` found the map not locally injective."""
+    return len(getattr(cert, "branch_vertices", ())) + len(getattr(cert, "branch_edges", ()))
+
+
 def _deprecated(old: str, new: str):
     read = operator.attrgetter(new)
 
@@ -179,7 +187,8 @@ class Result:
     x : (n, d) ndarray, the map (input frame; handles bit-identical to the prescribed ones).
     outcome : :class:`~geomopt.solvers.Outcome`.
     certificate : the exact certificate of ``x``: :class:`LocalCertificate` (``inverted``,
-        ``branch_vertices``, ``handles_moved``), or for free-boundary parameterization
+        ``branch_vertices``, ``boundary_overlaps``..., ``handles_moved``), or for free-boundary
+        parameterization
         :class:`geomopt.certify.Certificate` (global: boundary crossings too).  Every
         certificate has ``inverted``, ``locally_injective`` and ``injectivity``.
     stats : :class:`RunStats`;  trace : :class:`Trace`.
@@ -289,7 +298,8 @@ class Result:
                 "problem": self.problem, "certificate": self.certificate, "injectivity": self.injectivity,
                 "elements": None if self.problem is None else self.problem.n_elements,
                 "outer_iterations": self.stats.outer_iterations,
-                "branch_vertices": getattr(self.certificate, "branch_vertices", 0)}
+                "local_certificate": getattr(self.certificate, "local", self.certificate),
+                "branch_vertices": _failures(getattr(self.certificate, "local", self.certificate))}
         if self.reason:
             info["reason"] = self.reason
         if self.trace.flips is not None:

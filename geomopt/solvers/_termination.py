@@ -54,7 +54,8 @@ class Outcome(enum.Enum):
             "line_search_failed": "the line search found no acceptable step (the problem may be "
             "badly scaled or the energy non-smooth)",
             "nonfinite": "the energy or gradient became NaN/inf (check the input and the start map)",
-            "not_injective": "the result has inverted or degenerate elements",
+            "not_injective": "the result is not locally injective (inverted or degenerate elements, "
+            "or elements overlapping around a vertex or edge)",
             "diverged": "the solve diverged: the energy fell without bound or below its known "
             "lower bound (check the energy and its parameters, or fix more vertices)",
         }[self.value]

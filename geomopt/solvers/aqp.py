@@ -41,6 +41,8 @@ from ..linesearch import InjectiveSearch
 from ._base import AbstractSolver, State, map_extent
 from ._laplacian import RestLaplacian
 
+__all__ = ["AQP", "rest_curvature"]
+
 
 def rest_curvature(density, params, d) -> float:
     """The curvature of ``density`` at rest relative to the Dirichlet energy ``|J|^2``: the mean

@@ -25,6 +25,8 @@ from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_lin
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
+__all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory"]
+
 
 class NewtonMemory(NamedTuple):
     """What a Newton-type solver keeps between steps.

@@ -28,6 +28,8 @@ from .._objective import total_energy
 from ..linesearch import InjectiveSearch
 from ._base import AbstractSolver, State, map_extent, start_stats
 
+__all__ = ["Optimistix", "OptxInjectiveSearch", "ObjectiveFunction", "objective_function"]
+
 
 class ObjectiveFunction(eqx.Module):
     """``fn(y, params) -> E``: an objective as a function of the whole map ``y`` (n, d); fixed
