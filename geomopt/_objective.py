@@ -608,7 +608,7 @@ class _Mesh:
     the free DOFs and, built on first use, the Hessian pattern and its assembly arrays."""
 
     def __init__(self, problem: Problem, sizes: _padding.Sizes):
-        self.key = (problem._static, sizes)
+        self.key = (problem.static_key, sizes)
         self.sizes = sizes
         d = problem.dim
         free = np.repeat(problem.free_mask[:, None], d, axis=1)
