@@ -148,6 +148,9 @@ class Problem:
     rest_vertices: np.ndarray
     fixed: np.ndarray
     fixed_positions: np.ndarray
+    #: quads (m, 4) or hexahedra (m, 8), oriented, whose corner simplices are ``simplices``
+    #: (:mod:`geomopt.elements`); None for a simplex problem
+    elements: np.ndarray | None = None
 
     # -- constructors ---------------------------------------------------------------
     @classmethod
@@ -203,7 +206,59 @@ class Problem:
         return cls._make("tet", 3, V, T, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
     @classmethod
-    def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions):
+    def quads(cls, V, Q, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Quads in the plane mapped to the plane, evaluated at their 4 corner triangles
+        (:mod:`geomopt.elements`).  V : (n, 2) rest positions (or (n, 3) with z == 0); Q : (m, 4).
+
+        rest : ``"mesh"``: the rest shapes are ``V``'s quads, strictly convex and consistently
+            oriented (all-clockwise quads are reversed internally); ``"reference"``: squares of
+            the mean edge length (Winslow smoothing, a mesh with no rest shape), ``V`` setting
+            only the orientation (its total signed area) and possibly tangled.
+        """
+        V = validate_vertices(V, "rest vertices")
+        if V.shape[1] == 3:
+            if np.any(V[:, 2] != 0):
+                raise MeshError("quad problem: rest vertices have nonzero z (the quads are not planar); "
+                                "use Problem.quad_surface for a quad surface in 3D")
+            V = V[:, :2]
+        return cls._elements("quad", V, Q, 4, rest, fixed, fixed_positions)
+
+    @classmethod
+    def quad_surface(cls, V, Q, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Quads of a 3D surface mapped to the plane, each corner triangle flattened to its own
+        frame (as :meth:`surface`).  V : (n, 3); Q : (m, 4), consistently oriented; a twisted
+        rest quad (a corner facing against the quad's mean normal) raises MeshError."""
+        V = validate_vertices(V, "quad surface: rest vertices", dim=3)
+        return cls._elements("quad_surface", V, Q, 4, rest, fixed, fixed_positions)
+
+    @classmethod
+    def hexes(cls, V, H, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Hexahedra (VTK order) mapped to 3D, evaluated at their 8 corner tetrahedra.
+        V : (n, 3); H : (m, 8).  ``rest`` as in :meth:`quads` (``"mesh"``: every rest
+        hexahedron valid everywhere, checked exactly).  :meth:`count_inverted` certifies a
+        positive Jacobian inside every hexahedron (:mod:`geomopt.hexvalid`), not only at its
+        corners."""
+        V = validate_vertices(V, "hex problem: rest vertices", dim=3)
+        return cls._elements("hex", V, H, 8, rest, fixed, fixed_positions)
+
+    @classmethod
+    def _elements(cls, kind, V, E, k, rest, fixed, fixed_positions):
+        """Quads / hexahedra: validated, oriented and checked (:func:`geomopt.elements.rest_elements`),
+        their corner simplices' rest matrices from ``V``, local frames or reference shapes."""
+        from . import elements
+
+        E = elements.rest_elements(V, elements.validate_elements(E, len(V), k), rest)
+        S = elements.corner_simplices(E)
+        if rest == "reference":
+            Dm = elements.reference_rest(V, E)
+        else:
+            Dm = _local_frames(V, S)[0] if kind == "quad_surface" else _edge_matrices(V, S)
+        vol = _signed_sizes(Dm)
+        _check_rest_volumes(vol, "corner triangle" if k == 4 else "corner tetrahedron")
+        return cls._make(kind, 3 if k == 8 else 2, V, S, S, Dm, vol, fixed, fixed_positions, elements=E)
+
+    @classmethod
+    def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions, elements=None):
         p = cls(
             kind=kind,
             dim=d,
@@ -215,6 +270,7 @@ class Problem:
             rest_vertices=V,
             fixed=np.zeros(0, np.int64),
             fixed_positions=np.zeros((0, d)),
+            elements=elements,
         )
         unused = np.setdiff1d(np.arange(len(V)), S.ravel())
         if unused.size:
@@ -222,7 +278,8 @@ class Problem:
                 f"{unused.size} vertices are not used by any element (first: {unused[:5].tolist()}); "
                 f"remove unreferenced vertices first"
             )
-        _check_facet_orientation(kind, S)
+        if elements is None:  # quads / hexahedra: checked on their edges / faces by the caller
+            _check_facet_orientation(kind, S)
         if fixed is not None:
             p = p.with_fixed(fixed, fixed_positions)
         return p
@@ -268,10 +325,36 @@ class Problem:
         return _signed_sizes(_edge_matrices(x, self.simplices))
 
     def count_inverted(self, x) -> int:
-        """Elements whose orientation under ``x`` is not positive, by an exact predicate."""
+        """Elements whose orientation under ``x`` is not positive, by an exact predicate.
+
+        Quads / hexahedra: elements (not corners) without a positive Jacobian everywhere
+        (:func:`geomopt.elements.count_invalid`)."""
+        if self.elements is not None:
+            from .elements import count_invalid
+
+            return count_invalid(x, self.elements)
         from .predicates import count_inverted
 
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
+
+    def boundary_vertices(self) -> np.ndarray:
+        """Sorted ids of the boundary vertices (of the quads' edges / hexahedra's faces for
+        element problems, not of their overlapping corner simplices)."""
+        if self.elements is not None:
+            from .elements import boundary_vertices as element_boundary
+
+            return element_boundary(self.elements, self.n_vertices)
+        return boundary_vertices(self.simplices, self.n_vertices)
+
+    @property
+    def triangulation(self) -> np.ndarray:
+        """Simplices covering every element once (2D winding checks): the simplices, or two
+        corner triangles per quad (:func:`geomopt.elements.diagonal_triangles`)."""
+        if self.elements is not None and self.elements.shape[1] == 4:
+            from .elements import diagonal_triangles
+
+            return diagonal_triangles(self.elements)
+        return self.simplices
 
 
 def check_initial_orientation(problem: Problem, x0) -> float:
@@ -326,7 +409,7 @@ def fixed_total_problem(problem: Problem, x) -> str | None:
     total = math.fsum(vols)
     if total > 1e-12 * float(np.abs(vols).sum()):
         return None
-    if not np.isin(boundary_vertices(problem.simplices, problem.n_vertices), problem.fixed).all():
+    if not np.isin(problem.boundary_vertices(), problem.fixed).all():
         return None
     what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
     return (f"the fixed boundary encloses a total signed {'area' if problem.dim == 2 else 'volume'} "

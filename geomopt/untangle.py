@@ -68,7 +68,6 @@ from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
 from .solvers import LBFGS, AbstractSolver, Newton, Outcome
 from .solvers._base import check_progress
-from .topology import boundary_vertices
 
 __all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
            "default_solver", "next_eps"]
@@ -343,7 +342,7 @@ def untangle(
     scaled = dataclasses.replace(
         problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
         rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
-    if max_aspect is not None and d == 2:
+    if max_aspect is not None and d == 2 and problem.elements is None:  # triangles only
         scaled = _equilateral_rest(scaled, max_aspect)
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],
@@ -424,11 +423,11 @@ def untangle(
     if d == 2 and not inverted:  # every triangle positive: an interior fan may still wind twice
         from .predicates import branch_vertices
 
-        branches = len(branch_vertices(out, S))
+        branches = len(branch_vertices(out, problem.triangulation))
         if branches and outcome is Outcome.CONVERGED:
             outcome = Outcome.NOT_INJECTIVE
             hint = ("the fixed boundary probably winds more than once, check the handle positions"
-                    if np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all() else
+                    if np.isin(problem.boundary_vertices(), problem.fixed).all() else
                     "flip-free motion cannot remove them; start from a map whose boundary is a simple "
                     "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
             reason = (f"no triangle is inverted, but {branches} interior vertex(es) are branch "
