@@ -35,7 +35,7 @@ import dataclasses
 
 import numpy as np
 
-from ._errors import MeshError
+from ._errors import MeshError, ParameterError
 from .hexvalid import HEX_CORNERS, TESTS, hex_validity
 from .predicates import orient2d
 
@@ -154,7 +154,7 @@ def rest_elements(V, E, rest="mesh"):
     """
     kind = ELEMENT_KINDS[E.shape[1]]
     if rest not in ("mesh", "reference"):
-        raise MeshError(f"rest must be 'mesh' or 'reference', got {rest!r}")
+        raise ParameterError(f"rest must be 'mesh' or 'reference', got {rest!r}")
     surface = kind.word == "quad" and V.shape[1] == 3
     if not surface and float(np.sum(_corner_dets(V, E))) < 0:
         E = E[:, kind.reverse]

@@ -174,11 +174,11 @@ def jacobian_det(X, H, uvw) -> np.ndarray:
     """
     P = _control_points(np.asarray(X, dtype=np.float64), H)  # (m, 2, 2, 2, 3)
     u, v, w = (np.asarray(uvw, dtype=np.float64)[:, i] for i in range(3))
-    lin = [lambda t: 1.0 - t, lambda t: t]
     Eu, Ev, Ew = P[:, 1] - P[:, 0], P[:, :, 1] - P[:, :, 0], P[:, :, :, 1] - P[:, :, :, 0]
 
     def bilinear(E, s, t):  # E (m, 2, 2, 3) -> (m, q, 3)
-        return sum(E[:, a, b, None] * (lin[a](s) * lin[b](t))[None, :, None] for a in (0, 1) for b in (0, 1))
+        weights = np.stack([(1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t], axis=1)  # (q, 4)
+        return weights @ E.reshape(len(E), 4, 3)
 
     return _triple(bilinear(Eu, v, w), bilinear(Ev, u, w), bilinear(Ew, u, v))
 
