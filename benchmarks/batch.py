@@ -9,7 +9,7 @@ Usage::
    there with the same count): 2D rotated squares, noisy disks and Tutte maps onto star /
    L / crescent polygons of about 300-3,000 triangles, and 3D twisted or bent rods and rotated
    cubes of about 300-3,000 tets (one in seven cases), all from :mod:`geomopt.generators`,
-   written with :func:`geomopt.batch.write_lim_case`.
+   written with :meth:`geomopt.lim.LimCase.write`.
 2. Batch, cold: ``python -m geomopt untangle ROOT/cases -o ROOT/out-cold --workers N`` with an
    empty compilation cache (``GEOMOPT_CACHE_DIR``); the whole process is timed, start-up,
    Dask cluster and compilation included.
@@ -47,7 +47,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from geomopt import generators as G  # noqa: E402
-from geomopt.batch import bucket_sizes, write_lim_case  # noqa: E402
+from geomopt.batch import bucket_sizes  # noqa: E402
+from geomopt.lim import LimCase  # noqa: E402
 
 
 def make_tangle(i, rng):
@@ -85,7 +86,7 @@ def generate(root, count, seed=0):
     t0 = time.perf_counter()
     for i in range(count):
         t = make_tangle(i, rng)
-        write_lim_case(folder / f"case{i:05d}-{t.dim}d-{t.name}-{t.n_elements}", t)
+        LimCase.from_tangle(t).write(folder / f"case{i:05d}-{t.dim}d-{t.name}-{t.n_elements}")
     stamp.write_text("")
     print(f"generated {count} cases in {time.perf_counter() - t0:.1f} s under {folder}", file=sys.stderr)
     return folder

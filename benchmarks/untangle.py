@@ -30,7 +30,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from geomopt import generators as G  # noqa: E402
-from geomopt.io import lim_cases, read_lim_case  # noqa: E402
+from geomopt.lim import LimCase  # noqa: E402
 from geomopt.predicates import count_inverted  # noqa: E402
 from geomopt.untangle import untangle, untangle_case  # noqa: E402
 
@@ -91,13 +91,12 @@ def run_case(name, call, repeat):
 
 
 def lim_call(folder, solver):
-    case = read_lim_case(folder)  # file reading is not timed
+    case = LimCase.read(folder)  # file reading is not timed
 
     def call():
         out, result = untangle_case(case, solver=solver, progress=False)
-        S = case["faces"] if case["dim"] == 2 else case["tets"]
-        H = case["handles"]
-        return result, S, out["orientation"], np.ascontiguousarray(case["init"][H]), H
+        H = case.handles
+        return result, case.simplices, out["orientation"], np.ascontiguousarray(case.init[H]), H
     return call
 
 
@@ -137,7 +136,7 @@ def main(argv=None):
     if not args.no_lim:
         root = Path(args.lim)
         if root.is_dir():
-            jobs += [(c.name, "LIM", lambda c=c: lim_call(c, args.solver)) for c in lim_cases(root)]
+            jobs += [(c.name, "LIM", lambda c=c: lim_call(c, args.solver)) for c in LimCase.cases(root)]
         else:
             print(f"(LIM data not found at {root}; skipping the shared cases)", file=sys.stderr)
     if not args.no_families:

@@ -39,7 +39,8 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from geomopt import generators as G  # noqa: E402
-from geomopt.io import read_lim_case, read_vtk_tets, write_vtk_tets  # noqa: E402
+from geomopt.io import read_vtk_tets, write_vtk_tets  # noqa: E402
+from geomopt.lim import LimCase  # noqa: E402
 from geomopt.predicates import count_inverted  # noqa: E402
 from geomopt.untangle import lim_problem, untangle  # noqa: E402
 
@@ -64,9 +65,9 @@ FAMILIES = {
 def load(name, tmp):
     """(problem, x0, tets, orientation, init.vtk, rest.vtk) of a case."""
     if name == "armadillo-598":
-        case = read_lim_case(LIM_ARMADILLO)
+        case = LimCase.read(LIM_ARMADILLO)
         problem, x0, orientation, _ = lim_problem(case)
-        return problem, x0, case["tets"], orientation, LIM_ARMADILLO / "init.vtk", LIM_ARMADILLO / "rest.vtk"
+        return problem, x0, case.simplices, orientation, LIM_ARMADILLO / "init.vtk", LIM_ARMADILLO / "rest.vtk"
     t = FAMILIES[name]()
     init, rest = Path(tmp) / f"{name}-init.vtk", Path(tmp) / f"{name}-rest.vtk"
     write_vtk_tets(init, t.x0, t.simplices)

@@ -23,7 +23,7 @@ _LAZY = {
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
     "compare": "._compare", "Comparison": "._compare",
 }
-_SUBMODULES = ("energies", "io", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
+_SUBMODULES = ("energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
                "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")
 
 

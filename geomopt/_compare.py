@@ -323,10 +323,11 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         path = Path(mesh)
         label = path.name
         if path.is_dir():
+            from .lim import LimCase
             from .untangle import lim_problem
 
             case = path
-            problem, case_x0, _, mirror = lim_problem(io.read_lim_case(path))
+            problem, case_x0, _, mirror = lim_problem(LimCase.read(path))
             x0 = case_x0 if x0 is None else io.validate_vertices(x0, "start map x0", dim=problem.dim) * mirror
         else:
             problem = Problem.surface(*io.read_mesh(path))

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import GeomoptError, MeshError, ParameterError, SolveError
+from .lim import LimCase
 
 __all__ = ["bucket_sizes", "pad_to_bucket", "BUCKET_GROWTH", "BUCKET_MIN_ELEMENTS", "BUCKET_MAX_ELEMENTS",
            "VERTEX_SHARE", "SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary",
@@ -146,10 +147,10 @@ SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "in
 
 
 def check_handles(case):
-    """Raise MeshError unless the case read by :func:`geomopt.io.read_lim_case` fixes some vertex
+    """Raise MeshError unless the case (:class:`geomopt.lim.LimCase`) fixes some vertex
     (a fixed-boundary untangling needs them)."""
-    if case["handles"].size == 0:
-        raise MeshError(f"{case['handles_file']} is empty: untangling needs a fixed boundary; list the "
+    if case.handles.size == 0:
+        raise MeshError(f"{case.handles_file} is empty: untangling needs a fixed boundary; list the "
                         f"0-based ids of the fixed vertices in it, one per line")
 
 
@@ -191,7 +192,7 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
 
     Parameters
     ----------
-    folder : a case folder (:func:`geomopt.io.read_lim_case`).
+    folder : a case folder (:meth:`geomopt.lim.LimCase.read`).
     outdir : the output folder (must exist).
     solver : inner solver name for :func:`geomopt.untangle.untangle`.
     bucket : pad to a size bucket (:func:`pad_to_bucket`), so that cases of similar sizes
@@ -201,17 +202,16 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     -------
     dict with the keys of :data:`SUMMARY_COLUMNS` (strings and ints).
     """
-    from . import io, untangle
+    from . import untangle
 
     start = time.perf_counter()
     folder = Path(folder)
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=folder.name, certified="no")
     try:
-        case = io.read_lim_case(folder)
+        case = LimCase.read(folder)
         check_handles(case)
-        elements = case["faces"] if case["dim"] == 2 else case["tets"]
-        row.update(dim=case["dim"], vertices=len(case["rest"]), elements=len(elements))
+        row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
         case, res = untangle.untangle_case(case, solver=solver, progress=False, bucket=bucket)
         row.update(inverted_before=res.initially_inverted, inverted_after=res.inverted,
                    outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations)
@@ -243,7 +243,7 @@ def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None):
 
 def batch_cases(paths):
     """The case folders named by ``paths``: each a LIM case folder, or a folder searched for
-    case folders (:func:`geomopt.io.lim_cases`, sorted); in the order given.
+    case folders (:meth:`geomopt.lim.LimCase.cases`, sorted); in the order given.
 
     Raises
     ------
@@ -251,13 +251,11 @@ def batch_cases(paths):
         A path does not exist, holds no case, or two cases share a folder name (their outputs
         ``<name>.obj`` would collide).
     """
-    from . import io
-
     found = []
     for p in map(Path, paths):
         if not p.is_dir():
             raise ParameterError(f"{p} is not a folder; give LIM case folders or folders holding them")
-        cases = io.lim_cases(p)
+        cases = LimCase.cases(p)
         if not cases:
             raise ParameterError(f"{p} holds no LIM case folder (input.obj + handles.txt, or rest.vtk + "
                                  f"init.vtk)")
@@ -490,24 +488,5 @@ def _failed_row(folder, message):
 
 
 def write_lim_case(folder, tangle):
-    """Write a :class:`~geomopt.generators.Tangle` as a LIM case folder, exactly (round-trip).
-
-    2D: ``input.obj`` (rest ``v`` lines with z = 0, the start map as ``vt``) and
-    ``handles.txt``; 3D: ``rest.vtk``, ``init.vtk`` and ``handles.txt``.  The folder is created.
-
-    Returns
-    -------
-    pathlib.Path, the folder.
-    """
-    from . import io
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    if tangle.dim == 2:
-        rest = np.c_[tangle.rest, np.zeros(len(tangle.rest))]
-        io.write_obj_with_uv(folder / "input.obj", rest, tangle.simplices, tangle.x0)
-    else:
-        io.write_vtk_tets(folder / "rest.vtk", tangle.rest, tangle.simplices)
-        io.write_vtk_tets(folder / "init.vtk", tangle.x0, tangle.simplices)
-    io.atomic_write(folder / "handles.txt", lambda fh: fh.write("".join(f"{int(h)}\n" for h in tangle.fixed)))
-    return folder
+    """Deprecated: ``LimCase.from_tangle(tangle).write(folder)`` (:class:`geomopt.lim.LimCase`)."""
+    return LimCase.from_tangle(tangle).write(folder)

@@ -43,7 +43,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError
-from .io import validate_indices, validate_vertices
+from ._validate import validate_indices, validate_vertices
 from .predicates import count_inverted, orient2d
 from .topology import check_disk
 

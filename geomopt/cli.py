@@ -246,15 +246,16 @@ def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
     from .batch import check_handles, write_certified
+    from .lim import LimCase
     from .untangle import untangle_case
 
-    want = ".obj" if io.lim_case_dim(folder) == 2 else ".vtk"
+    want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
                   [str(p) for p in Path(folder).iterdir()])
-    case = io.read_lim_case(folder)
+    case = LimCase.read(folder)
     check_handles(case)
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from ._errors import MeshError
-from .io import validate_indices, validate_simplices, validate_vertices
+from ._validate import validate_indices, validate_simplices, validate_vertices
 from .topology import boundary_vertices, nonmanifold_facets, same_side_facets
 
 __all__ = ["Problem", "check_initial_orientation", "fixed_total_problem"]

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._errors import MeshError, ParameterError
-from .io import validate_vertices
+from ._validate import validate_vertices
 from .topology import as_faces, check_disk
 
 __all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "WEIGHTS"]

@@ -53,6 +53,7 @@ import math
 import numbers
 import sys
 import time
+from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
 
@@ -492,7 +493,7 @@ class _Progress:
 
 
 def lim_problem(case):
-    """The untangling problem of a LIM case read by :func:`geomopt.io.read_lim_case`.
+    """The untangling problem of a LIM case (:class:`geomopt.lim.LimCase`, or a dict with its keys).
 
     2D: the rest mesh is the ``v`` lines and the start map the ``vt`` lines.  A planar rest
     mesh (``z == 0`` everywhere) is a :meth:`Problem.planar` problem, whose rest triangles must
@@ -553,24 +554,24 @@ def lim_problem(case):
 
 
 def untangle_case(folder, solver="lbfgs", progress=True, **options):
-    """Read a LIM case folder (:func:`geomopt.io.read_lim_case`) and untangle it
+    """Read a LIM case folder (:meth:`geomopt.lim.LimCase.read`) and untangle it
     (:func:`lim_problem`, :func:`untangle`).
 
     Parameters
     ----------
-    folder : a case folder, or a case dict already read by :func:`~geomopt.io.read_lim_case`.
+    folder : a case folder, or a case already read (:class:`~geomopt.lim.LimCase`).
     solver, progress, options : passed to :func:`untangle`.
 
     Returns
     -------
-    case : the dict from :func:`~geomopt.io.read_lim_case` plus ``problem`` and
+    case : a dict with the case's keys (:class:`~geomopt.lim.LimCase`) plus ``problem`` and
         ``orientation`` (+1 or -1: the orientation every element of the output must have in
         the input's connectivity), as :func:`write_untangle_result` needs.
     result : :class:`UntangleResult`, its ``x`` in the input's frame.
     """
-    from .io import read_lim_case
+    from .lim import LimCase
 
-    case = folder if isinstance(folder, dict) else read_lim_case(folder)
+    case = folder if isinstance(folder, Mapping) else LimCase.read(folder)
     problem, x0, orientation, mirror = lim_problem(case)
     result = untangle(problem, x0, solver=solver, progress=progress, **options)
     if (mirror < 0).any():
@@ -617,9 +618,9 @@ def write_untangle_result(case, result, path):
 
 
 def _read_obj_uv(path, n):
-    from .io import parse_lim_obj
+    from .io import read_obj_with_uv
 
-    _, UV, _ = parse_lim_obj(path)
+    _, UV, _ = read_obj_with_uv(path)
     if len(UV) != n:
         raise MeshError(f"{path}: read back {len(UV)} vt lines, expected {n}")
     return UV

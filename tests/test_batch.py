@@ -158,7 +158,7 @@ def test_a_batch_reports_bad_cases_and_certifies_the_rest(tmp_path):
         assert row["certified"] == "yes" and row["message"] == "" and row["inverted_after"] == 0
         assert (row["dim"], row["elements"], row["inverted_before"]) == (t.dim, t.n_elements, t.inverted())
         if t.dim == 2:
-            V, UV, F = io.parse_lim_obj(tmp_path / "out" / f"{name}.obj")
+            V, UV, F = io.read_obj_with_uv(tmp_path / "out" / f"{name}.obj")
         else:
             UV, F = io.read_vtk_tets(tmp_path / "out" / f"{name}.vtk")
         assert count_inverted(UV, F) == 0 and np.array_equal(UV[t.fixed], t.x0[t.fixed])

@@ -184,13 +184,15 @@ def test_param_output_that_cannot_be_written_fails_before_solving(cli, tmp_path,
 
 def test_param_write_failure_after_solving_leaves_nothing(cli, tmp_path, monkeypatch):
     mesh = write_obj(tmp_path / "m.obj", V3, F)
-    real = io._write_rows
+    from geomopt.io import _surface
+
+    real = _surface.write_rows
 
     def disk_full(fh, prefix, A):
         real(fh, prefix, A)  # part of the file is written...
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(io, "_write_rows", disk_full)
+    monkeypatch.setattr(_surface, "write_rows", disk_full)
     code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")
     assert code == 2
     one_error_line(err, "could not write", "No space left on device", "nothing was written")
@@ -218,7 +220,7 @@ def no_work(monkeypatch):
     """Reading or solving anything fails the test: output checks must come first."""
     fail = lambda *a, **k: pytest.fail("read or solved before checking the outputs")  # noqa: E731
     monkeypatch.setattr("geomopt.io.read_mesh", fail)
-    monkeypatch.setattr("geomopt.io.read_lim_case", fail)
+    monkeypatch.setattr("geomopt.lim.LimCase.read", fail)
     monkeypatch.setattr("geomopt.param.parameterize", fail)
     monkeypatch.setattr("geomopt.untangle.untangle_case", fail)
 

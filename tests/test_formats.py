@@ -18,7 +18,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from geomopt._errors import MeshError, MeshFormatError
-from geomopt.io import read_lim2d, read_mesh, read_vtk_tets, write_ply_with_uv
+from geomopt.io import read_mesh, read_vtk_tets, write_ply_with_uv
+from geomopt.lim import LimCase
 
 BOM = b"\xef\xbb\xbf"
 SQUARE_V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
@@ -156,12 +157,12 @@ def test_handles_accept_only_plain_decimal_integers(tmp_path, token):
     put(folder / "input.obj", obj_bytes(SQUARE_V, SQUARE_F, corner="{a}/{a}").replace(
         b"f ", b"vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf ", 1))
     put(folder / "handles.txt", "0\n")
-    assert read_lim2d(folder)["handles"].tolist() == [0]
+    assert LimCase.read(folder).handles.tolist() == [0]
     put(folder / "handles.txt", f"0\n{token}\n")
     with pytest.raises(MeshFormatError, match="line 2: cannot read .* as an integer"):
-        read_lim2d(folder)
+        LimCase.read(folder)
     put(folder / "handles.txt", BOM + b"3\r\n1\r\n")
-    assert read_lim2d(folder)["handles"].tolist() == [3, 1]
+    assert LimCase.read(folder).handles.tolist() == [3, 1]
 
 
 def test_obj_relative_indices_count_back_from_the_face(tmp_path):
@@ -490,7 +491,7 @@ def make_file(folder, fmt, V, F, mismatch):
 
 def read_back(fmt, path):
     if fmt == "lim2d":
-        case = read_lim2d(path.parent)
+        case = LimCase.read(path.parent)
         return case["rest"], case["faces"], case
     if fmt.startswith("vtk"):
         return (*read_vtk_tets(path), None)

@@ -16,10 +16,6 @@ from geomopt._errors import MeshError, MeshFormatError, ParameterError
 from geomopt.io import (
     atomic_output,
     atomic_write,
-    lim_cases,
-    read_lim2d,
-    read_lim3d,
-    read_lim_case,
     read_mesh,
     read_vtk_tets,
     validate_indices,
@@ -28,6 +24,7 @@ from geomopt.io import (
     write_obj_with_uv,
     write_vtk_tets,
 )
+from geomopt.lim import LimCase
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared/data"
 LIM_ROOT = SHARED / "lim"
@@ -329,11 +326,11 @@ def test_write_obj_with_uv_round_trip_exact(tmp_path):
     lines = (folder / "input.obj").read_text().splitlines()
     assert [line.split()[0] for line in lines] == ["v"] * n + ["vt"] * n + ["f"] * 40
     assert lines[2 * n] == "f {0}/{0} {1}/{1} {2}/{2}".format(*(F[0] + 1))
-    case = read_lim2d(folder)
-    np.testing.assert_array_equal(case["rest"], V)
-    np.testing.assert_array_equal(case["init"], UV)
-    np.testing.assert_array_equal(case["faces"], F)
-    assert case["handles"].tolist() == [3, 1]
+    case = LimCase.read(folder)
+    np.testing.assert_array_equal(case.rest, V)
+    np.testing.assert_array_equal(case.init, UV)
+    np.testing.assert_array_equal(case.simplices, F)
+    assert case.handles.tolist() == [3, 1]
     V2, F2 = read_mesh(folder / "input.obj")
     np.testing.assert_array_equal(V2, V)
     np.testing.assert_array_equal(F2, F)
@@ -347,11 +344,11 @@ def test_write_obj_with_uv_rejects_bad_input(tmp_path):
 
 def test_read_lim2d_forms_and_empty_handles(tmp_path):
     obj = "# c\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\ng x\nf 1 2/2 3/3/1\n"
-    case = read_lim2d(lim2d_folder(tmp_path, obj, handles=""))
-    assert case["faces"].tolist() == [[0, 1, 2]]
-    assert case["handles"].shape == (0,) and case["handles"].dtype == np.int64
-    case = read_lim2d(lim2d_folder(tmp_path, obj.replace("\n", "\r\n"), handles="0\r\n2"))
-    assert case["handles"].tolist() == [0, 2]
+    case = LimCase.read(lim2d_folder(tmp_path, obj, handles=""))
+    assert case.simplices.tolist() == [[0, 1, 2]]
+    assert case.handles.shape == (0,) and case.handles.dtype == np.int64
+    case = LimCase.read(lim2d_folder(tmp_path, obj.replace("\n", "\r\n"), handles="0\r\n2"))
+    assert case.handles.tolist() == [0, 2]
 
 
 @pytest.mark.parametrize(
@@ -378,14 +375,14 @@ def test_read_lim2d_forms_and_empty_handles(tmp_path):
 )
 def test_read_lim2d_errors(tmp_path, obj, handles, error, word):
     with pytest.raises(error, match=word):
-        read_lim2d(lim2d_folder(tmp_path, obj, handles))
+        LimCase.read(lim2d_folder(tmp_path, obj, handles))
 
 
 def test_read_lim2d_missing_files(tmp_path):
     with pytest.raises(MeshFormatError, match="input.obj"):
-        read_lim2d(tmp_path)
+        LimCase.read(tmp_path)
     with pytest.raises(MeshFormatError, match="handles.txt"):
-        read_lim2d(lim2d_folder(tmp_path, SQUARE_OBJ, handles=None))
+        LimCase.read(lim2d_folder(tmp_path, SQUARE_OBJ, handles=None))
 
 
 # --------------------------------------------------------------------------- VTK
@@ -443,30 +440,30 @@ def lim3d_folder(folder, rest_points=None, init_points=None, handles="0\n"):
 
 def test_read_lim3d_and_handles_fallback(tmp_path):
     folder, P, T = lim3d_folder(tmp_path / "c", handles="4\n0\n")
-    case = read_lim3d(folder)
-    np.testing.assert_array_equal(case["rest"], P)
-    np.testing.assert_array_equal(case["init"], 2 * P)
-    np.testing.assert_array_equal(case["tets"], T)
-    assert case["handles"].tolist() == [4, 0]
+    case = LimCase.read(folder)
+    np.testing.assert_array_equal(case.rest, P)
+    np.testing.assert_array_equal(case.init, 2 * P)
+    np.testing.assert_array_equal(case.simplices, T)
+    assert case.handles.tolist() == [4, 0]
     (folder / "handles.txt").unlink()
     write(folder / "handles_derived_boundary.txt", "1\n2\n")
-    assert read_lim3d(folder)["handles"].tolist() == [1, 2]
+    assert LimCase.read(folder).handles.tolist() == [1, 2]
     (folder / "handles_derived_boundary.txt").unlink()
     with pytest.raises(MeshFormatError, match="handles"):
-        read_lim3d(folder)
+        LimCase.read(folder)
 
 
 def test_read_lim3d_mismatch_errors(tmp_path):
     folder, P, T = lim3d_folder(tmp_path / "a")
     write_vtk_tets(folder / "init.vtk", np.vstack([P, P[:1]]), T)
     with pytest.raises(MeshError, match="points"):
-        read_lim3d(folder)
+        LimCase.read(folder)
     write_vtk_tets(folder / "init.vtk", P, T[:, [1, 0, 2, 3]])
     with pytest.raises(MeshError, match="connectivity"):
-        read_lim3d(folder)
+        LimCase.read(folder)
     (folder / "init.vtk").unlink()
     with pytest.raises(MeshFormatError, match="init.vtk"):
-        read_lim3d(folder)
+        LimCase.read(folder)
 
 
 # ------------------------------------------------------------------- LIM cases
@@ -476,19 +473,50 @@ def test_read_lim_case_dispatch_and_lim_cases(tmp_path):
     d2 = lim2d_folder(tmp_path / "root/2D/sq", SQUARE_OBJ)
     d3, _, _ = lim3d_folder(tmp_path / "root/3D/tet")
     (tmp_path / "root/other").mkdir()
-    assert lim_cases(tmp_path / "root") == [d2, d3]
-    assert read_lim_case(d2)["dim"] == 2
-    case = read_lim_case(d3)
-    assert case["dim"] == 3 and case["tets"].shape == (2, 4)
+    assert LimCase.cases(tmp_path / "root") == [d2, d3]
+    assert LimCase.read(d2).dim == 2
+    case = LimCase.read(d3)
+    assert case.dim == 3 and case.simplices.shape == (2, 4)
     with pytest.raises(MeshFormatError, match="not a LIM case"):
-        read_lim_case(tmp_path / "root/other")
+        LimCase.read(tmp_path / "root/other")
     with pytest.raises(MeshFormatError, match="does not exist"):
-        read_lim_case(tmp_path / "nowhere")
+        LimCase.read(tmp_path / "nowhere")
     with pytest.raises(MeshFormatError, match="does not exist"):
-        lim_cases(tmp_path / "nowhere")
+        LimCase.cases(tmp_path / "nowhere")
     write(d2 / "rest.vtk", "x")
     with pytest.raises(MeshFormatError, match="both"):
-        read_lim_case(d2)
+        LimCase.read(d2)
+
+
+def test_lim_case_write_reads_back_bit_for_bit(tmp_path):
+    """LimCase.write then LimCase.read gives the same typed fields (2D with a planar rest, 3D)."""
+    from geomopt import generators
+
+    for tangle in (generators.rotated_interior(*generators.square_mesh(5), 90.0),
+                   generators.twisted_box(2, 3)):
+        case = LimCase.from_tangle(tangle)
+        folder = case.write(tmp_path / f"deep/{tangle.dim}d")
+        back = LimCase.read(folder)
+        assert (back.dim, back.path, back.handles_file) == (tangle.dim, folder, folder / "handles.txt")
+        rest = np.c_[tangle.rest, np.zeros(len(tangle.rest))] if tangle.dim == 2 else tangle.rest
+        for got, want in ((back.rest, rest), (back.init, tangle.x0), (back.simplices, tangle.simplices),
+                          (back.handles, tangle.fixed)):
+            np.testing.assert_array_equal(got, want)
+        assert LimCase.cases(tmp_path) == sorted([folder] + ([tmp_path / "deep/2d"] if tangle.dim == 3 else []))
+
+
+def test_lim_case_reads_like_the_old_dict(tmp_path):
+    """Code written against read_lim_case's dict keeps working (keys, ** and dict(...))."""
+    case = LimCase.read(lim2d_folder(tmp_path / "sq", SQUARE_OBJ))
+    assert list(case) == ["dim", "path", "rest", "init", "faces", "handles", "handles_file"]
+    assert case["faces"] is case.simplices and case.get("tets") is None and "faces" in case
+    assert {**case, "x": 1}["handles"] is case.handles
+    d3, _, _ = lim3d_folder(tmp_path / "t")
+    assert LimCase.read(d3)["tets"].shape == (2, 4)
+    with pytest.raises(MeshError, match="init must have shape"):
+        LimCase(dim=2, rest=case.rest, init=case.init[:2], simplices=case.simplices, handles=case.handles)
+    with pytest.raises(MeshError, match="2D or 3D"):
+        LimCase(dim=4, rest=case.rest, init=case.init, simplices=case.simplices, handles=case.handles)
 
 
 def signed_contents(X, E):
@@ -504,19 +532,19 @@ def test_shared_lim_cases_match_manifest():
         pytest.skip(f"LIM sample data not found at {LIM_ROOT}")
     with open(LIM_ROOT / "manifest.tsv") as fh:
         rows = {row["path"]: row for row in csv.DictReader(fh, delimiter="\t")}
-    cases = lim_cases(LIM_ROOT)
+    cases = LimCase.cases(LIM_ROOT)
     assert sorted(str(c.relative_to(LIM_ROOT)) for c in cases) == sorted(rows)
     for folder in cases:
         row = rows[str(folder.relative_to(LIM_ROOT))]
-        case = read_lim_case(folder)
-        elements = case["faces"] if case["dim"] == 2 else case["tets"]
-        assert case["dim"] == int(row["dim"])
-        assert case["rest"].shape[0] == int(row["n_vertices"]) == case["init"].shape[0]
+        case = LimCase.read(folder)
+        elements = case.simplices
+        assert case.dim == int(row["dim"])
+        assert case.rest.shape[0] == int(row["n_vertices"]) == case.init.shape[0]
         assert elements.shape[0] == int(row["n_elements"])
-        assert case["handles"].size == int(row["n_fixed"])
-        orient = case["init"] if case["dim"] == 2 else case["rest"]
+        assert case.handles.size == int(row["n_fixed"])
+        orient = case.init if case.dim == 2 else case.rest
         s = np.sign(signed_contents(orient, elements).sum())
-        inverted = (s * signed_contents(case["init"], elements) <= 0).sum()
+        inverted = (s * signed_contents(case.init, elements) <= 0).sum()
         assert inverted == int(row["n_inverted_init"])
 
 
@@ -566,4 +594,4 @@ def test_fuzz_read_mesh_and_vtk(data, ext):
 @given(obj=st.one_of(obj_text, st.binary(max_size=200)), handles=handles_text)
 def test_fuzz_read_lim2d(obj, handles):
     with tempfile.TemporaryDirectory() as tmp:
-        expect_clean(read_lim2d, lim2d_folder(tmp, obj, "\n".join(handles)))
+        expect_clean(LimCase.read, lim2d_folder(tmp, obj, "\n".join(handles)))

@@ -134,7 +134,7 @@ from conftest import grid
 import geomopt.io, geomopt.param, geomopt.cli
 
 V2, F = grid(4)
-real = geomopt.io._write_rows
+real = geomopt.io._surface.write_rows
 
 def slow(fh, prefix, A):
     real(fh, prefix, A)
@@ -142,7 +142,7 @@ def slow(fh, prefix, A):
     print("writing", flush=True)
     time.sleep(60)
 
-geomopt.io._write_rows = slow
+geomopt.io._surface.write_rows = slow
 geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
     energy=1.0, info={{"objective": SimpleNamespace(total_volume=1.0)}}, iterations=1, seconds=0.0,
     setup_seconds=0.0, inverted=0, outcome=SimpleNamespace(value="converged"), success=True, x=V2,

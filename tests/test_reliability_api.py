@@ -109,9 +109,9 @@ def test_square_rot180_untangles_under_exact_rotations_of_its_rest_mesh(angle):
     folder = LIM_SQUARE.parent / "square_rot180"
     if not folder.is_dir():
         pytest.skip(f"LIM sample data not found at {folder}")
-    from geomopt.io import read_lim_case
+    from geomopt.lim import LimCase
 
-    case = read_lim_case(folder)
+    case = LimCase.read(folder)
     a = np.deg2rad(angle)
     R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
     H = case["handles"]

@@ -19,7 +19,7 @@ import scipy.sparse.linalg as spla
 from geomopt import generators as G
 from geomopt._errors import MeshError, ParameterError, SolveError
 from geomopt._objective import Objective
-from geomopt.io import lim_cases, read_lim2d
+from geomopt.lim import LimCase
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
 from geomopt.problem import Problem
@@ -32,7 +32,7 @@ from geomopt.untangle import lim_problem, next_eps, untangle, untangle_case, wri
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
-CASES = lim_cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
+CASES = LimCase.cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
 
 
 def _bits_equal(a, b):
@@ -72,7 +72,7 @@ def read_lim2d_like(path):
     folder.mkdir()
     shutil.copy(path, folder / "input.obj")
     (folder / "handles.txt").write_text("")
-    return read_lim2d(folder)["init"]
+    return LimCase.read(folder).init
 
 
 def test_lim_case_clockwise_map(tmp_path):

@@ -1,0 +1,60 @@
+"""Reading and writing meshes and maps: surface meshes, tetrahedral meshes, atomic output.
+
+Every reader returns plain numpy arrays (coordinates ``float64``, indices ``int64``,
+0-based) holding exactly what the file says: vertices in file order, never reordered
+or merged (except the documented welding of STL corners), and every count, number and
+index checked against the file's own header.  Unreadable or malformed files raise
+:class:`~geomopt._errors.MeshFormatError` naming the problem (and the line, where there
+is one); readable files with bad content (non-finite coordinates, indices out of range,
+repeated vertices in an element) raise :class:`~geomopt._errors.MeshError`.
+
+Text conventions shared by every text reader: a UTF-8 byte-order mark at the very start
+of a file is skipped (the rest is read exactly); UTF-16/32 text is refused; line ends
+may be LF or CRLF (a lone CR is refused); numbers must be plain decimal ASCII
+(``1``, ``-2.5``, ``1e-3``, ``nan``/``inf`` are read, then non-finite coordinates are
+refused as content); Python-only spellings such as ``1_0``, ``+1`` (for indices),
+``0x10`` or non-ASCII digits are refused.
+
+Every writer writes atomically (see :func:`atomic_output`) with full float precision
+(the shortest decimal that round-trips ``float64``, or binary ``float64``).  Output paths
+must be regular files or not exist (:func:`check_output_path`).
+
+The validators :func:`validate_vertices`, :func:`validate_simplices` and
+:func:`validate_indices` (defined in :mod:`geomopt._validate`) are re-exported here.  The LIM
+benchmark case layout is :mod:`geomopt.lim`.
+
+One module per job: ``_files`` (what a path is), ``_atomic`` (atomic output and path
+safety), ``_text`` (tokenizing), ``_surface`` (OBJ/OFF/PLY/STL and the UV writers),
+``_volume`` (tetrahedral formats: VTK, VTU, Gmsh, Medit); this package only re-exports.
+"""
+
+from .._validate import validate_indices, validate_simplices, validate_vertices
+from ._atomic import atomic_output, atomic_path, atomic_write, check_output_path
+from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_uv, read_obj_with_uv,
+                       write_mesh_with_uv, write_obj_with_uv, write_ply_with_uv)
+from ._text import read_vertex_ids
+from ._volume import TET_FORMATS, read_tets, read_vtk_tets, write_tets, write_vtk_tets
+
+__all__ = [
+    "MESH_EXTENSIONS",
+    "UV_MESH_EXTENSIONS",
+    "TET_FORMATS",
+    "atomic_output",
+    "atomic_path",
+    "atomic_write",
+    "check_output_path",
+    "validate_vertices",
+    "validate_simplices",
+    "validate_indices",
+    "read_mesh",
+    "read_obj_uv",
+    "read_obj_with_uv",
+    "read_vertex_ids",
+    "write_mesh_with_uv",
+    "write_obj_with_uv",
+    "write_ply_with_uv",
+    "read_vtk_tets",
+    "write_vtk_tets",
+    "read_tets",
+    "write_tets",
+]

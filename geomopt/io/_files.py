@@ -1,0 +1,62 @@
+"""Files on disk: what a path is, and the bytes of an existing input file."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from .._errors import MeshFormatError
+
+__all__ = ["file_kind", "existing_file", "check_not_empty", "read_bytes", "one_line"]
+
+
+def file_kind(mode):
+    """What a ``st_mode`` describes, in words."""
+    for test, word in ((stat.S_ISDIR, "a directory"), (stat.S_ISLNK, "a symbolic link"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return word
+    return "not a regular file"
+
+
+
+# ---------------------------------------------------------------- file helpers
+
+
+def existing_file(path, what):
+    """Return ``Path(path)`` after checking it is an existing regular file (emptiness not checked)."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise MeshFormatError(f"{what} {path} does not exist; check the path") from None
+    except OSError as exc:  # e.g. a name too long for the file system
+        raise MeshFormatError(f"{what} {path} cannot be accessed ({one_line(exc)}); check the path") from exc
+    if stat.S_ISDIR(mode):
+        raise MeshFormatError(f"{what} {path} is a directory, not a file; pass the file inside it")
+    if not stat.S_ISREG(mode):
+        raise MeshFormatError(f"{what} {path} is {file_kind(mode)}, not a regular file; pass a mesh file")
+    return path
+
+
+def check_not_empty(path, what):
+    if path.stat().st_size == 0:
+        raise MeshFormatError(f"{what} {path} is empty (0 bytes); re-export or re-download it")
+
+
+def read_bytes(path, what):
+    """The bytes of an existing file; an unreadable one gives a MeshFormatError."""
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise MeshFormatError(
+            f"cannot read {what} {path} ({one_line(exc)}); check its permissions"
+        ) from exc
+
+
+def one_line(exc):
+    """An exception as ``Type: message`` on one short line."""
+    text = " ".join(str(exc).split()) or "(no message)"
+    return f"{type(exc).__name__}: {text[:200]}"
