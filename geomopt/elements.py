@@ -36,6 +36,7 @@ import dataclasses
 import numpy as np
 
 from ._errors import MeshError, ParameterError
+from ._validate import validate_simplices
 from .hexvalid import HEX_CORNERS, TESTS, hex_validity
 from .predicates import orient2d
 
@@ -80,7 +81,8 @@ def element_type(E) -> tuple:
 
 
 def validate_elements(E, n_vertices, k, name=None) -> np.ndarray:
-    """Check quads (``k = 4``) or hexahedra (``k = 8``) and return them as ``int64`` (m, k).
+    """Check quads (``k = 4``) or hexahedra (``k = 8``) and return them as ``int64`` (m, k)
+    (:func:`geomopt._validate.validate_simplices` with the element's words).
 
     Raises
     ------
@@ -88,26 +90,8 @@ def validate_elements(E, n_vertices, k, name=None) -> np.ndarray:
         Wrong shape or dtype, no element, an index outside ``0 .. n_vertices - 1``, or an
         element that uses a vertex twice.
     """
-    word, words = ELEMENT_KINDS[k].word, ELEMENT_KINDS[k].words
-    name = name or words
-    A = np.asarray(E)
-    if A.ndim != 2 or A.shape[1] != k:
-        raise MeshError(f"{name} must have shape (m, {k}) ({k} vertex ids per {word}), got shape {A.shape}")
-    if A.dtype.kind not in "iu":
-        raise MeshError(f"{name} must have an integer dtype, got {A.dtype}")
-    if A.shape[0] == 0:
-        raise MeshError(f"{name} has no {words}")
-    bad = np.flatnonzero(((A < 0) | (A >= n_vertices)).any(axis=1))
-    if bad.size:
-        raise MeshError(f"{name} has {bad.size} {words} with vertex indices outside 0..{n_vertices - 1} "
-                        f"(first: {word} {bad[0]} = {A[bad[0]].tolist()}); indices must be 0-based")
-    A = np.ascontiguousarray(A, dtype=np.int64)
-    srt = np.sort(A, axis=1)
-    bad = np.flatnonzero((srt[:, 1:] == srt[:, :-1]).any(axis=1))
-    if bad.size:
-        raise MeshError(f"{name} has {bad.size} {words} that repeat a vertex (first: {word} {bad[0]} = "
-                        f"{A[bad[0]].tolist()}); collapsed {words} have no valid map: remove or split them")
-    return A
+    kind = ELEMENT_KINDS[k]
+    return validate_simplices(E, n_vertices, k, name or kind.words, words=(kind.word, kind.words))
 
 
 def corner_simplices(E) -> np.ndarray:

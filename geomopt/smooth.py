@@ -49,6 +49,7 @@ class SmoothResult:
         (1: the minimiser; 0: the input).
     outcome : the solver's :class:`~geomopt.solvers.Outcome`.
     iterations : int;  seconds : float, the solve.
+    problem : the :class:`~geomopt.Problem` solved (its ``elements`` oriented, its handles).
     """
 
     x: np.ndarray
@@ -59,6 +60,7 @@ class SmoothResult:
     outcome: object
     iterations: int
     seconds: float
+    problem: object = None
 
     @property
     def improved(self) -> bool:
@@ -141,7 +143,7 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     x, blend = _best_blend(V, np.asarray(result.x, dtype=np.float64), E, start.quality)
     cert = certify_elements(x, E)
     return SmoothResult(x, start.quality, cert.quality, cert, blend, result.outcome,
-                        int(result.iterations), seconds)
+                        int(result.iterations), seconds, problem)
 
 
 def _best_blend(V, X, E, before):

@@ -30,15 +30,18 @@ safety), ``_text`` (tokenizing), ``_surface`` (OBJ/OFF/PLY/STL and the UV writer
 
 from .._validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import atomic_output, atomic_path, atomic_write, check_output_path
-from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_uv, read_obj_with_uv,
-                       write_mesh_with_uv, write_obj_with_uv, write_ply_with_uv)
+from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_quads, read_obj_uv, read_obj_with_uv,
+                       write_mesh_with_uv, write_obj_quads, write_obj_with_uv, write_ply_with_uv)
 from ._text import read_vertex_ids
-from ._volume import TET_FORMATS, read_tets, read_vtk_tets, write_tets, write_vtk_tets
+from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, read_vtk_tets, write_cells, write_tets, write_vtk_tets
 
 __all__ = [
     "MESH_EXTENSIONS",
     "UV_MESH_EXTENSIONS",
     "TET_FORMATS",
+    "CELL_KINDS",
+    "read_cells",
+    "write_cells",
     "atomic_output",
     "atomic_path",
     "atomic_write",
@@ -48,6 +51,8 @@ __all__ = [
     "validate_indices",
     "read_mesh",
     "read_obj_uv",
+    "read_obj_quads",
+    "write_obj_quads",
     "read_obj_with_uv",
     "read_vertex_ids",
     "write_mesh_with_uv",

@@ -27,6 +27,7 @@ with full precision, so ``read_tets`` gives back exactly what was written.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import re
 import stat
@@ -39,12 +40,14 @@ import numpy as np
 from .._errors import GeomoptError, MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_path, atomic_write, check_output_path
+from ._surface import read_obj_quads, write_obj_quads
 from ._files import check_not_empty, existing_file, read_bytes
 from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_rows
 
-__all__ = ["TET_FORMATS", "read_tets", "write_tets", "read_vtk_tets", "write_vtk_tets"]
+__all__ = ["TET_FORMATS", "CELL_KINDS", "CellKind", "read_tets", "write_tets", "read_vtk_tets", "write_vtk_tets",
+           "read_cells", "write_cells"]
 
-#: The tet-mesh formats geomopt reads and writes: extension -> description.
+#: The volume-mesh formats geomopt reads and writes: extension -> description.
 TET_FORMATS = {
     ".vtk": "legacy VTK",
     ".vtu": "VTK XML unstructured grid",
@@ -52,10 +55,32 @@ TET_FORMATS = {
     ".mesh": "Medit ASCII",
 }
 
+
+@dataclasses.dataclass(frozen=True)
+class CellKind:
+    """One kind of cell and its codes in each format (one table entry per kind)."""
+
+    name: str  # meshio's cell type name
+    word: str  # singular and plural, for messages
+    words: str
+    size: int  # vertices per cell
+    vtk: int  # VTK cell type
+    gmsh: int  # Gmsh element type
+    medit: tuple  # Medit section name(s)
+    dim: int  # topological dimension
+
+
+#: The cell kinds geomopt reads and writes: tetrahedra (:func:`read_tets`), quads and
+#: hexahedra (:func:`read_cells`).  Vertex orders are VTK's (Gmsh and Medit use the same for these).
+CELL_KINDS = {c.name: c for c in (
+    CellKind("tetra", "tetrahedron", "tetrahedra", 4, 10, 4, ("Tetrahedra",), 3),
+    CellKind("hexahedron", "hexahedron", "hexahedra", 8, 12, 5, ("Hexahedra", "Hexaedra"), 3),
+    CellKind("quad", "quad", "quads", 4, 9, 3, ("Quadrilaterals",), 2),
+)}
+
 #: Nodes per Gmsh element type, for the types a volume mesh may carry beside its tets.
 _GMSH_NODES = {15: 1, 1: 2, 2: 3, 3: 4, 4: 4, 5: 8, 6: 6, 7: 5,
                8: 3, 9: 6, 10: 9, 11: 10, 12: 27, 13: 18, 14: 14, 16: 8, 17: 20, 18: 15, 19: 13}
-_GMSH_TET = 4
 
 #: Medit sections meshio reads: name -> values per entry (``None``: the dimension + 1 for
 #: vertices, the dimension for vectors), and how many of them are 1-based vertex indices.
@@ -136,25 +161,35 @@ def read_vtk_tets(path):
     MeshError
         Non-finite coordinates, indices out of range, repeated vertices in a tet.
     """
+    return _read_vtk(path, ("tetra",))[:2]
+
+
+def _read_vtk(path, kinds):
+    """``(P (n, 3), C (m, k), kind name)`` of a legacy VTK file whose cells are all of one of
+    ``kinds`` (:data:`CELL_KINDS` names); see :func:`read_vtk_tets`."""
     path = existing_file(path, "VTK file")
     check_not_empty(path, "VTK file")
     with gc_paused():
         P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
+    wanted = " or ".join(CELL_KINDS[k].words for k in kinds)
     if len(P) == 0:
         raise MeshFormatError(f"VTK file {path} has no points")
     if types.size == 0:
-        raise MeshFormatError(f"VTK file {path} has no cells; a tetrahedral mesh is required")
-    others = sorted({_VTK_CELL_NAMES.get(int(t), f"type {int(t)}") for t in np.unique(types[types != 10])})
+        raise MeshFormatError(f"VTK file {path} has no cells; a mesh of {wanted} is required")
+    present = [CELL_KINDS[k] for k in kinds if (types == CELL_KINDS[k].vtk).any()]
+    kind = present[0] if len(present) == 1 else CELL_KINDS[kinds[0]]
+    others = sorted({_VTK_CELL_NAMES.get(int(t), f"type {int(t)}") for t in np.unique(types[types != kind.vtk])})
     if others:
-        raise MeshFormatError(
-            f"VTK file {path} contains non-tetrahedral cells ({', '.join(others)}); only "
-            f"tetrahedral meshes (VTK cell type 10) are supported"
-        )
-    if (np.asarray(sizes) != 4).any():
-        i = int(np.flatnonzero(np.asarray(sizes) != 4)[0])
-        raise MeshFormatError(f"VTK file {path}: cell {i} is a tetrahedron (type 10) with {sizes[i]} points")
+        codes = " or ".join(f"{CELL_KINDS[k].vtk}" for k in kinds)
+        raise MeshFormatError(f"VTK file {path} contains {_others(kind, others)}; only meshes of {wanted} "
+                              f"(VTK cell type {codes}) are supported")
+    if (np.asarray(sizes) != kind.size).any():
+        i = int(np.flatnonzero(np.asarray(sizes) != kind.size)[0])
+        raise MeshFormatError(f"VTK file {path}: cell {i} is of type {kind.vtk} ({kind.words}) with {sizes[i]} points")
     P = validate_vertices(P, f"{path.name}: points", dim=3)
-    return P, validate_simplices(conn.reshape(-1, 4), P.shape[0], 4, f"{path.name}: tetrahedra")
+    C = validate_simplices(conn.reshape(-1, kind.size), P.shape[0], kind.size, f"{path.name}: {kind.words}",
+                           words=(kind.word, kind.words))
+    return P, C, kind.name
 
 
 def write_vtk_tets(path, P, T):
@@ -182,18 +217,22 @@ def write_vtk_tets(path, P, T):
     MeshError
         Invalid ``P`` or ``T``.
     """
+    return _write_vtk(path, P, T, CELL_KINDS["tetra"])
+
+
+def _write_vtk(path, P, C, kind):
     P = validate_vertices(P, "P", dim=3)
-    T = validate_simplices(T, P.shape[0], 4, "T")
-    m = T.shape[0]
+    C = validate_simplices(C, P.shape[0], kind.size, kind.words, words=(kind.word, kind.words))
+    m, k = C.shape
 
     def write(fh):
         fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
         fh.write(f"POINTS {P.shape[0]} double\n")
         write_rows(fh, "", P)
-        fh.write(f"CELLS {m} {5 * m}\n")
-        np.savetxt(fh, T, fmt="4 %d %d %d %d")
+        fh.write(f"CELLS {m} {(k + 1) * m}\n")
+        np.savetxt(fh, C, fmt=f"{k}" + " %d" * k)
         fh.write(f"CELL_TYPES {m}\n")
-        fh.write("10\n" * m)
+        fh.write(f"{kind.vtk}\n" * m)
 
     return atomic_write(path, write)
 
@@ -523,12 +562,12 @@ def _gmsh_nodes_per_element(types, rows, a):
     if (nodes < 0).any():
         i = int(np.flatnonzero(nodes < 0)[0])
         raise MeshFormatError(f"{rows.path}, line {rows.lineno[a + i]}: unsupported Gmsh element type "
-                              f"{types[i]}; a tetrahedral mesh (type 4) is expected")
+                              f"{types[i]}; a mesh of tetrahedra (type 4), hexahedra (5) or quads (3) is expected")
     return nodes
 
 
 def _check_gmsh(data, path):
-    """Check a Gmsh ASCII 2.2 or 4.1 file's structure; return ``(node count, tet count)``."""
+    """Check a Gmsh ASCII 2.2 or 4.1 file's structure; return ``(node count, {element type: count})``."""
     head = data[:200].split(b"\n")
     if head[0].strip() != b"$MeshFormat" or len(head) < 2:
         raise MeshFormatError(f"{path} does not start with $MeshFormat; it is not a Gmsh file")
@@ -550,18 +589,18 @@ def _check_gmsh(data, path):
         if a == b:
             raise MeshFormatError(f"{path}: section ${name} (line {rows.lineno[a - 1]}) is empty")
     read = _gmsh22 if fmt[0] == b"2.2" else _gmsh41
-    tags, nodes, tet_nodes = read(rows, sections["Nodes"][0], sections["Elements"][0])
+    tags, nodes, counts = read(rows, sections["Nodes"][0], sections["Elements"][0])
     if len(np.unique(tags)) != len(tags):
         raise MeshFormatError(f"{path}: a node tag is defined twice in $Nodes; tags must be unique")
     undefined = ~np.isin(nodes, tags)
     if undefined.any():
         raise MeshFormatError(f"{path}: an element refers to node tag {int(nodes[undefined][0])}, which "
                               f"$Nodes does not define")
-    return len(tags), tet_nodes.shape[0]
+    return len(tags), counts
 
 
 def _gmsh22(rows, nodes, elems):
-    """Node tags, every element's node tags (flat) and ``(m, 4)`` tet node tags of MSH 2.2 sections."""
+    """Node tags, every element's node tags (flat) and ``{element type: count}`` of MSH 2.2 sections."""
     (a, b), (c, d) = nodes, elems
     rows.width(a, a + 1, 1, "$Nodes count")
     _counted(rows, a - 1, b - a - 1, int(rows.ints(a, a + 1, "node count")[0]), "$Nodes")
@@ -585,12 +624,12 @@ def _gmsh22(rows, nodes, elems):
                               f"{ntags[i]} tags needs {width[i]} values, found {rows.count[c + 1 + i]}")
     first_node = np.repeat(at + 3 + ntags, rows.count[c + 1:d])  # per value: where its row's nodes begin
     nodes = values[np.arange(len(values)) >= first_node]
-    ends = (at + rows.count[c + 1:d])[types == _GMSH_TET]
-    return tags, nodes, values[ends[:, None] - 4 + np.arange(4)]
+    kinds, counts = np.unique(types, return_counts=True)
+    return tags, nodes, dict(zip(kinds.tolist(), counts.tolist()))
 
 
 def _gmsh41(rows, nodes, elems):
-    """Node tags, every element's node tags (flat) and ``(m, 4)`` tet node tags of MSH 4.1 sections."""
+    """Node tags, every element's node tags (flat) and ``{element type: count}`` of MSH 4.1 sections."""
     (a, b), (c, d) = nodes, elems
 
     def header(r, what):
@@ -629,24 +668,24 @@ def _gmsh41(rows, nodes, elems):
         raise MeshFormatError(f"{rows.path}: section $Nodes (line {rows.lineno[a - 1]}) holds node tags "
                               f"{tags.min()}..{tags.max()} but its header says {lo}..{hi}; fix the header")
     nblocks, total, _, _ = header(c, "$Elements header")
-    count, nodes, tets = 0, [], []
+    count, nodes, counts = 0, [], {}
     for r, (_, _, gtype, n) in blocks(c, d, nblocks, "$Elements", lambda n: n):
         if n:
             width = 1 + int(_gmsh_nodes_per_element(np.array([gtype]), rows, r - 1)[0])
             rows.width(r, r + n, width, f"type-{gtype} element")
             nodes.append(rows.ints(r, r + n, "element").reshape(n, width)[:, 1:])
-            if gtype == _GMSH_TET:
-                tets.append(nodes[-1])
+            counts[gtype] = counts.get(gtype, 0) + n
         count += n
     if count != total:
         raise MeshFormatError(f"{rows.path}: section $Elements (line {rows.lineno[c - 1]}) declares {total} "
                               f"elements but its blocks hold {count}; fix the counts")
     nodes = np.concatenate([x.ravel() for x in nodes]) if nodes else np.zeros(0, dtype=np.int64)
-    return tags, nodes, np.concatenate(tets) if tets else np.zeros((0, 4), dtype=np.int64)
+    return tags, nodes, counts
 
 
-def _check_medit(data, path):
-    """Check a Medit ASCII file's structure; return ``(vertex count, tet count)``."""
+def _check_medit(data, path, dims=(3,)):
+    """Check a Medit ASCII file's structure (``Dimension`` one of ``dims``); return ``(vertex
+    count, {section: count}, dimension)``."""
     rows = _Rows(re.sub(rb"(?m)^[ \t]*#[^\n]*", b"", data), path, "Medit")  # comment lines, kept as blank
     keyword = np.array([t[:1].isalpha() and t.lower() not in (b"nan", b"inf", b"infinity") for t in rows.first],
                        dtype=bool)
@@ -665,8 +704,10 @@ def _check_medit(data, path):
             value = int(rows.ints(r + on_next, r + on_next + 1, key, column=0 if on_next else 1)[0])
             if key == "MeshVersionFormatted" and value not in (1, 2):
                 raise MeshFormatError(f"{path}, line {line}: MeshVersionFormatted {value} is not supported (1 or 2)")
-            if key == "Dimension" and value != 3:
-                raise MeshFormatError(f"{path}, line {line}: Dimension {value}; a tetrahedral mesh needs Dimension 3")
+            if key == "Dimension" and value not in dims:
+                raise MeshFormatError(f"{path}, line {line}: Dimension {value}; a "
+                                      f"{'tetrahedral mesh' if dims == (3,) else 'mesh'} needs Dimension "
+                                      f"{' or '.join(map(str, dims))}")
             version, dim = (value, dim) if key == "MeshVersionFormatted" else (version, value)
             r += 1 + on_next
             continue
@@ -706,7 +747,7 @@ def _check_medit(data, path):
         raise MeshFormatError(f"{path} has no End keyword; the file is truncated")
     if "Vertices" not in counts:
         raise MeshFormatError(f"{path} has no Vertices section")
-    return counts["Vertices"], counts.get("Tetrahedra", 0)
+    return counts["Vertices"], counts, dim
 
 
 # ---------------------------------------------------------------------- reading
@@ -756,12 +797,53 @@ def read_tets(path):
     MeshError
         Non-finite coordinates, indices out of range, repeated vertices in a tet.
     """
-    path = Path(path)
-    ext = _extension(path, "read")
+    return _read_cells(Path(path), ("tetra",))
+
+
+def read_cells(path, kinds=("hexahedron", "quad"), format=None):
+    """Read a mesh of one kind of cell -- hexahedra or quads by default -- exactly, or refuse it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.vtk``, ``.vtu``, ``.msh`` (ASCII 2.2/4.1) or ``.mesh`` (ASCII) file, read and
+        checked as :func:`read_tets` reads tetrahedral ones, or an ``.obj`` file of quads
+        (:func:`~geomopt.io.read_obj_quads`).
+    kinds : tuple of :data:`CELL_KINDS` names, by priority.  The first kind the file holds is
+        read; in Gmsh, Medit and VTU files cells of lower dimension beside it (boundary quads,
+        lines, points) are ignored, any other cell of its dimension or higher is refused
+        (mixed meshes are not supported).  Legacy VTK files must hold that kind only.
+    format : an extension (``".vtk"``...) to read the file as, instead of its own.
+
+    Returns
+    -------
+    P : (n, 3) float64 points (quads in the plane: ``z == 0`` as stored; a Medit
+        ``Dimension 2`` file gives (n, 2)).
+    C : (m, k) int64 cells, 0-based, in file order, vertex order as in VTK.
+    kind : str, the kind read.
+
+    Raises
+    ------
+    MeshFormatError
+        As :func:`read_tets`; also a file with none of ``kinds`` or with mixed cells.
+    MeshError
+        Non-finite coordinates, indices out of range, repeated vertices in a cell.
+    """
+    return _read_cells(Path(path), tuple(kinds), with_kind=True, format=format)
+
+
+def _read_cells(path, kinds, with_kind=False, format=None):
+    ext = (format or path.suffix).lower()
+    if ext == ".obj" and "quad" in kinds:
+        return read_obj_quads(path) + (("quad",) if with_kind else ())
+    ext = _extension(path.with_suffix(ext), "read")
     if ext == ".vtk":
-        return read_vtk_tets(path)
+        P, C, kind = _read_vtk(path, kinds)
+        return (P, C, kind) if with_kind else (P, C)
     data = _existing(path)
-    declared = _check_gmsh(data, path) if ext == ".msh" else _check_medit(data, path) if ext == ".mesh" else None
+    dims = tuple(sorted({CELL_KINDS[k].dim for k in kinds} | {3}))
+    declared = (_check_gmsh(data, path) if ext == ".msh" else _check_medit(data, path, dims) if ext == ".mesh"
+                else None)
     import meshio
 
     reader = {".msh": meshio.gmsh.read, ".mesh": meshio.medit.read, ".vtu": meshio.vtu.read}[ext]
@@ -773,20 +855,44 @@ def read_tets(path):
                                   f"that the file is complete and of the format its extension says") from None
     if len(mesh.points) == 0:
         raise MeshFormatError(f"{path} has no points")
-    others = sorted({c.type for c in mesh.cells if c.type in _VOLUME_CELLS})
+    kind = _cell_kind(mesh, kinds, path)
+    C = np.concatenate([c.data for c in mesh.cells if c.type == kind.name])
+    if declared is not None:
+        count = (declared[1].get(kind.gmsh, 0) if ext == ".msh" else
+                 sum(declared[1].get(name, 0) for name in kind.medit))
+        if (declared[0], count) != (len(mesh.points), len(C)):
+            raise MeshFormatError(f"{path}: the file declares {declared[0]} points and {count} {kind.words} but "
+                                  f"meshio read {len(mesh.points)} and {len(C)}; the file is malformed")
+        if ext == ".mesh" and kind.dim == 3 and declared[2] != 3:
+            raise MeshFormatError(f"{path}: Dimension {declared[2]}; a mesh of {kind.words} needs Dimension 3")
+    P = np.asarray(mesh.points, dtype=np.float64)
+    P = validate_vertices(P, f"{path.name}: points", dim=3 if kind.dim == 3 else None)
+    C = validate_simplices(C, P.shape[0], kind.size, f"{path.name}: {kind.words}", words=(kind.word, kind.words))
+    return (P, C, kind.name) if with_kind else (P, C)
+
+
+def _others(kind, others, volume=""):
+    """``non-tetrahedral cells (a, b)`` / ``cells other than quads (a, b)``, for messages."""
+    what = f"non-tetrahedral {volume}cells" if kind.name == "tetra" else f"cells other than {kind.words}"
+    return f"{what} ({', '.join(others)})"
+
+
+def _cell_kind(mesh, kinds, path):
+    """The first of ``kinds`` that meshio's ``mesh`` holds; refuses other cells of its dimension
+    or higher (lower-dimensional ones are a boundary and ignored)."""
+    found = sorted({c.type for c in mesh.cells})
+    kind = next((CELL_KINDS[k] for k in kinds if any(c.type == k for c in mesh.cells)), None)
+    wanted = " or ".join(CELL_KINDS[k].words for k in kinds)
+    if kind is None:
+        raise MeshFormatError(f"{path} has no {wanted} (cells found: {', '.join(found) or 'none'})")
+    flat = {"vertex", "line", "line3"}
+    higher = _VOLUME_CELLS | {"tetra"} | ({"triangle", "triangle6", "quad8", "quad9", "quad", "polygon"} - {kind.name}
+                                           if kind.dim == 2 else set())
+    others = sorted({t for t in found if t != kind.name and t in higher and t not in flat})
     if others:
-        raise MeshFormatError(f"{path} contains non-tetrahedral volume cells ({', '.join(others)}); "
-                              f"only linear tetrahedral meshes are supported")
-    tets = [c.data for c in mesh.cells if c.type == "tetra"]
-    if not tets:
-        found = sorted({c.type for c in mesh.cells}) or ["none"]
-        raise MeshFormatError(f"{path} has no tetrahedra (cells found: {', '.join(found)})")
-    T = np.concatenate(tets)
-    if declared is not None and declared != (len(mesh.points), len(T)):
-        raise MeshFormatError(f"{path}: the file declares {declared[0]} points and {declared[1]} tetrahedra "
-                              f"but meshio read {len(mesh.points)} and {len(T)}; the file is malformed")
-    P = validate_vertices(np.asarray(mesh.points, dtype=np.float64), f"{path.name}: points", dim=3)
-    return P, validate_simplices(T, P.shape[0], 4, f"{path.name}: tetrahedra")
+        raise MeshFormatError(f"{path} contains {_others(kind, others, 'volume ')}; only meshes of one kind of "
+                              f"cell, linear {kind.words}, are supported")
+    return kind
 
 
 # ---------------------------------------------------------------------- writing
@@ -820,24 +926,40 @@ def write_tets(path, P, T):
         ``path`` cannot be written; nothing is left there then (an existing file keeps
         its contents).
     """
+    return write_cells(path, P, T, "tetra")
+
+
+def write_cells(path, P, C, kind, format=None):
+    """Write a mesh of one :data:`CELL_KINDS` kind (``"tetra"``, ``"hexahedron"``, ``"quad"``) in
+    the format its extension names (also ``.obj`` for quads), atomically, full precision; :func:`read_cells` (or
+    :func:`read_tets`) reads back ``P`` and ``C`` bit for bit (2D points of quads are written
+    with ``z = 0``); ``format`` an extension to write instead of the path's own (e.g. for a
+    temporary file).  Raises as :func:`write_tets`."""
     path = Path(path)
-    ext = _extension(path, "write")
-    P = validate_vertices(P, "P", dim=3)
-    T = validate_simplices(T, P.shape[0], 4, "T")
+    ext = (format or path.suffix).lower()
+    if ext == ".obj" and kind == "quad":
+        return write_obj_quads(path, P, C)
+    ext = _extension(path.with_suffix(ext), "write")
+    kind = CELL_KINDS[kind]
+    P = validate_vertices(P, "P", dim=None if kind.dim == 2 else 3)
+    if P.shape[1] == 2:
+        P = np.column_stack([P, np.zeros(len(P))])
+    C = validate_simplices(C, P.shape[0], kind.size, kind.words, words=(kind.word, kind.words))
     if ext == ".vtk":
-        return write_vtk_tets(path, P, T)
-    check_output_path(path, what="tet mesh")
+        return _write_vtk(path, P, C, kind)
+    check_output_path(path, what=f"{kind.word} mesh")
     import meshio
 
+    mesh = meshio.Mesh(P, [(kind.name, C)])
     if ext == ".msh":
-        ones = np.ones(len(T), dtype=np.int64)
-        mesh = meshio.Mesh(P, [("tetra", T)], cell_data={"gmsh:physical": [ones], "gmsh:geometrical": [ones]})
+        ones = np.ones(len(C), dtype=np.int64)
+        mesh = meshio.Mesh(P, [(kind.name, C)], cell_data={"gmsh:physical": [ones], "gmsh:geometrical": [ones]})
         write = lambda tmp: meshio.gmsh.write(tmp, mesh, fmt_version="4.1", binary=False)  # noqa: E731
     elif ext == ".mesh":
-        write = lambda tmp: meshio.medit.write(tmp, meshio.Mesh(P, [("tetra", T)]))  # noqa: E731
+        write = lambda tmp: meshio.medit.write(tmp, mesh)  # noqa: E731
     else:
-        write = lambda tmp: meshio.vtu.write(tmp, meshio.Mesh(P, [("tetra", T)]), binary=True)  # noqa: E731
-    with atomic_path(path, "tet mesh") as tmp, _quiet() as printed:
+        write = lambda tmp: meshio.vtu.write(tmp, mesh, binary=True)  # noqa: E731
+    with atomic_path(path, f"{kind.word} mesh") as tmp, _quiet() as printed:
         try:
             write(str(tmp))
         except Exception as exc:  # meshio's WriteError, OSError (disk full), ...
