@@ -54,7 +54,7 @@ from .topology import boundary_vertices  # noqa: F401  (re-exported: the generat
 __all__ = [
     "Tangle", "square_mesh", "disk_mesh", "box_mesh", "quad_mesh", "hex_mesh", "sector_mesh",
     "boundary_vertices", "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex",
-    "twisted_box", "bent_box", "squashed_boundary",
+    "twisted_box", "bent_box", "squashed_boundary", "perturb_mesh",
     "polygon", "POLYGONS", "spiral_strip", "ruffled_disk", "saddle",
 ]
 
@@ -248,15 +248,19 @@ def sector_mesh(n_r: int, n_t: int, n_z: int = 0, angle_deg: float = 120.0, radi
     if n_z:
         W[:, 2] = height * V[:, 2] / max(V[:, 2].max(), 1.0)
     if perturb > 0:
-        W = _perturbed(W, E, perturb, seed)
+        W = perturb_mesh(W, E, perturb, seed)
     return W, E
 
 
-def _perturbed(V, E, scale, seed):
-    """Interior vertices of ``V`` moved by uniform noise of ``scale`` mean edge lengths; every
-    vertex whose noise would make an element invalid gets half of it, until none does."""
+def perturb_mesh(V, E, scale, seed=0):
+    """A valid but poor copy of a valid mesh: interior vertices of ``V`` (n, d) moved by uniform
+    noise of ``scale`` mean edge lengths; every vertex of an element the noise would make
+    invalid (:func:`geomopt.elements.valid_elements`) gets half of its noise, until none is
+    (the input unchanged if 60 halvings do not get there).  ``E``: quads (2D) or hexahedra,
+    oriented."""
     from .elements import valid_elements
 
+    V = np.asarray(V, dtype=np.float64)
     rng = np.random.default_rng(seed)
     free = np.ones(len(V), bool)
     free[_fixed_boundary(V, E)] = False

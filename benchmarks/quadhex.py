@@ -1,0 +1,357 @@
+"""Quads and hexahedra (issue 18): untangling families, references, smoothing, evaluation speed.
+
+Usage::
+
+    python benchmarks/quadhex.py families [--sizes 1000,10000,100000]
+    python benchmarks/quadhex.py cpp --cpp /path/to/untangle3d_locked [--n 37] [--repeat 1]
+    python benchmarks/quadhex.py gmsh [--n 12]
+    python benchmarks/quadhex.py smooth
+    python benchmarks/quadhex.py energy [--m 1000000] [--repeat 20]
+
+``families``: every generated tangled quad and hex family (interior rotations, noise, random
+interiors, squashed boundaries; hex twists and bends) at about each size, untangled by
+:func:`geomopt.untangle.untangle` and certified (:func:`geomopt.elements.certify_elements`:
+quads by their corners, hexahedra inside by Bernstein coefficients), one row each.
+
+``cpp``: a noisy hex block of ``n^3`` hexahedra (37: 50,653) beside the authors' C++
+(Garanzha et al. 2021, ``untangle3d``) on the same input: the C++ takes tetrahedral meshes, so it
+gets the 8 corner tetrahedra of every hexahedron -- the same energy (each corner tetrahedron
+weighted by its rest volume, theta = 1/2) -- with the boundary vertices locked.  The C++ locks
+the vertices of tetrahedron faces without a neighbour, which for overlapping corner
+tetrahedra would be every vertex, so it is built with a 6-line patch that reads the locked
+vertices from the file named by ``LOCK_FILE`` (not part of geomopt; build outside the
+repository)::
+
+    git clone --recursive https://github.com/ssloy/invertible-maps im
+    # in im/cpp/untangle3d.cpp, replace `opt.lock_boundary_verts();` by reading LOCK_FILE
+    cmake -S im/cpp -B im/build -DCMAKE_BUILD_TYPE=Release && make -C im/build untangle3d
+
+It runs with ``OMP_NUM_THREADS`` = the CPU count (all its threads).  Both results are certified
+as hexahedra (inside, not only the corners).
+
+``gmsh``: the same kind of block with Gmsh's own Winslow untangler
+(``gmsh.model.mesh.optimize("UntangleMeshGeometry")``, the ``gmsh`` wheel: ``pip install
+".[gmsh]"``), nodes on the box's surfaces fixed, geomopt with the boundary fixed.
+
+``smooth``: Winslow smoothing (``geomopt.smooth.smooth``) of perturbed structured hex meshes of
+non-box shapes: a generated annulus sector and Gmsh-made transfinite meshes (a cylinder and a
+swept quarter annulus; skipped without the wheel): scaled Jacobian figures before and after.
+
+``energy``: energy + gradient of 10^6 hex corners (125,000 hexahedra) against 10^6 tetrahedra
+(the same jitted kernel sees corner simplices), median of ``--repeat`` warm calls.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+from geomopt import generators as G  # noqa: E402
+from geomopt.elements import boundary_vertices, certify_elements, corner_simplices  # noqa: E402
+from geomopt.problem import Problem  # noqa: E402
+from geomopt.untangle import untangle  # noqa: E402
+
+
+def _families(size):
+    """name -> Tangle of about ``size`` elements."""
+    q = max(int(round(size ** 0.5)), 4)
+    h = max(int(round(size ** (1 / 3))), 4)
+    r = max(int(round((size / 12) ** (1 / 3))), 3)  # rods of r x r x 12 r
+    Vq, Q = G.quad_mesh(q, q)
+    Vh, H = G.hex_mesh(h, h, h)
+    return {
+        f"quad{q}-rot120": lambda: G.rotated_interior(Vq, Q, 120),
+        f"quad{q}-rot300": lambda: G.rotated_interior(Vq, Q, 300),
+        f"quad{q}-noise2": lambda: G.noisy_interior(Vq, Q, 2.0, seed=1),
+        f"quad{q}-random": lambda: G.random_interior(Vq, Q, seed=1),
+        f"quad{q}-squash0.7": lambda: G.squashed_boundary(Vq, Q, 0.7),
+        f"hex{h}-rot90": lambda: G.rotated_interior(Vh, H, 90),
+        f"hex{h}-rot180": lambda: G.rotated_interior(Vh, H, 180),
+        f"hex{h}-noise1": lambda: G.noisy_interior(Vh, H, 1.0, seed=1),
+        f"hex{h}-squash0.6": lambda: G.squashed_boundary(Vh, H, 0.6),
+        f"rod{r}x{12 * r}-twist0.5": lambda: G.twisted_box(r, 12 * r, 0.5, hexes=True),
+        f"rod{r}x{12 * r}-twist1": lambda: G.twisted_box(r, 12 * r, 1.0, hexes=True),
+        f"rod{r}x{12 * r}-bend180": lambda: G.bent_box(r, 12 * r, 180.0, hexes=True),
+    }
+
+
+def cmd_families(args):
+    rows = []
+    for size in args.sizes:
+        for name, make in _families(size).items():
+            t = make()
+            p = t.problem()
+            t0 = time.perf_counter()
+            r = untangle(p, t.x0, progress=False)
+            wall = time.perf_counter() - t0
+            c = certify_elements(r.x, p.elements)
+            row = dict(case=name, elements=len(p.elements), inverted0=t.inverted(), success=r.success,
+                       certified=c.certified, corner_only=c.corner_only, outer=r.outer_iterations,
+                       inner=r.inner_iterations, solve_s=round(r.seconds, 2), wall_s=round(wall, 2),
+                       sj_min=round(c.quality.min, 4), sj_mean=round(c.quality.mean, 4),
+                       tests={k: v for k, v in c.tests.items() if v})
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    _table(rows, ["case", "elements", "inverted0", "certified", "outer", "inner", "solve_s", "wall_s", "sj_min",
+                  "sj_mean", "tests"])
+    bad = [r["case"] for r in rows if not (r["success"] and r["certified"])]
+    print(f"\n{len(rows) - len(bad)}/{len(rows)} untangled and certified" + (f"; failed: {bad}" if bad else ""))
+
+
+def _block(n, scale=1.0, seed=0):
+    V, H = G.hex_mesh(n, n, n)
+    return V, H, G.noisy_interior(V, H, scale, seed=seed)
+
+
+def _write_medit_tets(path, P, T):
+    with open(path, "w") as fh:
+        fh.write(f"MeshVersionFormatted 2\nDimension 3\nVertices\n{len(P)}\n")
+        np.savetxt(fh, np.column_stack([P, np.zeros(len(P))]), fmt="%.17g %.17g %.17g %d")
+        fh.write(f"Tetrahedra\n{len(T)}\n")
+        np.savetxt(fh, np.column_stack([T + 1, np.zeros(len(T), np.int64)]), fmt="%d")
+        fh.write("End\n")
+
+
+def _read_medit_points(path, n):
+    lines = Path(path).read_text().split("\n")
+    i = next(k for k, s in enumerate(lines) if s.strip() == "Vertices")
+    return np.array([[float(v) for v in lines[i + 2 + k].split()[:3]] for k in range(n)])
+
+
+def _geomopt_run(p, x0):
+    t0 = time.perf_counter()
+    r = untangle(p, x0, progress=False)
+    return r, time.perf_counter() - t0
+
+
+def cmd_cpp(args):
+    V, H, t = _block(args.n)
+    p = Problem.hexes(V, H, t.fixed, t.x0[t.fixed])
+    S = corner_simplices(p.elements)
+    threads = str(os.cpu_count())
+    with tempfile.TemporaryDirectory() as tmp:
+        init, rest, out, lock = (Path(tmp) / f for f in ("init.mesh", "rest.mesh", "out.mesh", "lock.txt"))
+        _write_medit_tets(init, t.x0, S)
+        _write_medit_tets(rest, V, S)
+        np.savetxt(lock, t.fixed, fmt="%d")
+        print(f"block {args.n}^3 = {len(H)} hexahedra ({len(S)} corner tets), {t.inverted()} invalid at start; "
+              f"uptime: {os.popen('uptime').read().strip()}", flush=True)
+        _, cold = _geomopt_run(p, t.x0)
+        rows = []
+        for rep in range(args.repeat):
+            t0 = time.perf_counter()
+            cp = subprocess.run([args.cpp, str(init), str(rest), str(out)], capture_output=True, text=True,
+                                env={**os.environ, "LOCK_FILE": str(lock), "OMP_NUM_THREADS": threads})
+            cpp_wall = time.perf_counter() - t0
+            m = re.search(r"running time: ([0-9.eE+-]+) s", cp.stderr)
+            cpp_solve = float(m.group(1)) if m else float("nan")
+            xc = _read_medit_points(out, len(V)) if out.exists() else np.full_like(V, np.nan)
+            cc = certify_elements(xc, p.elements)
+            r, wall = _geomopt_run(p, t.x0)
+            cg = certify_elements(r.x, p.elements)
+            rows.append(dict(rep=rep, cpp_solve_s=round(cpp_solve, 2), cpp_process_s=round(cpp_wall, 2),
+                             cpp_certified=cc.certified, cpp_sj_min=round(cc.quality.min, 4),
+                             geomopt_solve_s=round(r.seconds, 2), geomopt_call_s=round(wall, 2),
+                             geomopt_cold_s=round(cold, 2), geomopt_certified=cg.certified and r.success,
+                             geomopt_sj_min=round(cg.quality.min, 4), outer=r.outer_iterations,
+                             ratio_solve=round(r.seconds / cpp_solve, 3), ratio_process=round(wall / cpp_wall, 3)))
+            print(json.dumps(rows[-1]), flush=True)
+    _table(rows, list(rows[0]))
+
+
+def cmd_gmsh(args):
+    import gmsh
+
+    V, H, t = _block(args.n)
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("block")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        for _, c in gmsh.model.getEntities(1):
+            gmsh.model.mesh.setTransfiniteCurve(c, args.n + 1)
+        for _, s in gmsh.model.getEntities(2):
+            gmsh.model.mesh.setTransfiniteSurface(s)
+            gmsh.model.mesh.setRecombine(2, s)
+        gmsh.model.mesh.setTransfiniteVolume(1)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        P = coords.reshape(-1, 3)
+        # gmsh's nodes are geomopt's grid vertices (same positions, another order): match them
+        key = lambda X: np.round(X * args.n).astype(np.int64) @ np.array([1, args.n + 1, (args.n + 1) ** 2])  # noqa: E731
+        ours = np.argsort(key(V))
+        of_tag = dict(zip(tags.tolist(), ours[np.argsort(np.argsort(key(P)))].tolist()))
+        for tag in tags.tolist():
+            gmsh.model.mesh.setNode(tag, t.x0[of_tag[tag]].tolist(), [])
+        t0, c0 = time.perf_counter(), time.process_time()
+        gmsh.model.mesh.optimize("UntangleMeshGeometry")
+        g_wall, g_cpu = time.perf_counter() - t0, time.process_time() - c0
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        xg = np.empty_like(V)
+        xg[[of_tag[x] for x in tags.tolist()]] = coords.reshape(-1, 3)
+    finally:
+        gmsh.finalize()
+    p = Problem.hexes(V, H, t.fixed, t.x0[t.fixed])
+    _, cold = _geomopt_run(p, t.x0)
+    r, wall = _geomopt_run(p, t.x0)
+    cg, cm = certify_elements(r.x, p.elements), certify_elements(xg, p.elements)
+    row = dict(hexes=len(H), invalid0=t.inverted(), gmsh_wall_s=round(g_wall, 2), gmsh_cpu_s=round(g_cpu, 2),
+               gmsh_certified=cm.certified, gmsh_sj_min=round(cm.quality.min, 4),
+               gmsh_boundary_moved=float(np.abs(xg[t.fixed] - t.x0[t.fixed]).max()),
+               geomopt_call_s=round(wall, 3), geomopt_cold_s=round(cold, 2), geomopt_certified=cg.certified,
+               geomopt_sj_min=round(cg.quality.min, 4), ratio=round(wall / g_wall, 5))
+    print(json.dumps(row))
+    _table([row], list(row))
+
+
+def _gmsh_meshes():
+    """Transfinite hex meshes of non-box shapes made by the gmsh wheel: name -> (V, H)."""
+    import gmsh
+
+    out = {}
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        for name in ("cylinder", "quarter-annulus"):
+            gmsh.clear()  # the OpenCASCADE shapes of the previous model too
+            gmsh.model.add(name)
+            if name == "cylinder":
+                gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, 2, 1)
+                gmsh.model.occ.synchronize()
+                gmsh.option.setNumber("Mesh.MeshSizeMax", 0.35)
+                gmsh.option.setNumber("Mesh.RecombineAll", 1)
+                gmsh.option.setNumber("Mesh.SubdivisionAlgorithm", 2)  # all hexahedra
+            else:
+                disk = gmsh.model.occ.addDisk(0, 0, 0, 2, 2)
+                hole = gmsh.model.occ.addDisk(0, 0, 0, 1, 1)
+                box = gmsh.model.occ.addRectangle(0, 0, 0, 3, 3)
+                ring = gmsh.model.occ.cut([(2, disk)], [(2, hole)])[0]
+                face = gmsh.model.occ.intersect(ring, [(2, box)])[0]
+                gmsh.model.occ.synchronize()
+                for _, c in gmsh.model.getEntities(1):
+                    gmsh.model.mesh.setTransfiniteCurve(c, 13)
+                gmsh.model.mesh.setTransfiniteSurface(face[0][1])
+                gmsh.model.mesh.setRecombine(2, face[0][1])
+                gmsh.model.occ.extrude(face, 0, 0, 1, numElements=[8], recombine=True)
+                gmsh.model.occ.synchronize()
+                gmsh.option.setNumber("Mesh.SubdivisionAlgorithm", 0)
+                gmsh.option.setNumber("Mesh.RecombineAll", 0)
+            gmsh.model.mesh.generate(3)
+            tags, coords, _ = gmsh.model.mesh.getNodes()
+            index = np.zeros(int(tags.max()) + 1, np.int64)
+            index[tags.astype(np.int64)] = np.arange(len(tags))
+            types, _, nodes = gmsh.model.mesh.getElements(3)
+            H = np.concatenate([index[n.astype(np.int64)].reshape(-1, 8) for t_, n in zip(types, nodes) if t_ == 5])
+            used = np.unique(H)
+            remap = np.full(len(tags), -1)
+            remap[used] = np.arange(len(used))
+            out[f"gmsh-{name}"] = (coords.reshape(-1, 3)[used], remap[H])
+    finally:
+        gmsh.finalize()
+    return out
+
+
+def cmd_smooth(args):
+    """Structured meshes are perturbed (valid but poor), then smoothed; the Gmsh cylinder (tets
+    subdivided into hexahedra) is smoothed as made, after untangling when it has invalid
+    hexahedra."""
+    from geomopt.smooth import smooth
+
+    meshes = {"sector-hex": G.sector_mesh(6, 16, 6)}
+    try:
+        meshes.update(_gmsh_meshes())
+    except ImportError:
+        print("gmsh wheel not installed: only the generated mesh (pip install '.[gmsh]')", file=sys.stderr)
+    rows = []
+    for name, (V, H) in meshes.items():
+        p0 = Problem.hexes(V, H, rest="reference")  # orients the cells; V may hold invalid ones
+        E = p0.elements
+        start = certify_elements(V, E)
+        untangled = ""
+        if not start.certified:  # Gmsh's subdivided cylinder: untangle first, boundary fixed
+            b = p0.boundary_vertices()
+            r = untangle(p0.with_fixed(b, V[b]), V, progress=False)
+            untangled = f"{start.invalid} invalid -> {r.inverted} ({r.outer_iterations} outer, {r.seconds:.1f} s)"
+            W = r.x
+        else:
+            W = G.perturb_mesh(V, E, args.perturb, seed=1) if "cylinder" not in name else V
+        r = smooth(W, E)
+        rows.append(dict(mesh=name, hexes=len(H), untangled=untangled, sj_min_before=round(r.before.min, 4),
+                         sj_mean_before=round(r.before.mean, 4), below_0_2_before=r.before.below_0_2,
+                         sj_min_after=round(r.after.min, 4), sj_mean_after=round(r.after.mean, 4),
+                         below_0_2_after=r.after.below_0_2, blend=r.blend, certified=r.certificate.certified,
+                         iterations=r.iterations, solve_s=round(r.seconds, 2)))
+        print(json.dumps(rows[-1]), flush=True)
+    _table(rows, list(rows[0]))
+
+
+def cmd_energy(args):
+    from geomopt._objective import Objective
+
+    h = round((args.m / 8) ** (1 / 3))
+    Vh, H = G.hex_mesh(h, h, h)
+    k = round((args.m / 6) ** (1 / 3))
+    Vt, T = G.box_mesh(k, k, k)
+    rng = np.random.default_rng(0)
+    rows = []
+    for name, p, V in (("hex corners", Problem.hexes(Vh, H), Vh), ("tets", Problem.tets(Vt, T), Vt)):
+        obj = Objective(p, "symmetric_dirichlet")
+        params = obj.params()
+        x = V + 0.01 / h * rng.standard_normal(V.shape)
+        jax.block_until_ready(obj.value_and_grad(x, params))
+        times = []
+        xd = jax.device_put(x)
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            jax.block_until_ready(obj.value_and_grad(xd, params))
+            times.append(time.perf_counter() - t0)
+        rows.append(dict(kind=name, simplices=p.n_elements, vertices=p.n_vertices,
+                         median_s=round(statistics.median(times), 4), min_s=round(min(times), 4)))
+        print(json.dumps(rows[-1]), flush=True)
+    _table(rows, list(rows[0]))
+    print(f"hex corners / tets: {rows[0]['median_s'] / rows[1]['median_s']:.2f}x (median), "
+          f"{rows[0]['min_s'] / rows[1]['min_s']:.2f}x (min); uptime: {os.popen('uptime').read().strip()}")
+
+
+def _table(rows, cols):
+    print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
+    for r in rows:
+        print("| " + " | ".join(str(r.get(c, "")) for c in cols) + " |")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    f = sub.add_parser("families")
+    f.add_argument("--sizes", default="1000,10000,100000", type=lambda s: [int(float(x)) for x in s.split(",")])
+    c = sub.add_parser("cpp")
+    c.add_argument("--cpp", required=True)
+    c.add_argument("--n", type=int, default=37)
+    c.add_argument("--repeat", type=int, default=1)
+    g = sub.add_parser("gmsh")
+    g.add_argument("--n", type=int, default=12)
+    s = sub.add_parser("smooth")
+    s.add_argument("--perturb", type=float, default=0.4)
+    e = sub.add_parser("energy")
+    e.add_argument("--m", type=int, default=1_000_000)
+    e.add_argument("--repeat", type=int, default=20)
+    args = ap.parse_args()
+    {"families": cmd_families, "cpp": cmd_cpp, "gmsh": cmd_gmsh, "smooth": cmd_smooth, "energy": cmd_energy}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    main()
