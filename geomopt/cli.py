@@ -340,11 +340,12 @@ def cmd_smooth(args) -> int:
     _log(args, f"after  {_quality_line(res.after)}; tests {res.certificate.summary()['tests']}; "
                f"{res.iterations} iterations, {res.seconds:.2f} s")
     _report(args, input=str(args.input), output=str(args.output), elements=len(case.elements), kind=case.kind,
-            before=res.before.as_dict(), after=res.after.as_dict(), blend=res.blend, improved=res.improved,
-            iterations=res.iterations, solve_seconds=round(res.seconds, 4), message=res.message,
-            **_cache_summary())
-    if res.blend == 0:
-        return _fail(f"not improved: {res.message}")
+            before=res.before.as_dict(), after=res.after.as_dict(), held=len(res.held), rounds=res.rounds,
+            improved=res.improved, iterations=res.iterations, solve_seconds=round(res.seconds, 4),
+            message=res.message, **_cache_summary())
+    if not res.improved:
+        return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
+                     f"{res.message}")
     write_certified(args.output, res.x, case, res.problem)
     return EXIT_OK
 

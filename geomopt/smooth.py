@@ -13,11 +13,14 @@ invertible maps", 2021).
 valid), keeps the boundary vertices fixed (default) and minimises with a solver whose line
 search is injective: no corner can change sign.  Hexahedra are then certified inside
 (:mod:`geomopt.hexvalid`).  The result is compared with the input by the minimum scaled
-Jacobian (:func:`geomopt.elements.scaled_jacobian`): when the minimiser lowers it, the output
-is the point of the straight path from the input to the minimiser, among ``1, 1/2, 1/4, ...``
-of the way, with the largest minimum scaled Jacobian that is valid and not below the input's;
-if there is none the input is returned unchanged (``improved`` False).  So the output is always
-valid and its minimum scaled Jacobian never lower than the input's.
+Jacobian (:func:`geomopt.elements.scaled_jacobian`): where the minimum makes an element invalid
+(hexahedra inside) or worse than the input's worst, the vertices of that element are held at
+their input positions and the energy is minimised again from the input with them fixed, until
+no element is worse (an element whose vertices are all held keeps its input shape); elements
+that got worse than their input shape and are close to falling below the worst are held with
+them.  So the
+output is always valid with a minimum scaled Jacobian at least the input's, and smooth
+elsewhere (the input itself when ``MAX_ROUNDS`` solves do not get there).
 """
 
 from __future__ import annotations
@@ -28,12 +31,15 @@ import time
 import numpy as np
 
 from ._errors import MeshError, ParameterError
-from .elements import ElementCertificate, Quality, certify_elements, quality
+from .elements import ElementCertificate, Quality, certify_elements, scaled_jacobian
 
 __all__ = ["SmoothResult", "smooth", "element_problem"]
 
-#: blends ``input + t (minimiser - input)`` tried when the minimiser lowers the worst element
-BLENDS = tuple(0.5**k for k in range(11))
+#: solves before :func:`smooth` gives up and returns its input
+MAX_ROUNDS = 8
+#: elements that the minimum makes worse than their input shape and that end within this
+#: scaled Jacobian of the input's worst are held with the ones below it
+RISK = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,18 +51,20 @@ class SmoothResult:
     x : (n, d) the smoothed vertices (the input where nothing improved).
     before, after : :class:`~geomopt.elements.Quality` of the input and of ``x``.
     certificate : :class:`~geomopt.elements.ElementCertificate` of ``x`` (exact).
-    blend : float, the fraction of the way from the input to the minimiser that ``x`` is at
-        (1: the minimiser; 0: the input).
-    outcome : the solver's :class:`~geomopt.solvers.Outcome`.
-    iterations : int;  seconds : float, the solve.
-    problem : the :class:`~geomopt.Problem` solved (its ``elements`` oriented, its handles).
+    held : (h,) int64, vertices held at their input positions (beside the fixed ones) because
+        the energy minimum made an element around them worse than the input's worst.
+    rounds : int, solves run (1 when nothing was held).
+    outcome : the last solve's :class:`~geomopt.solvers.Outcome`.
+    iterations : int, over all solves;  seconds : float, all solves.
+    problem : the :class:`~geomopt.Problem` solved first (its ``elements`` oriented, its handles).
     """
 
     x: np.ndarray
     before: Quality
     after: Quality
     certificate: ElementCertificate
-    blend: float
+    held: np.ndarray
+    rounds: int
     outcome: object
     iterations: int
     seconds: float
@@ -64,18 +72,19 @@ class SmoothResult:
 
     @property
     def improved(self) -> bool:
-        """The output differs from the input: valid, its minimum scaled Jacobian not lower and
-        (its minimum or its mean) higher."""
-        return self.blend > 0 and (self.after.min > self.before.min or self.after.mean > self.before.mean)
+        """Valid, the minimum scaled Jacobian not lower, and the mesh moved."""
+        return self.certificate.certified and self.after.min >= self.before.min and self.moved
+
+    @property
+    def moved(self) -> bool:
+        return not np.array_equal(self.x, self.problem.rest_vertices) if self.problem is not None else True
 
     @property
     def message(self) -> str:
-        if self.blend == 0:
-            return (f"no smoothing step keeps the minimum scaled Jacobian at or above the input's "
-                    f"{self.before.min:.4f}; the input is returned unchanged")
-        part = "" if self.blend == 1 else f" ({self.blend:g} of the way to the energy minimum)"
+        held = f"; {len(self.held)} vertices held where the minimum would be worse" if len(self.held) else ""
         return (f"min scaled Jacobian {self.before.min:.4f} -> {self.after.min:.4f}, mean "
-                f"{self.before.mean:.4f} -> {self.after.mean:.4f}{part}")
+                f"{self.before.mean:.4f} -> {self.after.mean:.4f}, below 0.2: {self.before.below_0_2} -> "
+                f"{self.after.below_0_2}{held}")
 
 
 def element_problem(V, E, fixed=None, rest="reference"):
@@ -96,8 +105,8 @@ def element_problem(V, E, fixed=None, rest="reference"):
 
 
 def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference", max_steps=None,
-           progress=False, **params) -> SmoothResult:
-    """Smooth a valid quad or hex mesh without inverting anything.
+           progress=False, max_rounds=MAX_ROUNDS, **params) -> SmoothResult:
+    """Smooth a valid quad or hex mesh without inverting anything or worsening its worst element.
 
     Parameters
     ----------
@@ -108,8 +117,9 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     fixed : vertex ids held in place (default: the boundary vertices).
     rest : ``"reference"`` (squares / cubes of the mean edge length: Winslow) or ``"mesh"``
         (``V``'s own elements: then ``V`` is the energy's minimum and nothing moves).
-    max_steps : solver iteration limit (default: the solver's).
+    max_steps : solver iteration limit per solve (default: the solver's).
     progress : passed to :func:`~geomopt.solvers.minimize`.
+    max_rounds : solves before giving up and returning the input (see the module notes).
 
     Returns
     -------
@@ -137,29 +147,34 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
     if max_steps is not None:
         solver = dataclasses.replace(solver, max_steps=max_steps)
-    t0 = time.perf_counter()
-    result = minimize(Objective(problem, energy, **params), V, solver=solver, progress=progress)
-    seconds = time.perf_counter() - t0
-    x, blend = _best_blend(V, np.asarray(result.x, dtype=np.float64), E, start.quality)
+    held, current, x = np.zeros(0, np.int64), problem, V
+    sj_input = scaled_jacobian(V, E)
+    iterations, seconds, outcome = 0, 0.0, None
+    for rounds in range(1, max_rounds + 1):
+        t0 = time.perf_counter()
+        result = minimize(Objective(current, energy, buckets=True, **params), V, solver=solver, progress=progress)
+        seconds += time.perf_counter() - t0
+        iterations += int(result.iterations)
+        outcome, x = result.outcome, np.asarray(result.x, dtype=np.float64)
+        worse, at_risk = _worse(x, E, start.quality.min, sj_input)
+        if not worse.any():
+            break
+        held = np.union1d(held, np.setdiff1d(np.unique(E[worse | at_risk]), problem.fixed))
+        both = np.union1d(problem.fixed, held)
+        current = problem.with_fixed(both, V[both])
+    else:
+        x, held = V, np.zeros(0, np.int64)  # nothing better found: the input
     cert = certify_elements(x, E)
-    return SmoothResult(x, start.quality, cert.quality, cert, blend, result.outcome,
-                        int(result.iterations), seconds, problem)
+    return SmoothResult(x, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds, problem)
 
 
-def _best_blend(V, X, E, before):
-    """The point ``V + t (X - V)``, ``t`` in :data:`BLENDS`, that is valid, has a minimum
-    scaled Jacobian at least ``before.min`` and the largest such minimum (ties: larger t);
-    ``(V, 0.0)`` when none.  ``X`` itself (``t = 1``) when it qualifies."""
+def _worse(X, E, floor, sj_input):
+    """``(worse, at_risk)``, each (m,) bool: elements invalid under ``X`` (exact) or with a scaled
+    Jacobian below ``floor``; and elements worse than their input shape ``sj_input`` (m,) and
+    within :data:`RISK` of the floor (held with the worse ones: the next to fall below)."""
     from .elements import valid_elements
 
-    best, best_t, best_q = V, 0.0, before.min
-    for t in BLENDS:
-        Y = X if t == 1 else V + t * (X - V)
-        if not np.isfinite(Y).all() or not valid_elements(Y, E).all():
-            continue
-        q = quality(Y, E).min
-        if q >= before.min and (best_t == 0.0 or q > best_q):
-            best, best_t, best_q = Y, t, q
-        if t == 1 and q >= before.min:
-            break
-    return best, best_t
+    if not np.isfinite(X).all():
+        return np.ones(len(E), bool), np.zeros(len(E), bool)
+    sj = scaled_jacobian(X, E)
+    return ~valid_elements(X, E) | (sj < floor), (sj < sj_input) & (sj < floor + RISK)
