@@ -174,7 +174,11 @@ class Comparison:
         V = np.asarray(problem.rest_vertices, np.float64)
         for name, r in self.results.items():
             x = np.asarray(r.x) * self.mirror  # negation is exact
-            if problem.dim == 2:
+            if problem.elements is not None:  # quads (.obj) / hexahedra (.vtk): the cells themselves
+                kind = "quad" if problem.elements.shape[1] == 4 else "hexahedron"
+                paths[name] = io.write_cells(out / f"{name}{'.obj' if kind == 'quad' else '.vtk'}", x,
+                                             problem.elements, kind)
+            elif problem.dim == 2:
                 V3 = V if V.shape[1] == 3 else np.c_[V, np.zeros(len(V))]
                 paths[name] = io.write_obj_with_uv(out / f"{name}.obj", V3, problem.input_simplices, x)
             else:
@@ -344,7 +348,7 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
 
         check_scale_aware(energy, energy_params)
     if x0 is None:
-        if problem.fixed.size or problem.dim != 2:
+        if problem.fixed.size or problem.dim != 2 or problem.elements is not None:
             raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "
                                  f"vertices needs a start map x0; only free-boundary 2D maps default "
                                  f"to the Tutte start")

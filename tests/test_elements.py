@@ -349,3 +349,25 @@ def test_smooth_never_lowers_the_minimum_scaled_jacobian():
     assert r.rounds > 1 and 0 < len(r.held) < 20 and r.after.below_0_2 < before.below_0_2
     with pytest.raises(MeshError, match="untangle it first"):
         smooth(G.rotated_interior(*G.quad_mesh(4, 4), 90).x0, G.quad_mesh(4, 4)[1])
+
+
+def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
+    import geomopt
+    from geomopt import io
+
+    V, Q = G.sector_mesh(3, 6, perturb=0.3, seed=2)
+    p = Problem.quads(V, Q, rest="reference")
+    p = p.with_fixed(p.boundary_vertices(), V[p.boundary_vertices()])
+    cmp = geomopt.compare(p, x0=V, solvers=["newton", "lbfgs", "slim", "aqp", "cm"], max_steps=30,
+                          out=tmp_path / "q")
+    for name, r in cmp.results.items():
+        assert r.inverted == 0 and certify_elements(r.x, p.elements).certified, name
+        assert r.energy < r.energy_history[0]
+        P, Q2, _ = io.read_cells(tmp_path / "q" / f"{name}.obj")
+        assert np.array_equal(Q2, Q) and np.array_equal(P[:, :2], np.asarray(r.x))
+    V3, H = G.sector_mesh(2, 3, 2, perturb=0.3, seed=2)
+    p3 = Problem.hexes(V3, H, rest="reference")
+    p3 = p3.with_fixed(p3.boundary_vertices(), V3[p3.boundary_vertices()])
+    cmp = geomopt.compare(p3, x0=V3, solvers=["newton", "lbfgs"], max_steps=30, out=tmp_path / "h")
+    for name, r in cmp.results.items():
+        assert r.inverted == 0 and io.read_cells(tmp_path / "h" / f"{name}.vtk")[2] == "hexahedron"
