@@ -391,8 +391,14 @@ def untangle(
             break
         settled = abs(E_prev - E) / abs(E) < energy_tol
         if detmin > 0 and settled:
-            if scaled.count_inverted(np.asarray(x)) == 0:
+            folded = scaled.count_inverted(np.asarray(x))
+            if folded == 0:
                 outcome = Outcome.CONVERGED
+                break
+            if problem.elements is not None and eps <= floor:  # hexahedra folded inside, corners positive:
+                outcome = Outcome.NOT_INJECTIVE  # the energy sees only corners, more iterations cannot help
+                reason = (f"every corner is positive but {folded} hexahedra fold inside (det J <= 0 between "
+                          f"their corners, exact Bernstein test)")
                 break
         eps = next_eps(eps, E, E_prev, detmin, min_sigma, max_sigma, floor)
         params = obj.params(eps=eps)

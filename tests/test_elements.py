@@ -371,3 +371,35 @@ def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
     cmp = geomopt.compare(p3, x0=V3, solvers=["newton", "lbfgs"], max_steps=30, out=tmp_path / "h")
     for name, r in cmp.results.items():
         assert r.inverted == 0 and io.read_cells(tmp_path / "h" / f"{name}.vtk")[2] == "hexahedron"
+
+
+def test_quad_surface_is_the_surface_path_of_its_corner_triangles():
+    """A curved quad patch flattened corner by corner: energy and gradient equal those of
+    Problem.surface on its two diagonal triangulations; parameterizing it keeps every quad valid."""
+    from geomopt.solvers import minimize
+
+    V, Q = G.quad_mesh(6, 5)
+    V3 = np.column_stack([V, 0.3 * np.sin(2.0 * V[:, 0]) * V[:, 1]])
+    p = Problem.quad_surface(V3, Q)
+    tri = [Problem.surface(V3, np.concatenate([Q[:, [0, 1, 3]], Q[:, [2, 3, 1]]])),
+           Problem.surface(V3, np.concatenate([Q[:, [1, 2, 0]], Q[:, [3, 0, 2]]]))]
+    b = p.boundary_vertices()
+    x = V + 0.01 * np.random.default_rng(4).standard_normal(V.shape)
+    obj = Objective(p.with_fixed(b, x[b]), "symmetric_dirichlet")
+    vq, gq = obj.value_and_grad(x, obj.params())
+    parts = [Objective(t.with_fixed(b, x[b]), "symmetric_dirichlet").value_and_grad(x, obj.params()) for t in tri]
+    assert abs(float(vq) - sum(float(v) for v, _ in parts)) <= 1e-12 * float(vq)
+    assert np.abs(np.asarray(gq) - sum(np.asarray(g) for _, g in parts)).max() <= 1e-12 * np.abs(gq).max()
+    r = minimize(obj, x, progress=False)
+    assert r.success and certify_elements(r.x, p.elements).certified
+
+
+def test_untangling_stops_when_only_hexahedra_interiors_fold(monkeypatch):
+    """The energy sees corners only: when every corner is positive but the exact test finds
+    hexahedra folded inside, more eps iterations cannot help; untangle says so and stops."""
+    import geomopt.elements as elements_module
+
+    t = G.noisy_interior(*G.hex_mesh(3, 3, 3), 0.5)
+    monkeypatch.setattr(elements_module, "count_invalid", lambda X, E: 1)
+    r = untangle(t.problem(), t.x0, progress=False)
+    assert not r.success and "fold inside" in r.message and r.outer_iterations < 20
