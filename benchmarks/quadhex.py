@@ -93,6 +93,8 @@ def cmd_families(args):
     rows = []
     for size in args.sizes:
         for name, make in _families(size).items():
+            if args.only and not re.search(args.only, name):
+                continue
             t = make()
             p = t.problem()
             t0 = time.perf_counter()
@@ -139,7 +141,7 @@ def _geomopt_run(p, x0, precondition=None):
     from geomopt.untangle import default_solver
 
     solver = "lbfgs" if precondition is None else dataclasses.replace(
-        default_solver("lbfgs", p.dim, p.n_elements), precondition=precondition)
+        default_solver("lbfgs", p.dim, p.n_elements, corners=True), precondition=precondition)
     t0 = time.perf_counter()
     r = untangle(p, x0, solver=solver, progress=False)
     return r, time.perf_counter() - t0
@@ -349,6 +351,7 @@ def main():
     sub = ap.add_subparsers(dest="cmd", required=True)
     f = sub.add_parser("families")
     f.add_argument("--sizes", default="1000,10000,100000", type=lambda s: [int(float(x)) for x in s.split(",")])
+    f.add_argument("--only", default=None, help="a regular expression: only the families whose name matches")
     c = sub.add_parser("cpp")
     c.add_argument("--cpp", required=True)
     c.add_argument("--n", type=int, default=37)

@@ -80,7 +80,7 @@ EPS_FLOOR = {2: 1e-9, 3: 1e-10}
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
 
 
-def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
+def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False) -> AbstractSolver:
     """The inner solver :func:`untangle` uses for ``"lbfgs"`` or ``"newton"``.
 
     ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
@@ -88,10 +88,14 @@ def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
     (warm seconds, diagonal -> Laplacian): ~1e5 elements: rotated square 104 -> 58, Tutte
     L / star 27 -> 11 / 19 -> 11, bent rod 43 -> 13, twisted cube 12.6 -> 6.1, noisy disk
     1.3 -> 3.0; the LIM armadillo (24k tets) 0.66 -> 1.04 and 2D cases of ~1e4 triangles
-    were slower or even with it (its host solves cost more than the iterations they save)."""
+    were slower or even with it (its host solves cost more than the iterations they save).
+
+    ``corners``: the problem's simplices are the corner tetrahedra of hexahedra, which need more
+    L-BFGS steps per eps than tets: 30000 as in 2D (a hex rod of 6 x 6 x 72 bent by 180 degrees
+    took 9942 in its first outer iteration; capped at 3000 it stalled with 67 hexahedra inverted)."""
     key = str(name).strip().lower()
     if key == "lbfgs":
-        return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 else 3000,
+        return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 or corners else 3000,
                      search=InjectiveSearch(injective=False, c2=0.9),
                      precondition="laplacian" if n_elements >= LAPLACIAN_FROM else "diagonal")
     if key == "newton":
@@ -322,7 +326,7 @@ def untangle(
     free = problem.free_mask
     active = free[S].any(axis=1)
     if isinstance(solver, str):
-        solver = default_solver(solver, d, int(active.sum()))
+        solver = default_solver(solver, d, int(active.sum()), corners=problem.elements is not None)
     why = fixed_total_problem(problem, x0) if initially else None
     if why:
         return _early_result(problem, x0, initially, t_setup, throw,

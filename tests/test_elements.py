@@ -314,13 +314,14 @@ def test_quad_families_untangle(family):
     _untangled(t)
 
 
-@pytest.mark.parametrize("family", ["noise", "squash", "twist"])
+@pytest.mark.parametrize("family", ["noise", "squash", "twist", "bend"])
 def test_hex_families_untangle(family):
     V, H = G.hex_mesh(6, 6, 6)
     t = {"noise": lambda: G.noisy_interior(V, H, 1.0), "squash": lambda: G.squashed_boundary(V, H, 0.6),
-         "twist": lambda: G.twisted_box(3, 24, 0.5, hexes=True)}[family]()
+         "twist": lambda: G.twisted_box(3, 24, 0.5, hexes=True),
+         "bend": lambda: G.bent_box(4, 48, 180.0, hexes=True)}[family]()
     r, c = _untangled(t)
-    assert c.tests["bernstein"] + c.tests["subdivision"] + c.tests["exact"] == len(H if family != "twist" else c.valid)
+    assert c.tests["bernstein"] + c.tests["subdivision"] + c.tests["exact"] == len(c.valid)
 
 
 # ----------------------------------------------------------------------------- smoothing
