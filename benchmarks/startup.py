@@ -213,12 +213,16 @@ def main(argv=None):
                    "sibling_s": med(sibs, 0), "sibling_cpu_s": med(sibs, 1),
                    "runs": {"warm": [r[:2] for r in warm], "sibling": [r[:2] for r in sibs]},
                    "sibling_first_misses": sibs[0][2]["cache_misses"], "geomopt": summary,
+                   "warm_misses": sum(r[2]["cache_misses"] for r in warm),
+                   "warm_split": {k: statistics.median(r[2]["timing"][k] for r in warm)
+                                  for k in warm[0][2].get("timing", {})},
                    "slim": dict(zip(map(str, args.rtols), reached)), "slim_iterations": it_slim,
                    "slim_energy": e_slim, "slim_precompute_s": pre, "slim_cap_s": args.slim_seconds}
             if args.backends:
                 row["s_per_iter"] = backend_iteration_seconds(V, F)
             results["meshes"].append(row)
             log(f"  SLIM {reached} (wall, CPU s per rtol) in {it_slim} it")
+            log(f"  warm split (--json timing, medians): {row['warm_split']}, misses {row['warm_misses']}")
     print(table(results))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float))

@@ -1,7 +1,11 @@
 """geomopt: locally injective maps of triangle and tetrahedral meshes in JAX.
 
-Importing geomopt enables float64 in JAX (``jax_enable_x64``): all numerics are float64.  It
-also turns on JAX's persistent compilation cache, shared with the ``geomopt`` command: see
+geomopt computes in float64 whatever JAX's global ``jax_enable_x64`` says: its functions switch
+JAX's 64-bit mode on for their own duration (:mod:`geomopt._x64`), and importing geomopt leaves
+the global flag alone, so float32 code keeps its dtypes beside it.  Traced use (``jax.grad`` of
+``Objective.value``, :mod:`geomopt.implicit`) needs the 64-bit mode in the caller's
+transformation (``with jax.enable_x64(True):``).  Importing geomopt turns on JAX's persistent
+compilation cache, shared with the ``geomopt`` command: see
 :func:`set_cache_dir` to move or disable it (or the ``GEOMOPT_CACHE_DIR`` environment
 variable).  The import is light: JAX and the solvers load when a name that needs them is
 first used.
@@ -21,10 +25,11 @@ _LAZY = {
     "Objective": "._objective", "parameterize": ".param", "Problem": ".problem",
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
-    "compare": "._compare", "Comparison": "._compare",
+    "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
+    "ComparisonSet": "._compare",
 }
-_SUBMODULES = ("energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
-               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli")
+_SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
+               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit")
 
 
 def __getattr__(name):
@@ -47,6 +52,7 @@ def __dir__():
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "compare", "Comparison", "tutte_embedding", "energies", "io", "predicates", "set_cache_dir", "cache_dir", "cache_stats",
+    "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data", "energies", "io",
+    "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",
     "__version__",
 ]

@@ -1,4 +1,4 @@
-"""JAX set-up shared by the API and the CLI: float64 and the persistent compilation cache.
+"""JAX set-up shared by the API and the CLI: the persistent compilation cache.
 
 Compiled XLA programs are kept on disk, so a second process (a notebook restart, the next
 ``geomopt param`` call, another mesh of the same size bucket: :mod:`geomopt._padding`) loads
@@ -17,7 +17,7 @@ point it at a folder that others can write: loading a program from it runs that 
 
 :func:`configure` runs when geomopt is imported and does not import JAX (start-up of
 ``geomopt --help``): when JAX is not imported yet it sets JAX's own environment variables
-(``JAX_ENABLE_X64``, ``JAX_COMPILATION_CACHE_DIR``...), read once when JAX is imported, so
+(``JAX_COMPILATION_CACHE_DIR``...), read once when JAX is imported, so
 child processes inherit them; otherwise it updates ``jax.config``.
 """
 
@@ -81,21 +81,20 @@ def _apply(path, writable):
     settings = _settings(path, writable)
     _state.update(dir=path, writable=bool(path) and writable)
     if "jax" not in sys.modules:
-        os.environ["JAX_ENABLE_X64"] = "1"
         for key, value in settings.items():
             os.environ[key.upper()] = str(value).lower() if isinstance(value, bool) else str(value)
         return
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
-    jax.config.update("jax_enable_x64", True)
     for key, value in settings.items():
         jax.config.update(key, value)
     compilation_cache.reset_cache()  # the next compilation opens the new folder
 
 
 def configure():
-    """Enable float64 and the default persistent cache (runs on ``import geomopt``)."""
+    """Turn on the default persistent cache (runs on ``import geomopt``; float64 is scoped to
+    geomopt's own calls, :mod:`geomopt._x64`)."""
     with _lock:
         path = default_dir()
         _apply(path, path is not None and _writable(path))

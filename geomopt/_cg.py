@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import ParameterError
+from ._x64 import float64
 from ._objective import PROJECTIONS, total_energy, block_hessian, jit
 
 __all__ = ["NewtonCG", "CGOperator", "CGInfo", "pcg"]
@@ -265,6 +266,7 @@ class NewtonCG:
             raise ParameterError(f"NewtonCG eta_max must lie in (0, 1), got {self.eta_max}")
 
     @staticmethod
+    @float64
     def prepare(objective) -> CGOperator:
         """The device arrays of ``objective``'s block operator (build once per mesh), padded
         like the objective (:mod:`geomopt._padding`): ``n_padded`` vertex rows, the padded
@@ -314,6 +316,7 @@ class NewtonCG:
                 jnp.float64(self.rtol if rtol is None else rtol), jnp.float64(self.eta_max),
                 jnp.float64(gnorm_ref), jnp.int32(self.max_iters))
 
+    @float64
     def direction(self, op: CGOperator, objective, x, params, projection="clamp", shift=0.0,
                   gnorm_ref=1.0, rtol=None):
         """``(dx, info)``: the direction (n_padded, d), zero on fixed DOFs, and a :class:`CGInfo`.
@@ -326,6 +329,7 @@ class NewtonCG:
         recompiles."""
         return newton_cg_kernel(*self._args(op, objective, x, params, projection, shift, gnorm_ref, rtol))
 
+    @float64
     def compile(self, op: CGOperator, objective, x, params, projection="clamp"):
         """Compile (or load from the persistent cache) the kernel of :meth:`direction` for
         maps shaped like ``x`` without running it (a solver's set-up holds the compilation)."""

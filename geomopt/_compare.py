@@ -1,24 +1,34 @@
-"""Solver comparison: every solver from the same start map, with per-iteration traces.
+"""Solver comparison: every solver from the same start map, traced per iteration, measured
+against a reference energy, repeated for medians, and recorded with what produced it.
 
 :func:`compare` runs each solver of a list on one problem through the public solver interface
 (``init``, then ``terminate`` / ``step`` one iteration at a time), recording after every
-iteration the solve time, the energy, the gradient norm and the number of inverted elements
-by the exact predicate (:mod:`geomopt.predicates`): the point of the comparison is that every
-solver stays flip-free.  ``setup_seconds`` (``init`` and a first ``terminate``: JIT
-compilation, sparsity pattern, symbolic analysis) is measured separately and never counted in
-the solve time; neither is the bookkeeping (gradient norm, inverted count) done after each
-step.  What a solver compiles lazily during its first steps does count as solve time.
+iteration the wall and CPU time of the solve, the energy, the gradient norm and the number of
+inverted elements by the exact predicate (:mod:`geomopt.predicates`): the point of the
+comparison is that every solver stays flip-free.  ``setup`` (``init`` and a first
+``terminate``: JIT compilation, sparsity pattern, symbolic analysis) is measured separately and
+never counted in the solve time; neither is the bookkeeping done after each step.  What a
+solver compiles lazily during its first steps does count (repeat to see warm times).
 
-Energies in the traces and files are area-weighted means ``E / total rest area`` (4 at an
-isometry for symmetric Dirichlet), gradient norms those of the same mean; relative gaps are
-``(E - E_best) / |E_best|`` with ``E_best`` the lowest energy any solver reached.
+**Energies.**  ``energy`` is the total ``E = sum_e vol_e psi(J_e)``, ``mean_energy`` is
+``E / sum_e vol_e`` (4 at an isometry for symmetric Dirichlet); the relative gap of an iterate
+is ``(E - E_ref) / |E_ref|``, the same for both.  The reference ``E_ref`` is, by default
+(``reference="auto"``), the energy of a tight projected-Newton solve from the same start
+(``rtol=1e-14``; recorded with its outcome), or the lower energy any solver reached if one went
+below it; a given mean energy (``reference=7.4464...``), or ``"best"``: the lowest energy any
+solver reached (that solver's own gap then ends at 0, which a log plot cannot show).
+
+**Tolerances.**  For each of ``tolerances`` (default 1e-2, 1e-4, 1e-6) the summary gives the
+first iteration whose gap is at most the tolerance, and the wall and CPU seconds of the solve
+until then; with ``repeat=N`` each solver runs N times and times are medians (iteration
+counts are deterministic; the maps and traces kept are those of the median-time run).
 
 Problems: a free-boundary disk surface (Tutte start scaled as in
 :func:`~geomopt.parameterize`, or a given start map), a LIM case folder (fixed handles; its
 map must be flip-free: untangle a tangled case first), or any :class:`~geomopt.Problem` with
-a start map.  :meth:`Comparison.write` writes ``history.csv``, ``summary.csv``, one map per
-solver (``<solver>.obj`` with one ``vt`` per vertex as ``geomopt param`` writes it; ``.vtk``
-for tets) and ``convergence.png``, each atomically.
+a start map.  :meth:`Comparison.write` writes the traces, the summary, a LaTeX table, a
+manifest (every solver's full configuration, the environment, content hashes), one map per
+solver and the convergence figure; :class:`ComparisonSet` does the same for several meshes.
 """
 
 from __future__ import annotations
@@ -26,151 +36,323 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io as _io
+import json
 import math
+import os
 import re
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from . import io
-from ._errors import GeomoptError, MeshError, ParameterError
+from . import _manifest, io
+from ._errors import MeshError, ParameterError
 from ._objective import Objective
+from ._x64 import float64
+from .certify import local_certificate
+from .elements import element_type
 from .problem import Problem
-from .solvers import CM, Outcome, Progress, Result, get_solver
+from .solvers import CM, Newton, Outcome, Progress, get_solver
 
-__all__ = ["compare", "Comparison", "DEFAULT_SOLVERS", "HISTORY_COLUMNS", "SUMMARY_COLUMNS"]
+__all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
+           "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
 
 #: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D)
-DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
-HISTORY_COLUMNS = ("solver", "iteration", "time_s", "energy", "grad_norm", "flips")
-SUMMARY_COLUMNS = ("solver", "outcome", "iterations", "solve_s", "compile_s", "s_per_it",
-                   "final_energy", "gap", "flips", "max_flips")
-GAP_FLOOR = 1e-16  # relative gaps are drawn no lower than this (a log scale has no zero)
+DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm", "optx-lbfgs")
+TOLERANCES = (1e-2, 1e-4, 1e-6)
+HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
+                   "grad_norm", "flips")
+_BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
+                 "s_per_it", "energy", "mean_energy", "gap", "max_flips", "repeats")
+#: the reference solve of ``reference="auto"``
+REFERENCE_RTOL, REFERENCE_MAX_STEPS = 1e-14, 500
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
 # optimistix's BFGS keeps a dense (n d) x (n d) inverse Hessian; refuse what cannot fit
 _DENSE_SOLVERS = ("optx-bfgs",)
 _DENSE_LIMIT_BYTES = 2 << 30
 
 
+def summary_columns(tolerances=TOLERANCES) -> tuple:
+    """The columns of ``summary.csv``: the run's totals, then per tolerance ``t`` the iteration
+    and the wall and CPU seconds to a gap of ``t`` (``it_to_1e-04``, ``wall_s_to_1e-04``,
+    ``cpu_s_to_1e-04``; empty when the gap never got there)."""
+    return _BASE_COLUMNS + tuple(f"{what}_to_{t:.0e}" for t in tolerances for what in ("it", "wall_s", "cpu_s"))
+
+
+def stopping_rule(solver) -> str:
+    """In words, what "converged" means for ``solver`` (it differs between solvers)."""
+    inner = getattr(solver, "solver", None)
+    if inner is not None and hasattr(inner, "rtol") and hasattr(inner, "atol"):
+        return (f"optimistix {type(inner).__name__}'s own test (Cauchy termination: the change in y and "
+                f"in f below rtol={inner.rtol:g} / atol={inner.atol:g}); also stops when non-finite, "
+                f"diverged or after max_steps={solver.max_steps}")
+    return (f"geomopt's test: the decrement -g.d/2 along the solver's own direction d, or a stalled "
+            f"energy decrease, at most rtol={solver.rtol:g} x |E|; also stops when non-finite, diverged, "
+            f"the line search fails or after max_steps={solver.max_steps}")
+
+
 @dataclasses.dataclass(frozen=True)
-class Comparison:
-    """The outcome of :func:`compare`.
+class SolverRun:
+    """One solve of one solver in a comparison.
 
     Attributes
     ----------
-    results : dict solver name -> :class:`~geomopt.Result`, in run order.  Besides the usual
-        fields each ``info`` holds ``flips_history`` ((iterations + 1,) int, inverted elements
-        of every iterate, start included) and ``stopped`` (``"max_seconds"`` when the time
-        limit ended the solve, else None).
-    best_energy : float, the lowest total energy any solver reached (``E_best``).
+    name : the solver's name in the comparison;  solver : the solver object.
+    x : (n, d) the final map (problem frame).
+    outcome : :class:`~geomopt.solvers.Outcome`;  stopped : ``"max_seconds"`` when the time
+        limit ended the solve (``outcome`` is then ``MAX_STEPS``), else None.
+    inverted : int, inverted or degenerate elements of ``x`` (exact predicate).
+    energy_history : (k + 1,) total energy of every iterate, the start included.
+    time_history, cpu_history : (k + 1,) wall and process-CPU seconds of the solve when each
+        iterate was reached (setup and bookkeeping excluded).
+    grad_history : (k + 1,) Euclidean norm of the total energy's gradient (free DOFs).
+    flips_history : (k + 1,) inverted elements of every iterate (exact predicate).
+    setup_seconds, setup_cpu_seconds : ``init`` and a first ``terminate`` (compilation...).
+    evaluations : energy evaluations the solver counted.
+    certificate : :class:`~geomopt.certify.LocalCertificate` of ``x`` (inverted elements, branch
+        points, overlapping boundary fans).
+    """
+
+    name: str
+    solver: Any
+    x: np.ndarray
+    outcome: Outcome
+    stopped: str | None
+    inverted: int
+    energy_history: np.ndarray
+    time_history: np.ndarray
+    cpu_history: np.ndarray
+    grad_history: np.ndarray
+    flips_history: np.ndarray
+    setup_seconds: float
+    setup_cpu_seconds: float
+    evaluations: int
+    certificate: Any
+
+    @property
+    def iterations(self) -> int:
+        return len(self.energy_history) - 1
+
+    @property
+    def energy(self) -> float:
+        """The final total energy."""
+        return float(self.energy_history[-1])
+
+    @property
+    def seconds(self) -> float:
+        return float(self.time_history[-1])
+
+    @property
+    def cpu_seconds(self) -> float:
+        return float(self.cpu_history[-1])
+
+    @property
+    def status(self) -> str:
+        """``"max_seconds"`` for a solve the time limit stopped, else the outcome's value."""
+        return self.stopped or self.outcome.value
+
+    @property
+    def certified(self) -> bool:
+        """No iterate had an inverted or degenerate element and the final map is locally
+        injective (exact: :func:`~geomopt.certify.local_certificate`)."""
+        return self.certificate.ok and int(self.flips_history.max()) == 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """The energy gaps are measured to: ``energy`` (total), where it came from (``source``:
+    ``"auto"``, ``"given"`` or ``"best"``) and ``detail`` (the reference solve's solver,
+    outcome, iterations and seconds for ``"auto"``; which solver went lower, if one did)."""
+
+    energy: float
+    source: str
+    detail: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """The outcome of :func:`compare` on one problem.
+
+    Attributes
+    ----------
+    runs : dict solver name -> tuple of :class:`SolverRun`, one per repeat, in run order.
+    reference : :class:`Reference`, what the gaps are measured to.
     objective : the :class:`~geomopt.Objective` every solver minimised.
     start : (n, d) the start map every solver began from (problem frame).
     mirror : (d,) per-axis signs from the problem frame to the input's (a LIM case given
         clockwise is solved mirrored, :func:`~geomopt.untangle.lim_problem`); maps are
         written as ``x * mirror``.
     label : str, a short description of the problem for titles.
+    tolerances : the gaps the summary reports iterations and seconds to.
+    source : dict, where the problem came from (input path and file hash, start map) for the
+        manifest.
     """
 
-    results: dict
-    best_energy: float
+    runs: dict
+    reference: Reference
     objective: Objective
     start: np.ndarray
     mirror: np.ndarray
     label: str = ""
+    tolerances: tuple = TOLERANCES
+    source: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def results(self) -> dict:
+        """Solver name -> the :class:`SolverRun` of median wall time among its repeats (its
+        map and traces are the ones written and drawn)."""
+        out = {}
+        for name, runs in self.runs.items():
+            order = np.argsort([r.seconds for r in runs], kind="stable")
+            out[name] = runs[int(order[(len(runs) - 1) // 2])]
+        return out
 
     @property
     def area(self) -> float:
-        """The total rest area (volume) the mean energies are divided by."""
+        """The total rest area (volume) mean energies are divided by."""
         return self.objective.total_volume
 
     @property
+    def reference_mean_energy(self) -> float:
+        return self.reference.energy / self.area
+
+    @property
     def best_mean_energy(self) -> float:
-        return self.best_energy / self.area
+        """The lowest mean energy any solver reached (any repeat)."""
+        return min(float(np.min(r.energy_history)) for rs in self.runs.values() for r in rs) / self.area
 
     def outcome(self, name) -> str:
-        """``"max_seconds"`` for a solve the time limit stopped, else the outcome's value."""
-        res = self.results[name]
-        return res.info.get("stopped") or res.outcome.value
+        """``"max_seconds"`` for a solve the time limit stopped, else its outcome's value."""
+        return self.results[name].status
 
-    def gap(self, name) -> np.ndarray:
-        """(iterations + 1,) relative gap ``(E - E_best) / |E_best|`` of every iterate."""
-        e = self.results[name].energy_history
-        return (e - self.best_energy) / max(abs(self.best_energy), 1e-300)
+    def gap(self, name, run: SolverRun | None = None) -> np.ndarray:
+        """(iterations + 1,) relative gap ``(E - E_ref) / |E_ref|`` of every iterate of
+        ``name``'s median run (or of ``run``)."""
+        e = (run or self.results[name]).energy_history
+        return (e - self.reference.energy) / max(abs(self.reference.energy), 1e-300)
+
+    def hits(self, run: SolverRun) -> list:
+        """Per tolerance: ``(iteration, wall s, CPU s)`` of the first iterate of ``run``
+        whose gap is at most the tolerance, or None."""
+        gap = self.gap(run.name, run)
+        out = []
+        for tol in self.tolerances:
+            k = np.flatnonzero(gap <= tol)
+            out.append(None if k.size == 0 else (int(k[0]), float(run.time_history[k[0]]),
+                                                 float(run.cpu_history[k[0]])))
+        return out
+
+    def summary_rows(self) -> list:
+        """Rows of ``summary.csv`` (:func:`summary_columns`) as dicts, one per solver; times
+        are medians over the repeats, tolerance times medians over the repeats that got there."""
+        rows = []
+        for name, runs in self.runs.items():
+            r = self.results[name]
+            row = {"solver": name, "outcome": r.status, "certified": all(x.certified for x in runs),
+                   "iterations": r.iterations, "wall_s": _median(x.seconds for x in runs),
+                   "cpu_s": _median(x.cpu_seconds for x in runs), "setup_s": runs[0].setup_seconds,
+                   "setup_cpu_s": runs[0].setup_cpu_seconds,
+                   "s_per_it": _median(x.seconds / max(x.iterations, 1) for x in runs), "energy": r.energy,
+                   "mean_energy": r.energy / self.area, "gap": float(self.gap(name)[-1]),
+                   "max_flips": max(int(x.flips_history.max()) for x in runs), "repeats": len(runs)}
+            hits = [self.hits(x) for x in runs]
+            for j, tol in enumerate(self.tolerances):
+                got = [h[j] for h in hits if h[j] is not None]
+                key = f"{tol:.0e}"
+                row[f"it_to_{key}"] = int(_median(g[0] for g in got)) if got else None
+                row[f"wall_s_to_{key}"] = _median(g[1] for g in got) if got else None
+                row[f"cpu_s_to_{key}"] = _median(g[2] for g in got) if got else None
+            rows.append(row)
+        return rows
 
     def history_rows(self):
-        """Rows of ``history.csv`` (:data:`HISTORY_COLUMNS`), one per solver and iterate."""
+        """Rows of ``history.csv`` (:data:`HISTORY_COLUMNS`): every iterate of every repeat."""
         rows = []
-        for name, r in self.results.items():
-            flips = r.info["flips_history"]
-            for k in range(len(r.energy_history)):
-                rows.append((name, k, float(r.time_history[k]), float(r.energy_history[k]) / self.area,
-                             float(r.grad_history[k]) / self.area, int(flips[k])))
+        for name, runs in self.runs.items():
+            for rep, r in enumerate(runs):
+                gap = self.gap(name, r)
+                for k in range(len(r.energy_history)):
+                    e = float(r.energy_history[k])
+                    rows.append((name, rep, k, float(r.time_history[k]), float(r.cpu_history[k]), e,
+                                 e / self.area, float(gap[k]), float(r.grad_history[k]),
+                                 int(r.flips_history[k])))
         return rows
 
-    def summary_rows(self):
-        """Rows of ``summary.csv`` (:data:`SUMMARY_COLUMNS`), one per solver."""
-        rows = []
-        for name, r in self.results.items():
-            rows.append((name, self.outcome(name), r.iterations, r.seconds, r.setup_seconds,
-                         r.seconds / max(r.iterations, 1), r.energy / self.area, float(self.gap(name)[-1]),
-                         r.inverted, int(np.max(r.info["flips_history"]))))
-        return rows
+    def describe_reference(self) -> str:
+        ref, d = self.reference, self.reference.detail
+        text = f"reference mean energy {self.reference_mean_energy:.10g}"
+        if ref.source == "auto":
+            text += (f" (Newton, rtol {d['rtol']:g}: {d['iterations']} iterations, {d['outcome']}"
+                     f"{'; ' + d['lower'] + ' went lower' if d.get('lower') else ''})")
+        elif ref.source == "given":
+            text += " (given)"
+        else:
+            text += " (the lowest any solver reached)"
+        return text
 
     def report(self) -> str:
-        """A plain-text table of :meth:`summary_rows`."""
-        lines = [f"{self.label}; best energy {self.best_mean_energy:.10g}",
-                 f"{'solver':>11} {'outcome':>18} {'iters':>6} {'solve s':>8} {'compile s':>9} "
-                 f"{'s/it':>8} {'energy':>16} {'gap':>8} {'max flips':>9}"]
-        for name, outcome, it, solve, setup, spi, e, gap, _, max_flips in self.summary_rows():
-            lines.append(f"{name:>11} {outcome:>18} {it:>6d} {solve:>8.3f} {setup:>9.2f} {spi:>8.4f} "
-                         f"{e:>16.10g} {gap:>8.1e} {max_flips:>9d}")
-        return "\n".join(lines)
+        """A plain-text table: per solver the outcome, totals, and iterations / wall / CPU
+        seconds to each tolerance (medians over the repeats)."""
+        reps = max(len(r) for r in self.runs.values())
+        head = f"{self.label}; {self.describe_reference()}" + (f"; medians of {reps} runs" if reps > 1 else "")
+        return head + "\n" + _table(self.summary_rows(), self.tolerances)
 
-    def figure(self, dpi=100):
-        """A matplotlib Figure (Agg canvas, no pyplot state; 10 x 4 inches at ``dpi``): the
-        relative gap, log scale, against solve seconds (left) and iterations (right), one curve
-        per solver."""
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
+    def manifest(self) -> dict:
+        """Everything needed to reproduce or question the numbers: versions, environment,
+        problem (hashes), energy, start, reference, settings and every solver's full
+        configuration and stopping rule."""
+        problem = self.objective.problem
+        solvers = {}
+        for name, runs in self.runs.items():
+            solvers[name] = {"config": _manifest.config(runs[0].solver), "stopping": stopping_rule(runs[0].solver)}
+        energy = self.objective.energy
+        return {
+            "problem": {**self.source, "kind": problem.kind, "dim": problem.dim, "vertices": problem.n_vertices,
+                        "elements": problem.n_elements, "fixed_vertices": int(problem.fixed.size),
+                        "rest_area": self.area,
+                        "mesh_sha256": _manifest.array_hash(problem.rest_vertices, problem.input_simplices)},
+            "energy": {"name": energy.name, "params": _manifest.config(dict(self.objective.params())),
+                       "convention": "energy = total sum_e vol_e psi(J_e); mean_energy = energy / rest_area"},
+            "start_sha256": _manifest.array_hash(self.start),
+            "reference": {"energy": self.reference.energy, "mean_energy": self.reference_mean_energy,
+                          "source": self.reference.source, **_manifest.config(self.reference.detail)},
+            "tolerances": list(self.tolerances), "solvers": solvers,
+        }
 
-        fig = Figure(figsize=(10, 4), dpi=dpi)
-        FigureCanvasAgg(fig)
-        left, right = fig.subplots(1, 2, sharey=True)
-        for name, r in self.results.items():
-            gap = np.maximum(self.gap(name), GAP_FLOOR)
-            left.semilogy(r.time_history, gap, marker=".", ms=3, label=name)
-            right.semilogy(np.arange(len(gap)), gap, marker=".", ms=3, label=name)
-        left.set_xlabel("solve seconds (setup excluded)")
-        right.set_xlabel("iteration")
-        left.set_ylabel("(E - E_best) / E_best")
-        for ax in (left, right):
-            ax.grid(True, which="both", alpha=0.3)
-        right.legend(fontsize=8)
-        fig.suptitle(f"{self.label}; E_best = {self.best_mean_energy:.10g}", fontsize=10)
-        fig.tight_layout()
-        return fig
+    def figure(self, log_x: bool = False, dpi: int = 100):
+        """The convergence figure (:func:`geomopt._compare_report.comparison_figure`)."""
+        from ._compare_report import comparison_figure
 
-    def output_names(self):
+        return comparison_figure({self.label: self}, log_x=log_x, dpi=dpi)
+
+    def output_names(self, formats=("png",)):
         """The file names :meth:`write` writes."""
-        return _output_names(list(self.results), self.objective.problem.dim)
+        return _output_names(list(self.runs), self.objective.problem.dim, formats)
 
-    def write(self, out) -> dict:
-        """Write ``history.csv``, ``summary.csv``, a map per solver and ``convergence.png``
-        into the folder ``out`` (created if missing), each atomically.
+    def write(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+        """Write ``history.csv``, ``summary.csv``, ``table.tex``, ``manifest.json``, a map per
+        solver and ``convergence.<format>`` per format into the folder ``out`` (created if
+        missing, not its parents: :func:`geomopt.io.check_outputs`), each atomically; ``extra``
+        is added to the manifest.
 
         Returns
         -------
-        dict file kind (``"history"``, ``"summary"``, ``"convergence"``, or a solver name) ->
-        pathlib.Path.
+        dict file kind -> pathlib.Path.
         """
-        out = _prepare_folder(out, self.output_names())
-        problem = self.objective.problem
+        out = _prepare_folder(out, self.output_names(formats))
         paths = {"history": out / "history.csv", "summary": out / "summary.csv"}
         _write_csv(paths["history"], HISTORY_COLUMNS, self.history_rows())
-        _write_csv(paths["summary"], SUMMARY_COLUMNS, self.summary_rows())
+        columns = summary_columns(self.tolerances)
+        _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
+        paths.update(self._write_maps(out))
+        paths.update(_write_common(out, {self.label: self}, formats, log_x, extra))
+        return paths
+
+    def _write_maps(self, out) -> dict:
+        problem, paths = self.objective.problem, {}
         V = np.asarray(problem.rest_vertices, np.float64)
         for name, r in self.results.items():
             x = np.asarray(r.x) * self.mirror  # negation is exact
@@ -183,18 +365,100 @@ class Comparison:
                 paths[name] = io.write_obj_with_uv(out / f"{name}.obj", V3, problem.input_simplices, x)
             else:
                 paths[name] = io.write_vtk_tets(out / f"{name}.vtk", x, problem.input_simplices)
-        buf = _io.BytesIO()
-        self.figure().savefig(buf, format="png")
-        paths["convergence"] = io.atomic_write(out / "convergence.png", lambda fh: fh.write(buf.getvalue()),
-                                               mode="wb")
         return paths
+
+
+@dataclasses.dataclass(frozen=True)
+class ComparisonSet:
+    """Comparisons of the same solvers on several meshes, as one table and one figure.
+
+    Attributes
+    ----------
+    comparisons : dict mesh name -> :class:`Comparison`, in order.
+    """
+
+    comparisons: dict
+
+    def report(self) -> str:
+        return "\n\n".join(c.report() for c in self.comparisons.values())
+
+    def summary_rows(self) -> list:
+        """Every comparison's :meth:`Comparison.summary_rows`, each with ``mesh`` first."""
+        return [{"mesh": key, **row} for key, c in self.comparisons.items() for row in c.summary_rows()]
+
+    def figure(self, log_x: bool = False, dpi: int = 100):
+        from ._compare_report import comparison_figure
+
+        return comparison_figure({c.label: c for c in self.comparisons.values()}, log_x=log_x, dpi=dpi)
+
+    def output_names(self, formats=("png",)):
+        names = _common_names(formats)
+        for key, c in self.comparisons.items():
+            names += [f"{key}/{n}" for n in c.output_names(formats)]
+        return names
+
+    def write(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+        """Each comparison into ``out/<mesh name>/`` (:meth:`Comparison.write`), then
+        :meth:`write_combined`."""
+        out = _prepare_folder(out, _common_names(formats))
+        paths = {key: c.write(out / key, formats, log_x) for key, c in self.comparisons.items()}
+        return {**paths, **self.write_combined(out, formats, log_x, extra)}
+
+    def write_combined(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+        """Over all comparisons: ``summary.csv`` (with a ``mesh`` column), ``table.tex``,
+        ``manifest.json`` and ``convergence.<format>`` (one row of panels per mesh) in ``out``."""
+        out = _prepare_folder(out, _common_names(formats))
+        tolerances = next(iter(self.comparisons.values())).tolerances
+        columns = ("mesh",) + summary_columns(tolerances)
+        paths = {"summary": out / "summary.csv"}
+        _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
+        by_label = {c.label: c for c in self.comparisons.values()}
+        paths.update(_write_common(out, by_label, formats, log_x, extra))
+        return paths
+
+
+def exit_status(comparisons) -> int:
+    """The command's exit status over a :class:`Comparison` or :class:`ComparisonSet`: 0 when
+    every solver (every repeat) converged and neither an iterate nor its final map had an
+    inverted element (exact predicate), else 1."""
+    items = comparisons.comparisons.values() if isinstance(comparisons, ComparisonSet) else [comparisons]
+    ok = all(r.outcome is Outcome.CONVERGED and r.stopped is None and r.certified
+             for c in items for runs in c.runs.values() for r in runs)
+    return 0 if ok else 1
+
+
+def _median(values) -> float:
+    return float(np.median(np.fromiter(values, np.float64)))
+
+
+def _table(rows, tolerances) -> str:
+    """Fixed-width text table of summary rows (``mesh`` column when present)."""
+    mesh = bool(rows) and "mesh" in rows[0]
+    left = (f"{'mesh':>16} " if mesh else "") + f"{'solver':>11} {'outcome':>18} {'iters':>6} {'wall s':>8} " \
+                                                f"{'cpu s':>8} {'gap':>8}"
+    head = " " * len(left) + "".join(f" | {'to ' + format(t, '.0e'):^21}" for t in tolerances)
+    lines = [head, left + " | {:>5} {:>7} {:>7}".format("it", "wall s", "cpu s") * len(tolerances)
+             + f" {'setup s':>8} {'flips':>5}"]
+    for row in rows:
+        line = (f"{row['mesh'][:16]:>16} " if mesh else "") + (
+            f"{row['solver']:>11} {row['outcome']:>18} {row['iterations']:>6d} {row['wall_s']:>8.3f} "
+            f"{row['cpu_s']:>8.3f} {row['gap']:>8.1e}")
+        for t in tolerances:
+            key = f"{t:.0e}"
+            it = row[f"it_to_{key}"]
+            line += (" | {:>5} {:>7} {:>7}".format("never", "-", "-") if it is None else
+                     f" | {it:>5d} {row[f'wall_s_to_{key}']:>7.3f} {row[f'cpu_s_to_{key}']:>7.3f}")
+        lines.append(line + f" {row['setup_s']:>8.2f} {row['max_flips']:>5d}")
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------ running
 
 
+@float64
 def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=None, weights="uniform",
-            max_seconds=None, max_steps=None, out=None, progress=False, **energy_params) -> Comparison:
+            max_seconds=None, max_steps=None, reference="auto", repeat=1, tolerances=TOLERANCES, out=None,
+            formats=("png",), log_x=False, progress=False, **energy_params) -> Comparison:
     """Run several solvers on one problem from the same start map and trace each iteration.
 
     Parameters
@@ -218,11 +482,18 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
         Default: the free-boundary Tutte start (:func:`~geomopt.param.start_map`, ``weights``)
         or the LIM case's map.  It must be flip-free (exact predicate).
     max_seconds : float > 0, stop a solver once its solve time (setup excluded) reaches this;
-        its outcome is then ``"max_seconds"`` (``Result.outcome`` ``MAX_STEPS``).
+        its outcome is then ``"max_seconds"`` (``Outcome.MAX_STEPS``).
     max_steps : int >= 1, iteration limit of every solver (default: each solver's own).
-    out : folder to :meth:`~Comparison.write` the files into; it is created and every output
-        path checked *before* solving.
-    progress : True: per-iteration progress and one line per solver on stderr.
+    reference : ``"auto"`` (a tight Newton solve from the same start, run after the solvers),
+        a float (the reference *mean* energy, as printed), or ``"best"`` (the lowest energy
+        any solver reached).
+    repeat : int >= 1, runs per solver; times are medians over them.
+    tolerances : the relative gaps the summary reports iterations and seconds to.
+    out : folder to :meth:`~Comparison.write` the files into (``formats`` of the figure, and
+        ``log_x``); every output path is checked *before* solving
+        (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``, and the folder's
+        parent must exist), the folder is created after solving.
+    progress : True: per-iteration progress and one line per run on stderr.
 
     Returns
     -------
@@ -234,77 +505,153 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     ParameterError : unknown or duplicate solver, invalid limits, ``cm`` on tets.
     GeomoptError : the output folder or a file in it cannot be written.
     """
-    objective, start, mirror, label = _problem(mesh, faces, energy, x0, weights, energy_params)
+    objective, start, mirror, label, source = _problem(mesh, faces, energy, x0, weights, energy_params)
     problem = objective.problem
     named = _solvers(solvers, problem, max_steps)
-    if max_seconds is not None:
-        max_seconds = _positive(max_seconds, "max_seconds")
+    settings = _settings(max_seconds, reference, repeat, tolerances, formats)
     if out is not None:
-        _prepare_folder(out, _output_names(list(named), problem.dim))
-    label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, " \
-            f"{objective.energy.name}"
-    results = {}
+        _prepare_folder(out, _output_names(list(named), problem.dim, settings["formats"]), _inputs([mesh]),
+                        create=False)
+    label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, {objective.energy.name}"
+    runs = {}
     for name, solver in named.items():
-        results[name] = _run(name, solver, objective, start, max_seconds, progress)
-    finals = [np.min(r.energy_history[np.isfinite(r.energy_history)], initial=np.inf)
-              for r in results.values()]
-    comparison = Comparison(results, float(min(finals)), objective, start, mirror, label)
+        runs[name] = tuple(_run(name, solver, objective, start, settings["max_seconds"], progress,
+                                f" [{k + 1}/{settings['repeat']}]" if settings["repeat"] > 1 else "")
+                           for k in range(settings["repeat"]))
+    ref = _reference(settings["reference"], runs, objective, start, progress)
+    comparison = Comparison(runs, ref, objective, start, mirror, label, settings["tolerances"], source)
     if out is not None:
-        comparison.write(out)
+        comparison.write(out, settings["formats"], log_x)
     return comparison
 
 
-def _run(name, solver, objective, x0, max_seconds, progress) -> Result:
-    """One solver through ``init`` / ``terminate`` / ``step``, timing only those calls."""
+def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, **options) -> ComparisonSet:
+    """:func:`compare` on each of several meshes (paths, or a dict name -> mesh) with the same
+    ``options``; with ``out``, each comparison is written into ``out/<name>/`` (its outputs
+    checked before it is solved) and the combined table, manifest and figure into ``out``.
+
+    Names are the file names without extension (folder names for LIM cases); they must differ.
+    """
+    if not isinstance(meshes, dict):
+        meshes = {_mesh_key(m): m for m in meshes} if len({_mesh_key(m) for m in meshes}) == len(meshes) else None
+        if meshes is None:
+            raise ParameterError("compare: two meshes have the same file name; their outputs would share a "
+                                 "folder: rename one")
+    for key in meshes:
+        if not _NAME.fullmatch(str(key)):
+            raise ParameterError(f"compare: mesh name {key!r} cannot be a folder name; use letters, digits and _.+-")
+    formats = _settings(None, "auto", 1, TOLERANCES, formats)["formats"]
+    if out is not None:  # created now: each mesh's folder is checked in it before its solves
+        out = _prepare_folder(out, _common_names(formats), _inputs(meshes.values()))
+    comparisons = {}
+    for key, mesh in meshes.items():
+        comparisons[key] = compare(mesh, out=None if out is None else out / key, formats=formats, log_x=log_x,
+                                   **options)
+    result = ComparisonSet(comparisons)
+    if out is not None:
+        result.write_combined(out, formats, log_x)
+    return result
+
+
+def _mesh_key(mesh) -> str:
+    return Path(mesh).stem if not Path(mesh).is_dir() else Path(mesh).name
+
+
+def _settings(max_seconds, reference, repeat, tolerances, formats) -> dict:
+    """The numeric settings of :func:`compare`, checked before anything runs."""
+    if max_seconds is not None:
+        max_seconds = _positive(max_seconds, "max_seconds")
+    if isinstance(reference, str) and reference not in ("auto", "best"):
+        try:
+            reference = float(reference)
+        except ValueError:
+            raise ParameterError(f"compare: reference must be 'auto', 'best' or a mean energy, got "
+                                 f"{reference!r}") from None
+    if not isinstance(reference, str) and not (isinstance(reference, (int, float)) and math.isfinite(reference)):
+        raise ParameterError(f"compare: reference must be 'auto', 'best' or a finite mean energy, got {reference!r}")
+    if isinstance(repeat, bool) or not isinstance(repeat, (int, np.integer)) or repeat < 1:
+        raise ParameterError(f"compare: repeat must be a whole number >= 1, got {repeat!r}")
+    tol = tuple(float(t) for t in tolerances)
+    if not tol or any(not (0 < t < 1) for t in tol):
+        raise ParameterError(f"compare: tolerances must be relative gaps in (0, 1), got {tolerances!r}")
+    formats = tuple(formats)
+    bad = [f for f in formats if f not in ("png", "pdf", "svg")]
+    if bad or not formats:
+        raise ParameterError(f"compare: figure formats are png, pdf and svg, got {', '.join(bad) or 'none'}")
+    return {"max_seconds": max_seconds, "reference": reference, "repeat": int(repeat),
+            "tolerances": tuple(sorted(tol, reverse=True)), "formats": formats}
+
+
+def _run(name, solver, objective, x0, max_seconds, progress, tag="") -> SolverRun:
+    """One solver through ``init`` / ``terminate`` / ``step``, timing only those calls (wall
+    and process CPU)."""
     problem = objective.problem
-    params = objective.params()
-    report = Progress(prefix=f"{name} ", total=solver.max_steps, every=50) if progress else None
-    t0 = time.perf_counter()
-    state = solver.init(objective, x0, params)
+    report = Progress(prefix=f"{name}{tag} ", total=solver.max_steps, every=50) if progress else None
+    w0, c0 = time.perf_counter(), time.process_time()
+    state = solver.init(objective, x0, objective.params())
     solver.terminate(state)  # its first call compiles the stopping test's small kernels
-    setup = time.perf_counter() - t0
-    energies, times, grads = [state.value], [0.0], [_norm(state.grad)]
-    flips = [problem.count_inverted(np.asarray(state.x))]
-    solve, stopped = 0.0, None
+    setup, setup_cpu = time.perf_counter() - w0, time.process_time() - c0
+    trace = {"e": [state.value], "w": [0.0], "c": [0.0], "g": [_norm(state.grad)],
+             "f": [problem.count_inverted(objective.unpad_map(np.asarray(state.x)))]}
+    wall = cpu = 0.0
+    stopped = None
     try:
         while True:
-            t0 = time.perf_counter()
+            w0, c0 = time.perf_counter(), time.process_time()
             done, outcome = solver.terminate(state)
-            solve += time.perf_counter() - t0
+            if not done and max_seconds is not None and wall >= max_seconds:
+                done, outcome, stopped = True, Outcome.MAX_STEPS, "max_seconds"
+            if not done:
+                state = solver.step(state)
+            wall, cpu = wall + time.perf_counter() - w0, cpu + time.process_time() - c0
             if done:
                 break
-            if max_seconds is not None and solve >= max_seconds:
-                outcome, stopped = Outcome.MAX_STEPS, "max_seconds"
-                break
-            t0 = time.perf_counter()
-            state = solver.step(state)
-            solve += time.perf_counter() - t0
-            energies.append(state.value)
-            times.append(solve)
-            grads.append(_norm(state.grad))
-            flips.append(problem.count_inverted(np.asarray(state.x)))
+            for key, value in (("e", state.value), ("w", wall), ("c", cpu), ("g", _norm(state.grad)),
+                               ("f", problem.count_inverted(objective.unpad_map(np.asarray(state.x))))):
+                trace[key].append(value)
             if report:
-                report(state, solve, state.value / objective.total_volume)
+                report(state, wall, state.value / objective.total_volume)
     finally:
         if report:
             report.close()
-    x = np.asarray(state.x)
+    return _finish(name, solver, objective, x0, state, outcome, stopped, trace, setup, setup_cpu, progress, tag)
+
+
+def _finish(name, solver, objective, x0, state, outcome, stopped, trace, setup, setup_cpu, progress, tag):
+    x = objective.unpad_map(np.asarray(state.x))
     if not np.isfinite(x).all():
         outcome, x = Outcome.NONFINITE, np.asarray(x0)
-    inverted = problem.count_inverted(x)
-    if outcome is Outcome.CONVERGED and inverted:
+    cert = objective.problem.certify(x)  # exact: orientations (quads/hexahedra inside), fans, stars
+    if outcome is Outcome.CONVERGED and not cert.ok:
         outcome = Outcome.NOT_INJECTIVE
-    result = Result(x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
-                    energy_history=np.asarray(energies, np.float64), iterations=state.iteration,
-                    seconds=solve, setup_seconds=setup, time_history=np.asarray(times),
-                    grad_history=np.asarray(grads), info={"solver": solver, "stopped": stopped,
-                                                          "flips_history": np.asarray(flips, np.int64),
-                                                          "evaluations": state.evaluations})
+    run = SolverRun(name, solver, x, outcome, stopped, cert.inverted, np.asarray(trace["e"], np.float64),
+                    np.asarray(trace["w"]), np.asarray(trace["c"]), np.asarray(trace["g"]),
+                    np.asarray(trace["f"], np.int64), setup, setup_cpu, state.evaluations, cert)
     if progress:
-        print(f"{name}: {result.iterations} it, {solve:.2f} s + setup {setup:.2f} s, energy "
-              f"{result.energy / objective.total_volume:.10g}, max flips {max(flips)}, "
-              f"{stopped or outcome.value}", file=sys.stderr, flush=True)
-    return result
+        print(f"{name}{tag}: {run.iterations} it, {run.seconds:.2f} s (cpu {run.cpu_seconds:.2f} s) + setup "
+              f"{setup:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
+              f"{int(run.flips_history.max())}, {run.status}", file=sys.stderr, flush=True)
+    return run
+
+
+def _reference(reference, runs, objective, start, progress) -> Reference:
+    """The energy gaps are measured to (see :func:`compare`'s ``reference``)."""
+    finals = {name: float(np.min(r.energy_history[np.isfinite(r.energy_history)], initial=np.inf))
+              for name, rs in runs.items() for r in rs}
+    best_name = min(finals, key=finals.get)
+    if reference == "best":
+        return Reference(finals[best_name], "best", {"solver": best_name})
+    if reference != "auto":
+        return Reference(float(reference) * objective.total_volume, "given", {"mean_energy": float(reference)})
+    solver = Newton(rtol=REFERENCE_RTOL, max_steps=REFERENCE_MAX_STEPS)
+    run = _run("reference", solver, objective, start, None, progress)
+    energy = float(np.min(run.energy_history))
+    detail = {"solver": solver, "rtol": REFERENCE_RTOL, "outcome": run.status, "iterations": run.iterations,
+              "seconds": run.seconds, "energy": energy, "certified": run.certified}
+    if finals[best_name] < energy:  # a solver went lower: the reference is the lowest energy known
+        detail["lower"] = best_name
+        energy = finals[best_name]
+    return Reference(energy, "auto", detail)
 
 
 def _norm(g) -> float:
@@ -315,17 +662,20 @@ def _norm(g) -> float:
 
 
 def _problem(mesh, faces, energy, x0, weights, energy_params):
-    """``(objective, start map, mirror, label)`` for :func:`compare`'s ``mesh`` argument."""
+    """``(objective, start map, mirror, label, source)`` for :func:`compare`'s ``mesh``
+    argument; ``source`` records the input (path, content hash) and the start map."""
     from .param import start_map
 
     mirror, case, given = None, None, x0 is not None
     if isinstance(mesh, (Problem, str, Path)) and faces is not None:
         raise ParameterError("compare: give faces only with a vertex array, not with a path or a Problem")
+    source = {"input": "arrays", "start": "given x0" if given else None}
     if isinstance(mesh, Problem):
         problem, label = mesh, f"{mesh.kind} problem"
     elif isinstance(mesh, (str, Path)):
         path = Path(mesh)
         label = path.name
+        source["input"] = str(path)
         if path.is_dir():
             from .lim import LimCase
             from .untangle import lim_problem
@@ -333,8 +683,11 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
             case = path
             problem, case_x0, _, mirror = lim_problem(LimCase.read(path))
             x0 = case_x0 if x0 is None else io.validate_vertices(x0, "start map x0", dim=problem.dim) * mirror
+            source["files_sha256"] = {p.name: _manifest.file_hash(p) for p in sorted(path.iterdir()) if p.is_file()}
+            source["start"] = source["start"] or "the LIM case's map"
         else:
             problem = Problem.surface(*io.read_mesh(path))
+            source["file_sha256"] = _manifest.file_hash(path)
     else:
         if faces is None:
             raise ParameterError("compare: give the faces (m, 3) with a vertex array, or a mesh path, "
@@ -353,22 +706,24 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
                                  f"vertices needs a start map x0; only free-boundary 2D maps default "
                                  f"to the Tutte start")
         x0, _, _ = start_map(objective, None, weights)
+        source["start"] = f"Tutte embedding ({weights} weights), centred and scaled as parameterize does"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
     if inverted:
-        what = "tetrahedra" if problem.dim == 3 else "triangle(s)"
-        source = "the start map x0" if given else "the start map"
+        what = ("tetrahedra" if problem.dim == 3 else "triangle(s)") if problem.elements is None else \
+            element_type(problem.elements)[1]
+        which = "the start map x0" if given else "the start map"
         if case is not None:
-            source = source if given else f"the map of LIM case {case}"
+            which = which if given else f"the map of LIM case {case}"
             hint = (f"untangle it first (geomopt untangle {case} -o DIR/input.obj, copy its handles "
                     f"file into DIR, then compare DIR)" if problem.dim == 2 else
                     f"untangle it first (geomopt untangle {case} -o DIR/init.vtk, copy its rest.vtk and "
                     f"handles file into DIR, then compare DIR)")
         else:
             hint = "untangle it first (geomopt.untangle) or give a flip-free x0"
-        raise MeshError(f"{source} has {inverted} inverted or degenerate {what}; compare needs a "
+        raise MeshError(f"{which} has {inverted} inverted or degenerate {what}; compare needs a "
                         f"flip-free start map so that every solver can stay flip-free: {hint}")
-    return objective, x0, np.ones(problem.dim) if mirror is None else mirror, label
+    return objective, x0, np.ones(problem.dim) if mirror is None else mirror, label, source
 
 
 def _solvers(solvers, problem, max_steps) -> dict:
@@ -418,30 +773,58 @@ def _positive(value, name) -> float:
 # ------------------------------------------------------------------------------ outputs
 
 
-def _output_names(names, dim):
+def _common_names(formats):
+    return ["summary.csv", "table.tex", "manifest.json"] + [f"convergence.{f}" for f in formats]
+
+
+def _output_names(names, dim, formats=("png",)):
     ext = ".obj" if dim == 2 else ".vtk"
-    return ["history.csv", "summary.csv", "convergence.png"] + [n + ext for n in names]
+    return ["history.csv"] + _common_names(formats) + [n + ext for n in names]
 
 
-def _prepare_folder(out, names) -> Path:
-    """Create ``out`` (with parents) and check that every file in ``names`` can be written."""
+def _inputs(meshes):
+    """The input files among ``meshes`` (paths; arrays and trimesh objects are not files)."""
+    return [m for m in meshes if isinstance(m, (str, os.PathLike))]
+
+
+def _prepare_folder(out, names, inputs=(), create=True) -> Path:
+    """Check every file in ``names`` (relative to the folder ``out``) before any work with
+    :func:`geomopt.io.check_outputs` (none replaces an input, ``out``'s parent exists), then
+    create ``out`` unless ``create`` is False."""
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise GeomoptError(f"output {out} exists and is not a folder; give a folder path for --out")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); give a folder "
-                           f"path you can write") from exc
-    for name in names:
-        io.check_output_path(out / name)
-    return out
+    io.check_outputs([out / n for n in names], inputs, folder=out)
+    return io.create_output_folder(out) if create else out
 
 
 def _write_csv(path, columns, rows):
+    def cell(v):
+        return "" if v is None else repr(float(v)) if isinstance(v, float) else v
+
     def write(fh):
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(columns)
-        w.writerows([repr(float(v)) if isinstance(v, float) else v for v in row] for row in rows)
+        w.writerows([cell(v) for v in row] for row in rows)
 
     return io.atomic_write(path, write)
+
+
+def _write_common(out, comparisons: dict, formats, log_x, extra) -> dict:
+    """``table.tex``, ``manifest.json`` and ``convergence.<format>`` of ``comparisons``
+    (label -> :class:`Comparison`) into ``out``."""
+    from ._compare_report import comparison_figure, latex_table
+
+    paths = {"table": io.atomic_write(out / "table.tex", lambda fh: fh.write(latex_table(comparisons)))}
+    manifest = {"schema_version": _manifest.SCHEMA_VERSION, "kind": "geomopt.compare",
+                "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "versions": _manifest.versions(), "environment": _manifest.environment(),
+                "comparisons": {label: c.manifest() for label, c in comparisons.items()},
+                "figure": {"formats": list(formats), "log_x": bool(log_x)}, **(extra or {})}
+    paths["manifest"] = io.atomic_write(out / "manifest.json",
+                                        lambda fh: fh.write(json.dumps(manifest, indent=1, default=str) + "\n"))
+    fig = comparison_figure(comparisons, log_x=log_x)
+    for fmt in formats:
+        buf = _io.BytesIO()
+        fig.savefig(buf, format=fmt)
+        paths[f"convergence.{fmt}"] = io.atomic_write(out / f"convergence.{fmt}",
+                                                      lambda fh, data=buf.getvalue(): fh.write(data), mode="wb")
+    return paths

@@ -11,13 +11,19 @@ triangle are gathered (direct solvers) or which :mod:`geomopt._cg` applies as an
 The pattern is computed once per mesh from the vertex graph.
 
 The hot functions are module-level ``jax.jit`` functions keyed on the density (static) and
-array shapes; parameters (eps, lambda...) are traced, so a solve never recompiles.
+array shapes; parameters (eps, lambda...) are traced, so a solve never recompiles.  Each is
+made by :func:`jit`, which calls the plain function instead when an argument is traced (a
+user's ``jax.jit`` / ``grad`` / ``vmap``: XLA options can only be given to a top-level jit):
+the energy composes with every JAX transform, and runs the tuned kernel when called on
+concrete arrays.  :class:`Objective` is a pytree (leaves: the problem's arrays, the element
+weights and the padded rest geometry).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import types
 from functools import partial
 
 import jax
@@ -26,10 +32,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _padding
+from . import _x64
 from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
+from ._tracing import StaticKey, is_traced, refuse_traced
 from .energies import Energy, get_energy
+from .linsolve import SparseCholesky
 from .problem import Problem
 
 PROJECTIONS = ("clamp", "abs", "none")
@@ -37,11 +46,58 @@ PROJECTIONS = ("clamp", "abs", "none")
 #: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
 #: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
 #: that off made energy + gradient of 10^6 triangles 1.45x faster (CPU time 0.076 -> 0.052 s)
-#: and changes nothing elsewhere (the option only exists for CPU).
+#: and changes nothing elsewhere (the option only exists for CPU).  jaxlib before 0.8.1 does
+#: not know it and refuses to compile with it: see :func:`xla_options`.
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
-#: ``jax.jit`` with :data:`XLA_OPTIONS`.
-jit = partial(jax.jit, compiler_options=XLA_OPTIONS)
+
+@functools.cache
+def xla_options() -> dict:
+    """:data:`XLA_OPTIONS` if the running jaxlib accepts them, else ``{}``: decided once per
+    process by compiling an identity (about 20 ms, at the first kernel call, not at import)."""
+    try:
+        jax.jit(lambda v: v, compiler_options=XLA_OPTIONS).lower(np.float64(0.0)).compile()
+    except Exception:  # noqa: BLE001 -- the error type differs across jaxlib versions
+        return {}
+    return dict(XLA_OPTIONS)
+
+
+class _Kernel:
+    """``jax.jit(fun, compiler_options=xla_options(), **options)``, made at the first call (so
+    that importing geomopt compiles nothing); attributes (``lower``, ``_cache_size``...) are
+    the jitted function's.  Called with a tracer among its non-static arguments it calls
+    ``fun`` itself (XLA options exist only for a top-level jit), so that the kernel can be used
+    under a user's transforms; never in float32 (:mod:`geomopt._x64`)."""
+
+    def __init__(self, fun, options):
+        self._fun, self._options, self._jitted = fun, options, None
+        static = options.get("static_argnums", ())
+        self._static = {static} if isinstance(static, int) else set(static)
+        functools.update_wrapper(self, fun)
+
+    def _kernel(self):
+        if self._jitted is None:
+            self._jitted = jax.jit(self._fun, compiler_options=xla_options(), **self._options)
+        return self._jitted
+
+    def __call__(self, *args, **kwargs):
+        _x64.require()
+        dynamic = [a for i, a in enumerate(args) if i not in self._static] + list(kwargs.values())
+        if is_traced(dynamic):
+            return self._fun(*args, **kwargs)
+        return self._kernel()(*args, **kwargs)
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self._kernel(), name)
+
+
+def jit(fun=None, **options):
+    """``jax.jit`` with :func:`xla_options` (usable as ``@jit`` or ``partial(jit, ...)``)."""
+    if fun is None:
+        return partial(jit, **options)
+    return _Kernel(fun, options)
 
 #: Elements per chunk of the per-element Hessian work on CPU (see :func:`block_hessian`).
 CPU_CHUNK = 1024
@@ -344,7 +400,9 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
 class Objective:
     """A problem, an energy and its parameters, with jitted evaluation.
 
-    Maps ``x`` are (n, dim) arrays; gradients are returned with fixed DOFs zeroed.
+    ``E(x) = sum_e w_e vol_e psi(J_e(x), params)``: ``vol_e`` the rest sizes, ``w_e`` the
+    optional per-element weights (``element_weights``, default 1).  Maps ``x`` are (n, dim)
+    arrays; gradients are returned with fixed DOFs zeroed.
 
     With no fixed vertex the energy is invariant to translations (always: J only sees edge
     vectors), which leaves the Hessian singular; then the first vertex of the first element is
@@ -357,55 +415,93 @@ class Objective:
     size buckets (:mod:`geomopt._padding`) so that meshes of similar size share compiled
     kernels and persistent-cache entries; every method then takes maps with ``n`` rows (and
     returns ``n`` rows, ``m`` elements) or ``n_padded`` rows, as solver states hold them.
+
+    **Composable.**  :meth:`value`, :meth:`value_and_grad` and :meth:`dets` work under
+    ``jax.jit``, ``grad``, ``hessian``, ``jvp`` / ``vjp`` and ``vmap`` (over maps and over
+    parameters: ``params`` is a dict of scalars, traced or not), calling the pure function
+    there and the tuned jitted kernel on concrete arrays.  An Objective is a JAX pytree
+    whose leaves are its problem's arrays (rest geometry, handle positions), the element
+    weights, the energy parameters given as traced values, and the padded rest geometry: build it from a :class:`~geomopt.Problem` with
+    traced rest vertices to differentiate with respect to the rest shape (e.g.
+    ``jax.grad(lambda V: Objective(Problem.surface(V, F), e).value(x))(V)``), or
+    ``jax.vmap`` over a batch of rest shapes of one connectivity.  The host-side methods
+    (:meth:`hessian`, :meth:`prepare_map`) need concrete values.
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.Problem`.
+    energy : name or :class:`~geomopt.energies.Energy`.
+    buckets : pad to size buckets (see above).
+    element_weights : (m,) positive weights ``w_e`` (traceable), or None.
+    params : energy parameters overriding the energy's defaults.
     """
 
-    def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, **params):
+    def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, element_weights=None,
+                 **params):
         if not isinstance(problem, Problem):
             raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
                                  f"Problem.tets), got {type(problem).__name__}")
-        self.problem = problem
-        self.energy = get_energy(energy, **params)
-        self.energy.check_dim(problem.dim)
-        # buckets=True pads the arrays to size buckets so that meshes of similar size share
-        # compiled kernels (geomopt._padding); maps may then be given with n or n_padded rows
-        self.sizes = _padding.Sizes.of(problem, buckets)
+        # traced parameters are leaves of the objective, concrete ones part of its energy
+        traced = {k: v for k, v in params.items() if is_traced(v)}
+        energy = get_energy(energy, **{k: v for k, v in params.items() if k not in traced})
+        energy.resolve_params(**traced)  # known names
+        energy.check_dim(problem.dim)
+        mesh = _Mesh(problem, _padding.Sizes.of(problem, buckets))
+        w = check_element_weights(element_weights, problem.n_elements)
+        vol = problem.volumes if w is None else problem.volumes * w
+        _, Minv, vol = _padding.pad_geometry(problem, mesh.sizes, vol)
         # device_put, not jnp.asarray: no copy program compiled per array shape
-        self.geom = tuple(jax.device_put(a) for a in _padding.pad_geometry(problem, self.sizes))
-        self.total_volume = float(problem.volumes.sum())
-        d = problem.dim
-        free = np.repeat(problem.free_mask[:, None], d, axis=1)
-        if problem.fixed.size == 0:
-            free[problem.simplices[0, 0]] = False
-        self.free_dofs = free
-        self._free = jax.device_put(_padding.pad_rows(free.astype(np.float64), self.sizes.n_padded, fill=0.0))
-        self._pattern = None
-        self._assembly = None
-        self._nnz_padded = None
-        self._n_blocks_padded = None
+        Minv, vol = (a if is_traced(a) else jax.device_put(a) for a in (Minv, vol))
+        self._set(problem, w, traced, Minv, vol, StaticKey((_energy_key(energy), mesh.key), (energy, mesh)))
+
+    def _set(self, problem, weights, overrides, Minv, vol, static):
+        self.problem, self.element_weights, self._overrides, self._static = problem, weights, overrides, static
+        self.energy, self._mesh = static.payload
+        self.geom = (self._mesh.simplices, Minv, vol)
+        #: elements per chunk of the Hessian work (:func:`block_hessian`; 0: all at once)
         self.chunk = CPU_CHUNK if jax.default_backend() == "cpu" else 0
+
+    def tree_flatten(self):
+        return (self.problem, self.element_weights, self._overrides, self.geom[1], self.geom[2]), self._static
+
+    @classmethod
+    def tree_unflatten(cls, static, leaves):
+        obj = object.__new__(cls)
+        obj._set(*leaves, static)
+        return obj
+
+    @functools.cached_property
+    def total_volume(self):
+        """``sum_e w_e vol_e``: a float, or a traced scalar when the rest geometry is traced."""
+        vol = self.geom[2]
+        return jnp.sum(vol) if is_traced(vol) else float(np.sum(np.asarray(vol)))
+
+    @property
+    def sizes(self) -> _padding.Sizes:
+        return self._mesh.sizes
+
+    @property
+    def free_dofs(self) -> np.ndarray:
+        """(n, d) bool: the DOFs a solver moves (not handles, not the gauge pin)."""
+        return self._mesh.free_dofs
+
+    @property
+    def free_mask(self) -> jax.Array:
+        """(n_padded, d) float64 device array: 1 on free DOFs, 0 on fixed and padded ones."""
+        return self._mesh.free
+
+    _free = free_mask
 
     def params(self, **override):
         """The energy's parameters with ``override`` applied, validated by the energy
-        (:meth:`~geomopt.energies.Energy.resolve_params`), as float64 scalars for the kernels."""
-        p = self.energy.resolve_params(**override)
-        return {k: jnp.float64(v) for k, v in p.items()}
+        (:meth:`~geomopt.energies.Energy.resolve_params`; traced values pass unchecked), as
+        float64 scalars for the kernels."""
+        p = self.energy.resolve_params(**{**self._overrides, **override})
+        return {k: jnp.asarray(v, jnp.float64) for k, v in p.items()}
 
     @property
     def pattern(self) -> HessianPattern:
-        if self._pattern is None:
-            pat = hessian_pattern(self.problem, self.free_dofs)
-            sz = self.sizes
-            # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
-            # block 0, padded CSC entries gather block entry 0 and are cut off on the host
-            self._nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
-            self._n_blocks_padded = _padding.bucket(pat.n_blocks) if sz.padded else pat.n_blocks
-            extra = sz.m_padded - sz.m
-            blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
-            swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
-            gather = np.concatenate([pat.gather, np.zeros(self._nnz_padded - pat.nnz, pat.gather.dtype)])
-            self._assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
-            self._pattern = pat
-        return self._pattern
+        return self._mesh.pattern
 
     @property
     def block_assembly(self):
@@ -413,30 +509,32 @@ class Objective:
         assemble the Hessian (:func:`block_hessian`), padded like :attr:`geom`: ``blocks``
         (m_padded, (d+1)(d+2)/2) int32 and ``swap`` (same shape) bool device arrays (padded
         elements add zero blocks to block 0), ``n_blocks`` the padded block count."""
-        self.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        return self._assembly[0], self._assembly[1], self._n_blocks_padded
+        m = self._mesh
+        m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        return m.assembly[0], m.assembly[1], m.n_blocks_padded
 
-    @property
-    def free_mask(self) -> jax.Array:
-        """(n_padded, d) float64 device array: 1 on free DOFs, 0 on fixed and padded ones."""
-        return self._free
+    def cholesky(self, backend: str = "auto"):
+        """A :class:`~geomopt.linsolve.SparseCholesky` on :attr:`pattern`, its symbolic analysis
+        done once per mesh and backend and shared by every copy of this objective."""
+        return self._mesh.cholesky(backend)
 
     # -- padded maps (see geomopt._padding) ------------------------------------------
     def prepare_map(self, x) -> np.ndarray:
         """A start map ``x`` ((n, d), or (n_padded, d) as a solver state holds it) checked by
         :meth:`Problem.check_map` (float64 copy, handles in place), then padded."""
+        refuse_traced("Objective.prepare_map", "give the start map as a NumPy array", x)
         x = np.asarray(x)
         if x.ndim == 2 and x.shape[0] == self.sizes.n_padded != self.sizes.n:
             x = x[: self.sizes.n]
         return _padding.pad_rows(self.problem.check_map(x), self.sizes.n_padded)
 
     def _pad(self, x):
-        """``x`` with n_padded rows (host-side pad: no kernel per mesh size), and whether it
-        had n rows to begin with."""
+        """``x`` with n_padded rows (host-side pad for concrete ``x``: no kernel per mesh
+        size), and whether it had n rows to begin with."""
         sz = self.sizes
         if not sz.padded or x.shape[0] == sz.n_padded:
             return x, False
-        return _padding.pad_rows(np.asarray(x), sz.n_padded), True
+        return _padding.pad_rows(x if is_traced(x) else np.asarray(x), sz.n_padded), True
 
     def pad_map(self, x):
         """``x`` (n, d) with n_padded rows (padded rows on vertex 0); unchanged when it has
@@ -445,27 +543,36 @@ class Objective:
 
     def unpad_map(self, x):
         """The first n rows of a map (or per-vertex array) held with n_padded rows."""
-        return np.asarray(x)[: self.sizes.n] if self.sizes.padded else x
+        if not self.sizes.padded:
+            return x
+        return x[: self.sizes.n] if is_traced(x) else np.asarray(x)[: self.sizes.n]
 
-    def value(self, x, params) -> jax.Array:
-        return energy_kernel(self.energy.density, self.geom, self._pad(x)[0], params)
+    def _params(self, params):
+        return self.params() if params is None else params
 
-    def value_and_grad(self, x, params):
+    def value(self, x, params=None) -> jax.Array:
+        """The energy at ``x`` (n or n_padded, d); ``params`` default: :meth:`params`."""
+        return energy_kernel(self.energy.density, self.geom, self._pad(x)[0], self._params(params))
+
+    def value_and_grad(self, x, params=None):
         """(value, grad with fixed rows zeroed); grad has as many rows as ``x``."""
         xp, cut = self._pad(x)
-        v, g = value_and_grad_kernel(self.energy.density, self.geom, xp, params)
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, xp, self._params(params))
         g = g * self._free
         return v, (self.unpad_map(g) if cut else g)
 
     def hessian(self, x, params, projection="clamp"):
         """(value, grad with fixed rows zeroed (as many rows as ``x``), CSC data (nnz,) of the
-        free-DOF Hessian in :attr:`pattern`)."""
-        pat = self.pattern
+        free-DOF Hessian in :attr:`pattern`).  Concrete values only (a host assembly)."""
+        refuse_traced("Objective.hessian (a sparse assembly on the host)",
+                      "use jax.hessian(lambda x: objective.value(x, params)) for a dense Hessian",
+                      x, params, self.geom)
+        pat, m = self.pattern, self._mesh
         xp, cut = self._pad(x)
-        v, g, data = hessian_kernel(self.energy.density, projection, self.chunk, self._n_blocks_padded,
-                                    self.geom, xp, params, *self._assembly)
+        v, g, data = hessian_kernel(self.energy.density, projection, self.chunk, m.n_blocks_padded,
+                                    self.geom, xp, params, *m.assembly)
         g = g * self._free
-        if self._nnz_padded != pat.nnz:
+        if m.nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
 
@@ -473,15 +580,94 @@ class Objective:
         """Compile (or load from the persistent cache) the kernel of :meth:`hessian` for maps
         shaped like ``x``, without running it: a solver's set-up then holds the compilation
         but no throw-away evaluation."""
-        if self._pattern is None:
-            self.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.lower(self.energy.density, projection, self.chunk, self._n_blocks_padded, self.geom,
-                             self._pad(x)[0], params, *self._assembly).compile()
+        m = self._mesh
+        m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        hessian_kernel.lower(self.energy.density, projection, self.chunk, m.n_blocks_padded, self.geom,
+                             self._pad(x)[0], params, *m.assembly).compile()
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
         out = dets_kernel(self.geom, self._pad(x)[0])
-        return np.asarray(out)[: self.sizes.m] if self.sizes.padded else out
+        if not self.sizes.padded:
+            return out
+        return out[: self.sizes.m] if is_traced(out) else np.asarray(out)[: self.sizes.m]
+
+
+_x64.float64_methods("__init__", "params", "value", "value_and_grad", "hessian", "compile_hessian", "dets")(Objective)
+jax.tree_util.register_pytree_node(Objective, Objective.tree_flatten, Objective.tree_unflatten)
+
+
+def _energy_key(energy: Energy) -> tuple:
+    """What a traced Objective's code depends on in its energy (its values by content)."""
+    rest = energy.rest_value
+    return (energy.density, energy.name, energy.barrier, energy.lower_bound,
+            rest if rest is None or callable(rest) else float(rest), tuple(sorted(energy.params.items())))
+
+
+def check_element_weights(w, m):
+    """Per-element weights as (m,) float64 (positive and finite when concrete; ParameterError
+    otherwise), or None."""
+    if w is None:
+        return None
+    if not is_traced(w):
+        w = np.asarray(w, dtype=np.float64) if np.ndim(w) else w
+    if np.shape(w) != (m,):
+        raise ParameterError(f"element_weights must have shape ({m},) (one weight per element), "
+                             f"got shape {np.shape(w)}")
+    if not is_traced(w) and not (np.isfinite(w).all() and (w > 0).all()):
+        bad = np.flatnonzero(~(np.isfinite(w) & (w > 0)))
+        raise ParameterError(f"element_weights must be finite and > 0; {bad.size} are not (first: "
+                             f"element {bad[0]}, weight {w[bad[0]]!r})")
+    return w
+
+
+class _Mesh:
+    """What an Objective derives from its problem's static data (connectivity, handles,
+    sizes), shared by every copy of the objective (pytree unflattening): device simplices,
+    the free DOFs and, built on first use, the Hessian pattern and its assembly arrays."""
+
+    def __init__(self, problem: Problem, sizes: _padding.Sizes):
+        self.key = (problem._static, sizes)
+        self.sizes = sizes
+        d = problem.dim
+        free = np.repeat(problem.free_mask[:, None], d, axis=1)
+        if problem.fixed.size == 0:
+            free[problem.simplices[0, 0]] = False
+        self.free_dofs = free
+        with jax.ensure_compile_time_eval():  # concrete device arrays, also when built under a trace
+            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded))
+            self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
+        # the pattern needs the connectivity only (never the problem's possibly traced arrays)
+        self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
+                                                   n_vertices=problem.n_vertices)
+        self._pattern = None
+        self._cholesky = {}
+
+    def cholesky(self, backend):
+        if backend not in self._cholesky:
+            pat = self.pattern
+            chol = SparseCholesky(pat.indptr, pat.indices, backend)
+            chol.analyze()
+            self._cholesky[backend] = chol
+        return self._cholesky[backend]
+
+    @property
+    def pattern(self) -> HessianPattern:
+        if self._pattern is None:
+            pat = hessian_pattern(self._connectivity, self.free_dofs)
+            sz = self.sizes
+            # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
+            # block 0, padded CSC entries gather block entry 0 and are cut off on the host
+            self.nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
+            self.n_blocks_padded = _padding.bucket(pat.n_blocks) if sz.padded else pat.n_blocks
+            extra = sz.m_padded - sz.m
+            blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
+            swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
+            gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
+            with jax.ensure_compile_time_eval():
+                self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
+            self._pattern = pat
+        return self._pattern
 
 
 @partial(jit, static_argnums=0)
@@ -489,6 +675,7 @@ def _densities_kernel(density, geom, x, params):
     return jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
 
 
+@_x64.float64
 def element_densities(objective: Objective, x, params=None) -> jax.Array:
     """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring."""
     out = _densities_kernel(objective.energy.density, objective.geom, objective._pad(jnp.asarray(x))[0],

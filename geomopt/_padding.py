@@ -68,25 +68,35 @@ class Sizes:
         return (self.n_padded, self.m_padded) != (self.n, self.m)
 
 
-def pad_geometry(problem, sizes: Sizes):
-    """NumPy ``(S, Minv, vol)`` of shapes (M, d+1), (M, d, d), (M,) for ``M = m_padded``:
-    the problem's elements followed by zero-volume copies of element 0."""
-    S, Minv, vol = problem.simplices, problem.rest_inv, problem.volumes
-    extra = sizes.m_padded - sizes.m
-    if extra == 0:
-        return S, Minv, vol
-    return (np.concatenate([S, np.repeat(S[:1], extra, axis=0)]),
-            np.concatenate([Minv, np.repeat(Minv[:1], extra, axis=0)]),
-            np.concatenate([vol, np.zeros(extra)]))
+def pad_geometry(problem, sizes: Sizes, volumes=None):
+    """``(S, Minv, vol)`` of shapes (M, d+1), (M, d, d), (M,) for ``M = m_padded``: the
+    problem's elements (``volumes`` in place of its rest volumes when given, e.g. weighted)
+    followed by zero-volume copies of element 0.  NumPy, or JAX for traced arrays."""
+    S, Minv = problem.simplices, problem.rest_inv
+    vol = problem.volumes if volumes is None else volumes
+    return (pad_rows(S, sizes.m_padded), pad_rows(Minv, sizes.m_padded),
+            pad_rows(vol, sizes.m_padded, fill=0.0))
 
 
-def pad_rows(a, rows: int, fill=None) -> np.ndarray:
-    """``a`` (k, ...) extended to ``rows`` rows with copies of row 0 (``fill=None``) or ``fill``."""
-    a = np.asarray(a)
+def pad_rows(a, rows: int, fill=None):
+    """``a`` (k, ...) extended to ``rows`` rows with copies of row 0 (``fill=None``) or ``fill``
+    (NumPy, or JAX when ``a`` is traced)."""
+    xp = _xp(a)
+    a = a if xp is not np else np.asarray(a)
     extra = rows - a.shape[0]
     if extra <= 0:
         return a
-    tail = np.repeat(a[:1], extra, axis=0) if fill is None else np.full((extra,) + a.shape[1:], fill, a.dtype)
-    return np.concatenate([a, tail])
+    tail = xp.repeat(a[:1], extra, axis=0) if fill is None else xp.full((extra,) + a.shape[1:], fill, a.dtype)
+    return xp.concatenate([a, tail])
+
+
+def _xp(a):
+    from ._tracing import is_traced
+
+    if is_traced(a):
+        import jax.numpy as jnp
+
+        return jnp
+    return np
 
 

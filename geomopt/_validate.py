@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._errors import MeshError
+from ._tracing import refuse_traced
 
 __all__ = ["validate_vertices", "validate_simplices", "validate_indices"]
 
@@ -21,7 +22,10 @@ _SIMPLEX_WORDS = {3: ("triangle", "triangles"), 4: ("tetrahedron", "tetrahedra")
 
 
 def _as_array(A, name):
-    """``np.asarray`` that turns ragged/odd input into a MeshError."""
+    """``np.asarray`` that turns ragged/odd input into a MeshError (a traced JAX value into a
+    ParameterError saying what can be traced)."""
+    refuse_traced(f"the check of {name}", "connectivity and indices must be concrete (close over them); traceable: "
+                  "rest vertices and handles in Problem.planar/surface/tets, Objective.value, geomopt.implicit", A)
     try:
         return np.asarray(A)
     except (ValueError, TypeError) as exc:

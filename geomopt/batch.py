@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io as _stdio
-import os
 import time
 from pathlib import Path
 
@@ -158,7 +157,7 @@ def write_certified(case, result, path):
     """Write an untangled case to ``path`` atomically, certifying the written file first.
 
     The file is written beside ``path`` and read back (:func:`geomopt.untangle.write_untangle_result`);
-    only a file that certifies (no inverted element, handles bit-exact) is renamed onto
+    only a file that certifies (locally injective, handles bit-exact) is renamed onto
     ``path``, so a file that does not certify never replaces an older one.
 
     Returns
@@ -177,8 +176,7 @@ def write_certified(case, result, path):
     with io.atomic_path(path) as tmp:
         check = untangle.write_untangle_result(case, result, tmp)
         if not check["certified"]:
-            raise SolveError(f"the written file did not certify ({check['inverted']} inverted element(s), "
-                             f"{check['handles_moved']} handle(s) moved)")
+            raise SolveError(f"the written file did not certify: {check['message']}")
     return check
 
 
@@ -289,7 +287,8 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     Parameters
     ----------
     cases : sequence of case folders (see :func:`batch_cases`).
-    outdir : output folder, created if missing.
+    outdir : output folder, created if missing (not its parents) once the run can start; it
+        must not be a case folder (:func:`geomopt.io.check_outputs`).
     solver : inner solver name (:func:`geomopt.untangle.untangle`).
     workers : 1: solve in this process, one case after another; N > 1: on a local Dask
         cluster of N single-threaded worker processes.
@@ -303,54 +302,36 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     Returns
     -------
     list of summary rows (dicts), in the order of ``cases``.
+
+    An interrupt (``KeyboardInterrupt``: Ctrl-C, or SIGTERM/SIGHUP under the command line)
+    still writes ``summary.csv``: the cases that finished, and a "not solved: the batch was
+    interrupted" row for each other one; then it propagates.
     """
     from . import io
 
     cases = [Path(c) for c in cases]
     outdir = Path(outdir)
-    _make_folder(outdir)
-    summary = io.check_output_path(outdir / "summary.csv", (".csv",), "summary")
-    _refuse_outputs_over_inputs(cases, outdir)
-    if scheduler is None and workers <= 1:
-        rows = []
-        for i, c in enumerate(cases):
-            rows.append(solve_case(c, outdir, solver, bucket))
-            if report:
-                report(rows[-1], i + 1, len(cases))
-    else:
-        rows = _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk)
+    summary = outdir / "summary.csv"
+    io.check_outputs([("summary", summary, (".csv",))] + [outdir / (c.name + ext) for c in cases
+                                                          for ext in (".obj", ".vtk")], cases, outdir)
+    rows = [None] * len(cases)  # filled as cases finish
+    try:
+        if scheduler is None and workers <= 1:
+            io.create_output_folder(outdir)  # nothing is created before the run can start
+            for i, c in enumerate(cases):
+                rows[i] = solve_case(c, outdir, solver, bucket)
+                if report:
+                    report(rows[i], i + 1, len(cases))
+        else:
+            _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM/SIGHUP from the command line: say what finished
+        if outdir.is_dir():
+            write_summary(summary, [row or _failed_row(c, "not solved: the batch was interrupted before this "
+                                                          "case finished (summary incomplete)")
+                                    for row, c in zip(rows, cases)])
+        raise
     write_summary(summary, rows)
     return rows
-
-
-def _refuse_outputs_over_inputs(cases, outdir):
-    """No output (``<case>.obj/.vtk``, ``summary.csv``) may be a file of any case folder (of the
-    batch, or the output folder itself when it is a LIM case): writing it would replace that
-    case's input."""
-    inputs = {}
-    own = (outdir / "input.obj").is_file() or (outdir / "rest.vtk").is_file() or (outdir / "init.vtk").is_file()
-    for c in list(cases) + ([outdir] if own else []):
-        for f in (c.iterdir() if c.is_dir() else ()):
-            if f.is_file():
-                st = f.stat()
-                inputs[(st.st_dev, st.st_ino)] = f
-    outputs = [outdir / "summary.csv"] + [outdir / (c.name + ext) for c in cases for ext in (".obj", ".vtk")]
-    for out in outputs:
-        if out.is_file():
-            st = out.stat()
-            if (st.st_dev, st.st_ino) in inputs:
-                raise GeomoptError(f"output {out} is the input file {inputs[(st.st_dev, st.st_ino)]}: writing "
-                                   "it would replace a case's input; give an output folder outside the case folders")
-
-
-def _make_folder(outdir):
-    try:
-        outdir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise GeomoptError(f"cannot create the output folder {outdir} ({exc.strerror}); give a folder "
-                           f"path") from exc
-    if not os.access(outdir, os.W_OK | os.X_OK):
-        raise GeomoptError(f"cannot write into the output folder {outdir}; check its permissions")
 
 
 # --------------------------------------------------------------------- Dask
@@ -418,12 +399,15 @@ def _tasks(cases, size):
     return out
 
 
-def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
+def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows):
+    """Solve ``cases`` on Dask, filling ``rows`` (one per case) as they finish."""
     import contextlib
     import logging
     import uuid
 
     from distributed import Client, LocalCluster, as_completed
+
+    from . import io
 
     with contextlib.ExitStack() as stack:
         if scheduler is None:
@@ -434,9 +418,11 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
         else:
             try:
                 client = stack.enter_context(Client(scheduler, timeout=10))
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address
                 raise GeomoptError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); check the "
-                                   f"address or drop --scheduler to use a local cluster") from exc
+                                   f"address (e.g. tcp://host:8786) or drop --scheduler to use a local "
+                                   f"cluster") from exc
+        io.create_output_folder(outdir)  # the run can start: nothing was created before
         settings = jax_settings()
         n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
         size = chunk or max(1, min(16, -(-len(cases) // (8 * n_workers))))
@@ -457,7 +443,6 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk):
         for (_, rest), first in zip(plan, firsts):
             for group in rest:
                 submit(group, after=first)
-        rows = [None] * len(cases)
         done = 0
         pending = as_completed(list(futures))
         for fut in pending:

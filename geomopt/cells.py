@@ -12,8 +12,8 @@ of quads or hexahedra:
   absent: the boundary vertices), as the LIM benchmark's 3D cases hold tetrahedra.
 
 :func:`write_certified` writes the result beside the output, reads it back and certifies the
-file exactly (every element valid everywhere, :func:`geomopt.elements.certify_elements`;
-handles bit for bit), and only then moves it onto the output (:func:`geomopt.io.atomic_path`).
+file exactly (locally injective: every element valid everywhere and no vertex or edge wound
+twice, :func:`geomopt.elements.element_local_certificate`; handles bit for bit), and only then moves it onto the output (:func:`geomopt.io.atomic_path`).
 """
 
 from __future__ import annotations
@@ -141,15 +141,16 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
     """Write map ``x`` (n, d) with the case's cells to ``path`` atomically, certified.
 
     The file is written beside ``path`` (:func:`geomopt.io.write_cells`), read back, and
-    certified exactly: the cells read back are the case's, every element is valid everywhere
-    (:func:`geomopt.elements.certify_elements`, oriented as ``problem.elements``) and the
+    certified exactly: the cells read back are the case's, the map is locally injective
+    (:meth:`~geomopt.problem.Problem.certify`: every element valid everywhere,
+    oriented as ``problem.elements``, and no vertex or edge wound twice or overlapping) and the
     handles are bit-identical to ``problem.fixed_positions``.  Only then is it moved onto
     ``path``.
 
     Returns
     -------
-    dict with ``certificate`` (:class:`~geomopt.elements.ElementCertificate` of the file)
-    and ``path``.
+    dict with ``certificate`` (:class:`~geomopt.elements.ElementCertificate` of the file),
+    ``local_certificate`` (:class:`~geomopt.elements.ElementLocalCertificate`) and ``path``.
 
     Raises
     ------
@@ -157,7 +158,6 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
         The written file does not certify; nothing is left at ``path``.
     """
     from . import io
-    from .elements import certify_elements
 
     ext = (format or Path(path).suffix).lower()
     with io.atomic_path(path, f"{case.kind} mesh") as tmp:
@@ -166,10 +166,10 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
         back = back[:, : x.shape[1]]
         if not np.array_equal(E, case.elements):
             raise SolveError(f"{path}: the cells read back differ from the input's")
-        cert = certify_elements(back, problem.elements)
+        cert = problem.certify(back)  # elements valid everywhere, no branch point, no boundary overlap
         a, b = np.ascontiguousarray(back[problem.fixed]), np.ascontiguousarray(problem.fixed_positions)
         moved = int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=1)))
-        if not cert.certified or moved:
-            raise SolveError(f"the written file did not certify ({cert.invalid} invalid element(s), "
-                             f"{moved} handle(s) moved); nothing was written")
-    return {"path": Path(path), "certificate": cert}
+        if not cert.ok or moved:
+            why = cert.message if not cert.ok else f"{moved} handle(s) moved"
+            raise SolveError(f"the written file did not certify ({why}); nothing was written")
+    return {"path": Path(path), "certificate": cert.elements, "local_certificate": cert}

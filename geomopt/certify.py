@@ -1,4 +1,10 @@
-"""Exact certificate of global injectivity (bijectivity onto the image) for a disk map.
+"""Exact certificates: local injectivity of any simplicial map, global injectivity of a disk map.
+
+Local (:func:`local_certificate`): every element positively oriented, and around every vertex
+(2D) or edge and vertex (3D) the elements cover a neighbourhood once (interior) or without
+overlapping (boundary); see :mod:`geomopt.stars` for what is checked and why it suffices.
+
+Global, for a disk map:
 
 A map ``x`` (n, 2) of a triangulated disk with faces ``F`` is *globally injective* when
 
@@ -42,12 +48,15 @@ import time
 
 import numpy as np
 
-from ._errors import MeshError
+from ._errors import MeshError, ParameterError
+from ._tracing import refuse_traced
 from ._validate import validate_indices, validate_vertices
-from .predicates import count_inverted, orient2d
+from .predicates import orient2d, simplex_orientations
+from .stars import fan_overlaps_2d, star_overlaps_3d
 from .topology import check_disk
 
-__all__ = ["Certificate", "certify_bijective", "polygon_crossings", "polygon_orientation"]
+__all__ = ["Certificate", "LocalCertificate", "certify_bijective", "local_certificate",
+           "polygon_crossings", "polygon_orientation"]
 
 # Largest number of (edge, cell) entries per edge before the grid cells are made coarser.
 _MAX_CELLS_PER_EDGE = 4.0
@@ -93,8 +102,8 @@ def _adjacent_overlaps(P, ex, ey) -> np.ndarray:
 
 def _grid_candidates(lox, loy, hix, hiy):
     """Candidate pairs ``(i, j)`` of non-consecutive edges whose bounding boxes
-    ``[lox, hix] x [loy, hiy]`` (each (k,)) overlap, touching included; each pair once, in no
-    particular order.
+    ``[lox, hix] x [loy, hiy]`` (each (k,), coordinates within [-1, 1]) overlap, touching
+    included; each pair once, in no particular order.
 
     Uniform grid; the cell size starts at ``_CELL_SCALE`` times the mean box size and is doubled
     until there are at most ``_MAX_CELLS_PER_EDGE`` (edge, cell) entries per edge, so that a few
@@ -109,6 +118,7 @@ def _grid_candidates(lox, loy, hix, hiy):
     h = _CELL_SCALE * float(np.mean(np.maximum(hix - lox, hiy - loy)))
     if not h > 0:
         h = span / k if span > 0 else 1.0
+    h = max(h, span * 2.0**-24)  # at most 2**24 cells a side: counts fit int64 (and 1 / h is finite)
     bits = max(int(k - 1).bit_length(), 1)  # edge ids take the low bits of an entry
     while True:
         # coordinates >= 0, so truncation is the floor; a rounded product is monotone in its
@@ -121,7 +131,7 @@ def _grid_candidates(lox, loy, hix, hiy):
         per = wx * wy
         nx = int((x0 + wx).max()) + 1
         cells = nx * (int((y0 + wy).max()) + 1)
-        if (per.sum() <= _MAX_CELLS_PER_EDGE * k and cells.bit_length() + bits <= 62) or h >= span:
+        if (per.sum(dtype=np.float64) <= _MAX_CELLS_PER_EDGE * k and cells.bit_length() + bits <= 62) or h >= span:
             break
         h *= 2.0
     # one entry (cell << bits | edge) per (edge, covered cell); single-cell edges need no expansion
@@ -189,6 +199,13 @@ def polygon_crossings(P) -> np.ndarray:
     xn, yn = np.roll(x, -1), np.roll(y, -1)
     pairs = []
     adj = _adjacent_overlaps(P, xn - x, yn - y)
+    # the broad phase sees the polygon scaled by a power of two to a box within [-1, 1]: a
+    # monotone map of each coordinate (exact, or rounded for tiny coordinates beside huge ones),
+    # which keeps every box overlap, and keeps the grid's arithmetic away from overflow
+    # (1 / h for subnormal coordinates) and from underflow; the exact tests see P itself
+    top = float(np.max(np.abs(P)))
+    if top > 0:
+        x, y, xn, yn = (np.ldexp(a, -int(np.frexp(top)[1])) for a in (x, y, xn, yn))
     if adj.size:
         a, b = adj, (adj + 1) % k
         pairs.append(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
@@ -222,6 +239,119 @@ def polygon_orientation(P) -> int:
     return int(orient2d(*tri)[0])
 
 
+def _no_vertices():
+    return np.zeros(0, np.int64)
+
+
+def _no_edges():
+    return np.zeros((0, 2), np.int64)
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalCertificate:
+    """The outcome of :func:`local_certificate`: where a map is not locally injective.
+
+    Attributes
+    ----------
+    inverted : int, elements not positively oriented (inverted or degenerate; exact).
+    first_inverted : int, the first such element, or -1.
+    branch_vertices : (k,) int64, interior vertices whose elements cover their neighbourhood
+        more than once (2D: triangles winding around them twice or more; 3D: a pinched star).
+    branch_edges : (k, 2) int64, interior edges whose tets turn around them more than once (3D).
+    boundary_overlaps : (k,) int64, boundary vertices whose elements overlap each other (2D: the
+        fan turns a full turn or more; 3D: boundary faces at the vertex meet away from it).
+    boundary_edge_overlaps : (k, 2) int64, boundary edges whose tets turn a full turn or more (3D).
+    seconds : float, time taken.
+
+    The vertex and edge lists are only computed when no element is inverted (they assume it);
+    with an inverted element they are empty.
+    """
+
+    inverted: int
+    first_inverted: int = -1
+    branch_vertices: np.ndarray = dataclasses.field(default_factory=_no_vertices)
+    branch_edges: np.ndarray = dataclasses.field(default_factory=_no_edges)
+    boundary_overlaps: np.ndarray = dataclasses.field(default_factory=_no_vertices)
+    boundary_edge_overlaps: np.ndarray = dataclasses.field(default_factory=_no_edges)
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        """The map is locally injective (certified exactly)."""
+        return self.inverted == 0 and not (len(self.branch_vertices) or len(self.branch_edges)
+                                           or len(self.boundary_overlaps) or len(self.boundary_edge_overlaps))
+
+    @property
+    def message(self) -> str:
+        """One line naming the first failure ("" when :attr:`ok`)."""
+        def more(k, what):
+            return f" ({k} such {what})" if k > 1 else ""
+
+        if self.inverted:
+            return (f"{self.inverted} element(s) inverted or degenerate (first: element "
+                    f"{self.first_inverted})")
+        if len(self.branch_edges):
+            a, b = self.branch_edges[0]
+            return (f"the tets around interior edge ({a}, {b}) turn around it more than once: the "
+                    f"map is not locally injective there{more(len(self.branch_edges), 'edges')}")
+        if len(self.branch_vertices):
+            return (f"interior vertex {self.branch_vertices[0]} is a branch point: its elements "
+                    f"cover its neighbourhood more than once{more(len(self.branch_vertices), 'vertices')}")
+        if len(self.boundary_edge_overlaps):
+            a, b = self.boundary_edge_overlaps[0]
+            return (f"the tets around boundary edge ({a}, {b}) turn a full turn or more: they overlap"
+                    f"{more(len(self.boundary_edge_overlaps), 'edges')}")
+        if len(self.boundary_overlaps):
+            return (f"the elements around boundary vertex {self.boundary_overlaps[0]} overlap (they turn "
+                    f"a full turn or more, or the boundary meets itself there)"
+                    f"{more(len(self.boundary_overlaps), 'vertices')}")
+        return ""
+
+
+def local_certificate(x, S, orientation: int = 1) -> LocalCertificate:
+    """Exact certificate that a triangle map in the plane or a tet map is locally injective.
+
+    Parameters
+    ----------
+    x : (n, 2) or (n, 3) float array, the map (2D: triangles; 3D: tetrahedra).
+    S : (m, 3) or (m, 4) int array, the elements (e.g. :attr:`Problem.simplices`).
+    orientation : +1 or -1, the orientation every element must have (-1: a file whose
+        connectivity lists elements clockwise).
+
+    Returns
+    -------
+    :class:`LocalCertificate`; ``ok`` holds iff every element has ``orientation`` and the map
+    is locally injective around every vertex and edge (:mod:`geomopt.stars`).  A map with a
+    non-finite coordinate is not certified (its elements count as inverted).
+
+    Raises
+    ------
+    MeshError
+        ``x`` or ``S`` has the wrong shape or type, or an index out of range.
+    ParameterError
+        ``orientation`` is not +1 or -1.
+    """
+    t0 = time.perf_counter()
+    if isinstance(orientation, (bool, np.bool_)) or orientation not in (1, -1):
+        raise ParameterError(f"orientation must be +1 or -1, got {orientation!r}")
+    x = np.asarray(x)
+    S = np.asarray(S)
+    if x.ndim != 2 or x.shape[1] not in (2, 3) or x.dtype.kind not in "fiu":
+        raise MeshError(f"the map must be a real array of shape (n, 2) or (n, 3), got shape "
+                        f"{x.shape} and dtype {x.dtype}")
+    if orientation == -1 and S.ndim == 2 and S.shape[1] >= 3:
+        S = S[:, [0, 2, 1] + list(range(3, S.shape[1]))]  # an odd permutation: -1 becomes +1
+    bad = np.flatnonzero(simplex_orientations(x, S) != 1)
+    if bad.size:
+        return LocalCertificate(int(bad.size), int(bad[0]), seconds=time.perf_counter() - t0)
+    x = x.astype(np.float64, copy=False)
+    if x.shape[1] == 2:
+        branch, overlaps = fan_overlaps_2d(x, S)
+        return LocalCertificate(0, -1, branch, _no_edges(), overlaps, _no_edges(), time.perf_counter() - t0)
+    edges, branch, bedges, overlaps = star_overlaps_3d(x, S)
+    return LocalCertificate(0, -1, branch, edges, overlaps, bedges, time.perf_counter() - t0)
+
+
 @dataclasses.dataclass(frozen=True)
 class Certificate:
     """The outcome of :func:`certify_bijective`.
@@ -235,6 +365,7 @@ class Certificate:
     orientation : int, +1 when the boundary polygon is counter-clockwise (0 if not simple or
         not finite).
     seconds : float, time taken.
+    local : :class:`LocalCertificate` of the same map.
     """
 
     inverted: int
@@ -242,16 +373,18 @@ class Certificate:
     crossings: np.ndarray
     orientation: int
     seconds: float
+    local: LocalCertificate = dataclasses.field(default_factory=lambda: LocalCertificate(0))
 
     @property
     def locally_injective(self) -> bool:
-        """Every triangle positively oriented."""
-        return self.inverted == 0
+        """Every triangle positively oriented and every fan covering its neighbourhood once
+        (:func:`local_certificate`)."""
+        return self.local.ok
 
     @property
     def globally_injective(self) -> bool:
         """Locally injective with a simple counter-clockwise boundary: a bijection onto its image."""
-        return self.inverted == 0 and len(self.crossings) == 0 and self.orientation == 1
+        return self.local.ok and len(self.crossings) == 0 and self.orientation == 1
 
     @property
     def injectivity(self) -> str:
@@ -273,7 +406,8 @@ def certify_bijective(x, F, loop=None) -> Certificate:
     Returns
     -------
     :class:`Certificate`; ``globally_injective`` holds iff no triangle is inverted or degenerate,
-    no two boundary edges cross or touch (see the module docstring), and the boundary runs
+    the map is locally injective at every vertex (implied by the rest, checked anyway), no two
+    boundary edges cross or touch (see the module docstring), and the boundary runs
     counter-clockwise: then the map is a bijection onto its image (degree argument above).
     A map with a non-finite coordinate is certified neither locally nor globally.
 
@@ -284,6 +418,8 @@ def certify_bijective(x, F, loop=None) -> Certificate:
         distinct vertex ids.
     """
     t0 = time.perf_counter()
+    refuse_traced("certify_bijective (exact predicates)", "it certifies concrete maps; inside a trace use "
+                  "Objective.dets(x) (float determinants)", x)
     x = np.asarray(x)
     F = np.asarray(F)
     if x.ndim != 2 or x.shape[1] != 2 or x.dtype.kind not in "fiu":
@@ -296,11 +432,11 @@ def certify_bijective(x, F, loop=None) -> Certificate:
         if loop.size < 3:
             raise MeshError(f"the boundary loop needs at least 3 vertices, got {loop.size}")
     x = x.astype(np.float64, copy=False)
-    inverted = count_inverted(x, F)
+    local = local_certificate(x, F)
     P = x[loop]
     if np.isfinite(P).all():
         crossings = polygon_crossings(P)
         orientation = polygon_orientation(P) if len(crossings) == 0 else 0
     else:
         crossings, orientation = np.zeros((0, 2), np.int64), 0
-    return Certificate(int(inverted), loop, crossings, orientation, time.perf_counter() - t0)
+    return Certificate(local.inverted, loop, crossings, orientation, time.perf_counter() - t0, local)

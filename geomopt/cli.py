@@ -1,13 +1,17 @@
-"""Command line: geomopt param, geomopt untangle, geomopt smooth, geomopt demo.
+"""Command line: geomopt param, geomopt untangle, geomopt smooth, geomopt compare, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
-that cannot be written) prints one line ``geomopt: error: ...`` and exits with status 2 (no
-traceback unless ``--debug``); a solve that does not end converged and flip-free (exact
+that cannot be written, a command line argparse refuses) prints one line ``geomopt: error:
+...`` and exits with status 2 (no traceback and no NumPy warning unless ``--debug``; with
+``--json`` the JSON summary is printed too); a solve that does not end converged and flip-free (exact
 predicate) exits with status 1 and writes nothing; status 0 means the certified result was
-written.  Every output path (derived ones included) is checked before the input is read: it
-must be a regular file or not exist.  Outputs are written atomically, all of them or none; an
+written.  Every output path (derived ones included) is checked before the input is read, by
+:func:`geomopt.io.check_outputs`: it must be a regular file or not exist, and no output may be an
+input (a command creates or replaces nothing but its named outputs; an output folder is created,
+never its parents).  Outputs are written atomically, all of them or none; an
 interrupt (SIGINT, SIGTERM, SIGHUP) removes the unfinished temporary files and exits with
-status 128 + the signal number.
+status 128 + the signal number (a batch first writes the summary of what finished).
+``compare`` writes all its files and exits 0 only when every solver converged certified, else 1.
 """
 
 from __future__ import annotations
@@ -20,7 +24,13 @@ import re
 import signal
 import sys
 import time
+import warnings
 from pathlib import Path
+
+__all__ = [
+    "main", "build_parser", "cmd_param", "cmd_untangle", "cmd_compare", "cmd_demo", "EXIT_OK",
+    "EXIT_FAILED", "EXIT_USAGE", "PICTURE_EXTENSIONS",
+]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -77,36 +87,26 @@ def _signals_raise():
             signal.signal(signum, handler)
 
 
-def _output_paths(output, extensions, pictures=(), inputs=()):
-    """Check every output before any work: ``-o`` (``extensions``) and ``pictures`` (with their
-    derived names); they must be distinct and none may be one of the ``inputs`` (writing it would
-    replace what the user asked to read).  Returns the output path."""
+def _output_paths(output, extensions, pictures=(), inputs=(), folder=None):
+    """Check every output before any work (:func:`geomopt.io.check_outputs`): ``-o`` (``extensions``)
+    and ``pictures`` (``(what, path)``, derived names included), in ``folder`` when the command was
+    given an output folder.  Returns the output path."""
     from . import io
-    from ._errors import GeomoptError
 
-    named = [("-o output", output)] + [(what, p) for what, p in pictures]
-    seen = {}
-    for what, p in named:
-        for source in inputs:
-            if os.path.isfile(p) and os.path.isfile(source) and os.path.samefile(p, source):
-                raise GeomoptError(f"{what} {p} is the input file {source}: writing it would replace your "
-                                   "input; give the output another name")
-        key = os.path.join(os.path.realpath(os.path.dirname(os.path.abspath(p))), os.path.basename(p))
-        if key in seen:
-            raise GeomoptError(f"{what} {p} is the same file as the {seen[key]}; give different file names")
-        seen[key] = what
-    out = io.check_output_path(output, extensions, "output")
-    for what, p in pictures:
-        io.check_output_path(p, PICTURE_EXTENSIONS, what)
-    return out
+    files = [("-o output", output, extensions)] + [(what, p, PICTURE_EXTENSIONS) for what, p in pictures]
+    return io.check_outputs(files, inputs, folder)[0]
 
 
 def cmd_param(args) -> int:
     from . import io
     from ._errors import MeshError
+    from ._timing import compile_seconds
     from .energies import get_energy
     from .param import parameterize
 
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
     energy = get_energy(args.energy)
     solver = _solver(args.solver)
     if args.max_steps is not None:
@@ -116,7 +116,9 @@ def cmd_param(args) -> int:
     pictures = []
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
-    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input])  # before reading or solving
+    folder = getattr(args, "folder", None)  # demo: the output folder, created only to write into it
+    _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
+    t_read = time.perf_counter()
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
         start = "its own UV start map"
@@ -124,16 +126,24 @@ def cmd_param(args) -> int:
         V, F = io.read_mesh(args.input)
         x0 = None if args.init == "tutte" else args.init
         start = f"{args.weights} Tutte start" if args.init == "tutte" else "plane projection start"
+    split.add("read", time.perf_counter() - t_read)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
         _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
+    t_solve, compiled = time.perf_counter(), compile_seconds()
     try:
         res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
                            progress=not args.quiet, bijective=args.bijective)
     except MeshError as exc:
         raise _for_the_command_line(exc, args) from exc
+    # setup: everything in parameterize but the solve and JAX's compilation (start map, scaling,
+    # patterns, analysis, the exact certificate)
+    compiled = compile_seconds() - compiled
+    split.add("compile", compiled)
+    split.add("solve", res.seconds)
+    split.add("setup", time.perf_counter() - t_solve - res.seconds - compiled)
     rep = res.info.get("repair")
     if rep is not None:
         _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
@@ -143,24 +153,37 @@ def cmd_param(args) -> int:
         return _fail(f"the start map could not be repaired: {rep.message}")
     mean = res.energy / res.info["objective"].total_volume
     _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
-               f"compile seconds {res.setup_seconds:.2f}  energy {mean:.10g}  flips {res.inverted}  "
-               f"injective {res.injectivity}  outcome {res.outcome.value}")
+               f"compile seconds {res.setup_seconds:.2f}  energy {res.energy:.10g}  mean energy {mean:.10g}  "
+               f"flips {res.inverted}  injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
             energy_name=energy.name, solver=args.solver, iterations=res.iterations,
             solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
             energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
-            boundary_crossings=_boundary_crossings(res),
+            boundary_crossings=_boundary_crossings(res), uv_range=args.uv_range,
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     if res.injectivity == "local":
         _warn_overlap(res, args)
+    if folder is not None:
+        io.create_output_folder(folder)
+    uv = _unit_square(res.x) if args.uv_range == "unit" else res.x
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, V, F, args.png, outputs, args.solver)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, res.x,
-                              format=Path(args.output).suffix[1:])
+            _save_param_figures(res, V, F, uv, args.png, outputs, args)
+        with split.phase("write"):
+            io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
+                                  format=Path(args.output).suffix[1:])
     return EXIT_OK
+
+
+def _unit_square(uv):
+    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
+    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect."""
+    import numpy as np
+
+    lo = uv.min(axis=0)
+    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
 
 
 def _warn_overlap(res, args):
@@ -207,7 +230,7 @@ def _cache_summary() -> dict:
     return {"cache_dir": st["dir"], "cache_hits": st["hits"], "cache_misses": st["misses"]}
 
 
-def _save_param_figures(res, V, F, png, outputs, solver_name):
+def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     import numpy as np
 
@@ -216,15 +239,19 @@ def _save_param_figures(res, V, F, png, outputs, solver_name):
 
     obj = res.info["objective"]
     dens = np.asarray(element_densities(obj, res.x))
+    rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
-    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, res.x,
-                           np.log10(np.maximum(dens / obj.energy.value_at_rest(2), 1.0))
-                           if obj.energy.value_at_rest(2) else dens,
-                           title=f"UV layout, {obj.energy.name} (log10 of density / isometric value)",
-                           label="log10 distortion", format=base.suffix[1:].lower())
+    title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
+             f"{res.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
+             f"injective {res.injectivity}")
+    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
+                           np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
+                           label="log10(density / its isometric value)" if rest else
+                           f"{obj.energy.name} density", format=base.suffix[1:].lower())
+    vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {solver_name: (res.time_history, res.energy_history)},
-                          title=f"convergence ({len(F)} faces)", format=conv.suffix[1:].lower())
+                          {args.solver: (res.time_history, res.energy_history / vol, res.grad_history / vol)},
+                          ylabel=f"mean {obj.energy.name} energy", title=title, format=conv.suffix[1:].lower())
     return base, conv
 
 
@@ -249,26 +276,46 @@ def cmd_untangle(args) -> int:
 def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
+    from ._timing import compile_seconds
     from .batch import check_handles, write_certified
     from .lim import LimCase
+    from .quality import element_quality
     from .untangle import untangle_case
 
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
     want = ".obj" if LimCase.dim_of(folder) == 2 else ".vtk"
     if Path(args.output).suffix.lower() != want:
         raise ParameterError(f"{folder} is a {'2D' if want == '.obj' else '3D'} case: the output "
                              f"must be a {want} file, got {args.output}")
-    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [],
-                  [str(p) for p in Path(folder).iterdir()])
-    case = LimCase.read(folder)
-    check_handles(case)
+    _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [], [folder])
+    with split.phase("read"):
+        case = LimCase.read(folder)
+        check_handles(case)
+    t_call, compiled = time.perf_counter(), compile_seconds()
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
+    compiled = compile_seconds() - compiled
+    # setup: all of untangle_case but the solve loop, the certificate and JAX's compilation
+    certify = res.info.get("certify_seconds", 0.0)
+    split.add("compile", compiled)
+    split.add("solve", res.seconds)
+    split.add("certify", certify)
+    split.add("setup", time.perf_counter() - t_call - res.seconds - certify - compiled)
+    with split.phase("certify"):
+        quality = element_quality(res.x, case["faces"] if case["dim"] == 2 else case["tets"], case["orientation"])
     _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
                f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
                f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(folder), output=str(args.output), elements=res.info.get("elements"),
-            outer_iterations=res.outer_iterations, solve_seconds=round(res.seconds, 4),
-            setup_seconds=round(res.setup_seconds, 4), inverted=res.inverted, certified=bool(res.success),
-            message=res.message, **_cache_summary())
+    _log(args, f"quality: smallest size / mean {quality['min_size_ratio']:.4g}, scaled Jacobian min "
+               f"{quality['min_scaled_jacobian']:.4g} mean {quality['mean_scaled_jacobian']:.4g}")
+    _report(args, case=str(folder), output=str(args.output), dim=LimCase.dim_of(folder), vertices=len(res.x),
+            elements=res.info.get("elements"), inverted_before=res.initially_inverted, inverted=res.inverted,
+            outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
+            evaluations=res.info.get("evaluations"), solve_seconds=round(res.seconds, 4),
+            setup_seconds=round(res.setup_seconds, 4), handles_moved=res.handles_moved, min_det_rel=res.min_det_rel,
+            outcome=res.outcome.value, certified=bool(res.success), message=res.message, **quality,
+            **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -276,7 +323,8 @@ def _untangle_one(args, folder) -> int:
         if args.png:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
-        write_certified(case, res, args.output)
+        with split.phase("write"):
+            write_certified(case, res, args.output)
     return EXIT_OK
 
 
@@ -368,6 +416,8 @@ def _untangle_batch(args) -> int:
                      report=report)
     failed = sum(row["certified"] != "yes" for row in rows)
     summary = Path(args.output) / "summary.csv"
+    _report(args, output=str(args.output), summary=str(summary), workers=workers, scheduler=args.scheduler,
+            cases=len(rows), certified=len(rows) - failed, not_certified=failed, rows=rows, **_cache_summary())
     if failed:
         print(f"geomopt: {failed} of {len(rows)} case(s) not certified (no output written for them); "
               f"see {summary}", file=sys.stderr, flush=True)
@@ -390,19 +440,14 @@ def _save_untangle_figure(case, res, png, format=None):
 
 def cmd_demo(args) -> int:
     """Parameterize the bundled camelhead and write OBJ + UV picture + convergence plot."""
-    from ._errors import GeomoptError
-
     out = Path(args.output)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise GeomoptError(f"cannot create the output folder {out} ({exc.strerror}); "
-                           f"give a folder path") from exc
-    data = Path(__file__).with_name("data") / "camelhead.off"
-    ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"),
+    from .data import path as bundled
+
+    data = bundled("camelhead")
+    ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
-                            json=args.json, summary=args.summary)
+                            uv_range="raw", json=args.json, summary=args.summary)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "
@@ -411,20 +456,52 @@ def cmd_demo(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    """Every solver from the same start map; CSV traces, summary, maps and a plot in --out."""
-    from ._compare import compare
+    """Every solver from the same start map, on one mesh or several: traces, summary, LaTeX
+    table, manifest, maps and the convergence figure in -o (see geomopt._compare).
 
-    res = compare(args.mesh, solvers=args.solvers, energy=args.energy, weights=args.weights,
-                  max_seconds=args.max_seconds, max_steps=args.max_steps, out=args.out,
-                  progress=not args.quiet)
+    Exit status 0 only when every solver converged to a certified map and no iterate had an
+    inverted element; else 1, after writing every file, with one line naming each solver and why."""
+    from ._compare import ComparisonSet, compare, compare_meshes, exit_status
+
+    options = dict(solvers=args.solvers, energy=args.energy, weights=args.weights, max_seconds=args.max_seconds,
+                   max_steps=args.max_steps, reference=args.reference, repeat=args.repeat,
+                   tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
+                   log_x=args.log_x, progress=not args.quiet)
+    if len(args.mesh) == 1:
+        res = compare(args.mesh[0], out=args.output, **options)
+    else:
+        res = compare_meshes(args.mesh, out=args.output, **options)
     _log(args, res.report())
-    _log(args, f"wrote {', '.join(res.output_names())} in {args.out}")
-    folded = [name for name, r in res.results.items() if r.info["flips_history"].max() > 0]
-    if folded:
-        print(f"geomopt: error: inverted elements during the solve of {', '.join(folded)} (see the "
-              f"flips column of {Path(args.out) / 'history.csv'}); files written", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+    files = res.output_names(options["formats"])
+    _log(args, f"wrote {', '.join(files)} in {args.output}")
+    items = res.comparisons if isinstance(res, ComparisonSet) else {Path(args.mesh[0]).name: res}
+    _report(args, output=str(args.output), files=files, repeat=args.repeat, tolerances=options["tolerances"],
+            meshes=[{"mesh": key, "label": c.label, "elements": c.objective.problem.n_elements,
+                     "energy_name": c.objective.energy.name, "rest_area": c.area,
+                     "reference": {"source": c.reference.source, "energy": c.reference.energy,
+                                   "mean_energy": c.reference_mean_energy},
+                     "solvers": c.summary_rows()} for key, c in items.items()])
+    code = exit_status(res)
+    if code:
+        bad = [f"{key}: {row['solver']} ({row['outcome']}{'' if row['certified'] else ', not certified'})"
+               for key, c in items.items() for row in c.summary_rows()
+               if row["outcome"] != "converged" or not row["certified"]]
+        print(f"geomopt: error: not every solver converged with a certified map: {'; '.join(bad)}; files written",
+              file=sys.stderr, flush=True)
+    return code
+
+
+def _names(text):
+    return tuple(s.strip().lower() for s in text.split(",") if s.strip())
+
+
+def _floats(text, option):
+    from ._errors import ParameterError
+
+    try:
+        return tuple(float(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise ParameterError(f"{option} takes comma-separated numbers (e.g. 1e-2,1e-4,1e-6), got {text!r}") from None
 
 
 def _positive_int(text) -> int:
@@ -441,7 +518,7 @@ def build_parser():
     from . import __version__
     from ._names import ENERGIES, SOLVERS
 
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="geomopt", description="Locally injective (foldover-free) maps of triangle and tet meshes.",
         epilog=f"energies: {', '.join(ENERGIES)}. solvers: {', '.join(SOLVERS)}. Compiled code is "
                f"cached in $GEOMOPT_CACHE_DIR (default ~/.cache/geomopt/jax; 'off' disables it). "
@@ -473,6 +550,10 @@ def build_parser():
                     help="keep the boundary from crossing itself (a scaffold around the mesh): a globally "
                          "injective map, certified exactly")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
+    sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
+                    help="UVs written as solved (raw, the default: a map of about the surface's own "
+                         "size) or moved and scaled uniformly into the unit square (unit; the energy "
+                         "reported is the raw map's)")
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "
                          ".png, .pdf or .svg) and a <name>_convergence plot")
@@ -517,19 +598,30 @@ def build_parser():
     common(sp)
     sp.set_defaults(func=cmd_smooth)
 
-    sp = sub.add_parser("compare", help="run several solvers from the same start, write traces and a plot")
-    sp.add_argument("mesh", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
-                                 "(fixed handles, its flip-free map as the start)")
-    sp.add_argument("--out", required=True, help="output folder: history.csv, summary.csv, <solver>.obj "
-                                                 "(.vtk for tets), convergence.png")
+    sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
+                                         "traces, table, manifest and a figure")
+    sp.add_argument("mesh", nargs="+", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
+                                            "(fixed handles, its flip-free map as the start); several: one "
+                                            "sub-folder each plus a combined table and figure")
+    sp.add_argument("-o", "--output", "--out", dest="output", required=True,
+                    help="output folder: history.csv, summary.csv, table.tex, manifest.json, <solver>.obj "
+                         "(.vtk for tets), convergence.<format>")
     sp.add_argument("--solvers", default=None,
-                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D)")
+                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm,optx-lbfgs; cm only in 2D)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the free-boundary start map")
+    sp.add_argument("--reference", default="auto",
+                    help="what gaps are measured to: auto (a tight Newton solve, the default), best (the "
+                         "lowest energy any solver reached) or a mean energy")
+    sp.add_argument("--repeat", type=_positive_int, default=1, help="runs per solver; times are medians")
+    sp.add_argument("--tolerances", default="1e-2,1e-4,1e-6",
+                    help="relative gaps the table reports iterations and seconds to (default 1e-2,1e-4,1e-6)")
     sp.add_argument("--max-seconds", type=float, default=None,
                     help="stop each solver after this many seconds of solve time (setup excluded)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
+    sp.add_argument("--format", default="png", help="figure formats, comma-separated: png, pdf, svg (default png)")
+    sp.add_argument("--log-x", action="store_true", help="log scale on the seconds and iteration axes")
     common(sp)
     sp.set_defaults(func=cmd_compare)
 
@@ -545,20 +637,58 @@ def _report(args, **fields):
     args.summary.update(fields)
 
 
+class _UsageError(Exception):
+    """A command line argparse refuses (raised instead of argparse's own exit)."""
+
+    def __init__(self, parser, message):
+        super().__init__(message)
+        self.parser = parser
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is raised, so that ``--json`` can still print its JSON."""
+
+    def error(self, message):
+        raise _UsageError(self, message)
+
+
 def main(argv=None) -> int:
     t0 = time.perf_counter()
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    try:
+        args = build_parser().parse_args(argv)
+    except _UsageError as exc:  # one line, exit status 2, and the JSON summary if asked
+        print(f"{exc.parser.prog}: error: {exc} (see '{exc.parser.prog} --help')", file=sys.stderr, flush=True)
+        if "--json" in argv:
+            command = next((a for a in argv if not a.startswith("-")), None)
+            print(json.dumps({"command": command, "success": False, "exit_status": EXIT_USAGE,
+                              "error": f"usage: {exc}", "wall_seconds": round(time.perf_counter() - t0, 4)}),
+                  flush=True)
+        raise SystemExit(EXIT_USAGE) from None  # as argparse itself exits
     args.summary = {"command": args.command, "success": False}
+    from ._timing import Split
+
+    args.timing = Split()
     code = EXIT_FAILED
     try:
         code = _run(args)
         return code
     finally:
         if args.json:
+            from ._manifest import SCHEMA_VERSION, versions
+
             _report(args, exit_status=code, success=code == EXIT_OK,
-                    wall_seconds=round(time.perf_counter() - t0, 4))
-            print(json.dumps(args.summary), flush=True)
+                    wall_seconds=round(time.perf_counter() - t0, 4), timing=args.timing.summary(),
+                    schema_version=SCHEMA_VERSION,
+                    versions=versions())
+            print(json.dumps(args.summary, default=_json_default), flush=True)
+
+
+def _json_default(value):
+    """NumPy scalars and arrays, paths and other objects in --json output."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
 
 
 def _run(args) -> int:
@@ -569,7 +699,9 @@ def _run(args) -> int:
 
         cache_stats()  # count persistent-cache hits and misses from here on
     try:
-        with _signals_raise():
+        with _signals_raise(), warnings.catch_warnings():
+            if not args.debug:  # errors are one line: no NumPy RuntimeWarning (overflow, 0/0...) on stderr
+                warnings.simplefilter("ignore", RuntimeWarning)
             return args.func(args)
     except SolveError as exc:
         if args.debug:

@@ -23,6 +23,17 @@ coefficients, so it is positive everywhere iff the four corner triangles are pos
 :func:`~geomopt.predicates.orient2d`).  A trilinear hex needs more than its corners:
 :mod:`geomopt.hexvalid` proves ``det J > 0`` inside from Bernstein coefficients.
 
+Local injectivity.  Elements with a positive Jacobian everywhere, sharing facets, can still
+wind twice around a vertex or an edge, or overlap at the boundary.  Around a vertex ``v`` the
+map is, to first order, linear on each element's tangent cone at ``v``: the cone of its corner
+simplex *at* ``v`` (corner ``v`` and its edge neighbours).  These corner simplices, one per
+element at ``v`` (:func:`corner_stars`), tile a neighbourhood of ``v`` without overlap, unlike
+all the corner simplices together; the fan/star tests of :mod:`geomopt.stars` run on them, so
+a vertex's winding and its boundary fan are those of the element map (a homotopy ``x ->
+(f(v + t x) - f(v)) / t`` to the tangent map keeps the degree), and an edge's winding, an
+integer sum of the elements' dihedral angles along it, continuous along the edge and so
+constant, is read at its ends.  :func:`element_local_certificate` is that certificate.
+
 Quality: the scaled Jacobian, the smallest over the corners of ``det [e_1 .. e_d] / prod |e_i|``
 with ``e_i`` the corner's edges (1 for a square / cube, 0 for a degenerate corner, negative
 when inverted; Knupp, "Achieving finite element mesh quality via optimization of the Jacobian
@@ -32,18 +43,21 @@ matrix norm and associated quantities", IJNME 48, 2000).
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._validate import validate_simplices
+from .certify import LocalCertificate, local_certificate
 from .hexvalid import HEX_CORNERS, TESTS, hex_validity
 from .predicates import orient2d
 
 __all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementCertificate", "Quality",
            "validate_elements", "corner_simplices", "corner_edges", "rest_elements",
-           "reference_rest", "check_element_facets", "boundary_vertices", "diagonal_triangles",
-           "scaled_jacobian", "quality", "certify_elements", "count_invalid", "valid_elements", "element_type"]
+           "reference_rest", "check_element_facets", "boundary_vertices",
+           "scaled_jacobian", "quality", "certify_elements", "count_invalid", "valid_elements", "element_type",
+           "corner_stars", "ElementLocalCertificate", "element_local_certificate"]
 
 #: Corner triangles of a quad: corner ``c`` then its neighbours ``c + 1`` and ``c - 1``.
 QUAD_CORNERS = np.array([[0, 1, 3], [1, 2, 0], [2, 3, 1], [3, 0, 2]], dtype=np.int64)
@@ -262,12 +276,6 @@ def boundary_vertices(E, n_vertices) -> np.ndarray:
     return np.flatnonzero(on)
 
 
-def diagonal_triangles(E) -> np.ndarray:
-    """(2 m, 3): corners 0 and 2 of each quad, a triangulation of it along its diagonal 1-3
-    (positive when the quad is valid): what 2D winding checks need."""
-    return corner_simplices(E).reshape(len(E), 4, 3)[:, [0, 2]].reshape(-1, 3)
-
-
 # ------------------------------------------------------------------ quality and certificate
 
 
@@ -372,3 +380,83 @@ def certify_elements(X, E) -> ElementCertificate:
 def count_invalid(X, E) -> int:
     """Elements of ``E`` (oriented) not certified valid under ``X`` (exact)."""
     return int(np.count_nonzero(~valid_elements(np.asarray(X, dtype=np.float64), np.asarray(E))))
+
+
+def corner_stars(E, n_vertices):
+    """The corner simplices of elements ``E`` (m, 4) or (m, 8) regrouped as disjoint stars: the
+    star of vertex ``v`` holds the corner simplex *at* ``v`` of each element at ``v``, with its
+    far vertices replaced by copies owned by ``v`` (so stars share no vertex).
+
+    Returns
+    -------
+    S : (m k, d + 1) int64, the corner simplices, apex first, over the new vertex ids.
+    source : (N,) int64, the original vertex each new id stands for (``source[:n_vertices]``
+        is the identity: apexes keep their ids; copies follow).
+    """
+    C = corner_simplices(np.asarray(E))
+    far = C[:, 1:]
+    copies, inverse = np.unique(C[:, :1] * n_vertices + far, return_inverse=True)
+    S = np.column_stack([C[:, 0], n_vertices + inverse.reshape(far.shape)])
+    return S, np.concatenate([np.arange(n_vertices), copies % n_vertices])
+
+
+@dataclasses.dataclass(frozen=True)
+class ElementLocalCertificate(LocalCertificate):
+    """:class:`~geomopt.certify.LocalCertificate` of a quad or hex map (:func:`element_local_certificate`).
+
+    ``inverted`` counts elements without a positive Jacobian everywhere (``first_inverted``:
+    the first); the vertex and edge lists are in the mesh's vertex ids.  ``elements``: the
+    :class:`ElementCertificate` (which test decided each element, how many are only
+    corner-valid, the quality); ``words``: what the elements are called ("quads", "hexahedra").
+    """
+
+    elements: ElementCertificate | None = None
+    words: str = "elements"
+
+    @property
+    def message(self) -> str:
+        """One line naming the first failure ("" when :attr:`ok`)."""
+        if not self.inverted or self.elements is None:
+            return super().message.replace("tets", self.words)
+        folded = self.elements.corner_only
+        inside = (f", {folded} of them with every corner positive but folded inside (exact Bernstein test)"
+                  if folded else "")
+        return (f"{self.inverted} {self.words} without a positive Jacobian everywhere (first: element "
+                f"{self.first_inverted}){inside}")
+
+
+def element_local_certificate(X, E) -> ElementLocalCertificate:
+    """Exact certificate that a quad map (``X`` (n, 2)) or hexahedral map (``X`` (n, 3)) of
+    oriented elements ``E`` (m, 4) / (m, 8) is locally injective.
+
+    Every element must have a positive Jacobian everywhere (:func:`certify_elements`: quads by
+    their corners, hexahedra by Bernstein coefficients); then the fans / stars around every
+    vertex and edge are checked on the tangent cones (:func:`corner_stars`, module notes),
+    never on the overlapping corner simplices as one mesh.
+
+    Returns
+    -------
+    :class:`ElementLocalCertificate`; ``ok`` iff the map is locally injective.
+    """
+    t0 = time.perf_counter()
+    X = np.asarray(X, dtype=np.float64)
+    E = np.asarray(E, dtype=np.int64)
+    cert = certify_elements(X, E)
+    bad = np.flatnonzero(~cert.valid)
+    words = ELEMENT_KINDS[E.shape[1]].words
+    if bad.size:
+        return ElementLocalCertificate(int(bad.size), int(bad[0]), seconds=time.perf_counter() - t0,
+                                       elements=cert, words=words)
+    S, source = corner_stars(E, len(X))
+    star = local_certificate(X[source], S)
+    if star.inverted:  # valid elements have positive corners: never, but never certify then
+        return ElementLocalCertificate(star.inverted, int(star.first_inverted) // E.shape[1],
+                                       seconds=time.perf_counter() - t0, elements=cert, words=words)
+
+    def edges(A):
+        return np.unique(np.sort(source[A], axis=1), axis=0) if len(A) else A
+
+    return ElementLocalCertificate(
+        0, -1, np.unique(source[star.branch_vertices]), edges(star.branch_edges),
+        np.unique(source[star.boundary_overlaps]), edges(star.boundary_edge_overlaps),
+        time.perf_counter() - t0, elements=cert, words=words)

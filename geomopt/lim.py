@@ -20,12 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import MeshError, MeshFormatError
-from .io import atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets, write_obj_with_uv, write_vtk_tets
+from .io import (CASE_FILES, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets, write_obj_with_uv,
+                 write_vtk_tets)
 
 __all__ = ["LimCase", "read_lim_case", "lim_case_dim", "lim_cases"]
 
-#: The files that mark a folder as a 2D or a 3D case.
-_MARKS_2D, _MARKS_3D = ("input.obj",), ("rest.vtk", "init.vtk")
+#: The files that mark a folder as a 2D or a 3D case (output folders never are one: geomopt.io.check_outputs).
+_MARKS_2D, _MARKS_3D = CASE_FILES[:1], CASE_FILES[1:]
 _HANDLES_3D = ("handles.txt", "handles_derived_boundary.txt")
 
 

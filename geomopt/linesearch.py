@@ -23,7 +23,13 @@ from jax import lax
 
 from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
+from ._x64 import float64
 from ._geometry import det, dets, edge_rows
+
+__all__ = [
+    "InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive",
+    "objective_value_and_grad",
+]
 
 
 def _smallest_positive(roots):
@@ -90,6 +96,7 @@ def _cubic_roots(c3, c2, c1, c0):
     return jnp.where(small[..., None], quad, t)
 
 
+@float64
 @jax.jit
 def max_injective_step(S, x, dx):
     """Largest ``t`` keeping every element positive at ``x`` positive along ``x + t dx``.
@@ -244,6 +251,7 @@ class InjectiveSearch:
         # on a Wolfe failure take the best Armijo point seen (if any)
         return c["bt"], c["bx"], c["bf"], c["bg"], c["bt"] > 0, c["i"]
 
+    @float64
     def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
         """Search on an :class:`~geomopt.Objective`: ``(t, x_new, value_new, grad_new, evals)``;
         ``t == 0`` means no acceptable step."""
@@ -252,6 +260,7 @@ class InjectiveSearch:
         return float(t), xn, float(fn), gn, int(n)
 
 
+    @float64
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""

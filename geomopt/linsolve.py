@@ -24,9 +24,13 @@ import sys
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ._errors import ParameterError
+
+__all__ = [
+    "SparseCholesky", "NotPositiveDefinite", "available_backends", "newton_linear_solver", "BACKENDS",
+    "CG_FROM_DOFS",
+]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "cholespy", "superlu")
 
@@ -75,10 +79,25 @@ def _have(module):
         return False
 
 
+#: What :class:`SparseCholesky` calls on py-mkl-pardiso's (private) ``_mkl_pardiso.PardisoSolver``,
+#: tested with py-mkl-pardiso 0.0.6: a release without it falls back to the next backend.
+PARDISO_API = ("set_iparm", "set_pattern", "run_phase", "refactor_values", "solve")
+
+
+def _have_pardiso():
+    try:
+        from pymklpardiso import MTYPE_REAL_SYM_POSDEF  # noqa: F401
+        from pymklpardiso._mkl_pardiso import PardisoSolver
+    except Exception:  # noqa: BLE001 -- not installed, or its layout changed
+        return False
+    return all(callable(getattr(PardisoSolver, name, None)) for name in PARDISO_API)
+
+
 def available_backends():
-    """Installed backends, fastest first (the order ``auto`` uses)."""
+    """Installed backends, fastest first (the order ``auto`` uses).  PARDISO counts only when
+    py-mkl-pardiso offers the calls geomopt makes (:data:`PARDISO_API`)."""
     out = []
-    if _have("pymklpardiso"):
+    if _have_pardiso():
         out.append("pardiso")
     if _have("sksparse.cholmod"):
         out.append("cholmod")
@@ -175,6 +194,8 @@ class SparseCholesky:
         else:
             L = self._csc(data)
             try:
+                import scipy.sparse.linalg as spla  # the fallback only: 0.1 s of import
+
                 self._factor = spla.splu((L + L.T - sp.diags(L.diagonal())).tocsc(), permc_spec="MMD_AT_PLUS_A",
                                          diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             except RuntimeError as exc:
@@ -209,23 +230,25 @@ def newton_linear_solver(dim: int, n_free: int, platform: str = "cpu") -> str:
 
     Parameters
     ----------
-    dim : 2 (triangles) or 3 (tets);  n_free : free DOFs;  platform : JAX's backend name.
+    dim : 2 (triangles) or 3 (tets).
+    n_free : free DOFs.
+    platform : JAX's backend name.
 
+    Notes
+    -----
     The rule, by measurement: CPU seconds (all threads) of warm projected-Newton solves to
     convergence (clamp, symmetric Dirichlet, the swirled grids of ``benchmarks/scale.py``,
     PARDISO with METIS vs CG with Newton's forcing term ``eta_max=0.01``; same Newton
     iteration counts), 2-core machine at load 6-10, 2026-11-22:
 
-    ==========  =========  ======  =====
-    mesh        free DOFs  direct  CG
-    ==========  =========  ======  =====
-    10^4 tris   9.8k       0.21    0.18
-    10^5 tris   99k        1.61    2.92
-    10^4 tets   4.0k       0.48    0.44
-    2x10^4 tets 8.2k       1.11    0.87
-    3x10^4 tets 12k        1.62    1.27
-    10^5 tets   47k        9.73    4.55
-    ==========  =========  ======  =====
+    | mesh        | free DOFs | direct | CG   |
+    |-------------|-----------|--------|------|
+    | 10^4 tris   | 9.8k      | 0.21   | 0.18 |
+    | 10^5 tris   | 99k       | 1.61   | 2.92 |
+    | 10^4 tets   | 4.0k      | 0.48   | 0.44 |
+    | 2x10^4 tets | 8.2k      | 1.11   | 0.87 |
+    | 3x10^4 tets | 12k       | 1.62   | 1.27 |
+    | 10^5 tets   | 47k       | 9.73   | 4.55 |
 
     (untangling the twisted 2x10^4-tet box with ``solver="newton"``: 3.7 s direct, 2.9 s CG,
     same 15 inner iterations.)  Hence:

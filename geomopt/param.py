@@ -7,16 +7,23 @@ import dataclasses
 import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
+from ._tracing import refuse_traced
+from ._x64 import float64
 from ._objective import Objective
 from .problem import Problem
-from .solvers import Newton, Result, get_solver, minimize
-from .certify import polygon_crossings, polygon_orientation
-from .predicates import branch_vertices
+from .solvers import Newton, Outcome, Result, get_solver, minimize
+from .certify import local_certificate, polygon_crossings, polygon_orientation
 from .solvers._base import check_progress
 from .topology import check_disk
 from .tutte import circle_boundary, tutte_embedding
 
+__all__ = [
+    "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
+    "check_scale_aware",
+]
 
+
+@float64
 def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
     """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
     ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
@@ -28,6 +35,8 @@ def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e
     """
     from scipy.optimize import minimize_scalar
 
+    refuse_traced("optimal_scale (a host search)", "start maps have zero derivative: compute them from concrete "
+                  "values", objective, x, params)
     params = objective.params(**(params or {}))
     x = objective.pad_map(np.asarray(x, dtype=np.float64))
 
@@ -71,6 +80,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
             f"{get_energy(energy).name!r}: pass parameterize(..., {where})")
 
 
+@float64
 def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
 
@@ -112,9 +122,9 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
         source = "the start map x0"
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
-    # a flip-free map can still wind twice around an interior vertex (a branch point): no
-    # flip-free step removes it, so it is repaired like a fold
-    if source != "the Tutte start map" and (inverted or len(branch_vertices(x0, problem.simplices))):
+    # a flip-free map can still wind twice around an interior vertex (a branch point), which no
+    # flip-free step removes, or overlap around a boundary vertex: repaired like a fold
+    if source != "the Tutte start map" and (inverted or not local_certificate(x0, problem.simplices).ok):
         repaired = repair_map(problem, x0, progress=progress)
         if not repaired.success:
             return None, 1.0, repaired
@@ -144,6 +154,7 @@ def mesh_arrays(V, F=None):
     return V, F
 
 
+@float64
 def check_scale_aware(energy, energy_params):
     """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
@@ -165,8 +176,10 @@ def check_scale_aware(energy, energy_params):
             "(geomopt.minimize with a Problem that has handles)")
 
 
+@float64
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, **energy_params):
+                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
+                 **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Parameters
@@ -191,6 +204,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         Either way ``info["certificate"]`` is the exact global certificate
         (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
+    element_weights : (m,) positive per-triangle weights of the energy (see
+        :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
         mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
@@ -207,20 +222,23 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     ParameterError : unknown energy/solver/weights name or invalid energy parameter.
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
     """
+    refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
+                  "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)
     V, F = mesh_arrays(V, F)
     check_scale_aware(energy, energy_params)
     check_progress(progress, "parameterize")
     if bijective:
         from .scaffold import bijective_parameterize
 
-        if isinstance(x0, str):
-            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array")
+        if isinstance(x0, str) or element_weights is not None:
+            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
+                                 "with no element_weights")
         return bijective_parameterize(V, F, energy=energy, solver=solver, weights=weights, x0=x0,
                                       progress=progress, throw=throw, **energy_params)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
-    objective = Objective(problem, energy, buckets=buckets, **energy_params)
+    objective = Objective(problem, energy, buckets=buckets, element_weights=element_weights, **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
     x0, s, repaired = start_map(objective, x0, weights, progress is True)
     if x0 is None:
@@ -238,6 +256,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     cert = certify_bijective(result.x, problem.input_simplices)
     result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired,
                        certificate=cert, injectivity=cert.injectivity)
+    if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
+        result.info["reason"] += ("; the free boundary folded over itself there, which the bijective "
+                                  "mode prevents (bijective=True, geomopt param --bijective)")
     return result
 
 
@@ -260,6 +281,7 @@ def projection_map(V, F) -> np.ndarray:
     return x * [1.0, -1.0] if area < 0 else x
 
 
+@float64
 def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
     """Repair a folded map: Garanzha et al.'s untangling with the boundary held on a simple
     polygon (the map's own boundary when it is one, else a circle), which is freed afterwards by

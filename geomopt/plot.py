@@ -1,28 +1,52 @@
-"""Figures (matplotlib, Agg): a UV map as a checkerboard on the surface beside its layout
-coloured by distortion, untangling start/result pictures with inverted elements marked, and
-convergence plots.
+"""Figures (matplotlib, no pyplot state): a UV map as a checkerboard texture on the surface
+beside its layout coloured by distortion, untangling start/result pictures with inverted
+elements marked, and convergence plots.
 
-Each function saves to a path (atomically, in the format its extension names) or into an open
-binary file (then ``format`` is required)."""
+Each picture has a ``*_figure`` function returning a :class:`matplotlib.figure.Figure` (shown
+inline by Jupyter) and a ``save_*`` function that saves it to a path (atomically, in the
+format its extension names: ``.png``, ``.pdf``, ``.svg``) or into an open binary file (then
+``format`` is required).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._render import render_uv_checker
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
-
+__all__ = [
+    "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
+    "save_untangle_figure", "convergence_figure", "save_convergence", "INVERTED",
+]
 
 INVERTED = "#d62728"  # red: inverted elements in every picture
 
 
-def _save(fig, target, format):
+def distortion(problem, x) -> dict:
+    """Per element of ``problem`` (:class:`~geomopt.Problem`) under the map ``x`` (n, d), from
+    the singular values of its Jacobian ``J``: ``"conformal"`` (m,) ``sigma_max / sigma_min``
+    (1 for a similarity, inf for a degenerate element) and ``"area"`` (m,) ``det J``, the
+    signed ratio of mapped to rest area (volume): 1 where area is preserved, <= 0 inverted."""
+    S, x = problem.simplices, np.asarray(x, np.float64)
+    E = np.stack([x[S[:, k]] - x[S[:, 0]] for k in range(1, S.shape[1])], axis=-1)
+    J = E @ problem.rest_inv
+    s = np.linalg.svd(J, compute_uv=False)
+    with np.errstate(divide="ignore"):
+        conformal = np.where(s[:, -1] > 0, s[:, 0] / np.where(s[:, -1] > 0, s[:, -1], 1.0), np.inf)
+    return {"conformal": conformal, "area": np.linalg.det(J)}
+
+
+def _figure(width, height, dpi=100):
+    """A Figure on an Agg canvas, outside pyplot (nothing global to close; Jupyter shows it)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig, target, format=None):
     """Save ``fig`` into the open binary file ``target`` or atomically to the path ``target``."""
     if hasattr(target, "write"):
         if format is None:
@@ -45,30 +69,64 @@ def _layout(fig, ax, x, F, face_values, title, label, vmin=None, vmax=None):
     else:
         tp = ax.tripcolor(x[:, 0], x[:, 1], F, facecolors=np.asarray(face_values), cmap="viridis",
                           vmin=vmin, vmax=vmax, edgecolors="none")
-        fig.colorbar(tp, ax=ax, shrink=0.7, label=label)
+        fig.colorbar(tp, ax=ax, shrink=0.8, label=label)
     ax.set_aspect("equal")
     ax.set_axis_off()
-    ax.set_title(title)
+    ax.set_title(title, fontsize=11)
+
+
+def layout_figure(x, F, face_values=None, title="", label="distortion", vmin=None, vmax=None, dpi=100):
+    """A 2D map ``x`` (n, 2) with triangles ``F`` (m, 3), faces coloured by ``face_values``
+    (m,) (or drawn as a wireframe when None); 7 x 7 inches."""
+    fig = _figure(7, 7, dpi)
+    _layout(fig, fig.add_subplot(), np.asarray(x, np.float64), np.asarray(F), face_values, title, label,
+            vmin, vmax)
+    return fig
 
 
 def save_layout(path, x, F, face_values=None, title="", label="distortion", vmin=None, vmax=None, format=None):
-    """Draw a 2D map ``x`` (n, 2) with triangles ``F`` (m, 3), faces coloured by ``face_values``."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 7), dpi=120)
-    _layout(fig, ax, x, F, face_values, title, label, vmin, vmax)
-    fig.tight_layout()
-    _save(fig, path, format)
-    plt.close(fig)
+    """Save :func:`layout_figure` to ``path``."""
+    save_figure(layout_figure(x, F, face_values, title, label, vmin, vmax, dpi=120), path, format)
 
 
-def checker_colors(uv, F, checks=20):
-    """(m, 3) RGB per face: a ``checks`` x ``checks`` checkerboard over the UV map's bounding
-    square, sampled at each face's UV centroid (uv (n, 2), F (m, 3))."""
-    uv = np.asarray(uv, dtype=np.float64)
-    lo, span = uv.min(axis=0), max(float(np.ptp(uv, axis=0).max()), 1e-300)
-    c = (uv[F].mean(axis=1) - lo) / span * checks
-    odd = (np.floor(c[:, 0]) + np.floor(c[:, 1])) % 2 == 1
-    return np.where(odd[:, None], [0.95, 0.62, 0.13], [0.97, 0.97, 0.95])
+def param_figure(V, F, uv, face_values=None, title="", label="distortion", checks=20, view=(15.0, 30.0),
+                 up="y", dpi=100):
+    """A UV map ``uv`` (n, 2) of the surface ``V`` (n, 3), ``F`` (m, 3), in two panels.
+
+    Left (large): a ``checks`` x ``checks`` checkerboard texture through the UV map on the
+    surface, evaluated per pixel (:func:`geomopt._render.render_uv_checker`; squares that stay
+    square mean a conformal map, squares of one size an area-preserving one), seen from
+    ``view`` = (elevation, azimuth) in degrees about the world axis ``up``; beside it, smaller,
+    the opposite side.  Right: the UV layout, faces coloured by ``face_values`` (m,).  16 x 7.5
+    inches; ``title`` above all three.
+    """
+    V, F, uv = np.asarray(V, np.float64), np.asarray(F), np.asarray(uv, np.float64)
+    fig = _figure(16, 7.5, dpi)
+    front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
+    size = int(round(7.0 * dpi))
+    for ax, azim, px, name in ((front, view[1], size, f"{checks} x {checks} checkerboard through the UV map"),
+                               (back, view[1] + 180.0, size // 2, "other side")):
+        ax.imshow(render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks))
+        ax.set_axis_off()
+        ax.set_title(name, fontsize=11)
+    _layout(fig, right, uv, F, face_values, "UV layout", label)
+    if title:
+        fig.suptitle(title, fontsize=12)
+    return fig
+
+
+def save_param_figure(path, V, F, uv, face_values=None, title="", label="distortion", checks=20, format=None,
+                      view=(15.0, 30.0), up="y"):
+    """Save :func:`param_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG)."""
+    save_figure(param_figure(V, F, uv, face_values, title, label, checks, view, up, dpi=110), path, format)
+
+
+def _boundary_faces(T):
+    """(k, 3) faces of the tets ``T`` (m, 4) that belong to one tet only, outward-agnostic."""
+    faces = np.concatenate([T[:, [0, 1, 2]], T[:, [0, 1, 3]], T[:, [0, 2, 3]], T[:, [1, 2, 3]]])
+    key = np.sort(faces, axis=1)
+    _, idx, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    return faces[idx[counts == 1]]
 
 
 def _shaded(V, F, rgb, light=(0.3, -0.5, 0.8)):
@@ -86,42 +144,20 @@ def _surface(ax, V, F, rgb, alpha=1.0, edge=None):
 
 
 def _frame3d(ax, V, title, elev=20, azim=-60):
+    """Equal scales on the three axes with the box fitted to the data (no empty cube around an
+    elongated mesh), zoomed to fill the panel."""
     lo, hi = V.min(axis=0), V.max(axis=0)
-    mid, r = (lo + hi) / 2, (hi - lo).max() / 2
-    ax.set_xlim(mid[0] - r, mid[0] + r)
-    ax.set_ylim(mid[1] - r, mid[1] + r)
-    ax.set_zlim(mid[2] - r, mid[2] + r)
-    ax.set_box_aspect((1, 1, 1))
+    span = np.maximum(hi - lo, 1e-3 * (hi - lo).max())
+    ax.set_xlim(lo[0], lo[0] + span[0])
+    ax.set_ylim(lo[1], lo[1] + span[1])
+    ax.set_zlim(lo[2], lo[2] + span[2])
+    ax.set_box_aspect(span, zoom=1.05)
     ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
-    ax.set_title(title, pad=-8)
+    ax.set_title(title)
 
 
-def save_param_figure(path, V, F, uv, face_values=None, title="", label="distortion", checks=20, format=None):
-    """The UV map ``uv`` (n, 2) of the surface ``V`` (n, 3), ``F`` (m, 3) in two panels: a
-    checkerboard texture on the 3D surface (flat-shaded per face; even squares mean low
-    distortion) and the UV layout coloured by ``face_values`` (m,)."""
-    plt = _plt()
-    V, F, uv = np.asarray(V, np.float64), np.asarray(F), np.asarray(uv, np.float64)
-    fig = plt.figure(figsize=(13, 6.5), dpi=110)
-    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    _surface(ax3, V, F, _shaded(V, F, checker_colors(uv, F, checks)))
-    _frame3d(ax3, V, "checkerboard texture on the surface")
-    _layout(fig, fig.add_subplot(1, 2, 2), uv, F, face_values, title or "UV layout", label)
-    fig.tight_layout()
-    _save(fig, path, format)
-    plt.close(fig)
-
-
-def _boundary_faces(T):
-    """(k, 3) faces of the tets ``T`` (m, 4) that belong to one tet only, outward-agnostic."""
-    faces = np.concatenate([T[:, [0, 1, 2]], T[:, [0, 1, 3]], T[:, [0, 2, 3]], T[:, [1, 2, 3]]])
-    key = np.sort(faces, axis=1)
-    _, idx, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-    return faces[idx[counts == 1]]
-
-
-def save_untangle_figure(path, start, result, S, inverted_start, inverted_result, title="", format=None):
+def untangle_figure(start, result, S, inverted_start, inverted_result, title="", dpi=100):
     """Start and result maps of an untangling side by side, inverted elements in red.
 
     Parameters
@@ -129,17 +165,21 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
     start, result : (n, d) maps (d = 2: triangles; d = 3: tetrahedra).
     S : (m, d+1) elements.
     inverted_start, inverted_result : (m,) bool, elements not positively oriented.
+    title : str, shown above both panels.
 
+    Notes
+    -----
     2D draws the triangles (inverted ones filled red).  3D draws, for each map, the boundary
     surface (translucent), the surface of the half of the mesh below the median of the first
     coordinate (a cut showing the inside), and every inverted tet in red.
     """
-    plt = _plt()
+    from matplotlib.colors import ListedColormap, to_rgb
+
     S = np.asarray(S)
     d = S.shape[1] - 1
     maps = [(np.asarray(start, np.float64), np.asarray(inverted_start, bool), "start"),
             (np.asarray(result, np.float64), np.asarray(inverted_result, bool), "result")]
-    fig = plt.figure(figsize=(13, 6.5), dpi=110)
+    fig = _figure(13, 6.5, dpi)
     for k, (x, bad, name) in enumerate(maps):
         label = f"{name}: {int(bad.sum())} of {len(S)} inverted"
         if d == 2:
@@ -147,7 +187,7 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
             ax.triplot(x[:, 0], x[:, 1], S, lw=0.25, color="0.35")
             if bad.any():
                 ax.tripcolor(x[:, 0], x[:, 1], S[bad], facecolors=np.ones(int(bad.sum())),
-                             cmap=plt.matplotlib.colors.ListedColormap([INVERTED]), edgecolors="none")
+                             cmap=ListedColormap([INVERTED]), edgecolors="none")
             ax.set_aspect("equal")
             ax.set_axis_off()
             ax.set_title(label)
@@ -156,35 +196,72 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
         outer = _boundary_faces(S)
         _surface(ax, x, outer, _shaded(x, outer, np.array([0.6, 0.7, 0.85])), alpha=0.12)
         centroid = x[S].mean(axis=1)
-        half = S[centroid[:, 0] <= np.median(centroid[:, 0])]
-        cut = _boundary_faces(half)
+        cut = _boundary_faces(S[centroid[:, 0] <= np.median(centroid[:, 0])])
         _surface(ax, x, cut, _shaded(x, cut, np.array([0.55, 0.75, 0.95])), alpha=0.9, edge=(0, 0, 0, 0.15))
         if bad.any():
             red = _boundary_faces(S[bad])
-            _surface(ax, x, red, np.tile(plt.matplotlib.colors.to_rgb(INVERTED), (len(red), 1)), alpha=1.0)
+            _surface(ax, x, red, np.tile(to_rgb(INVERTED), (len(red), 1)), alpha=1.0)
         _frame3d(ax, x, label)
     if d == 3:
         title = (title + "\n" if title else "") + "boundary translucent, cut at the median x, inverted tets in red"
     if title:
-        fig.suptitle(title, y=0.06, fontsize=9)
-    fig.tight_layout()
-    _save(fig, path, format)
-    plt.close(fig)
+        fig.suptitle(title, fontsize=10)
+    return fig
 
 
-def save_convergence(path, series, ylabel="energy - best", title="", format=None):
-    """Semilog plot of ``{label: (times, energies)}`` against the best energy over all series."""
-    plt = _plt()
-    best = min(np.min(e) for _, e in series.values())
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
-    for label, (t, e) in series.items():
-        gap = np.maximum((np.asarray(e) - best) / abs(best), 1e-16)
-        ax.semilogy(t, gap, marker=".", label=label)
-    ax.set_xlabel("seconds")
-    ax.set_ylabel("relative " + ylabel)
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    _save(fig, path, format)
-    plt.close(fig)
+def save_untangle_figure(path, start, result, S, inverted_start, inverted_result, title="", format=None):
+    """Save :func:`untangle_figure` to ``path`` (110 dpi)."""
+    save_figure(untangle_figure(start, result, S, inverted_start, inverted_result, title, dpi=110), path, format)
+
+
+def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=100):
+    """Convergence of one or more solves against the iteration.
+
+    Parameters
+    ----------
+    series : dict label -> ``(times, energies)`` or ``(times, energies, grad_norms)``, arrays
+        (k + 1,) over the iterates of one solve (``Result.time_history``,
+        ``energy_history``, ``grad_history``).
+    ylabel : what the energies are (the gap panel's label says "relative gap in" it).
+    reference : the energy gaps are measured to (default: the lowest energy of all series).
+        Iterates at or below it have no gap to draw on a log scale and are left out, not
+        floored.
+    title : str, above the panels.
+
+    Returns
+    -------
+    Figure with the relative gap ``(E - reference) / |reference|`` (log scale) and, when any
+    series has gradient norms, a second panel with them (log scale); 10 x 4 inches.
+    """
+    grads = any(len(s) > 2 for s in series.values())
+    fig = _figure(10 if grads else 6, 4, dpi)
+    axes = fig.subplots(1, 2 if grads else 1, squeeze=False)[0]
+    ref = min(float(np.min(s[1])) for s in series.values()) if reference is None else float(reference)
+    for label, s in series.items():
+        e = np.asarray(s[1], np.float64)
+        gap = (e - ref) / max(abs(ref), 1e-300)
+        it = np.arange(len(e))
+        keep = gap > 0
+        axes[0].semilogy(it[keep], gap[keep], marker=".", ms=3, label=label)
+        if grads and len(s) > 2:
+            axes[1].semilogy(it, np.asarray(s[2], np.float64), marker=".", ms=3, label=label)
+    from matplotlib.ticker import MaxNLocator
+
+    axes[0].set_ylabel("(E - E_ref) / |E_ref|")
+    axes[0].set_title(f"relative gap in {ylabel}, E_ref = {ref:.10g}", fontsize=10)
+    if grads:
+        axes[1].set_ylabel("gradient norm")
+        axes[1].set_title(f"gradient norm of {ylabel}", fontsize=10)
+    for ax in axes:
+        ax.set_xlabel("iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def save_convergence(path, series, ylabel="energy", title="", format=None, reference=None):
+    """Save :func:`convergence_figure` to ``path`` (120 dpi)."""
+    save_figure(convergence_figure(series, ylabel, title, reference, dpi=120), path, format)

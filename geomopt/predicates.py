@@ -19,15 +19,20 @@ from __future__ import annotations
 import numpy as np
 
 from ._errors import MeshError, ParameterError
+from ._tracing import refuse_traced
 
-__all__ = ["orient2d", "orient3d", "simplex_orientations", "count_inverted"]
+__all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted"]
 
 _EPS = 2.0**-53  # half an ulp of 1.0: the relative rounding error of one operation
 CCW_ERRBOUND_A = (3.0 + 16.0 * _EPS) * _EPS
 O3D_ERRBOUND_A = (7.0 + 56.0 * _EPS) * _EPS
 # Coordinate differences at least this large (or exactly zero) keep every product of
-# up to three of them out of the subnormal range, where the relative bound fails.
+# up to three of them out of the subnormal range, where the relative bound fails.  Then a
+# zero bound is an exact zero too: every product in it has an exactly-zero factor (a float
+# difference is zero only when the operands are equal), so every term of the determinant is
+# zero -- the common case of axis-aligned faces, certified without the exact path.
 _TINY = 2.0**-300
+_PLANES = ((0, 1), (1, 2), (2, 0))  # projections whose orient2d are a normal's z, x, y
 
 
 def _as_points(p, d: int, name: str) -> np.ndarray:
@@ -71,7 +76,7 @@ def _exact_needed(*pts) -> np.ndarray:
 
 
 def _sign(x) -> np.ndarray:
-    return np.sign(x).astype(np.int8)
+    return (x > 0).view(np.int8) - (x < 0).view(np.int8)
 
 
 def _exact_integer_coordinates(P: np.ndarray) -> np.ndarray:
@@ -138,7 +143,7 @@ def orient2d(a, b, c) -> np.ndarray:
         left, right = acx * bcy, acy * bcx
         det = left - right
         errbound = CCW_ERRBOUND_A * (np.abs(left) + np.abs(right))
-    sure = (np.abs(det) > errbound) & _no_tiny(acx, acy, bcx, bcy)
+    sure = ((np.abs(det) > errbound) | (errbound == 0)) & _no_tiny(acx, acy, bcx, bcy)
     out = _sign(np.where(sure, det, 0.0))
     todo = np.flatnonzero(~sure)
     todo = todo[_exact_needed(a[todo], b[todo], c[todo])]
@@ -182,13 +187,49 @@ def orient3d(a, b, c, d) -> np.ndarray:
             + (np.abs(adxbdy) + np.abs(bdxady)) * np.abs(cdz)
         )
         errbound = O3D_ERRBOUND_A * permanent
-    sure = (np.abs(det) > errbound) & _no_tiny(adx, ady, adz, bdx, bdy, bdz, cdx, cdy, cdz)
+    sure = ((np.abs(det) > errbound) | (errbound == 0)) & _no_tiny(
+        adx, ady, adz, bdx, bdy, bdz, cdx, cdy, cdz)
     out = -_sign(np.where(sure, det, 0.0))
     todo = np.flatnonzero(~sure)
     todo = todo[_exact_needed(a[todo], b[todo], c[todo], d[todo])]
     if todo.size:
         out[todo] = _exact_orient3d(a[todo], b[todo], c[todo], d[todo])
     return out
+
+
+def normal_signs(a, b, c) -> np.ndarray:
+    """Exact signs of the components of the normal ``(b - a) x (c - a)`` of many 3D triangles.
+
+    Component ``z``, ``x`` and ``y`` of the normal is :func:`orient2d` of the triangle projected
+    onto the ``xy``, ``yz`` and ``zx`` plane; the three are filtered together (one set of
+    differences) and only uncertain ones are recomputed exactly.
+
+    Parameters
+    ----------
+    a, b, c : (m, 3) float arrays
+
+    Returns
+    -------
+    s : (m, 3) int8 array, the signs of ``n_z, n_x, n_y`` (in that order); all three are zero
+        exactly when the triangle is degenerate (or has a non-finite coordinate).
+    """
+    a, b, c = (_as_points(p, 3, name) for p, name in ((a, "a"), (b, "b"), (c, "c")))
+    _same_length(a, b, c)
+    out = np.empty((3, a.shape[0]), np.int8)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        ac, bc = (a - c).T.copy(), (b - c).T.copy()  # (3, m): contiguous coordinate rows
+        small = (ac != 0) & (np.abs(ac) < _TINY) | (bc != 0) & (np.abs(bc) < _TINY)
+        for col, (p, q) in enumerate(_PLANES):
+            left, right = ac[p] * bc[q], ac[q] * bc[p]
+            det = left - right
+            errbound = CCW_ERRBOUND_A * (np.abs(left) + np.abs(right))
+            sure = ((np.abs(det) > errbound) | (errbound == 0)) & ~small[p] & ~small[q]
+            out[col] = _sign(np.where(sure, det, 0.0))
+            todo = np.flatnonzero(~sure)
+            if todo.size:
+                pq = [p, q]
+                out[col, todo] = orient2d(a[todo][:, pq], b[todo][:, pq], c[todo][:, pq])
+    return out.T
 
 
 def simplex_orientations(X, S) -> np.ndarray:
@@ -206,6 +247,7 @@ def simplex_orientations(X, S) -> np.ndarray:
     s : (m,) int8 array
         ``orient2d(X[S[:, 0]], X[S[:, 1]], X[S[:, 2]])`` or the ``orient3d`` analogue.
     """
+    refuse_traced("exact orientation predicates", "they certify concrete maps; inside a trace use Objective.dets(x) (float determinants)", X)
     X = np.asarray(X)
     if X.ndim != 2 or X.shape[1] not in (2, 3):
         raise MeshError(f"X must be an array of shape (n, 2) or (n, 3), got shape {X.shape}")

@@ -14,47 +14,64 @@ two elements).
   frame, so that the Jacobian of a map ``x`` is ``J = [x1-x0, ..., xd-x0] @ rest_inv``;
 * ``volumes`` (m,): rest areas (d=2) or volumes (d=3);
 * ``fixed`` (k,) / ``fixed_positions`` (k, d): handles.
+
+**Traced rest geometry.**  A Problem is a JAX pytree: its leaves are the float arrays
+(``rest_inv``, ``volumes``, ``rest_vertices``, ``fixed_positions``), the connectivity and the
+handle indices are static metadata (compared by content).  The constructors accept traced rest
+vertices and handle positions (inside ``jax.grad`` / ``jit`` / ``vmap``; the connectivity must
+stay concrete): shapes and the connectivity are checked as always, but the checks that need
+values (finite coordinates, no degenerate or inverted rest element) are skipped, and the
+elements are taken in the given order, which must then be positively oriented (planar
+triangles counter-clockwise, tets of positive volume; a clockwise rest mesh is reordered only
+from concrete input).  :func:`check_rest_values` runs those checks once values are concrete.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from ._errors import MeshError
+from ._errors import MeshError, ParameterError
+from ._geometry import det as _det
+from ._tracing import StaticKey, digest, is_traced, refuse_traced
 from ._validate import validate_indices, validate_simplices, validate_vertices
 from .topology import boundary_vertices, nonmanifold_facets, same_side_facets
 
-__all__ = ["Problem", "check_initial_orientation", "fixed_total_problem"]
+__all__ = ["Problem", "check_initial_orientation", "check_rest_values", "fixed_total_problem"]
+
+
+def _xp(*arrays):
+    """The array module for ``arrays``: ``jax.numpy`` when one is traced, else NumPy."""
+    return jnp if is_traced(*arrays) else np
 
 
 def _local_frames(V, F):
     """Flatten each 3D triangle isometrically to 2D: rest edge matrices (m, 2, 2) and areas.
 
     Degenerate or overflowing triangles give zero or non-finite areas, which the caller rejects.
+    NumPy, or JAX for traced ``V``.
     """
+    xp = _xp(V)
     with np.errstate(all="ignore"):
         e1 = V[F[:, 1]] - V[F[:, 0]]
         e2 = V[F[:, 2]] - V[F[:, 0]]
-        l1 = np.linalg.norm(e1, axis=1)
-        n = np.cross(e1, e2)
-        area2 = np.linalg.norm(n, axis=1)
-        u = e1 / l1[:, None]
-        x2 = np.einsum("ij,ij->i", e2, u)
+        l1 = xp.linalg.norm(e1, axis=1)
+        area2 = xp.linalg.norm(xp.cross(e1, e2), axis=1)
+        x2 = xp.einsum("ij,ij->i", e2, e1 / l1[:, None])
         y2 = area2 / l1
-    Dm = np.zeros((len(F), 2, 2))
-    Dm[:, 0, 0] = l1
-    Dm[:, 0, 1] = x2
-    Dm[:, 1, 1] = y2
+    Dm = xp.stack([xp.stack([l1, x2], -1), xp.stack([xp.zeros_like(l1), y2], -1)], -2)
     return Dm, 0.5 * area2
 
 
 def _edge_matrices(P, S):
     """Edge matrices ``[p1-p0, ..., pd-p0]`` as columns: (m, d, d)."""
     with np.errstate(all="ignore"):  # overflow shows up as non-finite sizes
-        return np.swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
+        return _xp(P).swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
 
 
 def _signed_sizes(Dm):
@@ -62,7 +79,8 @@ def _signed_sizes(Dm):
     (for rest shapes, :func:`_check_rest_volumes` rejects it)."""
     d = Dm.shape[-1]
     with np.errstate(all="ignore"):
-        return np.linalg.det(Dm) / (2.0 if d == 2 else 6.0)
+        D = _det(Dm) if is_traced(Dm) else np.linalg.det(Dm)
+        return D / (2.0 if d == 2 else 6.0)
 
 
 def _check_rest_volumes(vol, what, rel_tol=1e-12):
@@ -135,7 +153,8 @@ class Problem:
     """An injective-mapping problem over one kind of simplex.
 
     Build one with :meth:`planar`, :meth:`surface` or :meth:`tets`; do not call the
-    constructor directly.
+    constructor directly.  A JAX pytree (see the module notes): rest vertices and handle
+    positions may be traced, e.g. ``jax.grad`` of an energy with respect to the rest shape.
     """
 
     kind: str
@@ -159,17 +178,17 @@ class Problem:
 
         V : (n, 2) rest positions (an (n, 3) array with z == 0 is accepted); F : (m, 3).
         A clockwise rest mesh is handled by reordering each triangle internally; a mesh with
-        both orientations, or overlapping itself, raises MeshError.
+        both orientations, or overlapping itself, raises MeshError.  Traced ``V``: unchecked
+        values, triangles taken counter-clockwise as given, the z column of (n, 3) dropped.
         """
-        V = validate_vertices(V, "rest vertices")
+        V = _vertices(V, "rest vertices")
         if V.shape[1] == 3:
-            if np.any(V[:, 2] != 0):
+            if not is_traced(V) and np.any(V[:, 2] != 0):
                 raise MeshError("planar problem: rest vertices have nonzero z; use Problem.surface")
             V = V[:, :2]
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm = _edge_matrices(V, F)
-        flipped = _check_rest_volumes(_signed_sizes(Dm), "triangle")
-        S = F[:, [0, 2, 1]] if flipped else F
+        S = F[:, [0, 2, 1]] if _flipped(_signed_sizes(Dm), "triangle") else F
         Dm = _edge_matrices(V, S)
         return cls._make("planar", 2, V, F, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
@@ -181,12 +200,13 @@ class Problem:
         so rest triangles are positively oriented and a map is valid when every triangle
         ``(a, b, c)`` has positive signed area in the plane.  The faces must be consistently
         wound (adjacent faces traverse their shared edge in opposite directions), else
-        MeshError: otherwise a map with no inverted triangle still folds.
+        MeshError: otherwise a map with no inverted triangle still folds.  Traced ``V``:
+        values unchecked (no degenerate triangle is assumed).
         """
-        V = validate_vertices(V, "surface problem: rest vertices", dim=3)
+        V = _vertices(V, "surface problem: rest vertices", dim=3)
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm, area = _local_frames(V, F)
-        _check_rest_volumes(area, "triangle")
+        _flipped(area, "triangle")
         return cls._make("surface", 2, V, F, F, Dm, area, fixed, fixed_positions)
 
     @classmethod
@@ -195,13 +215,13 @@ class Problem:
 
         A rest mesh whose tets are all negatively oriented (as in the LIM armadillo) is handled
         by swapping two vertices of every tet internally; a map is then valid when each tet
-        has the same orientation as at rest.
+        has the same orientation as at rest.  Traced ``V``: values unchecked, tets taken as
+        given (positive volumes).
         """
-        V = validate_vertices(V, "tet problem: rest vertices", dim=3)
+        V = _vertices(V, "tet problem: rest vertices", dim=3)
         T = validate_simplices(T, len(V), 4, "tetrahedra")
         Dm = _edge_matrices(V, T)
-        flipped = _check_rest_volumes(_signed_sizes(Dm), "tetrahedron")
-        S = T[:, [0, 2, 1, 3]] if flipped else T
+        S = T[:, [0, 2, 1, 3]] if _flipped(_signed_sizes(Dm), "tetrahedron") else T
         Dm = _edge_matrices(V, S)
         return cls._make("tet", 3, V, T, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
@@ -265,8 +285,8 @@ class Problem:
             n_vertices=len(V),
             simplices=np.ascontiguousarray(S, dtype=np.int64),
             input_simplices=np.ascontiguousarray(F_in, dtype=np.int64),
-            rest_inv=np.linalg.inv(Dm),
-            volumes=np.asarray(vol, dtype=np.float64),
+            rest_inv=_xp(Dm).linalg.inv(Dm),
+            volumes=vol if is_traced(vol) else np.asarray(vol, dtype=np.float64),
             rest_vertices=V,
             fixed=np.zeros(0, np.int64),
             fixed_positions=np.zeros((0, d)),
@@ -286,17 +306,24 @@ class Problem:
 
     # -- handles --------------------------------------------------------------------
     def with_fixed(self, fixed, positions) -> "Problem":
-        """A copy with vertices ``fixed`` (k,) held at ``positions`` (k, dim)."""
+        """A copy with vertices ``fixed`` (k,) held at ``positions`` (k, dim) (traceable: the
+        positions unchecked then)."""
         idx = validate_indices(fixed, self.n_vertices, "fixed vertex indices")
         if idx.size == 0:
             return dataclasses.replace(self, fixed=idx, fixed_positions=np.zeros((0, self.dim)))
-        pos = validate_vertices(positions, "fixed positions", dim=self.dim)
+        pos = _vertices(positions, "fixed positions", dim=self.dim)
         if len(pos) != idx.size:
             raise MeshError(
                 f"fixed positions has {len(pos)} rows for {idx.size} fixed vertices; give one position per fixed vertex"
             )
         order = np.argsort(idx)
         return dataclasses.replace(self, fixed=idx[order], fixed_positions=pos[order])
+
+    @functools.cached_property
+    def _static(self) -> StaticKey:
+        """The pytree metadata: kind, sizes, connectivity and handle indices, keyed by content."""
+        meta = tuple(getattr(self, f) for f in _META)
+        return StaticKey(meta[:3] + tuple(None if a is None else digest(a) for a in meta[3:]), meta)
 
     @property
     def n_elements(self) -> int:
@@ -320,7 +347,9 @@ class Problem:
         return x
 
     def signed_volumes(self, x) -> np.ndarray:
-        """(m,) signed area/volume of each element under the map, in the rest orientation."""
+        """(m,) signed area/volume of each element under the map, in the rest orientation
+        (NumPy; traceable: :meth:`geomopt.Objective.dets`)."""
+        refuse_traced("Problem.signed_volumes", "inside a trace use Objective.dets(x)", x)
         x = np.asarray(x, dtype=np.float64)
         return _signed_sizes(_edge_matrices(x, self.simplices))
 
@@ -335,7 +364,33 @@ class Problem:
             return count_invalid(x, self.elements)
         from .predicates import count_inverted
 
+        refuse_traced("Problem.count_inverted (exact predicates)", "it certifies concrete maps; inside a trace "
+                      "use Objective.dets(x) (float determinants)", x)
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
+
+    def certify(self, x):
+        """Exact certificate that ``x`` (n, dim) is locally injective: every element positively
+        oriented and no vertex or edge around which the elements wind twice or overlap.
+
+        Simplices: :func:`geomopt.certify.local_certificate` of :attr:`simplices`.  Quads /
+        hexahedra: :func:`geomopt.elements.element_local_certificate` of :attr:`elements`
+        (each element valid everywhere, then the stars of their tangent cones), never of the
+        overlapping corner simplices.
+
+        Returns
+        -------
+        :class:`~geomopt.certify.LocalCertificate` (``ok``, ``inverted``, ``message``...).
+        """
+        refuse_traced("Problem.certify (exact predicates)", "it certifies concrete maps; inside a trace "
+                      "use Objective.dets(x) (float determinants)", x)
+        x = np.asarray(x, dtype=np.float64)
+        if self.elements is not None:
+            from .elements import element_local_certificate
+
+            return element_local_certificate(x, self.elements)
+        from .certify import local_certificate
+
+        return local_certificate(x, self.simplices)
 
     def boundary_vertices(self) -> np.ndarray:
         """Sorted ids of the boundary vertices (of the quads' edges / hexahedra's faces for
@@ -346,15 +401,57 @@ class Problem:
             return element_boundary(self.elements, self.n_vertices)
         return boundary_vertices(self.simplices, self.n_vertices)
 
-    @property
-    def triangulation(self) -> np.ndarray:
-        """Simplices covering every element once (2D winding checks): the simplices, or two
-        corner triangles per quad (:func:`geomopt.elements.diagonal_triangles`)."""
-        if self.elements is not None and self.elements.shape[1] == 4:
-            from .elements import diagonal_triangles
 
-            return diagonal_triangles(self.elements)
-        return self.simplices
+_LEAVES = ("rest_inv", "volumes", "rest_vertices", "fixed_positions")
+_META = ("kind", "dim", "n_vertices", "simplices", "input_simplices", "fixed", "elements")
+
+
+def _unflatten(static: StaticKey, leaves) -> Problem:
+    p = object.__new__(Problem)
+    for name, value in zip(_META + _LEAVES, static.payload + tuple(leaves)):
+        object.__setattr__(p, name, value)
+    p.__dict__["_static"] = static
+    return p
+
+
+jax.tree_util.register_pytree_with_keys(
+    Problem, lambda p: (tuple((jax.tree_util.GetAttrKey(f), getattr(p, f)) for f in _LEAVES), p._static),
+    _unflatten, lambda p: (tuple(getattr(p, f) for f in _LEAVES), p._static))
+
+
+def _vertices(V, name, dim=None):
+    """:func:`~geomopt.io.validate_vertices` for concrete ``V``; for traced ``V`` only its shape
+    and dtype are checked (a float64 (n, dim) array)."""
+    if not is_traced(V):
+        return validate_vertices(V, name, dim)
+    widths = (2, 3) if dim is None else (dim,)
+    if V.ndim != 2 or V.shape[1] not in widths or V.shape[0] == 0:
+        want = " or ".join(f"(n, {w})" for w in widths)
+        raise MeshError(f"{name} must have shape {want} with n > 0, got shape {V.shape}")
+    if V.dtype != jnp.float64:
+        raise ParameterError(f"{name} is a traced {V.dtype} array: geomopt computes in float64; trace "
+                             f"float64 values (with jax_enable_x64 on: see geomopt's README, 'float64')")
+    return V
+
+
+def _flipped(vol, what) -> bool:
+    """:func:`_check_rest_volumes` (True: every rest element is negatively oriented) for concrete
+    sizes; traced sizes are not checked and taken as positive."""
+    return False if is_traced(vol) else _check_rest_volumes(vol, what)
+
+
+def check_rest_values(problem: Problem) -> Problem:
+    """Run the value checks that a problem built from traced rest vertices or handle positions
+    skipped (finite coordinates, no degenerate rest element, every rest element positively
+    oriented), on its now concrete arrays; returns ``problem``.  Raises MeshError."""
+    what = {"tet": "tetrahedron"}.get(problem.kind, "triangle")
+    validate_vertices(problem.rest_vertices, "rest vertices")
+    if problem.fixed.size:
+        validate_vertices(problem.fixed_positions, "fixed positions")
+    if _check_rest_volumes(np.asarray(problem.volumes), what):
+        raise MeshError(f"every rest {what} is negatively oriented: a problem built from traced rest "
+                        f"vertices takes the elements as given; reverse their order (e.g. F[:, [0, 2, 1]])")
+    return problem
 
 
 def check_initial_orientation(problem: Problem, x0) -> float:

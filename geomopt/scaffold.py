@@ -1,6 +1,6 @@
 """Globally bijective free-boundary parameterization with a scaffold (SCAF).
 
-Jiang, Schaefer, Zorin, Panozzo (2017), "Simplicial complex augmentation framework for bijective
+Jiang, Schaefer, Panozzo (2017), "Simplicial complex augmentation framework for bijective
 maps": the region between the UV boundary and an enclosing polygon is triangulated (the
 *scaffold*), and the mesh and the scaffold are solved as one problem with the injective line
 search.  No scaffold triangle can invert, so two parts of the boundary can never cross; the
@@ -43,6 +43,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
+from ._x64 import float64
 from .certify import certify_bijective, polygon_crossings
 from .param import optimal_scale
 from .predicates import orient2d
@@ -474,6 +475,7 @@ def _steps_while_simple(objective, x0, solver, loop):
         state = new
 
 
+@float64
 def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
                            x0=None, progress=True, throw=False, scaffold_weight=1e-3,
                            ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-4,

@@ -11,8 +11,10 @@ invertible maps", 2021).
 
 :func:`smooth` evaluates it at the elements' corners, starts from the given mesh (which must be
 valid), keeps the boundary vertices fixed (default) and minimises with a solver whose line
-search is injective: no corner can change sign.  Hexahedra are then certified inside
-(:mod:`geomopt.hexvalid`).  The result is compared with the input by the minimum scaled
+search is injective: no corner can change sign.  The result is certified locally injective
+(:meth:`~geomopt.problem.Problem.certify`: hexahedra inside by
+:mod:`geomopt.hexvalid`, no vertex wound twice, no free boundary overlapping itself; the input
+is returned otherwise).  The result is compared with the input by the minimum scaled
 Jacobian (:func:`geomopt.elements.scaled_jacobian`): where the minimum makes an element invalid
 (hexahedra inside) or worse than the input's worst, the vertices of that element are held at
 their input positions and the energy is minimised again from the input with them fixed, until
@@ -164,7 +166,10 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
         current = problem.with_fixed(both, V[both])
     else:
         x, held = V, np.zeros(0, np.int64)  # nothing better found: the input
-    cert = certify_elements(x, E)
+    local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
+    if not local.ok:  # a free boundary folded over itself: the input
+        x, held, local = V, np.zeros(0, np.int64), None
+    cert = start if local is None else local.elements
     return SmoothResult(x, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds, problem)
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components as _cc
 
 from ._errors import MeshError
 
@@ -304,7 +303,9 @@ def connected_components(F, n_vertices):
     n = _as_count(n_vertices)
     i, j = F[:, :-1].ravel(), F[:, 1:].ravel()
     graph = sp.coo_matrix((np.ones(i.size, dtype=np.int8), (i, j)), shape=(n, n)).tocsr()
-    _, raw = _cc(graph, directed=False)
+    from scipy.sparse.csgraph import connected_components  # imports scipy.sparse.linalg: 0.1 s
+
+    _, raw = connected_components(graph, directed=False)
     used = np.zeros(n, dtype=bool)
     used[F.ravel()] = True
     uniq, inv = np.unique(raw[used], return_inverse=True)
@@ -325,7 +326,9 @@ def _fans_per_vertex(F: np.ndarray, n: int) -> np.ndarray:
     # source corner of h (vertex a) <-> target corner of its twin (also vertex a)
     i, j = h, 3 * (t // 3) + (t % 3 + 1) % 3
     graph = sp.coo_matrix((np.ones(h.size, dtype=np.int8), (i, j)), shape=(F.size, F.size))
-    n_groups, group = _cc(graph.tocsr(), directed=False)
+    from scipy.sparse.csgraph import connected_components
+
+    n_groups, group = connected_components(graph.tocsr(), directed=False)
     vertex_of_group = np.empty(n_groups, dtype=np.int64)
     vertex_of_group[group] = F.ravel()
     return np.bincount(vertex_of_group, minlength=n)

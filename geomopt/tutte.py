@@ -210,6 +210,9 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     if V.shape[0] != UV.shape[0]:
         raise MeshError(f"UV has {UV.shape[0]} vertices but V has {V.shape[0]}")
     F = as_faces(F, V.shape[0])
+    top = float(np.max(np.abs(UV))) if UV.size else 0.0
+    if top > 0:  # a power of two first (exact): maps at 1e300 or 1e-310 have an area too
+        UV = np.ldexp(UV, -int(np.frexp(top)[1]))
     a, b, c = UV[F[:, 0]], UV[F[:, 1]], UV[F[:, 2]]
     u, v = b - a, c - a
     map_area = 0.5 * float(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]))

@@ -38,9 +38,11 @@ triangles with an aspect ratio above 10 are replaced by equilateral ones, as the
 does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
 ``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
 at the end (bit-exact), and the result is certified with the exact orientation predicate
-(:mod:`geomopt.predicates`); in 2D, an interior vertex whose positive triangles wind around it
-more than once (a branch point, :func:`~geomopt.predicates.vertex_windings`) also fails it
-(counted in ``info['branch_vertices']``).
+(:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
+a map with every element positive can still wind twice around an interior vertex (2D) or edge
+(3D), or overlap itself around a boundary vertex or edge; such a map is ``NOT_INJECTIVE``
+(interior failures counted in ``info['branch_vertices']``, the certificate in
+``info['local_certificate']``).
 
 ``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
 once per mesh shape.
@@ -62,8 +64,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import MeshError, ParameterError, SolveError
+from ._tracing import refuse_traced
+from ._x64 import float64
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
+from .certify import local_certificate
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
@@ -71,13 +76,34 @@ from .solvers import LBFGS, AbstractSolver, Newton, Outcome
 from .solvers._base import check_progress
 
 __all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
-           "default_solver", "next_eps"]
+           "default_solver", "stiff_solver", "next_eps"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
 
 
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
+
+
+#: inner iterations after which the default L-BFGS continues with the Laplacian seed
+STIFF_AFTER = 100
+
+
+def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver | None:
+    """The solver an inner solve of :func:`default_solver` continues with when it has not
+    converged after :data:`STIFF_AFTER` iterations (None: no switch).
+
+    ``"lbfgs"``: the Laplacian seed (Sobolev-preconditioned L-BFGS).  An inner solve that
+    needs more than a hundred iterations with the diagonal seed is a stiff, global one (the
+    first outer iteration of a large rotation): there the Laplacian seed's iteration count
+    does not grow with the mesh (disk 12.7k triangles rotated 180 degrees: 1,474 -> 50 inner
+    iterations, 2.2 -> 0.2 s; an irregular Delaunay disk 6,855 -> 1,259), while on local
+    tangles (noise) the diagonal seed converges within the probe at a third of the cost per
+    iteration and is kept."""
+    if str(name).strip().lower() != "lbfgs":
+        return None
+    return dataclasses.replace(default_solver("lbfgs", dim, LAPLACIAN_FROM, corners),
+                               precondition="laplacian")
 
 
 def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False) -> AbstractSolver:
@@ -142,8 +168,8 @@ class UntangleResult:
 
     @property
     def success(self) -> bool:
-        """Converged, no inverted element (exact), every handle exactly in place and, in 2D, no
-        interior branch vertex (``info['branch_vertices']``)."""
+        """Converged, no inverted element (exact), every handle exactly in place and locally
+        injective around every vertex and edge (``info['local_certificate']``)."""
         return self.outcome is Outcome.CONVERGED and self.inverted == 0 and self.handles_moved == 0
 
     @property
@@ -244,6 +270,7 @@ def _bits_differ(a, b) -> int:
 # --------------------------------------------------------------------- main entry
 
 
+@float64
 def untangle(
     problem: Problem,
     x0,
@@ -265,7 +292,7 @@ def untangle(
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
     by the objective's gauge and rotation and scale are free; the map must not be mirrored as
-    a whole (a positive total signed area/volume): mirror it first (see :func:`repair_map`).
+    a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
 
     Parameters
     ----------
@@ -302,6 +329,8 @@ def untangle(
     -------
     :class:`UntangleResult`
     """
+    refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
+                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, theta)
     t_setup = time.perf_counter()
     d = problem.dim
     if theta is None:
@@ -325,8 +354,11 @@ def untangle(
     initially = problem.count_inverted(x0)
     free = problem.free_mask
     active = free[S].any(axis=1)
+    stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
     if isinstance(solver, str):
-        solver = default_solver(solver, d, int(active.sum()), corners=problem.elements is not None)
+        corners = problem.elements is not None
+        stiff = stiff_solver(solver, d, corners)
+        solver = default_solver(solver, d, int(active.sum()), corners)
     why = fixed_total_problem(problem, x0) if initially else None
     if why:
         return _early_result(problem, x0, initially, t_setup, throw,
@@ -375,12 +407,21 @@ def untangle(
     t0 = time.perf_counter()
     hist_E, hist_eps, hist_det, hist_inv = [], [], [], []
     inner_total, outcome, reason = 0, Outcome.MAX_STEPS, None
+    evaluations_before = 0  # of a solver the loop switched away from
     floor = EPS_FLOOR.get(d, 1e-10)
     injective = False
     outer = 0
     for outer in range(1, max_outer + 1):
         E_prev = E
         it0 = state.iteration
+        if stiff is not None and stiff != solver:
+            state = solver.run(state, max_steps=STIFF_AFTER)
+            if not solver.terminate(state)[0]:  # stalled: the Laplacian seed from here on
+                inner_total += state.iteration - it0
+                evaluations_before += state.evaluations
+                solver = stiff
+                state = solver.init(obj, state.x, params)
+                it0 = state.iteration
         state = solver.run(state)
         n_inner = state.iteration - it0
         inner_total += n_inner
@@ -409,6 +450,8 @@ def untangle(
         if injective_when_untangled and not injective and detmin > 0:
             injective = True  # from now on no element may flip back
             solver = dataclasses.replace(solver, search=dataclasses.replace(solver.search, injective=True))
+            stiff = None if stiff is None else dataclasses.replace(
+                stiff, search=dataclasses.replace(stiff.search, injective=True))
         state = solver.with_params(state, params)
         E = float(_outer_stats(energy.density, full.geom, state.x, params)[0])
         # stale curvature pairs can steer the next solve into more folds: drop them then
@@ -418,7 +461,8 @@ def untangle(
     if outcome is Outcome.MAX_STEPS:
         reason = f"stopped at the outer-iteration limit (max_outer={max_outer}) before it settled"
     seconds = time.perf_counter() - t0
-    evaluations = state.evaluations
+    t_certify = time.perf_counter()
+    evaluations = evaluations_before + state.evaluations
 
     # ---- back to the input frame: exact (power of two), handles written back bit for bit
     xs_final = np.asarray(state.x, dtype=np.float64)
@@ -426,24 +470,18 @@ def untangle(
         outcome, xs_final = Outcome.NONFINITE, xs
     out = xs_final[: problem.n_vertices] / k  # without bucket padding
     out[problem.fixed] = problem.fixed_positions
-    inverted = problem.count_inverted(out)
+    cert = problem.certify(out)  # exact: orientations (elements inside), fans/stars around vertices and edges
+    inverted = cert.inverted
     moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
-    if outcome is Outcome.CONVERGED and (inverted or moved):
+    if outcome is Outcome.CONVERGED and (not cert.ok or moved):
         outcome = Outcome.NOT_INJECTIVE
-    branches = 0
-    if d == 2 and not inverted:  # every triangle positive: an interior fan may still wind twice
-        from .predicates import branch_vertices
-
-        branches = len(branch_vertices(out, problem.triangulation))
-        if branches and outcome is Outcome.CONVERGED:
-            outcome = Outcome.NOT_INJECTIVE
-            hint = ("the fixed boundary probably winds more than once, check the handle positions"
-                    if np.isin(problem.boundary_vertices(), problem.fixed).all() else
-                    "flip-free motion cannot remove them; start from a map whose boundary is a simple "
-                    "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
-            reason = (f"no triangle is inverted, but {branches} interior vertex(es) are branch "
-                      f"points (their triangles wind around them more than once): the map is not "
-                      f"locally injective; {hint}")
+    branches = len(cert.branch_vertices) + len(cert.branch_edges)
+    if not inverted and not cert.ok and outcome is Outcome.NOT_INJECTIVE:
+        hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
+                "positions" if np.isin(problem.boundary_vertices(), problem.fixed).all() else
+                "flip-free motion cannot remove it; start from a map whose boundary is a simple "
+                "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
+        reason = f"no element is inverted, but {cert.message}; {hint}"
     vols = problem.signed_volumes(out)
     result = UntangleResult(
         x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
@@ -453,7 +491,8 @@ def untangle(
         min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
         info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
               "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
-              "active_elements": int(active.sum()), "branch_vertices": branches},
+              "active_elements": int(active.sum()), "branch_vertices": branches,
+              "local_certificate": cert, "certify_seconds": time.perf_counter() - t_certify},
     )
     if throw and not result.success:
         raise SolveError(f"untangling failed: {result.message}", result)
@@ -494,7 +533,7 @@ class _Progress:
         self.stream = stream
 
     def __call__(self, outer, eps, energy, detmin, nneg, inner, seconds):
-        print(f"outer {outer:3d}  eps {eps:9.3e}  energy {energy:.8g}  min det {detmin:+.3e}  "
+        print(f"outer {outer:3d}  eps {eps:9.3e}  mean energy {energy:.8g}  min det {detmin:+.3e}  "
               f"inverted {nneg:6d}  inner {inner:5d}  {seconds:7.2f}s",
               file=self.stream or sys.stderr, flush=True)
 
@@ -563,6 +602,7 @@ def lim_problem(case):
     return problem, init, orientation, np.ones(3)
 
 
+@float64
 def untangle_case(folder, solver="lbfgs", progress=True, **options):
     """Read a LIM case folder (:meth:`geomopt.lim.LimCase.read`) and untangle it
     (:func:`lim_problem`, :func:`untangle`).
@@ -594,16 +634,15 @@ def write_untangle_result(case, result, path):
 
     2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and ``f a/a b/b c/c``;
     3D: ASCII VTK with the input connectivity.  Full precision, atomic (:mod:`geomopt.io`).
-    The file is read back and checked: handles bit-exact and no element inverted (exact
-    predicate, in the orientation convention of the case).
+    The file is read back and checked: handles bit-exact and locally injective (exact
+    predicates, in the orientation convention of the case: :func:`~geomopt.certify.local_certificate`).
 
     Returns
     -------
     dict with ``path``, ``inverted`` (in the file), ``handles_moved`` (in the file),
-    ``certified`` (both zero).
+    ``certified`` (both zero and the map locally injective), ``message`` (why not, or "").
     """
     from .io import read_vtk_tets, write_obj_with_uv, write_vtk_tets
-    from .predicates import count_inverted
 
     path = Path(path)
     H = case["handles"]
@@ -621,10 +660,11 @@ def write_untangle_result(case, result, path):
             raise MeshError(f"{path}: connectivity read back differs from the input")
         S = T
         handles_ref = case["init"][H]
-    inverted = count_inverted(back, S, orientation=case["orientation"])
+    cert = local_certificate(back, S, orientation=case["orientation"])
     moved = _bits_differ(back[H], handles_ref)
-    return {"path": path, "inverted": int(inverted), "handles_moved": moved,
-            "certified": inverted == 0 and moved == 0}
+    message = "; ".join(filter(None, [cert.message, f"{moved} handle(s) moved" if moved else ""]))
+    return {"path": path, "inverted": cert.inverted, "handles_moved": moved,
+            "certified": cert.ok and moved == 0, "message": message}
 
 
 def _read_obj_uv(path, n):

@@ -260,5 +260,66 @@ def test_a_batch_never_writes_over_a_case_input(cli, tmp_path, monkeypatch):
     write_lim_case(tmp_path / "R" / "input", ts["star"])
     before = {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()}
     code, _, err = cli("untangle", tmp_path / "R" / "input", "-o", str(tmp_path / "R") + "/", "--quiet")
-    assert code == 2 and "is the input file" in err and "replace a case's input" in err, err
+    assert code == 2 and "is a LIM case folder" in err and "replace a case's input" in err, err
     assert {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()} == before
+
+
+# ------------------------------------------------------------------ issue 19: exit codes and messages
+
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import textwrap  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+SLOW_BATCH = """
+import sys, time
+import geomopt.batch, geomopt.cli
+
+real = geomopt.batch.solve_case
+
+def slow(folder, outdir, *a, **k):
+    if not str(folder).endswith("a"):
+        print("solving", flush=True)
+        time.sleep(120)
+    row = real(folder, outdir, *a, **k)
+    print("finished", row["case"], flush=True)
+    return row
+
+geomopt.batch.solve_case = slow
+sys.exit(geomopt.cli.main(["untangle", sys.argv[1], "-o", sys.argv[2], "--workers", "1", "--quiet"]))
+"""
+
+
+def test_a_batch_stopped_by_sigterm_writes_the_summary_of_what_finished(tmp_path):
+    ts = tangles()
+    for name, t in (("a", "square"), ("b", "square"), ("c", "star")):
+        write_lim_case(tmp_path / "cases" / name, ts[t])
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SLOW_BATCH), str(tmp_path / "cases"),
+                             str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)
+    try:
+        assert proc.stdout.readline() == "finished a\n"
+        assert proc.stdout.readline() == "solving\n"  # interrupt b before it is written
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM and "interrupted by SIGTERM" in err, err
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.obj", "summary.csv"]
+    rows = read_summary(tmp_path / "out" / "summary.csv")
+    assert [(r["case"], r["certified"]) for r in rows] == [("a", "yes"), ("b", "no"), ("c", "no")]
+    assert all("interrupted" in r["message"] and "summary incomplete" in r["message"] for r in rows[1:])
+
+
+def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli, tmp_path, monkeypatch):
+    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    write_lim_case(tmp_path / "cases" / "sq", tangles()["square"])
+    code, _, err = cli("untangle", tmp_path / "cases", "-o", tmp_path / "out", "--scheduler", "not a url",
+                       "--quiet")
+    assert code == 2 and err.startswith("geomopt: error: cannot reach the Dask scheduler at not a url")
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()

@@ -64,7 +64,7 @@ def test_mixed_and_wrong_cells_are_refused(tmp_path):
     bad = vtk.replace("CELLS 2 9\n4 0 1 4 3\n3 1 2 5\nCELL_TYPES 2\n9\n5\n", "CELLS 1 5\n4 0 1 4 3\nCELL_TYPES 2\n9\n9\n")
     assert "CELLS declares 1 cells but CELL_TYPES declares 2" in _refused(tmp_path, "count.vtk", bad)
     # hexahedra are not tetrahedra
-    with pytest.raises(MeshFormatError, match="has no tetrahedra .cells found: hexahedron"):
+    with pytest.raises(MeshFormatError, match="contains non-tetrahedral volume cells .hexahedron"):
         io.read_tets(tmp_path / "h.mesh")
 
 

@@ -8,6 +8,7 @@ between them); two run ``python -m geomopt`` to check the real entry point.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import stat
 import subprocess
@@ -488,12 +489,13 @@ def test_untangle_output_that_does_not_certify_never_replaces_the_old_file(cli, 
     def broken(case, res, path):
         check = real(case, res, path)
         assert Path(path) != out and Path(path).read_bytes().startswith(b"v ")  # written beside, not over
-        return {**check, "inverted": 1, "certified": False}
+        return {**check, "inverted": 1, "certified": False,
+                "message": "1 element(s) inverted or degenerate (first: element 0)"}
 
     monkeypatch.setattr(geomopt.untangle, "write_untangle_result", broken)
     code, _, err = cli("untangle", case, "-o", out, "--quiet")
     assert code == 1
-    one_error_line(err, "the written file did not certify (1 inverted element(s)", "nothing written")
+    one_error_line(err, "the written file did not certify: 1 element(s) inverted", "nothing written")
     assert out.read_text() == "previous result\n" and sorted(os.listdir(tmp_path)) == ["case", "out.obj"]
 
 
@@ -530,3 +532,48 @@ def test_python_m_geomopt_bad_input_has_no_traceback(tmp_path, command):
     assert proc.returncode == 2
     one_error_line(proc.stderr, "does not exist")
     assert not (tmp_path / "out.obj").exists()
+
+
+# ------------------------------------------------------------------ issue 19: exit codes and messages
+
+
+def test_usage_error_json_and_one_line(capsys):
+    for argv, command in [(["param", "m.obj", "-o", "x.obj", "--max-steps", "0"], "param"),
+                          (["compare", "m.obj", "--solvers"], "compare"),
+                          (["untangle", "case"], "untangle"), (["frobnicate"], "frobnicate")]:
+        with pytest.raises(SystemExit) as info:
+            geomopt.cli.main(argv + ["--json"])
+        assert info.value.code == 2
+        out, err = capsys.readouterr()
+        summary = json.loads(out)
+        assert summary["command"] == command and summary["success"] is False and summary["exit_status"] == 2
+        assert summary["error"].startswith("usage: ")
+        assert len(err.strip().splitlines()) == 1 and "error:" in err and "--help" in err, err
+        with pytest.raises(SystemExit):
+            geomopt.cli.main(argv)  # without --json: stdout stays empty
+        assert capsys.readouterr().out == ""
+
+
+WARNS = """
+import sys
+import numpy as np
+import geomopt, geomopt.cli, geomopt.param
+
+def warns(*a, **k):
+    np.exp(np.array([1e300])) / np.zeros(1)  # RuntimeWarning: overflow, then inf/0
+    raise geomopt.MeshError("the mesh is hopeless")
+
+geomopt.param.parameterize = warns
+sys.exit(geomopt.cli.main(sys.argv[1:]))
+"""
+
+
+def test_numpy_warnings_never_reach_stderr(tmp_path):
+    """An overflow or 0/0 warning inside a command is not printed: errors are one line (--debug shows them)."""
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]),
+           "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-c", WARNS, "param", str(mesh), "-o", str(tmp_path / "uv.obj"),
+                           "--quiet"], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2
+    one_error_line(proc.stderr, "the mesh is hopeless")

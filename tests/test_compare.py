@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import json
 import os
 
 import numpy as np
@@ -13,7 +14,9 @@ import pytest
 import geomopt
 import geomopt.cli
 from geomopt import MeshError, ParameterError, Problem, io
-from geomopt._compare import HISTORY_COLUMNS, SUMMARY_COLUMNS, Comparison
+from geomopt._compare import HISTORY_COLUMNS, TOLERANCES, Comparison, summary_columns
+from geomopt._compare_report import STYLES
+from geomopt._manifest import array_hash
 from geomopt.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
@@ -65,47 +68,57 @@ def png_size(data):
 # ------------------------------------------------------------------ CLI: the files
 
 
-def test_cli_writes_history_summary_maps_and_a_plot(cli, tmp_path):
+def test_cli_writes_history_summary_table_manifest_maps_and_a_plot(cli, tmp_path):
     mesh = write_obj(tmp_path / "m.obj", V3, F)
     out = tmp_path / "cmp"
-    code, stdout, err = cli("compare", mesh, "--out", out, "--solvers", FAST, "--quiet")
+    code, stdout, err = cli("compare", mesh, "-o", out, "--solvers", FAST, "--quiet")
     assert (code, stdout, err) == (0, "", "")
     names = FAST.split(",")
-    assert sorted(os.listdir(out)) == sorted(["history.csv", "summary.csv", "convergence.png"] +
-                                             [n + ".obj" for n in names])
+    assert sorted(os.listdir(out)) == sorted(["history.csv", "summary.csv", "table.tex", "manifest.json",
+                                              "convergence.png"] + [n + ".obj" for n in names])
 
     head, rows = read_csv(out / "history.csv")
     assert tuple(head) == HISTORY_COLUMNS
-    assert [r[0] for r in rows if r[1] == "0"] == names  # every solver starts at iteration 0
-    starts = {r[3] for r in rows if r[1] == "0"}
-    assert len(starts) == 1  # ... from the same start map
+    col = {c: k for k, c in enumerate(head)}
+    assert [r[0] for r in rows if r[col["iteration"]] == "0"] == names  # every solver starts at iteration 0
+    assert len({r[col["energy"]] for r in rows if r[col["iteration"]] == "0"}) == 1  # ... from the same start
     shead, summary = read_csv(out / "summary.csv")
-    assert tuple(shead) == SUMMARY_COLUMNS
+    assert tuple(shead) == summary_columns()
+    scol = {c: k for k, c in enumerate(shead)}
     assert [s[0] for s in summary] == names
-    best = min(float(s[6]) for s in summary)
+    manifest = json.loads((out / "manifest.json").read_text())
+    (ref,) = [c["reference"] for c in manifest["comparisons"].values()]
+    assert ref["source"] == "auto" and ref["outcome"] == "converged" and ref["solver"]["rtol"] == 1e-14
+    area = Problem.surface(V3, F).volumes.sum()
     for s in summary:
         mine = [r for r in rows if r[0] == s[0]]
-        assert [int(r[1]) for r in mine] == list(range(int(s[2]) + 1))
-        t = np.array([float(r[2]) for r in mine])
-        e = np.array([float(r[3]) for r in mine])
+        assert [int(r[col["iteration"]]) for r in mine] == list(range(int(s[scol["iterations"]]) + 1))
+        t = np.array([float(r[col["wall_s"]]) for r in mine])
+        e = np.array([float(r[col["energy"]]) for r in mine])
+        gap = np.array([float(r[col["gap"]]) for r in mine])
         assert t[0] == 0 and np.all(np.diff(t) >= 0) and np.all(np.diff(e) <= 0)
-        assert all(r[5] == "0" for r in mine) and s[8] == s[9] == "0"
-        assert s[1] == "converged" and float(s[4]) > 0
-        assert float(s[7]) == pytest.approx((float(s[6]) - best) / best, abs=1e-15)
-        assert float(s[7]) < 1e-6  # a tiny disk: every fast solver converges
+        np.testing.assert_allclose([float(r[col["mean_energy"]]) for r in mine], e / area, rtol=1e-14)
+        np.testing.assert_allclose(gap, (e - ref["energy"]) / ref["energy"], rtol=1e-12, atol=1e-15)
+        assert all(r[col["flips"]] == "0" for r in mine) and s[scol["max_flips"]] == "0"
+        assert s[scol["outcome"]] == "converged" and s[scol["certified"]] == "True"
+        assert float(s[scol["gap"]]) < 1e-6  # a tiny disk: every fast solver converges
+        for tol in TOLERANCES:  # the table: the first iterate at or below each tolerance
+            k = int(np.flatnonzero(gap <= tol)[0])
+            key = f"{tol:.0e}"
+            assert int(s[scol[f"it_to_{key}"]]) == k and float(s[scol[f"wall_s_to_{key}"]]) == t[k]
         v, vt, f = read_uv_obj(out / f"{s[0]}.obj")
         assert np.array_equal(v, V3) and np.array_equal(f, F) and vt.shape == (len(V3), 2)
         assert count_inverted(vt, F) == 0
+    assert "\\begin{tabular}" in (out / "table.tex").read_text()
 
-    data = (out / "convergence.png").read_bytes()
-    assert png_size(data) == (1000, 400)
+    assert png_size((out / "convergence.png").read_bytes()) == (1500, 460)
     import matplotlib.image
 
     img = matplotlib.image.imread(out / "convergence.png")[..., :3]
     colours = {tuple(np.round(c * 255).astype(int)) for c in img.reshape(-1, 3)}
-    # one curve per solver, in matplotlib's default cycle (blue, orange, green)
-    for rgb in [(31, 119, 180), (255, 127, 14), (44, 160, 44)]:
-        assert rgb in colours, rgb
+    for name in names:  # every solver in its own fixed colour
+        rgb = tuple(int(STYLES[name][0][k:k + 2], 16) for k in (1, 3, 5))
+        assert rgb in colours, (name, rgb)
 
 
 def test_api_result_agrees_with_the_files(tmp_path):
@@ -117,20 +130,100 @@ def test_api_result_agrees_with_the_files(tmp_path):
     for name, r in res.results.items():
         mine = [row for row in rows if row[0] == name]
         assert len(mine) == r.iterations + 1 == len(r.energy_history)
-        assert [float(x[2]) for x in mine] == list(r.time_history)
-        assert [float(x[3]) for x in mine] == list(r.energy_history / area)
-        assert [float(x[4]) for x in mine] == list(r.grad_history / area)
-        assert [int(x[5]) for x in mine] == list(r.info["flips_history"])
-        assert r.seconds >= r.time_history[-1] and r.energy == r.energy_history[-1]
+        assert [float(x[3]) for x in mine] == list(r.time_history)
+        assert [float(x[4]) for x in mine] == list(r.cpu_history)
+        assert [float(x[5]) for x in mine] == list(r.energy_history)
+        assert [float(x[8]) for x in mine] == list(r.grad_history)
+        assert [int(x[9]) for x in mine] == list(r.flips_history)
+        assert r.energy == r.energy_history[-1] and r.seconds == r.time_history[-1]
+    # the reference: a tight Newton solve, at or below every solver's energy
+    assert res.reference.source == "auto" and res.reference.detail["outcome"] == "converged"
+    assert all(r.energy >= res.reference.energy for r in res.results.values())
     _, summary = read_csv(tmp_path / "o" / "summary.csv")
-    assert res.best_energy == min(r.energy for r in res.results.values())
     for s in summary:
         r = res.results[s[0]]
         assert s[1] == r.outcome.value == "converged"
-        assert (int(s[2]), float(s[3]), float(s[4])) == (r.iterations, r.seconds, r.setup_seconds)
-        assert float(s[6]) == r.energy / area and float(s[7]) == res.gap(s[0])[-1]
+        assert (int(s[3]), float(s[4]), float(s[6])) == (r.iterations, r.seconds, r.setup_seconds)
+        assert float(s[9]) == r.energy and float(s[10]) == r.energy / area and float(s[11]) == res.gap(s[0])[-1]
     _, vt, _ = read_uv_obj(tmp_path / "o" / "aqp.obj")
     assert np.array_equal(vt, res.results["aqp"].x)
+
+
+def test_reference_best_given_and_auto():
+    best = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], reference="best")
+    assert best.reference.source == "best" and min(best.gap(n)[-1] for n in best.results) == 0.0
+    auto = geomopt.compare(V3, F, solvers=["newton", "lbfgs"])
+    assert auto.reference.energy <= best.reference.energy
+    given = geomopt.compare(V3, F, solvers=["lbfgs"], reference=auto.reference_mean_energy * (1 - 1e-3))
+    assert given.reference.source == "given"
+    assert given.gap("lbfgs")[-1] == pytest.approx(1e-3 / (1 - 1e-3), rel=1e-6)
+    for bad in ("median", float("nan"), [1.0]):
+        with pytest.raises(ParameterError, match="reference must be"):
+            geomopt.compare(V3, F, solvers=["lbfgs"], reference=bad)
+
+
+def test_repeats_report_medians_and_keep_the_median_run():
+    res = geomopt.compare(V3, F, solvers=["newton"], repeat=3)
+    runs = res.runs["newton"]
+    assert len(runs) == 3 and len({r.iterations for r in runs}) == 1
+    row = res.summary_rows()[0]
+    assert row["repeats"] == 3 and row["wall_s"] == np.median([r.seconds for r in runs])
+    assert res.results["newton"].seconds == np.median([r.seconds for r in runs])
+    assert row["cpu_s"] == np.median([r.cpu_seconds for r in runs])
+    assert "medians of 3 runs" in res.report()
+    with pytest.raises(ParameterError, match="repeat must be"):
+        geomopt.compare(V3, F, solvers=["newton"], repeat=0)
+
+
+def test_manifest_records_solvers_environment_and_hashes(tmp_path):
+    res = geomopt.compare(V3, F, solvers=["newton", "optx-lbfgs"], max_steps=3, out=tmp_path)
+    m = json.loads((tmp_path / "manifest.json").read_text())
+    assert m["schema_version"] >= 2 and m["versions"]["geomopt"] == geomopt.__version__
+    assert m["versions"]["jax"] and m["environment"]["logical_cpus"] >= 1 and m["environment"]["cpu"]
+    (c,) = m["comparisons"].values()
+    newton = c["solvers"]["newton"]
+    assert newton["config"]["type"] == "geomopt.solvers.newton.Newton" and newton["config"]["max_steps"] == 3
+    assert newton["config"]["search"]["safety"] == 0.9 and "geomopt's test" in newton["stopping"]
+    optx = c["solvers"]["optx-lbfgs"]
+    assert optx["config"]["solver"]["type"].startswith("optimistix") and "optimistix LBFGS" in optx["stopping"]
+    assert c["problem"]["mesh_sha256"] == array_hash(V3, F) and c["problem"]["elements"] == len(F)
+    assert c["energy"]["name"] == "symmetric_dirichlet" and "total" in c["energy"]["convention"]
+    assert c["start_sha256"] == array_hash(res.start)
+
+
+def test_several_meshes_formats_log_x_and_json(cli, tmp_path):
+    a = write_obj(tmp_path / "a.obj", V3, F)
+    b = write_obj(tmp_path / "b.obj", V3 * 2.0, F)
+    out = tmp_path / "o"
+    code, stdout, err = cli("compare", a, b, "--out", out, "--solvers", "newton,lbfgs", "--format", "pdf,svg",
+                            "--log-x", "--quiet", "--json")
+    assert (code, err) == (0, "")
+    report = json.loads(stdout)
+    assert report["schema_version"] >= 2 and report["exit_status"] == 0 and report["versions"]["geomopt"]
+    assert [m["mesh"] for m in report["meshes"]] == ["a", "b"]
+    assert [s["solver"] for s in report["meshes"][0]["solvers"]] == ["newton", "lbfgs"]
+    assert set(summary_columns()) <= set(report["meshes"][0]["solvers"][0])
+    for name in ("summary.csv", "table.tex", "manifest.json", "convergence.pdf", "convergence.svg",
+                 "a/history.csv", "b/newton.obj", "b/convergence.svg"):
+        assert (out / name).is_file(), name
+    assert (out / "convergence.pdf").read_bytes()[:5] == b"%PDF-"
+    assert b"<svg" in (out / "convergence.svg").read_bytes()[:1000]
+    head, rows = read_csv(out / "summary.csv")
+    assert head[0] == "mesh" and [r[0] for r in rows] == ["a", "a", "b", "b"]
+    table = (out / "table.tex").read_text()
+    assert "a.obj" in table and "b.obj" in table
+    res = geomopt._compare.compare_meshes({"a": a, "b": b}, solvers=["newton"])
+    fig = res.figure(log_x=True)
+    assert len(fig.axes) == 6 and fig.axes[1].get_xscale() == "log"
+    with pytest.raises(ParameterError, match="same file name"):
+        geomopt._compare.compare_meshes([a, tmp_path / "x" / "a.obj"], solvers=["newton"])
+
+
+def test_optimistix_progress_lines_show_no_nan(tmp_path, capsys):
+    geomopt.compare(V3, F, solvers=["optx-lbfgs"], max_steps=60, progress=True, reference="best")
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "iter" in line]
+    assert lines and not any("nan" in line or " inf" in line for line in lines), lines
 
 
 # ------------------------------------------------------------------ fixed boundary
@@ -150,7 +243,7 @@ def test_lim_case_with_handles(cli, tmp_path, mirrored):
         assert np.array_equal(vt[b], x[b])  # handles bit-exact, in the input's frame
         np.testing.assert_allclose(vt, target, atol=1e-4)  # the affine map is the minimum
         assert count_inverted(vt, S, orientation=-1 if mirrored else 1) == 0
-        assert s[1] == "converged" and float(s[6]) == pytest.approx(float(summary[0][6]), rel=1e-8)
+        assert s[1] == "converged" and float(s[9]) == pytest.approx(float(summary[0][9]), rel=1e-8)
 
 
 def test_api_fixed_problem_with_start_map_and_tets(tmp_path):
@@ -166,7 +259,7 @@ def test_api_fixed_problem_with_start_map_and_tets(tmp_path):
     with pytest.raises(ParameterError, match="triangles only"):
         geomopt.compare(problem, x0=x0, solvers=["cm"])
     res = geomopt.compare(problem, x0=x0, solvers={"accel": geomopt.AQP()}, out=tmp_path)
-    assert res.results["accel"].success
+    assert res.results["accel"].outcome is geomopt.Outcome.CONVERGED and res.results["accel"].certified
     P, T2 = io.read_vtk_tets(tmp_path / "accel.vtk")
     assert np.array_equal(T2, T) and np.array_equal(P, res.results["accel"].x)
     np.testing.assert_allclose(P, V @ A.T, atol=1e-4)
@@ -186,13 +279,15 @@ def test_flips_of_every_iterate_are_recorded_and_exit_1(cli, tmp_path, monkeypat
     code, _, err = cli("compare", case, "--out", tmp_path / "o", "--solvers", "lbfgs,aqp",
                        "--energy", "dirichlet", "--quiet")
     assert code == 1
-    one_error_line(err, "inverted elements during the solve of lbfgs", "files written")
+    one_error_line(err, "not every solver converged with a certified map", "lbfgs (", "not certified)",
+                   "files written")
+    assert "aqp" not in err
     _, rows = read_csv(tmp_path / "o" / "history.csv")
-    flips = {n: [int(r[5]) for r in rows if r[0] == n] for n in ("lbfgs", "aqp")}
+    flips = {n: [int(r[9]) for r in rows if r[0] == n] for n in ("lbfgs", "aqp")}
     assert flips["lbfgs"][0] == 0 and max(flips["lbfgs"]) > 0 and max(flips["aqp"]) == 0
     _, summary = read_csv(tmp_path / "o" / "summary.csv")
-    assert summary[0][1] == "not_injective" and int(summary[0][9]) == max(flips["lbfgs"])
-    assert summary[1][1] == "converged" and summary[1][8:] == ["0", "0"]
+    assert summary[0][2] == "False" and int(summary[0][12]) == max(flips["lbfgs"])
+    assert summary[1][1] == "converged" and summary[1][2] == "True" and summary[1][12] == "0"
 
 
 # ------------------------------------------------------------------ refusals before solving
@@ -246,21 +341,23 @@ def test_bad_arguments_and_outputs_fail_before_solving(cli, tmp_path, monkeypatc
 # ------------------------------------------------------------------ limits
 
 
-def test_max_steps_is_honoured(cli, tmp_path):
+def test_max_steps_is_honoured_and_exits_1(cli, tmp_path):
+    """Exit status 1: a solver stopped by the limit did not converge (the documented rule)."""
     mesh = write_obj(tmp_path / "m.obj", V3, F)
-    code, _, _ = cli("compare", mesh, "--out", tmp_path / "o", "--solvers", FAST, "--max-steps", "2", "--quiet")
-    assert code == 0
+    code, _, err = cli("compare", mesh, "-o", tmp_path / "o", "--solvers", FAST, "--max-steps", "2", "--quiet")
+    assert code == 1
+    one_error_line(err, "not every solver converged", "newton (max_steps)", "files written")
     _, rows = read_csv(tmp_path / "o" / "history.csv")
     _, summary = read_csv(tmp_path / "o" / "summary.csv")
     for s in summary:
-        assert s[1] == "max_steps" and s[2] == "2"
-        assert [r[1] for r in rows if r[0] == s[0]] == ["0", "1", "2"]
+        assert s[1] == "max_steps" and s[3] == "2"
+        assert [r[2] for r in rows if r[0] == s[0]] == ["0", "1", "2"]
 
 
 def test_max_seconds_stops_each_solver_and_says_so():
     res = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], max_seconds=1e-9)
     for name, r in res.results.items():
-        # the first terminate() call already takes longer than a nanosecond
-        assert r.iterations == 0 and res.outcome(name) == "max_seconds"
-        assert r.outcome is geomopt.Outcome.MAX_STEPS and r.info["stopped"] == "max_seconds"
-    assert [s[1] for s in res.summary_rows()] == ["max_seconds", "max_seconds"]
+        # the first iteration already takes longer than a nanosecond
+        assert r.iterations == 1 and r.status == "max_seconds"
+        assert r.outcome is geomopt.Outcome.MAX_STEPS and r.stopped == "max_seconds"
+    assert [s["outcome"] for s in res.summary_rows()] == ["max_seconds", "max_seconds"]

@@ -13,7 +13,7 @@ from geomopt import generators as G
 from geomopt import hexvalid
 from geomopt._errors import MeshError, ParameterError
 from geomopt._objective import Objective
-from geomopt.elements import (certify_elements, corner_edges, count_invalid, diagonal_triangles,
+from geomopt.elements import (certify_elements, corner_edges, count_invalid,
                               quality, scaled_jacobian, valid_elements)
 from geomopt.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
 from geomopt.problem import Problem
@@ -269,12 +269,11 @@ def test_clockwise_and_mirrored_meshes_are_reoriented():
     assert np.array_equal(p.elements, H)
 
 
-def test_boundary_and_triangulation():
+def test_boundary_vertices_are_the_elements_not_their_corners():
     V, Q = G.quad_mesh(4, 3)
     p = Problem.quads(V, Q)
     onb = (V[:, 0] == 0) | (V[:, 0] == 1) | (V[:, 1] == 0) | (V[:, 1] == 1)
     assert np.array_equal(p.boundary_vertices(), np.flatnonzero(onb))
-    assert np.array_equal(p.triangulation, diagonal_triangles(p.elements)) and len(p.triangulation) == 2 * len(Q)
     V3, H = G.hex_mesh(3, 3, 3)
     onb = ((V3 == 0) | (V3 == 1)).any(1)
     assert np.array_equal(Problem.hexes(V3, H).boundary_vertices(), np.flatnonzero(onb))
@@ -404,3 +403,64 @@ def test_untangling_stops_when_only_hexahedra_interiors_fold(monkeypatch):
     monkeypatch.setattr(elements_module, "count_invalid", lambda X, E: 1)
     r = untangle(t.problem(), t.x0, progress=False)
     assert not r.success and "fold inside" in r.message and r.outer_iterations < 20
+
+
+# ----------------------------------------------------------------------------- local certificate
+
+
+def _fan(k, turn):
+    """k quads around vertex 0 turning ``turn`` radians in all: (V (2k+1, 2), Q (k, 4))."""
+    a = np.arange(k) * turn / k
+    V = np.zeros((2 * k + 1, 2))
+    V[1:k + 1] = np.c_[np.cos(a), np.sin(a)]
+    V[k + 1:] = 1.25 * np.c_[np.cos(a + turn / k / 2), np.sin(a + turn / k / 2)]
+    return V, np.array([[0, 1 + j, k + 1 + j, 1 + (j + 1) % k] for j in range(k)])
+
+
+def _extrude(V, Q):
+    n = len(V)
+    return np.r_[np.c_[V, np.zeros(n)], np.c_[V, np.ones(n)]], np.c_[Q, Q + n]
+
+
+def test_element_certificate_finds_branch_points_the_corners_cannot_see():
+    """Eight valid quads winding twice around their centre (every corner positive) are not
+    locally injective: the certificate names the branch vertex; extruded to hexahedra, the
+    axis edge and its ends.  The same certificate passes the once-wound fan, which the
+    overlapping corner simplices taken as one mesh would fail."""
+    from geomopt.certify import local_certificate
+    from geomopt.elements import corner_simplices, element_local_certificate
+
+    V, Q = _fan(8, 2 * np.pi)
+    X, _ = _fan(8, 4 * np.pi)
+    assert valid_elements(X, Q).all()
+    assert element_local_certificate(V, Q).ok and not local_certificate(V, corner_simplices(Q)).ok
+    c = Problem.quads(V, Q).certify(X)
+    assert not c.ok and c.inverted == 0 and c.branch_vertices.tolist() == [0] and "branch point" in c.message
+    P, H = _extrude(V, Q)
+    P2, _ = _extrude(X, Q)
+    assert element_local_certificate(P, H).ok and not local_certificate(P, corner_simplices(H)).ok
+    c = Problem.hexes(P, H).certify(P2)
+    assert not c.ok and c.branch_edges.tolist() == [[0, len(V)]] and "hexahedra around interior edge" in c.message
+    V3, H3 = G.hex_mesh(4, 3, 3)
+    assert Problem.hexes(V3, H3).certify(V3 + 0.02 * np.sin(7 * V3)).ok
+
+
+def test_element_certificate_finds_a_free_boundary_overlapping_itself():
+    """Six quads of an open fan (a boundary vertex) turned by 1.4 full turns: every quad valid,
+    the boundary overlaps at the centre."""
+    from geomopt.elements import element_local_certificate
+
+    k, turn = 6, 1.4 * 2 * np.pi
+    a = np.arange(k + 1) * turn / k
+    V = np.zeros((2 * k + 2, 2))
+    V[1:k + 2] = np.c_[np.cos(a), np.sin(a)]
+    V[k + 2:] = 1.25 * np.c_[np.cos(a[:-1] + turn / k / 2), np.sin(a[:-1] + turn / k / 2)]
+    Q = np.array([[0, 1 + j, k + 2 + j, 2 + j] for j in range(k)])
+    assert valid_elements(V, Q).all()
+    c = element_local_certificate(V, Q)
+    assert not c.ok and 0 in c.boundary_overlaps.tolist()
+    half = V.copy()  # the same fan turned 0.7 turns: fine
+    a = np.arange(k + 1) * 0.7 * 2 * np.pi / k
+    half[1:k + 2] = np.c_[np.cos(a), np.sin(a)]
+    half[k + 2:] = 1.25 * np.c_[np.cos(a[:-1] + 0.7 * np.pi / k), np.sin(a[:-1] + 0.7 * np.pi / k)]
+    assert element_local_certificate(half, Q).ok

@@ -85,3 +85,17 @@ def test_read_obj_uv_refuses_seams(tmp_path):
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     with pytest.raises(MeshFormatError, match="no 'vt' lines"):
         read_obj_uv(p)
+
+
+def test_init_uv_with_a_nan_vt_says_nan_not_unused(tmp_path, cli):
+    """``vt nan`` was reported as 'vertices used by no face' (NaN marked unused vertices)."""
+    p = tmp_path / "nan.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt nan 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    with pytest.raises(geomopt.MeshError, match="NaN or infinite coordinates .*first: vertex 1") as info:
+        read_obj_uv(p)
+    assert "used by no face" not in str(info.value)
+    code, _, err = cli("param", p, "-o", tmp_path / "out.obj", "--init", "uv", "--quiet")
+    assert code == 2 and "NaN" in err and "used by no face" not in err and len(err.splitlines()) == 1
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    with pytest.raises(MeshFormatError, match="1 vertices are used by no face"):
+        read_obj_uv(p)

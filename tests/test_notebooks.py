@@ -1,10 +1,32 @@
-"""Every notebook in notebooks/ runs top to bottom without error (examples cannot rot)."""
+"""Every notebook in notebooks/ runs top to bottom without error (examples cannot rot), is
+stored executed with its figures inline, and uses only the public API."""
 
+import re
 from pathlib import Path
 
 import pytest
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+#: what a notebook that teaches the public API must not do
+PRIVATE = {r"geomopt\._": "imports a private module (geomopt._...)",
+           r"__file__": "finds data through a module's __file__ (use geomopt.data)",
+           r"\.info\[": "reads Result.info[...] (use the typed fields)",
+           r"\.savefig\(|save_(layout|param_figure|convergence|untangle_figure)\(": "writes a picture file "
+           "instead of showing the figure inline"}
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_notebook_is_stored_executed_with_figures(path):
+    nbformat = pytest.importorskip("nbformat")
+    nb = nbformat.read(path, as_version=4)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert code and all(c.execution_count for c in code), f"{path.name}: run it and save it with its outputs"
+    assert not [o for c in code for o in c.outputs if o.output_type == "error"], f"{path.name}: stored an error"
+    assert any("image/png" in o.get("data", {}) for c in code for o in c.outputs), \
+        f"{path.name}: no figure stored inline"
+    for pattern, why in PRIVATE.items():
+        bad = [c.source for c in code if re.search(pattern, c.source)]
+        assert not bad, f"{path.name} {why}: {bad[0][:200]}"
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])

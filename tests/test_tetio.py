@@ -144,7 +144,7 @@ MALFORMED = {
     "vtk_celltypes_short": ("vtk", None, "CELL_TYPES section declares 6 values but the file ends after 5"),
     "vtk_two_points": ("vtk", None, "expected 'CELLS' after the points, found 'POINTS"),
     # VTK XML
-    "vtu_truncated": ("vtu", None, "could not read .* as VTK XML unstructured grid: meshio's reader stopped"),
+    "vtu_truncated": ("vtu", None, "malformed XML .* truncated"),
 }
 
 
@@ -249,3 +249,238 @@ def test_invalid_arrays_and_contents_are_mesh_errors(tmp_path):
     (tmp_path / "empty.mesh").write_text("")
     with pytest.raises(geomopt.MeshFormatError, match="empty"):
         tetio.read_tets(tmp_path / "empty.mesh")
+
+
+# ------------------------------------------------------------------ issue 19: read exactly or refuse
+
+import base64  # noqa: E402
+import zlib  # noqa: E402
+
+_VTU_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "u1": "UInt8", "i1": "Int8",
+              "u4": "UInt32", "u8": "UInt64", "i2": "Int16"}
+
+
+def _vtu(pieces, fmt="ascii", header="UInt32", compressor=None, order="<", version="1.0", blocks=2):
+    """A VTU file written here, independently of the reader: ``pieces`` is a list of
+    ``(points, connectivity, offsets, types)``; ``fmt`` ascii | binary | raw | base64 (appended)."""
+    hdt = np.dtype(order + {"UInt32": "u4", "UInt64": "u8"}[header])
+    appended, parts = bytearray(), []
+
+    def encode(values, code):
+        values = np.asarray(values, dtype=order + code)
+        if fmt == "ascii":
+            return 'format="ascii">' + " ".join(repr(v) if code[0] == "f" else str(v) for v in values.tolist()) + \
+                "</DataArray>"
+        raw = values.tobytes()
+        if compressor:
+            size = max(1, -(-len(raw) // blocks))
+            chunks = [raw[i:i + size] for i in range(0, len(raw), size)]
+            comp = [zlib.compress(c) for c in chunks]
+            head = np.array([len(chunks), size, len(chunks[-1]) if chunks else 0] + [len(c) for c in comp], hdt)
+            pieces_ = [head.tobytes(), b"".join(comp)]
+        else:
+            pieces_ = [np.array([len(raw)], hdt).tobytes(), raw]
+        if fmt == "binary":
+            return 'format="binary">' + "".join(base64.b64encode(p).decode() for p in pieces_) + "</DataArray>"
+        at = len(appended)
+        appended.extend(b"".join(pieces_) if fmt == "raw" else b"".join(base64.b64encode(p) for p in pieces_))
+        return f'format="appended" offset="{at}"/>'
+
+    def array(name, values, code, comps=1):
+        return f'<DataArray type="{_VTU_TYPES[code]}" Name="{name}" NumberOfComponents="{comps}" ' + \
+            encode(np.ravel(values), code)
+
+    for points, conn, offsets, types in pieces:
+        parts.append(f'<Piece NumberOfPoints="{len(points)}" NumberOfCells="{len(types)}">'
+                     f'<Points>{array("Points", points, "f8" if np.asarray(points).dtype != np.float32 else "f4", 3)}'
+                     f'</Points><Cells>{array("connectivity", conn, "i8")}{array("offsets", offsets, "i4")}'
+                     f'{array("types", types, "u1")}</Cells></Piece>')
+    attrs = f'type="UnstructuredGrid" version="{version}" byte_order="{"LittleEndian" if order == "<" else "BigEndian"}" ' \
+            f'header_type="{header}"' + (' compressor="vtkZLibDataCompressor"' if compressor else "")
+    text = (f'<?xml version="1.0"?>\n<VTKFile {attrs}>\n<UnstructuredGrid>' + "".join(parts) + "</UnstructuredGrid>\n")
+    tail = b"</VTKFile>\n"
+    if fmt in ("raw", "base64"):
+        return text.encode() + f'<AppendedData encoding="{fmt}">\n_'.encode() + bytes(appended) + \
+            b"\n</AppendedData>\n" + tail
+    return text.encode() + tail
+
+
+def _cube_vtu(**kw):
+    return _vtu([(_P1, _T1.ravel(), 4 * np.arange(1, 7), [10] * 6)], **kw)
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(fmt="binary"), dict(fmt="binary", compressor="zlib"),
+                                dict(fmt="raw"), dict(fmt="raw", compressor="zlib", header="UInt64"),
+                                dict(fmt="base64"), dict(fmt="base64", compressor="zlib", blocks=3),
+                                dict(fmt="binary", order=">", header="UInt64"), dict(version="0.1")])
+def test_vtu_every_encoding_reads_exactly(tmp_path, kw):
+    (tmp_path / "c.vtu").write_bytes(_cube_vtu(**kw))
+    P, T = tetio.read_tets(tmp_path / "c.vtu")
+    np.testing.assert_array_equal(P, _P1)
+    np.testing.assert_array_equal(T, _T1)
+
+
+def test_vtu_pieces_and_boundary_cells_read_in_file_order(tmp_path):
+    """Two pieces (indices local to each), triangles and a vertex cell beside the tets are skipped."""
+    tri = [0, 1, 2]
+    pieces = [(_P1, np.r_[_T1[:2].ravel(), tri], [4, 8, 11], [10, 10, 5]),
+              (_P1, np.r_[[5], _T1[2:].ravel()], [1, 5, 9, 13, 17], [1, 10, 10, 10, 10])]
+    (tmp_path / "p.vtu").write_bytes(_vtu(pieces, fmt="raw", compressor="zlib"))
+    P, T = tetio.read_tets(tmp_path / "p.vtu")
+    np.testing.assert_array_equal(P, np.vstack([_P1, _P1]))
+    np.testing.assert_array_equal(T, np.vstack([_T1[:2], _T1[2:] + 8]))
+
+
+_BAD_VTU = {
+    "unknown cell type": ([99] * 6, None, None, "unknown VTK cell type 99"),
+    "voxel": ([10] * 5 + [11], np.r_[_T1.ravel(), [0, 1, 2, 3]], np.r_[4 * np.arange(1, 6), 28],
+              "non-tetrahedral volume cells \\(voxel\\)"),
+    "Lagrange tetrahedron": ([71] + [10] * 5, None, None, "non-tetrahedral volume cells \\(Lagrange tetrahedron\\)"),
+    "Bezier hexahedron": ([79] + [10] * 5, None, None, "Bezier hexahedron"),
+    "duplicated offset": ([10] * 6, None, [4, 8, 8, 12, 16, 20], "cell 2 has no points"),
+    "extra connectivity": ([10] * 6, np.r_[_T1.ravel(), 7], None, "connectivity holds 25 values but the offsets use 24"),
+    "short tet": ([10] * 6, _T1.ravel()[:-1], [4, 8, 12, 16, 20, 23], "cell 5 is a tetra with 3 points, expected 4"),
+    "offsets count": ([10] * 6, None, 4 * np.arange(1, 6), "offsets holds 5 values, expected 6"),
+    "index range": ([10] * 6, np.r_[_T1.ravel()[:-1], 8], None, "point index 8.*0..7"),
+    "falling offsets": ([10] * 6, None, [4, 12, 8, 16, 20, 24], "cell 2 has no points|must rise"),
+}
+
+
+@pytest.mark.parametrize("name", list(_BAD_VTU))
+def test_vtu_cells_not_as_declared_are_refused(tmp_path, capfd, name):
+    types, conn, offsets, words = _BAD_VTU[name]
+    conn = _T1.ravel() if conn is None else conn
+    offsets = 4 * np.arange(1, 7) if offsets is None else offsets
+    for fmt in ("ascii", "binary"):
+        path = tmp_path / f"bad-{fmt}.vtu"
+        path.write_bytes(_vtu([(_P1, conn, offsets, types)], fmt=fmt))
+        with pytest.raises(geomopt.MeshFormatError, match=words) as info:
+            tetio.read_tets(path)
+        assert str(path) in str(info.value) and "\n" not in str(info.value)
+    assert capfd.readouterr() == ("", "")
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda t: t.replace(b'NumberOfPoints="8"', b'NumberOfPoints="9"'), "Points holds 24 values, expected 27"),
+    (lambda t: t.replace(b"UnstructuredGrid", b"PolyData"), "not an unstructured grid"),
+    (lambda t: t[:len(t) // 2], "malformed XML"),
+    (lambda t: t.replace(b'type="Float64"', b'type="Float128"'), "data type 'Float128'"),
+    (lambda t: t.replace(b'NumberOfComponents="3"', b'NumberOfComponents="2"'), "3 components"),
+    (lambda t: t.replace(b"<Cells>", b"<Cells><Foo/>"), "unexpected <Foo>"),
+])
+def test_vtu_structure_not_as_declared_is_refused(tmp_path, edit, words):
+    path = tmp_path / "bad.vtu"
+    path.write_bytes(edit(_cube_vtu(fmt="binary", compressor="zlib")))
+    with pytest.raises(geomopt.MeshFormatError, match=words):
+        tetio.read_tets(path)
+
+
+def test_vtu_truncated_binary_data_is_refused(tmp_path):
+    good = _cube_vtu(fmt="raw")
+    at = good.index(b"</AppendedData>")
+    (tmp_path / "t.vtu").write_bytes(good[:at - 20] + good[at:])
+    with pytest.raises(geomopt.MeshFormatError, match="ends inside|truncated"):
+        tetio.read_tets(tmp_path / "t.vtu")
+
+
+@pytest.mark.parametrize("make", [_msh22, _msh41])
+@pytest.mark.parametrize("bad", [0, -3])
+def test_gmsh_node_tag_zero_or_negative_is_refused_with_its_line(tmp_path, make, bad):
+    """A 0-based export (tag 0) was read as another mesh: meshio maps tag 0 to the largest tag."""
+    tags = [bad] + list(range(2, 9))
+    (tmp_path / "z.msh").write_text(make(tags))
+    with pytest.raises(geomopt.MeshFormatError, match=rf"line \d+: node tag {bad}; Gmsh node tags start at 1"):
+        tetio.read_tets(tmp_path / "z.msh")
+
+
+def test_valid_files_meshio_refused_are_read(tmp_path):
+    """MSH 2.2 with mixed tag counts, MSH 4.1 with an empty element block, a BOM, VTK 5.1 int32 offsets."""
+    mixed = MSH22.replace("\n2 4 2 0 1 ", "\n2 4 3 0 1 7 ", 1).replace("\n3 4 2 0 1 ", "\n3 4 0 ", 1)
+    empty_block = MSH41.replace("$Elements\n1 6 1 6\n", "$Elements\n2 6 1 6\n2 1 2 0\n")
+    for name, text in (("mixed.msh", mixed), ("empty.msh", empty_block), ("bom.msh", "\ufeff" + MSH22),
+                       ("bom.mesh", "\ufeff" + MEDIT)):
+        (tmp_path / name).write_text(text, encoding="utf-8")
+        P, T = tetio.read_tets(tmp_path / name)
+        np.testing.assert_array_equal(P, _P1)
+        np.testing.assert_array_equal(T, _T1)
+    points = "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in _P1.tolist())
+    for kind in ("vtktypeint32", "vtktypeint64"):
+        text = ("# vtk DataFile Version 5.1\nc\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 8 double\n" + points
+                + f"CELLS 7 24\nOFFSETS {kind}\n" + " ".join(str(4 * i) for i in range(7))
+                + f"\nCONNECTIVITY {kind}\n" + " ".join(map(str, _T1.ravel())) + "\nCELL_TYPES 6\n" + "10\n" * 6)
+        (tmp_path / f"{kind}.vtk").write_text(text)
+        P, T = tetio.read_tets(tmp_path / f"{kind}.vtk")
+        np.testing.assert_array_equal(T, _T1)
+    (tmp_path / "bom.vtu").write_bytes(b"\xef\xbb\xbf" + _cube_vtu())
+    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "bom.vtu")[1], _T1)
+
+
+def test_medit_version_1_coordinates_are_read_as_written(tmp_path):
+    """MeshVersionFormatted 1 means single precision in binary Medit; an ASCII file's decimals are
+    read as written (float64), not rounded to float32 as meshio did."""
+    P = _P1 + 0.1
+    text = MEDIT.replace("MeshVersionFormatted 2", "MeshVersionFormatted 1")
+    text = text.split("Vertices\n8\n")[0] + "Vertices\n8\n" + "".join(f"{x!r} {y!r} {z!r} 0\n" for x, y, z in P.tolist()) \
+        + "Tetrahedra" + text.split("Tetrahedra", 1)[1]
+    (tmp_path / "v1.mesh").write_text(text)
+    got, T = tetio.read_tets(tmp_path / "v1.mesh")
+    np.testing.assert_array_equal(got, P)
+    assert (got.astype(np.float32) != got).any()
+
+
+# ------------------------------------------------------------------ adversarial pass (issue 19, own)
+
+
+def test_vtu_an_array_given_twice_is_refused_not_picked(tmp_path):
+    """Two 'connectivity' arrays: which one a reader takes is a guess; refused."""
+    good = _cube_vtu().decode()
+    second = '<DataArray type="Int64" Name="connectivity" NumberOfComponents="1" format="ascii">' + \
+        " ".join(map(str, _T1[:, ::-1].ravel())) + "</DataArray>"
+    (tmp_path / "d.vtu").write_text(good.replace("</Cells>", second + "</Cells>"))
+    with pytest.raises(geomopt.MeshFormatError, match="two DataArrays named 'connectivity'"):
+        tetio.read_tets(tmp_path / "d.vtu")
+
+
+def test_vtu_integer_points_read_exactly_or_refused(tmp_path):
+    """Integer coordinates are exact in float64 up to 2**53; beyond that they would be rounded."""
+    for scale, ok in ((2**52, True), (2**60 + 1, False)):
+        pts = (_P1 * scale).astype(np.int64) + (1 if not ok else 0)
+        text = _cube_vtu().decode()
+        body = " ".join(map(str, pts.ravel()))
+        start = text.index('<DataArray type="Float64" Name="Points"')
+        end = text.index("</DataArray>", start)
+        text = text[:start] + '<DataArray type="Int64" Name="Points" NumberOfComponents="3" format="ascii">' + \
+            body + text[end:]
+        (tmp_path / "i.vtu").write_text(text)
+        if ok:
+            np.testing.assert_array_equal(tetio.read_tets(tmp_path / "i.vtu")[0], pts.astype(np.float64))
+        else:
+            with pytest.raises(geomopt.MeshFormatError, match="beyond 2\\*\\*53"):
+                tetio.read_tets(tmp_path / "i.vtu")
+
+
+def test_vtu_empty_cells_are_legal_and_skipped(tmp_path):
+    """VTK_EMPTY_CELL (type 0) has no points: equal offsets there are not a duplicated offset."""
+    (tmp_path / "e.vtu").write_bytes(_vtu([(_P1, _T1.ravel(), np.r_[4 * np.arange(1, 4), 12, 4 * np.arange(4, 7)],
+                                             [10, 10, 10, 0, 10, 10, 10])]))
+    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "e.vtu")[1], _T1)
+
+
+@pytest.mark.parametrize("section, extra", [("Vertices", "Vertices\n8\n" + "9 9 9 0\n" * 8),
+                                            ("Tetrahedra", "Tetrahedra\n1\n1 2 3 5 0\n")])
+def test_medit_a_section_given_twice_is_refused(tmp_path, section, extra):
+    """A second Vertices section silently replaced the first (Medit's own reader keeps only one)."""
+    (tmp_path / "two.mesh").write_text(MEDIT.replace("End\n", extra + "End\n"))
+    with pytest.raises(geomopt.MeshFormatError, match=f"second {section} section"):
+        tetio.read_tets(tmp_path / "two.mesh")
+
+
+def test_fuzz_found_crashes_are_one_line_refusals(tmp_path):
+    """Found by mutating valid files: a number where a Medit section keyword belongs (TypeError) and
+    a non-numeric NumberOfComponents (ValueError) escaped as internal errors."""
+    (tmp_path / "n.mesh").write_text(MEDIT.replace("Dimension 3\n", "Dimension 3\n7\n"))
+    with pytest.raises(geomopt.MeshFormatError, match="line 3: expected a section keyword"):
+        tetio.read_tets(tmp_path / "n.mesh")
+    (tmp_path / "c.vtu").write_bytes(_cube_vtu().replace(b'NumberOfComponents="3"', b'NumberOfComponents="3x"'))
+    with pytest.raises(geomopt.MeshFormatError, match="expected 3 components"):
+        tetio.read_tets(tmp_path / "c.vtu")

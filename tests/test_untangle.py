@@ -28,7 +28,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.energies import chi
-from geomopt.untangle import lim_problem, next_eps, untangle, untangle_case, write_untangle_result
+from geomopt.untangle import default_solver, lim_problem, next_eps, untangle, untangle_case, write_untangle_result
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -48,6 +48,15 @@ def test_lim_case_untangled_and_certified(folder, tmp_path):
     if folder is None:
         pytest.skip(f"LIM sample data not found under {LIM_ROOT} (clone the project next to shared/)")
     case, result = untangle_case(folder, progress=False)
+    if folder.name == "armadillo-598":
+        # every tet around 5 boundary edges has all four vertices fixed, and those tets turn
+        # 1.0-1.2 times around each edge in the given handle positions (they did already in the
+        # start map): no map with these handles is locally injective, though every tet can be
+        # positive.  It used to be certified (issue 19): now it is refused, naming an edge
+        assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
+        assert result.inverted == 0 and "boundary edge" in result.message
+        assert len(result.info["local_certificate"].boundary_edge_overlaps) == 5
+        return
     assert result.success, result.message
     assert result.initially_inverted > 0
     H = case["handles"]
@@ -271,9 +280,11 @@ def test_outer_loop_compiles_once():
     before = [k._cache_size() for k in kernels]
     with lowered_programs() as lowered:
         r1 = untangle(t.problem(), t.x0, progress=False)
-    # only the kernels the loop runs (no step kernel, no per-shape copy programs)
-    assert set(lowered) <= {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)",
-                            "jit(convert_element_type)"}, lowered
+    # only the kernels the loop runs (no step kernel, no per-shape copy programs); jax < 0.5
+    # (the floor, 0.4.38) names no program in its events: there the cache sizes below decide
+    names = {"jit(_run_kernel)", "jit(_reparam_kernel)", "jit(_outer_stats)", "jit(convert_element_type)"}
+    if not any(name.startswith("/jax/") for name in lowered):
+        assert set(lowered) <= names, lowered
     mid = [k._cache_size() for k in kernels]
     assert r1.success and r1.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
@@ -310,7 +321,10 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     triangles still folded) sends eps to ~0 and the loop stalls with folds left; with it, this
     disk untangles in a few outer iterations."""
     t = G.random_interior(*G.disk_mesh(60), seed=0)
-    result = untangle(t.problem(), t.x0, progress=False, max_outer=30)
+    # the diagonal seed throughout: the default's switch to the Laplacian seed untangles this
+    # disk within its first outer iteration, where the cap does not come into play
+    solver = default_solver("lbfgs", 2)
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30)
     assert result.success, result.message
     assert result.inverted_history[0] > 0 and result.outer_iterations <= 6
 
@@ -344,10 +358,15 @@ def lowered_programs():
             seen.append(kwargs.get("fun_name", event))
 
     jax.monitoring.register_event_duration_secs_listener(listen)
+    unregister = getattr(jax.monitoring, "unregister_event_duration_listener", None)
+    if unregister is None:  # jax < 0.5 (the floor, 0.4.38): only the private name
+        from jax._src import monitoring
+
+        unregister = monitoring._unregister_event_duration_listener_by_callback
     try:
         yield seen
     finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
+        unregister(listen)
 
 
 def test_lbfgs_reaches_the_harmonic_map():
@@ -446,7 +465,8 @@ def test_device_laplacian_lbfgs_makes_no_host_round_trip():
         state = solver.init(obj, V, obj.params(), precompile=None)
         density, geom, free = solver._args(obj)
         jaxpr = jax.make_jaxpr(lambda c: _iterate(solver, density, geom, free, state.params, c))(state.aux["carry"])
-        assert (str(jaxpr).count("pure_callback") > 0) == bool(callbacks), backend
+        host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._hostcall
+        assert (host_calls > 0) == bool(callbacks), backend
     with pytest.raises(ParameterError, match="laplacian"):
         LBFGS(laplacian="gpu")
 

@@ -11,15 +11,22 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import secrets
 import signal
 import stat
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:  # Windows: temporaries are not locked, stale ones not removed
+    fcntl = None
+
 from .._errors import GeomoptError, ParameterError
 from ._files import file_kind, one_line
 
-__all__ = ["check_output_path", "atomic_path", "atomic_output", "atomic_write"]
+__all__ = ["check_output_path", "atomic_path", "atomic_output", "atomic_write", "check_outputs", "create_output_folder",
+           "CASE_FILES"]
 
 # --------------------------------------------------------------------------- atomic
 
@@ -52,10 +59,60 @@ def _temp_path(path):
     The name is shortened (by whole characters) to 200 bytes so that the temporary name
     fits any file system that takes ``path``'s own name.
     """
+    return path.with_name(f".{_temp_stem(path)}.{secrets.token_hex(6)}.tmp")
+
+
+def _temp_stem(path):
+    """``path``'s name, shortened by whole characters to at most 200 bytes."""
     name = path.name
     while len(os.fsencode(name)) > 200:
         name = name[:-1]
-    return path.with_name(f".{name}.{secrets.token_hex(6)}.tmp")
+    return name
+
+
+def _lock(fd, wait):
+    """Take an exclusive lock on the open temporary file ``fd`` (released when it is closed,
+    or by the kernel when the process dies), waiting for it or not; ``False`` when not taken."""
+    if fcntl is None:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except OSError:
+        return False
+    return True
+
+
+def _remove_stale_temporaries(path):
+    """Delete the temporary files of ``path`` (``.<name>.<12 hex>.tmp``, and the temporaries of
+    those) that no live writer holds.
+
+    A writer keeps its temporary file locked (:func:`_lock`) until it is renamed or deleted;
+    a process killed by SIGKILL leaves its temporary behind, unlocked: that one is removed
+    here, the next time the same output is written.  Anything else of such a name (a file
+    that cannot be opened or locked, a link, a folder, a FIFO) is left alone.
+    """
+    if fcntl is None:
+        return
+    # a writer that writes to another atomic path's temporary makes temporaries of temporaries
+    pattern = re.compile(r"\.+" + re.escape(_temp_stem(path)) + r"(?:\.[0-9a-f]{12}\.tmp)+")
+    try:
+        names = [n for n in os.listdir(path.parent or ".") if pattern.fullmatch(n)]
+    except OSError:
+        return
+    for name in names:
+        stale = path.with_name(name)
+        try:  # never follow a link, never wait on a FIFO
+            fd = os.open(stale, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+        except OSError:
+            continue
+        try:
+            st = os.fstat(fd)
+            if stat.S_ISREG(st.st_mode) and _lock(fd, wait=False) and os.path.samestat(st, os.lstat(stale)):
+                os.unlink(stale)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
 
 
 def _output_problem(path, what, extensions=None):
@@ -191,9 +248,9 @@ def atomic_path(path, what="output"):
         (disk full, ...) happens; nothing is left at ``path`` then.
     """
     path = Path(path)
-    held, tmp = _block_signals(), None
+    held, tmp, fd = _block_signals(), None, None
     try:
-        tmp = _create_temp_next_to(path, what)
+        tmp, fd = _create_temp_next_to(path, what)
         # from here on, a signal held back while the file was created lands inside this
         # try block, where the cleanup below sees it
         _unblock_signals(held)
@@ -213,6 +270,8 @@ def atomic_path(path, what="output"):
             raise GeomoptError(f"could not write {path} ({one_line(exc)}); nothing was written") from exc
         raise
     finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock: the file is renamed or deleted by now
         _unblock_signals(held)
 
 
@@ -283,26 +342,196 @@ def atomic_write(path, write_fn, mode="w"):
 
 
 def _create_temp_next_to(path, what):
-    """Create a fresh, empty hidden file beside ``path`` and return its path.
+    """Create a fresh, empty hidden file beside ``path``, locked; return its path and open descriptor.
 
-    ``os.open`` with mode 0o666 lets the umask decide the permissions, as for any
-    newly created file (``tempfile.mkstemp`` would make it 0o600).  Raises
-    :class:`GeomoptError` saying why ``path`` cannot be written.
+    Stale temporaries of the same output (left by a killed process) are removed first
+    (:func:`_remove_stale_temporaries`).  ``os.open`` with mode 0o666 lets the umask decide
+    the permissions, as for any newly created file (``tempfile.mkstemp`` would make it
+    0o600).  Raises :class:`GeomoptError` saying why ``path`` cannot be written.
     """
     problem = _output_problem(path, what)
     if problem:
         raise GeomoptError(problem)
+    _remove_stale_temporaries(path)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
         tmp = _temp_path(path)
         try:
-            os.close(os.open(tmp, flags, 0o666))
-            return tmp
+            fd = os.open(tmp, flags, 0o666)
         except FileExistsError:
             continue
         except OSError as exc:
             raise GeomoptError(
                 f"cannot write {path} ({one_line(exc)}); check the folder's permissions"
             ) from exc
+        _lock(fd, wait=True)  # a cleaner holds it only while it checks and deletes it
+        with contextlib.suppress(OSError):  # ... which it may have done between open and lock
+            if os.path.samestat(os.fstat(fd), os.lstat(tmp)):
+                return tmp, fd
+        os.close(fd)
     raise GeomoptError(f"cannot write {path}: could not create a temporary file next to it")
 
+
+# ------------------------------------------------------------------ a command's outputs
+
+#: The files that make a folder a LIM benchmark case (:class:`geomopt.lim.LimCase`): a folder
+#: holding one is input data, never an output folder.
+CASE_FILES = ("input.obj", "rest.vtk", "init.vtk")
+
+
+def check_outputs(files, inputs=(), folder=None):
+    """Check a command's outputs before any work: writable, distinct, none of them an input.
+
+    The one check every writing command makes (``param``, ``untangle``, ``compare``,
+    ``demo``, ``smooth``, and :func:`geomopt.compare` / :func:`geomopt.batch.run_batch`).
+    Nothing is created, changed or removed.  The rules:
+
+    * each output file passes :func:`check_output_path` (a regular file or absent, in an
+      existing writable folder, or in ``folder`` when that is still to be created);
+    * no output file is, or would replace, an input file (same file by device and inode:
+      symbolic and hard links, ``./a.obj`` and ``a.obj`` alike); the files directly inside an
+      input folder are inputs;
+    * no two outputs are the same file;
+    * ``folder``, the output folder a command was given, is an existing folder or is created
+      later by :func:`create_output_folder` *without its parents*: its parent must exist
+      (geomopt never creates folders it was not asked for).  It must not be an input folder,
+      nor a LIM case folder (one holding :data:`CASE_FILES`).
+
+    Parameters
+    ----------
+    files : iterable
+        The files the command will write, derived names included: each a path, a pair
+        ``(what, path)`` or a triple ``(what, path, extensions)``; ``what`` names it in
+        messages (default ``"output"``), ``extensions`` as in :func:`check_output_path`.
+    inputs : iterable of str or os.PathLike
+        Every file and folder the command reads (missing ones are ignored).
+    folder : str or os.PathLike, optional
+        The output folder the command was given.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The output files, in order.
+
+    Raises
+    ------
+    GeomoptError
+        One line saying which rule an output breaks and what to do.
+    """
+    pending = _check_output_folder(Path(folder), inputs) if folder is not None else None
+    given = _input_files(inputs)
+    seen, out = {}, []
+    for item in files:
+        what, path, extensions = ("output", item, None) if isinstance(item, (str, os.PathLike)) else \
+            (*item, None) if len(item) == 2 else tuple(item)
+        path = Path(path)
+        source = given.get(_identity(path))
+        if source is not None:
+            raise GeomoptError(f"{what} {path} is the input file {source}: writing it would replace your input; "
+                               f"give the output another name or folder")
+        key = os.path.join(os.path.realpath(os.path.dirname(os.path.abspath(path))), path.name)
+        if key in seen:
+            raise GeomoptError(f"{what} {path} is the same file as the {seen[key]}; give different file names")
+        seen[key] = what
+        if pending is not None and os.path.abspath(path.parent) == pending:
+            _check_new_name(path, extensions, what)
+        else:
+            check_output_path(path, extensions, what)
+        out.append(path)
+    return out
+
+
+def create_output_folder(folder):
+    """Create the output folder ``folder`` if it is missing (not its parents); return it.
+
+    Call it when the first output is about to be written, after :func:`check_outputs`,
+    so that a command that stops before writing leaves nothing behind.
+
+    Raises
+    ------
+    GeomoptError
+        The folder cannot be created (its parent is missing or not writable...).
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise GeomoptError(f"cannot create the output folder {folder} ({one_line(exc)}); give a folder "
+                           f"whose parent exists and is writable") from exc
+    return folder
+
+
+def _check_output_folder(folder, inputs):
+    """Refuse ``folder`` as an output folder (see :func:`check_outputs`); return its absolute path
+    when it is still to be created, else ``None``."""
+    try:
+        mode = os.stat(folder).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = None
+    except OSError as exc:
+        raise GeomoptError(f"cannot use the output folder {folder} ({one_line(exc)})") from exc
+    if mode is None:
+        parent = folder.absolute().parent
+        if not parent.is_dir():
+            why = "is not a folder" if parent.exists() else "does not exist; create it first"
+            raise GeomoptError(f"cannot create the output folder {folder}: its parent {parent} {why} "
+                               f"(geomopt creates the output folder, never its parents)")
+        if not _can_create_in(parent):
+            raise GeomoptError(f"cannot create the output folder {folder}: no permission to create it in {parent}")
+        return os.path.abspath(folder)
+    if not stat.S_ISDIR(mode):
+        kind = "a file" if stat.S_ISREG(mode) else file_kind(mode)
+        raise GeomoptError(f"cannot create the output folder {folder}: it exists and is not a folder ({kind}); "
+                           f"give a folder path")
+    for source in inputs:
+        with contextlib.suppress(OSError):
+            if os.path.isdir(source) and os.path.samefile(source, folder):
+                raise GeomoptError(f"output folder {folder} is the input folder {source}: outputs would be mixed "
+                                   f"with your input; give another output folder")
+    marks = [name for name in CASE_FILES if os.path.lexists(folder / name)]
+    if marks:
+        raise GeomoptError(f"output folder {folder} is a LIM case folder (it holds {marks[0]}): writing there "
+                           f"would replace a case's input or mix outputs with it; give an output folder outside "
+                           f"the case folders")
+    if not _can_create_in(folder):
+        raise GeomoptError(f"cannot write into the output folder {folder}; check its permissions")
+    return None
+
+
+def _check_new_name(path, extensions, what):
+    """The checks :func:`check_output_path` can make of a file in a folder still to be created."""
+    if extensions is not None and path.suffix.lower() not in extensions:
+        got = f"extension {path.suffix!r}" if path.suffix else "no extension"
+        raise GeomoptError(f"{what} {path} has {got}; supported: {', '.join(extensions)}")
+    try:
+        limit = os.pathconf(path.absolute().parent.parent, "PC_NAME_MAX")
+    except (OSError, ValueError):  # no such limit here
+        return
+    if max(len(os.fsencode(path.name)), len(os.fsencode(_temp_path(path).name))) > limit:
+        raise GeomoptError(f"{what} {path} has a name too long for the file system "
+                           f"({len(os.fsencode(path.name))} bytes); choose a shorter name")
+
+
+def _input_files(inputs):
+    """``{(device, inode): path}`` of every input file and every file directly in an input folder."""
+    found = {}
+    for source in inputs:
+        source = Path(source)
+        entries = [source]
+        if source.is_dir():
+            with contextlib.suppress(OSError):
+                entries = list(source.iterdir())
+        for entry in entries:
+            ident = _identity(entry)
+            if ident is not None and os.path.isfile(entry):
+                found.setdefault(ident, entry)
+    return found
+
+
+def _identity(path):
+    """``(device, inode)`` of the file ``path`` names (links followed), or ``None``."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino

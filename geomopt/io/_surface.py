@@ -411,8 +411,10 @@ def read_obj_uv(path):
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise MeshFormatError(f"{path}, line {lines[i]}: a face corner {why}")
-    UV = np.full((V.shape[0], 2), np.nan)
+    UV = np.zeros((V.shape[0], 2))
     UV[corner] = vt[tex]
+    used = np.zeros(V.shape[0], dtype=bool)
+    used[corner] = True
     differ = np.flatnonzero((vt[tex].view(np.uint64) != UV[corner].view(np.uint64)).any(axis=1))
     if differ.size:
         v = int(corner[differ[0]])
@@ -420,7 +422,7 @@ def read_obj_uv(path):
             f"{path}: vertex {v + 1} has two different UVs (line {lines[differ[0]]}; {np.unique(corner[differ]).size} "
             f"vertices in all): the UV map is cut along seams, so it is not one map of this mesh; "
             f"weld the seams or start from --init tutte / projection")
-    unused = np.flatnonzero(np.isnan(UV[:, 0]))
+    unused = np.flatnonzero(~used)
     if unused.size:
         raise MeshFormatError(f"{path}: {unused.size} vertices are used by no face (first: {unused[0] + 1}); "
                               f"remove unreferenced vertices")

@@ -18,7 +18,7 @@ from .._validate import validate_indices
 from ._files import existing_file, read_bytes
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "text_data", "number_problem", "first_bad", "floats",
-           "ints", "plain_ints", "gc_paused", "text_rows", "write_rows", "read_vertex_ids"]
+           "ints", "plain_ints", "gc_paused", "text_rows", "write_rows", "read_vertex_ids", "TokenRows"]
 
 _INT64_MAX = np.iinfo(np.int64).max
 
@@ -212,3 +212,89 @@ def read_vertex_ids(path, n_vertices, what="handles"):
         raise MeshFormatError(f"{where(bad)}: {number_problem(tokens[bad], 'integer')}; a {what} file holds "
                               f"0-based vertex ids, one per line")
     return validate_indices(ints(tokens, where), n_vertices, f"{path}: {what}")
+
+
+class TokenRows:
+    """The non-blank lines of an ASCII mesh file, split into tokens in a few passes (no list per line).
+
+    Row ``r`` (a non-blank line) is file line ``lineno[r]`` and holds the tokens
+    ``tokens[start[r]:start[r] + count[r]]`` (bytes); ``first[r]`` is its first token.  Used by
+    the Gmsh and Medit readers, whose messages name the line at fault.
+    """
+
+    def __init__(self, data, path, what):
+        if b"\x00" in data:
+            raise MeshFormatError(f"{what} file {path} contains NUL bytes: it is a binary file; only ASCII "
+                                  f"{what} files are supported (re-export it as ASCII)")
+        if not data.isascii():
+            at = next(i for i, b in enumerate(data) if b > 127)
+            line = data.count(b"\n", 0, at) + 1
+            raise MeshFormatError(f"{path}, line {line}: a non-ASCII byte; {what} files are ASCII text")
+        raw = np.frombuffer(data, np.uint8)
+        space = np.isin(raw, np.frombuffer(b" \t\n\r\x0b\x0c", np.uint8))  # what bytes.split() splits on
+        begins = ~space
+        begins[1:] &= space[:-1]
+        line = np.cumsum(raw == 10) - (raw == 10)
+        per_line = np.bincount(line[begins], minlength=int(line[-1]) + 1)
+        self.path = path
+        self.lineno = np.flatnonzero(per_line) + 1
+        self.count = per_line[per_line > 0]
+        self.start = np.concatenate([[0], np.cumsum(self.count)[:-1]]).astype(np.int64)
+        self.tokens = data.split()
+        self.first = [self.tokens[s] for s in self.start.tolist()]
+
+    def __len__(self):
+        return len(self.count)
+
+    def at(self, r):
+        """Line ``r``'s tokens as text, for messages."""
+        return b" ".join(self.tokens[self.start[r]:self.start[r] + self.count[r]]).decode()[:60]
+
+    def counted(self, a, held, count, section):
+        """Section ``section`` opened on row ``a`` declares ``count`` entries and holds ``held``."""
+        if held != count:
+            fix = "fix the count" if held > count else "the file is truncated or the count is wrong"
+            raise MeshFormatError(f"{self.path}: section {section} (line {self.lineno[a]}) declares {count} "
+                                  f"entries but holds {held}; {fix}")
+
+    def width(self, a, b, width, what):
+        """Rows ``a:b`` must hold ``width`` tokens each."""
+        bad = np.flatnonzero(self.count[a:b] != width)
+        if bad.size:
+            r = a + int(bad[0])
+            raise MeshFormatError(f"{self.path}, line {self.lineno[r]}: the {what} entry has {self.count[r]} "
+                                  f"values, expected {width}")
+
+    def _slice(self, a, b, column):
+        if column is None:
+            return self.tokens[self.start[a]:self.start[b - 1] + self.count[b - 1]]
+        return [self.tokens[s + column] for s in self.start[a:b].tolist()]
+
+    def _culprit(self, a, b, column, regex, what, kind):
+        for r in range(a, b):
+            row = self.tokens[self.start[r]:self.start[r] + self.count[r]]
+            for t in (row if column is None else row[column:column + 1]):
+                if not regex.fullmatch(t) or (kind == "an integer" and abs(int(t)) > _INT64_MAX):
+                    raise MeshFormatError(f"{self.path}, line {self.lineno[r]}: expected {kind} ({what}), "
+                                          f"found {t.decode()[:40]!r}")
+        raise AssertionError("unreachable")
+
+    def ints(self, a, b, what, column=None):
+        """Integers of rows ``a:b`` (all their tokens, or token ``column`` of each), int64."""
+        if b <= a:
+            return np.zeros(0, dtype=np.int64)
+        toks = self._slice(a, b, column)
+        values = plain_ints(toks, b"".join(toks))
+        if values is not None:
+            return values
+        self._culprit(a, b, column, INT_RE, what, "an integer")
+
+    def floats(self, a, b, what):
+        """Every token of rows ``a:b`` as float64 (plain decimal numbers, or nan/inf), flat."""
+        if b <= a:
+            return np.zeros(0)
+        toks = self._slice(a, b, None)
+        if b"_" not in b"".join(toks):
+            with contextlib.suppress(ValueError):
+                return np.array(toks, dtype=np.float64)  # Python's float: FLOAT_RE's syntax, plus '_'
+        self._culprit(a, b, None, FLOAT_RE, what, "a number")

@@ -4,7 +4,7 @@ descent plus the shared :class:`~geomopt.linesearch.InjectiveSearch`, driven by 
 ``SOLVERS`` maps names to factories: ``newton`` (projected Newton), ``lbfgs``, ``slim``
 (Rabinovich et al. 2017), ``aqp`` (Kovalsky et al. 2016), ``cm`` (Shtengel et al. 2017, 2D),
 and optimistix's ``optx-bfgs``, ``optx-lbfgs``, ``optx-ncg`` (nonlinear CG) through
-:class:`Optimistix`.
+:class:`~geomopt.solvers.optimistix.Optimistix`.
 """
 
 from .._errors import ParameterError

@@ -34,7 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ParameterError, SolveError
+from .._tracing import refuse_traced
+from .._x64 import float64, float64_methods
 from .._config import Instance, Int, Real, validate
+from ..certify import local_certificate
 from ..linesearch import InjectiveSearch
 
 #: a map whose extent grows by more than this factor over its start (and rest) extent diverged
@@ -42,6 +45,9 @@ DIVERGENCE_FACTOR = 1e6
 
 
 class Outcome(enum.Enum):
+    """How a solve ended; :attr:`message` says it in words.  Only ``CONVERGED`` with no
+    inverted element (exact predicate) is a success (:attr:`Result.success`)."""
+
     CONVERGED = "converged"
     MAX_STEPS = "max_steps"
     LINE_SEARCH_FAILED = "line_search_failed"
@@ -57,7 +63,8 @@ class Outcome(enum.Enum):
             "line_search_failed": "the line search found no acceptable step (the problem may be "
             "badly scaled or the energy non-smooth)",
             "nonfinite": "the energy or gradient became NaN/inf (check the input and the start map)",
-            "not_injective": "the result has inverted or degenerate elements",
+            "not_injective": "the result is not locally injective (inverted or degenerate elements, "
+            "or elements overlapping around a vertex or edge)",
             "diverged": "the solve diverged: the energy fell without bound or below its known "
             "lower bound (check the energy and its parameters, or fix more vertices)",
         }[self.value]
@@ -144,6 +151,11 @@ class AbstractSolver(abc.ABC):
     rtol: float
     search: InjectiveSearch
 
+    def __init_subclass__(cls, **kwargs):
+        # solvers driven by hand (init / step) run in float64 like minimize (geomopt._x64)
+        super().__init_subclass__(**kwargs)
+        float64_methods("init", "step", "run", "with_params", "forget")(cls)
+
     def _check(self, **rules):
         """Validate the shared configuration and ``rules`` (every subclass's ``__post_init__``)."""
         validate(self, max_steps=Int(1), rtol=Real(0.0, 1.0, hi_open=True), search=Instance(InjectiveSearch),
@@ -229,6 +241,8 @@ class Result:
 
     @property
     def success(self) -> bool:
+        """Converged and certified locally injective (``minimize`` turns an uncertified
+        converged map into ``NOT_INJECTIVE``)."""
         return self.outcome is Outcome.CONVERGED and self.inverted == 0
 
     @property
@@ -236,7 +250,8 @@ class Result:
         """``"global"`` (exact certificate: flip-free and the boundary does not overlap itself),
         ``"local"`` (flip-free) or ``"none"``; global injectivity is certified where the solve
         recorded a certificate (free-boundary parameterization), else at most ``"local"``."""
-        if self.inverted:
+        local = self.info.get("local_certificate")
+        if self.inverted or (local is not None and not local.ok):
             return "none"
         return self.info.get("injectivity", "local")
 
@@ -267,12 +282,15 @@ class Progress:
     def __call__(self, state: State, elapsed: float, mean_energy: float):
         if self._bar is not None:
             self._bar.update(1)
-            self._bar.set_postfix(energy=f"{mean_energy:.8g}", step=f"{state.step_size:.2g}", refresh=False)
+            shown = {"step": f"{state.step_size:.2g}"} if math.isfinite(state.step_size) else {}
+            self._bar.set_postfix(mean_energy=f"{mean_energy:.8g}", **shown, refresh=False)
             return
         if state.iteration % self.every:
             return
-        print(f"{self.prefix}iter {state.iteration:4d}  energy {mean_energy:.10g}  "
-              f"step {state.step_size:.3g}  decrement {state.decrement:.3g}  {elapsed:7.2f}s",
+        # a solver that does not report a quantity (optimistix's: step, decrement) leaves it out
+        extra = "".join(f"  {name} {value:.3g}" for name, value in
+                        (("step", state.step_size), ("decrement", state.decrement)) if math.isfinite(value))
+        print(f"{self.prefix}iter {state.iteration:4d}  mean energy {mean_energy:.10g}{extra}  {elapsed:7.2f}s",
               file=self.stream, flush=True)
 
     def close(self):
@@ -292,6 +310,7 @@ def check_progress(progress, where="minimize"):
                              f"docstring), got {progress!r}")
 
 
+@float64
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
              throw: bool = False) -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
@@ -314,6 +333,8 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     """
     from . import get_solver
 
+    refuse_traced("geomopt.minimize", "for a map differentiable in the objective (rest shape, handles, weights) "
+                  "and params use geomopt.implicit.minimize", objective, x0, params)
     solver = get_solver("newton" if solver is None else solver)
     check_progress(progress)
     if params is not None and not isinstance(params, Mapping):
@@ -349,15 +370,19 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     if not np.isfinite(x).all():
         outcome = Outcome.NONFINITE
         x = objective.unpad_map(np.asarray(x0))
-    inverted = problem.count_inverted(x)
-    if outcome is Outcome.CONVERGED and inverted:
+    cert = problem.certify(x)  # exact: orientations (quads/hexahedra inside), fans, stars
+    inverted = cert.inverted
+    if outcome is Outcome.CONVERGED and not cert.ok:
         outcome = Outcome.NOT_INJECTIVE
     reason = divergence(state) if outcome is Outcome.DIVERGED else None
+    if outcome is Outcome.NOT_INJECTIVE and not inverted:
+        reason = cert.message
     result = Result(
         x=x, outcome=outcome, inverted=inverted, energy=float(state.value),
         energy_history=np.asarray(history), iterations=state.iteration, seconds=seconds,
         setup_seconds=setup, time_history=np.asarray(times), grad_history=np.asarray(grads),
-        info={"solver": solver, "evaluations": state.evaluations, **({"reason": reason} if reason else {})},
+        info={"solver": solver, "evaluations": state.evaluations, "local_certificate": cert,
+              **({"reason": reason} if reason else {})},
     )
     if throw and not result.success:
         raise SolveError(f"solve failed: {result.message}", result)

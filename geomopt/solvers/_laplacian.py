@@ -4,7 +4,8 @@
 Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
 * ``"host"``: ``K`` factored once by :class:`~geomopt.linsolve.SparseCholesky` and applied on
-  the host through ``jax.pure_callback`` (by an integer handle).  Exact; the CPU default.
+  the host through an XLA FFI target (:mod:`geomopt._hostcall`, by an integer handle; unlike
+  ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact; the CPU default.
 * ``"device"``: ``K`` kept as a sparse operator in JAX (:class:`LaplacianOperator`) and applied
   by Jacobi-preconditioned conjugate gradients warm-started from the previous solution, so a
   loop on an accelerator makes no host round trip.  Approximate (to ``rtol``); the default on
@@ -13,17 +14,20 @@ Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import itertools
 import weakref
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from .. import _hostcall
 from .._errors import ParameterError
 from ..linsolve import SparseCholesky
+from .._x64 import pure_callback
 
 #: where K^-1 is applied: see the module docstring
 LAPLACIAN_BACKENDS = ("auto", "host", "device")
@@ -47,14 +51,28 @@ def rest_laplacian(problem) -> sp.csc_matrix:
 
 
 def laplacian_solve_host(handle, q):
-    """Host side of the preconditioner (``jax.pure_callback``): ``K^-1 q`` on the free DOFs."""
+    """Host side of the preconditioner: ``K^-1 q`` on the free DOFs."""
     return _LIVE_PRECONDITIONERS[int(handle)].solve(np.asarray(q))
 
 
-class LaplacianOperator(eqx.Module):
+def _solve_into(handle, q, out):
+    out[0][...] = laplacian_solve_host(handle, q)
+
+
+#: the XLA FFI target of the host solve (:mod:`geomopt._hostcall`: cacheable programs)
+_TARGET = "geomopt_rest_laplacian_solve"
+_hostcall.register(_TARGET, _solve_into)
+
+
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["rows", "i", "j", "v", "inv_diag", "rtol"],
+                   meta_fields=["maxiter", "per_vertex"])
+@dataclasses.dataclass(frozen=True)
+class LaplacianOperator:
     """``K`` on the free DOFs as a device-resident sparse operator (symmetric COO), with its
     Jacobi preconditioner; ``rows`` picks the reduced unknowns out of the map (vertices when
-    ``per_vertex``, flat DOFs ``v * d + c`` otherwise)."""
+    ``per_vertex``, flat DOFs ``v * d + c`` otherwise).  A pytree (``maxiter`` and
+    ``per_vertex`` static); a plain dataclass, so that importing the solvers does not import
+    equinox (0.2-0.3 s of every CLI process)."""
 
     rows: jax.Array
     i: jax.Array
@@ -62,8 +80,8 @@ class LaplacianOperator(eqx.Module):
     v: jax.Array
     inv_diag: jax.Array
     rtol: jax.Array
-    maxiter: int = eqx.field(static=True)
-    per_vertex: bool = eqx.field(static=True)
+    maxiter: int
+    per_vertex: bool
 
     def _reduce(self, q):
         return q[self.rows] if self.per_vertex else q.reshape(-1)[self.rows][:, None]
@@ -92,7 +110,7 @@ def laplacian_solve(pre, q, guess):
     :class:`LaplacianOperator` (``"device"``, warm-started from ``guess``)."""
     if isinstance(pre, LaplacianOperator):
         return pre.solve(q, guess)
-    return jax.pure_callback(laplacian_solve_host, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
+    return _hostcall.call(_TARGET, _solve_into, jax.ShapeDtypeStruct(q.shape, q.dtype), pre, q)
 
 
 def resolve_backend(backend: str) -> str:

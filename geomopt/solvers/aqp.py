@@ -40,6 +40,8 @@ from ..linesearch import InjectiveSearch, max_injective_step
 from ._base import AbstractSolver, Outcome, State
 from ._laplacian import RestLaplacian
 
+__all__ = ["AQP", "rest_curvature"]
+
 
 def rest_curvature(density, params, d) -> float:
     """The curvature of ``density`` at rest relative to the Dirichlet energy ``|J|^2``: the mean

@@ -15,7 +15,7 @@ The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``)
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
 library used by Garanzha et al. 2021), or a scaled inverse of the rest Dirichlet Hessian
 (``"laplacian"``, the default; one solve with the rest Laplacian per iteration: see :func:`_two_loop`;
-factored once on the host and applied through ``jax.pure_callback`` on CPU, by warm-started
+factored once on the host and applied through an XLA FFI target on CPU, by warm-started
 conjugate gradients on the device elsewhere, so the loop makes no host round trip there).
 """
 
@@ -36,6 +36,8 @@ from .._config import Int, OneOf, Real
 from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
 from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
+
+__all__ = ["LBFGS", "PRECONDITIONERS"]
 
 # status codes of the jitted loop
 RUNNING, CONVERGED_F, CONVERGED_G, LS_FAILED, NONFINITE, MAX_STEPS, DIVERGED = range(7)
@@ -253,7 +255,7 @@ class LBFGS(AbstractSolver):
         125/253/630 iterations to 1e-4, the Laplacian one 13/15/16; on a twisted cube of
         1.3k/6k/16k tets 17/32/51 against 7/7/8 to 1e-6 (``benchmarks/solvers.py``).
     laplacian : where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
-        host through ``jax.pure_callback``; exact), ``"device"`` (Jacobi-preconditioned CG in
+        host through an XLA FFI target, :mod:`geomopt._hostcall`; exact), ``"device"`` (Jacobi-preconditioned CG in
         JAX, warm-started from the previous iteration's solution, relative tolerance 1e-3: no
         host round trip on an accelerator), or ``"auto"`` (host on CPU, device elsewhere).
     window : number of iterations the energy test looks back over (see ``rtol``).

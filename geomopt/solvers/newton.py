@@ -22,6 +22,8 @@ from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_lin
 from ._base import AbstractSolver, Outcome, State
 from .proxies import CMProxy, SLIMProxy
 
+__all__ = ["Newton", "SLIM", "CM", "PROJECTIONS"]
+
 PROJECTIONS = ("adaptive", "clamp", "abs", "none")
 
 

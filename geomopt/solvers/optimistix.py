@@ -29,6 +29,8 @@ from .._objective import total_energy
 from ..linesearch import InjectiveSearch, injective_step_bound, still_positive
 from ._base import AbstractSolver, Outcome, State, reference_extent
 
+__all__ = ["Optimistix", "OptxInjectiveSearch", "ObjectiveFunction", "objective_function"]
+
 
 class ObjectiveFunction(eqx.Module):
     """``fn(y, params) -> E``: an objective as a function of the whole map ``y`` (n, d); fixed

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 from .._eigh import eigh
 from .._errors import ParameterError
 
+__all__ = ["SLIMProxy", "CMProxy", "slim_weights", "svd2", "true_hessian_block"]
+
 
 def _sv_density(density, params, d):
     """``sigma -> psi(diag(sigma))``: the density of a rotation-invariant energy on singular values."""

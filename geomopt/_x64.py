@@ -1,0 +1,96 @@
+"""The float64 policy: geomopt computes in float64 whatever JAX's global ``jax_enable_x64``.
+
+Importing geomopt leaves JAX's global configuration alone, so float32 code (a neural network,
+an optax loop over float32 parameters) keeps its dtypes beside it.  Every public function and
+method that runs JAX computations is wrapped by :func:`float64`: when the 64-bit mode is off it
+runs inside ``with jax.enable_x64(True):`` (JAX's scoped, thread-local switch), so its arrays
+and kernels are float64; its results are NumPy arrays or Python floats where they leave the
+library, float64 JAX arrays otherwise (arithmetic on those outside the 64-bit mode follows
+JAX's rules, i.e. float32).
+
+Inside a user's transformation (``jax.jit`` / ``grad`` / ``vmap`` of a function calling
+``Objective.value`` or :mod:`geomopt.implicit`), the mode cannot be switched: the user's trace
+must run in 64-bit mode (``with jax.enable_x64(True): jax.grad(f)(x)``, or
+``jax.config.update("jax_enable_x64", True)`` at start-up); otherwise a ParameterError says so
+(:data:`MESSAGE`) instead of computing in float32.  The compiled kernels refuse to run with the
+mode off (:func:`require`): a path that escaped the wrapping fails loudly, never in float32.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from ._errors import ParameterError
+from ._tracing import is_traced
+
+MESSAGE = ("geomopt computes in float64, and JAX's 64-bit mode is off in this transformation: run it "
+           "inside `with jax.enable_x64(True):` or call jax.config.update('jax_enable_x64', True) at "
+           "start-up (see the README, 'float64')")
+
+
+def enabled() -> bool:
+    import jax
+
+    return bool(jax.config.jax_enable_x64)
+
+
+def require():
+    """Raise ParameterError (:data:`MESSAGE`) when JAX's 64-bit mode is off."""
+    if not enabled():
+        raise ParameterError(MESSAGE)
+
+
+def float64(fn, method=False):
+    """Run ``fn`` in JAX's 64-bit mode: as it is when the mode is on, inside
+    ``jax.enable_x64(True)`` when it is off; ParameterError when it is off and an argument is
+    traced (a float32 trace of the caller's cannot be switched).  ``method``: ``fn``'s first
+    argument (``self``) is not looked at."""
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        if enabled():
+            return fn(*args, **kwargs)
+        if is_traced((args[1:] if method else args, kwargs)):
+            raise ParameterError(MESSAGE)
+        import jax
+
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return run
+
+
+def float64_methods(*names):
+    """Class decorator: wrap the methods ``names`` (defined on the class) with :func:`float64`."""
+
+    def wrap(cls):
+        for name in names:
+            if name in vars(cls):
+                setattr(cls, name, float64(vars(cls)[name], method=True))
+        return cls
+
+    return wrap
+
+
+def pure_callback(fn, result_shapes, *args, vmap_method="sequential"):
+    """``jax.pure_callback`` whose 64-bit results survive a callback thread where JAX's 64-bit
+    mode is off (the mode is thread-local, and JAX converts a callback's results under the
+    thread's own setting): each 64-bit result travels as its bytes, ``uint32`` pairs, and is
+    bit-cast back in the caller's (64-bit) trace."""
+    import jax
+    import numpy as np
+
+    def wide(s):
+        return np.dtype(s.dtype).itemsize == 8
+
+    flat, tree = jax.tree_util.tree_flatten(result_shapes)
+    carried = [jax.ShapeDtypeStruct(tuple(s.shape) + (2,), np.uint32) if wide(s) else s for s in flat]
+
+    def host(*a):
+        out = jax.tree_util.tree_leaves(fn(*a))
+        return [np.ascontiguousarray(o, s.dtype).view(np.uint32).reshape(c.shape) if wide(s)
+                else np.asarray(o, s.dtype) for o, s, c in zip(out, flat, carried)]
+
+    res = jax.pure_callback(host, carried, *args, vmap_method=vmap_method)
+    return tree.unflatten([jax.lax.bitcast_convert_type(r, s.dtype) if wide(s) else r
+                           for r, s in zip(res, flat)])

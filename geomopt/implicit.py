@@ -1,0 +1,648 @@
+"""Differentiable solves: a converged map as a function of its inputs, by the implicit function
+theorem at the optimum (never by unrolling the iterations).
+
+A solve returns ``x*`` with ``g_D(x*, theta) = 0``: the gradient of the energy on its free
+DOFs ``D`` vanishes, ``theta`` being everything the energy depends on (the rest geometry of an
+:class:`~geomopt.Objective`, hence the rest vertices it was built from, its element weights,
+the handle positions and the energy parameters such as ``lam``, ``eps``).  Differentiating,
+``H dx = -(dg/dtheta) dtheta`` with ``H`` the exact (unprojected) Hessian on ``D`` at ``x*``,
+so a cotangent ``xbar`` of the map pulls back as
+
+    ``lam = H^+ xbar``  (one sparse solve),   ``thetabar = -d/dtheta <g(x*, theta), lam>``
+
+(one JAX reverse-over-forward pass of the energy), as in optimistix's ``ImplicitAdjoint`` and
+jaxopt's ``custom_root`` (Blondel et al. 2022, "Efficient and modular implicit
+differentiation").  :func:`argmin` wires this with ``jax.custom_vjp``, so ``jax.grad``,
+``jax.vjp``, ``jax.jacrev`` and ``jax.vmap`` work, eagerly and inside ``jax.jit`` (where the
+forward solve and the sparse solve run on the host through ``jax.pure_callback``).
+
+**Conventions.**
+
+* The start map has zero derivative by construction: the optimum does not depend on where
+  the solve started (except through the gauge, below).
+* The handles' rows of the map are the handle positions themselves (derivative: identity).
+* **Gauge.**  Where the optimum is not unique, the energy is invariant under motions of the
+  map: translations (no handle), rotations (rotation-invariant energies; about the handle with
+  one handle) and scaling (scale-invariant energies such as MIPS), detected on the density
+  (:func:`gauge_motions`).  Their span ``N`` at ``x*`` is the null space of ``H``; the
+  derivative returned is the minimum-norm one, orthogonal to ``N`` (``H^+`` above is the
+  pseudo-inverse, ``xbar`` projected onto ``N``'s orthogonal complement first).  A loss that
+  is invariant under these motions (areas, angles, distortion) gets its true gradient; one
+  that is not gets the derivative of the map's gauge-free part.  Computed exactly: ``dim N``
+  well-chosen DOFs are pinned (column-pivoted QR on ``N``), which leaves a matrix that is
+  positive definite exactly when ``H`` is positive definite modulo ``N``, then the solution
+  is projected onto ``N``'s orthogonal complement.
+* **The map returned** is the solve's map refined by one exact Newton step modulo the gauge
+  (``x - H^+ g``, kept only when still flip-free by the exact predicate): the optimum to
+  rounding, so that the derivative and re-solves agree (an energy-based stopping rule leaves
+  the map accurate to about the square root of the machine precision only).
+* Refusals (:class:`~geomopt.SolveError`, never a silent wrong gradient), by the forward: a
+  solve that did not succeed (converged and certified injective); a map whose Newton
+  decrement ``g.H^+ g / 2`` exceeds :data:`DECREMENT_RTOL` ``* |E|`` (not a tight enough
+  optimum for the theorem); an exact Hessian that is not positive definite modulo the gauge
+  (a saddle or a degenerate minimum: the map is then not a differentiable function of its
+  inputs).  Under ``jax.jit`` these surface as JAX's runtime error carrying the message.
+
+**Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
+(:func:`geomopt.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linsolve`,
+its symbolic analysis shared with every solve of the mesh, :meth:`~geomopt.Objective.cholesky`)
+or block-Jacobi CG (:mod:`geomopt._cg`, whose positive-definiteness test only sees its Krylov
+space).  The forward's refinement factors the exact Hessian once; the adjoint reuses that
+factorization while the refining step stayed below :data:`REUSE_STEP` times the shortest edge
+(the Hessian at the returned map then agrees with it to about that relative precision), else
+it factors again at the returned map; either way one factorization serves every cotangent of
+the same map (``jax.jacrev`` rows).  The forward solver's own last factorization is of another
+matrix (the previous iterate, shifted) and is not used.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import itertools
+import threading
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+
+from ._cg import NewtonCG, cg_system, pcg
+from ._errors import ParameterError, SolveError
+from ._objective import Objective, block_hessian, check_element_weights, jit
+from ._tracing import is_traced
+from ._x64 import float64, pure_callback
+from .linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
+from .problem import check_rest_values
+
+__all__ = ["argmin", "minimize", "parameterize", "untangle", "gauge_motions", "DECREMENT_RTOL"]
+
+#: the largest Newton decrement ``g.H^+ g / 2``, relative to ``|E|``, at which a map is taken as
+#: an optimum to differentiate (Newton's default stopping rule ends far below it)
+DECREMENT_RTOL = 1e-10
+#: relative residual of the CG adjoint solve
+CG_RTOL = 1e-10
+#: the forward's factorization is reused by the adjoint when its refining step moved no vertex
+#: by more than this times the shortest edge of the map
+REUSE_STEP = 1e-8
+
+
+def _shortest_edge(x, S) -> float:
+    return float(np.linalg.norm(x[S[:, 1:]] - x[S[:, :1]], axis=-1).min())
+
+
+# --------------------------------------------------------------------- the core
+
+
+@float64
+def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto"):
+    """The minimiser ``x*`` (n, d) of ``objective`` found by ``solve``, differentiable with
+    respect to ``objective`` (its pytree leaves: rest geometry, element weights, handle
+    positions) and ``params`` by the implicit function theorem (module notes).
+
+    Parameters
+    ----------
+    objective : :class:`~geomopt.Objective`, possibly built from traced arrays.
+    params : dict of energy parameters (floats or JAX scalars, traced or not).
+    x0 : the start, passed to ``solve`` (zero derivative); any pytree of arrays.
+    solve : host function ``(objective, params, x0) -> (x, context)`` on concrete values:
+        ``x`` (n, d) the optimum (raise :class:`~geomopt.SolveError` if there is none),
+        ``context`` a dict that may hold ``objective`` (a concrete one to assemble Hessians
+        with) or None.
+    linear_solver : ``"auto"``, a :data:`~geomopt.linsolve.BACKENDS` name or ``"cg"``.
+
+    Returns
+    -------
+    (n, d) JAX array: the map, its handle rows equal to the handle positions.
+    """
+    if linear_solver not in BACKENDS + ("cg",):
+        raise ParameterError(f"linear_solver must be one of {', '.join(BACKENDS + ('cg',))}, got {linear_solver!r}")
+    if not isinstance(objective, Objective):
+        raise ParameterError(f"argmin needs a geomopt.Objective, got {type(objective).__name__}")
+    params = objective.params(**params)
+    n, d = objective.problem.n_vertices, objective.problem.dim
+    shape = jax.ShapeDtypeStruct((n, d), jnp.float64)
+    token = jax.ShapeDtypeStruct((), jnp.int64)
+
+    def forward(obj, p, x0):
+        return _host(partial(_forward, solve, linear_solver), (shape, token), obj, p, x0)
+
+    @jax.custom_vjp
+    def f(obj, p, x0):
+        return forward(obj, p, x0)[0]
+
+    def fwd(obj, p, x0):
+        x, tok = forward(obj, p, x0)
+        return x, (obj, p, x0, x, tok)
+
+    def bwd(res, xbar):
+        obj, p, x0, x, tok = res
+        lam = _host(partial(_adjoint, linear_solver), shape, tok, obj, p, x, xbar)
+        cot_obj, cot_p = _pullback(obj, p, x, lam)
+        neg = partial(jax.tree_util.tree_map, jnp.negative)
+        return neg(cot_obj), neg(cot_p), jax.tree_util.tree_map(jnp.zeros_like, x0)
+
+    f.defvjp(fwd, bwd)
+    x = f(objective, params, x0)
+    fixed = objective.problem.fixed
+    return x.at[fixed].set(objective.problem.fixed_positions) if fixed.size else x
+
+
+def _host(fn, shapes, *args):
+    """``fn(*args)`` on the host: called directly on concrete values (errors keep their type),
+    through ``jax.pure_callback`` on traced ones (one call per batch element under vmap)."""
+    if not is_traced(args):
+        out = fn(*args)
+        return jax.tree_util.tree_map(lambda o, s: jnp.asarray(o, s.dtype), out, shapes)
+    return pure_callback(fn, shapes, *args, vmap_method="sequential")
+
+
+@jax.jit
+def _pullback(objective, params, x, lam):
+    """``d/d(objective, params) <grad_x E(x, objective, params), lam>`` with the handle rows of
+    ``x`` taken from the objective (so handle positions get their share)."""
+
+    def gdot(obj, p):
+        P = obj.problem
+        xh = x.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x
+        return jax.jvp(lambda y: obj.value(y, p), (xh,), (lam,))[1]
+
+    return jax.grad(gdot, argnums=(0, 1))(objective, params)
+
+
+# --------------------------------------------------------------------- host side
+
+_CONTEXTS: collections.OrderedDict = collections.OrderedDict()
+_KEEP = 8  # forward solves whose context (objective, factorization) is kept for their adjoint
+_counter = itertools.count(1)
+_lock = threading.Lock()
+
+
+def _concrete(objective: Objective) -> Objective:
+    """``objective`` with device arrays, its problem's and weights' values checked (they were
+    not when it was built from traced arrays)."""
+    obj = jax.tree_util.tree_map(jax.device_put, objective)
+    check_rest_values(obj.problem)
+    if obj.element_weights is not None:
+        check_element_weights(np.asarray(obj.element_weights), obj.problem.n_elements)
+    return obj
+
+
+def _floats(params) -> dict:
+    return {k: float(np.asarray(v)) for k, v in params.items()}
+
+
+@float64
+def _forward(solve, linear_solver, objective, params, x0):
+    """Solve, then refine the map by one exact Newton step modulo the gauge (module notes)."""
+    params = _floats(params)
+    obj = _concrete(objective)
+    x, ctx = solve(obj, params, x0)
+    ctx = dict(ctx or {})
+    obj = ctx.setdefault("objective", obj)
+    x = np.asarray(x, np.float64)
+    system = AdjointSystem(obj, params, x, linear_solver)
+    x1 = x + system.step
+    if obj.problem.count_inverted(x1) == 0:
+        # the factorization at x serves the adjoint at x1 while the step is at rounding level
+        # (the Hessian then agrees to about that relative precision), else it is redone there
+        if np.abs(system.step).max() > REUSE_STEP * _shortest_edge(x1, obj.problem.simplices):
+            system = None
+        x = x1
+    ctx["system"] = system
+    with _lock:
+        token = next(_counter)
+        _CONTEXTS[token] = ctx
+        while len(_CONTEXTS) > _KEEP:
+            _CONTEXTS.popitem(last=False)
+    return np.asarray(x, np.float64), np.int64(token)
+
+
+@float64
+def _adjoint(linear_solver, token, objective, params, x, xbar):
+    """``lam = H^+ P xbar`` (n, d) at the optimum ``x`` (module notes)."""
+    with _lock:
+        ctx = _CONTEXTS.get(int(np.asarray(token)))
+    if ctx is None:  # the forward ran elsewhere or long ago: assemble from the residuals
+        ctx = {}
+    system = ctx.get("system")
+    if system is None:
+        obj = ctx.get("objective") or _concrete(objective)
+        system = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
+        ctx["system"] = system
+    return system.solve(np.asarray(xbar, np.float64))
+
+
+# --------------------------------------------------------------------- the gauge
+
+
+def _symmetries(energy, params, d):
+    return _symmetries_of(energy.density, tuple(sorted(params.items())), d)
+
+
+@functools.lru_cache(maxsize=64)
+def _symmetries_of(density, params, d, samples=4, rtol=1e-9):
+    """(rotation, scale): whether the density is invariant under ``J -> R J`` (rotations of the
+    map) and ``J -> s J``, tested on random Jacobians with ``det J > 0``."""
+    rng = np.random.default_rng(0)
+    p = {k: jnp.float64(v) for k, v in params}
+    psi = jax.vmap(density, in_axes=(0, None))
+    J = np.eye(d) + 0.3 * rng.standard_normal((samples, d, d))
+    J[np.linalg.det(J) < 0, 0] *= -1
+    A = rng.standard_normal((d, d))
+    R = scipy.linalg.expm(A - A.T)
+    base = np.asarray(psi(J, p))
+    ok = np.isfinite(base)
+
+    def same(other):
+        return bool(np.all(np.abs(np.asarray(psi(other, p)) - base)[ok] <= rtol * np.abs(base[ok]).clip(1e-300)))
+
+    return same(R @ J), same(1.7 * J)
+
+
+def gauge_motions(objective: Objective, params, x) -> np.ndarray:
+    """An orthonormal basis (n*d, r) of the motions of the map ``x`` (n, d) that leave the energy
+    unchanged and every handle in place: translations (always symmetries), rotations and
+    scaling when the density is invariant under them (tested on it), restricted to those that
+    fix the handles.  ``r = 0`` for a map held by enough handles."""
+    P = objective.problem
+    n, d = x.shape
+    rotation, scale = _symmetries(objective.energy, params, d)
+    gens = [np.tile(np.eye(d)[c], (n, 1)) for c in range(d)]
+    if rotation:
+        axes = [np.array([[0.0, -1.0], [1.0, 0.0]])] if d == 2 else [
+            np.cross(np.eye(3)[a], np.eye(3)) for a in range(3)]  # skew generators: v -> e_a x v
+        gens += [x @ K.T for K in axes]
+    if scale:
+        gens.append(x.copy())
+    G = np.stack([g.reshape(-1) for g in gens], 1)
+    handles = (P.fixed[:, None] * d + np.arange(d)).reshape(-1)
+    if handles.size:
+        G = G @ _null(G[handles])
+    return _orthonormal(G)
+
+
+def _null(A, rtol=1e-10):
+    """Orthonormal basis of the null space of ``A`` (k, r): (r, r - rank)."""
+    if A.shape[0] == 0:
+        return np.eye(A.shape[1])
+    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # no (k, k) U for tall A
+    rank = int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))
+    return Vt[rank:].T
+
+
+def _orthonormal(G, rtol=1e-10):
+    if G.shape[1] == 0:
+        return G
+    U, s, _ = np.linalg.svd(G, full_matrices=False)
+    return U[:, : int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))]
+
+
+def gauge_pins(N, free_dofs) -> np.ndarray:
+    """The free DOFs (indices into the free numbering) to pin so that the pinned DOFs together
+    with the objective's own gauge pin meet every motion of ``N`` (n*d, r) transversally: the
+    motions vanishing on the objective's pin, restricted to the free DOFs, pivoted by QR."""
+    free = free_dofs.reshape(-1)
+    if N.shape[1] == 0:
+        return np.zeros(0, np.int64)
+    M = N @ _null(N[~free & _moving(N)])
+    if M.shape[1] == 0:
+        return np.zeros(0, np.int64)
+    _, _, piv = scipy.linalg.qr(M[free].T, pivoting=True, mode="economic")
+    return np.sort(piv[: M.shape[1]])
+
+
+def _moving(N):
+    """DOFs that some motion of ``N`` moves (handles never do)."""
+    return np.abs(N).max(axis=1) > 0
+
+
+# --------------------------------------------------------------------- the adjoint system
+
+
+@dataclasses.dataclass(eq=False)
+class AdjointSystem:
+    """The exact Hessian at an optimum, the gauge pinned, factored or applied by CG: solves
+    ``H lam = P xbar`` for any number of cotangents (see the module notes).
+
+    Raises SolveError on construction when ``H`` is not positive definite modulo the gauge
+    or, with ``check``, ``x`` is not a tight optimum (then :attr:`step` is the Newton step
+    ``-H^+ g`` (n, d) and :attr:`decrement` ``g.H^+ g / 2``)."""
+
+    objective: Objective
+    params: dict
+    x: np.ndarray
+    linear_solver: str = "auto"
+    check: bool = True  # test the decrement (and compute the refining step)
+
+    def __post_init__(self):
+        obj, x = self.objective, self.x
+        self.N = gauge_motions(obj, self.params, x)
+        self.pins = gauge_pins(self.N, obj.free_dofs)
+        pat = obj.pattern
+        n_free = int(np.count_nonzero(obj.free_dofs))
+        kind = self.linear_solver
+        if kind == "auto":
+            kind = newton_linear_solver(obj.problem.dim, n_free, jax.default_backend())
+            kind = "cg" if kind == "cg" else "auto"
+        self.kind = kind
+        p = {k: jnp.float64(v) for k, v in self.params.items()}
+        xp = obj.pad_map(x)
+        if kind == "cg":
+            self._cg_setup(xp, p)
+        else:
+            value, grad, data = obj.hessian(xp, p, "none")
+            self.value = float(value)
+            data = np.array(data)
+            self._pin(data, pat)
+            self.chol = obj.cholesky(kind)
+            try:
+                self.chol.factor(data)
+            except NotPositiveDefinite:
+                raise SolveError(self._not_pd()) from None
+            self.grad = np.asarray(obj.unpad_map(grad))
+        if self.check:
+            self._check_decrement()
+
+    def _pin(self, data, pat):
+        """Replace the rows and columns of the pinned free DOFs by identity ones, in place."""
+        if not self.pins.size:
+            return
+        cols = np.repeat(np.arange(pat.n), np.diff(pat.indptr))
+        hit = np.isin(pat.indices, self.pins) | np.isin(cols, self.pins)
+        data[hit] = 0.0
+        diag = data[pat.diag]
+        data[pat.diag[self.pins]] = max(float(np.mean(np.abs(diag))), 1e-300)
+
+    def _not_pd(self):
+        what = " modulo its gauge (rotations/translations/scale of the map)" if self.N.shape[1] else ""
+        return ("implicit differentiation: the exact Hessian of the energy at the map is not positive "
+                f"definite on the free DOFs{what}: the map is a saddle or a degenerate minimum, where it "
+                "is not a differentiable function of its inputs (fix more vertices, or check the energy)")
+
+    def _check_decrement(self):
+        """The Newton step ``-H^+ g`` (n, d) modulo the gauge (:attr:`step`) and the decrement;
+        SolveError when it is above DECREMENT_RTOL * |E|."""
+        g = self.grad
+        z = self._solve_free(self._free(g))
+        dec = 0.5 * float(np.dot(self._free(g), z))
+        self.step = -self._embed(z, g.shape)
+        scale = max(abs(self.value), 1e-300)
+        self.decrement = dec
+        if not dec <= DECREMENT_RTOL * scale:
+            raise SolveError(f"implicit differentiation: the map is not a tight enough optimum (Newton "
+                             f"decrement {dec:.3g} > {DECREMENT_RTOL:g} * |E| = {DECREMENT_RTOL * scale:.3g}); "
+                             f"solve to a tighter tolerance, e.g. solver=Newton(rtol=1e-12)")
+
+    def _project(self, v):
+        """``v`` (n, d) minus its component along the gauge motions."""
+        N = self.N
+        flat = v.reshape(-1)
+        return (flat - N @ (N.T @ flat)).reshape(v.shape) if N.shape[1] else v
+
+    def _free(self, v):
+        """The free-DOF vector of ``v`` (n, d) with the gauge pins zeroed."""
+        out = v.reshape(-1)[self.objective.pattern.free_dofs].copy()
+        out[self.pins] = 0.0
+        return out
+
+    def _solve_free(self, b):
+        if self.kind == "cg":
+            return self._cg_solve(b)
+        return self.chol.solve(b)
+
+    def _embed(self, mu_free, shape):
+        """The free-DOF solution ``mu_free`` as an (n, d) array (zero on fixed DOFs and gauge
+        pins), projected orthogonally to the gauge motions."""
+        mu_free[self.pins] = 0.0
+        mu = np.zeros(int(np.prod(shape)))
+        mu[self.objective.pattern.free_dofs] = mu_free
+        return self._project(mu.reshape(shape))
+
+    def solve(self, xbar):
+        """``lam`` (n, d) for the cotangent ``xbar`` (n, d) of the map."""
+        return self._embed(self._solve_free(self._free(self._project(xbar))), xbar.shape)
+
+    # -- CG (geomopt._cg): the exact Hessian's vertex blocks, the pinned DOFs masked out
+    def _cg_setup(self, xp, p):
+        obj = self.objective
+        op = NewtonCG.prepare(obj)
+        free = np.array(obj.free_mask)
+        flat = free.reshape(-1)
+        flat[obj.pattern.free_dofs[self.pins]] = 0.0
+        self.op = op._replace(free=jax.device_put(free))
+        blocks, swap, n_blocks = obj.block_assembly
+        self.value, grad, self.VB = _exact_blocks(obj.energy.density, obj.chunk, n_blocks, obj.geom, xp, p,
+                                                  blocks, swap)
+        self.value = float(self.value)
+        self.grad = np.asarray(obj.unpad_map(grad * obj.free_mask))
+
+    def _cg_solve(self, b):
+        obj = self.objective
+        n_pad, d = obj.free_mask.shape
+        rhs = np.zeros(n_pad * d)
+        rhs[obj.pattern.free_dofs] = b
+        mu, iters, res, ok = _cg_kernel(self.VB, self.op, jnp.asarray(rhs.reshape(n_pad, d)),
+                                        jnp.float64(CG_RTOL), jnp.int32(20 * n_pad * d))
+        if not bool(ok):
+            raise SolveError(self._not_pd() + " (CG met non-positive curvature)")
+        if not float(res) <= 10 * CG_RTOL:
+            raise SolveError(f"implicit differentiation: CG reached a relative residual of {float(res):.3g} "
+                             f"after {int(iters)} iterations (ill-conditioned Hessian); use a direct "
+                             f"linear_solver ('auto' picks one in 2D)")
+        return np.asarray(mu).reshape(-1)[obj.pattern.free_dofs]
+
+
+@partial(jit, static_argnums=(0, 1, 2))
+def _exact_blocks(density, chunk, n_blocks, geom, x, params, blocks, swap):
+    from ._objective import total_energy
+
+    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+    return value, grad, block_hessian(density, "none", chunk, geom, x, params, blocks, swap, n_blocks)
+
+
+@jit
+def _cg_kernel(VB, op, b, rtol, max_iters):
+    matvec, precond = cg_system(VB, op, 0.0)
+    return pcg(matvec, precond, b * op.free, rtol, max_iters)
+
+
+# --------------------------------------------------------------------- the solves
+
+
+def _require(result, where):
+    if not result.success:
+        raise SolveError(f"{where}: the solve did not succeed ({result.message}): only a converged, "
+                         f"certified map is differentiated (the plain geomopt function returns it "
+                         f"without raising)", result)
+
+
+def _constant(fn, shapes, *args):
+    """``fn(*args)`` run on the host with zero derivative (a step of a solve whose outcome is
+    locally constant in the inputs), concrete inputs under eager ``jax.grad`` too."""
+
+    def run(*args):
+        return _host(fn, shapes, *args)
+
+    f = jax.custom_vjp(run)
+    f.defvjp(lambda *args: (run(*args), args), lambda args, _: jax.tree_util.tree_map(jnp.zeros_like, args))
+    return f(*args)
+
+
+def minimize(objective: Objective, x0, solver=None, params=None, *, linear_solver: str = "auto"):
+    """:func:`geomopt.minimize` as a differentiable function: the map (n, d) minimising
+    ``objective`` from ``x0``, differentiable with respect to ``objective`` (build it from
+    traced rest vertices, handle positions, ``element_weights``) and ``params``.
+
+    Example: the sensitivity of an interior vertex to a handle::
+
+        def where(h):
+            P = Problem.planar(V, F, H, h)
+            return geomopt.implicit.minimize(Objective(P, "garanzha", lam=1.0), x0)[v]
+        jax.jacrev(where)(h0)
+
+    ``solver`` (default projected Newton), ``params``: as in :func:`geomopt.minimize`.  The
+    start ``x0`` (n, d) has zero derivative; see the module notes for the gauge, the refusals
+    (SolveError) and ``linear_solver``.
+    """
+    from .solvers import minimize as run
+
+    def solve(obj, p, x0):
+        result = run(obj, np.asarray(x0), solver, p, progress=False)
+        _require(result, "implicit.minimize")
+        return result.x, {"objective": obj}
+
+    return argmin(objective, dict(params or {}), jnp.asarray(x0, jnp.float64), solve, linear_solver)
+
+
+def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform", x0=None, *,
+                 element_weights=None, linear_solver: str = "auto", **energy_params):
+    """:func:`geomopt.parameterize` (free boundary) as a differentiable function: the UV map
+    (n, 2), differentiable with respect to the rest vertices ``V`` (n, 3), ``element_weights``
+    (m,) and the energy's parameters (traced values welcome).
+
+    The start (Tutte or ``x0``) has zero derivative; the map's gauge (translation, rotation,
+    and scale for a scale-invariant energy such as MIPS) is handled as the module notes say:
+    use a loss invariant under it (areas, angles, distortion), e.g.::
+
+        def worst_area(V):
+            x = geomopt.implicit.parameterize(V, F)
+            return distortion(x, V, F)
+        jax.grad(worst_area)(V)
+    """
+    from .param import mesh_arrays
+    from .param import parameterize as run
+    from .problem import Problem
+
+    V, F = mesh_arrays(V, F)
+    objective = Objective(Problem.surface(V, F), energy, element_weights=element_weights)
+    start = None if x0 is None or isinstance(x0, str) else jnp.asarray(x0, jnp.float64)
+
+    def solve(obj, p, start):
+        w = obj.element_weights
+        result = run(np.asarray(obj.problem.rest_vertices), F, energy, solver, weights,
+                     x0 if start is None else np.asarray(start), progress=False,
+                     element_weights=None if w is None else np.asarray(w), **p)
+        _require(result, "implicit.parameterize")
+        return result.x, {"objective": result.info["objective"]}
+
+    return argmin(objective, energy_params, start, solve, linear_solver)
+
+
+def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "auto", **options):
+    """:func:`geomopt.untangle.untangle`'s final map as a differentiable function of the
+    problem (its rest vertices and handle positions, traced or not) and ``theta``.
+
+    The untangled map minimises Garanzha et al.'s energy at the last ``eps`` of the outer loop,
+    on the rest mesh as untangling normalises it (scaled to the map's volume; in 2D, rest
+    triangles above ``max_aspect`` replaced by equilateral ones).  That energy, written in the
+    problem's units and made a function of the rest vertices (the normalisation included), is
+    minimised tightly by Newton from the untangled map (the *polished* map returned here,
+    flip-free, certified), and differentiated at it.  The last ``eps``, the power-of-two map
+    scale and which triangles were replaced are constants of the solve (zero derivative);
+    so is the start map.
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.Problem` with handles (possibly built from traced arrays).
+    x0 : (n, d) the tangled start.
+    theta : shape/area balance in (0, 1) (``lam = theta / (1 - theta)``), may be traced;
+        default 1/128 in 2D, 1/2 in 3D.
+    solver, options : passed to :func:`geomopt.untangle.untangle`.
+    """
+    from .energies import garanzha
+    from .untangle import untangle as run
+
+    d = problem.dim
+    theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
+    x0 = jnp.asarray(x0, jnp.float64)
+    max_aspect = options.get("max_aspect", 10.0)
+    m = problem.n_elements
+    shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((2,), jnp.float64),
+              jax.ShapeDtypeStruct((m,), jnp.bool_))
+
+    @float64
+    def untangled(problem, theta, x0):
+        problem = check_rest_values(jax.tree_util.tree_map(np.asarray, problem))
+        result = run(problem, np.asarray(x0), solver=solver, theta=float(theta), progress=False, **options)
+        _require(result, "implicit.untangle")
+        bad = _badly_shaped(problem, max_aspect)
+        return result.x, np.array([result.info["map_scale"], result.eps_history[-1]]), bad
+
+    x1, (k, eps), bad = _constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
+    final = _untangle_problem(problem, x0, k, bad)
+    lam = theta / (1.0 - theta)
+    objective = Objective(final, garanzha)
+
+    def polish(obj, p, start):
+        from .solvers import Newton
+        from .solvers import minimize as run_min
+
+        result = run_min(obj, np.asarray(start), Newton(rtol=1e-12), p, progress=False)
+        _require(result, "implicit.untangle (polishing the untangled map)")
+        return result.x, {"objective": obj}
+
+    return argmin(objective, {"eps": eps, "lam": lam}, x1, polish, linear_solver)
+
+
+def _aspect_ratio(P):
+    """(m,) ``lmax (l1+l2+l3) / (4 sqrt(3) area)`` of triangles P (m, 3, k), as untangling
+    measures it (1 = equilateral)."""
+    l = np.linalg.norm(P[:, [1, 2, 0]] - P, axis=2)
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    area = 0.5 * (np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) if P.shape[2] == 2
+                  else np.linalg.norm(np.cross(e1, e2), axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return l.max(1) * l.sum(1) / (4.0 * np.sqrt(3.0) * area)
+
+
+def _badly_shaped(problem, max_aspect):
+    """(m,) the rest triangles that untangling replaces by equilateral ones."""
+    if max_aspect is None or problem.dim != 2:
+        return np.zeros(problem.n_elements, bool)
+    return _aspect_ratio(problem.rest_vertices[problem.simplices]) > max_aspect
+
+
+def _untangle_problem(problem, x0, k, bad):
+    """The rest geometry of untangling's energy in the problem's units: ``J`` multiplied by
+    ``k / s`` (the map scaled by ``k``, the rest by ``s = (map volume / rest volume)^(1/d)``,
+    ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
+    edge length.  Traceable in the problem's arrays."""
+    from ._geometry import dets
+
+    d = problem.dim
+    P = problem
+    x = x0.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x0
+    map_vol = jnp.sum(dets(P.simplices, k * x)) / (2.0 if d == 2 else 6.0)
+    rest_vol = jnp.sum(P.volumes)
+    s = jnp.where(map_vol > 0, (jnp.abs(map_vol) / rest_vol) ** (1.0 / d), k)
+    rest_inv, vol = P.rest_inv, P.volumes
+    if np.any(bad):
+        E = P.rest_vertices[P.simplices]
+        a = jnp.mean(jnp.linalg.norm(E[:, [1, 2, 0]] - E, axis=2), axis=1)
+        Dm = a[:, None, None] * jnp.array([[1.0, 0.5], [0.0, 0.5 * np.sqrt(3.0)]])
+        rest_inv = jnp.where(bad[:, None, None], jnp.linalg.inv(Dm), rest_inv)
+        vol = jnp.where(bad, np.sqrt(3.0) / 4.0 * a * a, vol)
+    return dataclasses.replace(P, rest_inv=rest_inv * (k / s), volumes=vol)

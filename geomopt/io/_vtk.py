@@ -1,0 +1,379 @@
+"""Legacy VTK unstructured grids (``.vtk``), ASCII or binary, read exactly as declared or refused.
+
+Parsed here, file versions up to 5.1 (``OFFSETS``/``CONNECTIVITY``): the counts of
+``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each other; ``METADATA``
+and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` / ``CELL_DATA`` sections after the
+cells are ignored.  Keywords and type names are case-insensitive, as in VTK's own reader.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .._errors import MeshFormatError
+from .._validate import validate_simplices, validate_vertices
+from ._atomic import atomic_write
+from ._cells import KINDS, VTK_CELLS, WORDS, code_of
+from ._files import check_not_empty, existing_file, read_bytes
+from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_rows
+
+__all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
+
+# ------------------------------------------------------------------------ VTK (public)
+
+
+def read_vtk_tets(path):
+    """Read a tetrahedral mesh from a legacy VTK unstructured-grid file, exactly as declared.
+
+    Parsed here (ASCII or binary, file versions up to 5.1 with ``OFFSETS``/``CONNECTIVITY``):
+    the counts of ``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each
+    other; ``METADATA`` and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` /
+    ``CELL_DATA`` sections after the cells are ignored.  Points declared ``float`` are
+    float32 (then widened), as VTK reads them; files written by :func:`write_vtk_tets`
+    declare ``double`` and round-trip exactly.  Keywords (``POINTS``, ``cells``...) and type
+    names are case-insensitive, as in VTK's own reader.  Text conventions as in the module notes.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.vtk`` file (legacy format).
+
+    Returns
+    -------
+    P : numpy.ndarray, shape (n, 3), float64
+        Point positions.
+    T : numpy.ndarray, shape (m, 4), int64
+        Tetrahedra, 0-based point indices (VTK cell type 10), in file order.
+
+    Raises
+    ------
+    MeshFormatError
+        Missing, not a regular file, empty, malformed, counts that differ from the data, no
+        points, no cells, or cells other than tetrahedra (the message lists the types found).
+    MeshError
+        Non-finite coordinates, indices out of range, repeated vertices in a tet.
+    """
+    return read_vtk_cells(path, ("tetra",))[:2]
+
+
+def read_vtk_cells(path, kinds):
+    """Read a legacy VTK mesh of one of ``kinds`` (:data:`~geomopt.io._cells.KINDS` names, by
+    priority), exactly as declared; as :func:`read_vtk_tets` otherwise.
+
+    Returns
+    -------
+    P : numpy.ndarray, shape (n, 3), float64
+    C : numpy.ndarray, shape (m, k), int64
+        Cells, 0-based, VTK's vertex order.
+    kind : str
+        The kind read: the first of ``kinds`` the file holds.
+
+    Raises
+    ------
+    MeshFormatError
+        As :func:`read_vtk_tets`; cells of any other type, of any dimension, are refused.
+    MeshError
+        As :func:`read_vtk_tets`.
+    """
+    path = existing_file(path, "VTK file")
+    check_not_empty(path, "VTK file")
+    with gc_paused():
+        P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
+    wanted = " or ".join(WORDS[k][1] for k in kinds)
+    if len(P) == 0:
+        raise MeshFormatError(f"VTK file {path} has no points")
+    if types.size == 0:
+        need = "tetrahedral mesh" if kinds == ("tetra",) else f"mesh of {wanted}"
+        raise MeshFormatError(f"VTK file {path} has no cells; a {need} is required")
+    codes = {k: code_of(VTK_CELLS, k) for k in kinds}
+    kind = next((k for k in kinds if (types == codes[k]).any()), kinds[0])
+    code, (size, _), (word, words) = codes[kind], KINDS[kind], WORDS[kind]
+    others = sorted({VTK_CELLS.get(int(t), (f"type {int(t)}",))[0] for t in np.unique(types[types != code])})
+    if others:
+        only = ("tetrahedral meshes (VTK cell type 10)" if kinds == ("tetra",) else
+                f"meshes of {wanted} (VTK cell type {' or '.join(str(codes[k]) for k in kinds)})")
+        what = "non-tetrahedral cells" if kind == "tetra" else f"cells other than {words}"
+        raise MeshFormatError(f"VTK file {path} contains {what} ({', '.join(others)}); only {only} are supported")
+    if (np.asarray(sizes) != size).any():
+        i = int(np.flatnonzero(np.asarray(sizes) != size)[0])
+        raise MeshFormatError(f"VTK file {path}: cell {i} is a {word} (type {code}) with {sizes[i]} points")
+    P = validate_vertices(P, f"{path.name}: points", dim=3)
+    C = validate_simplices(conn.reshape(-1, size), P.shape[0], size, f"{path.name}: {words}", words=WORDS[kind])
+    return P, C, kind
+
+
+def write_vtk_tets(path, P, T):
+    """Write a tetrahedral mesh as an ASCII legacy VTK unstructured grid, full precision.
+
+    Points are written as ``double`` with ``%.17g`` so :func:`read_vtk_tets` reads
+    them back bit for bit.  Atomic.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output ``.vtk`` file.
+    P : array_like, shape (n, 3)
+        Point positions.
+    T : array_like, shape (m, 4), integer
+        Tetrahedra, 0-based.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    MeshError
+        Invalid ``P`` or ``T``.
+    """
+    return write_vtk_cells(path, P, T, "tetra")
+
+
+def write_vtk_cells(path, P, C, kind):
+    """Write a mesh of one :data:`~geomopt.io._cells.KINDS` kind as an ASCII legacy VTK
+    unstructured grid, full precision, atomic; as :func:`write_vtk_tets` otherwise.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    P : array_like, shape (n, 3), or (n, 2) for quads (written with ``z = 0``)
+    C : array_like, shape (m, k), integer, 0-based, VTK's vertex order
+    kind : str
+        ``"tetra"``, ``"hexahedron"`` or ``"quad"``.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    size, dim = KINDS[kind]
+    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
+    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
+    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
+    m, code = C.shape[0], code_of(VTK_CELLS, kind)
+
+    def write(fh):
+        fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
+        fh.write(f"POINTS {P.shape[0]} double\n")
+        write_rows(fh, "", P)
+        fh.write(f"CELLS {m} {(size + 1) * m}\n")
+        np.savetxt(fh, C, fmt=f"{size}" + " %d" * size)
+        fh.write(f"CELL_TYPES {m}\n")
+        fh.write(f"{code}\n" * m)
+
+    return atomic_write(path, write)
+
+
+# ------------------------------------------------------------------------ VTK
+
+_VTK_TYPES = {b"UNSIGNED_CHAR": "u1", b"CHAR": "i1", b"UNSIGNED_SHORT": "u2", b"SHORT": "i2",
+              b"UNSIGNED_INT": "u4", b"INT": "i4", b"UNSIGNED_LONG": "u8", b"LONG": "i8", b"FLOAT": "f4",
+              b"DOUBLE": "f8", b"VTKIDTYPE": "i8", b"VTKTYPEINT8": "i1", b"VTKTYPEUINT8": "u1",
+              b"VTKTYPEINT16": "i2", b"VTKTYPEUINT16": "u2", b"VTKTYPEINT32": "i4", b"VTKTYPEUINT32": "u4",
+              b"VTKTYPEINT64": "i8", b"VTKTYPEUINT64": "u8", b"VTKTYPEFLOAT32": "f4", b"VTKTYPEFLOAT64": "f8"}
+_VTK_ATTRIBUTES = (b"POINT_DATA", b"CELL_DATA")
+
+
+class _VtkCursor:
+    """Reads a legacy VTK file section by section: keyword lines, then ASCII tokens or binary blocks."""
+
+    def __init__(self, data, binary, path):
+        self.data, self.pos, self.binary, self.path = data, 0, binary, path
+
+    def line(self):
+        """Tokens of the next non-blank line (``[]`` at the end of the file)."""
+        while self.pos < len(self.data):
+            end = self.data.find(b"\n", self.pos)
+            end = len(self.data) if end < 0 else end
+            tokens = self.data[self.pos:end].split()
+            self.pos = end + 1
+            if tokens:
+                return tokens
+        return []
+
+    def peek(self):
+        pos, tokens = self.pos, self.line()
+        self.pos = pos
+        return tokens
+
+    def values(self, count, code, section):
+        """``count`` values of numpy type ``code`` (ASCII tokens or big-endian binary)."""
+        if self.binary:
+            size = count * np.dtype(code).itemsize
+            if self.pos + size > len(self.data):
+                raise MeshFormatError(f"{self.path}: the file ends inside the {section} section (it declares "
+                                      f"{count} values, {size} bytes); the file is truncated or a count is wrong")
+            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)
+            self.pos += size
+            return out
+        parts = self.data[self.pos:].split(None, count)
+        tokens = parts[:count]
+        if len(tokens) < count:
+            raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
+                                  f"ends after {len(tokens)}; the file is truncated or a count is wrong")
+        self.pos = len(self.data) - (len(parts[count]) if len(parts) > count else 0)
+        regex = FLOAT_RE if code[0] == "f" else INT_RE
+        bad = first_bad(tokens, regex)
+        if bad is not None and re.fullmatch(rb"[A-Za-z_]{2,}", tokens[bad]):  # the next section's keyword
+            raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
+                                  f"{show(tokens[bad])} follows after {bad}; fix the count")
+        where = lambda i: f"{self.path}, {section} section, value {i + 1}"  # noqa: E731
+        if code[0] == "f":
+            values = floats(tokens, where)
+            with np.errstate(over="ignore"):
+                return values.astype(code)
+        values = ints(tokens, where)
+        info = np.iinfo(code)
+        if values.size and (values.min() < info.min or values.max() > info.max):
+            raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
+                                  f"{np.dtype(code).name}")
+        return values
+
+    def expect_keyword(self, after):
+        """The next line must start a section (not more values of the previous one)."""
+        tokens = self.peek()
+        if tokens and (FLOAT_RE.fullmatch(tokens[0]) or INT_RE.fullmatch(tokens[0])):
+            raise MeshFormatError(f"{self.path}: more values follow the {after} section than it declares; "
+                                  f"fix the count")
+
+
+def _vtk_keyword(tokens):
+    """A line's first token in upper case (``None`` for no tokens): VTK's own reader compares
+    keywords case-insensitively (vtkDataReader lower-cases each keyword before comparing)."""
+    return tokens[0].upper() if tokens else None
+
+
+def _vtk_type(token, cursor, section):
+    code = _VTK_TYPES.get(token.upper())
+    if code is None:
+        raise MeshFormatError(f"{cursor.path}: the {section} section has unsupported data type {show(token)}")
+    return code
+
+
+def _vtk_count(tokens, i, cursor, section):
+    if len(tokens) <= i or not tokens[i].isdigit():
+        raise MeshFormatError(f"{cursor.path}: malformed {section} line {show(b' '.join(tokens))}; expected "
+                              f"a count")
+    return int(tokens[i])
+
+
+def _vtk_skip_optional(cursor):
+    """Skip METADATA blocks (to the next blank line) and dataset FIELD data."""
+    while True:
+        tokens = cursor.peek()
+        if _vtk_keyword(tokens) == b"METADATA":
+            cursor.line()
+            while cursor.pos < len(cursor.data):
+                end = cursor.data.find(b"\n", cursor.pos)
+                end = len(cursor.data) if end < 0 else end
+                blank = not cursor.data[cursor.pos:end].strip()
+                cursor.pos = end + 1
+                if blank:
+                    break
+        elif _vtk_keyword(tokens) == b"FIELD":
+            cursor.line()
+            for _ in range(_vtk_count(tokens, 2, cursor, "FIELD")):
+                array = cursor.line()
+                if len(array) != 4 or not (array[1].isdigit() and array[2].isdigit()):
+                    raise MeshFormatError(f"{cursor.path}: malformed FIELD array line "
+                                          f"{show(b' '.join(array))}")
+                code = _vtk_type(array[3], cursor, "FIELD")
+                cursor.values(int(array[1]) * int(array[2]), code, "FIELD")
+        else:
+            return
+
+
+def _parse_vtk(data, path):
+    """``(points (n, 3) float64, cell types (c,), cells list-of-arrays or (c, 4) int64)`` of a legacy VTK file."""
+    data = data.removeprefix(UTF8_BOM)
+    head = data.split(b"\n", 3)
+    if len(head) < 4 or not head[0].strip().lower().startswith(b"# vtk datafile version"):
+        raise MeshFormatError(f"{path} does not start with '# vtk DataFile Version ...'; it is not a legacy "
+                              f"VTK file")
+    mode = head[2].strip().upper()
+    if mode not in (b"ASCII", b"BINARY"):
+        raise MeshFormatError(f"{path}, line 3: expected ASCII or BINARY, found {show(head[2].strip())}")
+    binary = mode == b"BINARY"
+    body = head[3]
+    if not binary:
+        body = text_data(body, path, "VTK file")
+    cursor = _VtkCursor(body, binary, path)
+    tokens = cursor.line()
+    if [t.upper() for t in tokens] != [b"DATASET", b"UNSTRUCTURED_GRID"]:
+        found = show(b" ".join(tokens)) if tokens else "nothing"
+        raise MeshFormatError(f"{path}: expected 'DATASET UNSTRUCTURED_GRID', found {found}; only unstructured "
+                              f"grids (tetrahedral meshes) are supported")
+    _vtk_skip_optional(cursor)
+    tokens = cursor.line()
+    if _vtk_keyword(tokens) != b"POINTS" or len(tokens) != 3:
+        raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
+                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    n = _vtk_count(tokens, 1, cursor, "POINTS")
+    points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64)
+    cursor.expect_keyword("POINTS")
+    _vtk_skip_optional(cursor)
+    tokens = cursor.line()
+    if _vtk_keyword(tokens) != b"CELLS" or len(tokens) != 3:
+        raise MeshFormatError(f"{path}: expected 'CELLS' after the points, found "
+                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
+    version5 = _vtk_keyword(cursor.peek()) == b"OFFSETS"
+    sizes, conn = _vtk_cells(cursor, a, b, path)
+    a += 0 if version5 else 1  # as many offsets as cells + 1, like version 5
+    cells = a - 1
+    cursor.expect_keyword("CELLS")
+    _vtk_skip_optional(cursor)
+    tokens = cursor.line()
+    if _vtk_keyword(tokens) != b"CELL_TYPES":
+        raise MeshFormatError(f"{path}: expected 'CELL_TYPES' after the cells, found "
+                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    m = _vtk_count(tokens, 1, cursor, "CELL_TYPES")
+    if m != cells:
+        raise MeshFormatError(f"{path}: CELLS declares {cells} cells but CELL_TYPES declares {m}; fix the counts")
+    types = cursor.values(m, "i4", "CELL_TYPES")
+    cursor.expect_keyword("CELL_TYPES")
+    _vtk_skip_optional(cursor)
+    tokens = cursor.peek()
+    if tokens and tokens[0].upper() not in _VTK_ATTRIBUTES:
+        raise MeshFormatError(f"{path}: unexpected {show(b' '.join(tokens))} after the cell types; only "
+                              f"POINT_DATA / CELL_DATA / FIELD sections may follow")
+    return points.reshape(-1, 3), types, sizes, conn
+
+
+
+def _vtk_cells(cursor, a, b, path):
+    """``(sizes (c,), connectivity)`` of a CELLS section declaring ``a`` cells in ``b`` values:
+    version 5's OFFSETS + CONNECTIVITY, or the classic ``size i0 i1 ...`` rows."""
+    if _vtk_keyword(cursor.peek()) == b"OFFSETS":  # version 5: offsets + connectivity
+        t = cursor.line()
+        offsets = cursor.values(a, _vtk_type(t[1] if len(t) > 1 else b"?", cursor, "OFFSETS"), "OFFSETS")
+        cursor.expect_keyword("OFFSETS")
+        t = cursor.line()
+        if _vtk_keyword(t) != b"CONNECTIVITY" or len(t) != 2:
+            raise MeshFormatError(f"{path}: expected 'CONNECTIVITY type' after OFFSETS")
+        conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64)
+        offsets = offsets.astype(np.int64)
+        if a == 0 or offsets[0] != 0 or offsets[-1] != b or (np.diff(offsets) < 0).any():
+            raise MeshFormatError(f"{path}: the OFFSETS must rise from 0 to the connectivity size {b}")
+        sizes = np.diff(offsets)
+    else:
+        flat = cursor.values(b, "i4", "CELLS").astype(np.int64)
+        sizes, conn, pos = [], [], 0
+        if a and b == 5 * a and (flat[0::5] == 4).all():
+            sizes, conn = np.full(a, 4), flat.reshape(a, 5)[:, 1:].ravel()
+        else:
+            for _ in range(a):
+                if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
+                    raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but "
+                                          f"its cell sizes do not add up to that")
+                sizes.append(int(flat[pos]))
+                conn.append(flat[pos + 1:pos + 1 + flat[pos]])
+                pos += 1 + flat[pos]
+            if pos != b:
+                raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but the "
+                                      f"cells use {pos}; fix the counts")
+            sizes = np.array(sizes, dtype=np.int64)
+            conn = np.concatenate(conn) if conn else np.zeros(0, dtype=np.int64)
+    return sizes, conn

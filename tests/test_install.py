@@ -1,0 +1,95 @@
+"""Installs that the declared dependency floors allow must work (issue 19, install floors).
+
+* The XLA option of geomopt's kernels is used only where the running jaxlib accepts it
+  (jaxlib before 0.8.1 refused to compile every kernel with it).
+* py-mkl-pardiso's private solver class is used only when it offers the calls geomopt makes;
+  otherwise the next sparse Cholesky backend is taken.
+* ``tests/install_floors.py`` installs the declared minimum versions into a fresh virtual
+  environment and runs a subset of this suite there; it downloads packages and takes minutes,
+  so it runs here only with ``GEOMOPT_TEST_INSTALL=1``.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geomopt import _objective, linsolve
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def fresh_options():
+    _objective.xla_options.cache_clear()
+    yield
+    _objective.xla_options.cache_clear()
+
+
+def test_xla_option_is_used_where_jaxlib_accepts_it(fresh_options):
+    import jaxlib
+
+    version = tuple(int(p) for p in jaxlib.__version__.split(".")[:3])
+    assert _objective.xla_options() == (_objective.XLA_OPTIONS if version >= (0, 8, 1) else {})
+
+
+def test_an_unknown_xla_option_is_left_out(fresh_options, monkeypatch):
+    """What an older jaxlib sees: an option it does not know.  The probe leaves it out and every
+    kernel still compiles and runs."""
+    from geomopt import Objective, Problem
+    from conftest import grid
+
+    monkeypatch.setattr(_objective, "XLA_OPTIONS", {"xla_geomopt_no_such_option_for_the_test": ""})
+    assert _objective.xla_options() == {}
+    V, F = grid(4)
+    obj = Objective(Problem.planar(V, F), "symmetric_dirichlet")
+    kernel = _objective.jit(lambda x: (x * 2.0).sum())  # a kernel made now compiles without it
+    assert float(kernel(np.ones(3))) == 6.0
+    assert np.isfinite(float(obj.value(V * 1.1, obj.params())))
+
+
+class _OldSolver:
+    """A PardisoSolver of a py-mkl-pardiso whose private API changed: no refactor_values."""
+
+    def __init__(self, *args):
+        pass
+
+    set_iparm = set_pattern = run_phase = solve = lambda self, *a, **k: None
+
+
+def test_pardiso_without_the_private_api_falls_back(monkeypatch):
+    fake = types.ModuleType("pymklpardiso._mkl_pardiso")
+    fake.PardisoSolver = _OldSolver
+    pkg = types.ModuleType("pymklpardiso")
+    pkg.MTYPE_REAL_SYM_POSDEF = 2
+    pkg._mkl_pardiso = fake
+    monkeypatch.setitem(sys.modules, "pymklpardiso", pkg)
+    monkeypatch.setitem(sys.modules, "pymklpardiso._mkl_pardiso", fake)
+    backends = linsolve.available_backends()
+    assert "pardiso" not in backends and backends[-1] == "superlu"
+    # auto takes the next backend and solves
+    import scipy.sparse as sp
+
+    A = sp.diags([4.0] * 5) + sp.diags([1.0] * 4, -1)
+    L = sp.tril(A).tocsc()
+    chol = linsolve.SparseCholesky(L.indptr, L.indices)
+    assert chol.backend == backends[0]
+    chol.factor(L.data)
+    b = np.arange(5.0)
+    np.testing.assert_allclose((A + A.T - sp.diags(A.diagonal())) @ chol.solve(b), b)
+    with pytest.raises(Exception, match="not installed here"):
+        linsolve.SparseCholesky(L.indptr, L.indices, backend="pardiso")
+
+
+@pytest.mark.skipif(not os.environ.get("GEOMOPT_TEST_INSTALL"),
+                    reason="downloads the declared minimum versions (minutes): set GEOMOPT_TEST_INSTALL=1")
+def test_declared_minimum_versions_install_and_work(tmp_path):
+    out = subprocess.run([sys.executable, str(ROOT / "tests" / "install_floors.py"), "--venv", str(tmp_path / "venv")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]

@@ -1,0 +1,134 @@
+"""Issue 22: cacheable host calls, the --json timing split, element quality."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import _cache, _hostcall
+from geomopt.batch import write_lim_case
+from geomopt import generators as G
+from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def fresh_cache(tmp_path):
+    before = _cache.cache_dir()
+    _cache.cache_stats()
+    jax.clear_caches()
+    _cache.set_cache_dir(tmp_path / "cache")
+    yield tmp_path / "cache"
+    jax.clear_caches()
+    _cache.set_cache_dir(before)
+
+
+def _misses(fn):
+    s0 = _cache.cache_stats()
+    out = fn()
+    return _cache.cache_stats()["misses"] - s0["misses"], out
+
+
+def test_a_program_with_the_host_laplacian_solve_is_cached_and_loaded(fresh_cache):
+    t = G.rotated_interior(*G.square_mesh(9), 90)
+    obj = geomopt.Objective(t.problem(), "dirichlet")
+    pre = RestLaplacian.register(obj, "host")
+    q = np.random.default_rng(0).standard_normal(t.x0.shape) * obj.free_dofs
+
+    def solve():
+        f = jax.jit(lambda h, q: 2.0 * laplacian_solve(h, q, q))  # a fresh function: traced anew
+        return np.asarray(f(pre.token, jnp.asarray(q)))
+
+    misses, first = _misses(solve)
+    assert misses > 0
+    np.testing.assert_allclose(first, 2.0 * pre.solve(q), rtol=1e-12)
+    jax.clear_caches()  # as a new process sees it: look the program up on disk
+    misses, again = _misses(solve)
+    assert misses == 0  # jax.pure_callback programs were never written to the cache
+    np.testing.assert_array_equal(again, first)
+
+
+def test_a_host_function_that_raises_gives_nan_and_is_recorded():
+    def broken(x, out):
+        raise RuntimeError("boom")
+
+    f = jax.jit(lambda x: _hostcall.call("geomopt_test_broken", broken, jax.ShapeDtypeStruct(x.shape, x.dtype), x))
+    out = np.asarray(f(jnp.ones(3)))
+    assert np.isnan(out).all()
+    assert _hostcall.last_error[0] == "geomopt_test_broken" and "boom" in str(_hostcall.last_error[1])
+
+
+def test_untangle_json_has_the_timing_split_from_process_start(tmp_path):
+    folder = write_lim_case(tmp_path / "case", G.noisy_interior(*G.disk_mesh(6), 1.0, seed=2))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-m", "geomopt", "untangle", str(folder), "-o", str(tmp_path / "o.obj"),
+                           "--json", "--quiet"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    split = summary["timing"]
+    for key in ("import", "read", "compile", "setup", "solve", "certify", "write", "total", "other"):
+        assert split[key] >= 0.0, key
+    assert split["import"] > 0.0 and split["compile"] > 0.0 and split["write"] > 0.0
+    parts = sum(v for k, v in split.items() if k not in ("total", "other"))
+    # compile may overlap solve (a program first used inside the loop), nothing else overlaps
+    assert parts - split["compile"] <= split["total"] + 1e-3 and split["total"] <= summary["wall_seconds"] + 0.5
+
+
+def test_scaled_jacobian_is_one_for_regular_simplices_and_negative_when_inverted():
+    from geomopt.quality import element_quality, scaled_jacobians, size_ratios
+
+    tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
+    tet = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    T = np.array([[0, 1, 2, 3]]) if np.linalg.det(tet[1:] - tet[0]) > 0 else np.array([[0, 2, 1, 3]])
+    np.testing.assert_allclose(scaled_jacobians(tri, [[0, 1, 2]]), [1.0])
+    np.testing.assert_allclose(scaled_jacobians(tet, T), [1.0])
+    np.testing.assert_allclose(scaled_jacobians(tri, [[0, 2, 1]]), [-1.0])
+    # a right isosceles triangle: the 45-degree corners score sin(45) * 2/sqrt(3)
+    right = np.array([[0.0, 0], [1, 0], [0, 1]])
+    np.testing.assert_allclose(scaled_jacobians(right, [[0, 1, 2]]), [np.sqrt(0.5) * 2 / np.sqrt(3)])
+    # a sliver: every corner is nearly flat, not only the first
+    sliver = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, 0.5, 1e-3]])
+    assert 0 < scaled_jacobians(sliver, [[0, 1, 2, 3]])[0] < 0.01
+    V, F = G.disk_mesh(3)
+    q = element_quality(V, F)
+    assert q["min_size_ratio"] == pytest.approx(np.min(size_ratios(V, F))) and 0 < q["min_scaled_jacobian"] <= 1
+    assert element_quality(V, F[:, ::-1], orientation=-1) == pytest.approx(q)
+
+
+def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
+    """The default untangling L-BFGS (diagonal seed below 50k elements) switches to the
+    Laplacian seed when an inner solve has not converged after STIFF_AFTER iterations: a disk
+    rotated by 180 degrees then takes a fraction of the inner iterations; a noisy one never
+    switches (same iterations as the diagonal seed alone)."""
+    from geomopt.untangle import STIFF_AFTER, default_solver, untangle
+
+    rot = G.rotated_interior(*G.disk_mesh(24), 180)
+    diag = untangle(rot.problem(), rot.x0, solver=default_solver("lbfgs", 2), progress=False)
+    auto = untangle(rot.problem(), rot.x0, progress=False)
+    assert diag.success and auto.success
+    assert diag.inner_iterations > 2 * STIFF_AFTER and auto.inner_iterations < 0.6 * diag.inner_iterations
+    assert auto.info["solver"].precondition == "laplacian"
+    noise = G.noisy_interior(*G.disk_mesh(12), 1.0, seed=3)
+    a = untangle(noise.problem(), noise.x0, progress=False)
+    b = untangle(noise.problem(), noise.x0, solver=default_solver("lbfgs", 2), progress=False)
+    assert a.success and a.inner_iterations == b.inner_iterations < STIFF_AFTER
+    assert a.info["solver"].precondition == "diagonal"
+
+
+def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():
+    from geomopt.energies import REGISTRY
+    from geomopt.energies._energy import _BUILTIN_DENSITIES, _density_dims
+
+    assert {e.density for e in REGISTRY.values()} == set(_BUILTIN_DENSITIES)
+    for e in REGISTRY.values():
+        assert _density_dims(e.name, e.density, tuple(sorted(e.params)))[0] == (2, 3), e.name
+        e.check_dim(2), e.check_dim(3)
+
