@@ -7,6 +7,9 @@ Usage::
     python benchmarks/quadhex.py gmsh [--n 12]
     python benchmarks/quadhex.py smooth
     python benchmarks/quadhex.py energy [--m 1000000] [--repeat 20]
+    python benchmarks/quadhex.py oracle [--m 10000] [--samples 17]
+    python benchmarks/quadhex.py agree
+    python benchmarks/quadhex.py errors
 
 ``families``: every generated tangled quad and hex family (interior rotations, noise, random
 interiors, squashed boundaries; hex twists and bends) at about each size, untangled by
@@ -40,6 +43,17 @@ after.
 
 ``energy``: energy + gradient of 10^6 hex corners (125,000 hexahedra) against 10^6 tetrahedra
 (the same jitted kernel sees corner simplices), median of ``--repeat`` warm calls.
+
+``oracle``: the exact hex certificate (:func:`geomopt.hexvalid.hex_validity`) on ``--m`` random
+hexahedra (the unit cube, vertices moved by noise of random size) against a dense sampling of
+``det J`` at ``samples^3`` points: certified valid must be positive at every sample; elements the
+sampling misses must carry an exact witness point.
+
+``agree``: energy and gradient of a jittered quad grid (with handles) on the quad path against
+the triangle path on its two diagonal triangulations (the four corner triangles), per energy.
+
+``errors``: bad quad / hex files through ``geomopt smooth`` and ``geomopt untangle``: exit
+status and the one line printed.
 """
 
 from __future__ import annotations
@@ -340,6 +354,151 @@ def cmd_energy(args):
           f"{rows[0]['min_s'] / rows[1]['min_s']:.2f}x (min); uptime: {os.popen('uptime').read().strip()}")
 
 
+def cmd_oracle(args):
+    from fractions import Fraction
+
+    from geomopt.hexvalid import jacobian_det, hex_validity
+
+    cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    rng = np.random.default_rng(args.seed)
+    X = (cube[None] + rng.uniform(0.05, 0.6, args.m)[:, None, None] * rng.standard_normal((args.m, 8, 3)))
+    X, H = X.reshape(-1, 3), np.arange(8 * args.m).reshape(args.m, 8)
+    t0 = time.perf_counter()
+    r = hex_validity(X, H)
+    cert_s = time.perf_counter() - t0
+    g = np.linspace(0, 1, args.samples)
+    uvw = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    t0 = time.perf_counter()
+    smin = np.concatenate([jacobian_det(X, H[i:i + 200], uvw).min(1) for i in range(0, len(H), 200)])
+    sample_s = time.perf_counter() - t0
+
+    def exact_det(P, w):  # det J at the witness, in rationals (the product of three exact derivatives)
+        P = [[Fraction(float(c)) for c in p] for p in P]
+        u = [Fraction(float(t)) for t in w]
+        D = []
+        for axis in range(3):
+            d = [Fraction(0)] * 3
+            for c, (a, b, e) in enumerate(cube.astype(int).tolist()):
+                idx = (a, b, e)
+                if idx[axis]:
+                    wgt = Fraction(1)
+                    for k in range(3):
+                        if k != axis:
+                            wgt *= u[k] if idx[k] else 1 - u[k]
+                    lo = list(idx)
+                    lo[axis] = 0
+                    j = cube.astype(int).tolist().index(lo)
+                    for k in range(3):
+                        d[k] += wgt * (P[c][k] - P[j][k])
+            D.append(d)
+        a, b, c = D
+        return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                + a[2] * (b[0] * c[1] - b[1] * c[0]))
+
+    missed = np.flatnonzero(~r.valid & (smin > 0))
+    witnessed = sum(exact_det(X[H[e]], r.witness[e]) <= 0 for e in np.flatnonzero(~r.valid & r.corner_valid))
+    row = dict(hexes=args.m, valid=int(r.valid.sum()), invalid=int((~r.valid).sum()),
+               corner_valid=int(r.corner_valid.sum()), corner_only=int((r.corner_valid & ~r.valid).sum()),
+               valid_but_sampled_nonpositive=int((r.valid & (smin <= 0)).sum()),
+               invalid_missed_by_sampling=len(missed),
+               corner_only_with_exact_witness=f"{witnessed}/{int((r.corner_valid & ~r.valid).sum())}",
+               tests=r.tests, certificate_s=round(cert_s, 2), sampling_s=round(sample_s, 2),
+               samples=args.samples ** 3)
+    print(json.dumps(row))
+    _table([row], list(row))
+
+
+def cmd_agree(args):
+    from geomopt._objective import Objective
+
+    V, Q = G.quad_mesh(24, 24)
+    rng = np.random.default_rng(0)
+    inner = (V > 0).all(1) & (V < 1).all(1)
+    V[inner] += 0.1 / 24 * rng.standard_normal((inner.sum(), 2))
+    b = Problem.quads(V, Q).boundary_vertices()
+    x = V + 0.05 / 24 * rng.standard_normal(V.shape)
+    quad = Problem.quads(V, Q, b, V[b])
+    tris = [Problem.planar(V, np.concatenate([Q[:, [0, 1, 3]], Q[:, [2, 3, 1]]]), b, V[b]),
+            Problem.planar(V, np.concatenate([Q[:, [1, 2, 0]], Q[:, [3, 0, 2]]]), b, V[b])]
+    rows = []
+    for energy in ("symmetric_dirichlet", "winslow", "arap", "mips", "dirichlet", "garanzha"):
+        oq = Objective(quad, energy)
+        params = oq.params()
+        vq, gq = oq.value_and_grad(x, params)
+        parts = [Objective(t, energy).value_and_grad(x, params) for t in tris]
+        vt = sum(float(v) for v, _ in parts)
+        gt = sum(np.asarray(g) for _, g in parts)
+        rows.append(dict(energy=energy, quads=len(Q), quad_energy=f"{float(vq):.15g}", triangle_energy=f"{vt:.15g}",
+                         rel_energy_diff=f"{abs(float(vq) - vt) / abs(vt):.1e}",
+                         rel_grad_diff=f"{np.abs(np.asarray(gq) - gt).max() / np.abs(gt).max():.1e}"))
+        print(json.dumps(rows[-1]), flush=True)
+    _table(rows, list(rows[0]))
+
+
+def _bad_inputs(tmp):
+    """name -> path of a bad quad / hex input."""
+    from geomopt import io
+
+    V, Q = G.quad_mesh(3, 3)
+    V3, H = G.hex_mesh(2, 2, 2)
+    obj = "".join(f"v {x} {y} 0\n" for x, y in V)
+    files = {
+        "non-planar quads (.vtk)": (np.column_stack([V, V[:, 0] * V[:, 1]]), Q, "quad"),
+        "bow-tie quad (.vtk)": (V, np.concatenate([Q[:1, [0, 1, 3, 2]], Q[1:]]), "quad"),
+        "quad listed clockwise among ccw (.vtk)": (V, np.concatenate([Q[:1, ::-1], Q[1:]]), "quad"),
+        "hex listed mirrored among others (.vtk)": (V3, np.concatenate([H[:1, [0, 3, 2, 1, 4, 7, 6, 5]], H[1:]]),
+                                                     "hexahedron"),
+    }
+    out = {}
+    for name, (P, C, kind) in files.items():
+        out[name] = io.write_cells(tmp / f"{len(out)}.vtk", P, C, kind)
+    texts = {
+        "quad repeating a vertex (.obj)": obj + "".join(f"f {a + 1} {b + 1} {b + 1} {d + 1}\n" for a, b, c, d in Q),
+        "triangle among quads (.obj)": obj + "f 1 2 6 5\nf 2 3 7\n",
+    }
+    for name, text in texts.items():
+        out[name] = tmp / f"{len(out)}.obj"
+        out[name].write_text(text)
+    mixed = io.write_cells(tmp / "mixed.mesh", V3, H, "hexahedron")
+    mixed.write_text(mixed.read_text().replace("End", "Tetrahedra\n1\n1 2 3 4 0\nEnd"))
+    out["tetrahedron beside hexahedra (.mesh)"] = mixed
+    rep = tmp / "rep.vtk"
+    io.write_cells(rep, V3, H, "hexahedron")
+    first = " ".join(map(str, H[0]))
+    again = " ".join(map(str, np.r_[H[0, :3], H[0, 2], H[0, 4:]]))
+    rep.write_text(rep.read_text().replace(f"8 {first}\n", f"8 {again}\n", 1))
+    out["hexahedron repeating a vertex (.vtk)"] = rep
+    case = tmp / "twisted_rest"
+    case.mkdir()
+    twist = V3.copy()
+    top = np.flatnonzero(np.isclose(V3[:, 2], 1.0))
+    c = V3[top, :2] - 0.5
+    twist[top, :2] = 0.5 - c  # the top turned by 180 degrees: the rest hexahedra fold inside
+    io.write_cells(case / "rest.vtk", twist, H, "hexahedron")
+    io.write_cells(case / "init.vtk", V3, H, "hexahedron")
+    out["LIM-style hex case, rest folded inside"] = case
+    return out
+
+
+def cmd_errors(args):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for name, path in _bad_inputs(tmp).items():
+            for command in ("smooth", "untangle"):
+                if command == "smooth" and path.is_dir():
+                    continue
+                out = tmp / "out.vtk"
+                cp = subprocess.run([sys.executable, "-m", "geomopt", command, str(path), "-o", str(out), "--quiet"],
+                                    capture_output=True, text=True, env={**os.environ, "PYTHONPATH": os.getcwd()})
+                lines = cp.stderr.strip().splitlines()
+                rows.append(dict(input=name, command=command, exit=cp.returncode, lines=len(lines),
+                                 written=out.exists(), message=(lines[-1] if lines else "").replace(str(tmp) + "/", "")
+                                 .replace("|", "/")[:160]))
+                print(json.dumps(rows[-1]), flush=True)
+    _table(rows, list(rows[0]))
+
+
 def _table(rows, cols):
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
@@ -363,8 +522,15 @@ def main():
     e = sub.add_parser("energy")
     e.add_argument("--m", type=int, default=1_000_000)
     e.add_argument("--repeat", type=int, default=20)
+    o = sub.add_parser("oracle")
+    o.add_argument("--m", type=int, default=10_000)
+    o.add_argument("--samples", type=int, default=17)
+    o.add_argument("--seed", type=int, default=0)
+    sub.add_parser("agree")
+    sub.add_parser("errors")
     args = ap.parse_args()
-    {"families": cmd_families, "cpp": cmd_cpp, "gmsh": cmd_gmsh, "smooth": cmd_smooth, "energy": cmd_energy}[args.cmd](args)
+    {"families": cmd_families, "cpp": cmd_cpp, "gmsh": cmd_gmsh, "smooth": cmd_smooth, "energy": cmd_energy,
+     "oracle": cmd_oracle, "agree": cmd_agree, "errors": cmd_errors}[args.cmd](args)
 
 
 if __name__ == "__main__":
