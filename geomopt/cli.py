@@ -447,7 +447,7 @@ def cmd_demo(args) -> int:
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
                             max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
-                            uv_range="raw", json=args.json, summary=args.summary)
+                            uv_range="raw", json=args.json, summary=args.summary, timing=args.timing)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
         print(f"wrote {out / 'camelhead_uv.obj'}, {out / 'camelhead_uv.png'}, "

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geomopt import Problem
+from geomopt import Outcome, Problem
 from geomopt.certify import LocalCertificate, certify_bijective, local_certificate
 from geomopt.predicates import count_inverted
 from geomopt.stars import fan_overlaps_2d, star_overlaps_3d
@@ -598,9 +598,10 @@ def test_compare_refuses_positive_but_overlapping_results():
     rest, _ = exact_fan(0.75, 12)
     problem = Problem.planar(rest, F, np.arange(len(X)), X)
     comp = compare(problem, x0=X, solvers=["newton", "lbfgs"])
-    for name, res in comp.results.items():
-        assert res.inverted == 0 and not res.success, name
-        assert "boundary vertex 0" in res.message
+    for name, run in comp.runs.items():
+        run = run[0] if isinstance(run, tuple) else run
+        assert run.inverted == 0 and not run.certified and run.outcome is not Outcome.CONVERGED, name
+        assert "boundary vertex 0" in run.certificate.message
 
 
 def _max_cover(X, T, v, directions):
