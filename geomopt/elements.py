@@ -49,7 +49,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._validate import validate_simplices
-from .certify import LocalCertificate, local_certificate
+from .certify import LocalCertificate, fixed_star_certificate, local_certificate
 from .hexvalid import HEX_CORNERS, TESTS, hex_validity
 from .predicates import orient2d
 
@@ -57,7 +57,7 @@ __all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementCertificate",
            "validate_elements", "corner_simplices", "corner_edges", "rest_elements",
            "reference_rest", "check_element_facets", "boundary_vertices",
            "scaled_jacobian", "quality", "certify_elements", "count_invalid", "valid_elements", "element_type",
-           "corner_stars", "ElementLocalCertificate", "element_local_certificate"]
+           "corner_stars", "ElementLocalCertificate", "element_local_certificate", "element_fixed_star_certificate"]
 
 #: Corner triangles of a quad: corner ``c`` then its neighbours ``c + 1`` and ``c - 1``.
 QUAD_CORNERS = np.array([[0, 1, 3], [1, 2, 0], [2, 3, 1], [3, 0, 2]], dtype=np.int64)
@@ -453,10 +453,40 @@ def element_local_certificate(X, E) -> ElementLocalCertificate:
         return ElementLocalCertificate(star.inverted, int(star.first_inverted) // E.shape[1],
                                        seconds=time.perf_counter() - t0, elements=cert, words=words)
 
+    return _in_mesh_ids(star, source, t0, cert, words)
+
+
+def _in_mesh_ids(star, source, t0, cert, words):
+    """``star`` (a certificate of the :func:`corner_stars` complex) in the mesh's vertex ids."""
     def edges(A):
         return np.unique(np.sort(source[A], axis=1), axis=0) if len(A) else A
 
     return ElementLocalCertificate(
-        0, -1, np.unique(source[star.branch_vertices]), edges(star.branch_edges),
+        star.inverted, star.first_inverted, np.unique(source[star.branch_vertices]), edges(star.branch_edges),
         np.unique(source[star.boundary_overlaps]), edges(star.boundary_edge_overlaps),
         time.perf_counter() - t0, elements=cert, words=words)
+
+
+def element_fixed_star_certificate(X, E, fixed) -> ElementLocalCertificate:
+    """The part of :func:`element_local_certificate` that no free vertex can change: vertices
+    and edges whose tangent cones (the corner simplices at the vertex, :func:`corner_stars`)
+    have every vertex fixed (:func:`geomopt.certify.fixed_star_certificate` on that complex).
+    ``ok`` when none of them overlaps; an overlap there makes every map with these handles fail.
+
+    Parameters
+    ----------
+    X : (n, 2) or (n, 3) float array
+        A map with the handles in place.
+    E : (m, 4) or (m, 8) int array
+        Oriented quads or hexahedra.
+    fixed : (h,) int array
+        The fixed vertices.
+    """
+    t0 = time.perf_counter()
+    X = np.asarray(X, dtype=np.float64)
+    E = np.asarray(E, dtype=np.int64)
+    S, source = corner_stars(E, len(X))
+    is_fixed = np.zeros(len(X), bool)
+    is_fixed[np.asarray(fixed, dtype=np.int64)] = True
+    star = fixed_star_certificate(X[source], S, np.flatnonzero(is_fixed[source]))
+    return _in_mesh_ids(star, source, t0, None, ELEMENT_KINDS[E.shape[1]].words)

@@ -392,6 +392,22 @@ class Problem:
 
         return local_certificate(x, self.simplices)
 
+    def certify_fixed(self, x):
+        """The part of :meth:`certify` that no free vertex can change: vertices and edges whose
+        whole star (for quads / hexahedra: the corner simplices *at* the vertex) has every vertex
+        fixed (:func:`geomopt.certify.fixed_star_certificate`,
+        :func:`geomopt.elements.element_fixed_star_certificate`).  Not ``ok``: no map with these
+        handles is locally injective."""
+        refuse_traced("Problem.certify_fixed (exact predicates)", "it certifies concrete maps", x)
+        x = np.asarray(x, dtype=np.float64)
+        if self.elements is not None:
+            from .elements import element_fixed_star_certificate
+
+            return element_fixed_star_certificate(x, self.elements, self.fixed)
+        from .certify import fixed_star_certificate
+
+        return fixed_star_certificate(x, self.simplices, self.fixed)
+
     def boundary_vertices(self) -> np.ndarray:
         """Sorted ids of the boundary vertices (of the quads' edges / hexahedra's faces for
         element problems, not of their overlapping corner simplices)."""

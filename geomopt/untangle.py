@@ -68,7 +68,7 @@ from ._tracing import refuse_traced
 from ._x64 import float64
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
-from .certify import fixed_star_certificate, local_certificate
+from .certify import local_certificate
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
@@ -369,7 +369,7 @@ def untangle(
             return _early_result(problem, x0, initially, t_setup, throw,
                                  f"{dead} inverted element(s) have every vertex fixed: no map with "
                                  f"these handles is injective")
-    fixed_part = fixed_star_certificate(x0, S, problem.fixed)  # stars no free vertex can change
+    fixed_part = problem.certify_fixed(x0)  # stars no free vertex can change
     if not fixed_part.ok:
         raise MeshError(f"{fixed_part.message}; every element there has all its vertices fixed, so the "
                         f"handles make a locally injective map impossible: free some of them or move them")

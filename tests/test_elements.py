@@ -464,3 +464,24 @@ def test_element_certificate_finds_a_free_boundary_overlapping_itself():
     half[1:k + 2] = np.c_[np.cos(a), np.sin(a)]
     half[k + 2:] = 1.25 * np.c_[np.cos(a[:-1] + 0.7 * np.pi / k), np.sin(a[:-1] + 0.7 * np.pi / k)]
     assert element_local_certificate(half, Q).ok
+
+
+def test_fixed_stars_are_judged_on_the_elements_tangent_cones():
+    """A hex slab one element thick has every vertex on the boundary: with all of them fixed
+    the plain fixed-star check on the overlapping corner tetrahedra would refuse it; judged on
+    the tangent cones it passes.  A fixed quad fan winding twice is refused before solving."""
+    from geomopt.certify import fixed_star_certificate
+    from geomopt.elements import corner_simplices
+
+    V, H = G.hex_mesh(3, 3, 1)
+    p = Problem.hexes(V, H)
+    p = p.with_fixed(np.arange(len(V)), V)
+    assert not fixed_star_certificate(V, corner_simplices(p.elements), p.fixed).ok
+    assert p.certify_fixed(V).ok and p.certify(V).ok
+    V2, Q = _fan(8, 2 * np.pi)
+    X, _ = _fan(8, 4 * np.pi)
+    q = Problem.quads(V2, Q).with_fixed(np.arange(len(V2)), X)
+    c = q.certify_fixed(X)
+    assert not c.ok and c.branch_vertices.tolist() == [0]
+    with pytest.raises(MeshError, match="branch point"):
+        untangle(q, X, progress=False)
