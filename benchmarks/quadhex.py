@@ -116,8 +116,8 @@ def cmd_families(args):
             wall = time.perf_counter() - t0
             c = certify_elements(r.x, p.elements)
             row = dict(case=name, elements=len(p.elements), inverted0=t.inverted(), success=r.success,
-                       certified=c.certified, corner_only=c.corner_only, outer=r.outer_iterations,
-                       inner=r.inner_iterations, solve_s=round(r.seconds, 2), wall_s=round(wall, 2),
+                       certified=c.certified, corner_only=c.corner_only, outer=r.stats.outer_iterations,
+                       inner=r.stats.iterations, solve_s=round(r.stats.seconds, 2), wall_s=round(wall, 2),
                        sj_min=round(c.quality.min, 4), sj_mean=round(c.quality.mean, 4),
                        tests={k: v for k, v in c.tests.items() if v})
             rows.append(row)
@@ -192,10 +192,10 @@ def cmd_cpp(args):
             for pre in ("diagonal", "laplacian"):
                 r, wall = _geomopt_run(p, t.x0, pre)
                 cg = certify_elements(r.x, p.elements)
-                rows.append(dict(rep=rep, run=f"geomopt L-BFGS ({pre} seed)", solve_s=round(r.seconds, 2),
-                                 call_s=round(wall, 2), cold_s=round(cold[pre], 2), outer=r.outer_iterations,
-                                 inner=r.inner_iterations, certified=cg.certified and r.success,
-                                 sj_min=round(cg.quality.min, 4), ratio_solve=round(r.seconds / cpp_solve, 3),
+                rows.append(dict(rep=rep, run=f"geomopt L-BFGS ({pre} seed)", solve_s=round(r.stats.seconds, 2),
+                                 call_s=round(wall, 2), cold_s=round(cold[pre], 2), outer=r.stats.outer_iterations,
+                                 inner=r.stats.iterations, certified=cg.certified and r.success,
+                                 sj_min=round(cg.quality.min, 4), ratio_solve=round(r.stats.seconds / cpp_solve, 3),
                                  ratio_call=round(wall / cpp_wall, 3)))
                 print(json.dumps(rows[-1]), flush=True)
         print(f"uptime after: {os.popen('uptime').read().strip()}")
@@ -312,7 +312,8 @@ def cmd_smooth(args):
         if not start.certified:  # Gmsh's subdivided cylinder: untangle first, boundary fixed
             b = p0.boundary_vertices()
             r = untangle(p0.with_fixed(b, V[b]), V, progress=False)
-            untangled = f"{start.invalid} invalid -> {r.inverted} ({r.outer_iterations} outer, {r.seconds:.1f} s)"
+            untangled = (f"{start.invalid} invalid -> {r.certificate.inverted} ({r.stats.outer_iterations} outer, "
+                         f"{r.stats.seconds:.1f} s)")
             W = r.x
         else:
             W = G.perturb_mesh(V, E, args.perturb, seed=1)

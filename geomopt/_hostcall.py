@@ -25,6 +25,8 @@ import ctypes as C
 import jax
 import numpy as np
 
+from . import _x64
+
 #: (name, exception) of the last host function that raised inside a handler, else None
 last_error = None
 
@@ -130,4 +132,4 @@ def call(name: str, fn, result: jax.ShapeDtypeStruct, *args):
         out = np.empty(result.shape, result.dtype)
         fn(*(np.asarray(a) for a in arrays), out=[out])
         return out
-    return jax.pure_callback(host, result, *args)
+    return _x64.pure_callback(host, result, *args)  # 64-bit results survive a callback thread

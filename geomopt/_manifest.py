@@ -35,7 +35,7 @@ def versions() -> dict:
     package that is not installed), read from package metadata without importing anything."""
     from importlib import metadata
 
-    from . import __version__
+    from ._version import __version__
 
     out = {"geomopt": __version__, "python": platform.python_version()}
     for name in _PACKAGES:

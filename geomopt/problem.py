@@ -320,8 +320,9 @@ class Problem:
         return dataclasses.replace(self, fixed=idx[order], fixed_positions=pos[order])
 
     @functools.cached_property
-    def _static(self) -> StaticKey:
-        """The pytree metadata: kind, sizes, connectivity and handle indices, keyed by content."""
+    def static_key(self) -> StaticKey:
+        """The pytree metadata: kind, sizes, connectivity and handle indices, keyed by content
+        (hashable; equal for problems of one mesh and handle set, whatever their values)."""
         meta = tuple(getattr(self, f) for f in _META)
         return StaticKey(meta[:3] + tuple(None if a is None else digest(a) for a in meta[3:]), meta)
 
@@ -426,13 +427,13 @@ def _unflatten(static: StaticKey, leaves) -> Problem:
     p = object.__new__(Problem)
     for name, value in zip(_META + _LEAVES, static.payload + tuple(leaves)):
         object.__setattr__(p, name, value)
-    p.__dict__["_static"] = static
+    p.__dict__["static_key"] = static
     return p
 
 
 jax.tree_util.register_pytree_with_keys(
-    Problem, lambda p: (tuple((jax.tree_util.GetAttrKey(f), getattr(p, f)) for f in _LEAVES), p._static),
-    _unflatten, lambda p: (tuple(getattr(p, f) for f in _LEAVES), p._static))
+    Problem, lambda p: (tuple((jax.tree_util.GetAttrKey(f), getattr(p, f)) for f in _LEAVES), p.static_key),
+    _unflatten, lambda p: (tuple(getattr(p, f) for f in _LEAVES), p.static_key))
 
 
 def _vertices(V, name, dim=None):

@@ -156,7 +156,7 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
         t0 = time.perf_counter()
         result = minimize(Objective(current, energy, buckets=True, **params), V, solver=solver, progress=progress)
         seconds += time.perf_counter() - t0
-        iterations += int(result.iterations)
+        iterations += int(result.stats.iterations)
         outcome, x = result.outcome, np.asarray(result.x, dtype=np.float64)
         worse, at_risk = _worse(x, E, start.quality.min, sj_input)
         if not worse.any():

@@ -300,7 +300,7 @@ def _untangled(tangle):
     r = untangle(p, tangle.x0, progress=False)
     assert r.success, (tangle.name, r.message)
     c = certify_elements(r.x, p.elements)
-    assert c.certified and r.inverted == 0
+    assert c.certified and r.certificate.inverted == 0
     assert np.array_equal(r.x[tangle.fixed], tangle.x0[tangle.fixed])
     return r, c
 
@@ -361,7 +361,7 @@ def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
     cmp = geomopt.compare(p, x0=V, solvers=["newton", "lbfgs", "slim", "aqp", "cm"], max_steps=30,
                           out=tmp_path / "q")
     for name, r in cmp.results.items():
-        assert r.inverted == 0 and certify_elements(r.x, p.elements).certified, name
+        assert r.certificate.inverted == 0 and certify_elements(r.x, p.elements).certified, name
         assert r.energy < r.energy_history[0]
         P, Q2, _ = io.read_cells(tmp_path / "q" / f"{name}.obj")
         assert np.array_equal(Q2, Q) and np.array_equal(P[:, :2], np.asarray(r.x))
@@ -370,7 +370,7 @@ def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
     p3 = p3.with_fixed(p3.boundary_vertices(), V3[p3.boundary_vertices()])
     cmp = geomopt.compare(p3, x0=V3, solvers=["newton", "lbfgs"], max_steps=30, out=tmp_path / "h")
     for name, r in cmp.results.items():
-        assert r.inverted == 0 and io.read_cells(tmp_path / "h" / f"{name}.vtk")[2] == "hexahedron"
+        assert r.certificate.inverted == 0 and io.read_cells(tmp_path / "h" / f"{name}.vtk")[2] == "hexahedron"
 
 
 def test_quad_surface_is_the_surface_path_of_its_corner_triangles():
@@ -402,7 +402,7 @@ def test_untangling_stops_when_only_hexahedra_interiors_fold(monkeypatch):
     t = G.noisy_interior(*G.hex_mesh(3, 3, 3), 0.5)
     monkeypatch.setattr(elements_module, "count_invalid", lambda X, E: 1)
     r = untangle(t.problem(), t.x0, progress=False)
-    assert not r.success and "fold inside" in r.message and r.outer_iterations < 20
+    assert not r.success and "fold inside" in r.message and r.stats.outer_iterations < 20
 
 
 # ----------------------------------------------------------------------------- local certificate

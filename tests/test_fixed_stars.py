@@ -16,7 +16,7 @@ from geomopt import cli
 from geomopt.certify import fixed_star_certificate
 from geomopt.generators import Tangle
 from geomopt.lim import LimCase
-from geomopt.untangle import lim_problem, untangle
+from geomopt.untangle import untangle
 from test_local_injectivity import edge_star, fan_2d, orient_tets
 
 
@@ -141,7 +141,7 @@ def test_inverted_fixed_elements_are_left_to_the_orientation_check():
 def test_armadillo_598_is_refused_naming_the_edge(capsys, tmp_path):
     """The API refusal is in test_untangle's LIM case test; here the certificate and the CLI."""
     folder = shared_path("lim", "3D", "Deform_Armadillo", "armadillo-598")
-    problem, x0, _, _ = lim_problem(LimCase.read(folder))  # its tets are listed clockwise
+    problem, x0 = LimCase.read(folder).to_problem()[:2]  # its tets are listed clockwise
     cert = fixed_star_certificate(x0, problem.simplices, problem.fixed)
     assert len(cert.boundary_edge_overlaps) == 5 and cert.boundary_edge_overlaps[0].tolist() == [752, 782]
     out = tmp_path / "out.vtk"
