@@ -51,6 +51,7 @@ from . import _manifest, io
 from ._errors import MeshError, ParameterError
 from ._objective import Objective
 from ._x64 import float64
+from .elements import element_type
 from .problem import Problem
 from .solvers import CM, Newton, Outcome, Progress, get_solver, iterate
 
@@ -355,7 +356,11 @@ class Comparison:
         V = np.asarray(problem.rest_vertices, np.float64)
         for name, r in self.results.items():
             x = np.asarray(r.x) * self.mirror  # negation is exact
-            if problem.dim == 2:
+            if problem.elements is not None:  # quads (.obj) / hexahedra (.vtk): the cells themselves
+                kind = "quad" if problem.elements.shape[1] == 4 else "hexahedron"
+                paths[name] = io.write_cells(out / f"{name}{'.obj' if kind == 'quad' else '.vtk'}", x,
+                                             problem.elements, kind)
+            elif problem.dim == 2:
                 V3 = V if V.shape[1] == 3 else np.c_[V, np.zeros(len(V))]
                 paths[name] = io.write_obj_with_uv(out / f"{name}.obj", V3, problem.input_simplices, x)
             else:
@@ -666,7 +671,7 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
 
         check_scale_aware(energy, energy_params)
     if x0 is None:
-        if problem.fixed.size or problem.dim != 2:
+        if problem.fixed.size or problem.dim != 2 or problem.elements is not None:
             raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "
                                  f"vertices needs a start map x0; only free-boundary 2D maps default "
                                  f"to the Tutte start")
@@ -675,7 +680,8 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
     x0 = problem.check_map(x0, "start map x0")
     inverted = problem.count_inverted(x0)
     if inverted:
-        what = "tetrahedra" if problem.dim == 3 else "triangle(s)"
+        what = ("tetrahedra" if problem.dim == 3 else "triangle(s)") if problem.elements is None else \
+            element_type(problem.elements)[1]
         which = "the start map x0" if given else "the start map"
         if case is not None:
             which = which if given else f"the map of LIM case {case}"

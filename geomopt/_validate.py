@@ -74,8 +74,8 @@ def validate_vertices(V, name="vertices", dim=None):
     return A
 
 
-def validate_simplices(S, n_vertices, k, name="faces"):
-    """Check an element (triangle or tetrahedron) index array and return it as ``int64``.
+def validate_simplices(S, n_vertices, k, name="faces", words=None):
+    """Check an element (triangle, tetrahedron, quad, hexahedron) index array and return it as ``int64``.
 
     Parameters
     ----------
@@ -88,6 +88,9 @@ def validate_simplices(S, n_vertices, k, name="faces"):
         Vertices per element: 3 for triangles, 4 for tetrahedra.
     name : str
         What ``S`` is, used at the start of error messages.
+    words : (str, str), optional
+        The element's name, singular and plural, for messages (default: triangle /
+        tetrahedron by ``k``).
 
     Returns
     -------
@@ -100,7 +103,7 @@ def validate_simplices(S, n_vertices, k, name="faces"):
         Wrong shape, non-integer dtype, no elements, indices out of range, or an
         element that uses a vertex twice (messages give the count and first element).
     """
-    word, words = _SIMPLEX_WORDS.get(k, (f"{k}-vertex element", f"{k}-vertex elements"))
+    word, words = words or _SIMPLEX_WORDS.get(k, (f"{k}-vertex element", f"{k}-vertex elements"))
     A = _as_array(S, name)
     if A.ndim != 2 or A.shape[1] != k:
         raise MeshError(f"{name} must have shape (m, {k}) ({words}), got shape {A.shape}")

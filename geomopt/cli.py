@@ -1,4 +1,4 @@
-"""Command line: geomopt param, geomopt untangle, geomopt compare, geomopt demo.
+"""Command line: geomopt param, geomopt untangle, geomopt smooth, geomopt compare, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
 that cannot be written, a command line argparse refuses) prints one line ``geomopt: error:
@@ -258,6 +258,10 @@ def _save_param_figures(res, V, F, uv, png, outputs, args):
 def cmd_untangle(args) -> int:
     """One case to one file (``-o OUT.obj|OUT.vtk``), or a batch to a folder (``-o OUTDIR``)."""
     from ._errors import ParameterError
+    from .cells import is_cell_case
+
+    if len(args.case) == 1 and is_cell_case(args.case[0]):
+        return _untangle_cells(args)
 
     out = Path(args.output)
     to_file = out.suffix.lower() in (".obj", ".vtk") or (out.exists() and not out.is_dir())
@@ -319,6 +323,76 @@ def _untangle_one(args, folder) -> int:
                                   Path(args.png).suffix[1:].lower())
         with split.phase("write"):
             case.write_certified(res, args.output)
+    return EXIT_OK
+
+
+def _cell_output(args, case, inputs):
+    """Check ``-o`` for a quad / hex case (:data:`geomopt.cells.CELL_EXTENSIONS`, ``.obj`` for quads)."""
+    from .cells import CELL_EXTENSIONS
+
+    allowed = CELL_EXTENSIONS if case.kind == "quad" else tuple(e for e in CELL_EXTENSIONS if e != ".obj")
+    _output_paths(args.output, allowed, [], inputs)
+
+
+def _quality_line(q):
+    return (f"min scaled Jacobian {q.min:.4f}, mean {q.mean:.4f}, {q.below_0} below 0, "
+            f"{q.below_0_2} below 0.2")
+
+
+def _untangle_cells(args) -> int:
+    """A quad / hex mesh file or case folder (:mod:`geomopt.cells`) to one certified file."""
+    from .cells import cell_problem, read_cell_case, write_certified
+    from .elements import certify_elements
+    from .untangle import untangle
+
+    path = Path(args.case[0])
+    inputs = [str(p) for p in path.iterdir()] if path.is_dir() else [str(path)]
+    if args.png:
+        from ._errors import ParameterError
+
+        raise ParameterError("--png draws triangle and tet cases only; leave it out for a quad/hex case")
+    case = read_cell_case(path)  # the output check needs the cell kind; reading writes nothing
+    _cell_output(args, case, inputs)
+    problem = cell_problem(case)
+    before = certify_elements(case.start, problem.elements)
+    res = untangle(problem, case.start, solver=args.solver, progress=not args.quiet)
+    after = certify_elements(res.x, problem.elements)
+    _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(before.quality)}, "
+               f"{before.invalid} invalid")
+    _log(args, f"after  {_quality_line(after.quality)}, {after.invalid} invalid ({after.corner_only} only inside); "
+               f"tests {after.summary()['tests']}; outer iterations {res.stats.outer_iterations}, "
+               f"{res.stats.seconds:.2f} s, certified {'yes' if res.success else 'no'}")
+    _report(args, case=str(path), output=str(args.output), elements=len(case.elements), kind=case.kind,
+            outer_iterations=res.stats.outer_iterations, solve_seconds=round(res.stats.seconds, 4),
+            setup_seconds=round(res.stats.setup_seconds, 4), inverted=res.certificate.inverted, certified=bool(res.success),
+            message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
+    if not res.success:
+        return _fail(f"not certified: {res.message}")
+    write_certified(args.output, res.x, case, problem)
+    return EXIT_OK
+
+
+def cmd_smooth(args) -> int:
+    """Smooth a valid quad / hex mesh (:func:`geomopt.smooth.smooth`) into a certified file."""
+    from .cells import read_cell_case, write_certified
+    from .smooth import smooth
+
+    case = read_cell_case(args.input)
+    _cell_output(args, case, [args.input])
+    fixed = None if args.fix == "boundary" else []
+    res = smooth(case.start, case.elements, energy=args.energy, solver=args.solver, fixed=fixed,
+                 max_steps=args.max_steps, progress=not args.quiet)
+    _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(res.before)}")
+    _log(args, f"after  {_quality_line(res.after)}; tests {res.certificate.summary()['tests']}; "
+               f"{res.iterations} iterations, {res.seconds:.2f} s")
+    _report(args, input=str(args.input), output=str(args.output), elements=len(case.elements), kind=case.kind,
+            before=res.before.as_dict(), after=res.after.as_dict(), held=len(res.held), rounds=res.rounds,
+            improved=res.improved, iterations=res.iterations, solve_seconds=round(res.seconds, 4),
+            message=res.message, **_cache_summary())
+    if not res.improved:
+        return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
+                     f"{res.message}")
+    write_certified(args.output, res.x, case, res.problem)
     return EXIT_OK
 
 
@@ -484,13 +558,16 @@ def build_parser():
     common(sp)
     sp.set_defaults(func=cmd_param)
 
-    sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles)")
+    sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles) or a quad/hex mesh")
     sp.add_argument("case", nargs="+",
-                    help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D), or "
-                         "several, or folders holding case folders")
+                    help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D, with "
+                         "triangles, tets, quads or hexahedra), or several, or folders holding case "
+                         "folders; or one quad/hex mesh file (.vtk .vtu .msh .mesh, .obj for quads), "
+                         "untangled with its boundary fixed and squares/cubes as rest shapes")
     sp.add_argument("-o", "--output", required=True,
-                    help="one case: output OBJ (2D) or VTK (3D); otherwise an output folder, which gets "
-                         "<case folder name>.obj/.vtk per certified case and summary.csv")
+                    help="one case: output OBJ (2D) or VTK (3D), any quad/hex mesh format for a quad/hex "
+                         "case; otherwise an output folder, which gets <case folder name>.obj/.vtk per "
+                         "certified case and summary.csv")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
     sp.add_argument("--png", default=None,
@@ -504,6 +581,20 @@ def build_parser():
                             "tcp://host:8786); they must see the case and output folders at the same paths")
     common(sp)
     sp.set_defaults(func=cmd_untangle)
+
+    sp = sub.add_parser("smooth", help="smooth a valid quad/hex mesh (Winslow), never making an element worse "
+                                       "than the input's worst")
+    sp.add_argument("input", help="quad or hex mesh (.vtk .vtu .msh .mesh, .obj for quads), every element valid")
+    sp.add_argument("-o", "--output", required=True, help="output mesh, same cells (any of the input formats)")
+    sp.add_argument("--energy", default="winslow", metavar="NAME",
+                    help=f"one of {', '.join(ENERGIES)} (default winslow: the inverse-harmonic map)")
+    sp.add_argument("--solver", default="newton", metavar="NAME",
+                    help=f"one of {', '.join(SOLVERS)} (default newton); its line search keeps every corner positive")
+    sp.add_argument("--fix", default="boundary", choices=["boundary", "none"],
+                    help="vertices held in place (default: the boundary)")
+    sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
+    common(sp)
+    sp.set_defaults(func=cmd_smooth)
 
     sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
                                          "traces, table, manifest and a figure")

@@ -6,7 +6,10 @@ Meshes (plain NumPy, every element positively oriented):
 * :func:`disk_mesh` — a disk of concentric rings (``6 r`` vertices on ring ``r``), whose
   boundary vertices are joined only to their boundary neighbours and to the next ring, so
   that no triangle or interior edge has all its vertices on the boundary;
-* :func:`box_mesh` — a box of ``nx x ny x nz`` cubes, 6 tetrahedra each (Kuhn).
+* :func:`box_mesh` — a box of ``nx x ny x nz`` cubes, 6 tetrahedra each (Kuhn);
+* :func:`quad_mesh`, :func:`hex_mesh` — the same grids as quads / hexahedra (VTK order);
+* :func:`sector_mesh` — quads or hexahedra of a structured annulus sector (a non-box shape),
+  optionally with its interior vertices perturbed (a valid mesh to smooth).
 
 Tangles — each returns a :class:`Tangle` (rest mesh, start map, fixed vertices) whose fixed
 vertices are the boundary, and for which an injective map exists:
@@ -21,6 +24,11 @@ vertices are the boundary, and for which an injective map exists:
 * :func:`bent_box` — a rod whose boundary is bent into an arc, interior at rest (the
   interior sticks out of the bent boundary, as in the LIM deformation groups).
 
+* :func:`squashed_boundary` — the boundary pushed in along the last axis by a bump (the top
+  side dips towards the bottom), interior at rest.
+
+Every tangle takes simplices, quads (2D) or hexahedra (3D): the fixed set is the boundary of
+the elements given (:func:`geomopt.elements.boundary_vertices` for quads and hexahedra).
 These reproduce the families of the LIM benchmark (Du et al. 2020) that are not shipped.
 
 Surfaces whose free-boundary flattening overlaps itself (for the bijective mode) -- each returns
@@ -44,9 +52,9 @@ from ._errors import ParameterError
 from .topology import boundary_vertices  # noqa: F401  (re-exported: the generators' fixed sets)
 
 __all__ = [
-    "Tangle", "square_mesh", "disk_mesh", "box_mesh", "boundary_vertices",
-    "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex", "twisted_box",
-    "bent_box",
+    "Tangle", "square_mesh", "disk_mesh", "box_mesh", "quad_mesh", "hex_mesh", "sector_mesh",
+    "boundary_vertices", "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex",
+    "twisted_box", "bent_box", "squashed_boundary", "perturb_mesh",
     "polygon", "POLYGONS", "spiral_strip", "ruffled_disk", "saddle",
 ]
 
@@ -59,7 +67,8 @@ class Tangle:
     ----------
     name : str
     rest : (n, d) rest positions.
-    simplices : (m, d+1) triangles (d=2) or tetrahedra (d=3), positively oriented at rest.
+    simplices : (m, d+1) triangles (d=2) or tetrahedra (d=3), or (m, 4) quads (d=2) or (m, 8)
+        hexahedra (d=3), positively oriented at rest.
     x0 : (n, d) start map; ``x0[fixed]`` are the prescribed handle positions.
     fixed : (k,) int64 vertex ids.
     """
@@ -78,15 +87,28 @@ class Tangle:
     def n_elements(self) -> int:
         return len(self.simplices)
 
+    @property
+    def is_simplicial(self) -> bool:
+        return self.simplices.shape[1] == self.dim + 1
+
     def problem(self):
-        """The :class:`~geomopt.problem.Problem` (planar or tets) with the handles fixed."""
+        """The :class:`~geomopt.problem.Problem` (planar, tets, quads or hexes) with the
+        handles fixed."""
         from .problem import Problem
 
-        make = Problem.planar if self.dim == 2 else Problem.tets
+        if self.is_simplicial:
+            make = Problem.planar if self.dim == 2 else Problem.tets
+        else:
+            make = Problem.quads if self.dim == 2 else Problem.hexes
         return make(self.rest, self.simplices, self.fixed, self.x0[self.fixed])
 
     def inverted(self) -> int:
-        """Elements of ``x0`` that are not positively oriented (exact predicate)."""
+        """Elements of ``x0`` that are not positively oriented (exact predicate; quads and
+        hexahedra: not valid everywhere, :func:`geomopt.elements.count_invalid`)."""
+        if not self.is_simplicial:
+            from .elements import count_invalid
+
+            return count_invalid(self.x0, self.simplices)
         from .predicates import count_inverted
 
         return count_inverted(self.x0, self.simplices)
@@ -180,6 +202,90 @@ def box_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
     return V, _orient(V, np.concatenate(T).astype(np.int64))
 
 
+def quad_mesh(nx: int, ny: int, size=(1.0, 1.0)):
+    """An ``nx x ny`` grid of quads on ``[0, size[0]] x [0, size[1]]``, counter-clockwise.
+
+    Returns ``V`` ((nx+1)(ny+1), 2), ``Q`` (nx ny, 4); vertex ``(i, j)`` is ``j (nx+1) + i``."""
+    if min(nx, ny) < 1:
+        raise ParameterError(f"quad_mesh needs positive sizes, got {(nx, ny)}")
+    X, Y = np.meshgrid(np.linspace(0.0, size[0], nx + 1), np.linspace(0.0, size[1], ny + 1), indexing="xy")
+    V = np.stack([X.ravel(), Y.ravel()], 1)
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
+    a = (j * (nx + 1) + i).ravel()
+    return V, np.stack([a, a + 1, a + nx + 2, a + nx + 1], 1).astype(np.int64)
+
+
+def hex_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
+    """A box of ``nx ny nz`` hexahedra (VTK order, positive), the vertices of :func:`box_mesh`.
+
+    Returns ``V`` ((nx+1)(ny+1)(nz+1), 3), ``H`` (nx ny nz, 8)."""
+    if min(nx, ny, nz) < 1:
+        raise ParameterError(f"hex_mesh needs positive sizes, got {(nx, ny, nz)}")
+    axes = [np.linspace(0.0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
+    V = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
+    i, j, k = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
+    H = [idx[i + a, j + b, k + c] for c in (0, 1) for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
+    return V, np.stack(H, 1).astype(np.int64)
+
+
+def sector_mesh(n_r: int, n_t: int, n_z: int = 0, angle_deg: float = 120.0, radii=(1.0, 2.0),
+                height: float = 1.0, perturb: float = 0.0, seed: int = 0):
+    """A structured mesh of an annulus sector (a non-box shape): quads when ``n_z == 0``, else
+    hexahedra of the sector extruded to ``height`` in ``n_z`` layers.
+
+    ``perturb`` > 0 moves every interior vertex by uniform noise of that many local edge
+    lengths, keeping every element valid (noise that would invalidate one is halved until none
+    is): a valid but poor mesh to smooth.
+
+    Returns ``V`` (n, 2 or 3), ``E`` (m, 4 or 8), positively oriented.
+    """
+    V, E = quad_mesh(n_t, n_r) if n_z == 0 else hex_mesh(n_t, n_r, n_z)
+    t = np.deg2rad(angle_deg) * (1.0 - V[:, 0])  # reversed: keeps the orientation positive
+    r = radii[0] + (radii[1] - radii[0]) * V[:, 1]
+    W = V.copy()
+    W[:, 0], W[:, 1] = r * np.cos(t), r * np.sin(t)
+    if n_z:
+        W[:, 2] = height * V[:, 2] / max(V[:, 2].max(), 1.0)
+    if perturb > 0:
+        W = perturb_mesh(W, E, perturb, seed)
+    return W, E
+
+
+def perturb_mesh(V, E, scale, seed=0):
+    """A valid but poor copy of a valid mesh: interior vertices of ``V`` (n, d) moved by uniform
+    noise of ``scale`` mean edge lengths; every vertex of an element the noise would make
+    invalid (:func:`geomopt.elements.valid_elements`) gets half of its noise, until none is
+    (the input unchanged if 60 halvings do not get there).  ``E``: quads (2D) or hexahedra,
+    oriented."""
+    from .elements import valid_elements
+
+    V = np.asarray(V, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    free = np.ones(len(V), bool)
+    free[_fixed_boundary(V, E)] = False
+    step = np.zeros_like(V)
+    step[free] = scale * _mean_edge(V, E) * rng.uniform(-1.0, 1.0, (free.sum(), V.shape[1]))
+    for _ in range(60):
+        bad = ~valid_elements(V + step, E)
+        if not bad.any():
+            break
+        step[np.unique(E[bad])] *= 0.5
+    else:
+        step[:] = 0.0
+    return V + step
+
+
+def _fixed_boundary(V, S):
+    """The boundary vertices of simplices, quads (2D) or hexahedra (3D) ``S`` on ``V``."""
+    S = np.asarray(S)
+    if S.shape[1] == np.asarray(V).shape[1] + 1:
+        return boundary_vertices(S, len(V))
+    from .elements import boundary_vertices as element_boundary
+
+    return element_boundary(S, len(V))
+
+
 def _mean_edge(V, S):
     k = S.shape[1]
     e = [np.linalg.norm(V[S[:, i]] - V[S[:, j]], axis=1) for i in range(k) for j in range(i + 1, k)]
@@ -193,7 +299,7 @@ def rotated_interior(V, S, angle_deg: float, name: str | None = None) -> Tangle:
     """Rotate every interior vertex about the bounding-box centre by ``angle_deg`` (about z
     in 3D); the boundary is fixed.  The rest mesh itself is the injective solution."""
     V = np.asarray(V, dtype=np.float64)
-    fixed = boundary_vertices(S, len(V))
+    fixed = _fixed_boundary(V, S)
     free = np.ones(len(V), bool)
     free[fixed] = False
     c = 0.5 * (V.min(0) + V.max(0))
@@ -208,7 +314,7 @@ def noisy_interior(V, S, scale: float = 2.0, seed: int = 0, name: str | None = N
     """Displace every interior vertex by Gaussian noise of standard deviation ``scale`` mean
     edge lengths; the boundary is fixed."""
     V = np.asarray(V, dtype=np.float64)
-    fixed = boundary_vertices(S, len(V))
+    fixed = _fixed_boundary(V, S)
     free = np.ones(len(V), bool)
     free[fixed] = False
     rng = np.random.default_rng(seed)
@@ -220,7 +326,7 @@ def noisy_interior(V, S, scale: float = 2.0, seed: int = 0, name: str | None = N
 def random_interior(V, S, seed: int = 0, name: str | None = None) -> Tangle:
     """Scatter every interior vertex uniformly over the bounding box; the boundary is fixed."""
     V = np.asarray(V, dtype=np.float64)
-    fixed = boundary_vertices(S, len(V))
+    fixed = _fixed_boundary(V, S)
     free = np.ones(len(V), bool)
     free[fixed] = False
     rng = np.random.default_rng(seed)
@@ -306,12 +412,20 @@ def tutte_nonconvex(rings: int, shape: str = "star", arms: int = 5, depth: float
     return Tangle(name or f"tutte-{shape}", V, F, x0, loop.astype(np.int64))
 
 
-def twisted_box(n_cross: int, n_long: int, turns: float = 0.5, name: str | None = None) -> Tangle:
-    """A rod (``n_long > n_cross``) or cube of :func:`box_mesh` tets along z whose boundary is
-    twisted about the z axis by ``turns * 360`` degrees (linearly along z), interior at rest.
-    The twisted rest mesh is the injective solution when the twist per layer is moderate."""
-    V, T = box_mesh(n_cross, n_cross, n_long, size=(1.0, 1.0, n_long / n_cross))
-    fixed = boundary_vertices(T, len(V))
+def _rod(n_cross, n_long, hexes):
+    """A rod of :func:`box_mesh` tets or :func:`hex_mesh` hexahedra along z, and its boundary."""
+    make = hex_mesh if hexes else box_mesh
+    V, T = make(n_cross, n_cross, n_long, size=(1.0, 1.0, n_long / n_cross))
+    return V, T, _fixed_boundary(V, T)
+
+
+def twisted_box(n_cross: int, n_long: int, turns: float = 0.5, name: str | None = None,
+                hexes: bool = False) -> Tangle:
+    """A rod (``n_long > n_cross``) or cube of :func:`box_mesh` tets (:func:`hex_mesh`
+    hexahedra with ``hexes``) along z whose boundary is twisted about the z axis by
+    ``turns * 360`` degrees (linearly along z), interior at rest.  The twisted rest mesh is
+    the injective solution when the twist per layer is moderate."""
+    V, T, fixed = _rod(n_cross, n_long, hexes)
     z = V[:, 2] / V[:, 2].max()
     a = 2 * np.pi * turns * z
     c = np.array([0.5, 0.5])
@@ -323,12 +437,13 @@ def twisted_box(n_cross: int, n_long: int, turns: float = 0.5, name: str | None 
     return Tangle(name or f"twist{turns:g}", V, T, x0, fixed)
 
 
-def bent_box(n_cross: int, n_long: int, angle_deg: float = 180.0, name: str | None = None) -> Tangle:
-    """A rod of :func:`box_mesh` tets along z whose boundary is bent about the y axis into an
-    arc of ``angle_deg`` degrees (the rod's centre line keeps its length), interior at rest.
-    The bent rest mesh is the injective solution when the bend radius exceeds the thickness."""
-    V, T = box_mesh(n_cross, n_cross, n_long, size=(1.0, 1.0, n_long / n_cross))
-    fixed = boundary_vertices(T, len(V))
+def bent_box(n_cross: int, n_long: int, angle_deg: float = 180.0, name: str | None = None,
+             hexes: bool = False) -> Tangle:
+    """A rod of :func:`box_mesh` tets (:func:`hex_mesh` hexahedra with ``hexes``) along z whose
+    boundary is bent about the y axis into an arc of ``angle_deg`` degrees (the rod's centre
+    line keeps its length), interior at rest.  The bent rest mesh is the injective solution
+    when the bend radius exceeds the thickness."""
+    V, T, fixed = _rod(n_cross, n_long, hexes)
     length = V[:, 2].max()
     phi = np.deg2rad(angle_deg)
     R = length / phi  # radius of the centre line (x = 0.5)
@@ -338,6 +453,24 @@ def bent_box(n_cross: int, n_long: int, angle_deg: float = 180.0, name: str | No
     x0[fixed, 0] = 0.5 - R + r * np.cos(theta)
     x0[fixed, 2] = r * np.sin(theta)
     return Tangle(name or f"bend{angle_deg:g}", V, T, x0, fixed)
+
+
+def squashed_boundary(V, S, depth: float = 0.6, name: str | None = None) -> Tangle:
+    """Push the boundary in along the last axis: a boundary vertex at height ``h`` goes to
+    ``h (1 - depth b)`` with the bump ``b = prod_i sin(pi s_i)`` over the other coordinates
+    ``s_i`` normalised to [0, 1], so the top side dips towards the bottom; interior at rest (it
+    sticks out of the squashed boundary).  The same squash applied to every vertex is an
+    injective solution for ``depth < 1``."""
+    V = np.asarray(V, dtype=np.float64)
+    if not 0.0 < depth < 1.0:
+        raise ParameterError(f"squashed_boundary needs 0 < depth < 1, got {depth}")
+    fixed = _fixed_boundary(V, S)
+    lo, hi = V.min(0), V.max(0)
+    s = (V[fixed] - lo) / np.where(hi > lo, hi - lo, 1.0)
+    bump = np.prod(np.sin(np.pi * s[:, :-1]), axis=1)
+    x0 = V.copy()
+    x0[fixed, -1] = lo[-1] + (V[fixed, -1] - lo[-1]) * (1.0 - depth * bump)
+    return Tangle(name or f"squash{depth:g}", V, np.asarray(S), x0, fixed)
 
 
 # ------------------------------------------------------------- surfaces that overlap when flattened

@@ -167,6 +167,9 @@ class Problem:
     rest_vertices: np.ndarray
     fixed: np.ndarray
     fixed_positions: np.ndarray
+    #: quads (m, 4) or hexahedra (m, 8), oriented, whose corner simplices are ``simplices``
+    #: (:mod:`geomopt.elements`); None for a simplex problem
+    elements: np.ndarray | None = None
 
     # -- constructors ---------------------------------------------------------------
     @classmethod
@@ -223,7 +226,59 @@ class Problem:
         return cls._make("tet", 3, V, T, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
     @classmethod
-    def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions):
+    def quads(cls, V, Q, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Quads in the plane mapped to the plane, evaluated at their 4 corner triangles
+        (:mod:`geomopt.elements`).  V : (n, 2) rest positions (or (n, 3) with z == 0); Q : (m, 4).
+
+        rest : ``"mesh"``: the rest shapes are ``V``'s quads, strictly convex and consistently
+            oriented (all-clockwise quads are reversed internally); ``"reference"``: squares of
+            the mean edge length (Winslow smoothing, a mesh with no rest shape), ``V`` setting
+            only the orientation (its total signed area) and possibly tangled.
+        """
+        V = validate_vertices(V, "rest vertices")
+        if V.shape[1] == 3:
+            if np.any(V[:, 2] != 0):
+                raise MeshError("quad problem: rest vertices have nonzero z (the quads are not planar); "
+                                "use Problem.quad_surface for a quad surface in 3D")
+            V = V[:, :2]
+        return cls._elements("quad", V, Q, 4, rest, fixed, fixed_positions)
+
+    @classmethod
+    def quad_surface(cls, V, Q, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Quads of a 3D surface mapped to the plane, each corner triangle flattened to its own
+        frame (as :meth:`surface`).  V : (n, 3); Q : (m, 4), consistently oriented; a twisted
+        rest quad (a corner facing against the quad's mean normal) raises MeshError."""
+        V = validate_vertices(V, "quad surface: rest vertices", dim=3)
+        return cls._elements("quad_surface", V, Q, 4, rest, fixed, fixed_positions)
+
+    @classmethod
+    def hexes(cls, V, H, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Hexahedra (VTK order) mapped to 3D, evaluated at their 8 corner tetrahedra.
+        V : (n, 3); H : (m, 8).  ``rest`` as in :meth:`quads` (``"mesh"``: every rest
+        hexahedron valid everywhere, checked exactly).  :meth:`count_inverted` certifies a
+        positive Jacobian inside every hexahedron (:mod:`geomopt.hexvalid`), not only at its
+        corners."""
+        V = validate_vertices(V, "hex problem: rest vertices", dim=3)
+        return cls._elements("hex", V, H, 8, rest, fixed, fixed_positions)
+
+    @classmethod
+    def _elements(cls, kind, V, E, k, rest, fixed, fixed_positions):
+        """Quads / hexahedra: validated, oriented and checked (:func:`geomopt.elements.rest_elements`),
+        their corner simplices' rest matrices from ``V``, local frames or reference shapes."""
+        from . import elements
+
+        E = elements.rest_elements(V, elements.validate_elements(E, len(V), k), rest)
+        S = elements.corner_simplices(E)
+        if rest == "reference":
+            Dm = elements.reference_rest(V, E)
+        else:
+            Dm = _local_frames(V, S)[0] if kind == "quad_surface" else _edge_matrices(V, S)
+        vol = _signed_sizes(Dm)
+        _check_rest_volumes(vol, "corner triangle" if k == 4 else "corner tetrahedron")
+        return cls._make(kind, 3 if k == 8 else 2, V, S, S, Dm, vol, fixed, fixed_positions, elements=E)
+
+    @classmethod
+    def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions, elements=None):
         p = cls(
             kind=kind,
             dim=d,
@@ -235,6 +290,7 @@ class Problem:
             rest_vertices=V,
             fixed=np.zeros(0, np.int64),
             fixed_positions=np.zeros((0, d)),
+            elements=elements,
         )
         unused = np.setdiff1d(np.arange(len(V)), S.ravel())
         if unused.size:
@@ -242,7 +298,8 @@ class Problem:
                 f"{unused.size} vertices are not used by any element (first: {unused[:5].tolist()}); "
                 f"remove unreferenced vertices first"
             )
-        _check_facet_orientation(kind, S)
+        if elements is None:  # quads / hexahedra: checked on their edges / faces by the caller
+            _check_facet_orientation(kind, S)
         if fixed is not None:
             p = p.with_fixed(fixed, fixed_positions)
         return p
@@ -267,7 +324,7 @@ class Problem:
         """The pytree metadata: kind, sizes, connectivity and handle indices, keyed by content
         (hashable; equal for problems of one mesh and handle set, whatever their values)."""
         meta = tuple(getattr(self, f) for f in _META)
-        return StaticKey(meta[:3] + tuple(digest(a) for a in meta[3:]), meta)
+        return StaticKey(meta[:3] + tuple(None if a is None else digest(a) for a in meta[3:]), meta)
 
     @property
     def n_elements(self) -> int:
@@ -298,16 +355,72 @@ class Problem:
         return _signed_sizes(_edge_matrices(x, self.simplices))
 
     def count_inverted(self, x) -> int:
-        """Elements whose orientation under ``x`` is not positive, by an exact predicate."""
+        """Elements whose orientation under ``x`` is not positive, by an exact predicate.
+
+        Quads / hexahedra: elements (not corners) without a positive Jacobian everywhere
+        (:func:`geomopt.elements.count_invalid`)."""
+        if self.elements is not None:
+            from .elements import count_invalid
+
+            return count_invalid(x, self.elements)
         from .predicates import count_inverted
 
         refuse_traced("Problem.count_inverted (exact predicates)", "it certifies concrete maps; inside a trace "
                       "use Objective.dets(x) (float determinants)", x)
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
 
+    def certify(self, x):
+        """Exact certificate that ``x`` (n, dim) is locally injective: every element positively
+        oriented and no vertex or edge around which the elements wind twice or overlap.
+
+        Simplices: :func:`geomopt.certify.local_certificate` of :attr:`simplices`.  Quads /
+        hexahedra: :func:`geomopt.elements.element_local_certificate` of :attr:`elements`
+        (each element valid everywhere, then the stars of their tangent cones), never of the
+        overlapping corner simplices.
+
+        Returns
+        -------
+        :class:`~geomopt.certify.LocalCertificate` (``ok``, ``inverted``, ``message``...).
+        """
+        refuse_traced("Problem.certify (exact predicates)", "it certifies concrete maps; inside a trace "
+                      "use Objective.dets(x) (float determinants)", x)
+        x = np.asarray(x, dtype=np.float64)
+        if self.elements is not None:
+            from .elements import element_local_certificate
+
+            return element_local_certificate(x, self.elements)
+        from .certify import local_certificate
+
+        return local_certificate(x, self.simplices)
+
+    def certify_fixed(self, x):
+        """The part of :meth:`certify` that no free vertex can change: vertices and edges whose
+        whole star (for quads / hexahedra: the corner simplices *at* the vertex) has every vertex
+        fixed (:func:`geomopt.certify.fixed_star_certificate`,
+        :func:`geomopt.elements.element_fixed_star_certificate`).  Not ``ok``: no map with these
+        handles is locally injective."""
+        refuse_traced("Problem.certify_fixed (exact predicates)", "it certifies concrete maps", x)
+        x = np.asarray(x, dtype=np.float64)
+        if self.elements is not None:
+            from .elements import element_fixed_star_certificate
+
+            return element_fixed_star_certificate(x, self.elements, self.fixed)
+        from .certify import fixed_star_certificate
+
+        return fixed_star_certificate(x, self.simplices, self.fixed)
+
+    def boundary_vertices(self) -> np.ndarray:
+        """Sorted ids of the boundary vertices (of the quads' edges / hexahedra's faces for
+        element problems, not of their overlapping corner simplices)."""
+        if self.elements is not None:
+            from .elements import boundary_vertices as element_boundary
+
+            return element_boundary(self.elements, self.n_vertices)
+        return boundary_vertices(self.simplices, self.n_vertices)
+
 
 _LEAVES = ("rest_inv", "volumes", "rest_vertices", "fixed_positions")
-_META = ("kind", "dim", "n_vertices", "simplices", "input_simplices", "fixed")
+_META = ("kind", "dim", "n_vertices", "simplices", "input_simplices", "fixed", "elements")
 
 
 def _unflatten(static: StaticKey, leaves) -> Problem:
@@ -410,7 +523,7 @@ def fixed_total_problem(problem: Problem, x) -> str | None:
     total = math.fsum(vols)
     if total > 1e-12 * float(np.abs(vols).sum()):
         return None
-    if not np.isin(boundary_vertices(problem.simplices, problem.n_vertices), problem.fixed).all():
+    if not np.isin(problem.boundary_vertices(), problem.fixed).all():
         return None
     what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
     return (f"the fixed boundary encloses a total signed {'area' if problem.dim == 2 else 'volume'} "

@@ -73,14 +73,12 @@ from ._tracing import refuse_traced
 from ._x64 import float64
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
-from .certify import fixed_star_certificate, local_certificate
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
                       Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
 from .solvers._iterate import check_progress
-from .topology import boundary_vertices
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
            "stiff_solver", "next_eps", "bits_differ", "STIFF_AFTER"]
@@ -98,7 +96,7 @@ STIFF_AFTER = 100
 UntangleResult = Result
 
 
-def stiff_solver(name: str, dim: int) -> AbstractSolver | None:
+def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver | None:
     """The solver an inner solve of :func:`default_solver` continues with when it has not
     converged after :data:`STIFF_AFTER` iterations (None: no switch).
 
@@ -111,10 +109,10 @@ def stiff_solver(name: str, dim: int) -> AbstractSolver | None:
     iteration and is kept."""
     if str(name).strip().lower() != "lbfgs":
         return None
-    return dataclasses.replace(default_solver("lbfgs", dim, LAPLACIAN_FROM), precondition="laplacian")
+    return dataclasses.replace(default_solver("lbfgs", dim, LAPLACIAN_FROM, corners), precondition="laplacian")
 
 
-def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
+def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False) -> AbstractSolver:
     """The inner solver :func:`untangle` uses for ``"lbfgs"`` or ``"newton"``.
 
     ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
@@ -122,10 +120,14 @@ def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
     (warm seconds, diagonal -> Laplacian): ~1e5 elements: rotated square 104 -> 58, Tutte
     L / star 27 -> 11 / 19 -> 11, bent rod 43 -> 13, twisted cube 12.6 -> 6.1, noisy disk
     1.3 -> 3.0; the LIM armadillo (24k tets) 0.66 -> 1.04 and 2D cases of ~1e4 triangles
-    were slower or even with it (its host solves cost more than the iterations they save)."""
+    were slower or even with it (its host solves cost more than the iterations they save).
+
+    ``corners``: the problem's simplices are the corner tetrahedra of hexahedra, which need more
+    L-BFGS steps per eps than tets: 30000 as in 2D (a hex rod of 6 x 6 x 72 bent by 180 degrees
+    took 9942 in its first outer iteration; capped at 3000 it stalled with 67 hexahedra inverted)."""
     key = str(name).strip().lower()
     if key == "lbfgs":
-        return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 else 3000,
+        return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 or corners else 3000,
                      search=InjectiveSearch(injective=False, c2=0.9),
                      precondition="laplacian" if n_elements >= LAPLACIAN_FROM else "diagonal")
     if key == "newton":
@@ -367,8 +369,15 @@ class EpsContinuation(AbstractContinuation):
         if not (math.isfinite(E) and math.isfinite(detmin)):
             return Decision.stop_with(Outcome.NONFINITE, record=record)
         settled = abs(E_prev - E) / abs(E) < opts.energy_tol
-        if detmin > 0 and settled and self.scaled.count_inverted(self.full.unpad_map(np.asarray(state.x))) == 0:
+        folded = self.scaled.count_inverted(self.full.unpad_map(np.asarray(state.x))) if detmin > 0 and settled \
+            else None
+        if folded == 0:
             return Decision.stop_with(Outcome.CONVERGED, record=record)
+        if folded and self.problem.elements is not None and self.eps <= self.floor:
+            # hexahedra folded inside, every corner positive: the energy sees corners only, more
+            # iterations cannot help
+            return Decision.stop_with(Outcome.NOT_INJECTIVE, f"every corner is positive but {folded} hexahedra "
+                                      f"fold inside (det J <= 0 between their corners, exact Bernstein test)", record)
         if len(self.inverted) >= opts.max_outer:
             return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
                                       f"{opts.max_outer}) before it settled", record)
@@ -405,7 +414,7 @@ class EpsContinuation(AbstractContinuation):
 def _local_reason(problem, cert) -> str:
     """Why a map with every element positive is not locally injective, with what to do."""
     hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
-            "positions" if np.isin(boundary_vertices(problem.simplices, problem.n_vertices), problem.fixed).all()
+            "positions" if np.isin(problem.boundary_vertices(), problem.fixed).all()
             else "flip-free motion cannot remove it; start from a map whose boundary is a simple "
             "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
     return f"no element is inverted, but {cert.message}; {hint}"
@@ -458,14 +467,15 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     why = _refusal(problem, x0, initially, active)
     if why:
         return _early_result(problem, x0, initially, t_setup, throw, why)
-    fixed_part = fixed_star_certificate(x0, problem.simplices, problem.fixed)  # stars no free vertex changes
+    fixed_part = problem.certify_fixed(x0)  # stars no free vertex changes (quads/hexahedra: their tangent cones)
     if not fixed_part.ok:
         raise MeshError(f"{fixed_part.message}; every element there has all its vertices fixed, so the "
                         f"handles make a locally injective map impossible: free some of them or move them")
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
     if isinstance(solver, str):
-        stiff = stiff_solver(solver, problem.dim)
-        solver = default_solver(solver, problem.dim, int(active.sum()))
+        corners = problem.elements is not None
+        stiff = stiff_solver(solver, problem.dim, corners)
+        solver = default_solver(solver, problem.dim, int(active.sum()), corners)
     theta = opts.resolved_theta(problem.dim)
     scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
     energy = garanzha.with_params(eps=opts.eps0, lam=theta / (1.0 - theta))
@@ -536,7 +546,7 @@ def _normalised(problem, x0, active, opts):
     scaled = dataclasses.replace(
         problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
         rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
-    if opts.max_aspect is not None and d == 2:
+    if opts.max_aspect is not None and d == 2 and problem.elements is None:  # triangles only
         scaled = _equilateral_rest(scaled, opts.max_aspect)
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],

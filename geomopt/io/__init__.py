@@ -25,24 +25,27 @@ benchmark case layout is :mod:`geomopt.lim`.
 
 One module per job: ``_files`` (what a path is), ``_atomic`` (atomic output, path safety and
 a command's outputs: :func:`check_outputs`), ``_text`` (tokenizing), ``_surface``
-(OBJ/OFF/PLY/STL and the UV writers), ``_volume`` (tetrahedral meshes: :func:`read_tets`,
-:func:`write_tets`) over one parser per volume format (``_vtk``, ``_vtu``, ``_gmsh``,
+(OBJ/OFF/PLY/STL, OBJ quads and the UV writers), ``_volume`` (tetrahedral meshes: :func:`read_tets`,
+:func:`write_tets`; hexahedra and quads: :func:`read_cells`, :func:`write_cells`) over one parser per volume format (``_vtk``, ``_vtu``, ``_gmsh``,
 ``_medit``) and the cell-type tables they share (``_cells``); this package only re-exports.
 """
 
 from .._validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
                       create_output_folder)
-from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_uv, read_obj_with_uv,
-                       write_mesh_with_uv, write_obj_with_uv, write_ply_with_uv)
+from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_quads, read_obj_uv, read_obj_with_uv,
+                       write_mesh_with_uv, write_obj_quads, write_obj_with_uv, write_ply_with_uv)
 from ._text import read_vertex_ids
-from ._volume import TET_FORMATS, read_tets, write_tets
+from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, write_cells, write_tets
 from ._vtk import read_vtk_tets, write_vtk_tets
 
 __all__ = [
     "MESH_EXTENSIONS",
     "UV_MESH_EXTENSIONS",
     "TET_FORMATS",
+    "CELL_KINDS",
+    "read_cells",
+    "write_cells",
     "atomic_output",
     "atomic_path",
     "atomic_write",
@@ -55,6 +58,8 @@ __all__ = [
     "validate_indices",
     "read_mesh",
     "read_obj_uv",
+    "read_obj_quads",
+    "write_obj_quads",
     "read_obj_with_uv",
     "read_vertex_ids",
     "write_mesh_with_uv",

@@ -14,10 +14,14 @@ import numpy as np
 
 from .._errors import MeshFormatError
 
-__all__ = ["KINDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "select_kind"]
+__all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "select_kind",
+           "first_kind", "code_of"]
 
 #: The cells the readers return: name -> (nodes per cell, dimension).
-KINDS = {"tetra": (4, 3)}
+KINDS = {"tetra": (4, 3), "hexahedron": (8, 3), "quad": (4, 2)}
+
+#: How messages name each of the :data:`KINDS`: singular, plural.
+WORDS = {"tetra": ("tetrahedron", "tetrahedra"), "hexahedron": ("hexahedron", "hexahedra"), "quad": ("quad", "quads")}
 
 #: Every VTK cell type (vtkCellType.h): code -> (name, dimension, nodes or None when the cell says).
 VTK_CELLS = {
@@ -82,14 +86,39 @@ class VolumeCells:
         self.points, self.cells = points, cells
 
 
-def select_kind(found, kind, path):
-    """The ``(m, nodes)`` cells of ``kind`` (:data:`KINDS`) in file order; lower-dimensional cells
-    beside them are skipped, other volume cells refused.
+def first_kind(found, kinds, path):
+    """The first of ``kinds`` (:data:`KINDS` names, by priority) that ``found`` holds.
 
     Raises
     ------
     MeshFormatError
-        No points; other volume cells (named); no cell of ``kind`` (the cells found named).
+        No points; none of ``kinds`` (the cells found named).
+    """
+    if len(found.points) == 0:
+        raise MeshFormatError(f"{path} has no points")
+    present = {name for name, _, _ in found.cells}
+    kind = next((k for k in kinds if k in present), None)
+    if kind is None:
+        names = sorted(present) or ["none"]
+        wanted = " or ".join(WORDS[k][1] for k in kinds)
+        raise MeshFormatError(f"{path} has no {wanted} (cells found: {', '.join(names)})")
+    return kind
+
+
+def code_of(table, kind):
+    """``kind``'s code in a format's cell table (:data:`VTK_CELLS`, :data:`GMSH_CELLS`)."""
+    return next(code for code, (name, _, nodes) in table.items() if name == kind and nodes == KINDS[kind][0])
+
+
+def select_kind(found, kind, path):
+    """The ``(m, nodes)`` cells of ``kind`` (:data:`KINDS`) in file order; lower-dimensional cells
+    beside them are skipped, other cells of its dimension or higher refused (no mixed meshes).
+
+    Raises
+    ------
+    MeshFormatError
+        No points; other cells of ``kind``'s dimension or higher (named); no cell of ``kind``
+        (the cells found named); points in 2D (Medit ``Dimension 2``) for a volume kind.
     """
     if len(found.points) == 0:
         raise MeshFormatError(f"{path} has no points")
@@ -98,11 +127,10 @@ def select_kind(found, kind, path):
     if others:
         raise MeshFormatError(f"{path} contains non-tetrahedral volume cells ({', '.join(others)}); only linear "
                               f"{kind} meshes are supported" if kind == "tetra" else
-                              f"{path} contains other cells of dimension {dim} ({', '.join(others)}); only {kind} "
-                              f"cells are supported")
+                              f"{path} contains cells other than {WORDS[kind][1]} ({', '.join(others)}); only "
+                              f"meshes of linear {WORDS[kind][1]} are supported (no mixed meshes)")
+    if dim == 3 and found.points.shape[1] != 3:
+        raise MeshFormatError(f"{path}: Dimension {found.points.shape[1]}; a volume mesh needs Dimension 3")
+    first_kind(found, (kind,), path)
     blocks = [c for name, _, c in found.cells if name == kind]
-    if not blocks:
-        names = sorted({name for name, _, _ in found.cells}) or ["none"]
-        word = "tetrahedra" if kind == "tetra" else f"{kind} cells"
-        raise MeshFormatError(f"{path} has no {word} (cells found: {', '.join(names)})")
     return np.concatenate(blocks).astype(np.int64, copy=False)

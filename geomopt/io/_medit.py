@@ -24,12 +24,14 @@ _NOT_KEYWORDS = (b"nan", b"inf", b"infinity")
 _REAL = ("Vertices", "Normals", "Tangents")
 
 
-def parse_medit(data, path):
-    """The points and cells of a Medit ASCII file (bytes ``data``).
+def parse_medit(data, path, dims=(3,)):
+    """The points and cells of a Medit ASCII file (bytes ``data``) whose ``Dimension`` is one of
+    ``dims`` (2 only for quad meshes in the plane).
 
     Returns
     -------
     VolumeCells
+        ``points`` of shape (n, Dimension).
     """
     data = re.sub(rb"(?m)^[ \t]*#[^\n]*", b"", data.removeprefix(UTF8_BOM))  # comment lines, kept as blank
     rows = TokenRows(data, path, "Medit")
@@ -46,7 +48,7 @@ def parse_medit(data, path):
             raise MeshFormatError(f"{path}, line {line}: section {last[0]} (line {last[1]}) declares {last[2]} "
                                   f"entries but more follow; fix the count")
         if key in ("MeshVersionFormatted", "Dimension"):
-            r = _header(rows, r, keyword, header)
+            r = _header(rows, r, keyword, header, dims)
             continue
         if key == "End":
             if r != len(rows) - 1:
@@ -60,7 +62,7 @@ def parse_medit(data, path):
         _, indices, name, dim = MEDIT_SECTIONS[key]
         if key in _REAL:
             values = rows.floats(a, b, key).reshape(b - a, -1)
-            points = values[:, :3] if key == "Vertices" else points
+            points = values[:, :header["Dimension"]] if key == "Vertices" else points
         elif indices and b > a:
             cells.append((name or key, dim, _indices(rows, a, b, key, indices, points)))
         else:
@@ -74,7 +76,7 @@ def parse_medit(data, path):
                                 if dim > 0])
 
 
-def _header(rows, r, keyword, header):
+def _header(rows, r, keyword, header, dims):
     """Read ``MeshVersionFormatted`` or ``Dimension`` (its value on the same or the next line)."""
     key, line = rows.first[r].decode(), rows.lineno[r]
     on_next = rows.count[r] == 1 and r + 1 < len(rows) and rows.count[r + 1] == 1 and not keyword[r + 1]
@@ -83,8 +85,10 @@ def _header(rows, r, keyword, header):
     value = int(rows.ints(r + on_next, r + on_next + 1, key, column=0 if on_next else 1)[0])
     if key == "MeshVersionFormatted" and value not in (1, 2):
         raise MeshFormatError(f"{rows.path}, line {line}: MeshVersionFormatted {value} is not supported (1 or 2)")
-    if key == "Dimension" and value != 3:
-        raise MeshFormatError(f"{rows.path}, line {line}: Dimension {value}; a volume mesh needs Dimension 3")
+    if key == "Dimension" and value not in dims:
+        raise MeshFormatError(f"{rows.path}, line {line}: Dimension {value}; a "
+                              f"{'volume mesh' if dims == (3,) else 'mesh'} needs Dimension "
+                              f"{' or '.join(map(str, dims))}")
     header[key] = value
     return r + 1 + on_next
 

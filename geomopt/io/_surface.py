@@ -19,7 +19,7 @@ from ._text import (INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, plain_
                     write_rows)
 
 __all__ = ["MESH_EXTENSIONS", "UV_MESH_EXTENSIONS", "read_mesh", "read_obj_uv", "read_obj_with_uv",
-           "write_mesh_with_uv", "write_obj_with_uv", "write_ply_with_uv"]
+           "write_mesh_with_uv", "write_obj_with_uv", "write_ply_with_uv", "read_obj_quads", "write_obj_quads"]
 
 #: File extensions :func:`read_mesh` accepts (lower case).
 MESH_EXTENSIONS = (".obj", ".off", ".ply", ".stl")
@@ -325,6 +325,53 @@ def _read_obj(data, path):
     if not obj["counts"].size:
         raise MeshFormatError(f"{path} has no triangle faces (no 'f' lines); a triangle mesh is required")
     return obj["v"], _fan(obj["corners"], obj["counts"], obj["v"], path)
+
+
+def read_obj_quads(path):
+    """Read a quad mesh from an OBJ file: ``v`` and ``f`` lines as :func:`read_mesh` reads them,
+    every face with exactly four corners (kept as quads, not triangulated).
+
+    Returns
+    -------
+    V : (n, 3) float64;  Q : (m, 4) int64 quads, 0-based, in file order.
+
+    Raises
+    ------
+    MeshFormatError
+        As :func:`read_mesh`, or a face that is not a quad (mixed triangles and quads are not
+        supported: split or merge them first).
+    MeshError
+        Non-finite coordinates, indices out of range, a quad repeating a vertex.
+    """
+    path = existing_file(path, "OBJ file")
+    check_not_empty(path, "OBJ file")
+    with gc_paused():
+        obj = _parse_obj(read_bytes(path, "OBJ file"), path)
+    counts = obj["counts"]
+    if not counts.size:
+        raise MeshFormatError(f"{path} has no faces (no 'f' lines); a quad mesh is required")
+    bad = np.flatnonzero(counts != 4)
+    if bad.size:
+        raise MeshFormatError(f"{path}, line {obj['lines'][bad[0]]}: a face with {counts[bad[0]]} corners; every "
+                              f"face of a quad mesh has 4 ({bad.size} do not; mixed meshes are not supported)")
+    V = validate_vertices(obj["v"], f"{path.name}: vertices", dim=3)
+    Q = validate_simplices(obj["corners"].reshape(-1, 4), V.shape[0], 4, f"{path.name}: quads",
+                           words=("quad", "quads"))
+    return V, Q
+
+
+def write_obj_quads(path, V, Q):
+    """Write a quad mesh as OBJ (``v x y z`` with ``z = 0`` for 2D vertices, ``f a b c d``),
+    full precision, atomic; :func:`read_obj_quads` reads it back bit for bit."""
+    V = validate_vertices(V, "V")
+    V = np.column_stack([V, np.zeros(len(V))]) if V.shape[1] == 2 else V
+    Q = validate_simplices(Q, V.shape[0], 4, "Q", words=("quad", "quads"))
+
+    def write(fh):
+        write_rows(fh, "v ", V)
+        np.savetxt(fh, Q + 1, fmt="f %d %d %d %d")
+
+    return atomic_write(path, write)
 
 
 def read_obj_uv(path):

@@ -38,15 +38,16 @@ import numpy as np
 from .._errors import GeomoptError, MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_path, check_output_path
-from ._cells import select_kind
+from ._cells import KINDS, WORDS, first_kind, select_kind
 from ._files import check_not_empty, existing_file, read_bytes
 from ._gmsh import parse_gmsh
 from ._medit import parse_medit
+from ._surface import read_obj_quads, write_obj_quads
 from ._text import gc_paused
-from ._vtk import read_vtk_tets, write_vtk_tets
+from ._vtk import read_vtk_cells, write_vtk_cells
 from ._vtu import parse_vtu
 
-__all__ = ["TET_FORMATS", "read_tets", "write_tets"]
+__all__ = ["TET_FORMATS", "CELL_KINDS", "read_tets", "write_tets", "read_cells", "write_cells"]
 
 #: The tet-mesh formats geomopt reads and writes: extension -> description.
 TET_FORMATS = {
@@ -55,6 +56,10 @@ TET_FORMATS = {
     ".msh": "Gmsh ASCII 2.2/4.1",
     ".mesh": "Medit ASCII",
 }
+
+#: The kinds of cell :func:`read_cells` and :func:`write_cells` handle: name -> (nodes per cell,
+#: dimension).  Vertex orders are VTK's (Gmsh and Medit use the same for these).
+CELL_KINDS = dict(KINDS)
 
 _PARSERS = {".vtu": parse_vtu, ".msh": parse_gmsh, ".mesh": parse_medit}
 
@@ -119,18 +124,65 @@ def read_tets(path):
     MeshError
         Non-finite coordinates, indices out of range, repeated vertices in a tet.
     """
-    path = Path(path)
-    ext = _extension(path, "read")
+    return _read(Path(path), ("tetra",))[:2]
+
+
+def read_cells(path, kinds=("hexahedron", "quad"), format=None):
+    """Read a mesh of one kind of cell -- hexahedra or quads by default -- exactly, or refuse it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.vtk``, ``.vtu``, ``.msh`` (ASCII 2.2/4.1) or ``.mesh`` (ASCII; ``Dimension 2``
+        allowed for quads) file, parsed and checked as :func:`read_tets` does, or an ``.obj``
+        file of quads (:func:`~geomopt.io.read_obj_quads`).
+    kinds : tuple of str
+        :data:`CELL_KINDS` names, by priority.  The first kind the file holds is read; in
+        Gmsh, Medit and VTU files cells of lower dimension beside it (boundary quads, lines,
+        points) are skipped, any other cell of its dimension or higher refused (mixed
+        meshes are not supported).  Legacy VTK files must hold that kind only.
+    format : str, optional
+        An extension (``".vtk"``...) to read the file as, instead of its own.
+
+    Returns
+    -------
+    P : numpy.ndarray, shape (n, 3) float64
+        Points (quads in the plane: ``z == 0`` as stored; a Medit ``Dimension 2`` file
+        gives shape (n, 2)).
+    C : numpy.ndarray, shape (m, k) int64
+        Cells, 0-based, in file order, vertex order as in VTK.
+    kind : str
+        The kind read.
+
+    Raises
+    ------
+    MeshFormatError
+        As :func:`read_tets`; also a file with none of ``kinds`` or with mixed cells.
+    MeshError
+        Non-finite coordinates, indices out of range, repeated vertices in a cell.
+    """
+    return _read(Path(path), tuple(kinds), format)
+
+
+def _read(path, kinds, format=None):
+    """``(P, C, kind)``: see :func:`read_cells`."""
+    ext = (format or path.suffix).lower()
+    if ext == ".obj" and "quad" in kinds:
+        return read_obj_quads(path) + ("quad",)
+    ext = _extension(path.with_suffix(ext), "read")
     if ext == ".vtk":
-        return read_vtk_tets(path)
-    path = existing_file(path, "tet mesh")
-    check_not_empty(path, "tet mesh")
-    data = read_bytes(path, "tet mesh")
+        return read_vtk_cells(path, kinds)
+    path = existing_file(path, "tet mesh" if kinds == ("tetra",) else "mesh")
+    check_not_empty(path, "tet mesh" if kinds == ("tetra",) else "mesh")
+    data = read_bytes(path, "tet mesh" if kinds == ("tetra",) else "mesh")
+    dims = (2, 3) if "quad" in kinds else (3,)
     with gc_paused():
-        found = _PARSERS[ext](data, path)
-    T = select_kind(found, "tetra", path)
-    P = validate_vertices(found.points, f"{path.name}: points", dim=3)
-    return P, validate_simplices(T, P.shape[0], 4, f"{path.name}: tetrahedra")
+        found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
+    kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]
+    C = select_kind(found, kind, path)
+    size, dim = KINDS[kind]
+    P = validate_vertices(found.points, f"{path.name}: points", dim=3 if dim == 3 else None)
+    return P, validate_simplices(C, P.shape[0], size, f"{path.name}: {WORDS[kind][1]}", words=WORDS[kind]), kind
 
 
 def write_tets(path, P, T):
@@ -161,24 +213,59 @@ def write_tets(path, P, T):
         ``path`` cannot be written; nothing is left there then (an existing file keeps
         its contents).
     """
+    return write_cells(path, P, T, "tetra")
+
+
+def write_cells(path, P, C, kind, format=None):
+    """Write a mesh of one :data:`CELL_KINDS` kind in the format its extension names (also
+    ``.obj`` for quads), atomically, full precision.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output ``.vtk``, ``.vtu``, ``.msh`` (Gmsh 4.1 ASCII), ``.mesh`` (Medit ASCII), or
+        ``.obj`` for quads; its folder must exist.
+    P : array_like, shape (n, 3), or (n, 2) for quads (written with ``z = 0``)
+    C : array_like, shape (m, k), integer
+        Cells, 0-based, VTK's vertex order.
+    kind : str
+        ``"tetra"``, ``"hexahedron"`` or ``"quad"``.
+    format : str, optional
+        An extension to write instead of the path's own (e.g. for a temporary file).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; :func:`read_cells` (or :func:`read_tets`) reads back ``P`` and ``C`` bit for bit.
+
+    Raises
+    ------
+    As :func:`write_tets`.
+    """
     path = Path(path)
-    ext = _extension(path, "write")
-    P = validate_vertices(P, "P", dim=3)
-    T = validate_simplices(T, P.shape[0], 4, "T")
+    ext = (format or path.suffix).lower()
+    if ext == ".obj" and kind == "quad":
+        return write_obj_quads(path, P, C)
+    ext = _extension(path.with_suffix(ext), "write")
+    size, dim = KINDS[kind]
+    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
+    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
+    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
     if ext == ".vtk":
-        return write_vtk_tets(path, P, T)
-    check_output_path(path, what="tet mesh")
+        return write_vtk_cells(path, P, C, kind)
+    what = "tet mesh" if kind == "tetra" else f"{WORDS[kind][0]} mesh"
+    check_output_path(path, what=what)
     import meshio
 
     if ext == ".msh":
-        ones = np.ones(len(T), dtype=np.int64)
-        mesh = meshio.Mesh(P, [("tetra", T)], cell_data={"gmsh:physical": [ones], "gmsh:geometrical": [ones]})
+        ones = np.ones(len(C), dtype=np.int64)
+        mesh = meshio.Mesh(P, [(kind, C)], cell_data={"gmsh:physical": [ones], "gmsh:geometrical": [ones]})
         write = lambda tmp: meshio.gmsh.write(tmp, mesh, fmt_version="4.1", binary=False)  # noqa: E731
     elif ext == ".mesh":
-        write = lambda tmp: meshio.medit.write(tmp, meshio.Mesh(P, [("tetra", T)]))  # noqa: E731
+        write = lambda tmp: meshio.medit.write(tmp, meshio.Mesh(P, [(kind, C)]))  # noqa: E731
     else:
-        write = lambda tmp: meshio.vtu.write(tmp, meshio.Mesh(P, [("tetra", T)]), binary=True)  # noqa: E731
-    with atomic_path(path, "tet mesh") as tmp, _quiet() as printed:
+        write = lambda tmp: meshio.vtu.write(tmp, meshio.Mesh(P, [(kind, C)]), binary=True)  # noqa: E731
+    with atomic_path(path, what) as tmp, _quiet() as printed:
         try:
             write(str(tmp))
         except Exception as exc:  # meshio's WriteError, OSError (disk full), ...

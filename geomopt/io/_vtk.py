@@ -15,11 +15,11 @@ import numpy as np
 from .._errors import MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
-from ._cells import VTK_CELLS
+from ._cells import KINDS, VTK_CELLS, WORDS, code_of
 from ._files import check_not_empty, existing_file, read_bytes
 from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_rows
 
-__all__ = ["read_vtk_tets", "write_vtk_tets"]
+__all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
 
 # ------------------------------------------------------------------------ VTK (public)
 
@@ -55,25 +55,53 @@ def read_vtk_tets(path):
     MeshError
         Non-finite coordinates, indices out of range, repeated vertices in a tet.
     """
+    return read_vtk_cells(path, ("tetra",))[:2]
+
+
+def read_vtk_cells(path, kinds):
+    """Read a legacy VTK mesh of one of ``kinds`` (:data:`~geomopt.io._cells.KINDS` names, by
+    priority), exactly as declared; as :func:`read_vtk_tets` otherwise.
+
+    Returns
+    -------
+    P : numpy.ndarray, shape (n, 3), float64
+    C : numpy.ndarray, shape (m, k), int64
+        Cells, 0-based, VTK's vertex order.
+    kind : str
+        The kind read: the first of ``kinds`` the file holds.
+
+    Raises
+    ------
+    MeshFormatError
+        As :func:`read_vtk_tets`; cells of any other type, of any dimension, are refused.
+    MeshError
+        As :func:`read_vtk_tets`.
+    """
     path = existing_file(path, "VTK file")
     check_not_empty(path, "VTK file")
     with gc_paused():
         P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
+    wanted = " or ".join(WORDS[k][1] for k in kinds)
     if len(P) == 0:
         raise MeshFormatError(f"VTK file {path} has no points")
     if types.size == 0:
-        raise MeshFormatError(f"VTK file {path} has no cells; a tetrahedral mesh is required")
-    others = sorted({VTK_CELLS.get(int(t), (f"type {int(t)}",))[0] for t in np.unique(types[types != 10])})
+        need = "tetrahedral mesh" if kinds == ("tetra",) else f"mesh of {wanted}"
+        raise MeshFormatError(f"VTK file {path} has no cells; a {need} is required")
+    codes = {k: code_of(VTK_CELLS, k) for k in kinds}
+    kind = next((k for k in kinds if (types == codes[k]).any()), kinds[0])
+    code, (size, _), (word, words) = codes[kind], KINDS[kind], WORDS[kind]
+    others = sorted({VTK_CELLS.get(int(t), (f"type {int(t)}",))[0] for t in np.unique(types[types != code])})
     if others:
-        raise MeshFormatError(
-            f"VTK file {path} contains non-tetrahedral cells ({', '.join(others)}); only "
-            f"tetrahedral meshes (VTK cell type 10) are supported"
-        )
-    if (np.asarray(sizes) != 4).any():
-        i = int(np.flatnonzero(np.asarray(sizes) != 4)[0])
-        raise MeshFormatError(f"VTK file {path}: cell {i} is a tetrahedron (type 10) with {sizes[i]} points")
+        only = ("tetrahedral meshes (VTK cell type 10)" if kinds == ("tetra",) else
+                f"meshes of {wanted} (VTK cell type {' or '.join(str(codes[k]) for k in kinds)})")
+        what = "non-tetrahedral cells" if kind == "tetra" else f"cells other than {words}"
+        raise MeshFormatError(f"VTK file {path} contains {what} ({', '.join(others)}); only {only} are supported")
+    if (np.asarray(sizes) != size).any():
+        i = int(np.flatnonzero(np.asarray(sizes) != size)[0])
+        raise MeshFormatError(f"VTK file {path}: cell {i} is a {word} (type {code}) with {sizes[i]} points")
     P = validate_vertices(P, f"{path.name}: points", dim=3)
-    return P, validate_simplices(conn.reshape(-1, 4), P.shape[0], 4, f"{path.name}: tetrahedra")
+    C = validate_simplices(conn.reshape(-1, size), P.shape[0], size, f"{path.name}: {words}", words=WORDS[kind])
+    return P, C, kind
 
 
 def write_vtk_tets(path, P, T):
@@ -101,18 +129,39 @@ def write_vtk_tets(path, P, T):
     MeshError
         Invalid ``P`` or ``T``.
     """
-    P = validate_vertices(P, "P", dim=3)
-    T = validate_simplices(T, P.shape[0], 4, "T")
-    m = T.shape[0]
+    return write_vtk_cells(path, P, T, "tetra")
+
+
+def write_vtk_cells(path, P, C, kind):
+    """Write a mesh of one :data:`~geomopt.io._cells.KINDS` kind as an ASCII legacy VTK
+    unstructured grid, full precision, atomic; as :func:`write_vtk_tets` otherwise.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    P : array_like, shape (n, 3), or (n, 2) for quads (written with ``z = 0``)
+    C : array_like, shape (m, k), integer, 0-based, VTK's vertex order
+    kind : str
+        ``"tetra"``, ``"hexahedron"`` or ``"quad"``.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    size, dim = KINDS[kind]
+    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
+    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
+    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
+    m, code = C.shape[0], code_of(VTK_CELLS, kind)
 
     def write(fh):
         fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
         fh.write(f"POINTS {P.shape[0]} double\n")
         write_rows(fh, "", P)
-        fh.write(f"CELLS {m} {5 * m}\n")
-        np.savetxt(fh, T, fmt="4 %d %d %d %d")
+        fh.write(f"CELLS {m} {(size + 1) * m}\n")
+        np.savetxt(fh, C, fmt=f"{size}" + " %d" * size)
         fh.write(f"CELL_TYPES {m}\n")
-        fh.write("10\n" * m)
+        fh.write(f"{code}\n" * m)
 
     return atomic_write(path, write)
 

@@ -68,9 +68,12 @@ class LocalCertificate(certify.LocalCertificate):
 def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) -> LocalCertificate:
     """The :class:`LocalCertificate` of the map ``x`` (n, d) of ``problem`` (its simplices,
     positive when ``orientation`` is +1): :func:`geomopt.certify.local_certificate` plus
-    ``handles_moved``."""
-    exact = certify.local_certificate(x, problem.simplices, orientation)
-    return LocalCertificate(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(exact)},
+    ``handles_moved``.  Quads / hexahedra: :meth:`~geomopt.problem.Problem.certify` (each element
+    valid everywhere, then the stars of their tangent cones, never the overlapping corner
+    simplices as one mesh)."""
+    exact = (problem.certify(x) if getattr(problem, "elements", None) is not None and orientation == 1 else
+             certify.local_certificate(x, problem.simplices, orientation))
+    return LocalCertificate(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(certify.LocalCertificate)},
                             handles_moved=int(handles_moved))
 
 

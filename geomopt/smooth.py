@@ -1,0 +1,185 @@
+"""Smoothing of valid quad and hex meshes: Winslow (or any energy) with nothing flipping.
+
+Winslow's method (A. M. Winslow, "Numerical solution of the quasilinear Poisson equation in
+a nonuniform triangle mesh", J. Comput. Phys. 1, 1966) places the vertices so that the
+*inverse* map, from the mesh to its computational grid, is harmonic.  Its variational form
+minimises ``int |J^-1|^2 det J``, the :func:`~geomopt.energies.winslow` density of the map
+from the computational element (a square / cube, :meth:`Problem.quads` ``rest="reference"``)
+to the mesh; the density is a barrier (infinite at ``det J = 0``), which the finite-difference
+form lacks (it folds on hard boundaries: Garanzha et al.'s talk "How to compute locally
+invertible maps", 2021).
+
+:func:`smooth` evaluates it at the elements' corners, starts from the given mesh (which must be
+valid), keeps the boundary vertices fixed (default) and minimises with a solver whose line
+search is injective: no corner can change sign.  The result is certified locally injective
+(:meth:`~geomopt.problem.Problem.certify`: hexahedra inside by
+:mod:`geomopt.hexvalid`, no vertex wound twice, no free boundary overlapping itself; the input
+is returned otherwise).  The result is compared with the input by the minimum scaled
+Jacobian (:func:`geomopt.elements.scaled_jacobian`): where the minimum makes an element invalid
+(hexahedra inside) or worse than the input's worst, the vertices of that element are held at
+their input positions and the energy is minimised again from the input with them fixed, until
+no element is worse (an element whose vertices are all held keeps its input shape); elements
+that got worse than their input shape and are close to falling below the worst are held with
+them.  So the
+output is always valid with a minimum scaled Jacobian at least the input's, and smooth
+elsewhere (the input itself when ``MAX_ROUNDS`` solves do not get there).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ._errors import MeshError, ParameterError
+from .elements import ElementCertificate, Quality, certify_elements, scaled_jacobian
+
+__all__ = ["SmoothResult", "smooth", "element_problem"]
+
+#: solves before :func:`smooth` gives up and returns its input
+MAX_ROUNDS = 8
+#: elements that the minimum makes worse than their input shape and that end within this
+#: scaled Jacobian of the input's worst are held with the ones below it
+RISK = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class SmoothResult:
+    """The outcome of :func:`smooth`.
+
+    Attributes
+    ----------
+    x : (n, d) the smoothed vertices (the input where nothing improved).
+    before, after : :class:`~geomopt.elements.Quality` of the input and of ``x``.
+    certificate : :class:`~geomopt.elements.ElementCertificate` of ``x`` (exact).
+    held : (h,) int64, vertices held at their input positions (beside the fixed ones) because
+        the energy minimum made an element around them worse than the input's worst.
+    rounds : int, solves run (1 when nothing was held).
+    outcome : the last solve's :class:`~geomopt.solvers.Outcome`.
+    iterations : int, over all solves;  seconds : float, all solves.
+    problem : the :class:`~geomopt.Problem` solved first (its ``elements`` oriented, its handles).
+    """
+
+    x: np.ndarray
+    before: Quality
+    after: Quality
+    certificate: ElementCertificate
+    held: np.ndarray
+    rounds: int
+    outcome: object
+    iterations: int
+    seconds: float
+    problem: object = None
+
+    @property
+    def improved(self) -> bool:
+        """Valid, the minimum scaled Jacobian not lower, and the mesh moved."""
+        return self.certificate.certified and self.after.min >= self.before.min and self.moved
+
+    @property
+    def moved(self) -> bool:
+        return not np.array_equal(self.x, self.problem.rest_vertices) if self.problem is not None else True
+
+    @property
+    def message(self) -> str:
+        held = f"; {len(self.held)} vertices held where the minimum would be worse" if len(self.held) else ""
+        return (f"min scaled Jacobian {self.before.min:.4f} -> {self.after.min:.4f}, mean "
+                f"{self.before.mean:.4f} -> {self.after.mean:.4f}, below 0.2: {self.before.below_0_2} -> "
+                f"{self.after.below_0_2}{held}")
+
+
+def element_problem(V, E, fixed=None, rest="reference"):
+    """The :class:`~geomopt.Problem` of a quad (``V`` (n, 2)) or hex (``V`` (n, 3)) mesh ``E``
+    with ``fixed`` vertices held where ``V`` has them (default: the boundary; an empty array
+    frees every vertex)."""
+    from .problem import Problem
+
+    V = np.asarray(V, dtype=np.float64)
+    E = np.asarray(E)
+    if E.ndim != 2 or E.shape[1] not in (4, 8) or V.ndim != 2 or V.shape[1] != (2 if E.shape[1] == 4 else 3):
+        raise MeshError(f"smoothing needs quads with 2D vertices or hexahedra with 3D vertices, got elements "
+                        f"of shape {E.shape} and vertices of shape {V.shape}")
+    make = Problem.quads if E.shape[1] == 4 else Problem.hexes
+    problem = make(V, E, rest=rest)
+    fixed = problem.boundary_vertices() if fixed is None else np.asarray(fixed, dtype=np.int64)
+    return problem.with_fixed(fixed, V[fixed])
+
+
+def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference", max_steps=None,
+           progress=False, max_rounds=MAX_ROUNDS, **params) -> SmoothResult:
+    """Smooth a valid quad or hex mesh without inverting anything or worsening its worst element.
+
+    Parameters
+    ----------
+    V : (n, 2) quad or (n, 3) hex vertex positions;  E : (m, 4) quads or (m, 8) hexahedra (VTK
+        order), every element valid on ``V`` (a positive Jacobian everywhere).
+    energy : an energy name or object (default ``"winslow"``); ``params`` its parameters.
+    solver : a solver name or object with an injective search (default projected Newton).
+    fixed : vertex ids held in place (default: the boundary vertices).
+    rest : ``"reference"`` (squares / cubes of the mean edge length: Winslow) or ``"mesh"``
+        (``V``'s own elements: then ``V`` is the energy's minimum and nothing moves).
+    max_steps : solver iteration limit per solve (default: the solver's).
+    progress : passed to :func:`~geomopt.solvers.minimize`.
+    max_rounds : solves before giving up and returning the input (see the module notes).
+
+    Returns
+    -------
+    :class:`SmoothResult`, its ``x`` valid (exact) with a minimum scaled Jacobian at least
+    the input's.
+
+    Raises
+    ------
+    MeshError
+        The mesh is malformed, or some element of ``V`` is not valid (untangle it first).
+    """
+    from ._objective import Objective
+    from .solvers import get_solver, minimize
+
+    problem = element_problem(V, E, fixed, rest)
+    E = problem.elements
+    V = np.asarray(V, dtype=np.float64)
+    start = certify_elements(V, E)
+    if not start.certified:
+        raise MeshError(f"{start.invalid} element(s) of the input are not valid (their Jacobian is not positive "
+                        f"everywhere; {start.corner_only} only inside); smoothing keeps a valid mesh valid: "
+                        f"untangle it first (geomopt untangle)")
+    solver = get_solver(solver)
+    if not getattr(getattr(solver, "search", None), "injective", True):
+        raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
+    if max_steps is not None:
+        solver = dataclasses.replace(solver, max_steps=max_steps)
+    held, current, x = np.zeros(0, np.int64), problem, V
+    sj_input = scaled_jacobian(V, E)
+    iterations, seconds, outcome = 0, 0.0, None
+    for rounds in range(1, max_rounds + 1):
+        t0 = time.perf_counter()
+        result = minimize(Objective(current, energy, buckets=True, **params), V, solver=solver, progress=progress)
+        seconds += time.perf_counter() - t0
+        iterations += int(result.stats.iterations)
+        outcome, x = result.outcome, np.asarray(result.x, dtype=np.float64)
+        worse, at_risk = _worse(x, E, start.quality.min, sj_input)
+        if not worse.any():
+            break
+        held = np.union1d(held, np.setdiff1d(np.unique(E[worse | at_risk]), problem.fixed))
+        both = np.union1d(problem.fixed, held)
+        current = problem.with_fixed(both, V[both])
+    else:
+        x, held = V, np.zeros(0, np.int64)  # nothing better found: the input
+    local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
+    if not local.ok:  # a free boundary folded over itself: the input
+        x, held, local = V, np.zeros(0, np.int64), None
+    cert = start if local is None else local.elements
+    return SmoothResult(x, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds, problem)
+
+
+def _worse(X, E, floor, sj_input):
+    """``(worse, at_risk)``, each (m,) bool: elements invalid under ``X`` (exact) or with a scaled
+    Jacobian below ``floor``; and elements worse than their input shape ``sj_input`` (m,) and
+    within :data:`RISK` of the floor (held with the worse ones: the next to fall below)."""
+    from .elements import valid_elements
+
+    if not np.isfinite(X).all():
+        return np.ones(len(E), bool), np.zeros(len(E), bool)
+    sj = scaled_jacobian(X, E)
+    return ~valid_elements(X, E) | (sj < floor), (sj < sj_input) & (sj < floor + RISK)

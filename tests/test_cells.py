@@ -1,0 +1,175 @@
+"""Quad and hex meshes in files and on the command line (issue 18 items 3-4): every format read
+back bit for bit or refused with one line, `geomopt smooth` and `geomopt untangle` on quad/hex
+cases writing only certified files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geomopt import MeshError, MeshFormatError, generators as G, io
+from geomopt.elements import certify_elements, quality
+from geomopt.problem import Problem
+
+from test_cli import one_error_line
+
+FORMATS = [".vtk", ".vtu", ".msh", ".mesh"]
+
+
+def _meshes():
+    V, Q = G.sector_mesh(3, 5, perturb=0.3, seed=3)
+    V3, H = G.sector_mesh(2, 4, 2, perturb=0.3, seed=3)
+    return {"quad": (V, Q), "hexahedron": (V3, H)}
+
+
+@pytest.mark.parametrize("kind", ["quad", "hexahedron"])
+@pytest.mark.parametrize("ext", FORMATS + [".obj"])
+def test_cells_round_trip_bit_for_bit(tmp_path, kind, ext):
+    if ext == ".obj" and kind == "hexahedron":
+        with pytest.raises(MeshFormatError, match="extension"):
+            io.write_cells(tmp_path / "h.obj", *_meshes()[kind], kind)
+        return
+    P, C = _meshes()[kind]
+    path = io.write_cells(tmp_path / f"m{ext}", P, C, kind)
+    back, C2, kind2 = io.read_cells(path)
+    assert kind2 == kind and np.array_equal(C2, C)
+    assert np.array_equal(back[:, : P.shape[1]], P) and (back.shape[1] == P.shape[1] or not back[:, 2:].any())
+
+
+def _refused(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises((MeshFormatError, MeshError)) as info:
+        io.read_cells(path)
+    return str(info.value)
+
+
+def test_mixed_and_wrong_cells_are_refused(tmp_path):
+    pts = "".join(f"{x} {y} 0\n" for y in range(3) for x in range(3))
+    # legacy VTK with a quad and a triangle
+    vtk = (f"# vtk DataFile Version 2.0\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 9 double\n{pts}"
+           f"CELLS 2 9\n4 0 1 4 3\n3 1 2 5\nCELL_TYPES 2\n9\n5\n")
+    assert "cells other than quads (triangle)" in _refused(tmp_path, "mixed.vtk", vtk)
+    # OBJ: a triangle among quads
+    obj = "".join(f"v {x} {y} 0\n" for y in range(3) for x in range(3)) + "f 1 2 5 4\nf 2 3 6\n"
+    msg = _refused(tmp_path, "mixed.obj", obj)
+    assert "line 11" in msg and "3 corners" in msg and "\n" not in msg
+    # Medit: hexahedra beside tetrahedra
+    P3, H = _meshes()["hexahedron"]
+    io.write_cells(tmp_path / "h.mesh", P3, H, "hexahedron")
+    text = (tmp_path / "h.mesh").read_text().replace("End", "Tetrahedra\n1\n1 2 3 4 0\nEnd")
+    assert "cells other than hexahedra (tetra)" in _refused(tmp_path, "mixed.mesh", text)
+    # a quad repeating a vertex; a count that does not match
+    assert "more than once" in _refused(tmp_path, "rep.obj", obj.replace("f 2 3 6\n", "f 2 3 3 6\n"))
+    bad = vtk.replace("CELLS 2 9\n4 0 1 4 3\n3 1 2 5\nCELL_TYPES 2\n9\n5\n", "CELLS 1 5\n4 0 1 4 3\nCELL_TYPES 2\n9\n9\n")
+    assert "CELLS declares 1 cells but CELL_TYPES declares 2" in _refused(tmp_path, "count.vtk", bad)
+    # hexahedra are not tetrahedra
+    with pytest.raises(MeshFormatError, match="contains non-tetrahedral volume cells .hexahedron"):
+        io.read_tets(tmp_path / "h.mesh")
+
+
+def test_gmsh_made_hex_meshes_are_read_exactly(tmp_path):
+    gmsh = pytest.importorskip("gmsh")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.occ.addBox(0, 0, 0, 1, 2, 1)
+        gmsh.model.occ.synchronize()
+        for _, c in gmsh.model.getEntities(1):
+            gmsh.model.mesh.setTransfiniteCurve(c, 4)
+        for _, s in gmsh.model.getEntities(2):
+            gmsh.model.mesh.setTransfiniteSurface(s)
+            gmsh.model.mesh.setRecombine(2, s)
+        gmsh.model.mesh.setTransfiniteVolume(1)
+        gmsh.model.mesh.generate(3)
+        for version in (2.2, 4.1):
+            gmsh.option.setNumber("Mesh.MshFileVersion", version)
+            gmsh.option.setNumber("Mesh.SaveAll", 1)  # boundary quads, lines and points beside the hexes
+            gmsh.write(str(tmp_path / f"box{version}.msh"))
+        n_hex = len(gmsh.model.mesh.getElementsByType(5)[0])
+    finally:
+        gmsh.finalize()
+    for version in (2.2, 4.1):
+        P, H, kind = io.read_cells(tmp_path / f"box{version}.msh")
+        assert kind == "hexahedron" and len(H) == n_hex == 27
+        assert certify_elements(P, Problem.hexes(P, H).elements).certified
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def test_smooth_command_writes_a_certified_better_mesh(cli, tmp_path):
+    V, H = G.sector_mesh(2, 5, 2, perturb=0.4, seed=1)
+    src = io.write_cells(tmp_path / "in.vtk", V, H, "hexahedron")
+    code, out, err = cli("smooth", src, "-o", tmp_path / "out.vtu", "--quiet", "--json")
+    assert code == 0, err
+    P, H2, _ = io.read_cells(tmp_path / "out.vtu")
+    E = Problem.hexes(V, H).elements
+    assert np.array_equal(H2, H) and certify_elements(P, E).certified
+    assert quality(P, H).min >= quality(V, H).min + 0.2
+    b = Problem.hexes(V, H).boundary_vertices()
+    assert np.array_equal(P[b], V[b])
+    assert '"improved": true' in out
+
+
+def test_untangle_command_on_quad_and_hex_cases(cli, tmp_path):
+    V, Q = G.quad_mesh(10, 10)
+    t = G.rotated_interior(V, Q, 120)
+    src = io.write_cells(tmp_path / "tangled.obj", t.x0, Q, "quad")
+    code, _, err = cli("untangle", src, "-o", tmp_path / "out.msh", "--quiet")
+    assert code == 0, err
+    P, Q2, _ = io.read_cells(tmp_path / "out.msh")
+    assert certify_elements(P[:, :2], Q).certified and np.array_equal(P[t.fixed, :2], t.x0[t.fixed])
+    # a LIM-style hex case folder: rest.vtk, init.vtk, handles.txt (its own handles, not the boundary)
+    V3, H = G.hex_mesh(4, 4, 4)
+    th = G.noisy_interior(V3, H, 1.0)
+    case = tmp_path / "hexcase"
+    case.mkdir()
+    io.write_cells(case / "rest.vtk", V3, H, "hexahedron")
+    io.write_cells(case / "init.vtk", th.x0, H, "hexahedron")
+    np.savetxt(case / "handles.txt", th.fixed[::2], fmt="%d")
+    code, _, err = cli("untangle", case, "-o", tmp_path / "hex.vtk", "--quiet")
+    assert code == 0, err
+    P3, _, _ = io.read_cells(tmp_path / "hex.vtk")
+    assert certify_elements(P3, H).certified and np.array_equal(P3[th.fixed[::2]], th.x0[th.fixed[::2]])
+
+
+def _bad_cases(tmp):
+    V, Q = G.quad_mesh(3, 3)
+    V3 = np.column_stack([V, V[:, 0] * V[:, 1]])
+    twisted = np.concatenate([Q[:1, [0, 1, 3, 2]], Q[1:]])
+    against = np.concatenate([Q[:1, ::-1], Q[1:]])
+    repeated = "".join(f"v {x} {y} 0\n" for x, y in V) + "".join(f"f {a + 1} {b + 1} {b + 1} {d + 1}\n"
+                                                                  for a, b, c, d in Q)
+    mixed = "".join(f"v {x} {y} 0\n" for x, y in V) + "f 1 2 6 5\nf 2 3 7\n"
+    files = {"non-planar": (V3, Q), "twisted": (V, twisted), "orientation": (V, against)}
+    out = {}
+    for name, (P, C) in files.items():
+        out[name] = io.write_cells(tmp / f"{name}.vtk", P, C, "quad")
+    for name, text in (("repeated", repeated), ("mixed", mixed)):
+        out[name] = tmp / f"{name}.obj"
+        out[name].write_text(text)
+    return out
+
+
+@pytest.mark.parametrize("name,words", [
+    ("non-planar", ["not in the plane z = 0"]), ("twisted", ["inconsistent orientation"]),
+    ("orientation", ["inconsistent orientation"]), ("repeated", ["use a vertex more than once"]),
+    ("mixed", ["3 corners", "mixed meshes are not supported"]),
+])
+@pytest.mark.parametrize("command", ["smooth", "untangle"])
+def test_bad_quad_input_is_one_line_exit_2(cli, tmp_path, name, words, command):
+    path = _bad_cases(tmp_path)[name]
+    code, _, err = cli(command, path, "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 2
+    one_error_line(err, *words)
+    assert not (tmp_path / "out.vtk").exists()
+
+
+def test_smooth_refuses_an_invalid_mesh_and_its_own_input(cli, tmp_path):
+    V, H = G.hex_mesh(3, 3, 3)
+    bad = io.write_cells(tmp_path / "bad.vtk", G.noisy_interior(V, H, 1.0).x0, H, "hexahedron")
+    code, _, err = cli("smooth", bad, "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 2 and "untangle it first" in one_error_line(err)
+    code, _, err = cli("smooth", bad, "-o", bad, "--quiet")
+    assert code == 2 and "is the input file" in one_error_line(err)
