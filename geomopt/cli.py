@@ -517,18 +517,32 @@ def build_parser():
     from ._names import ENERGIES, SOLVERS
 
     p = _Parser(
-        prog="geomopt", description="Locally injective (foldover-free) maps of triangle and tet meshes.",
+        prog="geomopt", description="Locally injective (foldover-free) maps of triangle, tet, quad and hex meshes.",
         epilog=f"energies: {', '.join(ENERGIES)}. solvers: {', '.join(SOLVERS)}. Compiled code is "
                f"cached in $GEOMOPT_CACHE_DIR (default ~/.cache/geomopt/jax; 'off' disables it). "
                f"Run 'geomopt COMMAND --help' for a command's options.")
     p.add_argument("--version", action="version", version=f"geomopt {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
-    def common(sp):
-        sp.add_argument("--quiet", action="store_true", help="no progress or summary output")
-        sp.add_argument("--json", action="store_true",
-                        help="print a one-line JSON summary on stdout (also on failure)")
-        sp.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    _add_param(sub)
+    _add_untangle(sub)
+    _add_smooth(sub)
+    _add_compare(sub)
+    _add_demo(sub)
+    return p
+
+
+def _common_options(sp):
+    """Options every command takes."""
+    sp.add_argument("--quiet", action="store_true", help="no progress or summary output")
+    sp.add_argument("--json", action="store_true",
+                    help="print a one-line JSON summary on stdout (also on failure)")
+    sp.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+
+
+def _add_param(sub):
+    """The ``param`` command's options."""
+    from ._names import ENERGIES, SOLVERS
 
     sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
     sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
@@ -555,9 +569,12 @@ def build_parser():
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "
                          ".png, .pdf or .svg) and a <name>_convergence plot")
-    common(sp)
+    _common_options(sp)
     sp.set_defaults(func=cmd_param)
 
+
+def _add_untangle(sub):
+    """The ``untangle`` command's options."""
     sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles) or a quad/hex mesh")
     sp.add_argument("case", nargs="+",
                     help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D, with "
@@ -579,8 +596,13 @@ def build_parser():
     where.add_argument("--scheduler", default=None,
                        help="batch: solve on the workers of an existing Dask scheduler (e.g. "
                             "tcp://host:8786); they must see the case and output folders at the same paths")
-    common(sp)
+    _common_options(sp)
     sp.set_defaults(func=cmd_untangle)
+
+
+def _add_smooth(sub):
+    """The ``smooth`` command's options."""
+    from ._names import ENERGIES, SOLVERS
 
     sp = sub.add_parser("smooth", help="smooth a valid quad/hex mesh (Winslow), never making an element worse "
                                        "than the input's worst")
@@ -593,9 +615,12 @@ def build_parser():
     sp.add_argument("--fix", default="boundary", choices=["boundary", "none"],
                     help="vertices held in place (default: the boundary)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
-    common(sp)
+    _common_options(sp)
     sp.set_defaults(func=cmd_smooth)
 
+
+def _add_compare(sub):
+    """The ``compare`` command's options."""
     sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
                                          "traces, table, manifest and a figure")
     sp.add_argument("mesh", nargs="+", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
@@ -620,14 +645,16 @@ def build_parser():
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
     sp.add_argument("--format", default="png", help="figure formats, comma-separated: png, pdf, svg (default png)")
     sp.add_argument("--log-x", action="store_true", help="log scale on the seconds and iteration axes")
-    common(sp)
+    _common_options(sp)
     sp.set_defaults(func=cmd_compare)
 
+
+def _add_demo(sub):
+    """The ``demo`` command's options."""
     sp = sub.add_parser("demo", help="parameterize the bundled camelhead, write OBJ and PNGs")
     sp.add_argument("-o", "--output", default="out", help="output folder (default ./out)")
-    common(sp)
+    _common_options(sp)
     sp.set_defaults(func=cmd_demo)
-    return p
 
 
 def _report(args, **fields):
