@@ -23,6 +23,7 @@ child processes inherit them; otherwise it updates ``jax.config``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -117,6 +118,48 @@ def set_cache_dir(path):
 def cache_dir() -> str | None:
     """The persistent compilation cache folder in use (None when off)."""
     return _state["dir"]
+
+
+def programs_dir() -> str | None:
+    """Where :mod:`geomopt._programs` keeps compiled programs: ``programs`` in JAX's persistent
+    cache folder when that cache is on (so that Dask workers given the client's JAX settings
+    share it), None when off or ``GEOMOPT_PROGRAMS`` is ``off``."""
+    import jax
+
+    if os.environ.get("GEOMOPT_PROGRAMS", "on").strip().lower() in _OFF:
+        return None
+    folder = jax.config.jax_compilation_cache_dir if jax.config.jax_enable_compilation_cache else None
+    return os.path.join(folder, "programs") if folder else None
+
+
+def programs_writable() -> bool:
+    """False for geomopt's own cache folder when it is read-only; else True (a failed write
+    is skipped)."""
+    import jax
+
+    ours = os.path.abspath(jax.config.jax_compilation_cache_dir or "") == os.path.abspath(_state["dir"] or "")
+    return _state["writable"] or not ours
+
+
+@contextlib.contextmanager
+def bypassed():
+    """JAX's persistent cache off inside the block (then as before): an executable loaded from
+    it cannot be serialised again (XLA CPU then misses its kernels at run time: "Function ...
+    not found"), so :mod:`geomopt._programs` compiles the programs it keeps afresh."""
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    with _lock:
+        on = jax.config.jax_enable_compilation_cache
+        if on:
+            jax.config.update("jax_enable_compilation_cache", False)
+            compilation_cache.reset_cache()
+        try:
+            yield
+        finally:
+            if on:
+                jax.config.update("jax_enable_compilation_cache", True)
+                compilation_cache.reset_cache()
 
 
 def _count(event, **kwargs):

@@ -24,6 +24,7 @@ from jax import lax
 from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
 from ._x64 import float64
+from ._programs import jit as programs_jit
 from ._geometry import det, dets, edge_rows
 
 __all__ = [
@@ -264,8 +265,8 @@ class InjectiveSearch:
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""
-        _search_kernel.lower(self, objective.energy.density, objective.geom, objective._free, params, x,
-                             value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0).compile()
+        _search_kernel.prepare(self, objective.energy.density, objective.geom, objective._free, params, x,
+                               value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0)
 
 
 def objective_value_and_grad(density, geom, free, params):
@@ -279,7 +280,7 @@ def objective_value_and_grad(density, geom, free, params):
     return vg
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
     vg = objective_value_and_grad(density, geom, free, params)
     return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0)

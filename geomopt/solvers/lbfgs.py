@@ -33,6 +33,7 @@ from jax import lax
 from .._errors import ParameterError
 from .._objective import total_energy
 from .._config import Int, OneOf, Real
+from .._programs import jit as programs_jit
 from ..linesearch import InjectiveSearch
 from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
 from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
@@ -176,7 +177,7 @@ def _iterate(solver, density, geom, free, params, c):
     }
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _run_kernel(solver, density, geom, free, params, carry, max_it):
     """Iterations while the status is RUNNING and ``it < max_it`` (traced): ``step`` is one
     call with ``max_it = it + 1``, so one compiled program serves ``step`` and ``run``.
@@ -209,7 +210,7 @@ def _blank_carry(m, precondition, window, x, pre, extent0):
     return jax.device_put(carry)
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _reparam_kernel(laplacian, density, geom, free, params, carry):
     """``carry`` re-evaluated at its ``x`` under ``params``: value, gradient (and for the
     Laplacian seed ``K^-1 grad``), status, and the counters and energy window restarted; the
