@@ -35,7 +35,7 @@ _OFF = ("", "0", "off", "none", "false", "no")
 _NEVER = 1e12
 
 _lock = threading.Lock()
-_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "listening": False}
+_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "bypassed": 0, "listening": False}
 
 
 def default_dir() -> str | None:
@@ -145,12 +145,15 @@ def programs_writable() -> bool:
 def bypassed():
     """JAX's persistent cache off inside the block (then as before): an executable loaded from
     it cannot be serialised again (XLA CPU then misses its kernels at run time: "Function ...
-    not found"), so :mod:`geomopt._programs` compiles the programs it keeps afresh."""
+    not found"), so :mod:`geomopt._programs` compiles the programs it keeps afresh.  Each use
+    counts as a miss in :func:`cache_stats`.  Another thread compiling meanwhile compiles
+    without the cache."""
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
     with _lock:
         on = jax.config.jax_enable_compilation_cache
+        _state["bypassed"] += 1
         if on:
             jax.config.update("jax_enable_compilation_cache", False)
             compilation_cache.reset_cache()
@@ -180,5 +183,6 @@ def cache_stats() -> dict:
 
             jax.monitoring.register_event_listener(_count)
             _state["listening"] = True
+        # a program compiled outside JAX's cache for geomopt._programs is a miss too
         return {"dir": _state["dir"], "writable": _state["writable"], "hits": _state["hits"],
-                "misses": _state["requests"] - _state["hits"]}
+                "misses": _state["requests"] - _state["hits"] + _state["bypassed"]}
