@@ -47,7 +47,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from geomopt import generators as G  # noqa: E402
-from geomopt.batch import bucket_sizes  # noqa: E402
+from geomopt._padding import bucket_sizes  # noqa: E402
 from geomopt.lim import LimCase  # noqa: E402
 
 
@@ -115,9 +115,9 @@ def same_files(a, b):
     return all(filecmp.cmp(a / n, b / n, shallow=False) for n in names)
 
 
-NO_BUCKET = ("import sys; from geomopt.untangle import untangle_case; from geomopt.batch import "
-             "write_certified; case, res = untangle_case(sys.argv[1], progress=False); "
-             "sys.exit(0 if res.success and write_certified(case, res, sys.argv[2]) else 1)")
+NO_BUCKET = ("import sys; from geomopt.lim import untangle_case; "
+             "case, res = untangle_case(sys.argv[1], progress=False); "
+             "sys.exit(0 if res.success and case.write_certified(res, sys.argv[2]) else 1)")
 
 
 def main(argv=None):

@@ -85,23 +85,23 @@ def run_case(name, gen, repeat, args):
     V, F, x0 = load(name, gen)
     log(f"{name}: {len(V)} vertices, {len(F)} triangles")
     t_plain, plain = timed(lambda: geomopt.parameterize(V, F, x0=x0, progress=False), repeat)
-    area = plain.info["problem"].volumes.sum()
+    area = plain.problem.volumes.sum()
     cert_times = []
     for _ in range(max(repeat, 3)):
-        c = certify_bijective(plain.x, plain.info["problem"].simplices)
+        c = certify_bijective(plain.x, plain.problem.simplices)
         cert_times.append(c.seconds)
     cert_plain = c
     opts = {k: v for k, v in (("scaffold_weight", args.weight), ("inner_steps", args.inner)) if v is not None}
     t_bij, bij = timed(lambda: bijective_parameterize(V, F, x0=x0, progress=False, **opts), repeat)
-    cb = bij.info["certificate"]
+    cb = bij.certificate
     row = dict(
         case=name, faces=len(F), boundary=len(cb.loop),
-        E_plain=plain.energy / area, t_plain=t_plain, it_plain=plain.iterations,
-        flips_plain=plain.inverted, cross_plain=len(cert_plain.crossings),
+        E_plain=plain.energy / area, t_plain=t_plain, it_plain=plain.stats.iterations,
+        flips_plain=plain.certificate.inverted, cross_plain=len(cert_plain.crossings),
         cert_s=statistics.median(cert_times),
-        E_bij=bij.energy / area, t_bij=t_bij, it_bij=bij.iterations,
-        outer=bij.info["outer_iterations"], flips_bij=cb.inverted, cross_bij=len(cb.crossings),
-        success=bij.success, injectivity=bij.info["injectivity"],
+        E_bij=bij.energy / area, t_bij=t_bij, it_bij=bij.stats.iterations,
+        outer=bij.stats.outer_iterations, flips_bij=cb.inverted, cross_bij=len(cb.crossings),
+        success=bij.success, injectivity=bij.injectivity,
     )
     log("  " + "  ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
     return row

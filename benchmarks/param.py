@@ -102,17 +102,17 @@ def run_geomopt(V, F, x0, repeat):
         runs.append({
             "cold": k == 0,
             "outcome": res.outcome.value,
-            "iterations": int(res.iterations),
-            "seconds": float(res.seconds),
-            "setup_seconds": float(res.setup_seconds),
+            "iterations": int(res.stats.iterations),
+            "seconds": float(res.stats.seconds),
+            "setup_seconds": float(res.stats.setup_seconds),
             "wall_seconds": wall,
-            "times": np.asarray(res.time_history, float).tolist(),
-            "energies": (np.asarray(res.energy_history, float) / area).tolist(),
+            "times": np.asarray(res.trace.seconds, float).tolist(),
+            "energies": (np.asarray(res.trace.energy, float) / area).tolist(),
             "flips": int(count_inverted(res.x, F)),
             "x": res.x,
         })
-        log(f"  geomopt {'cold' if k == 0 else 'warm'} run: {res.iterations} it, "
-            f"{res.seconds:.2f} s + setup {res.setup_seconds:.2f} s, {res.outcome.value}, "
+        log(f"  geomopt {'cold' if k == 0 else 'warm'} run: {res.stats.iterations} it, "
+            f"{res.stats.seconds:.2f} s + setup {res.stats.setup_seconds:.2f} s, {res.outcome.value}, "
             f"E={runs[-1]['energies'][-1]:.10g}, flips {runs[-1]['flips']}")
     warm = runs[1:]
     med = statistics.median_low([r["seconds"] for r in warm])

@@ -109,9 +109,9 @@ def run_solves(obj, x0):
             c = time.process_time()
             res = geomopt.minimize(obj, x0, solver, progress=False)
             cpu = time.process_time() - c
-        out[f"{key}_solve_s"] = round(res.seconds, 3)
+        out[f"{key}_solve_s"] = round(res.stats.seconds, 3)
         out[f"{key}_solve_cpu_s"] = round(cpu, 3)
-        out[f"{key}_newton_iters"] = int(res.iterations)
+        out[f"{key}_newton_iters"] = int(res.stats.iterations)
         out[f"{key}_energy"] = float(res.energy) / obj.total_volume
         out[f"{key}_outcome"] = res.outcome.value
     return out
@@ -194,9 +194,9 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         out["cg_iter_s"], _ = _median(lambda: newton.step(state), 3, "cg_iter_s")
         # the direction alone, with Newton's forcing term (from the first gradient norm, as
         # in a solve) and with a tight tolerance
-        gref = state.aux["gref"]
+        gref = state.memory.grad_ref
         for key, solver in (("cg", newton.cg), ("cg_tight", NewtonCG(rtol=1e-8))):
-            op = state.aux["op"]
+            op = state.memory.cg_op
             step = lambda: jax.block_until_ready(  # noqa: E731
                 solver.direction(op, obj, x, params, "clamp", newton.regularization, gref))
             step()
@@ -233,10 +233,10 @@ def run_untangle_outer(V, S, fixed):
         G.Tangle("twist", V, S, _twist(V, fixed), fixed)
     c = time.process_time()
     res = untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
-    return {"untangle_outer_s": res.seconds, "untangle_setup_s": res.setup_seconds,
-            "untangle_cpu_s": time.process_time() - c, "untangle_inner": int(res.inner_iterations),
-            "untangle_inverted": [int(res.initially_inverted), int(res.inverted)],
-            "untangle_solver": type(res.info["solver"]).__name__,
+    return {"untangle_outer_s": res.stats.seconds, "untangle_setup_s": res.stats.setup_seconds,
+            "untangle_cpu_s": time.process_time() - c, "untangle_inner": int(res.stats.iterations),
+            "untangle_inverted": [int(res.stats.inverted_at_start), int(res.certificate.inverted)],
+            "untangle_solver": type(res.solver).__name__,
             "untangle_peak_mem_mb": round(_peak_mb(), 1)}
 
 

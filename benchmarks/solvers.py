@@ -171,10 +171,10 @@ def refine_report(args):
         row = {"shape": label, "n_faces": len(F), "E_best": best}
         for name in wanted:
             r = c.results[name]
-            e = r.energy_history / c.area
+            e = r.trace.energy / c.area
             hit = first_hit(e, best + args.refine_tol * abs(best))
-            row[name] = {"iterations": hit, "seconds": None if hit is None else float(r.time_history[hit]),
-                         "outcome": c.outcome(name), "flips": r.inverted}
+            row[name] = {"iterations": hit, "seconds": None if hit is None else float(r.trace.seconds[hit]),
+                         "outcome": c.outcome(name), "flips": r.certificate.inverted}
         rows.append(row)
         bench.log(f"  {label}: {len(F)} triangles, E* = {best:.10g}")
     head = ["shape", "#F"] + [f"{n}: it / s to {args.refine_tol:g}" for n in wanted]
@@ -281,14 +281,14 @@ def main(argv=None):
                              outcome=c.outcome(name))
                 runs.append(stats)
             rows[name] = median_stats(runs)
-            rows[name]["compile"] = f"{cold[name].results[name].setup_seconds:.2f}"
+            rows[name]["compile"] = f"{cold[name].results[name].stats.setup_seconds:.2f}"
         s = trace_stats(slim["times"], slim["energies"], best, slim["iterations"], slim["seconds"],
                         ref and ref[2])
         s.update(flips=slim["flips"], max_flips="n/a", outcome=f"{slim['iterations']} it",
                  compile=f"{slim['setup_seconds']:.2f} (precompute)")
         rows["libigl SLIM (here)"] = s
         report[mesh] = {"n_faces": len(F), "E_best": best, "rows": rows, "skipped": skipped,
-                        "warm_seconds": {n: [c.results[n].seconds for c in warm] for n in solvers}}
+                        "warm_seconds": {n: [c.results[n].stats.seconds for c in warm] for n in solvers}}
         print(table(mesh, len(F), rows, ref))
         print(f"\nE* = {best:.10g}; medians of {args.repeat} warm run(s), at most {args.max_seconds:g} s "
               f"per solver; skipped: {', '.join(skipped) or 'none'}\n", flush=True)

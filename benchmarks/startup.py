@@ -97,11 +97,11 @@ def sibling(V, F, remove=3):
 
 def same_bucket(A, B):
     from geomopt import Objective, Problem
-    from geomopt._padding import bucket
+    from geomopt._padding import power_bucket
 
     oa, ob = (Objective(Problem.surface(*M), "symmetric_dirichlet", buckets=True) for M in (A, B))
-    return (oa.sizes.n_padded, oa.sizes.m_padded, bucket(oa.pattern.nnz)) == \
-        (ob.sizes.n_padded, ob.sizes.m_padded, bucket(ob.pattern.nnz))
+    return (oa.sizes.n_padded, oa.sizes.m_padded, power_bucket(oa.pattern.nnz)) == \
+        (ob.sizes.n_padded, ob.sizes.m_padded, power_bucket(ob.pattern.nnz))
 
 
 def start_map(V, F):
@@ -159,7 +159,7 @@ def backend_iteration_seconds(V, F):
         for _ in range(3):  # median of 3: one run in two can stall on a shared machine
             c0 = time.process_time()
             r = geomopt.parameterize(V, F, solver=solver, progress=False)
-            per_it.append((r.seconds / max(r.iterations, 1), (time.process_time() - c0) / max(r.iterations, 1)))
+            per_it.append((r.stats.seconds / max(r.stats.iterations, 1), (time.process_time() - c0) / max(r.stats.iterations, 1)))
         out[backend] = statistics.median(p[0] for p in per_it)
         out[backend + "_cpu"] = statistics.median(p[1] for p in per_it)  # whole parameterize / iterations
     out["auto_backend"] = linsolve.available_backends()[0]

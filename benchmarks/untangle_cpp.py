@@ -58,7 +58,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import heldout as H  # noqa: E402
 
 from geomopt import generators as G  # noqa: E402
-from geomopt.batch import write_lim_case  # noqa: E402
 from geomopt.io import read_mesh, read_vtk_tets  # noqa: E402
 from geomopt.lim import LimCase  # noqa: E402
 from geomopt.predicates import count_inverted  # noqa: E402
@@ -112,7 +111,7 @@ def prepare(name, root):
     else:
         folder = Path(root) / name
         if not (folder / "handles.txt").exists():
-            write_lim_case(folder, CASES[name]())
+            LimCase.from_tangle(CASES[name]()).write(folder)
     case = LimCase.read(folder)
     S = case["faces"] if case["dim"] == 2 else case["tets"]
     rest = np.asarray(case["rest"])[:, : case["dim"]]

@@ -11,7 +11,7 @@ variable).  The import is light: JAX and the solvers load when a name that needs
 first used.
 """
 
-__version__ = "0.1.0"
+from ._version import __version__  # noqa: E402
 
 from . import _cache  # noqa: E402
 

@@ -40,8 +40,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import ParameterError
+from ._objective import block_hessian, free_value_and_grad, jit
+from ._projection import as_projection
 from ._x64 import float64
-from ._objective import PROJECTIONS, total_energy, block_hessian, jit
 
 __all__ = ["NewtonCG", "CGOperator", "CGInfo", "pcg"]
 
@@ -226,9 +227,7 @@ def cg_system(VB, op: CGOperator, shift):
 def newton_cg_kernel(density, projection, chunk, n_blocks, geom, x, params, op, shift, rtol,
                      eta_max, gnorm_ref, max_iters):
     """Energy, gradient and the CG projected-Newton direction at ``x``; see :class:`NewtonCG`."""
-    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
-    free = op.free
-    g = grad * free
+    value, g = free_value_and_grad(density, geom, op.free, x, params)
     VB = block_hessian(density, projection, chunk, geom, x, params, op.blocks, op.swap, n_blocks)
     matvec, precond = cg_system(VB, op, shift)
     gnorm = jnp.sqrt(jnp.vdot(g, g))
@@ -309,9 +308,7 @@ class NewtonCG:
             free=objective.free_mask, blocks=blocks, swap=swap)
 
     def _args(self, op, objective, x, params, projection, shift, gnorm_ref, rtol):
-        if projection not in PROJECTIONS:
-            raise ParameterError(f"unknown PSD projection {projection!r}; valid: {', '.join(PROJECTIONS)}")
-        return (objective.energy.density, projection, objective.chunk, objective.block_assembly[2],
+        return (objective.energy.density, as_projection(projection), objective.chunk, objective.block_assembly[2],
                 objective.geom, objective.pad_map(jnp.asarray(x)), params, op, jnp.float64(shift),
                 jnp.float64(self.rtol if rtol is None else rtol), jnp.float64(self.eta_max),
                 jnp.float64(gnorm_ref), jnp.int32(self.max_iters))

@@ -45,16 +45,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
 from . import _manifest, io
 from ._errors import MeshError, ParameterError
 from ._objective import Objective
 from ._x64 import float64
-from .certify import local_certificate
 from .problem import Problem
-from .solvers import CM, Newton, Outcome, Progress, get_solver
+from .solvers import CM, Newton, Outcome, Progress, get_solver, iterate
 
 __all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
@@ -66,6 +64,8 @@ HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy",
                    "grad_norm", "flips")
 _BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
                  "s_per_it", "energy", "mean_energy", "gap", "max_flips", "repeats")
+#: the ``reason`` of a solve the time limit stopped (outcome MAX_STEPS)
+TIME_LIMIT = "stopped at the time limit (max_seconds)"
 #: the reference solve of ``reference="auto"``
 REFERENCE_RTOL, REFERENCE_MAX_STEPS = 1e-14, 500
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
@@ -182,7 +182,7 @@ class Comparison:
     objective : the :class:`~geomopt.Objective` every solver minimised.
     start : (n, d) the start map every solver began from (problem frame).
     mirror : (d,) per-axis signs from the problem frame to the input's (a LIM case given
-        clockwise is solved mirrored, :func:`~geomopt.untangle.lim_problem`); maps are
+        clockwise is solved mirrored, :meth:`~geomopt.lim.LimCase.to_problem`); maps are
         written as ``x * mirror``.
     label : str, a short description of the problem for titles.
     tolerances : the gaps the summary reports iterations and seconds to.
@@ -462,7 +462,7 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
 
         * a mesh file path (OBJ/OFF/PLY/STL, a disk): free-boundary parameterization;
         * a LIM case folder (``input.obj`` + ``handles.txt``, or ``rest.vtk`` + ``init.vtk``):
-          fixed handles, the case's map as the start (:func:`~geomopt.untangle.lim_problem`);
+          fixed handles, the case's map as the start (:meth:`~geomopt.lim.LimCase.to_problem`);
         * an (n, 3) (surface) or (n, 2) (planar) vertex array, with ``faces`` (m, 3):
           free-boundary parameterization;
         * a :class:`~geomopt.Problem` (handles included); ``x0`` is then required unless it
@@ -578,53 +578,28 @@ def _settings(max_seconds, reference, repeat, tolerances, formats) -> dict:
 
 
 def _run(name, solver, objective, x0, max_seconds, progress, tag="") -> SolverRun:
-    """One solver through ``init`` / ``terminate`` / ``step``, timing only those calls (wall
-    and process CPU)."""
+    """One solver through :func:`~geomopt.solvers.iterate`, every iterate observed: its
+    inverted elements counted (exact) and the time limit applied.  Only the solver's calls are
+    timed (wall and process CPU); the observer's time is not solve time.  The final map is
+    certified there (:class:`~geomopt.solvers.LocalCertificate`): a CONVERGED solve whose map
+    is not locally injective ends NOT_INJECTIVE."""
     problem = objective.problem
     report = Progress(prefix=f"{name}{tag} ", total=solver.max_steps, every=50) if progress else None
-    w0, c0 = time.perf_counter(), time.process_time()
-    state = solver.init(objective, x0, objective.params())
-    solver.terminate(state)  # its first call compiles the stopping test's small kernels
-    setup, setup_cpu = time.perf_counter() - w0, time.process_time() - c0
-    trace = {"e": [state.value], "w": [0.0], "c": [0.0], "g": [_norm(state.grad)],
-             "f": [problem.count_inverted(objective.unpad_map(np.asarray(state.x)))]}
-    wall = cpu = 0.0
-    stopped = None
-    try:
-        while True:
-            w0, c0 = time.perf_counter(), time.process_time()
-            done, outcome = solver.terminate(state)
-            if not done and max_seconds is not None and wall >= max_seconds:
-                done, outcome, stopped = True, Outcome.MAX_STEPS, "max_seconds"
-            if not done:
-                state = solver.step(state)
-            wall, cpu = wall + time.perf_counter() - w0, cpu + time.process_time() - c0
-            if done:
-                break
-            for key, value in (("e", state.value), ("w", wall), ("c", cpu), ("g", _norm(state.grad)),
-                               ("f", problem.count_inverted(objective.unpad_map(np.asarray(state.x))))):
-                trace[key].append(value)
-            if report:
-                report(state, wall, state.value / objective.total_volume)
-    finally:
-        if report:
-            report.close()
-    return _finish(name, solver, objective, x0, state, outcome, stopped, trace, setup, setup_cpu, progress, tag)
+    flips = [problem.count_inverted(np.asarray(x0))]
 
+    def observe(state, seconds):
+        flips.append(problem.count_inverted(objective.unpad_map(np.asarray(state.x))))
+        return TIME_LIMIT if max_seconds is not None and seconds >= max_seconds else None
 
-def _finish(name, solver, objective, x0, state, outcome, stopped, trace, setup, setup_cpu, progress, tag):
-    x = objective.unpad_map(np.asarray(state.x))
-    if not np.isfinite(x).all():
-        outcome, x = Outcome.NONFINITE, np.asarray(x0)
-    cert = local_certificate(x, objective.problem.simplices)  # exact: orientations, fans, stars
-    if outcome is Outcome.CONVERGED and not cert.ok:
-        outcome = Outcome.NOT_INJECTIVE
-    run = SolverRun(name, solver, x, outcome, stopped, cert.inverted, np.asarray(trace["e"], np.float64),
-                    np.asarray(trace["w"]), np.asarray(trace["c"]), np.asarray(trace["g"]),
-                    np.asarray(trace["f"], np.int64), setup, setup_cpu, state.evaluations, cert)
+    res = iterate(solver, objective, x0, objective.params(), observe=observe, progress=report, trace=True)
+    t, st = res.trace, res.stats
+    run = SolverRun(name, solver, res.x, res.outcome, "max_seconds" if res.reason == TIME_LIMIT else None,
+                    res.certificate.inverted, t.energy, t.seconds, t.cpu_seconds, t.grad_norm,
+                    np.asarray(flips, np.int64), st.setup_seconds, st.setup_cpu_seconds, st.evaluations,
+                    res.certificate)
     if progress:
         print(f"{name}{tag}: {run.iterations} it, {run.seconds:.2f} s (cpu {run.cpu_seconds:.2f} s) + setup "
-              f"{setup:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
+              f"{run.setup_seconds:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
               f"{int(run.flips_history.max())}, {run.status}", file=sys.stderr, flush=True)
     return run
 
@@ -649,10 +624,6 @@ def _reference(reference, runs, objective, start, progress) -> Reference:
     return Reference(energy, "auto", detail)
 
 
-def _norm(g) -> float:
-    return float(jnp.sqrt(jnp.vdot(g, g))) if g is not None else float("nan")
-
-
 # ------------------------------------------------------------------------------ inputs
 
 
@@ -673,10 +644,9 @@ def _problem(mesh, faces, energy, x0, weights, energy_params):
         source["input"] = str(path)
         if path.is_dir():
             from .lim import LimCase
-            from .untangle import lim_problem
 
             case = path
-            problem, case_x0, _, mirror = lim_problem(LimCase.read(path))
+            problem, case_x0, _, mirror = LimCase.read(path).to_problem()
             x0 = case_x0 if x0 is None else io.validate_vertices(x0, "start map x0", dim=problem.dim) * mirror
             source["files_sha256"] = {p.name: _manifest.file_hash(p) for p in sorted(path.iterdir()) if p.is_file()}
             source["start"] = source["start"] or "the LIM case's map"

@@ -1,4 +1,4 @@
-"""Validation of configuration objects (solvers, line searches): one rule per field kind.
+"""Validation of configuration objects (solvers, line searches, options): one rule per field kind.
 
 Configuration classes are frozen dataclasses; their ``__post_init__`` calls :func:`validate`
 with a rule per field, which checks the value, normalises it (``1e3`` -> ``1000`` for an
@@ -90,6 +90,22 @@ class Instance:
         return "True or False" if self.cls is bool else f"a {self.cls.__name__} object"
 
 
+@dataclasses.dataclass(frozen=True)
+class Maybe:
+    """None, or a value that ``rule`` accepts."""
+
+    rule: object
+
+    def __call__(self, value):
+        return _NONE if value is None else self.rule(value)
+
+    def __str__(self):
+        return f"None or {self.rule}"
+
+
+_NONE = object()  # what Maybe returns for None (validate stores None)
+
+
 def validate(obj, **rules):
     """Check the fields of the frozen dataclass ``obj``, one rule per named field, and store
     the normalised values; raise :class:`ParameterError` at the first invalid one."""
@@ -99,4 +115,4 @@ def validate(obj, **rules):
         ok = rule(value)
         if ok is None:
             raise ParameterError(f"{owner}: {name} must be {rule}, got {value!r}")
-        object.__setattr__(obj, name, ok)
+        object.__setattr__(obj, name, None if ok is _NONE else ok)

@@ -34,15 +34,13 @@ import scipy.sparse as sp
 from . import _padding
 from . import _programs
 from . import _x64
-from ._eigh import eigh
 from ._geometry import dets
 from ._errors import ParameterError
 from ._tracing import StaticKey, is_traced, refuse_traced
 from .energies import Energy, get_energy
+from ._projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
 from .linsolve import SparseCholesky
 from .problem import Problem
-
-PROJECTIONS = ("clamp", "abs", "none")
 
 #: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
 #: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
@@ -131,9 +129,16 @@ def energy_kernel(density, geom, x, params):
     return total_energy(density, geom, x, params)
 
 
+def free_value_and_grad(density, geom, free, x, params):
+    """``(E(x), grad E(x) * free)``: the energy and its gradient on the free DOFs (``free``
+    (n, d) is 1 on free DOFs, 0 on fixed and padded ones).  Traceable."""
+    v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+    return v, g * free
+
+
 @partial(jit, static_argnums=0)
-def value_and_grad_kernel(density, geom, x, params):
-    return jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+def value_and_grad_kernel(density, geom, free, x, params):
+    return free_value_and_grad(density, geom, free, x, params)
 
 
 @jit
@@ -141,37 +146,10 @@ def dets_kernel(geom, x):
     return _dets(geom, x)
 
 
-def project_psd(H, method):
-    """Project symmetric blocks ``H`` (..., k, k) to PSD by their eigenvalues.
-
-    ``clamp``: ``max(lambda, floor)`` with a tiny relative floor (Teran et al. 2005);
-    ``abs``: ``max(|lambda|, floor)`` (Chen et al. 2024, "Stabler Neo-Hookean simulation:
-    absolute eigenvalue filtering for projected Newton"); ``none``: unchanged.
-    PSD blocks are returned unchanged up to rounding and the floor.
-    """
-    if method == "none":
-        return H
-    w, Q = eigh(H)
-    floor = 1e-10 * jnp.max(jnp.abs(w), axis=-1, keepdims=True)
-    if method == "clamp":
-        w = jnp.maximum(w, floor)
-    elif method == "abs":
-        w = jnp.maximum(jnp.abs(w), floor)
-    else:
-        raise ParameterError(f"unknown PSD projection {method!r}; valid: {', '.join(PROJECTIONS)}")
-    Qw = Q * w[..., None, :]
-    # sum_l Qw[i, l] Q[j, l] as broadcast products: 1.3x faster on CPU than a batched matmul
-    return sum(Qw[..., :, None, l] * Q[..., None, :, l] for l in range(Q.shape[-1]))
-
-
 def element_block(density, projection, J, params, vol):
-    """(d*d, d*d) J-space block ``vol * H`` of one element: the density's Hessian projected by
-    ``projection`` (a :data:`PROJECTIONS` name), or a proxy object (SLIM, CM;
-    :mod:`geomopt.solvers.proxies`) called as ``projection(density, J, params)``."""
-    d = J.shape[-1]
-    if callable(projection):
-        return projection(density, J, params).reshape(d * d, d * d) * vol
-    return project_psd(jax.hessian(density)(J, params).reshape(d * d, d * d) * vol, projection)
+    """(d*d, d*d) J-space block ``vol * H`` of one element under ``projection`` (a
+    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy)."""
+    return as_projection(projection).block(density, J, params, vol)
 
 
 def local_pairs(d):
@@ -233,10 +211,11 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 
 
 @partial(jit, static_argnums=(0, 1, 2, 3))
-def hessian_kernel(density, projection, chunk, n_blocks, geom, x, params, blocks, swap, gather):
-    """Energy, gradient and the assembled lower-triangle CSC data (nnz,) of the projected
-    Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's ``gather``."""
-    value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, blocks, swap, gather):
+    """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
+    of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
+    ``gather``."""
+    value, grad = free_value_and_grad(density, geom, free, x, params)
     VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks)
     return value, grad, VB.reshape(-1)[gather]
 
@@ -415,9 +394,11 @@ class Objective:
     19 Newton iterations on camelhead).
 
     With ``buckets=True`` (what :func:`~geomopt.parameterize` uses) the arrays are padded to
-    size buckets (:mod:`geomopt._padding`) so that meshes of similar size share compiled
-    kernels and persistent-cache entries; every method then takes maps with ``n`` rows (and
-    returns ``n`` rows, ``m`` elements) or ``n_padded`` rows, as solver states hold them.
+    size buckets (:mod:`geomopt._padding`, the one padding rule) so that meshes of similar size
+    share compiled kernels and persistent-cache entries; ``buckets`` may also be another
+    objective's ``sizes`` (a sub-problem on the same vertices padded like its whole).  Every
+    method then takes maps with ``n`` rows (and returns ``n`` rows, ``m`` elements) or
+    ``n_padded`` rows, as solver states hold them.
 
     **Composable.**  :meth:`value`, :meth:`value_and_grad` and :meth:`dets` work under
     ``jax.jit``, ``grad``, ``hessian``, ``jvp`` / ``vjp`` and ``vmap`` (over maps and over
@@ -434,12 +415,12 @@ class Objective:
     ----------
     problem : :class:`~geomopt.Problem`.
     energy : name or :class:`~geomopt.energies.Energy`.
-    buckets : pad to size buckets (see above).
+    buckets : pad to size buckets (see above): True, False, or another objective's ``sizes``.
     element_weights : (m,) positive weights ``w_e`` (traceable), or None.
     params : energy parameters overriding the energy's defaults.
     """
 
-    def __init__(self, problem: Problem, energy: Energy | str, *, buckets: bool = False, element_weights=None,
+    def __init__(self, problem: Problem, energy: Energy | str, *, buckets=False, element_weights=None,
                  **params):
         if not isinstance(problem, Problem):
             raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
@@ -560,21 +541,21 @@ class Objective:
     def value_and_grad(self, x, params=None):
         """(value, grad with fixed rows zeroed); grad has as many rows as ``x``."""
         xp, cut = self._pad(x)
-        v, g = value_and_grad_kernel(self.energy.density, self.geom, xp, self._params(params))
-        g = g * self._free
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, self._free, xp, self._params(params))
         return v, (self.unpad_map(g) if cut else g)
 
     def hessian(self, x, params, projection="clamp"):
         """(value, grad with fixed rows zeroed (as many rows as ``x``), CSC data (nnz,) of the
-        free-DOF Hessian in :attr:`pattern`).  Concrete values only (a host assembly)."""
+        free-DOF Hessian in :attr:`pattern`), each element's block made by ``projection`` (a
+        :mod:`geomopt._projection` object or name: ``"clamp"``, ``"abs"``, ``"none"`` for the
+        exact Hessian...).  Concrete values only (a host assembly)."""
         refuse_traced("Objective.hessian (a sparse assembly on the host)",
                       "use jax.hessian(lambda x: objective.value(x, params)) for a dense Hessian",
                       x, params, self.geom)
         pat, m = self.pattern, self._mesh
         xp, cut = self._pad(x)
-        v, g, data = hessian_kernel(self.energy.density, projection, self.chunk, m.n_blocks_padded,
-                                    self.geom, xp, params, *m.assembly)
-        g = g * self._free
+        v, g, data = hessian_kernel(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
+                                    self.geom, self._free, xp, params, *m.assembly)
         if m.nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
@@ -585,8 +566,8 @@ class Objective:
         but no throw-away evaluation."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.prepare(self.energy.density, projection, self.chunk, m.n_blocks_padded, self.geom,
-                               self._pad(x)[0], params, *m.assembly)
+        hessian_kernel.prepare(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
+                               self.geom, self._free, self._pad(x)[0], params, *m.assembly)
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
@@ -661,8 +642,8 @@ class _Mesh:
             sz = self.sizes
             # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
             # block 0, padded CSC entries gather block entry 0 and are cut off on the host
-            self.nnz_padded = _padding.bucket(pat.nnz) if sz.padded else pat.nnz
-            self.n_blocks_padded = _padding.bucket(pat.n_blocks) if sz.padded else pat.n_blocks
+            self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
+            self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
             extra = sz.m_padded - sz.m
             blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
             swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])

@@ -2,9 +2,19 @@
 
 XLA compiles one program per array shape, and the persistent compilation cache
 (:mod:`geomopt._cache`) is keyed on shapes too: without padding every new mesh compiles
-again.  Rounding the element count ``m``, the vertex count ``n`` and the Hessian's entry count
-``nnz`` up to a few sizes per octave (:func:`bucket`: 4 per octave, at most 25% and on
-average ~12% extra element work) lets a *different* mesh of the same bucket reuse them.
+again.  :class:`~geomopt.Objective` (``buckets=True``) rounds the element count ``m`` up to a
+power of two (from :data:`MINIMUM_ELEMENTS`) and ties the vertex count to it
+(:func:`bucket_sizes`): ``n`` goes to :data:`VERTEX_SHARE` times the element bucket, doubled
+while the mesh has more vertices, so that a mesh family meets one (vertices, elements) bucket
+per element bucket, not two or three.  Meshes above :data:`MAXIMUM_ELEMENTS` elements are not
+padded: their solve, not the compilation, dominates.  The Hessian's entry and block counts
+(Newton) round up to powers of two the same way.
+
+This is the better of the two rules the project had (``benchmarks/README.md``, "Padding"):
+60 generated untangling cases of 300-3,000 elements in one process lowered 23-27 programs
+with powers of two and a tied vertex count, 72 with four buckets per octave for elements and
+vertices independently, and took 4x longer cold (2x warm); the solves themselves were at most
+a third slower with the coarser buckets.
 
 The padding changes no result:
 
@@ -18,34 +28,51 @@ The padding changes no result:
 * the Hessian data has ``nnz_padded`` slots of which the last ``nnz_padded - nnz`` stay 0 and
   are cut off before the factorization.
 
-Certificates (``count_inverted``) and results only ever see the first ``n`` rows (see
-:meth:`geomopt.Objective.unpad_map`).
+Only sums over all elements (the energy, dot products in a solver) may round differently, as
+XLA splits a longer sum differently.  Certificates (``count_inverted``) and results only ever
+see the first ``n`` rows (see :meth:`geomopt.Objective.unpad_map`); statistics over elements
+must ignore those of zero rest volume.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
-#: sizes per octave (1, 1.25, 1.5, 1.75 times a power of two)
-STEPS = (1.0, 1.25, 1.5, 1.75, 2.0)
-#: the smallest bucket: tiny meshes all share one
-MINIMUM = 64
+from ._errors import ParameterError
+
+#: the smallest element bucket (element buckets are MINIMUM_ELEMENTS * 2**k)
+MINIMUM_ELEMENTS = 256
+#: meshes with more elements are not padded: their solve, not the compilation, dominates
+MAXIMUM_ELEMENTS = 2**14
+#: the vertex bucket of an element bucket ``B`` is ``VERTEX_SHARE[d] * B`` (or twice that, ...,
+#: when the mesh has more vertices): disk-like triangle meshes have about ``m / 2`` vertices
+#: plus the boundary's half, box-like tet meshes ``m / 6`` to ``m / 3``
+VERTEX_SHARE = {2: 0.625, 3: 0.375}
 
 
-def bucket(size: int) -> int:
-    """The smallest bucket ``>= size``: ``64`` or ``2^k * {1, 1.25, 1.5, 1.75}`` (k >= 6)."""
-    size = int(size)
-    if size <= MINIMUM:
-        return MINIMUM
-    base = 2 ** int(math.floor(math.log2(size)))
-    for f in STEPS:
-        b = int(math.ceil(base * f))
-        if b >= size:
-            return b
-    raise AssertionError("unreachable: 2 * base >= size")  # pragma: no cover
+def power_bucket(size: int, smallest: int = 64) -> int:
+    """The smallest ``smallest * 2**k >= size`` (k >= 0)."""
+    b = int(smallest)
+    while b < size:
+        b *= 2
+    return b
+
+
+def bucket_sizes(n_vertices: int, n_elements: int, dim: int):
+    """The padded sizes ``(vertices, elements)`` of a mesh, or None when it is not padded
+    (more than :data:`MAXIMUM_ELEMENTS` elements).
+
+    Parameters
+    ----------
+    n_vertices, n_elements : int, the mesh's counts.
+    dim : 2 or 3, the Jacobians' size.
+    """
+    if n_elements > MAXIMUM_ELEMENTS:
+        return None
+    elements = power_bucket(n_elements, MINIMUM_ELEMENTS)
+    return power_bucket(n_vertices, int(VERTEX_SHARE[dim] * elements)), elements
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,9 +86,20 @@ class Sizes:
     m_padded: int
 
     @classmethod
-    def of(cls, problem, buckets: bool = True) -> "Sizes":
+    def of(cls, problem, buckets=True) -> "Sizes":
+        """The sizes of ``problem`` for ``buckets``: False (none), True (:func:`bucket_sizes`),
+        or the :class:`Sizes` of another problem on the same vertices with at least as many
+        elements (a sub-problem padded like its whole, so that both share one bucket)."""
         n, m = problem.n_vertices, problem.n_elements
-        return cls(n, m, bucket(n) if buckets else n, bucket(m) if buckets else m)
+        if isinstance(buckets, Sizes):
+            if buckets.n != n or buckets.m_padded < m:
+                raise ParameterError(f"buckets: the sizes {buckets} do not hold a problem of {n} vertices and "
+                                     f"{m} elements")
+            return cls(n, m, buckets.n_padded, buckets.m_padded)
+        if not isinstance(buckets, (bool, np.bool_)):
+            raise ParameterError(f"buckets must be True, False or another objective's sizes, got {buckets!r}")
+        padded = bucket_sizes(n, m, problem.dim) if buckets else None
+        return cls(n, m, *(padded or (n, m)))
 
     @property
     def padded(self) -> bool:
@@ -98,5 +136,3 @@ def _xp(a):
 
         return jnp
     return np
-
-

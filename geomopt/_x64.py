@@ -52,12 +52,22 @@ def float64(fn, method=False):
             return fn(*args, **kwargs)
         if is_traced((args[1:] if method else args, kwargs)):
             raise ParameterError(MESSAGE)
-        import jax
-
-        with jax.enable_x64(True):
+        with scope():
             return fn(*args, **kwargs)
 
     return run
+
+
+def scope():
+    """JAX's scoped, thread-local 64-bit switch: ``jax.enable_x64(True)``, named
+    ``jax.experimental.enable_x64()`` before JAX 0.7 (the declared floor is 0.4.38)."""
+    import jax
+
+    if hasattr(jax, "enable_x64"):
+        return jax.enable_x64(True)
+    from jax.experimental import enable_x64
+
+    return enable_x64(True)
 
 
 def float64_methods(*names):

@@ -1,11 +1,13 @@
-"""Batches of untangling cases: size buckets, one compilation per bucket, Dask sweeps.
+"""Batches of untangling cases: Dask sweeps and ``summary.csv``.
 
-:func:`untangle` compiles its kernels for the array shapes of each mesh (seconds per shape,
-while a small case then solves in hundredths of a second).  Here a case is padded to a size
-*bucket* (:func:`bucket_sizes`) so that every case of the same bucket runs the same compiled
-program, in one process (the in-memory JIT cache) or across processes and Dask workers
-(JAX's persistent compilation cache).  The padding changes no certificate and, up to the
-order of floating-point sums, no result (:func:`pad_to_bucket`).
+:func:`~geomopt.untangle.untangle` compiles its kernels for the array shapes of each mesh
+(seconds per shape, while a small case then solves in hundredths of a second).  Batches solve
+with ``bucket=True``: each case is padded to its size bucket (``Objective(buckets=True)``,
+:mod:`geomopt._padding`) so that every case of the same bucket runs the same compiled program,
+in one process (the in-memory JIT cache) or across processes and Dask workers (JAX's
+persistent compilation cache); each bucket's first case runs alone, the others of its bucket
+after it.  The padding changes no certificate and, up to the order of floating-point sums, no
+result.
 
 :func:`run_batch` solves many LIM case folders, serially or on Dask distributed (a local
 cluster of worker processes, or an existing scheduler), writing ``<case folder name>.obj``
@@ -17,125 +19,15 @@ the others.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import io as _stdio
 import time
 from pathlib import Path
 
-import numpy as np
+from ._errors import GeomoptError, ParameterError
+from ._padding import bucket_sizes
+from .lim import LimCase, untangle_case
 
-from ._errors import GeomoptError, MeshError, ParameterError, SolveError
-from .lim import LimCase
-
-__all__ = ["bucket_sizes", "pad_to_bucket", "BUCKET_GROWTH", "BUCKET_MIN_ELEMENTS", "BUCKET_MAX_ELEMENTS",
-           "VERTEX_SHARE", "SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary",
-           "write_certified", "check_handles", "write_lim_case"]
-
-#: consecutive element buckets differ by this factor
-BUCKET_GROWTH = 2
-#: the smallest element bucket
-BUCKET_MIN_ELEMENTS = 256
-#: meshes with more elements are not padded: their solve, not the compilation, dominates
-BUCKET_MAX_ELEMENTS = 2**14
-#: the vertex bucket of an element bucket ``B`` is ``VERTEX_SHARE[d] * B`` (or the next one
-#: up when the mesh has more vertices): disk-like triangle meshes have about ``m / 2``
-#: vertices plus the boundary's half, box-like tet meshes ``m / 6`` to ``m / 3``, so a mesh
-#: family meets one (elements, vertices) bucket per element bucket, not two or three
-VERTEX_SHARE = {2: 0.625, 3: 0.375}
-
-
-def _bucket(count: int, smallest: int) -> int:
-    """The smallest ``smallest * BUCKET_GROWTH**k >= count`` (k >= 0)."""
-    size = smallest
-    while size < count:
-        size *= BUCKET_GROWTH
-    return size
-
-
-def bucket_sizes(n_vertices: int, n_elements: int, dim: int):
-    """The padded sizes ``(vertices, elements)`` of a mesh, or None when it is not padded.
-
-    Elements go up to the next ``BUCKET_MIN_ELEMENTS * 2**k``; vertices to
-    ``VERTEX_SHARE[dim]`` times that (times a further power of two when the mesh has more
-    vertices), always leaving room for the ``dim + 1`` vertices of the padding simplex.
-    Meshes above ``BUCKET_MAX_ELEMENTS`` elements are not padded (None).
-
-    Parameters
-    ----------
-    n_vertices, n_elements : int, the mesh's counts.
-    dim : 2 or 3.
-    """
-    if n_elements > BUCKET_MAX_ELEMENTS:
-        return None
-    elements = _bucket(n_elements, BUCKET_MIN_ELEMENTS)
-    vertices = int(VERTEX_SHARE[dim] * elements)
-    while vertices < n_vertices + dim + 1:
-        vertices *= BUCKET_GROWTH
-    return vertices, elements
-
-
-def pad_to_bucket(full, sub, x):
-    """Pad an untangling problem to its size bucket (:func:`bucket_sizes`).
-
-    ``full`` and ``sub`` are the whole problem and its active sub-problem (the same
-    vertices, ``sub`` holding the elements that have a free vertex), both padded to the
-    element bucket of ``full``; ``x`` (n, d) is the start map.  The padding:
-
-    * ``d + 1`` dummy vertices (and copies of the first of them up to the vertex bucket),
-      all fixed, at the corners ``lo, lo + s e_1, ..., lo + s e_d`` of the map's bounding box
-      (``lo`` its lowest corner, ``s`` its largest side), so the map's extent is unchanged;
-      their rest positions repeat rest vertex 0, so the rest extent is unchanged too;
-    * dummy elements on those ``d + 1`` vertices, with the inverse of their edge matrix as
-      rest matrix (``J = I``, finite energy and derivatives) and rest volume 0: they add
-      exact zeros to the energy and gradient, and never move;
-    * when ``sub`` has no fixed vertex, its gauge vertex (the one :class:`~geomopt.Objective`
-      pins, ``sub.simplices[0, 0]``) is fixed explicitly, since the dummies make the fixed
-      set non-empty.
-
-    The elements of the real mesh keep their order, so their energies, gradients and
-    orientation tests are the same numbers; only sums over all elements or vertices (the
-    energy, dot products in the solver) may round differently, as XLA splits a longer sum
-    differently.  Callers must ignore elements of zero volume in minima and counts (the
-    untangling stats do), and cut the result back to ``full.n_vertices`` rows.
-
-    Returns
-    -------
-    (full, sub, x) padded (``x`` as a new (n_bucket, d) float64 array), or the inputs
-    unchanged when the mesh is above ``BUCKET_MAX_ELEMENTS`` elements.
-    """
-    d, n = full.dim, full.n_vertices
-    sizes = bucket_sizes(n, full.n_elements, d)
-    if sizes is None:
-        return full, sub, x
-    n_pad = sizes[0] - n
-    x = np.asarray(x, dtype=np.float64)
-    lo = x.min(axis=0)
-    side = float(np.max(x.max(axis=0) - lo))
-    side = side if side > 0 else 1.0
-    corners = lo + side * np.vstack([np.zeros(d), np.eye(d)])  # (d+1, d)
-    dummies = np.vstack([corners, np.repeat(corners[:1], n_pad - d - 1, axis=0)])
-    simplex = n + np.arange(d + 1)
-    rest_inv = np.linalg.inv((dummies[1:d + 1] - dummies[0]).T)  # J = edges @ rest_inv = I
-    ids = n + np.arange(n_pad)
-
-    def pad(p, gauge):
-        extra = sizes[1] - p.n_elements
-        S = np.vstack([p.simplices, np.broadcast_to(simplex, (extra, d + 1))])
-        S_in = np.vstack([p.input_simplices, np.broadcast_to(simplex, (extra, d + 1))])
-        fixed = np.concatenate([p.fixed, gauge, ids])
-        fixed_pos = np.vstack([p.fixed_positions, x[gauge], dummies])
-        order = np.argsort(fixed, kind="stable")
-        return dataclasses.replace(
-            p, n_vertices=sizes[0], simplices=np.ascontiguousarray(S), input_simplices=np.ascontiguousarray(S_in),
-            rest_inv=np.concatenate([p.rest_inv, np.broadcast_to(rest_inv, (extra, d, d))]),
-            volumes=np.concatenate([p.volumes, np.zeros(extra)]),
-            rest_vertices=np.vstack([p.rest_vertices, np.repeat(p.rest_vertices[:1], n_pad, axis=0)]),
-            fixed=fixed[order], fixed_positions=fixed_pos[order])
-
-    no_gauge = np.zeros(0, np.int64)
-    gauge = sub.simplices[:1, 0] if sub.fixed.size == 0 and sub.n_elements else no_gauge
-    return pad(full, no_gauge), pad(sub, gauge), np.vstack([x, dummies])
-
+__all__ = ["SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary"]
 
 # --------------------------------------------------------------------- one case
 
@@ -145,44 +37,9 @@ SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "in
                    "outer_iterations", "inner_iterations", "seconds", "certified", "output", "message")
 
 
-def check_handles(case):
-    """Raise MeshError unless the case (:class:`geomopt.lim.LimCase`) fixes some vertex
-    (a fixed-boundary untangling needs them)."""
-    if case.handles.size == 0:
-        raise MeshError(f"{case.handles_file} is empty: untangling needs a fixed boundary; list the "
-                        f"0-based ids of the fixed vertices in it, one per line")
-
-
-def write_certified(case, result, path):
-    """Write an untangled case to ``path`` atomically, certifying the written file first.
-
-    The file is written beside ``path`` and read back (:func:`geomopt.untangle.write_untangle_result`);
-    only a file that certifies (locally injective, handles bit-exact) is renamed onto
-    ``path``, so a file that does not certify never replaces an older one.
-
-    Returns
-    -------
-    dict, the check of :func:`~geomopt.untangle.write_untangle_result` (``path`` the temporary).
-
-    Raises
-    ------
-    SolveError
-        The written file did not certify; nothing is left at ``path`` from this call.
-    GeomoptError
-        ``path`` cannot be written.
-    """
-    from . import io, untangle
-
-    with io.atomic_path(path) as tmp:
-        check = untangle.write_untangle_result(case, result, tmp)
-        if not check["certified"]:
-            raise SolveError(f"the written file did not certify: {check['message']}")
-    return check
-
-
 def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     """Read a LIM case folder, untangle it, write ``outdir/<folder name>.obj`` (2D) or ``.vtk``
-    (3D) if it certifies (:func:`write_certified`), and return its summary row.
+    (3D) if it certifies (:meth:`geomopt.lim.LimCase.write_certified`), and return its summary row.
 
     Never raises on a bad case (``Exception``): an unreadable, malformed, unsolvable or
     uncertified case gives a row with ``certified = "no"``, the reason in ``message`` and no
@@ -193,31 +50,29 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     folder : a case folder (:meth:`geomopt.lim.LimCase.read`).
     outdir : the output folder (must exist).
     solver : inner solver name for :func:`geomopt.untangle.untangle`.
-    bucket : pad to a size bucket (:func:`pad_to_bucket`), so that cases of similar sizes
+    bucket : pad to a size bucket (:mod:`geomopt._padding`), so that cases of similar sizes
         share compiled kernels.
 
     Returns
     -------
     dict with the keys of :data:`SUMMARY_COLUMNS` (strings and ints).
     """
-    from . import untangle
-
     start = time.perf_counter()
     folder = Path(folder)
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=folder.name, certified="no")
     try:
         case = LimCase.read(folder)
-        check_handles(case)
+        case.require_handles()
         row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
-        case, res = untangle.untangle_case(case, solver=solver, progress=False, bucket=bucket)
-        row.update(inverted_before=res.initially_inverted, inverted_after=res.inverted,
-                   outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations)
+        case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket)
+        row.update(inverted_before=res.stats.inverted_at_start, inverted_after=res.certificate.inverted,
+                   outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations)
         if not res.success:
             row["message"] = f"not certified: {res.message}"
         else:
-            output = Path(outdir) / (folder.name + (".obj" if case["dim"] == 2 else ".vtk"))
-            check = write_certified(case, res, output)
+            output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
+            check = case.write_certified(res, output)
             row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
     except GeomoptError as exc:
         row["message"] = str(exc)
@@ -294,7 +149,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
         cluster of N single-threaded worker processes.
     scheduler : address of an existing Dask scheduler (``workers`` is then ignored); its
         workers must import geomopt and see ``cases`` and ``outdir`` at the same paths.
-    bucket : pad cases to size buckets (:func:`pad_to_bucket`; the default), so that each
+    bucket : pad cases to size buckets (:mod:`geomopt._padding`; the default), so that each
         bucket compiles once.  The serial and the Dask runs write the same files, bit for bit.
     report : optional callable ``(row, done, total)`` called as each case finishes.
     chunk : cases per Dask task (default: about 8 tasks per worker, at most 16 cases each).
@@ -357,8 +212,7 @@ def _apply_jax_settings(settings):
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
-    import geomopt  # noqa: F401  (x64 on, as in every geomopt process)
-
+    # importing this module ran geomopt's package configuration already (x64 on, the cache)
     changed = [k for k, v in settings.items() if v is not None and getattr(jax.config, k) != v]
     for key in changed:
         jax.config.update(key, settings[key])
@@ -467,11 +321,3 @@ def _failed_row(folder, message):
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=Path(folder).name, certified="no", message=message)
     return row
-
-
-# --------------------------------------------------------------------- generated cases
-
-
-def write_lim_case(folder, tangle):
-    """Deprecated: ``LimCase.from_tangle(tangle).write(folder)`` (:class:`geomopt.lim.LimCase`)."""
-    return LimCase.from_tangle(tangle).write(folder)

@@ -55,8 +55,8 @@ from .predicates import orient2d, simplex_orientations
 from .stars import fan_overlaps_2d, star_overlaps_3d
 from .topology import check_disk
 
-__all__ = ["Certificate", "LocalCertificate", "certify_bijective", "local_certificate",
-           "polygon_crossings", "polygon_orientation"]
+__all__ = ["Certificate", "LocalCertificate", "certify_bijective", "fixed_star_certificate",
+           "local_certificate", "polygon_crossings", "polygon_orientation"]
 
 # Largest number of (edge, cell) entries per edge before the grid cells are made coarser.
 _MAX_CELLS_PER_EDGE = 4.0
@@ -350,6 +350,62 @@ def local_certificate(x, S, orientation: int = 1) -> LocalCertificate:
         return LocalCertificate(0, -1, branch, _no_edges(), overlaps, _no_edges(), time.perf_counter() - t0)
     edges, branch, bedges, overlaps = star_overlaps_3d(x, S)
     return LocalCertificate(0, -1, branch, edges, overlaps, bedges, time.perf_counter() - t0)
+
+
+def _edge_keys(S, n):
+    """``(m * C(k, 2),)`` int64 keys ``lo * n + hi`` of every edge of every element of ``S`` (m, k)."""
+    k = S.shape[1]
+    pairs = [(a, b) for a in range(k) for b in range(a + 1, k)]
+    return np.concatenate([np.minimum(S[:, a], S[:, b]) * n + np.maximum(S[:, a], S[:, b])
+                           for a, b in pairs])
+
+
+def fixed_star_certificate(x, S, fixed) -> LocalCertificate:
+    """The local certificate of the vertices and edges that no free vertex can change.
+
+    A vertex (an edge) whose whole star -- every element containing it -- has all its vertices
+    fixed, every element positively oriented, is certified the same way by every map with these
+    handles (:mod:`geomopt.stars` decides each vertex and edge from its star alone).  When such a
+    star overlaps itself (tets winding twice around an edge, a boundary fan turning a full turn
+    or more, ...), no map with these handles is locally injective, and solving is pointless.
+    Stars with a free vertex, or with an inverted fixed element (see
+    :func:`geomopt.predicates.count_inverted`), are not judged here: only overlaps that are
+    certain are reported.
+
+    Parameters
+    ----------
+    x : (n, 2) or (n, 3) float array, a map with the handles in place.
+    S : (m, 3) or (m, 4) int array, the elements, positively oriented when the map is valid.
+    fixed : (h,) int array, the fixed vertices.
+
+    Returns
+    -------
+    :class:`LocalCertificate` (``inverted == 0``) listing only vertices and edges whose whole
+    star is fixed and positive; ``ok`` when there is none that overlaps.
+    """
+    t0 = time.perf_counter()
+    x = np.asarray(x, dtype=np.float64)
+    S = np.asarray(S, dtype=np.int64)
+    n = len(x)
+    is_fixed = np.zeros(n, bool)
+    is_fixed[validate_indices(fixed, n, "fixed vertices")] = True
+    sub = is_fixed[S].all(axis=1)
+    sub[sub] = simplex_orientations(x, S[sub]) == 1
+    if not sub.any():
+        return LocalCertificate(0, seconds=time.perf_counter() - t0)
+    cert = local_certificate(x, S[sub])
+    # a vertex (edge) is judged only when no element outside the fixed positive part contains it
+    open_vertex = np.zeros(n, bool)
+    open_vertex[S[~sub].ravel()] = True
+    open_edges = _edge_keys(S[~sub], n)
+
+    def closed_edges(E):
+        return E[~np.isin(E[:, 0] * n + E[:, 1], open_edges)]
+
+    return LocalCertificate(
+        0, -1, cert.branch_vertices[~open_vertex[cert.branch_vertices]],
+        closed_edges(cert.branch_edges), cert.boundary_overlaps[~open_vertex[cert.boundary_overlaps]],
+        closed_edges(cert.boundary_edge_overlaps), time.perf_counter() - t0)
 
 
 @dataclasses.dataclass(frozen=True)

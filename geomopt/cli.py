@@ -142,23 +142,23 @@ def cmd_param(args) -> int:
     # patterns, analysis, the exact certificate)
     compiled = compile_seconds() - compiled
     split.add("compile", compiled)
-    split.add("solve", res.seconds)
-    split.add("setup", time.perf_counter() - t_solve - res.seconds - compiled)
-    rep = res.info.get("repair")
+    split.add("solve", res.stats.seconds)
+    split.add("setup", time.perf_counter() - t_solve - res.stats.seconds - compiled)
+    rep = res.details.repair if res.details is not None else None
     if rep is not None:
-        _log(args, f"repaired the start map's {rep.initially_inverted} folded triangle(s), boundary held: "
-                   f"{rep.outer_iterations} outer iterations, {rep.seconds:.2f} s, "
+        _log(args, f"repaired the start map's {rep.stats.inverted_at_start} folded triangle(s), boundary held: "
+                   f"{rep.stats.outer_iterations} outer iterations, {rep.stats.seconds:.2f} s, "
                    f"{'certified' if rep.success else 'not certified: ' + rep.message}")
     if rep is not None and not rep.success:
         return _fail(f"the start map could not be repaired: {rep.message}")
-    mean = res.energy / res.info["objective"].total_volume
-    _log(args, f"faces {len(F)}  iterations {res.iterations}  seconds {res.seconds:.2f}  "
-               f"compile seconds {res.setup_seconds:.2f}  energy {res.energy:.10g}  mean energy {mean:.10g}  "
-               f"flips {res.inverted}  injective {res.injectivity}  outcome {res.outcome.value}")
+    mean, st = res.mean_energy, res.stats
+    _log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  "
+               f"compile seconds {st.setup_seconds:.2f}  energy {res.energy:.10g}  mean energy {mean:.10g}  "
+               f"flips {res.certificate.inverted}  injective {res.injectivity}  outcome {res.outcome.value}")
     _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
-            energy_name=energy.name, solver=args.solver, iterations=res.iterations,
-            solve_seconds=round(res.seconds, 4), setup_seconds=round(res.setup_seconds, 4),
-            energy=res.energy, mean_energy=mean, flips=res.inverted, injectivity=res.injectivity,
+            energy_name=energy.name, solver=args.solver, iterations=st.iterations,
+            solve_seconds=round(st.seconds, 4), setup_seconds=round(st.setup_seconds, 4),
+            energy=res.energy, mean_energy=mean, flips=res.certificate.inverted, injectivity=res.injectivity,
             boundary_crossings=_boundary_crossings(res), uv_range=args.uv_range,
             outcome=res.outcome.value, message=res.message, **_cache_summary())
     if not res.success:
@@ -199,8 +199,8 @@ def _warn_overlap(res, args):
 
 def _boundary_crossings(res):
     """Crossing boundary edge pairs by the result's global certificate, None without one."""
-    cert = res.info.get("certificate")
-    return None if cert is None else len(cert.crossings)
+    crossings = getattr(res.certificate, "crossings", None)
+    return None if crossings is None else len(crossings)
 
 
 def _for_the_command_line(exc, args):
@@ -237,12 +237,12 @@ def _save_param_figures(res, V, F, uv, png, outputs, args):
     from . import io, plot
     from ._objective import element_densities
 
-    obj = res.info["objective"]
+    obj = res.objective
     dens = np.asarray(element_densities(obj, res.x))
     rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
     title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
-             f"{res.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
+             f"{res.stats.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
              f"injective {res.injectivity}")
     plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
                            np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
@@ -250,7 +250,7 @@ def _save_param_figures(res, V, F, uv, png, outputs, args):
                            f"{obj.energy.name} density", format=base.suffix[1:].lower())
     vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
-                          {args.solver: (res.time_history, res.energy_history / vol, res.grad_history / vol)},
+                          {args.solver: (res.trace.seconds, res.trace.energy / vol, res.trace.grad_norm / vol)},
                           ylabel=f"mean {obj.energy.name} energy", title=title, format=conv.suffix[1:].lower())
     return base, conv
 
@@ -273,10 +273,8 @@ def _untangle_one(args, folder) -> int:
     from . import io
     from ._errors import ParameterError
     from ._timing import compile_seconds
-    from .batch import check_handles, write_certified
-    from .lim import LimCase
+    from .lim import LimCase, untangle_case
     from .quality import element_quality
-    from .untangle import untangle_case
 
     split = args.timing
     split.mark_imported()
@@ -288,30 +286,30 @@ def _untangle_one(args, folder) -> int:
     _output_paths(args.output, (want,), [("--png picture", args.png)] if args.png else [], [folder])
     with split.phase("read"):
         case = LimCase.read(folder)
-        check_handles(case)
+        case.require_handles()
     t_call, compiled = time.perf_counter(), compile_seconds()
     case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
     compiled = compile_seconds() - compiled
+    st = res.stats
     # setup: all of untangle_case but the solve loop, the certificate and JAX's compilation
-    certify = res.info.get("certify_seconds", 0.0)
     split.add("compile", compiled)
-    split.add("solve", res.seconds)
-    split.add("certify", certify)
-    split.add("setup", time.perf_counter() - t_call - res.seconds - certify - compiled)
+    split.add("solve", st.seconds)
+    split.add("certify", st.certify_seconds)
+    split.add("setup", time.perf_counter() - t_call - st.seconds - st.certify_seconds - compiled)
     with split.phase("certify"):
-        quality = element_quality(res.x, case["faces"] if case["dim"] == 2 else case["tets"], case["orientation"])
-    _log(args, f"elements {res.info.get('elements', '?')}  outer iterations {res.outer_iterations}  "
-               f"seconds {res.seconds:.2f}  compile seconds {res.setup_seconds:.2f}  "
-               f"inverted {res.inverted}  certified {'yes' if res.success else 'no'}")
+        quality = element_quality(res.x, case.simplices, case.to_problem().orientation)
+    _log(args, f"elements {res.problem.n_elements}  outer iterations {st.outer_iterations}  "
+               f"seconds {st.seconds:.2f}  compile seconds {st.setup_seconds:.2f}  "
+               f"inverted {res.certificate.inverted}  certified {'yes' if res.success else 'no'}")
     _log(args, f"quality: smallest size / mean {quality['min_size_ratio']:.4g}, scaled Jacobian min "
                f"{quality['min_scaled_jacobian']:.4g} mean {quality['mean_scaled_jacobian']:.4g}")
-    _report(args, case=str(folder), output=str(args.output), dim=LimCase.dim_of(folder), vertices=len(res.x),
-            elements=res.info.get("elements"), inverted_before=res.initially_inverted, inverted=res.inverted,
-            outer_iterations=res.outer_iterations, inner_iterations=res.inner_iterations,
-            evaluations=res.info.get("evaluations"), solve_seconds=round(res.seconds, 4),
-            setup_seconds=round(res.setup_seconds, 4), handles_moved=res.handles_moved, min_det_rel=res.min_det_rel,
-            outcome=res.outcome.value, certified=bool(res.success), message=res.message, **quality,
-            **_cache_summary())
+    _report(args, case=str(folder), output=str(args.output), dim=case.dim, vertices=len(res.x),
+            elements=res.problem.n_elements, inverted_before=st.inverted_at_start, inverted=res.certificate.inverted,
+            outer_iterations=st.outer_iterations, inner_iterations=st.iterations,
+            evaluations=st.evaluations, solve_seconds=round(st.seconds, 4),
+            setup_seconds=round(st.setup_seconds, 4), handles_moved=res.certificate.handles_moved,
+            min_det_rel=res.min_det_rel, outcome=res.outcome.value, certified=bool(res.success),
+            message=res.message, **quality, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -320,7 +318,7 @@ def _untangle_one(args, folder) -> int:
             _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
                                   Path(args.png).suffix[1:].lower())
         with split.phase("write"):
-            write_certified(case, res, args.output)
+            case.write_certified(res, args.output)
     return EXIT_OK
 
 
@@ -358,10 +356,10 @@ def _save_untangle_figure(case, res, png, format=None):
     from . import plot
     from .predicates import simplex_orientations
 
-    S = case["faces"] if case["dim"] == 2 else case["tets"]
-    start = case["init"][:, :2] if case["dim"] == 2 else case["init"]
-    bad = [simplex_orientations(x, S) != case["orientation"] for x in (start, res.x)]
-    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.get("path", "")), format=format)
+    S, orientation = case.simplices, case.to_problem().orientation
+    start = case.init[:, :2] if case.dim == 2 else case.init
+    bad = [simplex_orientations(x, S) != orientation for x in (start, res.x)]
+    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.path or ""), format=format)
 
 
 def cmd_demo(args) -> int:
@@ -441,7 +439,7 @@ def _positive_int(text) -> int:
 
 
 def build_parser():
-    from . import __version__
+    from ._version import __version__
     from ._names import ENERGIES, SOLVERS
 
     p = _Parser(

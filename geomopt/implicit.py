@@ -546,7 +546,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
                      x0 if start is None else np.asarray(start), progress=False,
                      element_weights=None if w is None else np.asarray(w), **p)
         _require(result, "implicit.parameterize")
-        return result.x, {"objective": result.info["objective"]}
+        return result.x, {"objective": result.objective}
 
     return argmin(objective, energy_params, start, solve, linear_solver)
 
@@ -589,7 +589,7 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
         result = run(problem, np.asarray(x0), solver=solver, theta=float(theta), progress=False, **options)
         _require(result, "implicit.untangle")
         bad = _badly_shaped(problem, max_aspect)
-        return result.x, np.array([result.info["map_scale"], result.eps_history[-1]]), bad
+        return result.x, np.array([result.details.map_scale, result.trace.column("eps")[-1]]), bad
 
     x1, (k, eps), bad = _constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
     final = _untangle_problem(problem, x0, k, bad)

@@ -8,22 +8,50 @@ that is absent, ``handles_derived_boundary.txt``.  A handles file lists 0-based 
 
 :class:`LimCase` is one case in memory: :meth:`LimCase.read` reads a folder exactly (or
 refuses it), :meth:`LimCase.write` writes one so that it reads back bit for bit, and
-:meth:`LimCase.cases` finds the case folders under a root.
+:meth:`LimCase.cases` finds the case folders under a root; :meth:`LimCase.to_problem` is its
+untangling problem (:class:`LimProblem`) and :meth:`LimCase.write_certified` writes a solution
+in the case's own connectivity and frame, certified on the file read back.
+:func:`untangle_case` reads and untangles a case in one call.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from ._errors import MeshError, MeshFormatError
-from .io import (CASE_FILES, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets, write_obj_with_uv,
-                 write_vtk_tets)
+from ._errors import MeshError, MeshFormatError, SolveError
+from .certify import local_certificate
+from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets,
+                 write_obj_with_uv, write_vtk_tets)
+from .problem import Problem, fixed_total_problem
+from .untangle import bits_differ, untangle
 
-__all__ = ["LimCase", "read_lim_case", "lim_case_dim", "lim_cases"]
+__all__ = ["LimCase", "LimProblem", "untangle_case", "read_lim_case", "lim_case_dim", "lim_cases"]
+
+
+class LimProblem(NamedTuple):
+    """A LIM case as an untangling problem (:meth:`LimCase.to_problem`).
+
+    Attributes
+    ----------
+    problem : :class:`~geomopt.Problem`, handles at their ``init`` positions, mirrored like
+        the map.
+    x0 : (n, d) the start map in the problem's frame.
+    orientation : +1 or -1, the orientation every element must have in the input's own
+        connectivity and frame (what :meth:`LimCase.write_certified` certifies).
+    mirror : (d,) the exact per-axis sign taking the problem's frame to the input's.
+    """
+
+    problem: Problem
+    x0: np.ndarray
+    orientation: int
+    mirror: np.ndarray
+
 
 #: The files that mark a folder as a 2D or a 3D case (output folders never are one: geomopt.io.check_outputs).
 _MARKS_2D, _MARKS_3D = CASE_FILES[:1], CASE_FILES[1:]
@@ -181,16 +209,114 @@ class LimCase(Mapping):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         if self.dim == 2:
-            rest = np.asarray(self.rest, dtype=np.float64)
-            if rest.ndim == 2 and rest.shape[1] == 2:
-                rest = np.c_[rest, np.zeros(len(rest))]
-            write_obj_with_uv(folder / "input.obj", rest, self.simplices, self.init)
+            write_obj_with_uv(folder / "input.obj", self._rest_3d(), self.simplices, self.init)
         else:
             write_vtk_tets(folder / "rest.vtk", self.rest, self.simplices)
             write_vtk_tets(folder / "init.vtk", self.init, self.simplices)
         ids = "".join(f"{int(h)}\n" for h in np.asarray(self.handles).tolist())
         atomic_write(folder / "handles.txt", lambda fh: fh.write(ids))
         return folder
+
+    # ------------------------------------------------------------------ solving
+
+    def require_handles(self):
+        """Raise MeshError unless the case fixes some vertex (a fixed-boundary untangling
+        needs them)."""
+        if self.handles.size == 0:
+            raise MeshError(f"{self.handles_file or 'the case'} is empty: untangling needs a fixed boundary; list "
+                            f"the 0-based ids of the fixed vertices in it, one per line")
+
+    def to_problem(self) -> LimProblem:
+        """The untangling problem of the case.
+
+        2D: the rest mesh is the ``v`` lines and the start map the ``vt`` lines.  A planar rest
+        mesh (``z == 0`` everywhere) is a :meth:`Problem.planar` problem, whose rest triangles
+        must all have the same orientation; any other rest mesh is a surface
+        (:meth:`Problem.surface`, each triangle flattened to its own frame), whose triangles
+        must be consistently oriented as a surface.  Either way a map with every triangle
+        positively oriented then has no fold, which is what the certificate claims.  A start
+        map whose orientation is opposite to the rest mesh's (negative total signed area,
+        counted in the rest orientation) is mirrored (``u -> -u``, exact) into the problem's
+        frame.  3D: :meth:`Problem.tets` (an all-negative rest mesh is handled there).
+
+        Returns
+        -------
+        :class:`LimProblem` (computed once per case).
+
+        Raises
+        ------
+        MeshError
+            The rest mesh is degenerate or inconsistently oriented (a face listed clockwise
+            among counter-clockwise ones), the start map is collapsed (zero total signed area)
+            or, in 3D with every boundary vertex a handle, its total signed volume is not
+            positive: no map with that boundary can be certified.
+        """
+        return self._problem
+
+    @functools.cached_property
+    def _problem(self) -> LimProblem:
+        return _problem_2d(self) if self.dim == 2 else _problem_3d(self)
+
+    def write_certified(self, result, path) -> dict:
+        """Write a solution of the case to ``path`` atomically, certified on the file itself.
+
+        2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and
+        ``f a/a b/b c/c``; 3D: ASCII VTK with the input connectivity; full precision.  The file
+        is written beside ``path`` and read back: the map must be locally injective (exact
+        predicates, :func:`geomopt.certify.local_certificate`: every element in the case's
+        orientation, :meth:`to_problem`'s ``orientation``, and the elements around every
+        vertex and edge covering it once) and every handle at its ``init`` position bit for
+        bit.  Only a file that certifies is renamed onto
+        ``path``, so one that does not never replaces an older one.
+
+        Parameters
+        ----------
+        result : a :class:`~geomopt.solvers.Result` (its ``x``) or an (n, d) map, in the
+            case's own frame (as :func:`untangle_case` returns it).
+        path : the output file (``.obj`` for 2D, ``.vtk`` for 3D).
+
+        Returns
+        -------
+        dict with ``path``, ``inverted`` and ``handles_moved`` (in the file, both 0),
+        ``certified`` (True) and ``message`` ("").
+
+        Raises
+        ------
+        SolveError
+            The written file did not certify; nothing is left at ``path`` from this call.
+        GeomoptError
+            ``path`` cannot be written.
+        """
+        x = np.asarray(getattr(result, "x", result), dtype=np.float64)
+        with atomic_path(path) as tmp:
+            back = self._written(x, tmp)
+            # exact: orientations, and the elements around every vertex and edge
+            cert = local_certificate(back, self.simplices, orientation=self.to_problem().orientation)
+            moved = bits_differ(back[self.handles], self.init[self.handles])
+            if not cert.ok or moved:
+                why = "; ".join(filter(None, [cert.message, f"{moved} handle(s) moved" if moved else ""]))
+                raise SolveError(f"the written file did not certify: {why}")
+        return {"path": Path(path), "inverted": 0, "handles_moved": 0, "certified": True, "message": ""}
+
+    def _rest_3d(self) -> np.ndarray:
+        """A 2D case's rest positions as OBJ ``v`` lines: (n, 3), ``z = 0`` added to a planar
+        (n, 2) rest mesh."""
+        rest = np.asarray(self.rest, dtype=np.float64)
+        return np.c_[rest, np.zeros(len(rest))] if rest.ndim == 2 and rest.shape[1] == 2 else rest
+
+    def _written(self, x, path) -> np.ndarray:
+        """Write the map ``x`` to ``path`` and read it back (connectivity checked)."""
+        if self.dim == 2:
+            write_obj_with_uv(path, self._rest_3d(), self.simplices, x)
+            _, back, _ = read_obj_with_uv(path)
+            if len(back) != len(self.rest):
+                raise MeshError(f"{path}: read back {len(back)} vt lines, expected {len(self.rest)}")
+            return back
+        write_vtk_tets(path, x, self.simplices)
+        back, T = read_vtk_tets(path)
+        if not np.array_equal(T, self.simplices):
+            raise MeshError(f"{path}: connectivity read back differs from the input")
+        return back
 
     # ------------------------------------------------------------------ legacy mapping
 
@@ -210,6 +336,58 @@ class LimCase(Mapping):
 
     __eq__ = object.__eq__  # identity, as a dataclass with eq=False (Mapping's would compare arrays)
     __hash__ = object.__hash__
+
+
+def _problem_2d(case) -> LimProblem:
+    F, init, rest, H = case.simplices, case.init, np.asarray(case.rest), case.handles
+    planar = rest.ndim == 2 and (rest.shape[1] == 2 or (rest.shape[1] == 3 and not np.any(rest[:, 2])))
+    base = Problem.planar(rest, F) if planar else Problem.surface(rest, F)
+    # planar: the rest triangles may all be clockwise (Problem.planar reversed each one)
+    rest_sign = 1 if np.array_equal(base.simplices, base.input_simplices) else -1
+    P = init[F]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    total = float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) / 2.0
+    if not (total > 0 or total < 0):
+        raise MeshError(
+            f"{case.path or 'the case'}: the start map's total signed area is {total:g}: the map is "
+            f"collapsed, so no orientation can be certified; give a start map ('vt' lines) whose fixed "
+            f"boundary encloses a nonzero area")
+    orientation = -1 if total < 0 else 1  # in the input's connectivity and frame
+    mirror = np.array([float(orientation * rest_sign), 1.0])
+    return LimProblem(base.with_fixed(H, init[H] * mirror), init * mirror, orientation, mirror)
+
+
+def _problem_3d(case) -> LimProblem:
+    problem = Problem.tets(case.rest, case.simplices, case.handles, case.init[case.handles])
+    # rest tets all negative in the input order: Problem.tets swapped two vertices of each
+    orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
+    init = np.asarray(case.init, dtype=np.float64)
+    why = fixed_total_problem(problem, init)  # in the rest orientation
+    if why:
+        raise MeshError(f"{case.path or 'the case'}: {why} (Garanzha et al.'s code rejects such input "
+                        f"too); check that the rest and initial meshes belong together")
+    return LimProblem(problem, init, orientation, np.ones(3))
+
+
+def untangle_case(case, solver="lbfgs", progress=True, **options):
+    """Untangle a LIM case (:meth:`LimCase.to_problem`, :func:`~geomopt.untangle.untangle`).
+
+    Parameters
+    ----------
+    case : a :class:`LimCase`, or a case folder (read with :meth:`LimCase.read`).
+    solver, progress, options : passed to :func:`~geomopt.untangle.untangle`.
+
+    Returns
+    -------
+    case : the :class:`LimCase` (write a certified result with :meth:`LimCase.write_certified`).
+    result : :class:`~geomopt.solvers.Result`, its ``x`` in the case's own frame.
+    """
+    case = case if isinstance(case, LimCase) else LimCase.read(case)
+    setup = case.to_problem()
+    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, **options)
+    if (setup.mirror < 0).any():
+        result = dataclasses.replace(result, x=result.x * setup.mirror)  # negation is exact
+    return case, result
 
 
 def _read_2d(folder):

@@ -26,11 +26,9 @@ from ._errors import ParameterError
 from ._x64 import float64
 from ._programs import jit as programs_jit
 from ._geometry import det, dets, edge_rows
+from ._objective import free_value_and_grad
 
-__all__ = [
-    "InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive",
-    "objective_value_and_grad",
-]
+__all__ = ["InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive"]
 
 
 def _smallest_positive(roots):
@@ -188,6 +186,46 @@ class InjectiveSearch:
             raise ParameterError(f"InjectiveSearch: the Wolfe constants need c1 < c2, got c1={self.c1} and "
                                  f"c2={self.c2}; lower c1 or raise c2 (0 turns the curvature condition off)")
 
+    # -- the pieces of one search, pure JAX (the optimistix adapter and AQP's momentum use them)
+    def cap(self, S, x, d):
+        """The largest trial step along ``d`` from ``x``: ``safety`` times the first root of an
+        element's det (inf when not injective or nothing blocks)."""
+        if not self.injective:
+            return jnp.array(jnp.inf, x.dtype)
+        return self.safety * injective_step_bound(S, x, d)
+
+    def positive(self, S, x):
+        """(m,) bool, the elements positively oriented at ``x`` (None when not injective)."""
+        return dets(S, x) > 0 if self.injective else None
+
+    def admissible(self, S, x, d, t, was_positive, f_t, t_cap):
+        """Whether the trial point ``x + t d`` with energy ``f_t`` may be accepted at all:
+        within the cap, every element positive at ``x`` still positive (when injective; a float
+        guard on top of the closed-form cap) and a finite energy."""
+        pos = (t <= t_cap) & still_positive(S, x, d, t, was_positive) if self.injective else jnp.bool_(True)
+        return pos & jnp.isfinite(f_t)
+
+    def sufficient(self, f, f_t, t, slope):
+        """Armijo's sufficient decrease ``f_t <= f + c1 t slope``."""
+        return f_t <= f + self.c1 * t * slope
+
+    def curvature(self, g_t, d, slope):
+        """The weak Wolfe curvature condition (always true when ``c2 == 0``)."""
+        return (jnp.vdot(g_t, d) >= self.c2 * slope) if self.c2 > 0 else jnp.bool_(True)
+
+    def next_trial(self, t, lo, hi, armijo, t_cap):
+        """``(t_next, lo, hi)``: bracket by bisection between the longest Armijo step ``lo``
+        and the shortest failed one ``hi`` (weak Wolfe), double while nothing failed, or
+        backtrack by ``shrink``; never beyond ``t_cap``."""
+        hi = jnp.where(armijo, hi, t)
+        lo = jnp.where(armijo, t, lo)
+        t_next = jnp.where(
+            armijo,
+            jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), jnp.minimum(2.0 * t, t_cap)),
+            jnp.where(lo > 0, 0.5 * (lo + hi), self.shrink * t),
+        )
+        return jnp.minimum(t_next, t_cap), lo, hi
+
     def search(self, value_and_grad, S, x, f, g, d, t0=1.0):
         """Search along ``d`` from ``x`` (pure JAX; call inside ``jit``).
 
@@ -203,37 +241,25 @@ class InjectiveSearch:
             (``t == 0`` and ``x`` itself when nothing was accepted);
         ok : bool, a step was accepted;  evals : number of energy evaluations.
         """
-        c1, c2, shrink, expand = self.c1, self.c2, self.shrink, self.expand
+        expand = self.expand
         slope = jnp.vdot(g, d)
-        inf = jnp.array(jnp.inf, x.dtype)
-        if self.injective:
-            tcap = self.safety * injective_step_bound(S, x, d)
-            was_pos = dets(S, x) > 0
-        else:
-            tcap, was_pos = inf, None
+        tcap = self.cap(S, x, d)
+        was_pos = self.positive(S, x)
         t = jnp.minimum(jnp.asarray(t0, x.dtype), tcap)
 
         def body(c):
             t = c["t"]
             xt = x + t * d
             ft, gt = value_and_grad(xt)
-            pos = still_positive(S, x, d, t, was_pos) if self.injective else jnp.bool_(True)
-            good = pos & jnp.isfinite(ft)
-            armijo = good & (ft <= f + c1 * t * slope)
-            curv = (jnp.vdot(gt, d) >= c2 * slope) if c2 > 0 else jnp.bool_(True)
+            good = self.admissible(S, x, d, t, was_pos, ft, tcap)
+            armijo = good & self.sufficient(f, ft, t, slope)
             at_cap = t >= tcap * (1.0 - 1e-12)
             expanding = c["phase"] == 1
             # the search phase: accept an Armijo (+ curvature) point, else bracket / backtrack
-            accept = armijo & (curv | at_cap)
+            accept = armijo & (self.curvature(gt, d, slope) | at_cap)
             start_expand = accept & (c["i"] == 0) & (expand > 0) & (2.0 * t < tcap)
             improve = jnp.where(expanding, good & (ft < c["bf"]), armijo & (ft < c["bf"]))
-            hi = jnp.where(armijo, c["hi"], t)
-            lo = jnp.where(armijo, t, c["lo"])
-            t_search = jnp.where(
-                armijo,
-                jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), jnp.minimum(2.0 * t, tcap)),
-                jnp.where(lo > 0, 0.5 * (lo + hi), shrink * t),
-            )
+            t_search, lo, hi = self.next_trial(t, c["lo"], c["hi"], armijo, tcap)
             n_exp = c["n_exp"] + jnp.where(expanding & improve, 1, 0)
             more = (n_exp < expand) & (2.0 * t < tcap)
             done = jnp.where(expanding, ~improve | ~more, accept & ~start_expand)
@@ -245,8 +271,8 @@ class InjectiveSearch:
                 "bx": jnp.where(improve, xt, c["bx"]), "bg": jnp.where(improve, gt, c["bg"]),
             }
 
-        c0 = {"i": jnp.int32(0), "t": t, "lo": jnp.zeros_like(t), "hi": inf, "done": jnp.bool_(False),
-              "phase": jnp.int32(0), "n_exp": jnp.int32(0),
+        c0 = {"i": jnp.int32(0), "t": t, "lo": jnp.zeros_like(t), "hi": jnp.array(jnp.inf, x.dtype),
+              "done": jnp.bool_(False), "phase": jnp.int32(0), "n_exp": jnp.int32(0),
               "bt": jnp.zeros_like(t), "bf": jnp.asarray(f, x.dtype), "bx": x, "bg": g}
         c = lax.while_loop(lambda c: ~c["done"] & (c["i"] < self.max_steps), body, c0)
         # on a Wolfe failure take the best Armijo point seen (if any)
@@ -257,30 +283,40 @@ class InjectiveSearch:
         """Search on an :class:`~geomopt.Objective`: ``(t, x_new, value_new, grad_new, evals)``;
         ``t == 0`` means no acceptable step."""
         t, xn, fn, gn, _, n = _search_kernel(self, objective.energy.density, objective.geom,
-                                             objective._free, params, x, value, grad, dx, t0)
+                                             objective.free_mask, params, x, value, grad, dx, t0)
         return float(t), xn, float(fn), gn, int(n)
 
+    def cap_along(self, objective, x, d) -> float:
+        """:meth:`cap` along ``d`` from ``x`` on an objective (one jitted kernel)."""
+        return float(_cap_kernel(self, objective.geom[0], x, d))
+
+    def admissible_step(self, objective, x, d, t, f_t) -> bool:
+        """:meth:`admissible` of the point ``x + t d`` (energy ``f_t``) on an objective, with
+        this search's own cap and orientation test (one jitted kernel)."""
+        return bool(_admissible_kernel(self, objective.geom[0], x, d, jnp.asarray(t, x.dtype),
+                                       jnp.asarray(f_t, x.dtype)))
 
     @float64
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""
-        _search_kernel.prepare(self, objective.energy.density, objective.geom, objective._free, params, x,
+        _search_kernel.prepare(self, objective.energy.density, objective.geom, objective.free_mask, params, x,
                                value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0)
-
-
-def objective_value_and_grad(density, geom, free, params):
-    """``x -> (E(x), grad E(x) * free)`` for the search (pure JAX)."""
-    from ._objective import total_energy
-
-    def vg(x):
-        v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
-        return v, g * free
-
-    return vg
 
 
 @partial(programs_jit, static_argnums=(0, 1))
 def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
-    vg = objective_value_and_grad(density, geom, free, params)
+    def vg(y):
+        return free_value_and_grad(density, geom, free, y, params)
+
     return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0)
+
+
+@partial(jax.jit, static_argnums=0)
+def _cap_kernel(search, S, x, d):
+    return search.cap(S, x, d)
+
+
+@partial(jax.jit, static_argnums=0)
+def _admissible_kernel(search, S, x, d, t, f_t):
+    return search.admissible(S, x, d, t, search.positive(S, x), f_t, search.cap(S, x, d))

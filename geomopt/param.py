@@ -6,46 +6,24 @@ import dataclasses
 
 import numpy as np
 
+from ._config import Instance, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
 from ._x64 import float64
 from ._objective import Objective
+from .certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from .problem import Problem
-from .solvers import Newton, Outcome, Result, get_solver, minimize
-from .certify import local_certificate, polygon_crossings, polygon_orientation
-from .solvers._base import check_progress
+from .scaffold import bijective_parameterize
+from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize
+from .solvers._iterate import check_progress
 from .topology import check_disk
-from .tutte import circle_boundary, tutte_embedding
+from .untangle import untangle
+from .tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
     "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
-    "check_scale_aware",
+    "check_scale_aware", "ParamOptions",
 ]
-
-
-@float64
-def optimal_scale(objective: Objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
-    """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
-    ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
-    fixed golden-section search took 62).
-
-    For symmetric Dirichlet this is the classic ``(sum|J^-1|^2 / sum|J|^2)^(1/4)``; the search
-    makes it work for any energy.  ``x`` (n, d) is assumed centred on the problem's free
-    vertices; ``xtol`` is the tolerance on ``log s``.
-    """
-    from scipy.optimize import minimize_scalar
-
-    refuse_traced("optimal_scale (a host search)", "start maps have zero derivative: compute them from concrete "
-                  "values", objective, x, params)
-    params = objective.params(**(params or {}))
-    x = objective.pad_map(np.asarray(x, dtype=np.float64))
-
-    def f(t):
-        v = float(objective.value(np.exp(t) * x, params))
-        return v if np.isfinite(v) else np.inf
-
-    res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xtol})
-    return float(np.exp(res.x))
 
 
 def _to_rest_area(problem: Problem, x0) -> np.ndarray:
@@ -98,7 +76,7 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     Returns
     -------
     x : (n, 2) float64 start map;  scale : float, the factor :func:`optimal_scale` applied;
-    repaired : the :class:`~geomopt.untangle.UntangleResult` of the repair, or None.  When the
+    repaired : the :class:`~geomopt.solvers.Result` of the repair's untangling, or None.  When the
     repair does not certify, ``x`` is None.
 
     Raises
@@ -201,7 +179,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         only with ``progress=True``.
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
         :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
-        Either way ``info["certificate"]`` is the exact global certificate
+        Either way ``certificate`` is the exact global certificate
         (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
     element_weights : (m,) positive per-triangle weights of the energy (see
@@ -212,8 +190,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
 
     Returns
     -------
-    :class:`~geomopt.solvers.Result` whose ``x`` is the (n, 2) UV map; ``info`` holds the
-    start map and the scale applied to it.
+    :class:`~geomopt.solvers.Result` whose ``x`` is the (n, 2) UV map; ``details``
+    (:class:`~geomopt.solvers.ParamDetails`) holds the start map, the scale applied to it and
+    the repair of a folded start.
 
     Raises
     ------
@@ -225,11 +204,10 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
                   "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)
     V, F = mesh_arrays(V, F)
+    ParamOptions(buckets, bijective)
     check_scale_aware(energy, energy_params)
     check_progress(progress, "parameterize")
     if bijective:
-        from .scaffold import bijective_parameterize
-
         if isinstance(x0, str) or element_weights is not None:
             raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
                                  "with no element_weights")
@@ -242,23 +220,38 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     # untangle's callback has another signature than minimize's: only True goes to the repair
     x0, s, repaired = start_map(objective, x0, weights, progress is True)
     if x0 is None:
-        result = Result(x=repaired.x, outcome=repaired.outcome, inverted=repaired.inverted,
-                        energy=float("nan"), energy_history=np.zeros(0), iterations=0,
-                        seconds=repaired.seconds, setup_seconds=repaired.setup_seconds,
-                        time_history=np.zeros(0), info={"repair": repaired, "problem": problem,
-                                                        "objective": objective})
-        if throw:
-            raise SolveError(f"repairing the start map failed: {repaired.message}", result)
-        return result
+        return _failed_repair(repaired, problem, objective, throw)
     result = minimize(objective, x0, solver, progress=progress, throw=throw)
-    from .certify import certify_bijective
-
     cert = certify_bijective(result.x, problem.input_simplices)
-    result.info.update(start=x0, scale=s, problem=problem, objective=objective, repair=repaired,
-                       certificate=cert, injectivity=cert.injectivity)
+    reason = result.reason
     if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
-        result.info["reason"] += ("; the free boundary folded over itself there, which the bijective "
-                                  "mode prevents (bijective=True, geomopt param --bijective)")
+        reason += ("; the free boundary folded over itself there, which the bijective mode prevents "
+                   "(bijective=True, geomopt param --bijective)")
+    return dataclasses.replace(result, certificate=cert, reason=reason,
+                               details=ParamDetails(start=x0, scale=s, repair=repaired))
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamOptions:
+    """The switches of :func:`parameterize` (validated: ``bijective="no"`` is refused, not
+    taken as true)."""
+
+    buckets: bool = True
+    bijective: bool = False
+
+    def __post_init__(self):
+        validate(self, buckets=Instance(bool), bijective=Instance(bool))
+
+
+def _failed_repair(repaired, problem, objective, throw) -> Result:
+    """The result of a parameterization whose folded start could not be repaired: the
+    repair's map, outcome and certificate."""
+    result = Result(repaired.x, repaired.outcome, repaired.certificate,
+                    RunStats(seconds=repaired.stats.seconds, setup_seconds=repaired.stats.setup_seconds),
+                    problem=problem, objective=objective, reason=repaired.reason,
+                    details=ParamDetails(repair=repaired))
+    if throw:
+        raise SolveError(f"repairing the start map failed: {repaired.message}", result)
     return result
 
 
@@ -296,10 +289,8 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
 
     Returns
     -------
-    :class:`~geomopt.untangle.UntangleResult`: ``x`` certified flip-free when ``success``.
+    :class:`~geomopt.solvers.Result` of the untangling: ``x`` certified flip-free when ``success``.
     """
-    from .untangle import untangle
-
     if isinstance(problem, tuple):
         problem = Problem.surface(*problem)
     x0 = problem.check_map(x0, "start map x0")
@@ -328,4 +319,5 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
                        progress=progress, **options)
         if res.success:
             break
-    return dataclasses.replace(res, initially_inverted=problem.count_inverted(x0))  # the map given
+    # the inverted elements of the map given, not of the map with its boundary replaced
+    return dataclasses.replace(res, stats=dataclasses.replace(res.stats, inverted_at_start=problem.count_inverted(x0)))

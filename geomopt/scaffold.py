@@ -26,7 +26,10 @@ exact predicates only (:func:`geomopt.predicates.orient2d`):
 
 By default the solve starts without a scaffold and builds it only when the boundary would
 otherwise overlap (see :func:`bijective_parameterize`, ``lazy``): the scaffold costs steps in the
-early, large-deformation phase, which the boundary of a Tutte start rarely needs.
+early, large-deformation phase, which the boundary of a Tutte start rarely needs.  Both phases run
+in the one loop (:func:`geomopt.solvers.iterate`): the scaffold-free phase under a *guard*
+(:class:`SimpleBoundary`: shorten a step that would make the boundary overlap), the scaffold's
+outer iterations as a *continuation* (:class:`ScaffoldContinuation`).
 
 The enclosing polygon's vertices are free (the scaffold moves and rotates with the mesh); global
 injectivity of the result does not rest on that: it is certified at the end, exactly, by
@@ -36,23 +39,26 @@ injectivity of the result does not rest on that: it is certified at the end, exa
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
+from typing import NamedTuple
 
 import numpy as np
 
+from ._config import Instance, Int, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from ._x64 import float64
 from .certify import certify_bijective, polygon_crossings
-from .param import optimal_scale
 from .predicates import orient2d
 from .problem import Problem
-from .solvers import Newton, Outcome, Result, get_solver, minimize
+from .solvers import (AbstractContinuation, AbstractNewton, Decision, Final, Outcome, ParamDetails, Progress,
+                      Trace, get_solver, iterate)
+from .solvers._iterate import check_progress
 from .topology import check_disk, unique_edges
-from .tutte import scale_to_area, tutte_embedding
+from .tutte import optimal_scale, scale_to_area, tutte_embedding
 
-__all__ = ["Scaffold", "build_scaffold", "refine_scaffold", "delaunay_flips", "bijective_parameterize"]
+__all__ = ["Scaffold", "build_scaffold", "refine_scaffold", "delaunay_flips", "bijective_parameterize",
+           "ScaffoldOptions", "ScaffoldContinuation", "SimpleBoundary"]
 
 _CCW_ERR = (3.0 + 16.0 * 2.0**-53) * 2.0**-53  # Shewchuk's orient2d stage-A bound
 
@@ -347,55 +353,66 @@ def refine_scaffold(X, T, k, grading=1.0, ratio=1.5, max_points=None, max_rounds
     budget = 4 * k if max_points is None else int(max_points)
     added = 0
     for _ in range(max_rounds):
-        _, count, edge_of = unique_edges(T)
-        A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
-        L = np.stack([np.linalg.norm(B - A, axis=1), np.linalg.norm(C - B, axis=1),
-                      np.linalg.norm(A - C, axis=1)], axis=1)  # edge c runs T[c] -> T[c + 1]
-        longest = np.argmax(L, axis=1)
-        lmax = L[np.arange(len(T)), longest]
-        over = lmax / (ratio * size((A + B + C) / 3.0))
-        cand = np.flatnonzero(over > 1.0)
-        if cand.size == 0 or added >= budget:
+        if added >= budget:
             break
-        cand = cand[np.argsort(-over[cand], kind="stable")][: budget - added]
-        he = edge_of.ravel()
-        other = np.full(len(T) * 3, -1, dtype=np.int64)  # twin half-edge, -1 on a constrained edge
-        hs = np.flatnonzero(count[he] == 2)
-        hs = hs[np.argsort(he[hs], kind="stable")]
-        other[hs[0::2]], other[hs[1::2]] = hs[1::2], hs[0::2]
-        c = longest[cand]
-        h = other[3 * cand + c]
-        splittable = (h >= 0) | (T[cand, c] >= k) | (T[cand, (c + 1) % 3] >= k)  # not a mesh edge
-        cand, c, h = cand[splittable], c[splittable], h[splittable]
-        g = np.where(h >= 0, h // 3, 0)
-        shared = h >= 0
-        a, b, o = T[cand, c], T[cand, (c + 1) % 3], T[cand, (c + 2) % 3]
-        q = np.where(shared, T[g, (h % 3 + 2) % 3], o)
-        m = 0.5 * (X[a] + X[b])  # midpoint of the longest edge a-b
-        ok = (orient2d(X[a], m, X[o]) == 1) & (orient2d(m, X[b], X[o]) == 1)
-        ok &= ~shared | ((orient2d(X[b], m, X[q]) == 1) & (orient2d(m, X[a], X[q]) == 1))
-        # an independent set: each triangle goes to its highest-priority split
-        rank = np.arange(len(cand), 0, -1, dtype=np.float64) * ok
-        claim = np.zeros(len(T))
-        np.maximum.at(claim, cand, rank)
-        np.maximum.at(claim, g[shared], rank[shared])
-        take = ok & (claim[cand] == rank) & (~shared | (claim[g] == rank))
-        if not take.any():
+        X, T, new = _split_round(X, T, k, size, ratio, budget - added)
+        if not new:
             break
-        f, a, b, o, q, m, g, shared = (v[take] for v in (cand, a, b, o, q, m, g, shared))
-        v = len(X) + np.arange(len(f))
-        T[f] = np.stack([a, v, o], axis=1)
-        gs = g[shared]
-        T[gs] = np.stack([b[shared], v[shared], q[shared]], axis=1)
-        X = np.concatenate([X, m])
-        T = np.concatenate([T, np.stack([v, b, o], axis=1),
-                            np.stack([v[shared], a[shared], q[shared]], axis=1)])
-        added += len(f)
+        added += new
         # a few flip rounds between splits keep the shapes good (bunny_cut: 5th percentile of the
         # smallest angle 10.8 degrees, 13 with full flips); all of them only at the end
         T, _ = delaunay_flips(X, T, max_rounds=5)
     T, _ = delaunay_flips(X, T)
     return X, T
+
+
+def _split_round(X, T, k, size, ratio, budget):
+    """One round of :func:`refine_scaffold`: ``(X, T, added)`` after splitting an independent
+    set of the (at most ``budget``) triangles most over size at their longest edges."""
+    _, count, edge_of = unique_edges(T)
+    A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
+    L = np.stack([np.linalg.norm(B - A, axis=1), np.linalg.norm(C - B, axis=1),
+                  np.linalg.norm(A - C, axis=1)], axis=1)  # edge c runs T[c] -> T[c + 1]
+    longest = np.argmax(L, axis=1)
+    lmax = L[np.arange(len(T)), longest]
+    over = lmax / (ratio * size((A + B + C) / 3.0))
+    cand = np.flatnonzero(over > 1.0)
+    if cand.size == 0:
+        return X, T, 0
+    cand = cand[np.argsort(-over[cand], kind="stable")][:budget]
+    he = edge_of.ravel()
+    other = np.full(len(T) * 3, -1, dtype=np.int64)  # twin half-edge, -1 on a constrained edge
+    hs = np.flatnonzero(count[he] == 2)
+    hs = hs[np.argsort(he[hs], kind="stable")]
+    other[hs[0::2]], other[hs[1::2]] = hs[1::2], hs[0::2]
+    c = longest[cand]
+    h = other[3 * cand + c]
+    splittable = (h >= 0) | (T[cand, c] >= k) | (T[cand, (c + 1) % 3] >= k)  # not a mesh edge
+    cand, c, h = cand[splittable], c[splittable], h[splittable]
+    g = np.where(h >= 0, h // 3, 0)
+    shared = h >= 0
+    a, b, o = T[cand, c], T[cand, (c + 1) % 3], T[cand, (c + 2) % 3]
+    q = np.where(shared, T[g, (h % 3 + 2) % 3], o)
+    m = 0.5 * (X[a] + X[b])  # midpoint of the longest edge a-b
+    ok = (orient2d(X[a], m, X[o]) == 1) & (orient2d(m, X[b], X[o]) == 1)
+    ok &= ~shared | ((orient2d(X[b], m, X[q]) == 1) & (orient2d(m, X[a], X[q]) == 1))
+    # an independent set: each triangle goes to its highest-priority split
+    rank = np.arange(len(cand), 0, -1, dtype=np.float64) * ok
+    claim = np.zeros(len(T))
+    np.maximum.at(claim, cand, rank)
+    np.maximum.at(claim, g[shared], rank[shared])
+    take = ok & (claim[cand] == rank) & (~shared | (claim[g] == rank))
+    if not take.any():
+        return X, T, 0
+    f, a, b, o, q, m, g, shared = (v[take] for v in (cand, a, b, o, q, m, g, shared))
+    v = len(X) + np.arange(len(f))
+    T = T.copy()
+    T[f] = np.stack([a, v, o], axis=1)
+    gs = g[shared]
+    T[gs] = np.stack([b[shared], v[shared], q[shared]], axis=1)
+    X = np.concatenate([X, m])
+    T = np.concatenate([T, np.stack([v, b, o], axis=1), np.stack([v[shared], a[shared], q[shared]], axis=1)])
+    return X, T, len(f)
 
 
 def _rest_inverse(X, T):
@@ -432,146 +449,210 @@ def _simple(P) -> bool:
     return bool(np.isfinite(P).all()) and len(polygon_crossings(P)) == 0
 
 
-def _shortened(state, new, loop, fractions):
-    """``new`` moved back along the step from ``state`` to the first of ``fractions`` of it at
-    which the boundary is simple and the energy below ``state``'s, or None.  The injective
-    line search bounded the whole step, so no triangle inverts on a part of it."""
-    obj, x, dx = state.objective, state.x, new.x - state.x
-    for s in fractions:
-        xs = x + s * dx
-        if not _simple(np.asarray(xs)[loop]):
-            continue
-        value, grad = obj.value_and_grad(xs, state.params)
-        value = float(value)
-        if value < state.value:
-            return dataclasses.replace(new, x=xs, value=value, grad=grad,
-                                       step_size=s * new.step_size)
-    return None
+class SimpleBoundary:
+    """A guard for :func:`~geomopt.solvers.iterate`: keep the boundary polygon ``x[loop]``
+    simple (exact check, :func:`polygon_crossings`).
+
+    A step after which the boundary overlaps itself is moved back to the first of
+    ``fractions`` of it at which the boundary is simple and the energy below the old one (the
+    injective line search bounded the whole step, so no triangle inverts on a part of it;
+    ``solver.restart(new, x)`` drops a memory of the whole step, e.g. L-BFGS's pairs); after
+    ``max_cuts`` shortened steps in a row, or when no fraction helps, the phase ends at the old
+    iterate (None)."""
+
+    def __init__(self, loop, fractions=_SHORTEN, max_cuts: int = _MAX_CUTS):
+        self.loop, self.fractions, self.max_cuts = loop, tuple(fractions), int(max_cuts)
+        self.cuts = 0  # consecutive steps shortened to keep the boundary simple
+
+    def __call__(self, solver, old, new):
+        if not new.stats.accepted or new.stats.broken or _simple(np.asarray(new.x)[self.loop]):
+            self.cuts = 0
+            return new
+        if self.cuts >= self.max_cuts:
+            return None
+        obj, x, dx = old.objective, old.x, new.x - old.x
+        for s in self.fractions:
+            xs = x + s * dx
+            if not _simple(np.asarray(xs)[self.loop]):
+                continue
+            if float(obj.value(xs, old.params)) < old.value:
+                self.cuts += 1
+                return solver.restart(new, x=xs).update(step_size=s * new.step_size)
+        return None
 
 
-def _steps_while_simple(objective, x0, solver, loop):
-    """Run ``solver`` on the mesh alone while every iterate's boundary polygon stays simple.
+@dataclasses.dataclass(frozen=True)
+class ScaffoldOptions:
+    """The scaffold's settings in :func:`bijective_parameterize` (validated).
 
-    Returns ``(x, iterations, outcome)``: the last iterate with a simple boundary, the iterations
-    taken to it, and the solver's outcome if it stopped on its own (``None`` when the next step
-    would have made the boundary overlap, or was not finite)."""
-    state = solver.init(objective, x0, objective.params())
-    cut = 0  # consecutive steps shortened to keep the boundary simple
-    while True:
-        done, outcome = solver.terminate(state)
-        if done:
-            return np.asarray(state.x), state.iteration, outcome
-        new = solver.step(state)
-        if new.failure is None and not _simple(np.asarray(new.x)[loop]):
-            new = _shortened(state, new, loop, _SHORTEN) if cut < _MAX_CUTS else None
-            if new is None:
-                return np.asarray(state.x), state.iteration, None
-            if not isinstance(solver, Newton):  # a memory (L-BFGS pairs) is of the whole step:
-                new = dataclasses.replace(  # restart it at the shortened point
-                    solver.init(objective, np.asarray(new.x), state.params), iteration=new.iteration)
-            cut += 1
-        else:
-            cut = 0
-        state = new
-
-
-@float64
-def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                           x0=None, progress=True, throw=False, scaffold_weight=1e-3,
-                           ring_scale=3.0, inner_steps=10, max_outer=100, outer_rtol=1e-4,
-                           lazy=True, **energy_params):
-    """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
-
-    Solves the same problem as :func:`~geomopt.param.parameterize` with, around the mesh, a
-    scaffold (SCAF, Jiang et al. 2017; see the module docstring) that keeps the boundary from
-    touching itself.  The scaffold's triangles take the same energy as the mesh, each weighted by
-    ``scaffold_weight * (mesh area) / (number of scaffold triangles)`` (as in SCAF, uniform rather
-    than by area, so small gaps resist as much as large ones), with their current shape as rest
-    shape.  Each outer iteration runs up to ``inner_steps`` solver iterations on mesh +
-    scaffold, then re-triangulates the scaffold (:func:`delaunay_flips`); it stops when an inner
-    solve converged and the mesh energy fell by less than ``outer_rtol`` (relative).
-
-    With ``lazy`` (default) the solver first runs without a scaffold, on the mesh alone, for as
-    long as every iterate's boundary stays simple (exact check, :func:`polygon_crossings`, a few
-    milliseconds per iterate); a step that would make the boundary overlap is shortened to half
-    or a quarter of its length (when that keeps the boundary simple and lowers the energy), and
-    after two shortened steps in a row, or when shortening does not help, the scaffold is built
-    at the last iterate.  Where the free-boundary solve never overlaps, the result is the
-    plain solve's.  Every accepted iterate is bijective; between two iterates of the scaffold-free
-    phase the straight path is not checked (a step could pass the boundary through itself and
-    back), which does not matter for the returned map.  ``lazy=False`` uses the scaffold from the
-    start, so that the boundary never crosses itself along the whole path.
-
-    Parameters
+    Attributes
     ----------
-    V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles of a topological disk.
-    energy, solver, weights, throw, **energy_params : as for
-        :func:`~geomopt.param.parameterize`; the solver's ``max_steps`` is replaced by
-        ``inner_steps`` (a solver that is not a dataclass with ``max_steps`` is rejected).
-    progress : bool, one line per outer iteration on stderr.
-    x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
-        embedding onto a circle, is).
     scaffold_weight : float > 0, the scaffold's share of the energy (its weights sum to
         ``scaffold_weight`` times the mesh area).  Smaller lets the boundary approach itself in
         fewer outer iterations but cuts more Newton steps short where the scaffold is compressed;
         it does not change what is reachable.  On bunny_cut (outer_rtol 1e-5, inner solves
         converged fully) 1e-3 took 61 solver iterations, 1e-4 62 and 1e-2 84.
     ring_scale : float > 1, size of the enclosing polygon relative to the start's convex hull.
-    inner_steps, max_outer : int >= 1;  outer_rtol : float > 0 (1e-4: the mesh energy is then
-        within about 1e-4 of the outer loop's limit, measured 4e-5 above the 1e-5 result on
-        bunny_cut, for 30 instead of 40 solver iterations); Newton-type inner solves stop when
-        the decrement is below ``0.1 * outer_rtol`` relative (or the solver's own ``rtol``, if
-        larger): an inner solve need not converge beyond the outer loop;  lazy : bool.
-
-    Returns
-    -------
-    :class:`~geomopt.solvers.Result` for the mesh alone: ``x`` (n, 2), ``energy`` the mesh
-    energy, ``energy_history`` / ``time_history`` the mesh energy and elapsed seconds at the
-    start, after the scaffold-free phase (if ``lazy``) and after each outer iteration,
-    ``iterations`` the solver iterations summed.
-    ``info["certificate"]`` is the exact :class:`~geomopt.certify.Certificate` of the result and
-    ``info["injectivity"]`` is ``"global"`` when it holds; a result that is not globally
-    injective has outcome ``NOT_INJECTIVE`` (never expected: the scaffold forbids it), so
-    ``success`` means converged, flip-free and bijective.  ``info`` also holds ``start``,
-    ``scale``, ``problem``, ``objective`` (the mesh's), ``free_iterations`` (scaffold-free
-    phase), ``outer_iterations``, ``flips`` and ``scaffold_triangles`` (0 without a scaffold).
-
-    Raises
-    ------
-    MeshError : invalid or non-disk mesh, or a start map that is not globally injective.
-    ParameterError : unknown energy/solver/weights name or an invalid parameter.
-    SolveError : only with ``throw=True``, when the result is not converged and bijective.
+    inner_steps, max_outer : int >= 1, solver iterations per outer iteration and the outer
+        iteration limit.
+    outer_rtol : float > 0 (1e-4: the mesh energy is then within about 1e-4 of the outer
+        loop's limit, measured 4e-5 above the 1e-5 result on bunny_cut, for 30 instead of 40
+        solver iterations); Newton-type inner solves stop when the decrement is below
+        ``0.1 * outer_rtol`` relative (or the solver's own ``rtol``, if larger).
+    lazy : start without a scaffold (see :func:`bijective_parameterize`).
     """
-    for name, value, low in (("scaffold_weight", scaffold_weight, 0.0), ("outer_rtol", outer_rtol, 0.0),
-                             ("ring_scale", ring_scale, 1.0)):
-        if isinstance(value, bool) or not (isinstance(value, (int, float)) and np.isfinite(value)
-                                           and value > low):
-            raise ParameterError(f"{name} must be a finite number > {low:g}, got {value!r}")
-    if not isinstance(lazy, (bool, np.bool_)):
-        raise ParameterError(f"lazy must be True or False, got {lazy!r}")
-    for name, value in (("inner_steps", inner_steps), ("max_outer", max_outer)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ParameterError(f"{name} must be a positive integer, got {value!r}")
-    t_start = time.perf_counter()
-    problem = Problem.surface(V, F)
-    objective = Objective(problem, energy, **energy_params)
-    named = solver is None or isinstance(solver, str)
-    solver = Newton() if solver is None else get_solver(solver)
+
+    scaffold_weight: float = 1e-3
+    ring_scale: float = 3.0
+    inner_steps: int = 10
+    max_outer: int = 100
+    outer_rtol: float = 1e-4
+    lazy: bool = True
+
+    def __post_init__(self):
+        validate(self, scaffold_weight=Real(0.0, lo_open=True), ring_scale=Real(1.0, lo_open=True),
+                 inner_steps=Int(1), max_outer=Int(1), outer_rtol=Real(0.0, lo_open=True), lazy=Instance(bool))
+
+
+class FreeRecord(NamedTuple):
+    """The scaffold-free phase (``trace.phases[0]`` when lazy): its iterations, the mesh's
+    mean energy after it, and its outcome (None: the boundary was about to overlap)."""
+
+    iterations: int
+    mean_energy: float
+    outcome: Outcome | None
+
+    def line(self, k: int) -> str:
+        how = "(boundary about to overlap: scaffold)" if self.outcome is None else self.outcome.value
+        return f"free  {self.iterations:4d} iterations  energy {self.mean_energy:.10g}  {how}"
+
+
+class ScaffoldRecord(NamedTuple):
+    """One outer iteration with the scaffold: its number, the mesh's mean energy after it,
+    the inner iterations and outcome, and the Delaunay flips that followed."""
+
+    outer: int
+    mean_energy: float
+    inner: int
+    outcome: Outcome | None
+    flips: int
+
+    def line(self, k: int) -> str:
+        how = self.outcome.value if self.outcome is not None else "stopped"
+        return (f"outer {self.outer:3d}  energy {self.mean_energy:.10g}  inner {self.inner:3d} ({how})  "
+                f"flips {self.flips:5d}")
+
+
+class ScaffoldContinuation(AbstractContinuation):
+    """The outer loop of the bijective mode as a continuation of :func:`~geomopt.solvers.iterate`.
+
+    The first phase (``lazy``) runs on the mesh alone under :class:`SimpleBoundary`: when it
+    ends on its own the result is the plain solve's; when the guard ends it, the scaffold is
+    built around the last iterate and each later phase solves mesh + scaffold with ``inner``
+    for up to ``inner_steps`` iterations, then re-triangulates the scaffold
+    (:func:`delaunay_flips`), until an inner solve converged and the mesh energy fell by less
+    than ``outer_rtol`` (relative), or ``max_outer``.  ``finish`` certifies the mesh's map
+    exactly (:func:`~geomopt.certify.certify_bijective`).
+    """
+
+    def __init__(self, problem, objective, loop, inner, options, start, scale):
+        self.problem, self.objective, self.loop, self.inner, self.opts = problem, objective, loop, inner, options
+        self.start_map, self.scale = start, scale
+        n = problem.n_vertices
+        order = _interior_first(problem.simplices, loop)
+        self.mesh = problem.simplices[order], problem.rest_inv[order], problem.volumes[order]
+        self.X, self.S = start, None  # the last certified-finite map (mesh + scaffold vertices)
+        self.energies, self.times = [self._mesh_energy(start)], [0.0]
+        self.free = self.flips = self.outer = 0
+        self.n, self.weight = n, 0.0
+        self.t0 = time.perf_counter()
+
+    def _mesh_energy(self, X) -> float:
+        return float(self.objective.value(np.asarray(X)[: self.problem.n_vertices], self.objective.params()))
+
+    def _combined(self, X, S):
+        """The planar problem of mesh + scaffold (the scaffold's current shape its rest shape)."""
+        rows, inv, vol = self.mesh
+        simplices = np.concatenate([rows, S])
+        problem = dataclasses.replace(
+            self.problem, kind="planar", n_vertices=len(X), simplices=simplices, input_simplices=simplices,
+            rest_inv=np.concatenate([inv, _rest_inverse(X, S)]),
+            volumes=np.concatenate([vol, np.full(len(S), self.weight)]), rest_vertices=X)
+        return Objective(problem, self.objective.energy)
+
+    def scaffolded(self, X):
+        """``(objective, X)``: the scaffold built around the map ``X`` (n, 2) (refined), the
+        combined objective and the map with the scaffold's vertices appended."""
+        X = np.asarray(X)[: self.n]
+        scaffold = build_scaffold(X[self.loop], self.opts.ring_scale)
+        k = len(self.loop)
+        Xs, Ts = refine_scaffold(np.concatenate([X[self.loop], scaffold.outer]), scaffold.triangles, k)
+        ids = np.concatenate([self.loop, self.n + np.arange(len(Xs) - k)])  # scaffold id -> vertex
+        self.S, self.X = ids[Ts], np.concatenate([X, Xs[k:]])
+        self.weight = self.opts.scaffold_weight * self.objective.total_volume / len(self.S)
+        return self._combined(self.X, self.S), self.X
+
+    def _log(self, X):
+        self.energies.append(self._mesh_energy(X))
+        self.times.append(time.perf_counter() - self.t0)
+        return self.energies[-1] / self.objective.total_volume
+
+    def __call__(self, state, outcome) -> Decision:
+        if self.S is None:  # the scaffold-free phase ended
+            self.free, self.X = state.iteration, np.asarray(state.x)
+            record = FreeRecord(self.free, self._log(self.X), outcome)
+            if outcome is not None:
+                return Decision.stop_with(outcome, record=record)
+            objective, X = self.scaffolded(self.X)
+            return Decision.go(objective=objective, x=X, solver=self.inner, record=record)
+        X = np.asarray(state.x)
+        if outcome is Outcome.NONFINITE or not np.isfinite(X).all():
+            return Decision.stop_with(Outcome.NONFINITE)
+        self.outer += 1
+        self.X = X
+        self.S, f = delaunay_flips(X, self.S)
+        self.flips += f
+        record = ScaffoldRecord(self.outer, self._log(X), state.iteration, outcome, f)
+        drop = self.energies[-2] - self.energies[-1]
+        if outcome is Outcome.CONVERGED and drop <= self.opts.outer_rtol * abs(self.energies[-1]):
+            return Decision.stop_with(Outcome.CONVERGED, record=record)
+        if self.outer >= self.opts.max_outer:
+            return Decision.stop_with(Outcome.MAX_STEPS, record=record)
+        return Decision.go(objective=self._combined(X, self.S), x=X, record=record)
+
+    def finish(self, state, outcome, reason) -> Final:
+        x = np.asarray(self.X[: self.n])
+        cert = certify_bijective(x, self.problem.simplices, self.loop)
+        if outcome is Outcome.CONVERGED and not cert.globally_injective:
+            outcome = Outcome.NOT_INJECTIVE
+        details = ParamDetails(start=self.start_map, scale=self.scale, free_iterations=self.free,
+                               flips=self.flips, scaffold_triangles=0 if self.S is None else len(self.S))
+        return Final(x, outcome, cert, reason, problem=self.problem, objective=self.objective,
+                     energy=self.energies[-1], volume=self.objective.total_volume, details=details)
+
+
+def _inner_solver(solver, opts, named):
+    """The scaffold phase's solver: ``solver`` with ``max_steps = inner_steps``; a Newton-type
+    inner solve need not converge further than the outer loop's own tolerance (a quasi-Newton
+    decrement is a poorer estimate: L-BFGS stopped 2.6e-4 high on the spiral); a solver given
+    by name gets the search's 0.9 of the flip bound: AQP's and L-BFGS's default stops a quarter
+    of the way to the first collapse (keeping real triangles from their barrier), but the
+    steps the scaffold blocks are its own air triangles', which the next scaffold replaces (at
+    0.25 L-BFGS on the spiral hit max_outer (100), at 0.9 it converged in 59 outer iterations).
+    A search passed in a solver object is kept."""
     if not (dataclasses.is_dataclass(solver) and hasattr(solver, "max_steps")):
         raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
                              f"(e.g. geomopt.Newton()), got {solver!r}")
-    # a Newton inner solve need not converge further than the outer loop's own tolerance (a
-    # quasi-Newton decrement is a poorer estimate: L-BFGS stopped 2.6e-4 high on the spiral)
-    rtol = max(solver.rtol, 0.1 * outer_rtol) if isinstance(solver, Newton) else solver.rtol
-    inner = dataclasses.replace(solver, max_steps=int(inner_steps), rtol=rtol)
+    rtol = max(solver.rtol, 0.1 * opts.outer_rtol) if isinstance(solver, AbstractNewton) else solver.rtol
+    inner = dataclasses.replace(solver, max_steps=int(opts.inner_steps), rtol=rtol)
     if named and inner.search.safety < 0.9:
-        # AQP's and L-BFGS's default search stops a quarter of the way to the first collapse
-        # (it keeps real triangles away from their barrier); the steps the scaffold blocks are
-        # its own air triangles', which the next scaffold replaces: at 0.25 L-BFGS on the spiral
-        # hit max_outer (100), at 0.9 it converged in 59 outer iterations.  A search passed in
-        # a solver object is kept.
         inner = dataclasses.replace(inner, search=dataclasses.replace(inner.search, safety=0.9))
-    loop = check_disk(problem.input_simplices, problem.n_vertices)
+    return inner
+
+
+def _bijective_start(problem, objective, x0, weights, loop):
+    """``(x0, scale)``: the start map (Tutte onto a circle by default), checked globally
+    injective (exact), centred, scaled to the rest area and by :func:`optimal_scale`."""
     if x0 is None:
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
     x0 = problem.check_map(x0, "start map x0")
@@ -584,75 +665,85 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     x0 = x0 - x0.mean(axis=0)
     x0 = scale_to_area(x0, problem.rest_vertices, problem.simplices)
     s = optimal_scale(objective, x0)
-    x0 = s * x0
+    return s * x0, s
 
-    n = problem.n_vertices
-    order = _interior_first(problem.simplices, loop)
-    mesh_rows, mesh_inv, mesh_vol = problem.simplices[order], problem.rest_inv[order], problem.volumes[order]
-    log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if progress else (lambda *a: None)
 
-    def combined(X, S, weight):
-        simplices = np.concatenate([mesh_rows, S])
-        return dataclasses.replace(
-            problem, kind="planar", n_vertices=len(X), simplices=simplices,
-            input_simplices=simplices, rest_inv=np.concatenate([mesh_inv, _rest_inverse(X, S)]),
-            volumes=np.concatenate([mesh_vol, np.full(len(S), weight)]), rest_vertices=X)
+@float64
+def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
+                           x0=None, progress=True, throw=False, *, options: ScaffoldOptions | None = None,
+                           **kwargs):
+    """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
 
+    Solves the same problem as :func:`~geomopt.param.parameterize` with, around the mesh, a
+    scaffold (SCAF, Jiang et al. 2017; see the module docstring) that keeps the boundary from
+    touching itself.  The scaffold's triangles take the same energy as the mesh, each weighted by
+    ``scaffold_weight * (mesh area) / (number of scaffold triangles)`` (as in SCAF, uniform rather
+    than by area, so small gaps resist as much as large ones), with their current shape as rest
+    shape (:class:`ScaffoldContinuation`).
+
+    With ``lazy`` (default) the solver first runs on the mesh alone, for as long as every
+    iterate's boundary stays simple (:class:`SimpleBoundary`), then the scaffold is built at the
+    last iterate; where the free-boundary solve never overlaps, the result is the plain solve's.
+    Every accepted iterate is bijective; between two iterates of the scaffold-free phase the
+    straight path is not checked, which does not matter for the returned map.  ``lazy=False``
+    uses the scaffold from the start (the boundary never crosses itself along the whole path).
+
+    Parameters
+    ----------
+    V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles of a topological disk.
+    energy, solver, weights, throw : as for :func:`~geomopt.param.parameterize`; the solver's
+        ``max_steps`` is replaced by ``inner_steps`` in the scaffold phase (a solver that is not
+        a dataclass with ``max_steps`` is rejected).
+    progress : bool, one line per phase on stderr.
+    x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
+        embedding onto a circle, is).
+    options : :class:`ScaffoldOptions`; ``kwargs`` naming its fields (``scaffold_weight``,
+        ``ring_scale``, ``inner_steps``, ``max_outer``, ``outer_rtol``, ``lazy``) replace them,
+        the others are energy parameters.
+
+    Returns
+    -------
+    :class:`~geomopt.solvers.Result` for the mesh alone: ``x`` (n, 2), ``energy`` the mesh
+    energy, ``trace.energy`` / ``trace.seconds`` the mesh energy and elapsed seconds at the
+    start, after the scaffold-free phase (if ``lazy``) and after each outer iteration;
+    ``stats.iterations`` the solver iterations summed, ``stats.outer_iterations`` the scaffold's.
+    ``certificate`` is the exact :class:`~geomopt.certify.Certificate` and ``injectivity`` is
+    ``"global"`` when it holds; a result that is not globally injective has outcome
+    ``NOT_INJECTIVE`` (never expected: the scaffold forbids it), so ``success`` means converged,
+    flip-free and bijective.  ``details`` (:class:`~geomopt.solvers.ParamDetails`) holds the
+    start and its scale, ``free_iterations``, ``flips`` and ``scaffold_triangles``.
+
+    Raises
+    ------
+    MeshError : invalid or non-disk mesh, or a start map that is not globally injective.
+    ParameterError : unknown energy/solver/weights name or an invalid parameter.
+    SolveError : only with ``throw=True``, when the result is not converged and bijective.
+    """
+    names = {f.name for f in dataclasses.fields(ScaffoldOptions)}
+    opts = dataclasses.replace(options or ScaffoldOptions(), **{k: kwargs.pop(k) for k in list(kwargs) if k in names})
+    check_progress(progress, "bijective_parameterize")
+    t_start = time.perf_counter()
+    problem = Problem.surface(V, F)
+    objective = Objective(problem, energy, **kwargs)
+    named = solver is None or isinstance(solver, str)
+    solver = get_solver("newton" if solver is None else solver)
+    inner = _inner_solver(solver, opts, named)
+    loop = check_disk(problem.input_simplices, problem.n_vertices)
+    x0, s = _bijective_start(problem, objective, x0, weights, loop)
+    cont = ScaffoldContinuation(problem, objective, loop, inner, opts, x0, s)
+    report = Progress(iterations=False) if progress else None
+    if opts.lazy:
+        first, guard, start = solver, SimpleBoundary(loop), (objective, x0)
+    else:
+        first, guard, start = inner, None, cont.scaffolded(x0)
     setup = time.perf_counter() - t_start
-    energies = [float(objective.value(x0, objective.params()))]
-    times = [0.0]
-    t0 = time.perf_counter()
-    X, S = x0, np.zeros((0, 3), np.int64)
-    iterations = free = flips = 0
-    outcome = None  # None: the scaffold phase is needed
-    if lazy:
-        X, free, outcome = _steps_while_simple(objective, x0, solver, loop)
-        iterations += free
-        energies.append(float(objective.value(X, objective.params())))
-        times.append(time.perf_counter() - t0)
-        log(f"free  {free:4d} iterations  energy {energies[-1] / objective.total_volume:.10g}  "
-            f"{'(boundary about to overlap: scaffold)' if outcome is None else outcome.value}  "
-            f"{times[-1]:7.2f}s")
-    if outcome is None:
-        outcome = Outcome.MAX_STEPS
-        scaffold = build_scaffold(X[loop], ring_scale)
-        k = len(loop)
-        Xs, Ts = refine_scaffold(np.concatenate([X[loop], scaffold.outer]), scaffold.triangles, k)
-        ids = np.concatenate([loop, n + np.arange(len(Xs) - k)])  # scaffold id -> vertex
-        S = ids[Ts]
-        X = np.concatenate([X, Xs[k:]])
-        weight = scaffold_weight * objective.total_volume / len(S)
-        for outer in range(1, int(max_outer) + 1):
-            res = minimize(Objective(combined(X, S, weight), objective.energy), X, inner, progress=False)
-            iterations += res.iterations
-            if res.outcome is Outcome.NONFINITE:
-                outcome = res.outcome
-                break
-            X = res.x
-            S, f = delaunay_flips(X, S)
-            flips += f
-            energies.append(float(objective.value(X[:n], objective.params())))
-            times.append(time.perf_counter() - t0)
-            drop = energies[-2] - energies[-1]
-            log(f"outer {outer:3d}  energy {energies[-1] / objective.total_volume:.10g}  inner "
-                f"{res.iterations:3d} ({res.outcome.value})  flips {f:5d}  {times[-1]:7.2f}s")
-            if res.outcome is Outcome.CONVERGED and drop <= outer_rtol * abs(energies[-1]):
-                outcome = Outcome.CONVERGED
-                break
-    x = np.asarray(X[:n])
-    cert = certify_bijective(x, problem.simplices, loop)
-    if outcome is Outcome.CONVERGED and not cert.globally_injective:
-        outcome = Outcome.NOT_INJECTIVE
-    result = Result(
-        x=x, outcome=outcome, inverted=cert.inverted, energy=energies[-1],
-        energy_history=np.asarray(energies), iterations=iterations,
-        seconds=time.perf_counter() - t0, setup_seconds=setup, time_history=np.asarray(times),
-        info=dict(start=x0, scale=s, problem=problem, objective=objective, certificate=cert,
-                  injectivity=cert.injectivity, free_iterations=free,
-                  outer_iterations=len(energies) - 1 - bool(lazy), flips=flips,
-                  scaffold_triangles=len(S)),
-    )
+    result = iterate(first, start[0], start[1], objective.params(), continuation=cont, guard=guard,
+                     progress=report, trace=False)
+    result = dataclasses.replace(
+        result, trace=Trace(np.asarray(cont.energies), np.asarray(cont.times), np.full(len(cont.times), np.nan),
+                            None, result.trace.phases),
+        stats=dataclasses.replace(result.stats, outer_iterations=cont.outer,
+                                  setup_seconds=result.stats.setup_seconds + setup))
     if throw and not result.success:
-        raise SolveError(f"bijective solve failed: {result.message}; injectivity "
-                         f"{cert.injectivity}", result)
+        raise SolveError(f"bijective solve failed: {result.message}; injectivity {result.injectivity}", result)
     return result

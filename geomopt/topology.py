@@ -361,6 +361,13 @@ def check_disk(F, n_vertices) -> np.ndarray:
     """
     F = as_faces(F, n_vertices)
     n = _as_count(n_vertices)
+    E = _check_manifold_faces(F, n)
+    return _check_one_boundary(F, n, E)
+
+
+def _check_manifold_faces(F, n) -> np.ndarray:
+    """:func:`check_disk`'s checks of the faces (no repeated vertex, no unused vertex, manifold
+    edges, consistent orientation, one component); returns the unique edges."""
     m = F.shape[0]
 
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
@@ -385,7 +392,6 @@ def check_disk(F, n_vertices) -> np.ndarray:
             "a disk's edges are used by 1 or 2 faces: split or remove the extra faces"
         )
 
-    H = half_edges(F)
     same_direction, _ = same_side_facets(F)
     if same_direction:
         raise MeshError(
@@ -400,7 +406,14 @@ def check_disk(F, n_vertices) -> np.ndarray:
             f"the mesh has {count} connected components; a disk has one: "
             "keep one component or parameterize each separately"
         )
+    return E
 
+
+def _check_one_boundary(F, n, E) -> np.ndarray:
+    """:func:`check_disk`'s checks of the boundary (one, manifold, one loop, Euler
+    characteristic 1); returns the loop."""
+    m = F.shape[0]
+    H = half_edges(F)
     twin = _twins(F)
     n_boundary = int((twin < 0).sum())
     if n_boundary == 0:

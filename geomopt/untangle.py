@@ -41,8 +41,15 @@ at the end (bit-exact), and the result is certified with the exact orientation p
 (:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
 a map with every element positive can still wind twice around an interior vertex (2D) or edge
 (3D), or overlap itself around a boundary vertex or edge; such a map is ``NOT_INJECTIVE``
-(interior failures counted in ``info['branch_vertices']``, the certificate in
-``info['local_certificate']``).
+(the failures listed in ``certificate``: ``branch_vertices``, ``branch_edges``,
+``boundary_overlaps``...).
+
+The outer loop is a continuation of the one loop (:class:`EpsContinuation`, handed to
+:func:`geomopt.solvers.iterate`): after each inner solve it measures the worst determinant,
+decides to stop or picks the next eps, and asks for the solver's memory to be dropped when an
+outer iteration increased the number of inverted elements.  With the default L-BFGS, an inner
+solve that has not converged after :data:`STIFF_AFTER` iterations continues with the Laplacian
+seed (:func:`stiff_solver`), for the rest of the solve.
 
 ``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
 once per mesh shape.
@@ -52,33 +59,32 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
-import sys
 import time
-from collections.abc import Mapping
 from functools import partial
-from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import Instance, Int, Maybe, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
 from ._x64 import float64
 from ._programs import jit as programs_jit
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
-from .certify import local_certificate
+from .certify import fixed_star_certificate, local_certificate
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .problem import Problem, fixed_total_problem
-from .solvers import LBFGS, AbstractSolver, Newton, Outcome
-from .solvers._base import check_progress
+from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
+                      Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
+from .solvers._iterate import check_progress
 from .topology import boundary_vertices
 
-__all__ = ["UntangleResult", "untangle", "untangle_case", "lim_problem", "write_untangle_result",
-           "default_solver", "stiff_solver", "next_eps"]
+__all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
+           "stiff_solver", "next_eps", "bits_differ", "STIFF_AFTER"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
@@ -86,9 +92,11 @@ EPS_FLOOR = {2: 1e-9, 3: 1e-10}
 
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
 
-
 #: inner iterations after which the default L-BFGS continues with the Laplacian seed
 STIFF_AFTER = 100
+
+#: what :func:`untangle` returns (one result type for every solve; kept as a name)
+UntangleResult = Result
 
 
 def stiff_solver(name: str, dim: int) -> AbstractSolver | None:
@@ -128,60 +136,89 @@ def default_solver(name: str, dim: int, n_elements: int = 0) -> AbstractSolver:
 
 
 @dataclasses.dataclass(frozen=True)
-class UntangleResult:
-    """The outcome of :func:`untangle`.
+class UntangleOptions:
+    """The settings of :func:`untangle` (validated: a wrong type or range is a one-line
+    :class:`~geomopt.ParameterError`).
 
     Attributes
     ----------
-    x : (n, d) ndarray, the map; handles bit-identical to ``problem.fixed_positions``.
-    outcome : :class:`~geomopt.solvers.Outcome`.
-    inverted : int, elements not positively oriented in ``x`` (exact predicate).
-    initially_inverted : int, the same for the start map.
-    handles_moved : int, handles whose position differs from the prescribed one in any bit.
-    outer_iterations, inner_iterations : int.
-    seconds : time of the outer loop;  setup_seconds : scaling, kernels' compilation, solver setup.
-    min_det_rel : smallest signed area/volume of ``x`` divided by the mean absolute one.
-    energy_history, eps_history, min_det_history, inverted_history : (outer_iterations,) arrays,
-        the (scaled-domain) energy, eps used, worst det J and float-inverted count after each
-        outer iteration.
-    info : dict, extra data (scale factors, theta, solver...).
+    theta : shape/area balance in ``(0, 1)``; ``lam = theta / (1 - theta)``.  None: 1/128 in
+        2D, 1/2 in 3D.
+    max_outer : outer (eps) iteration limit.
+    energy_tol : stop once untangled and ``|E_prev - E| / E`` of an inner solve is below this.
+    eps0 : initial eps (the map is normalised so the mean det J is 1).
+    max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
+        equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
+    keep_memory : keep the L-BFGS curvature pairs across outer iterations, except after one
+        that increased the number of inverted elements (measured on square_rot180: it stalled
+        with 64 folds under half of 14 exact rotations of its rest mesh when the pairs were
+        always kept, and untangled under all 14 with this reset, at the same cost elsewhere).
+    injective_when_untangled : once every element is positive, switch the inner line search
+        to the injective one (no element can flip back; compiles a second kernel).
+    min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
+        iteration shrinks ``chi(D-, eps)`` (:func:`next_eps`).  The paper uses ``0.1`` and no
+        cap; the default halves it every outer iteration while elements are inverted and
+        applies no cap once none is (see the module notes).
+    bucket : pad the problem to its size bucket (``Objective(buckets=True)``,
+        :mod:`geomopt._padding`), so that meshes of similar sizes share compiled kernels; same
+        certificate, same map up to the rounding of sums over elements.
     """
 
-    x: np.ndarray
-    outcome: Outcome
+    theta: float | None = None
+    max_outer: int = 200
+    energy_tol: float = 1e-5
+    eps0: float = 1.0
+    max_aspect: float | None = 10.0
+    keep_memory: bool = True
+    injective_when_untangled: bool = False
+    min_sigma: float = 0.5
+    max_sigma: float = 0.5
+    bucket: bool = False
+
+    def __post_init__(self):
+        validate(self, theta=Maybe(Real(0.0, 1.0, lo_open=True, hi_open=True)), max_outer=Int(1),
+                 energy_tol=Real(0.0, 1.0, lo_open=True, hi_open=True), eps0=Real(0.0, lo_open=True),
+                 max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
+                 injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
+                 max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool))
+        if not self.min_sigma <= self.max_sigma:
+            raise ParameterError(f"UntangleOptions: need min_sigma <= max_sigma, got {self.min_sigma} and "
+                                 f"{self.max_sigma}")
+
+    def resolved_theta(self, dim: int) -> float:
+        return self.theta if self.theta is not None else (1.0 / 128.0 if dim == 2 else 0.5)
+
+
+def options_from(cls, options, overrides, where):
+    """``options`` (an instance of ``cls`` or None) with ``overrides`` (field names) applied;
+    ParameterError naming the unknown keywords."""
+    if options is not None and not isinstance(options, cls):
+        raise ParameterError(f"{where}: options must be a {cls.__name__} or None, got {type(options).__name__}")
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ParameterError(f"{where}: unknown keyword argument(s) {unknown}; the options are {sorted(known)}")
+    return dataclasses.replace(options or cls(), **overrides)
+
+
+class UntangleRecord(NamedTuple):
+    """One outer iteration of :func:`untangle` (``trace.phases``): the eps used, the energy
+    (total, and over the rest volume) of the whole problem after the inner solve, its worst
+    ``det J`` and float-inverted count, and the inner iterations."""
+
+    eps: float
+    energy: float
+    mean_energy: float
+    min_det: float
     inverted: int
-    initially_inverted: int
-    handles_moved: int
-    outer_iterations: int
-    inner_iterations: int
-    seconds: float
-    setup_seconds: float
-    min_det_rel: float
-    energy_history: np.ndarray
-    eps_history: np.ndarray
-    min_det_history: np.ndarray
-    inverted_history: np.ndarray
-    info: dict = dataclasses.field(default_factory=dict)
+    inner: int
 
-    @property
-    def success(self) -> bool:
-        """Converged, no inverted element (exact), every handle exactly in place and locally
-        injective around every vertex and edge (``info['local_certificate']``)."""
-        return self.outcome is Outcome.CONVERGED and self.inverted == 0 and self.handles_moved == 0
-
-    @property
-    def message(self) -> str:
-        msg = self.info.get("reason") or self.outcome.message
-        if self.inverted:
-            msg += f"; {self.inverted} inverted element(s)"
-        if self.handles_moved:
-            msg += f"; {self.handles_moved} handle(s) moved"
-        return msg
+    def line(self, k: int) -> str:
+        return (f"outer {k:3d}  eps {self.eps:9.3e}  mean energy {self.mean_energy:.8g}  min det {self.min_det:+.3e}  "
+                f"inverted {self.inverted:6d}  inner {self.inner:5d}")
 
 
 # --------------------------------------------------------------------- kernels
-
-
 
 
 @partial(programs_jit, static_argnums=0)
@@ -259,32 +296,128 @@ def _power_of_two(v: float) -> float:
     return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
 
 
-def _bits_differ(a, b) -> int:
+def bits_differ(a, b) -> int:
+    """Rows of ``a`` and ``b`` (k, d) that differ in any bit (handles moved: exact)."""
     a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
     return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
+
+
+# --------------------------------------------------------------------- the outer loop
+
+
+class EpsContinuation(AbstractContinuation):
+    """The eps schedule of :func:`untangle` as a continuation of
+    :func:`~geomopt.solvers.iterate`: after each inner solve, measure the energy and worst
+    ``det J`` over the whole (normalised) problem; stop when nothing is inverted and the
+    energy settled, else shrink eps (:func:`next_eps`) and go on.  ``finish`` maps the last
+    iterate back to the input frame, writes the handles back bit for bit and certifies it.
+
+    Parameters
+    ----------
+    problem : the input :class:`~geomopt.Problem`;  scaled : its normalised copy;  full : the
+        objective of ``scaled`` (the outer statistics); objective : the inner one (the active
+        elements, padded like ``full``), whose parameters change;  map_scale : the power of two
+        the map was scaled by;  xs : the scaled start.
+    options : :class:`UntangleOptions`;  details : :class:`UntangleDetails` of the result;
+    initially : inverted elements of the start map;  solver : the inner solver (its search is
+        made injective once nothing is inverted with ``injective_when_untangled``).
+    stiff : the solver a stalled inner solve continues with (:func:`stiff_solver`), or None.
+
+    Notes
+    -----
+    While ``stiff`` is pending the inner solves run :attr:`phase_solver`, the solver capped at
+    :data:`STIFF_AFTER` iterations (the same compiled loop), and a solve that reaches the cap
+    continues with ``stiff`` from its map, for the rest of the solve.
+    """
+
+    def __init__(self, problem, scaled, full, objective, map_scale, xs, options, details, initially, solver,
+                 stiff=None):
+        self.problem, self.scaled, self.full, self.objective, self.solver = problem, scaled, full, objective, solver
+        self.stiff = stiff if stiff is not None and solver.max_steps > STIFF_AFTER else None
+        self.probed = 0  # inner iterations of this outer iteration before a switch to ``stiff``
+        self.k, self.xs, self.options, self.details, self.initially = map_scale, xs, options, details, initially
+        self.eps = float(options.eps0)
+        self.floor = EPS_FLOOR.get(problem.dim, 1e-10)
+        self.injective = False
+        self.inverted = []
+        self.E = math.nan
+
+    def _stats(self, x, params):
+        return (float(v) for v in _outer_stats(self.objective.energy.density, self.full.geom, x, params))
+
+    @property
+    def phase_solver(self):
+        """The solver of the next inner solve: capped at :data:`STIFF_AFTER` iterations while a
+        switch to ``stiff`` is pending."""
+        return self.solver if self.stiff is None else dataclasses.replace(self.solver, max_steps=STIFF_AFTER)
+
+    def start(self, state):
+        self.E = next(iter(self._stats(state.x, state.params)))
+
+    def __call__(self, state, outcome) -> Decision:
+        if self.stiff is not None and outcome is Outcome.MAX_STEPS and state.iteration >= STIFF_AFTER:
+            # a stiff, global inner solve: the Laplacian seed from here on, same eps, same map
+            self.probed, self.solver, self.stiff = state.iteration, self.stiff, None
+            return Decision.go(state.params, objective=self.objective, x=state.x, solver=self.solver)
+        opts, E_prev = self.options, self.E
+        E, detmin, nneg = self._stats(state.x, state.params)
+        self.E, nneg = E, int(nneg)
+        self.inverted.append(nneg)
+        record = UntangleRecord(self.eps, E, E / self.full.total_volume, detmin, nneg, self.probed + state.iteration)
+        self.probed = 0
+        if not (math.isfinite(E) and math.isfinite(detmin)):
+            return Decision.stop_with(Outcome.NONFINITE, record=record)
+        settled = abs(E_prev - E) / abs(E) < opts.energy_tol
+        if detmin > 0 and settled and self.scaled.count_inverted(self.full.unpad_map(np.asarray(state.x))) == 0:
+            return Decision.stop_with(Outcome.CONVERGED, record=record)
+        if len(self.inverted) >= opts.max_outer:
+            return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
+                                      f"{opts.max_outer}) before it settled", record)
+        self.eps = next_eps(self.eps, E, E_prev, detmin, opts.min_sigma, opts.max_sigma, self.floor)
+        params = self.objective.params(eps=self.eps)
+        if opts.injective_when_untangled and not self.injective and detmin > 0:
+            self.injective = True  # from now on no element may flip back
+            self.solver, self.stiff = (None if s is None else dataclasses.replace(
+                s, search=dataclasses.replace(s.search, injective=True)) for s in (self.solver, self.stiff))
+        self.E = next(iter(self._stats(state.x, params)))
+        # stale curvature pairs can steer the next solve into more folds: drop them then
+        worse = len(self.inverted) > 1 and self.inverted[-1] > self.inverted[-2]
+        return Decision.go(params, restart=not opts.keep_memory or worse, solver=self.phase_solver, record=record)
+
+    def finish(self, state, outcome, reason) -> Final:
+        problem, k = self.problem, self.k
+        xs_final = np.asarray(state.x, dtype=np.float64)
+        if not np.isfinite(xs_final).all():
+            outcome, xs_final = Outcome.NONFINITE, self.xs
+        out = xs_final[: problem.n_vertices] / k  # without bucket padding
+        out[problem.fixed] = problem.fixed_positions
+        moved = bits_differ(out[problem.fixed], problem.fixed_positions)
+        t_certify = time.perf_counter()
+        cert = local_certificate(problem, out, moved)  # exact: orientations, fans/stars around vertices, edges
+        if outcome is Outcome.CONVERGED and not cert.valid:
+            outcome = Outcome.NOT_INJECTIVE
+            if not cert.inverted and not cert.ok:
+                reason = _local_reason(problem, cert)
+        return Final(out, outcome, cert, reason, problem=problem, energy=self.E,
+                     volume=self.full.total_volume, details=self.details, inverted_at_start=self.initially,
+                     certify_seconds=time.perf_counter() - t_certify)
+
+
+def _local_reason(problem, cert) -> str:
+    """Why a map with every element positive is not locally injective, with what to do."""
+    hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
+            "positions" if np.isin(boundary_vertices(problem.simplices, problem.n_vertices), problem.fixed).all()
+            else "flip-free motion cannot remove it; start from a map whose boundary is a simple "
+            "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
+    return f"no element is inverted, but {cert.message}; {hint}"
 
 
 # --------------------------------------------------------------------- main entry
 
 
 @float64
-def untangle(
-    problem: Problem,
-    x0,
-    solver="lbfgs",
-    theta: float | None = None,
-    progress=True,
-    throw: bool = False,
-    max_outer: int = 200,
-    energy_tol: float = 1e-5,
-    eps0: float = 1.0,
-    max_aspect: float | None = 10.0,
-    keep_memory: bool = True,
-    injective_when_untangled: bool = False,
-    min_sigma: float = 0.5,
-    max_sigma: float = 0.5,
-    bucket: bool = False,
-) -> UntangleResult:
+def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True,
+             throw: bool = False, **overrides) -> Result:
     """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
@@ -295,77 +428,106 @@ def untangle(
     ----------
     problem : :class:`~geomopt.problem.Problem`, with fixed vertices (``with_fixed``) or not.
     x0 : (n, d) start map; its handle rows are replaced by ``problem.fixed_positions``.
-    solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object
-        (``init/step/terminate``; one with a ``run(state)`` method is driven by it).  Its line
-        search should not be injective: the start is tangled.
-    theta : shape/area balance in ``(0, 1)``; ``lam = theta / (1 - theta)``.
-        Default 1/128 in 2D, 1/2 in 3D.
+    solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object.
+        Its line search should not be injective: the start is tangled.
+    options : :class:`UntangleOptions` (theta, max_outer, energy_tol, eps0, max_aspect,
+        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket); ``overrides``
+        (those names as keywords) replace its fields.
     progress : True (one line per outer iteration on stderr), False, or a callable
         ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
-    max_outer : outer (eps) iteration limit.
-    energy_tol : stop once untangled and ``|E_prev - E| / E`` of an inner solve is below this.
-    eps0 : initial eps (the map is normalised so the mean det J is 1).
-    max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
-        equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
-    keep_memory : keep the L-BFGS curvature pairs across outer iterations, except after one
-        that increased the number of inverted elements (measured on square_rot180: it stalled
-        with 64 folds under half of 14 exact rotations of its rest mesh when the pairs were
-        always kept, and untangled under all 14 with this reset, at the same cost elsewhere).
-    injective_when_untangled : once every element is positive, switch the inner line search
-        to the injective one (no element can flip back; compiles a second kernel).
-    min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
-        iteration shrinks ``chi(D-, eps)`` (:func:`next_eps`).  The paper uses ``0.1`` and no
-        cap; the default halves it every outer iteration while elements are inverted and
-        applies no cap once none is (see the module notes).
-    bucket : pad the problem to its size bucket (:func:`geomopt.batch.pad_to_bucket`), so that
-        meshes of similar sizes share compiled kernels; same certificate, same map up to the
-        rounding of sums over elements.
 
     Returns
     -------
-    :class:`UntangleResult`
+    :class:`~geomopt.solvers.Result`: ``x`` in the input frame, handles bit-identical to
+    ``problem.fixed_positions``; ``certificate`` the exact :class:`~geomopt.solvers.LocalCertificate`
+    (inverted elements, 2D branch points, moved handles); ``stats.iterations`` the inner
+    iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
+    :class:`UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
+    ``energy`` and ``mean_energy`` are measured in the normalised frame.
     """
     refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
-                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, theta)
-    t_setup = time.perf_counter()
-    d = problem.dim
-    if theta is None:
-        theta = 1.0 / 128.0 if d == 2 else 0.5
-    if not 0.0 < theta < 1.0:
-        raise ParameterError(f"theta must lie in (0, 1), got {theta}")
-    if max_outer < 1:
-        raise ParameterError(f"max_outer must be >= 1, got {max_outer}")
-    if not (isinstance(energy_tol, numbers.Real) and 0.0 < energy_tol < 1.0):
-        raise ParameterError(f"energy_tol must be a number in (0, 1), got {energy_tol!r}")
-    if not 0.0 < min_sigma <= max_sigma < 1.0:
-        raise ParameterError(f"need 0 < min_sigma <= max_sigma < 1, got {min_sigma}, {max_sigma}")
-    if not (isinstance(solver, (str, AbstractSolver))):
+                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)
+    opts = options_from(UntangleOptions, options, overrides, "untangle")
+    if not isinstance(solver, (str, AbstractSolver)):
         raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
     check_progress(progress, "untangle")
-    lam = theta / (1.0 - theta)
-    report = _Progress() if progress is True else (progress or None)
-
+    t_setup = time.perf_counter()
     x0 = problem.check_map(x0)
-    S = problem.simplices
     initially = problem.count_inverted(x0)
-    free = problem.free_mask
-    active = free[S].any(axis=1)
+    active = problem.free_mask[problem.simplices].any(axis=1)
+    why = _refusal(problem, x0, initially, active)
+    if why:
+        return _early_result(problem, x0, initially, t_setup, throw, why)
+    fixed_part = fixed_star_certificate(x0, problem.simplices, problem.fixed)  # stars no free vertex changes
+    if not fixed_part.ok:
+        raise MeshError(f"{fixed_part.message}; every element there has all its vertices fixed, so the "
+                        f"handles make a locally injective map impossible: free some of them or move them")
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
     if isinstance(solver, str):
-        stiff = stiff_solver(solver, d)
-        solver = default_solver(solver, d, int(active.sum()))
+        stiff = stiff_solver(solver, problem.dim)
+        solver = default_solver(solver, problem.dim, int(active.sum()))
+    theta = opts.resolved_theta(problem.dim)
+    scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
+    energy = garanzha.with_params(eps=opts.eps0, lam=theta / (1.0 - theta))
+    full = Objective(scaled, energy, buckets=opts.bucket)
+    obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
+    details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()))
+    eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver, stiff)
+    setup = time.perf_counter() - t_setup
+    result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
+                     progress=_phase_progress(progress), trace=False, throw=False)
+    result = dataclasses.replace(result, stats=dataclasses.replace(
+        result.stats, setup_seconds=result.stats.setup_seconds + setup))
+    if throw and not result.success:
+        raise SolveError(f"untangling failed: {result.message}", result)
+    return result
+
+
+def _phase_progress(progress):
+    """untangle's ``progress`` as an :func:`~geomopt.solvers.iterate` progress: lines per
+    outer iteration, or the user's callable per outer iteration."""
+    if progress is True:
+        return Progress(iterations=False)
+    if callable(progress):
+        return _PhaseCallback(progress)
+    return None
+
+
+class _PhaseCallback:
+    """A callable ``(outer, eps, energy, min_det, n_inverted, inner, seconds)`` called per
+    outer iteration (and never per inner iteration)."""
+
+    iterations = False
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __call__(self, state, elapsed, mean_energy):
+        return None
+
+    def phase(self, index, r, elapsed):
+        self.fn(index, r.eps, r.mean_energy, r.min_det, r.inverted, r.inner, elapsed)
+
+
+def _refusal(problem, x0, initially, active) -> str | None:
+    """Why no map with these handles can be injective (checked before solving), or None."""
     why = fixed_total_problem(problem, x0) if initially else None
     if why:
-        return _early_result(problem, x0, initially, t_setup, throw,
-                             f"{why}; mirror the handle positions or free part of the boundary")
+        return f"{why}; mirror the handle positions or free part of the boundary"
     if initially and not active.all():  # elements that cannot move: one inverted = infeasible
-        dead = int(np.count_nonzero(_orient_bad(x0, S[~active])))
+        dead = int(np.count_nonzero(_orient_bad(x0, problem.simplices[~active])))
         if dead:
-            return _early_result(problem, x0, initially, t_setup, throw,
-                                 f"{dead} inverted element(s) have every vertex fixed: no map with "
-                                 f"these handles is injective")
-    # ---- normalise: map by a power of two into a box of size ~BOX, rest to the map's volume
+            return (f"{dead} inverted element(s) have every vertex fixed: no map with these handles "
+                    f"is injective")
+    return None
+
+
+def _normalised(problem, x0, active, opts):
+    """``(scaled, sub, xs, k, s)``: the map scaled by a power of two ``k`` into a box of size
+    ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
+    ``max_aspect`` in 2D), ``sub`` its active elements."""
+    d = problem.dim
     span = float(np.max(x0.max(axis=0) - x0.min(axis=0)))
     k = _power_of_two(BOX / span) if span > 0 else 1.0
     xs = x0 * k
@@ -375,124 +537,12 @@ def untangle(
     scaled = dataclasses.replace(
         problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
         rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
-    if max_aspect is not None and d == 2:
-        scaled = _equilateral_rest(scaled, max_aspect)
+    if opts.max_aspect is not None and d == 2:
+        scaled = _equilateral_rest(scaled, opts.max_aspect)
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],
                               rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])
-    if bucket:
-        from .batch import pad_to_bucket
-
-        scaled, sub, xs = pad_to_bucket(scaled, sub, xs)
-    energy = garanzha.with_params(eps=eps0, lam=lam)
-    full = Objective(scaled, energy)
-    obj = Objective(sub, energy)
-    eps = float(eps0)
-    params = obj.params(eps=eps)
-    x = jax.device_put(xs)  # no per-shape copy program (jnp.asarray compiles one); xs is not written
-    # compile (or load) what the loop runs now, so that setup time holds it: L-BFGS's init
-    # compiles its two programs (evaluation and loop); other solvers compile their
-    # re-parameterisation and inner loop in the next two calls (no-ops for L-BFGS's programs)
-    state = solver.init(obj, x, params)
-    state = solver.with_params(state, params)
-    state = solver.run(state, max_steps=0)
-    E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
-    setup = time.perf_counter() - t_setup
-
-    # ---- the outer loop
-    t0 = time.perf_counter()
-    hist_E, hist_eps, hist_det, hist_inv = [], [], [], []
-    inner_total, outcome, reason = 0, Outcome.MAX_STEPS, None
-    evaluations_before = 0  # of a solver the loop switched away from
-    floor = EPS_FLOOR.get(d, 1e-10)
-    injective = False
-    outer = 0
-    for outer in range(1, max_outer + 1):
-        E_prev = E
-        it0 = state.iteration
-        if stiff is not None and stiff != solver:
-            state = solver.run(state, max_steps=STIFF_AFTER)
-            if not solver.terminate(state)[0]:  # stalled: the Laplacian seed from here on
-                inner_total += state.iteration - it0
-                evaluations_before += state.evaluations
-                solver = stiff
-                state = solver.init(obj, state.x, params)
-                it0 = state.iteration
-        state = solver.run(state)
-        n_inner = state.iteration - it0
-        inner_total += n_inner
-        x = state.x
-        E, detmin, nneg = (float(v) for v in _outer_stats(energy.density, full.geom, x, params))
-        nneg = int(nneg)
-        hist_E.append(E), hist_eps.append(eps), hist_det.append(detmin), hist_inv.append(nneg)
-        if report:
-            report(outer, eps, E / full.total_volume, detmin, nneg, n_inner, time.perf_counter() - t0)
-        if not (math.isfinite(E) and math.isfinite(detmin)):
-            outcome, reason = Outcome.NONFINITE, None
-            break
-        settled = abs(E_prev - E) / abs(E) < energy_tol
-        if detmin > 0 and settled:
-            if scaled.count_inverted(np.asarray(x)) == 0:
-                outcome = Outcome.CONVERGED
-                break
-        eps = next_eps(eps, E, E_prev, detmin, min_sigma, max_sigma, floor)
-        params = obj.params(eps=eps)
-        if injective_when_untangled and not injective and detmin > 0:
-            injective = True  # from now on no element may flip back
-            solver = dataclasses.replace(solver, search=dataclasses.replace(solver.search, injective=True))
-            stiff = None if stiff is None else dataclasses.replace(
-                stiff, search=dataclasses.replace(stiff.search, injective=True))
-        state = solver.with_params(state, params)
-        E = float(_outer_stats(energy.density, full.geom, state.x, params)[0])
-        # stale curvature pairs can steer the next solve into more folds: drop them then
-        worse = len(hist_inv) > 1 and hist_inv[-1] > hist_inv[-2]
-        if not keep_memory or worse:
-            state = solver.forget(state)
-    if outcome is Outcome.MAX_STEPS:
-        reason = f"stopped at the outer-iteration limit (max_outer={max_outer}) before it settled"
-    seconds = time.perf_counter() - t0
-    t_certify = time.perf_counter()
-    evaluations = evaluations_before + state.evaluations
-
-    # ---- back to the input frame: exact (power of two), handles written back bit for bit
-    xs_final = np.asarray(state.x, dtype=np.float64)
-    if not np.isfinite(xs_final).all():
-        outcome, xs_final = Outcome.NONFINITE, xs
-    out = xs_final[: problem.n_vertices] / k  # without bucket padding
-    out[problem.fixed] = problem.fixed_positions
-    cert = local_certificate(out, S)  # exact: orientations, and fans/stars around vertices and edges
-    inverted = cert.inverted
-    moved = _bits_differ(out[problem.fixed], problem.fixed_positions)
-    if outcome is Outcome.CONVERGED and (not cert.ok or moved):
-        outcome = Outcome.NOT_INJECTIVE
-    branches = len(cert.branch_vertices) + len(cert.branch_edges)
-    if not inverted and not cert.ok and outcome is Outcome.NOT_INJECTIVE:
-        hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
-                "positions" if np.isin(boundary_vertices(S, problem.n_vertices), problem.fixed).all() else
-                "flip-free motion cannot remove it; start from a map whose boundary is a simple "
-                "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
-        reason = f"no element is inverted, but {cert.message}; {hint}"
-    vols = problem.signed_volumes(out)
-    result = UntangleResult(
-        x=out, outcome=outcome, inverted=inverted, initially_inverted=initially, handles_moved=moved,
-        outer_iterations=outer, inner_iterations=inner_total, seconds=seconds, setup_seconds=setup,
-        min_det_rel=_min_rel(vols),
-        energy_history=np.asarray(hist_E), eps_history=np.asarray(hist_eps),
-        min_det_history=np.asarray(hist_det), inverted_history=np.asarray(hist_inv, dtype=np.int64),
-        info={"theta": theta, "lam": lam, "map_scale": k, "rest_scale": s, "solver": solver,
-              "reason": reason, "evaluations": evaluations, "elements": problem.n_elements,
-              "active_elements": int(active.sum()), "branch_vertices": branches,
-              "local_certificate": cert, "certify_seconds": time.perf_counter() - t_certify},
-    )
-    if throw and not result.success:
-        raise SolveError(f"untangling failed: {result.message}", result)
-    return result
-
-
-def _min_rel(vols):
-    """The smallest signed size over the mean absolute one (nan for an all-degenerate map)."""
-    scale = float(np.mean(np.abs(vols)))
-    return float(vols.min() / scale) if scale > 0 else float("nan")
+    return scaled, sub, xs, k, s
 
 
 def _orient_bad(x, S):
@@ -502,165 +552,9 @@ def _orient_bad(x, S):
 
 
 def _early_result(problem, x0, initially, t_setup, throw, reason):
-    vols = problem.signed_volumes(x0)
-    result = UntangleResult(
-        x=x0, outcome=Outcome.NOT_INJECTIVE, inverted=initially, initially_inverted=initially,
-        handles_moved=0, outer_iterations=0, inner_iterations=0, seconds=0.0,
-        setup_seconds=time.perf_counter() - t_setup, min_det_rel=_min_rel(vols),
-        energy_history=np.zeros(0), eps_history=np.zeros(0), min_det_history=np.zeros(0),
-        inverted_history=np.zeros(0, np.int64),
-        info={"reason": reason, "elements": problem.n_elements},
-    )
+    result = Result(x0, Outcome.NOT_INJECTIVE, LocalCertificate(initially),
+                    RunStats(setup_seconds=time.perf_counter() - t_setup, inverted_at_start=initially),
+                    problem=problem, reason=reason)
     if throw:
         raise SolveError(f"untangling failed: {reason}", result)
     return result
-
-
-class _Progress:
-    """One line per outer iteration on ``stream`` (default: the current ``sys.stderr``)."""
-
-    def __init__(self, stream=None):
-        self.stream = stream
-
-    def __call__(self, outer, eps, energy, detmin, nneg, inner, seconds):
-        print(f"outer {outer:3d}  eps {eps:9.3e}  mean energy {energy:.8g}  min det {detmin:+.3e}  "
-              f"inverted {nneg:6d}  inner {inner:5d}  {seconds:7.2f}s",
-              file=self.stream or sys.stderr, flush=True)
-
-
-# --------------------------------------------------------------------- LIM cases
-
-
-def lim_problem(case):
-    """The untangling problem of a LIM case (:class:`geomopt.lim.LimCase`, or a dict with its keys).
-
-    2D: the rest mesh is the ``v`` lines and the start map the ``vt`` lines.  A planar rest
-    mesh (``z == 0`` everywhere) is a :meth:`Problem.planar` problem, whose rest triangles must
-    all have the same orientation; any other rest mesh is a surface (:meth:`Problem.surface`,
-    each triangle flattened to its own frame), whose triangles must be consistently oriented
-    as a surface (adjacent faces traverse their shared edge in opposite directions).  Either
-    way a map with every triangle positively oriented then has no fold, which is what the
-    certificate claims.  A start map whose orientation is opposite to the rest mesh's
-    (negative total signed area, counted in the rest orientation) is mirrored (``u -> -u``,
-    exact) into the problem's frame.  3D: :meth:`Problem.tets` (an all-negative rest mesh is
-    handled there).
-
-    Raises
-    ------
-    MeshError
-        The rest mesh is degenerate or inconsistently oriented (a face listed clockwise among
-        counter-clockwise ones), the start map is collapsed (zero total signed area) or, in 3D
-        with every boundary vertex a handle, its total signed volume is not positive: no map
-        with that boundary can be certified.
-
-    Returns
-    -------
-    problem : :class:`~geomopt.problem.Problem` (handles at their ``init`` positions, mirrored
-        like the map).
-    x0 : (n, d) start map, in the problem's frame.
-    orientation : +1 or -1, the orientation every element must have in the input's own
-        connectivity and frame (what :func:`write_untangle_result` certifies).
-    mirror : (d,) the exact per-axis sign taking the problem's frame to the input's.
-    """
-    H = case["handles"]
-    if case["dim"] == 2:
-        F, init, rest = case["faces"], case["init"], np.asarray(case["rest"])
-        planar = rest.ndim == 2 and (rest.shape[1] == 2 or (rest.shape[1] == 3 and not np.any(rest[:, 2])))
-        base = Problem.planar(rest, F) if planar else Problem.surface(rest, F)
-        # planar: the rest triangles may all be clockwise (Problem.planar reversed each one)
-        rest_sign = 1 if np.array_equal(base.simplices, base.input_simplices) else -1
-        P = init[F]
-        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-        total = float(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) / 2.0
-        if not (total > 0 or total < 0):
-            raise MeshError(
-                f"{case.get('path', 'the case')}: the start map's total signed area is {total:g}: the "
-                f"map is collapsed, so no orientation can be certified; give a start map ('vt' lines) "
-                f"whose fixed boundary encloses a nonzero area")
-        orientation = -1 if total < 0 else 1  # in the input's connectivity and frame
-        mirror = np.array([float(orientation * rest_sign), 1.0])
-        problem = base.with_fixed(H, init[H] * mirror)
-        return problem, init * mirror, orientation, mirror
-    problem = Problem.tets(case["rest"], case["tets"], H, case["init"][H])
-    # rest tets all negative in the input order: Problem.tets swapped two vertices of each
-    orientation = 1 if np.array_equal(problem.simplices, problem.input_simplices) else -1
-    init = np.asarray(case["init"], dtype=np.float64)
-    why = fixed_total_problem(problem, init)  # in the rest orientation
-    if why:
-        raise MeshError(f"{case.get('path', 'the case')}: {why} (Garanzha et al.'s code rejects such input "
-                        f"too); check that the rest and initial meshes belong together")
-    return problem, init, orientation, np.ones(3)
-
-
-@float64
-def untangle_case(folder, solver="lbfgs", progress=True, **options):
-    """Read a LIM case folder (:meth:`geomopt.lim.LimCase.read`) and untangle it
-    (:func:`lim_problem`, :func:`untangle`).
-
-    Parameters
-    ----------
-    folder : a case folder, or a case already read (:class:`~geomopt.lim.LimCase`).
-    solver, progress, options : passed to :func:`untangle`.
-
-    Returns
-    -------
-    case : a dict with the case's keys (:class:`~geomopt.lim.LimCase`) plus ``problem`` and
-        ``orientation`` (+1 or -1: the orientation every element of the output must have in
-        the input's connectivity), as :func:`write_untangle_result` needs.
-    result : :class:`UntangleResult`, its ``x`` in the input's frame.
-    """
-    from .lim import LimCase
-
-    case = folder if isinstance(folder, Mapping) else LimCase.read(folder)
-    problem, x0, orientation, mirror = lim_problem(case)
-    result = untangle(problem, x0, solver=solver, progress=progress, **options)
-    if (mirror < 0).any():
-        result = dataclasses.replace(result, x=result.x * mirror)  # negation is exact
-    return {**case, "problem": problem, "orientation": orientation}, result
-
-
-def write_untangle_result(case, result, path):
-    """Write an untangled LIM case and certify the file.
-
-    2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and ``f a/a b/b c/c``;
-    3D: ASCII VTK with the input connectivity.  Full precision, atomic (:mod:`geomopt.io`).
-    The file is read back and checked: handles bit-exact and locally injective (exact
-    predicates, in the orientation convention of the case: :func:`~geomopt.certify.local_certificate`).
-
-    Returns
-    -------
-    dict with ``path``, ``inverted`` (in the file), ``handles_moved`` (in the file),
-    ``certified`` (both zero and the map locally injective), ``message`` (why not, or "").
-    """
-    from .io import read_vtk_tets, write_obj_with_uv, write_vtk_tets
-
-    path = Path(path)
-    H = case["handles"]
-    if case["dim"] == 2:
-        F = case["faces"]
-        write_obj_with_uv(path, case["rest"], F, result.x)
-        back = _read_obj_uv(path, len(case["rest"]))
-        S = F
-        handles_ref = case["init"][H]
-    else:
-        T = case["tets"]
-        write_vtk_tets(path, result.x, T)
-        back, T2 = read_vtk_tets(path)
-        if not np.array_equal(T2, T):
-            raise MeshError(f"{path}: connectivity read back differs from the input")
-        S = T
-        handles_ref = case["init"][H]
-    cert = local_certificate(back, S, orientation=case["orientation"])
-    moved = _bits_differ(back[H], handles_ref)
-    message = "; ".join(filter(None, [cert.message, f"{moved} handle(s) moved" if moved else ""]))
-    return {"path": path, "inverted": cert.inverted, "handles_moved": moved,
-            "certified": cert.ok and moved == 0, "message": message}
-
-
-def _read_obj_uv(path, n):
-    from .io import read_obj_with_uv
-
-    _, UV, _ = read_obj_with_uv(path)
-    if len(UV) != n:
-        raise MeshError(f"{path}: read back {len(UV)} vt lines, expected {n}")
-    return UV

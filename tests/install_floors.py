@@ -28,10 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 #: kernels (jax), Newton with each sparse Cholesky (py-mkl-pardiso / cholespy / scipy), L-BFGS
 #: and optimistix solvers (optimistix, equinox, lineax), untangling 2D/3D, free-boundary and
 #: bijective parameterization, mesh formats (meshio), the CLI with pictures (matplotlib), batch
-#: runs (distributed), the XLA-option guard
+#: runs (distributed), the XLA-option guard, the float64 policy with the 64-bit mode off
 SUBSET = ["test_predicates.py", "test_local_injectivity.py", "test_extreme_scales.py", "test_objective.py",
           "test_energies.py", "test_newton.py", "test_solvers.py", "test_untangle.py", "test_bijective.py",
-          "test_formats.py", "test_batch.py", "test_install.py", "test_cli.py"]
+          "test_formats.py", "test_batch.py", "test_install.py", "test_cli.py",
+          "test_x64.py"]  # geomopt in a process where JAX's 64-bit mode is off (the CLI's case)
 
 
 def _project():
@@ -92,7 +93,9 @@ def main(argv=None) -> int:
     print("minimum versions:", " ".join(pins), flush=True)
     constraints = venv / "floors.txt"  # the test tools may not move a pinned package
     constraints.write_text("\n".join(pins) + "\n")
-    tools = [*_project()["optional-dependencies"]["test"], "pytest-xdist"]
+    # optax is an optional extra (geomopt.optax; tests/test_optax.py skips without it) whose
+    # releases need a newer JAX than the core floor: it is left out here, not pinned down
+    tools = [t for t in _project()["optional-dependencies"]["test"] if not t.startswith("optax")] + ["pytest-xdist"]
     _run([py, "-m", "pip", "install", "-q", "-c", constraints, *pins, *tools])
     _run([py, "-m", "pip", "install", "-q", "--no-deps", ROOT])
     _run([py, "-m", "pip", "check"])

@@ -7,6 +7,7 @@ Every padded case here falls in the smallest buckets (2D: 160 vertices / 256 tri
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 
 import numpy as np
@@ -14,9 +15,10 @@ import pytest
 
 import geomopt.cli
 from geomopt import generators as G
-from geomopt import io
-from geomopt.batch import (BUCKET_MAX_ELEMENTS, SUMMARY_COLUMNS, batch_cases, bucket_sizes, pad_to_bucket,
-                           run_batch, write_lim_case)
+from geomopt import ParameterError, io
+from geomopt._padding import MAXIMUM_ELEMENTS, bucket_sizes
+from geomopt.batch import SUMMARY_COLUMNS, batch_cases, run_batch
+from geomopt.lim import LimCase
 from geomopt.predicates import count_inverted
 from geomopt.untangle import _outer_stats, untangle
 
@@ -38,10 +40,10 @@ def test_bucket_sizes():
     assert bucket_sizes(64, 162, 3) == (96, 256)
     assert bucket_sizes(300, 257, 2) == (320, 512)  # next element bucket
     assert bucket_sizes(200, 250, 2) == (320, 256)  # more vertices than the share: next vertex bucket
-    assert bucket_sizes(157, 256, 2) == (160, 256)
-    assert bucket_sizes(158, 256, 2) == (320, 256)  # no room left for the 3 padding vertices
-    assert bucket_sizes(10, BUCKET_MAX_ELEMENTS, 3) == (6144, BUCKET_MAX_ELEMENTS)
-    assert bucket_sizes(10, BUCKET_MAX_ELEMENTS + 1, 3) is None
+    assert bucket_sizes(160, 256, 2) == (160, 256)
+    assert bucket_sizes(161, 256, 2) == (320, 256)
+    assert bucket_sizes(10, MAXIMUM_ELEMENTS, 3) == (6144, MAXIMUM_ELEMENTS)
+    assert bucket_sizes(10, MAXIMUM_ELEMENTS + 1, 3) is None
 
 
 @pytest.mark.parametrize("name", ["square", "star", "cube"])
@@ -55,10 +57,10 @@ def test_padding_gives_the_same_map_up_to_the_rounding_of_sums(name):
     padded = untangle(t.problem(), t.x0, progress=False, bucket=True)
     assert plain.success and padded.success, (plain.message, padded.message)
     assert padded.x.shape == plain.x.shape
-    assert (padded.outer_iterations, padded.inner_iterations) == (plain.outer_iterations, plain.inner_iterations)
-    assert padded.initially_inverted == plain.initially_inverted == t.inverted()
+    assert (padded.stats.outer_iterations, padded.stats.iterations) == (plain.stats.outer_iterations, plain.stats.iterations)
+    assert padded.stats.inverted_at_start == plain.stats.inverted_at_start == t.inverted()
     np.testing.assert_allclose(padded.x, plain.x, rtol=0, atol=1e-12 * np.ptp(t.x0))
-    np.testing.assert_allclose(padded.min_det_history, plain.min_det_history, rtol=1e-9)
+    np.testing.assert_allclose(padded.trace.column("min_det"), plain.trace.column("min_det"), rtol=1e-9)
     assert count_inverted(padded.x, t.simplices) == 0
     assert np.array_equal(padded.x[t.fixed].view(np.uint64), t.x0[t.fixed].view(np.uint64))
 
@@ -75,41 +77,59 @@ def test_cases_of_one_bucket_share_the_compiled_kernels():
     assert [k._cache_size() for k in kernels] == before
 
 
-def test_padding_is_fixed_positive_and_weightless():
+def test_padding_is_fixed_and_weightless():
+    """Padded elements are zero-volume copies of element 0, padded vertices fixed copies of
+    vertex 0: energy, gradient (real rows) and extent are the unpadded ones, and a sub-problem
+    padded like its whole shares its bucket."""
+    from geomopt import Objective
+    from geomopt.energies import garanzha
+
     t = tangles()["star"]
     p = t.problem()
-    full, sub, x = pad_to_bucket(p, p, t.x0)
+    plain, padded = Objective(p, garanzha), Objective(p, garanzha, buckets=True)
     n, m = p.n_vertices, p.n_elements
-    assert (full.n_vertices, full.n_elements) == bucket_sizes(n, m, 2) == x.shape[:1] + (len(full.volumes),)
-    assert np.array_equal(full.simplices[:m], p.simplices) and np.array_equal(x[:n], t.x0)
-    assert np.all(full.volumes[m:] == 0) and np.all(full.simplices[m:] >= n)
-    assert set(range(n, full.n_vertices)) <= set(full.fixed.tolist())
-    assert count_inverted(x, full.simplices[m:]) == 0  # the dummy simplex is positive
-    assert np.ptp(x, axis=0).max() == np.ptp(t.x0, axis=0).max()  # the map's extent is unchanged
-    # no handles: the gauge vertex the objective would pin is fixed explicitly
-    free = G.Tangle("free", t.rest, t.simplices, t.x0, np.zeros(0, np.int64))
-    from geomopt import Problem
-
-    q = Problem.planar(free.rest, free.simplices)
-    _, qsub, _ = pad_to_bucket(q, q, t.x0)
-    assert qsub.fixed[0] == q.simplices[0, 0] and np.array_equal(qsub.fixed[1:], np.arange(n, qsub.n_vertices))
+    sz = padded.sizes
+    assert (sz.n_padded, sz.m_padded) == bucket_sizes(n, m, 2) and sz.padded
+    S, Minv, vol = (np.asarray(a) for a in padded.geom)
+    assert np.array_equal(S[:m], p.simplices) and np.all(S[m:] == p.simplices[0]) and np.all(vol[m:] == 0)
+    assert np.all(np.asarray(padded.free_mask)[n:] == 0)
+    x = padded.pad_map(t.x0)
+    assert np.array_equal(x[:n], t.x0) and np.all(x[n:] == t.x0[0])
+    params = plain.params(eps=0.1, lam=0.01)
+    v0, g0 = plain.value_and_grad(t.x0, params)
+    v1, g1 = padded.value_and_grad(x, params)
+    assert float(v1) == pytest.approx(float(v0), rel=1e-14)
+    np.testing.assert_allclose(np.asarray(g1)[:n], np.asarray(g0), rtol=0, atol=1e-12 * float(np.abs(g0).max()))
+    half = slice(0, m // 2)  # a sub-problem on the same vertices (as untangle's active elements)
+    sub = dataclasses.replace(p, simplices=p.simplices[half], input_simplices=p.input_simplices[half],
+                              rest_inv=p.rest_inv[half], volumes=p.volumes[half])
+    assert Objective(sub, garanzha, buckets=sz).sizes == dataclasses.replace(sz, m=m // 2)
+    with pytest.raises(ParameterError, match="do not hold"):
+        Objective(p, garanzha, buckets=dataclasses.replace(sz, m_padded=m - 1))
+    with pytest.raises(ParameterError, match="buckets must be"):
+        Objective(p, garanzha, buckets="yes")
 
 
 def test_untangling_stats_ignore_the_padding():
     """The worst det J and the inverted count of the outer loop see only real elements (the
-    padding simplex has det J = 1, which would hide a larger worst det)."""
+    padded copies of element 0 would count it again)."""
     from geomopt import Objective
     from geomopt.energies import garanzha
 
     t = tangles()["square"]
     p = t.problem()
-    full, _, x = pad_to_bucket(p, p, 2.0 * t.rest)  # every real det J = 4
-    obj = Objective(full, garanzha)
+    obj = Objective(p, garanzha, buckets=True)
+    assert obj.sizes.padded
+    x = obj.pad_map(2.0 * t.rest)  # every real det J = 4
     _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
     assert float(worst) == pytest.approx(4.0) and int(inverted) == 0
-    x[: p.n_vertices] = t.x0  # tangled: the count is the real one
+    x0 = t.x0.copy()
+    a, b = p.simplices[0, :2]
+    x0[[a, b]] = x0[[b, a]]  # element 0 inverted: its padded copies are too, but not counted
+    assert count_inverted(x0, p.simplices[:1]) == 1
+    x = obj.pad_map(x0)
     _, worst, inverted = _outer_stats(garanzha.density, obj.geom, x, obj.params(eps=1.0, lam=0.01))
-    assert int(inverted) == t.inverted() and float(worst) < 0
+    assert int(inverted) == count_inverted(x0, p.simplices) and float(worst) < 0
 
 
 # ------------------------------------------------------------------ batches
@@ -119,7 +139,7 @@ def make_cases(root, names=("square", "star", "disk", "cube")):
     ts = tangles()
     root.mkdir(parents=True)
     for name in names:
-        write_lim_case(root / name, ts[name])
+        LimCase.from_tangle(ts[name]).write(root / name)
     (root / "no_handles").mkdir()
     io.write_obj_with_uv(root / "no_handles" / "input.obj", np.c_[ts["square"].rest, np.zeros(64)],
                          ts["square"].simplices, ts["square"].x0)
@@ -128,7 +148,7 @@ def make_cases(root, names=("square", "star", "disk", "cube")):
     (root / "garbage" / "handles.txt").write_text("0\n")
     stuck = G.Tangle("stuck", ts["square"].rest, ts["square"].simplices, ts["square"].x0,
                      np.arange(64))  # every vertex fixed, folded: cannot certify
-    write_lim_case(root / "stuck", stuck)
+    LimCase.from_tangle(stuck).write(root / "stuck")
     return root
 
 
@@ -213,7 +233,7 @@ def test_cli_batch_exit_status_and_outputs(cli, tmp_path):
     ts = tangles()
     good = tmp_path / "good"
     for name in ("square", "cube"):
-        write_lim_case(good / name, ts[name])
+        LimCase.from_tangle(ts[name]).write(good / name)
     code, _, err = cli("untangle", good, "-o", tmp_path / "out", "--workers", "1", "--quiet")
     assert (code, err) == (0, "")
     assert sorted(os.listdir(tmp_path / "out")) == ["cube.vtk", "square.obj", "summary.csv"]
@@ -232,8 +252,8 @@ def test_cli_batch_exit_status_and_outputs(cli, tmp_path):
 def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
     monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     ts = tangles()
-    write_lim_case(tmp_path / "a" / "square", ts["square"])
-    write_lim_case(tmp_path / "b" / "square", ts["star"])
+    LimCase.from_tangle(ts["square"]).write(tmp_path / "a" / "square")
+    LimCase.from_tangle(ts["star"]).write(tmp_path / "b" / "square")
     (tmp_path / "empty").mkdir()
     for argv, words in [
         ([tmp_path / "a", tmp_path / "nope"], ["nope is not a folder"]),
@@ -257,8 +277,8 @@ def test_a_batch_never_writes_over_a_case_input(cli, tmp_path, monkeypatch):
     would be written over case R's own input.  Refused before anything is solved or written."""
     monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     ts = tangles()
-    write_lim_case(tmp_path / "R", ts["square"])
-    write_lim_case(tmp_path / "R" / "input", ts["star"])
+    LimCase.from_tangle(ts["square"]).write(tmp_path / "R")
+    LimCase.from_tangle(ts["star"]).write(tmp_path / "R" / "input")
     before = {p: p.read_bytes() for p in (tmp_path / "R").rglob("*") if p.is_file()}
     code, _, err = cli("untangle", tmp_path / "R" / "input", "-o", str(tmp_path / "R") + "/", "--quiet")
     assert code == 2 and "is a LIM case folder" in err and "replace a case's input" in err, err
@@ -297,7 +317,7 @@ sys.exit(geomopt.cli.main(["untangle", sys.argv[1], "-o", sys.argv[2], "--worker
 def test_a_batch_stopped_by_sigterm_writes_the_summary_of_what_finished(tmp_path):
     ts = tangles()
     for name, t in (("a", "square"), ("b", "square"), ("c", "star")):
-        write_lim_case(tmp_path / "cases" / name, ts[t])
+        LimCase.from_tangle(ts[t]).write(tmp_path / "cases" / name)
     env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
     proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(SLOW_BATCH), str(tmp_path / "cases"),
                              str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -318,7 +338,7 @@ def test_a_batch_stopped_by_sigterm_writes_the_summary_of_what_finished(tmp_path
 
 def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli, tmp_path, monkeypatch):
     monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
-    write_lim_case(tmp_path / "cases" / "sq", tangles()["square"])
+    LimCase.from_tangle(tangles()["square"]).write(tmp_path / "cases" / "sq")
     code, _, err = cli("untangle", tmp_path / "cases", "-o", tmp_path / "out", "--scheduler", "not a url",
                        "--quiet")
     assert code == 2 and err.startswith("geomopt: error: cannot reach the Dask scheduler at not a url")

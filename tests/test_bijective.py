@@ -10,7 +10,7 @@ from geomopt import generators as g
 from geomopt._errors import MeshError, ParameterError
 from geomopt.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.predicates import count_inverted, orient2d
-from geomopt.scaffold import (_ear_clip, _shortened, bijective_parameterize, build_scaffold,
+from geomopt.scaffold import (SimpleBoundary, _ear_clip, bijective_parameterize, build_scaffold,
                                delaunay_flips, refine_scaffold)
 from geomopt.topology import check_disk, unique_edges
 from geomopt.tutte import tutte_embedding
@@ -273,22 +273,23 @@ def spiral():
 def test_plain_solve_overlaps_and_bijective_does_not(spiral):
     V, F, x0 = spiral
     plain = geomopt.parameterize(V, F, x0=x0, progress=False)
-    assert plain.success and plain.inverted == 0
+    assert plain.success and plain.certificate.inverted == 0
     assert len(certify_bijective(plain.x, F).crossings) > 0  # locally injective, overlapping
     res = bijective_parameterize(V, F, x0=x0, progress=False)
     assert res.success, res.message
-    assert res.info["outer_iterations"] > 0 and res.info["scaffold_triangles"] > 0
+    assert res.stats.outer_iterations > 0 and res.details.scaffold_triangles > 0
     cert = certify_bijective(res.x, F)  # independently of the solver's own certificate
-    assert cert.globally_injective and res.info["injectivity"] == "global"
-    assert res.inverted == 0 and len(res.info["certificate"].crossings) == 0
+    assert cert.globally_injective and res.injectivity == "global"
+    assert res.certificate.inverted == 0 and len(res.certificate.crossings) == 0
     # the bijective optimum costs energy, but not much: the strip only has to stop at contact
     assert plain.energy <= res.energy <= 1.01 * plain.energy
-    assert np.all(np.diff(res.energy_history) <= 1e-12 * res.energy_history[0])
+    assert np.all(np.diff(res.trace.energy) <= 1e-12 * res.trace.energy[0])
 
 
 def test_a_scaffold_free_step_that_would_overlap_is_shortened(spiral):
-    """The lazy phase halves (then quarters) a step whose end has an overlapping boundary, and
-    gives up (None: build the scaffold) when neither fraction keeps the boundary simple."""
+    """The lazy phase's guard halves (then quarters) a step whose end has an overlapping
+    boundary, and gives up (None: build the scaffold) when neither fraction keeps the boundary
+    simple; it passes simple steps through."""
     from geomopt.param import start_map
 
     V, F, x0 = spiral
@@ -298,11 +299,12 @@ def test_a_scaffold_free_step_that_would_overlap_is_shortened(spiral):
     x0, _, _ = start_map(objective, x0)
     solver = geomopt.Newton()
     state = solver.init(objective, x0, objective.params())
+    guard = SimpleBoundary(loop, (0.5, 0.25), max_cuts=10**6)
     fractions = []
     for _ in range(30):
         new = solver.step(state)
+        short = guard(solver, state, new)
         if len(polygon_crossings(np.asarray(new.x)[loop])):
-            short = _shortened(state, new, loop, (0.5, 0.25))
             if short is None:
                 break
             s = short.step_size / new.step_size
@@ -310,8 +312,8 @@ def test_a_scaffold_free_step_that_would_overlap_is_shortened(spiral):
             np.testing.assert_allclose(np.asarray(short.x), np.asarray(state.x + s * (new.x - state.x)))
             assert len(polygon_crossings(np.asarray(short.x)[loop])) == 0 and short.value < state.value
             assert short.value == pytest.approx(float(objective.value(short.x, objective.params())))
-            new = short
-        state = new
+        assert short is not None
+        state = short
     else:
         pytest.fail("the spiral's boundary never came to overlap")
     assert fractions == [0.5, 0.25]
@@ -322,7 +324,7 @@ def test_bijective_with_a_quasi_newton_solver(spiral):
     (else its pairs describe a step not taken), and its inner solves keep its own tolerance."""
     V, F, x0 = spiral
     res = bijective_parameterize(V, F, x0=x0, progress=False, solver="lbfgs")
-    assert res.success and res.info["injectivity"] == "global", res.message
+    assert res.success and res.injectivity == "global", res.message
     newton = bijective_parameterize(V, F, x0=x0, progress=False)
     assert abs(res.energy - newton.energy) <= 1e-3 * newton.energy  # L-BFGS: 2.5e-4 above
 
@@ -333,13 +335,13 @@ def test_bijective_matches_plain_where_plain_does_not_overlap():
     assert certify_bijective(plain.x, F).globally_injective
     # lazy (default): no step overlaps, so no scaffold and exactly the plain solve
     res = bijective_parameterize(V, F, progress=False)
-    assert res.success and res.info["injectivity"] == "global"
-    assert res.info["outer_iterations"] == 0 and res.info["scaffold_triangles"] == 0
+    assert res.success and res.injectivity == "global"
+    assert res.stats.outer_iterations == 0 and res.details.scaffold_triangles == 0
     # (the start is normalised like parameterize's up to rounding)
-    assert res.iterations == plain.iterations and abs(res.energy - plain.energy) <= 1e-9 * plain.energy
+    assert res.stats.iterations == plain.stats.iterations and abs(res.energy - plain.energy) <= 1e-9 * plain.energy
     # with the scaffold from the start: the same optimum
     res = bijective_parameterize(V, F, progress=False, lazy=False)
-    assert res.success and res.info["injectivity"] == "global" and res.info["outer_iterations"] > 0
+    assert res.success and res.injectivity == "global" and res.stats.outer_iterations > 0
     assert abs(res.energy - plain.energy) <= 1e-5 * plain.energy
 
 
@@ -374,7 +376,7 @@ def test_parameterize_reports_injectivity_and_the_cli_flag(spiral, tmp_path, cap
 
     V, F, x0 = spiral
     plain = geomopt.parameterize(V, F, x0=x0, progress=False)
-    assert plain.injectivity == "local" and plain.info["certificate"].crossings.size
+    assert plain.injectivity == "local" and plain.certificate.crossings.size
     src = tmp_path / "spiral.obj"
     write_obj_with_uv(src, V, F, x0)
     out = tmp_path / "plain.obj"

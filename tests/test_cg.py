@@ -185,10 +185,10 @@ def test_newton_with_cg_solves_like_the_direct_newton(kind):
     direct = res["superlu", "clamp"]
     for pr in ("clamp", "adaptive"):
         r = res["cg", pr]
-        assert r.outcome.value == "converged" and r.inverted == 0
+        assert r.outcome.value == "converged" and r.certificate.inverted == 0
         assert r.energy == pytest.approx(direct.energy, rel=1e-9)
         # Newton's convergence, not a first-order method's: as many iterations, give or take
-        assert 2 <= r.iterations <= direct.iterations + 2
+        assert 2 <= r.stats.iterations <= direct.stats.iterations + 2
 
 
 def test_auto_linear_solver_rule(monkeypatch):
@@ -205,11 +205,11 @@ def test_auto_linear_solver_rule(monkeypatch):
     n_free = int(obj.free_dofs.sum())
     assert not Newton().uses_cg(obj)
     state = Newton().init(obj, x, obj.params())
-    assert "chol" in state.aux and "cg" not in state.aux
+    assert state.memory.factor is not None and state.memory.cg_op is None
     monkeypatch.setitem(linsolve.CG_FROM_DOFS, 3, n_free)
     assert Newton().uses_cg(obj) and Newton(projection="clamp").uses_cg(obj)
     state = Newton(projection="clamp").init(obj, x, obj.params())
-    assert "cg" in state.aux and "chol" not in state.aux
+    assert state.memory.cg_op is not None and state.memory.factor is None
     assert not Newton(linear_solver="pardiso" if "pardiso" in linsolve.available_backends()
                       else "superlu").uses_cg(obj)
     assert not SLIM().uses_cg(obj)  # proxies always factor
@@ -226,8 +226,8 @@ def test_newton_cg_keeps_the_direction_on_the_device():
     solver = Newton(projection="clamp", linear_solver="cg")
     state = solver.init(obj, np.asarray(x), obj.params())
     nxt = solver.step(state)
-    dx, info = state.aux["cg"].direction(state.aux["op"], obj, state.x, state.params, "clamp",
-                                         solver.regularization, gnorm_ref=state.aux["gref"])
+    dx, info = solver.cg.direction(state.memory.cg_op, obj, state.x, state.params, "clamp",
+                                   solver.regularization, gnorm_ref=state.memory.grad_ref)
     g = np.asarray(info.grad)
     assert nxt.decrement == pytest.approx(-0.5 * float(np.vdot(g, np.asarray(dx))), rel=1e-12)
     assert nxt.decrement > 0 and nxt.value < state.value

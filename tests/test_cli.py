@@ -223,7 +223,7 @@ def no_work(monkeypatch):
     monkeypatch.setattr("geomopt.io.read_mesh", fail)
     monkeypatch.setattr("geomopt.lim.LimCase.read", fail)
     monkeypatch.setattr("geomopt.param.parameterize", fail)
-    monkeypatch.setattr("geomopt.untangle.untangle_case", fail)
+    monkeypatch.setattr("geomopt.lim.untangle_case", fail)
 
 
 def test_outputs_that_are_not_regular_files_are_refused_before_reading(cli, tmp_path, no_work):
@@ -459,7 +459,7 @@ def test_untangle_bad_input_is_one_line_exit_2(cli, tmp_path, name):
 
 def test_untangle_unwritable_output_fails_before_solving(cli, tmp_path, monkeypatch):
     case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
-    monkeypatch.setattr("geomopt.untangle.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.lim.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
     code, _, err = cli("untangle", case, "-o", tmp_path / "no" / "out.obj", "--quiet")
     assert code == 2
     one_error_line(err, "does not exist; create it first")
@@ -470,7 +470,7 @@ def test_untangle_unwritable_output_fails_before_solving(cli, tmp_path, monkeypa
 
 def test_untangle_empty_handles_says_what_the_cli_user_can_do(cli, tmp_path, monkeypatch):
     case = lim2d(tmp_path / "case", folded_2d(), [])
-    monkeypatch.setattr("geomopt.untangle.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.lim.untangle_case", lambda *a, **k: pytest.fail("solved anyway"))
     code, _, err = cli("untangle", case, "-o", tmp_path / "out.obj", "--quiet")
     assert code == 2
     line = one_error_line(err, "handles.txt is empty", "needs a fixed boundary", "0-based ids")
@@ -482,17 +482,17 @@ def test_untangle_output_that_does_not_certify_never_replaces_the_old_file(cli, 
     case = lim2d(tmp_path / "case", folded_2d(), BOUNDARY)
     out = tmp_path / "out.obj"
     out.write_text("previous result\n")
-    import geomopt.untangle
+    from geomopt.lim import LimCase
 
-    real = geomopt.untangle.write_untangle_result
+    real = LimCase._written
 
-    def broken(case, res, path):
-        check = real(case, res, path)
+    def broken(case, x, path):
+        back = real(case, x, path)
         assert Path(path) != out and Path(path).read_bytes().startswith(b"v ")  # written beside, not over
-        return {**check, "inverted": 1, "certified": False,
-                "message": "1 element(s) inverted or degenerate (first: element 0)"}
+        back[case.simplices[0, :2]] = back[case.simplices[0, 1::-1]]  # swap two corners: inverted
+        return back
 
-    monkeypatch.setattr(geomopt.untangle, "write_untangle_result", broken)
+    monkeypatch.setattr(LimCase, "_written", broken)
     code, _, err = cli("untangle", case, "-o", out, "--quiet")
     assert code == 1
     one_error_line(err, "the written file did not certify: 1 element(s) inverted", "nothing written")

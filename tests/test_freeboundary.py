@@ -29,11 +29,11 @@ def test_folded_projection_of_a_curved_patch_is_repaired_then_optimised():
     x0 = projection_map(V, F)
     assert count_inverted(x0, F) > len(F) // 4  # the projection is badly folded
     res = parameterize(V, F, x0="projection", progress=False)
-    rep = res.info["repair"]
-    assert rep.success and rep.initially_inverted == count_inverted(x0, F)
+    rep = res.details.repair
+    assert rep.success and rep.stats.inverted_at_start == count_inverted(x0, F)
     assert res.success and count_inverted(res.x, F) == 0
     # developable: the repaired-then-optimised map reaches the isometric value
-    assert res.energy / res.info["objective"].total_volume == pytest.approx(4.0, abs=1e-3)
+    assert res.mean_energy == pytest.approx(4.0, abs=1e-3)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -46,7 +46,7 @@ def test_random_flips_of_a_good_surface_map_are_repaired(seed):
         x[v] = x[rng.integers(len(V))] + 0.05 * rng.standard_normal(2)  # teleport: folds around v
     assert P.count_inverted(x) > 0
     rep = repair_map(P, x, progress=False)
-    assert rep.success and rep.inverted == 0 and count_inverted(rep.x, F) == 0
+    assert rep.success and rep.certificate.inverted == 0 and count_inverted(rep.x, F) == 0
 
 
 def test_planar_free_boundary_and_a_mirrored_map():

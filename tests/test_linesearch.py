@@ -73,3 +73,23 @@ def test_backtracking_survives_inf_and_nan():
     nan = Objective(P, Energy(lambda J, prm: jnp.nan * jnp.sum(J), name="nan"))
     t, xn, vn, _, _ = InjectiveSearch()(nan, p, x, float(v), g, dx)
     assert t == 0.0 and vn == float(v)
+
+
+def test_armijo_rejects_a_full_step_that_does_not_decrease():
+    """Along ``d`` the energy ``|x - 0.5|^2`` is the same at ``t = 1`` as at ``t = 0``: Armijo's
+    sufficient decrease (``c1 > 0``) must reject the full step and backtrack to ``t = 0.5``,
+    the minimum.  With ``c1 = 0`` (no decrease required) the full step would be taken."""
+    import jax
+
+    x = jnp.zeros((3, 2))
+    d = jnp.ones((3, 2))
+
+    def vg(y):
+        return jnp.sum((y - 0.5) ** 2), 2.0 * (y - 0.5)
+
+    f, g = vg(x)
+    for search in (InjectiveSearch(injective=False), InjectiveSearch(injective=False, c2=0.9)):
+        t, xt, ft, _, ok, _ = jax.jit(lambda x, f, g, d: search.search(vg, None, x, f, g, d))(x, f, g, d)
+        assert float(vg(x + d)[0]) == float(f)  # the full step gives no decrease
+        assert bool(ok) and float(t) == 0.5 and float(ft) < float(f)
+        np.testing.assert_array_equal(np.asarray(xt), np.full((3, 2), 0.5))

@@ -428,7 +428,7 @@ def test_minimize_refuses_a_positive_but_overlapping_result():
     rest, _ = exact_fan(0.75, 12)
     problem = Problem.planar(rest, F, np.arange(len(X)), X)
     res = minimize(Objective(problem, "symmetric_dirichlet"), X, "newton", progress=False)
-    assert res.inverted == 0 and res.outcome is Outcome.NOT_INJECTIVE and not res.success
+    assert res.certificate.inverted == 0 and res.outcome is Outcome.NOT_INJECTIVE and not res.success
     assert "boundary vertex 0" in res.message and res.injectivity == "none"
 
 
@@ -443,8 +443,8 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
     V, T, X, axis = wrapped_cylinder(2.0, levels=3)
     bnd = np.setdiff1d(np.arange(len(V)), axis[1:-1])
     res = untangle(Problem.tets(V, T, bnd, X[bnd]), X, progress=False)
-    assert res.inverted == 0 and res.outcome is Outcome.NOT_INJECTIVE and not res.success
-    assert "interior edge" in res.message and res.info["branch_vertices"] >= 1
+    assert res.certificate.inverted == 0 and res.outcome is Outcome.NOT_INJECTIVE and not res.success
+    assert "interior edge" in res.message and len(res.certificate.branch_edges) >= 1
     tangle = generators.Tangle("wound", V, T, X, bnd)
     folder = LimCase.from_tangle(tangle).write(tmp_path / "wound")
     out = tmp_path / "out.vtk"
@@ -453,21 +453,18 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
 
 
 def test_written_file_certificate_names_the_overlap(tmp_path):
-    """write_untangle_result certifies the file read back with the local certificate."""
-    from geomopt.untangle import write_untangle_result
+    """LimCase.write_certified certifies the file read back with the local certificate, and
+    leaves nothing when it fails."""
+    from geomopt._errors import SolveError
+    from geomopt.lim import LimCase
 
     V, T, X, axis = wrapped_cylinder(2.0)
-    case = {"dim": 3, "tets": T, "handles": np.arange(3), "init": X, "orientation": 1}
-
-    class R:
-        x = X
-
-    report = write_untangle_result(case, R, tmp_path / "w.vtk")
-    assert not report["certified"] and report["inverted"] == 0
-    assert "interior edge" in report["message"]
-    case["orientation"] = -1
-    report = write_untangle_result(case, R, tmp_path / "w2.vtk")
-    assert report["inverted"] == len(T) and not report["certified"]
+    case = LimCase(dim=3, rest=V, init=X, simplices=T, handles=np.arange(3))
+    with pytest.raises(SolveError, match="interior edge"):
+        case.write_certified(X, tmp_path / "w.vtk")
+    with pytest.raises(SolveError, match=f"{len(T)} element"):
+        case.write_certified(X * [-1.0, 1.0, 1.0], tmp_path / "w2.vtk")
+    assert not any(tmp_path.iterdir())
 
 
 def _pinched(parts):
@@ -585,7 +582,7 @@ def test_parameterize_repairs_a_start_whose_boundary_fan_overlaps():
     X, _ = exact_fan(1.5, 12)
     assert count_inverted(X, F) == 0 and not local_certificate(X, F).ok
     res = parameterize(V, F, x0=X, progress=False)
-    assert res.info["repair"] is not None
+    assert res.details.repair is not None
     assert res.success and res.injectivity == "global" and local_certificate(res.x, F).ok
 
 

@@ -33,8 +33,8 @@ def test_dirichlet_hessian_is_cotangent_laplacian():
     pat = hessian_pattern(P, np.ones((len(V), 2), bool))
     from geomopt._objective import hessian_kernel
 
-    _, _, data = hessian_kernel(obj.energy.density, "none", 0, pat.n_blocks, obj.geom, jnp.asarray(V),
-                                obj.params(), pat.blocks, pat.swap, pat.gather)
+    _, _, data = hessian_kernel(obj.energy.density, "none", 0, pat.n_blocks, obj.geom, jnp.ones_like(V),
+                                jnp.asarray(V), obj.params(), pat.blocks, pat.swap, pat.gather)
     H = pat.matrix(np.asarray(data)).toarray()
     L = cot_laplacian(V, F).toarray()
     np.testing.assert_allclose(H, 2.0 * np.kron(L, np.eye(2)), atol=1e-12)

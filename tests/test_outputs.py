@@ -144,9 +144,9 @@ def slow(fh, prefix, A):
 
 geomopt.io._surface.write_rows = slow
 geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
-    energy=1.0, info={{"objective": SimpleNamespace(total_volume=1.0)}}, iterations=1, seconds=0.0,
-    setup_seconds=0.0, inverted=0, outcome=SimpleNamespace(value="converged"), success=True, x=V2,
-    injectivity="local", message="converged")
+    energy=1.0, mean_energy=1.0, stats=SimpleNamespace(iterations=1, seconds=0.0, setup_seconds=0.0),
+    certificate=SimpleNamespace(inverted=0), details=None, outcome=SimpleNamespace(value="converged"),
+    success=True, x=V2, injectivity="local", message="converged")
 sys.exit(geomopt.cli.main(["param", sys.argv[1], "-o", sys.argv[2], "--quiet"]))
 """
 
@@ -281,7 +281,7 @@ def test_compare_never_replaces_its_input_nor_writes_into_a_case(cli, tmp_path, 
 
 def test_every_command_refuses_a_missing_parent_and_creates_nothing(cli, tmp_path, monkeypatch):
     """One rule: an output file's folder, or an output folder's parent, must exist."""
-    for target in ("geomopt.param.parameterize", "geomopt.untangle.untangle_case", "geomopt.batch.solve_case"):
+    for target in ("geomopt.param.parameterize", "geomopt.lim.untangle_case", "geomopt.batch.solve_case"):
         monkeypatch.setattr(target, lambda *a, **k: pytest.fail("solved anyway"))
     mesh = flat_obj(tmp_path / "m.obj")
     case = lim2d(tmp_path / "cases" / "sq")

@@ -209,8 +209,8 @@ def test_start_map_with_inverted_triangles_is_repaired_with_a_free_boundary():
     x0 = V.copy()
     x0[5] = [0.9, 0.9]  # folds the triangles around vertex 5
     res = parameterize(V3, F3, x0=x0, progress=False)
-    assert res.success and res.inverted == 0
-    assert res.info["repair"].initially_inverted > 0 and res.info["repair"].success
+    assert res.success and res.certificate.inverted == 0
+    assert res.details.repair.stats.inverted_at_start > 0 and res.details.repair.success
     with pytest.raises(MeshError, match="collapsed"):
         parameterize(V3, F3, x0=np.zeros((16, 2)), progress=False)
     with pytest.raises(MeshError, match="NaN"):
@@ -222,7 +222,7 @@ def test_start_map_with_inverted_triangles_is_repaired_with_a_free_boundary():
 def test_start_map_units_do_not_matter():
     ref = parameterize(V3, F3, progress=False)
     for k in (-150, 150):
-        res = parameterize(V3, F3, x0=ref.info["start"] * 10.0**k, progress=False)
+        res = parameterize(V3, F3, x0=ref.details.start * 10.0**k, progress=False)
         assert res.success and res.energy == pytest.approx(ref.energy, rel=1e-9)
 
 
@@ -274,7 +274,7 @@ def test_nonfinite_solve_ends_nonfinite_without_a_nan_map(density):
     assert res.outcome is Outcome.NONFINITE
     assert not res.success
     assert np.isfinite(res.x).all()
-    assert res.inverted == obj.problem.count_inverted(res.x)
+    assert res.certificate.inverted == obj.problem.count_inverted(res.x)
     with pytest.raises(SolveError, match="NaN/inf") as info:
         minimize(obj, V, Newton(max_steps=20), progress=False, throw=True)
     assert info.value.result.outcome is Outcome.NONFINITE
@@ -298,28 +298,28 @@ def test_inverted_result_is_never_success():
     P, x0 = _dead_inverted_problem()
     assert P.count_inverted(x0) == 1
     res = minimize(Objective(P, "dirichlet"), x0, progress=False)
-    assert res.inverted == P.count_inverted(res.x) == 1
+    assert res.certificate.inverted == P.count_inverted(res.x) == 1
     assert res.outcome is not Outcome.CONVERGED and not res.success
     assert "1 inverted element" in res.message
     with pytest.raises(SolveError, match="1 inverted element") as info:
         minimize(Objective(P, "dirichlet"), x0, progress=False, throw=True)
-    assert info.value.result.inverted == 1
+    assert info.value.result.certificate.inverted == 1
 
 
 def test_success_result_is_flip_free_and_deterministic():
     a = parameterize(V3, F3, progress=False, throw=True)
     b = parameterize(V3, F3, progress=False)
-    assert a.outcome is Outcome.CONVERGED and a.success and a.inverted == 0
-    assert a.inverted == a.info["problem"].count_inverted(a.x)
+    assert a.outcome is Outcome.CONVERGED and a.success and a.certificate.inverted == 0
+    assert a.certificate.inverted == a.problem.count_inverted(a.x)
     assert np.array_equal(a.x, b.x) and a.energy == b.energy
-    assert np.array_equal(a.energy_history, b.energy_history)
+    assert np.array_equal(a.trace.energy, b.trace.energy)
     c = parameterize(V3, F3, solver="newton", progress=False)  # a name works too
     assert np.array_equal(a.x, c.x)
 
 
 def test_iteration_limit_is_reported_not_success():
     res = parameterize(V3, F3, solver=Newton(max_steps=1), progress=False)
-    assert res.outcome is Outcome.MAX_STEPS and not res.success and res.inverted == 0
+    assert res.outcome is Outcome.MAX_STEPS and not res.success and res.certificate.inverted == 0
     with pytest.raises(SolveError, match="iteration limit"):
         parameterize(V3, F3, solver=Newton(max_steps=1), progress=False, throw=True)
 
@@ -405,10 +405,10 @@ def test_fuzz_tet_problems(mesh):
 def _check_param_result(res, problem=None):
     assert isinstance(res.outcome, Outcome)
     assert np.isfinite(res.x).all() and res.x.shape == (16, 2)
-    assert res.inverted == res.info["problem"].count_inverted(res.x)
+    assert res.certificate.inverted == res.problem.count_inverted(res.x)
     if res.success:
-        assert res.inverted == 0 and res.outcome is Outcome.CONVERGED
-    if res.inverted:
+        assert res.certificate.inverted == 0 and res.outcome is Outcome.CONVERGED
+    if res.certificate.inverted:
         assert not res.success
 
 

@@ -13,6 +13,7 @@ Solves use small meshes so that each kernel compiles once.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -27,9 +28,10 @@ from geomopt import param as param_module
 from geomopt.energies import REGISTRY, Energy, garanzha
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
-from geomopt.solvers import LBFGS, Newton
+from geomopt.solvers import LBFGS, Adaptive, Newton
 from geomopt.topology import same_side_facets
-from geomopt.untangle import lim_problem, untangle, untangle_case, write_untangle_result
+from geomopt.lim import LimCase, untangle_case
+from geomopt.untangle import untangle
 
 from conftest import cube_tets, grid
 
@@ -48,20 +50,19 @@ def _square_case(z, faces=None):
     rest heights ``z`` (0: planar), boundary fixed."""
     V, F = G.square_mesh(6)
     t = G.rotated_interior(V, F, 90.0)
-    return {"dim": 2, "rest": np.c_[V, z * _bumpy(V)], "init": t.x0,
-            "faces": F if faces is None else faces, "handles": t.fixed}
+    return LimCase(2, np.c_[V, z * _bumpy(V)], t.x0, F if faces is None else faces, t.fixed)
 
 
 @pytest.mark.parametrize("z, match", [(0.0, "oriented against the others"),
                                       (1.0, "inconsistent face orientation")])
 def test_lim_2d_case_with_one_face_listed_clockwise_is_refused(z, match):
     case = _square_case(z)
-    F = case["faces"].copy()
+    F = case.simplices.copy()
     F[12] = F[12, [0, 2, 1]]
     with pytest.raises(MeshError, match=match):
-        lim_problem({**case, "faces": F})
+        dataclasses.replace(case, simplices=F).to_problem()
     with pytest.raises(MeshError, match=match):
-        untangle_case({**case, "faces": F}, progress=False)
+        untangle_case(dataclasses.replace(case, simplices=F), progress=False)
 
 
 @pytest.mark.parametrize("z, kind", [(0.0, "planar"), (1.0, "surface")])
@@ -71,13 +72,13 @@ def test_lim_2d_consistent_cases_are_certified_in_their_own_orientation(z, kind,
     way round (a clockwise rest, a clockwise map) is consistent and certified too."""
     case = _square_case(z)
     if reverse:
-        case["faces"] = case["faces"][:, ::-1].copy()
-    problem, x0, orientation, mirror = lim_problem(case)
+        case = dataclasses.replace(case, simplices=case.simplices[:, ::-1].copy())
+    problem, x0, orientation, mirror = case.to_problem()
     assert problem.kind == kind and orientation == (-1 if reverse else 1)
     case, result = untangle_case(case, progress=False)
     assert result.success, result.message
-    assert count_inverted(result.x, case["faces"], orientation=orientation) == 0
-    assert write_untangle_result(case, result, tmp_path / "out.obj")["certified"]
+    assert count_inverted(result.x, case.simplices, orientation=orientation) == 0
+    assert case.write_certified(result, tmp_path / "out.obj")["certified"]
 
 
 def test_lim_folder_with_one_face_reversed_is_refused(tmp_path):
@@ -327,7 +328,7 @@ def test_unhashable_density_is_refused():
     (lambda: Newton(rtol=float("nan")), r"Newton: rtol must be a finite number in \[0, 1\), got nan"),
     (lambda: Newton(projection="eig"), "Newton: projection must be one of 'adaptive', 'clamp'"),
     (lambda: Newton(regularization=0.0), "regularization must be a finite number > 0"),
-    (lambda: Newton(exact_below=-1.0), "exact_below must be a finite number >= 0"),
+    (lambda: Newton(projection=Adaptive(exact_below=-1.0)), "Adaptive: exact_below must be a finite number >= 0"),
     (lambda: Newton(linear_solver="lu"), "linear_solver must be one of 'auto'"),
     (lambda: Newton(search="armijo"), "search must be a InjectiveSearch object"),
     (lambda: LBFGS(max_steps=-5), "LBFGS: max_steps must be an integer >= 1"),
@@ -485,10 +486,10 @@ def test_every_vertex_a_handle(solver):
     V, F = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]])
     good = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=2.0 * V)
     r = minimize(Objective(good, "symmetric_dirichlet"), 2.0 * V, solver, progress=False)
-    assert r.success and r.inverted == 0 and np.array_equal(r.x, 2.0 * V)
+    assert r.success and r.certificate.inverted == 0 and np.array_equal(r.x, 2.0 * V)
     mirrored = Problem.planar(V, F, fixed=[0, 1, 2], fixed_positions=V[[0, 2, 1]])
     r = minimize(Objective(mirrored, "symmetric_dirichlet"), V[[0, 2, 1]], solver, progress=False)
-    assert not r.success and r.inverted == 1
+    assert not r.success and r.certificate.inverted == 1
 
 
 @pytest.mark.parametrize("bad", [dict(progress="yes"), dict(progress=2), dict(params=[("lam", 1.0)])])
@@ -512,7 +513,7 @@ def test_parameterize_progress_callable_with_folded_start():
     x0[7] += [0.5, 0.4]  # folds the triangles around vertex 7
     energies = []
     r = parameterize(np.c_[V, _bumpy(V)], F, x0=x0, progress=lambda state, elapsed, e: energies.append(e))
-    assert r.info["repair"] is not None and r.success and r.inverted == 0
-    assert len(energies) == r.iterations
+    assert r.details.repair is not None and r.success and r.certificate.inverted == 0
+    assert len(energies) == r.stats.iterations
     with pytest.raises(ParameterError, match="parameterize: progress must be"):
         parameterize(np.c_[V, _bumpy(V)], F, progress="yes")

@@ -13,7 +13,7 @@ import pytest
 
 import geomopt
 from geomopt import _cache, _hostcall
-from geomopt.batch import write_lim_case
+from geomopt.lim import LimCase
 from geomopt import generators as G
 from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
 
@@ -67,7 +67,7 @@ def test_a_host_function_that_raises_gives_nan_and_is_recorded():
 
 
 def test_untangle_json_has_the_timing_split_from_process_start(tmp_path):
-    folder = write_lim_case(tmp_path / "case", G.noisy_interior(*G.disk_mesh(6), 1.0, seed=2))
+    folder = LimCase.from_tangle(G.noisy_interior(*G.disk_mesh(6), 1.0, seed=2)).write(tmp_path / "case")
     env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
     proc = subprocess.run([sys.executable, "-m", "geomopt", "untangle", str(folder), "-o", str(tmp_path / "o.obj"),
                            "--json", "--quiet"], capture_output=True, text=True, env=env, timeout=300)
@@ -114,13 +114,13 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
     diag = untangle(rot.problem(), rot.x0, solver=default_solver("lbfgs", 2), progress=False)
     auto = untangle(rot.problem(), rot.x0, progress=False)
     assert diag.success and auto.success
-    assert diag.inner_iterations > 2 * STIFF_AFTER and auto.inner_iterations < 0.6 * diag.inner_iterations
-    assert auto.info["solver"].precondition == "laplacian"
+    assert diag.stats.iterations > 2 * STIFF_AFTER and auto.stats.iterations < 0.6 * diag.stats.iterations
+    assert auto.solver.precondition == "laplacian"
     noise = G.noisy_interior(*G.disk_mesh(12), 1.0, seed=3)
     a = untangle(noise.problem(), noise.x0, progress=False)
     b = untangle(noise.problem(), noise.x0, solver=default_solver("lbfgs", 2), progress=False)
-    assert a.success and a.inner_iterations == b.inner_iterations < STIFF_AFTER
-    assert a.info["solver"].precondition == "diagonal"
+    assert a.success and a.stats.iterations == b.stats.iterations < STIFF_AFTER
+    assert a.solver.precondition == "diagonal"
 
 
 def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():

@@ -99,12 +99,19 @@ def bumpy(n=12, ears=0):
 
 
 def test_buckets_are_few_and_tight():
-    sizes = np.unique(np.r_[np.arange(1, 5000), np.geomspace(5000, 1e7, 2000).astype(int)])
-    b = np.array([_padding.bucket(s) for s in sizes])
-    assert (b >= sizes).all() and (np.diff(b) >= 0).all()
-    big = sizes > _padding.MINIMUM
-    assert (b[big] <= 1.25 * sizes[big]).all()
-    assert len(np.unique(b)) <= 4 * np.log2(1e7 / 64) + 2  # four per octave
+    # elements: powers of two from MINIMUM_ELEMENTS (at most 2x), vertices tied to the element
+    # bucket, so a mesh family meets one (vertices, elements) bucket per element bucket
+    m = np.unique(np.geomspace(1, _padding.MAXIMUM_ELEMENTS, 3000).astype(int))
+    for dim, share in ((2, 0.5), (3, 0.25)):
+        sizes = [_padding.bucket_sizes(max(int(share * k), 3), k, dim) for k in m]
+        nb, mb = np.array(sizes).T
+        assert (mb >= m).all() and (np.diff(mb) >= 0).all()
+        assert (mb <= np.maximum(2 * m, _padding.MINIMUM_ELEMENTS)).all()
+        assert len(np.unique(mb)) <= np.log2(_padding.MAXIMUM_ELEMENTS / _padding.MINIMUM_ELEMENTS) + 1
+        assert len(set(sizes)) == len(np.unique(mb))  # one vertex bucket per element bucket
+    assert _padding.bucket_sizes(10, _padding.MAXIMUM_ELEMENTS + 1, 2) is None  # large meshes: no padding
+    b = np.array([_padding.power_bucket(s) for s in range(1, 5000)])
+    assert (b >= np.arange(1, 5000)).all() and len(np.unique(b)) == 8  # 64 .. 8192
 
 
 def test_padding_changes_no_energy_gradient_hessian_or_dets():
@@ -135,13 +142,13 @@ def test_padding_changes_no_energy_gradient_hessian_or_dets():
 def test_padding_changes_no_result_or_certificate(solver):
     V, F = bumpy(8)
     runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
-    assert runs[1].info["objective"].sizes.padded
+    assert runs[1].objective.sizes.padded
     a, b = runs
-    assert a.outcome == b.outcome and a.inverted == b.inverted == 0
+    assert a.outcome == b.outcome and a.certificate.inverted == b.certificate.inverted == 0
     if solver in ("newton", "slim", "cm"):  # first-order and quasi-Newton histories see rounding
-        assert a.iterations == b.iterations
+        assert a.stats.iterations == b.stats.iterations
     else:
-        assert abs(a.iterations - b.iterations) <= 0.1 * a.iterations
+        assert abs(a.stats.iterations - b.stats.iterations) <= 0.1 * a.stats.iterations
     assert b.x.shape == a.x.shape == (len(V), 2)
     # the same map up to the solver's tolerance: padded reductions (sums with extra exact
     # zeros) may round differently in the last bit, which an L-BFGS history amplifies
@@ -184,7 +191,8 @@ def test_a_different_mesh_of_the_same_bucket_compiles_nothing(tmp_path, cache_at
                                                                           buckets=True)
     assert (pa.n_vertices, pa.n_elements) != (pb.n_vertices, pb.n_elements)
     assert oa.sizes.n_padded == ob.sizes.n_padded and oa.sizes.m_padded == ob.sizes.m_padded
-    assert _padding.bucket(oa.pattern.nnz) == _padding.bucket(ob.pattern.nnz) and oa.pattern.nnz != ob.pattern.nnz
+    assert oa.pattern.nnz != ob.pattern.nnz
+    assert _padding.power_bucket(oa.pattern.nnz) == _padding.power_bucket(ob.pattern.nnz)
     cache_at(tmp_path / "cache")
     misses, _ = _misses_hits(lambda: geomopt.parameterize(*A, solver=FAST, progress=False))
     assert misses > 0 and any((tmp_path / "cache").iterdir())

@@ -7,6 +7,7 @@ exact predicate, handles unchanged bit for bit, also in the file written and rea
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import scipy.sparse.linalg as spla
 from geomopt import generators as G
 from geomopt._errors import MeshError, ParameterError, SolveError
 from geomopt._objective import Objective
-from geomopt.lim import LimCase
+from geomopt.lim import LimCase, untangle_case
 from geomopt.linesearch import InjectiveSearch
 from geomopt.predicates import count_inverted
 from geomopt.problem import Problem
@@ -28,7 +29,7 @@ from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
 from geomopt import untangle as untangle_module
 from geomopt.energies import chi
-from geomopt.untangle import default_solver, lim_problem, next_eps, untangle, untangle_case, write_untangle_result
+from geomopt.untangle import default_solver, next_eps, untangle
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -47,36 +48,34 @@ def _bits_equal(a, b):
 def test_lim_case_untangled_and_certified(folder, tmp_path):
     if folder is None:
         pytest.skip(f"LIM sample data not found under {LIM_ROOT} (clone the project next to shared/)")
-    case, result = untangle_case(folder, progress=False)
     if folder.name == "armadillo-598":
         # every tet around 5 boundary edges has all four vertices fixed, and those tets turn
-        # 1.0-1.2 times around each edge in the given handle positions (they did already in the
-        # start map): no map with these handles is locally injective, though every tet can be
-        # positive.  It used to be certified (issue 19): now it is refused, naming an edge
-        assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
-        assert result.inverted == 0 and "boundary edge" in result.message
-        assert len(result.info["local_certificate"].boundary_edge_overlaps) == 5
+        # 1.0-1.2 times around each edge in the given handle positions: no map with these
+        # handles is locally injective (it used to be certified, issue 19); the setup refuses
+        # it before solving (certify.fixed_star_certificate; tests/test_fixed_stars.py)
+        with pytest.raises(MeshError, match=r"boundary edge \(752, 782\).*impossible"):
+            untangle_case(folder, progress=False)
         return
+    case, result = untangle_case(folder, progress=False)
     assert result.success, result.message
-    assert result.initially_inverted > 0
-    H = case["handles"]
+    assert result.stats.inverted_at_start > 0
+    H = case.handles
     # exact predicate on the returned map, in the case's own connectivity and orientation
-    S = case["faces"] if case["dim"] == 2 else case["tets"]
-    assert count_inverted(result.x, S, orientation=case["orientation"]) == 0
-    assert _bits_equal(result.x[H], case["init"][H])
+    assert count_inverted(result.x, case.simplices, orientation=case.to_problem().orientation) == 0
+    assert _bits_equal(result.x[H], case.init[H])
     assert result.min_det_rel > 0
-    assert len(result.energy_history) == result.outer_iterations
+    assert len(result.trace.energy) == len(result.trace.phases) == result.stats.outer_iterations
     # the written file certifies too (read back: exact predicate, handles bit-exact)
-    out = tmp_path / ("result.obj" if case["dim"] == 2 else "result.vtk")
-    report = write_untangle_result(case, result, out)
-    assert report["certified"], report
-    if case["dim"] == 2:
+    out = tmp_path / ("result.obj" if case.dim == 2 else "result.vtk")
+    report = case.write_certified(result, out)
+    assert report["certified"] and report["path"] == out, report
+    if case.dim == 2:
         back = read_lim2d_like(out)
         assert _bits_equal(back, result.x)
 
 
 def read_lim2d_like(path):
-    """The ``vt`` lines of an OBJ written by write_untangle_result."""
+    """The ``vt`` lines of an OBJ written by LimCase.write_certified."""
     folder = path.parent / "readback"
     folder.mkdir()
     shutil.copy(path, folder / "input.obj")
@@ -101,10 +100,31 @@ def test_lim_case_clockwise_map(tmp_path):
         lines.append(line)
     (dst / "input.obj").write_text("\n".join(lines) + "\n")
     case, result = untangle_case(dst, progress=False)
-    assert case["orientation"] == -1
+    assert case.to_problem().orientation == -1
     assert result.success, result.message
-    assert count_inverted(result.x, case["faces"], orientation=-1) == 0
-    assert write_untangle_result(case, result, tmp_path / "out.obj")["certified"]
+    assert count_inverted(result.x, case.simplices, orientation=-1) == 0
+    assert case.write_certified(result, tmp_path / "out.obj")["certified"]
+
+
+@pytest.mark.parametrize("name", ["square", "cube"])
+def test_write_certified_refuses_a_folded_map_or_a_moved_handle(name, tmp_path):
+    """Only a file that certifies replaces the target: a folded map (the tangled start) or a
+    map with one handle moved by one ulp raises SolveError and leaves the old file as it was."""
+    t = G.rotated_interior(*(G.square_mesh(6) if name == "square" else G.box_mesh(3, 3, 3)), 90.0)
+    case = LimCase.from_tangle(t)
+    case, result = untangle_case(case, progress=False)
+    assert result.success, result.message
+    out = tmp_path / ("out.obj" if case.dim == 2 else "out.vtk")
+    assert case.write_certified(result, out)["certified"]
+    before = out.read_bytes()
+    moved = result.x.copy()
+    h = case.handles[0]
+    moved[h, 0] = np.nextafter(moved[h, 0], np.inf)
+    for bad, words in ((case.init, "inverted or degenerate"), (moved, "1 handle")):
+        with pytest.raises(SolveError, match=words):
+            case.write_certified(bad, out)
+        assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]  # no temporary left
 
 
 def test_lim_problem_rejects_collapsed_and_mirrored_maps():
@@ -112,15 +132,14 @@ def test_lim_problem_rejects_collapsed_and_mirrored_maps():
     b = G.boundary_vertices(F, len(V))
     rest = np.column_stack([V, np.zeros(len(V))])
     with pytest.raises(MeshError, match="collapsed"):
-        lim_problem({"dim": 2, "rest": rest, "init": np.zeros_like(V), "faces": F, "handles": b})
+        LimCase(2, rest, np.zeros_like(V), F, b).to_problem()
     P, T = G.box_mesh(2, 2, 2)
     b = G.boundary_vertices(T, len(P))
     with pytest.raises(MeshError, match="mirrored"):
-        lim_problem({"dim": 3, "rest": P, "init": P * [-1.0, 1.0, 1.0], "tets": T, "handles": b})
+        LimCase(3, P, P * [-1.0, 1.0, 1.0], T, b).to_problem()
     # a clockwise 2D map is accepted, mirrored (exactly) into the problem's frame
     b = G.boundary_vertices(F, len(V))
-    problem, x0, orientation, mirror = lim_problem(
-        {"dim": 2, "rest": rest, "init": V * [-1.0, 1.0], "faces": F, "handles": b})
+    problem, x0, orientation, mirror = LimCase(2, rest, V * [-1.0, 1.0], F, b).to_problem()
     assert orientation == -1 and _bits_equal(x0, V)
 
 
@@ -131,13 +150,13 @@ def test_lim_problem_accepts_a_negative_total_when_part_of_the_boundary_is_free(
     P = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1]])
     T = np.array([[0, 1, 2, 3]])
     init = P * [1.0, 1.0, -1.0]
-    case = {"dim": 3, "rest": P, "init": init, "tets": T, "handles": np.array([0, 1, 2])}
-    problem, x0, orientation, _ = lim_problem(case)
+    case = LimCase(3, P, init, T, np.array([0, 1, 2]))
+    problem, x0, orientation, _ = case.to_problem()
     assert float(problem.signed_volumes(x0).sum()) < 0 and orientation == 1
     result = untangle(problem, x0, progress=False)
     assert result.success and count_inverted(result.x, T) == 0
     with pytest.raises(MeshError, match="whole boundary fixed"):
-        lim_problem(dict(case, handles=np.arange(4)))
+        dataclasses.replace(case, handles=np.arange(4)).to_problem()
 
 
 # ----------------------------------------------------------------------------- synthetic
@@ -183,13 +202,13 @@ def test_progress_lines_and_result_fields(capsys):
     t = G.rotated_interior(*G.square_mesh(8), 90.0)
     result = untangle(t.problem(), t.x0, progress=True)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == result.outer_iterations
+    assert len(err) == result.stats.outer_iterations
     assert all(line.startswith("outer") and "eps" in line and "inverted" in line for line in err)
-    assert result.outcome is Outcome.CONVERGED and result.handles_moved == 0
-    assert result.inner_iterations >= result.outer_iterations
-    assert len(result.eps_history) == len(result.min_det_history) == result.outer_iterations
-    assert result.min_det_history[-1] > 0 and result.inverted_history[-1] == 0
-    assert result.seconds > 0 and result.setup_seconds >= 0
+    assert result.outcome is Outcome.CONVERGED and result.certificate.handles_moved == 0
+    assert result.stats.iterations >= result.stats.outer_iterations
+    assert len(result.trace.column("eps")) == len(result.trace.column("min_det")) == result.stats.outer_iterations
+    assert result.trace.column("min_det")[-1] > 0 and result.trace.column("inverted", int)[-1] == 0
+    assert result.stats.seconds > 0 and result.stats.setup_seconds >= 0
 
 
 def test_infeasible_reports_and_throws():
@@ -201,7 +220,7 @@ def test_infeasible_reports_and_throws():
     result = untangle(problem, x0, progress=False)
     assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
     assert "every vertex fixed" in result.message
-    assert result.info["elements"] == len(F)  # the CLI summary prints it (it printed '?')
+    assert result.problem.n_elements == len(F)  # the CLI summary prints it (it printed '?')
     with pytest.raises(SolveError):
         untangle(problem, x0, progress=False, throw=True)
 
@@ -218,7 +237,7 @@ def test_mirrored_fixed_boundary_refused_at_once(dim):
     problem = make(V, S, bnd, x0[bnd])
     result = untangle(problem, x0, progress=False)
     assert not result.success and result.outcome is Outcome.NOT_INJECTIVE
-    assert result.outer_iterations == 0 and "mirrored" in result.message
+    assert result.stats.outer_iterations == 0 and "mirrored" in result.message
     with pytest.raises(SolveError, match="no map can change"):
         untangle(problem, x0, progress=False, throw=True)
     # one boundary vertex free: the total is no longer fixed, so no refusal at setup
@@ -244,16 +263,16 @@ def test_boundary_winding_twice_is_not_success():
     inner_s = np.setdiff1d(np.arange(len(Vs)), G.boundary_vertices(Fs, len(Vs)))
     assert (vertex_windings(Vs, Fs)[inner_s] == 1).all()
     result = untangle(Problem.planar(V, F, bnd, x0[bnd]), x0, progress=False)
-    assert result.inverted == 0  # the local predicate alone is satisfied...
+    assert result.certificate.inverted == 0  # the local predicate alone is satisfied...
     assert (vertex_windings(result.x, F)[interior] > 1).any()
     assert not result.success and result.outcome is Outcome.NOT_INJECTIVE  # ...but no success
-    assert "branch" in result.message and result.info["branch_vertices"] >= 1
+    assert "branch" in result.message and len(result.certificate.branch_vertices) >= 1
     # given as a start map, that flip-free but branched map is repaired, not optimised as it is
     from geomopt.param import parameterize
     from geomopt.predicates import branch_vertices
 
     res = parameterize(np.c_[V, np.zeros(len(V))], F, x0=result.x, progress=False)
-    assert res.info["repair"] is not None and res.success
+    assert res.details.repair is not None and res.success
     assert count_inverted(res.x, F) == 0 and len(branch_vertices(res.x, F)) == 0
 
 
@@ -267,7 +286,7 @@ def test_bad_arguments():
     free = Problem.planar(t.rest, t.simplices)
     res = untangle(free, t.x0, progress=False)
     # ... but this one ends flip-free around a branch vertex: honestly not a success
-    assert res.inverted == 0 and res.info["branch_vertices"] >= 1
+    assert res.certificate.inverted == 0 and len(res.certificate.branch_vertices) >= 1
     assert not res.success and "branch" in res.message
 
 
@@ -286,11 +305,11 @@ def test_outer_loop_compiles_once():
     if not any(name.startswith("/jax/") for name in lowered):
         assert set(lowered) <= names, lowered
     mid = [k._cache_size() for k in kernels]
-    assert r1.success and r1.outer_iterations > 2
+    assert r1.success and r1.stats.outer_iterations > 2
     assert all(m - b <= 1 for b, m in zip(before, mid))
     r2 = untangle(t.problem(), t.x0, progress=False)
     assert [k._cache_size() for k in kernels] == mid
-    assert r2.outer_iterations == r1.outer_iterations
+    assert r2.stats.outer_iterations == r1.stats.outer_iterations
     np.testing.assert_array_equal(r2.x, r1.x)
 
 
@@ -311,9 +330,9 @@ def test_eps_reaches_the_floor_in_one_step_once_nothing_is_inverted():
     t = G.twisted_box(6, 6, 0.75)
     result = untangle(t.problem(), t.x0, progress=False)
     assert result.success, result.message
-    assert result.inverted_history[0] == 0
-    assert result.eps_history[1] == untangle_module.EPS_FLOOR[3]
-    assert result.outer_iterations == 3
+    assert result.trace.column("inverted", int)[0] == 0
+    assert result.trace.column("eps")[1] == untangle_module.EPS_FLOOR[3]
+    assert result.stats.outer_iterations == 3
 
 
 def test_random_interior_disk_needs_the_cap_while_inverted():
@@ -326,7 +345,7 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     solver = default_solver("lbfgs", 2)
     result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30)
     assert result.success, result.message
-    assert result.inverted_history[0] > 0 and result.outer_iterations <= 6
+    assert result.trace.column("inverted", int)[0] > 0 and result.stats.outer_iterations <= 6
 
 
 def test_generators_are_valid():
@@ -386,16 +405,16 @@ def test_lbfgs_reaches_the_harmonic_map():
     assert result.outcome is Outcome.CONVERGED, result.message
     np.testing.assert_allclose(result.x, X, atol=1e-8)
     assert _bits_equal(result.x[b], target[b])
-    # run() (the whole loop in one jitted while_loop) gives the same iterates as step(), with
-    # the same programs (step is the loop with a limit of one more iteration), which a solver
-    # differing only in max_steps shares too: stepping and running again lowers nothing
+    # advance() (the whole loop in one jitted while_loop) gives the same iterates as step(),
+    # with the same programs (step is the loop with a limit of one more iteration), which a
+    # solver differing only in max_steps shares too: stepping and running again lowers nothing
     s = LBFGS(rtol=0.0, gtol=1e-12, max_steps=4000)
     x0 = jnp.asarray(problem.check_map(V))
     with lowered_programs() as lowered:
-        state = s.init(obj, x0, obj.params(), precompile=None)
-        state = s.run(s.step(state))
+        state = s.init(obj, x0, obj.params(), precompile=False)
+        state = s.advance(s.step(state), s.max_steps)
     assert lowered == []
-    assert state.iteration == result.iterations
+    assert state.iteration == result.stats.iterations
     np.testing.assert_allclose(np.asarray(state.x), result.x, rtol=0, atol=1e-13)
 
 
@@ -426,7 +445,7 @@ def test_lbfgs_laplacian_preconditioner_is_exact_for_dirichlet(backend):
     obj = Objective(problem, "dirichlet")
     result = minimize(obj, V, LBFGS(precondition="laplacian", laplacian=backend, gtol=1e-10, rtol=0.0,
                                     search=InjectiveSearch(c2=0.9)), progress=False)
-    assert result.outcome is Outcome.CONVERGED and result.iterations <= (3 if backend == "host" else 8)
+    assert result.outcome is Outcome.CONVERGED and result.stats.iterations <= (3 if backend == "host" else 8)
     np.testing.assert_allclose(result.x, V * [1.4, 0.9], atol=1e-9)
 
 
@@ -455,16 +474,17 @@ def test_device_laplacian_solve_equals_the_host_factorization(case):
 def test_device_laplacian_lbfgs_makes_no_host_round_trip():
     """With ``laplacian="device"`` the L-BFGS iteration's program has no host callback (what
     lets it run on an accelerator without syncing); with ``"host"`` it has one."""
-    from geomopt.solvers.lbfgs import _iterate
+    from geomopt.solvers.lbfgs import _iteration
 
     V, F = G.disk_mesh(4)
     b = G.boundary_vertices(F, len(V))
     obj = Objective(Problem.planar(V, F, b, V[b] * 1.2), "symmetric_dirichlet")
     for backend, callbacks in (("device", 0), ("host", 1)):
         solver = LBFGS(precondition="laplacian", laplacian=backend)
-        state = solver.init(obj, V, obj.params(), precompile=None)
-        density, geom, free = solver._args(obj)
-        jaxpr = jax.make_jaxpr(lambda c: _iterate(solver, density, geom, free, state.params, c))(state.aux["carry"])
+        state = solver.init(obj, V, obj.params(), precompile=False)
+        density, geom, free = obj.energy.density, obj.geom, obj.free_mask
+        jaxpr = jax.make_jaxpr(lambda c: _iteration(solver, density, geom, free, state.params, c))(
+            state.memory.carry)
         host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._hostcall
         assert (host_calls > 0) == bool(callbacks), backend
     with pytest.raises(ParameterError, match="laplacian"):
@@ -507,7 +527,7 @@ def test_lbfgs_stops_at_a_stationary_start():
     b = G.boundary_vertices(F, len(V))
     obj = Objective(Problem.planar(V, F, b, V[b]), "dirichlet")
     result = minimize(obj, V, LBFGS(), progress=False)  # the identity is already harmonic
-    assert result.outcome is Outcome.CONVERGED and result.iterations <= 1
+    assert result.outcome is Outcome.CONVERGED and result.stats.iterations <= 1
     np.testing.assert_allclose(result.x, V, atol=1e-12)
 
 

@@ -51,7 +51,10 @@ try:
     out["grad_off"] = "ran"
 except ParameterError as e:
     out["grad_off"] = str(e)
-with jax.enable_x64(True):
+x64 = getattr(jax, "enable_x64", None)  # jax.experimental.enable_x64 before JAX 0.7
+if x64 is None:
+    from jax.experimental import enable_x64 as x64
+with x64(True):
     g = jax.grad(lambda x: obj.value(x))(x)
     out["grad_on_dtype"] = str(g.dtype)
     f = lambda h: jnp.sum(implicit.minimize(

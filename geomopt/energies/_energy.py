@@ -9,6 +9,7 @@ from typing import Callable, Mapping
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._errors import ParameterError
 from .._tracing import is_traced
@@ -145,6 +146,9 @@ def _density_dims(name, density, param_names):
 def _finite(name, what, value) -> float:
     if is_traced(value):  # a traced parameter (jax.grad / vmap over it): no value to check
         return value
+    # a string or a bool is not a number here, even when float() would take it ("1", True)
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ParameterError(f"energy {name!r}: {what}={value!r} must be a number, not {type(value).__name__}")
     try:
         v = float(value)
     except (TypeError, ValueError):

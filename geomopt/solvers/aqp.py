@@ -30,14 +30,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._config import Real
-from ..linesearch import InjectiveSearch, max_injective_step
-from ._base import AbstractSolver, Outcome, State
+from ..linesearch import InjectiveSearch
+from ._base import AbstractSolver, State, map_extent
 from ._laplacian import RestLaplacian
 
 __all__ = ["AQP", "rest_curvature"]
@@ -53,6 +54,15 @@ def rest_curvature(density, params, d) -> float:
     return c if math.isfinite(c) and c > 0 else 1.0
 
 
+class AQPMemory(NamedTuple):
+    """AQP's memory: the previous map (the momentum ``x_k - x_{k-1}``; None after a start or
+    restart), the factored rest Laplacian and the proxy's scale ``1 / rest_curvature``."""
+
+    prev_x: Any
+    proxy: Any
+    scale: float
+
+
 @dataclasses.dataclass(frozen=True)
 class AQP(AbstractSolver):
     """Accelerated quadratic proxy.
@@ -63,7 +73,9 @@ class AQP(AbstractSolver):
         ``theta = (1 - 1/sqrt(kappa)) / (1 + 1/sqrt(kappa))`` (Nesterov; Kovalsky et al. 2016).
     rtol, max_steps : as for every solver (relative energy decrease / decrement test).
     search : the :class:`~geomopt.linesearch.InjectiveSearch` (default: first trial at most a
-        quarter of the flip bound, see the module notes).
+        quarter of the flip bound, see the module notes); the momentum move is capped and
+        checked by the same search (:meth:`~geomopt.linesearch.InjectiveSearch.cap`,
+        :meth:`~geomopt.linesearch.InjectiveSearch.admissible`).
     """
 
     condition: float = 100.0
@@ -81,46 +93,51 @@ class AQP(AbstractSolver):
 
     def init(self, objective, x0, params) -> State:
         scale = 1.0 / rest_curvature(objective.energy.density, params, objective.problem.dim)
-        state = self._start(objective, x0, params, aux={"prev_x": None, "proxy": RestLaplacian(objective),
-                                                        "scale": scale})
+        state = self._start(objective, x0, params, AQPMemory(None, RestLaplacian(objective), scale))
         self.search(objective, params, state.x, state.value, state.grad, jnp.zeros_like(state.x))
         return state
 
-    def with_params(self, state: State, params) -> State:
-        """As :meth:`AbstractSolver.with_params`, the proxy's curvature scale re-derived."""
-        state = super().with_params(state, params)
+    def reparam(self, state: State, params) -> State:
+        """As :meth:`AbstractSolver.reparam`, the proxy's curvature scale re-derived."""
+        state = super().reparam(state, params)
         scale = 1.0 / rest_curvature(state.objective.energy.density, params, state.objective.problem.dim)
-        return dataclasses.replace(state, aux=dict(state.aux, scale=scale))
+        return dataclasses.replace(state, memory=state.memory._replace(scale=scale))
+
+    def restart(self, state: State, x=None) -> State:
+        """The momentum dropped; moved to ``x`` when given."""
+        state = dataclasses.replace(state, memory=state.memory._replace(prev_x=None))
+        return state if x is None else self._moved(state, x)
+
+    def _momentum(self, state):
+        """``(y, f(y), grad(y), evaluations)``: the momentum point ``x + theta v`` (``v = x_k -
+        x_{k-1}``), ``theta`` capped by the search, when the search admits it and it does not
+        raise the energy; else ``x`` itself."""
+        obj, x, prev = state.objective, state.x, state.memory.prev_x
+        if prev is None:
+            return x, state.value, state.grad, 0
+        v = x - prev
+        th = min(self.theta, self.search.cap_along(obj, x, v))
+        if not th > 0:
+            return x, state.value, state.grad, 0
+        y = x + th * v
+        f, g = obj.value_and_grad(y, state.params)
+        f = float(f)
+        if self.search.admissible_step(obj, x, v, th, f) and f <= state.value:
+            return y, f, g, 1
+        return x, state.value, state.grad, 1
 
     def step(self, state: State) -> State:
         obj, params, x = state.objective, state.params, state.x
-        y, fy, gy, evals = x, state.value, state.grad, 0
-        prev = state.aux["prev_x"]
-        if prev is not None:
-            v = x - prev
-            th = self.theta
-            if self.search.injective:
-                th = min(th, self.search.safety * float(max_injective_step(obj.geom[0], x, v)))
-            if th > 0:
-                y2 = x + th * v
-                f2, g2 = obj.value_and_grad(y2, params)
-                evals += 1
-                if math.isfinite(float(f2)) and float(f2) <= state.value:
-                    y, fy, gy = y2, float(f2), g2
-        d = -state.aux["scale"] * jnp.asarray(state.aux["proxy"].solve(jnp.asarray(gy).__array__()))
+        y, fy, gy, evals = self._momentum(state)
+        d = -state.memory.scale * jnp.asarray(state.memory.proxy.solve(jnp.asarray(gy).__array__()))
         slope = float(jnp.vdot(gy, d))
         t, xn, fn, gn, n = self.search(obj, params, y, fy, gy, d)
-        evals += n
-        it = state.iteration + 1
-        aux = dict(state.aux, prev_x=x)
+        stats = dict(iteration=state.iteration + 1, evaluations=state.evaluations + evals + n)
+        memory = state.memory._replace(prev_x=x)
         if t == 0.0:
             if y is not x:  # momentum point accepted, proxy step not: keep the momentum move
-                return dataclasses.replace(state, x=y, value=fy, grad=gy, iteration=it, step_size=0.0,
-                                           prev_value=state.value, decrement=-0.5 * slope, aux=aux,
-                                           evaluations=state.evaluations + evals)
-            failure = None if -slope <= 1e-14 * max(abs(fy), 1e-300) else Outcome.LINE_SEARCH_FAILED
-            return dataclasses.replace(state, iteration=it, step_size=0.0, failure=failure,
-                                       decrement=-0.5 * slope, evaluations=state.evaluations + evals)
-        return dataclasses.replace(state, x=xn, value=fn, grad=gn, iteration=it, step_size=t,
-                                   prev_value=state.value, decrement=-0.5 * t * slope, aux=aux,
-                                   evaluations=state.evaluations + evals)
+                return state.update(x=y, value=fy, grad=gy, step_size=0.0, past_value=state.value,
+                                    decrement=-0.5 * slope, memory=memory, extent=map_extent(y), **stats)
+            return state.update(step_size=0.0, accepted=False, decrement=-0.5 * slope, **stats)
+        return state.update(x=xn, value=fn, grad=gn, step_size=t, past_value=state.value,
+                            decrement=-0.5 * t * slope, memory=memory, extent=map_extent(xn), **stats)

@@ -4,10 +4,11 @@ One iteration (Nocedal & Wright 2006, Algorithms 7.4 and 7.5) is the two-loop re
 over a fixed-size ring buffer of correction pairs (``lax.fori_loop``), the shared
 :class:`~geomopt.linesearch.InjectiveSearch` (weak Wolfe by default: it brackets by bisection /
 doubling, Lewis & Overton 2013), and the memory update.  Two jitted programs per mesh shape
-do everything: the iteration loop (``lax.while_loop`` up to a traced limit: :meth:`LBFGS.run`
+do everything: the iteration loop (``lax.while_loop`` up to a traced limit, stopped by the
+solver's :class:`~geomopt.solvers.Termination` on traced statistics: :meth:`LBFGS.advance`
 runs it to the end without per-iteration Python dispatch, :meth:`LBFGS.step` one iteration
 further) and the evaluation that starts a solve or re-parameterises it (``init``,
-``with_params``).  They are keyed on the density, the array shapes and the solver's
+``reparam``, ``restart``).  They are keyed on the density, the array shapes and the solver's
 configuration less ``max_steps``; energy parameters are traced, so changing eps / lambda never
 recompiles.
 
@@ -23,43 +24,31 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from functools import partial
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .._errors import ParameterError
-from .._objective import total_energy
 from .._config import Int, OneOf, Real
 from .._programs import jit as programs_jit
+from .._errors import ParameterError
+from .._objective import free_value_and_grad
 from ..linesearch import InjectiveSearch
-from ._base import DIVERGENCE_FACTOR, AbstractSolver, Outcome, State, reference_extent
+from ._base import AbstractSolver, State, start_stats
 from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
+from ._termination import RUNNING, Stats, Termination
 
 __all__ = ["LBFGS", "PRECONDITIONERS"]
 
-# status codes of the jitted loop
-RUNNING, CONVERGED_F, CONVERGED_G, LS_FAILED, NONFINITE, MAX_STEPS, DIVERGED = range(7)
-_OUTCOMES = {
-    CONVERGED_F: Outcome.CONVERGED,
-    CONVERGED_G: Outcome.CONVERGED,
-    LS_FAILED: Outcome.LINE_SEARCH_FAILED,
-    NONFINITE: Outcome.NONFINITE,
-    MAX_STEPS: Outcome.MAX_STEPS,
-    DIVERGED: Outcome.DIVERGED,
-}
 PRECONDITIONERS = ("scalar", "diagonal", "laplacian")
 
 
 def _dot(a, b):
     return jnp.sum(a * b)
-
-
-def _value_and_grad(density, geom, free, x, params):
-    v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
-    return v, g * free
 
 
 def _two_loop(S, Y, rho, k, seed, g, W=None, z=None):
@@ -90,11 +79,12 @@ def _two_loop(S, Y, rho, k, seed, g, W=None, z=None):
     return -lax.fori_loop(0, used, forward, r)
 
 
-def _iterate(solver, density, geom, free, params, c):
-    """One L-BFGS iteration on the carry ``c`` (a dict of arrays)."""
+def _iteration(solver, density, geom, free, params, c):
+    """One L-BFGS iteration on the carry ``c`` (a dict of arrays and the :class:`Stats`)."""
     def vg(x):
-        return _value_and_grad(density, geom, free, x, params)
-    x, f, g, S, Y, rho, k, H0 = c["x"], c["f"], c["g"], c["S"], c["Y"], c["rho"], c["k"], c["H0"]
+        return free_value_and_grad(density, geom, free, x, params)
+    st = c["stats"]
+    x, f, g, S, Y, rho, k, H0 = c["x"], st.value, c["g"], c["S"], c["Y"], c["rho"], c["k"], c["H0"]
     laplacian = solver.precondition == "laplacian"
 
     def seed(q):
@@ -142,68 +132,46 @@ def _iterate(solver, density, geom, free, params, c):
     H0 = jnp.where(good, newH0, H0)
     k = jnp.where(good, k + 1, k).astype(jnp.int32)
 
-    it = c["it"] + 1
-    fnext = jnp.where(ok, fn, f)
-    # energy test over the last `window` steps: f_hist holds the values after each of them
+    # the energy test looks back over the last `window` steps: f_hist holds the values after each
     W = solver.window
-    slot = c["it"] % W
-    f_old = c["f_hist"][slot]  # the energy W steps ago (inf before W steps were taken)
-    scale = jnp.maximum(jnp.abs(f_old), jnp.abs(fn))
-    # a stalled energy counts only when a full step promises little more (else the search is
-    # cutting steps short: a barrier of the injective cap, an energy unbounded below)
-    small_f = ok & jnp.isfinite(f_old) & (f_old - fn <= W * solver.rtol * scale) & \
-        (-slope <= jnp.sqrt(solver.rtol) * scale)
-    f_hist = c["f_hist"].at[slot].set(jnp.where(ok, fn, f))
-    gn_norm = jnp.sqrt(_dot(gn, gn))
-    small_g = ok & (gn_norm <= solver.gtol * c["g0"])
-    xk = jnp.where(ok, xn, x)
-    extent = jnp.max(jnp.max(xk, axis=0) - jnp.min(xk, axis=0))
-    diverged = (extent > DIVERGENCE_FACTOR * c["extent0"]) | (extent * DIVERGENCE_FACTOR < c["extent0"])
-    # a failed line search along a direction that promises no representable decrease means
-    # the start of this iteration was already stationary up to rounding
-    flat = -slope <= 1e-14 * jnp.maximum(jnp.abs(f), 1e-300)
-    status = jnp.where(
-        ~ok, jnp.where(flat, CONVERGED_G, LS_FAILED),
-        jnp.where(~jnp.isfinite(fn), NONFINITE,
-                  jnp.where(diverged, DIVERGED,
-                            jnp.where(small_g, CONVERGED_G, jnp.where(small_f, CONVERGED_F, RUNNING))))
-    ).astype(jnp.int32)
-    return {
-        "x": xk, "f": fnext, "g": jnp.where(ok, gn, g), "S": S, "Y": Y,
-        "rho": rho, "k": k, "H0": H0, "it": it, "prev_f": f, "t": t, "status": status,
-        "f_hist": f_hist,
-        "g0": c["g0"], "dec": -0.5 * t * slope, "nfev": (c["nfev"] + nls).astype(jnp.int32),
-        "pre": c["pre"], "extent0": c["extent0"], **extra,
-    }
+    slot = st.iteration % W
+    xk, gk = jnp.where(ok, xn, x), jnp.where(ok, gn, g)
+    stats = st._replace(
+        iteration=st.iteration + 1, value=jnp.where(ok, fn, f), past_value=c["f_hist"][slot],
+        decrement=-0.5 * slope, step_size=t, grad_norm=jnp.sqrt(_dot(gk, gk)), accepted=ok,
+        extent=jnp.max(jnp.max(xk, axis=0) - jnp.min(xk, axis=0)),
+        evaluations=(st.evaluations + nls).astype(jnp.int32))
+    return {"x": xk, "g": gk, "S": S, "Y": Y, "rho": rho, "k": k, "H0": H0,
+            "f_hist": c["f_hist"].at[slot].set(jnp.where(ok, fn, f)), "pre": c["pre"], "stats": stats, **extra}
 
 
 @partial(programs_jit, static_argnums=(0, 1))
 def _run_kernel(solver, density, geom, free, params, carry, max_it):
-    """Iterations while the status is RUNNING and ``it < max_it`` (traced): ``step`` is one
-    call with ``max_it = it + 1``, so one compiled program serves ``step`` and ``run``.
-    ``solver`` is the key of :meth:`LBFGS._kernel_key` (``max_steps`` left out)."""
+    """Iterations while the solver's termination says RUNNING and ``iteration < max_it``
+    (traced): ``step`` is one call with ``max_it = iteration + 1``, so one compiled program
+    serves ``step`` and ``advance``.  ``solver`` is the key of :meth:`LBFGS._kernel_key`
+    (``max_steps`` left out)."""
+    rule = solver.termination
+
     def cond(c):
-        return (c["status"] == RUNNING) & (c["it"] < max_it)
+        return (rule.status(c["stats"]) == RUNNING) & (c["stats"].iteration < max_it)
 
-    return lax.while_loop(cond, partial(_iterate, solver, density, geom, free, params), carry)
-
-
-def _initial_status(g):
-    return jnp.where(jnp.all(g == 0), CONVERGED_G, RUNNING).astype(jnp.int32)
+    return lax.while_loop(cond, partial(_iteration, solver, density, geom, free, params), carry)
 
 
-def _blank_carry(m, precondition, window, x, pre, extent0):
-    """The carry of :func:`_iterate` before the first evaluation, built on the host (nothing
-    to compile): empty memory, unit seed, counters at zero; ``f``, ``g`` and the evaluation
-    dependent entries are set by :func:`_reparam_kernel`.  ``x`` (n, d) float64."""
+def _blank_carry(m, precondition, window, x, pre, stats):
+    """The carry of :func:`_iteration` before the first evaluation, built on the host (nothing
+    to compile): empty memory, unit seed; ``stats`` (host :class:`Stats`) holds the references
+    of the termination tests, its value and gradient entries are set by
+    :func:`_reparam_kernel`.  ``x`` (n, d) float64."""
     n, d = x.shape
-    f8 = np.float64
+    f8, i4 = np.float64, np.int32
+    types = dict(iteration=i4, evaluations=i4, accepted=np.bool_, broken=np.bool_, done=np.bool_)
     carry = {
-        "x": x, "f": f8(np.nan), "g": np.zeros((n, d)), "S": np.zeros((m, n, d)), "Y": np.zeros((m, n, d)),
-        "rho": np.zeros(m), "k": np.int32(0), "H0": np.ones((n, d)) if precondition == "diagonal" else f8(1.0),
-        "it": np.int32(0), "prev_f": f8(np.inf), "t": f8(np.nan), "status": np.int32(RUNNING),
-        "g0": f8(np.nan), "dec": f8(np.inf), "nfev": np.int32(1), "f_hist": np.full(window, np.inf),
-        "pre": pre if isinstance(pre, LaplacianOperator) else np.int32(pre), "extent0": f8(extent0),
+        "x": x, "g": np.zeros((n, d)), "S": np.zeros((m, n, d)), "Y": np.zeros((m, n, d)),
+        "rho": np.zeros(m), "k": i4(0), "H0": np.ones((n, d)) if precondition == "diagonal" else f8(1.0),
+        "f_hist": np.full(window, np.inf), "pre": pre if isinstance(pre, LaplacianOperator) else i4(pre),
+        "stats": Stats(*(types.get(k, f8)(v) for k, v in zip(Stats._fields, stats))),
     }
     if precondition == "laplacian":
         carry.update(z=np.zeros((n, d)), W=np.zeros((m, n, d)))
@@ -213,15 +181,32 @@ def _blank_carry(m, precondition, window, x, pre, extent0):
 @partial(programs_jit, static_argnums=(0, 1))
 def _reparam_kernel(laplacian, density, geom, free, params, carry):
     """``carry`` re-evaluated at its ``x`` under ``params``: value, gradient (and for the
-    Laplacian seed ``K^-1 grad``), status, and the counters and energy window restarted; the
-    curvature memory and the evaluation count are kept.  Serves ``init`` and ``with_params``."""
-    f, g = _value_and_grad(density, geom, free, carry["x"], params)
-    out = dict(carry, f=f, g=g, status=_initial_status(g), prev_f=jnp.asarray(jnp.inf, f.dtype),
-               g0=jnp.sqrt(_dot(g, g)), it=jnp.int32(0),
-               f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
+    Laplacian seed ``K^-1 grad``), and the counters and energy window restarted; the
+    curvature memory and the evaluation count are kept.  Serves ``init`` and ``reparam``."""
+    f, g = free_value_and_grad(density, geom, free, carry["x"], params)
+    gnorm = jnp.sqrt(_dot(g, g))
+    stats = carry["stats"]._replace(
+        iteration=jnp.int32(0), value=f, past_value=jnp.asarray(jnp.inf, f.dtype),
+        decrement=jnp.asarray(jnp.inf, f.dtype), step_size=jnp.asarray(jnp.nan, f.dtype), grad_norm=gnorm,
+        grad_norm0=gnorm, accepted=jnp.bool_(True), broken=jnp.bool_(False), done=jnp.bool_(False))
+    out = dict(carry, g=g, stats=stats, f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
     if laplacian:  # warm start (device CG) from the last K^-1 g
         out["z"] = laplacian_solve(carry["pre"], g, carry["z"])
     return out
+
+
+def _host_stats(stats) -> Stats:
+    """A device :class:`Stats` as Python scalars (one transfer)."""
+    return Stats(*(v.item() for v in jax.device_get(stats)))
+
+
+class LBFGSMemory(NamedTuple):
+    """L-BFGS's memory: ``carry``, the device arrays of :func:`_iteration` (map, gradient,
+    curvature pairs, seed, energy window, statistics), and the Laplacian preconditioner (or
+    None) that the carry refers to by handle."""
+
+    carry: Any
+    preconditioner: Any = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,9 +248,9 @@ class LBFGS(AbstractSolver):
 
     Notes
     -----
-    ``step`` runs one iteration and :meth:`run` up to ``max_steps`` iterations, both in the
-    same jitted ``lax.while_loop`` (a traced limit), which stops on the same tests as
-    ``terminate``.
+    ``step`` runs one iteration and :meth:`advance` many, both in the same jitted
+    ``lax.while_loop`` (a traced limit) whose condition is :attr:`termination`'s rule on the
+    traced :class:`~geomopt.solvers.Stats`.
     """
 
     history: int = 10
@@ -281,23 +266,24 @@ class LBFGS(AbstractSolver):
         self._check(history=Int(1), gtol=Real(0.0, 1.0, hi_open=True), precondition=OneOf(PRECONDITIONERS),
                     window=Int(1), laplacian=OneOf(LAPLACIAN_BACKENDS))
 
+    @property
+    def termination(self) -> Termination:
+        """Converged when the gradient fell to ``gtol`` times its start, or the energy by at
+        most ``window * rtol`` (relative) over the last ``window`` iterations while a full step
+        promises at most ``sqrt(rtol)`` (``-g.d``); a failed search is converged when its
+        direction promised less than the rounding of ``E``."""
+        return Termination(rtol=0.0, ftol=self.window * self.rtol, stall=0.5 * math.sqrt(self.rtol),
+                           gtol=self.gtol, flat=0.5e-14, max_steps=self.max_steps)
+
     @staticmethod
     def _args(objective):
-        return objective.energy.density, objective.geom, objective._free
+        return objective.energy.density, objective.geom, objective.free_mask
 
-    def _state(self, state, carry):
-        """A :class:`State` from a carry (pulls the scalars to the host)."""
-        it, status, f, prev, t, dec, nfev = jax.device_get(
-            (carry["it"], carry["status"], carry["f"], carry["prev_f"], carry["t"], carry["dec"],
-             carry["nfev"]))
-        failure = None
-        if int(status) in (LS_FAILED, NONFINITE, DIVERGED):
-            failure = _OUTCOMES[int(status)]
-        return dataclasses.replace(
-            state, x=carry["x"], value=float(f), grad=carry["g"], iteration=int(it),
-            step_size=float(t), decrement=float(dec), prev_value=float(prev), failure=failure,
-            evaluations=int(nfev), aux=dict(state.aux, carry=carry, status=int(status)),
-        )
+    @staticmethod
+    def _state(state, carry) -> State:
+        """``state`` at the carry's map, with its statistics pulled to the host."""
+        return dataclasses.replace(state, x=carry["x"], grad=carry["g"], stats=_host_stats(carry["stats"]),
+                                   memory=state.memory._replace(carry=carry))
 
     @functools.cached_property
     def _kernel_key(self):
@@ -306,67 +292,60 @@ class LBFGS(AbstractSolver):
         return dataclasses.replace(self, max_steps=1)
 
     # -- the interface ----------------------------------------------------------------
-    def init(self, objective, x0, params, *, precompile: str | None = "step") -> State:
-        """The start state.  ``precompile`` (``"step"``, ``"run"`` or None) compiles the
-        iteration kernel now (``step`` and ``run`` share it), so that setup time holds the
-        compilation."""
+    def init(self, objective, x0, params, *, precompile: bool = True) -> State:
+        """The start state.  ``precompile`` compiles the iteration kernel now (``step`` and
+        ``advance`` share it), so that setup time holds the compilation."""
         density, geom, free = self._args(objective)
-        if precompile not in ("step", "run", None):
-            raise ParameterError(f"precompile must be 'step', 'run' or None, got {precompile!r}")
+        if precompile not in (True, False):
+            raise ParameterError(f"precompile must be True or False, got {precompile!r}")
         # a private copy put on the device as it is (jnp.asarray would compile a copy program
         # per shape)
         x = jax.device_put(np.array(objective.pad_map(np.asarray(x0, dtype=np.float64))))
         pre = RestLaplacian.register(objective, self.laplacian) if self.precondition == "laplacian" else None
-        extent0 = reference_extent(objective, x0)
+        stats = start_stats(objective, x0, math.nan)
         blank = _blank_carry(self.history, self.precondition, self.window, x,
-                             pre.token if pre is not None else -1, extent0)
+                             pre.token if pre is not None else -1, stats)
         carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, params, blank)
-        if precompile is not None:  # zero iterations: compiles (or loads) the loop, changes nothing
+        floor = max(1e-12 * abs(float(carry["stats"].value)), 1e-300)
+        carry = dict(carry, stats=carry["stats"]._replace(floor=jax.device_put(np.float64(floor))))
+        if precompile:  # zero iterations: compiles (or loads) the loop, changes nothing
             _run_kernel(self._kernel_key, density, geom, free, params, carry, jnp.int32(0))
-        state = State(objective, params, x, float(carry["f"]), carry["g"], extent0=extent0,
-                      aux={"carry": carry, "status": RUNNING, "preconditioner": pre})
-        return self._state(state, carry)
+        return self._state(State(objective, params, x, carry["g"], stats, LBFGSMemory(carry, pre)), carry)
 
-    def _iterations(self, state: State, limit: int) -> State:
+    def advance(self, state: State, limit: int) -> State:
+        """Iterations in one jitted loop until the termination stops or ``state.iteration``
+        reaches ``limit``."""
         density, geom, free = self._args(state.objective)
-        carry = _run_kernel(self._kernel_key, density, geom, free, state.params, state.aux["carry"],
+        carry = _run_kernel(self._kernel_key, density, geom, free, state.params, state.memory.carry,
                             jnp.int32(limit))
         return self._state(state, carry)
 
     def step(self, state: State) -> State:
-        """One iteration (none when the state has stopped: see :meth:`terminate`)."""
-        return self._iterations(state, state.iteration + 1)
-
-    def run(self, state: State, max_steps: int | None = None) -> State:
-        """Iterate inside one jitted loop until ``terminate`` would stop (or ``max_steps``
-        more iterations); returns the final state."""
-        if state.aux["status"] != RUNNING:
-            return state
-        limit = self.max_steps if max_steps is None else min(self.max_steps, state.iteration + int(max_steps))
-        return self._iterations(state, limit)
-
-    def terminate(self, state: State):
-        status = state.aux["status"]
-        if status != RUNNING:
-            return True, _OUTCOMES[status]
-        if not np.isfinite(state.value):
-            return True, Outcome.NONFINITE
-        if state.iteration >= self.max_steps:
-            return True, Outcome.MAX_STEPS
-        return False, None
-
-    def with_params(self, state: State, params) -> State:
-        """The state with new energy parameters (value and gradient re-evaluated); the
-        curvature memory is kept.  Used by continuation loops (eps in untangling)."""
+        """One iteration (the kernel of :meth:`advance` with a limit one further)."""
         density, geom, free = self._args(state.objective)
-        carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, params,
-                                state.aux["carry"])
-        state = dataclasses.replace(state, params=params, failure=None)
+        carry = _run_kernel(self._kernel_key, density, geom, free, state.params, state.memory.carry,
+                            jnp.int32(state.iteration + 1))
         return self._state(state, carry)
 
-    def forget(self, state: State) -> State:
-        """The state with the curvature memory cleared (a restart)."""
-        carry = state.aux["carry"]
+    def reparam(self, state: State, params) -> State:
+        """The state with new energy parameters (value and gradient re-evaluated); the
+        curvature memory is kept.  Used by continuations (eps in untangling)."""
+        density, geom, free = self._args(state.objective)
+        carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, params,
+                                state.memory.carry)
+        return self._state(dataclasses.replace(state, params=params), carry)
+
+    def restart(self, state: State, x=None) -> State:
+        """The state with the curvature memory cleared; moved to ``x`` (value and gradient
+        re-evaluated there, counters kept) when given."""
+        carry = state.memory.carry
         # host-built constants: no per-shape fill kernel to compile or dispatch
         carry = dict(carry, **jax.device_put({"k": np.int32(0), "H0": np.ones(carry["H0"].shape)}))
-        return dataclasses.replace(state, aux=dict(state.aux, carry=carry))
+        if x is None:
+            return dataclasses.replace(state, memory=state.memory._replace(carry=carry))
+        density, geom, free = self._args(state.objective)
+        old = carry["stats"]
+        carry = _reparam_kernel(self.precondition == "laplacian", density, geom, free, state.params,
+                                dict(carry, x=jax.device_put(np.asarray(x, np.float64))))
+        carry["stats"] = carry["stats"]._replace(iteration=old.iteration, evaluations=old.evaluations + 1)
+        return self._state(state, carry)

@@ -15,7 +15,7 @@ no barrier (ARAP, Dirichlet).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import equinox as eqx
 import jax
@@ -24,10 +24,9 @@ import numpy as np
 import optimistix as optx
 
 from .._errors import ParameterError
-from .._geometry import dets
 from .._objective import total_energy
-from ..linesearch import InjectiveSearch, injective_step_bound, still_positive
-from ._base import AbstractSolver, Outcome, State, reference_extent
+from ..linesearch import InjectiveSearch
+from ._base import AbstractSolver, State, map_extent, start_stats
 
 __all__ = ["Optimistix", "OptxInjectiveSearch", "ObjectiveFunction", "objective_function"]
 
@@ -49,7 +48,7 @@ class ObjectiveFunction(eqx.Module):
 def objective_function(objective, x0) -> ObjectiveFunction:
     """The :class:`ObjectiveFunction` of an :class:`~geomopt.Objective`, fixed vertices at ``x0``."""
     x0 = jnp.asarray(objective.prepare_map(x0))
-    return ObjectiveFunction(objective.energy.density, objective.geom, objective._free, x0)
+    return ObjectiveFunction(objective.energy.density, objective.geom, objective.free_mask, x0)
 
 
 class _WithAux(eqx.Module):
@@ -61,7 +60,9 @@ class _WithAux(eqx.Module):
 
 class OptxInjectiveSearch(optx.AbstractSearch):
     """An optimistix search that keeps every positively oriented element positive, then
-    backtracks (Armijo) with the constants of a geomopt :class:`InjectiveSearch`."""
+    backtracks (Armijo): the accept and next-trial rules of a geomopt :class:`InjectiveSearch`
+    (:meth:`~InjectiveSearch.admissible`, :meth:`~InjectiveSearch.sufficient`,
+    :meth:`~InjectiveSearch.next_trial`) applied to optimistix's proposed step."""
 
     simplices: jax.Array
     config: InjectiveSearch = eqx.field(static=True)
@@ -70,20 +71,18 @@ class OptxInjectiveSearch(optx.AbstractSearch):
         return jnp.asarray(1.0, jnp.float64)
 
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
-        cfg = self.config
+        cfg, S = self.config, self.simplices
         diff = y_eval - y
         slope = f_info.compute_grad_dot(diff)
         f, fe = f_info.as_min(), f_eval_info.as_min()
-        if cfg.injective:
-            tmax = injective_step_bound(self.simplices, y, diff)
-            pos = (cfg.safety * tmax >= 1.0) & still_positive(self.simplices, y, diff, 1.0,
-                                                               dets(self.simplices, y) > 0)
-            cut = jnp.minimum(cfg.shrink, cfg.safety * tmax)
-        else:
-            pos, cut = jnp.bool_(True), jnp.asarray(cfg.shrink)
-        armijo = pos & jnp.isfinite(fe) & (slope <= 0) & (fe - f <= cfg.c1 * slope)
+        cap = cfg.cap(S, y, diff)  # in units of the proposed step
+        one = jnp.asarray(1.0, jnp.float64)
+        good = cfg.admissible(S, y, diff, one, cfg.positive(S, y), fe, cap)
+        armijo = good & (slope <= 0) & cfg.sufficient(f, fe, one, slope)
         accept = first_step | armijo
-        size = jnp.where(accept, 1.0, state * jnp.where(pos, cfg.shrink, cut))
+        cut, _, _ = cfg.next_trial(one, jnp.zeros_like(one), jnp.asarray(jnp.inf, jnp.float64),
+                                   jnp.bool_(False), cap)
+        size = jnp.where(accept, 1.0, state * cut)
         return size, accept, optx.RESULTS.successful, size
 
 
@@ -102,6 +101,15 @@ def _optx_step(osolver, fn, y, params, ostate):
     return y, ostate, done, result == optx.RESULTS.successful, f, g
 
 
+class OptxMemory(NamedTuple):
+    """The optimistix solver (with :class:`OptxInjectiveSearch`), the function it minimises
+    and its state."""
+
+    osolver: Any
+    fn: Any
+    ostate: Any
+
+
 @dataclasses.dataclass(frozen=True)
 class Optimistix(AbstractSolver):
     """An optimistix minimiser driven by geomopt with the injective search.
@@ -112,10 +120,11 @@ class Optimistix(AbstractSolver):
         ``optx.BFGS(rtol=1e-8, atol=1e-8)``, ``optx.LBFGS(...)``, ``optx.NonlinearCG(...)``,
         ``optx.GradientDescent(learning_rate=..., ...)`` is *not* one (fixed step size: use a
         custom ``optx.AbstractGradientDescent`` subclass with a search).  Its own tolerances
-        decide convergence.
+        decide convergence (``Stats.done``); geomopt's :class:`~geomopt.solvers.Termination`
+        adds the step limit, non-finite values and divergence.
     max_steps : iteration limit.
-    search : the geomopt :class:`~geomopt.linesearch.InjectiveSearch` whose constants
-        (``injective``, ``safety``, ``c1``, ``shrink``) :class:`OptxInjectiveSearch` uses.
+    search : the geomopt :class:`~geomopt.linesearch.InjectiveSearch` whose rules
+        (``injective``, ``safety``, ``c1``, ``shrink``) :class:`OptxInjectiveSearch` applies.
     """
 
     solver: Any = None
@@ -137,26 +146,22 @@ class Optimistix(AbstractSolver):
         y = jnp.asarray(objective.pad_map(np.asarray(x0, np.float64)))
         ostate = _optx_init(osolver, fn, y, params)
         value, grad = objective.value_and_grad(y, params)
-        aux = {"fn": fn, "osolver": osolver, "ostate": ostate, "done": False, "ok": True}
         _optx_step(osolver, fn, y, params, ostate)  # compile now: setup time holds it
-        return State(objective, params, y, float(value), grad, extent0=reference_extent(objective, x0),
-                     aux=aux)
+        # optimistix decides convergence: geomopt's decrement and stall tests stay off
+        stats = start_stats(objective, x0, float(value))
+        return State(objective, params, y, grad, stats, OptxMemory(osolver, fn, ostate))
 
     def step(self, state: State) -> State:
-        a = state.aux
-        y, ostate, done, ok, f, g = _optx_step(a["osolver"], a["fn"], state.x, state.params, a["ostate"])
-        grad = g * state.objective._free if g is not None else state.grad
-        return dataclasses.replace(
-            state, x=y, value=float(f), grad=grad, iteration=state.iteration + 1,
-            prev_value=state.value, evaluations=state.evaluations + 1,
-            failure=None if bool(ok) else Outcome.LINE_SEARCH_FAILED,
-            aux=dict(a, ostate=ostate, done=bool(done)))
+        m = state.memory
+        y, ostate, done, ok, f, g = _optx_step(m.osolver, m.fn, state.x, state.params, m.ostate)
+        grad = g * state.objective.free_mask if g is not None else state.grad
+        return state.update(x=y, value=float(f), grad=grad, iteration=state.iteration + 1,
+                            evaluations=state.evaluations + 1, accepted=bool(ok), done=bool(done),
+                            extent=map_extent(y), memory=m._replace(ostate=ostate))
 
-    def terminate(self, state: State):
-        done, outcome = super().terminate(dataclasses.replace(state, decrement=float("inf"),
-                                                              prev_value=float("inf")))
-        if done:
-            return done, outcome
-        if state.aux["done"]:
-            return True, Outcome.CONVERGED
-        return False, None
+    def restart(self, state: State, x=None) -> State:
+        """A fresh optimistix state (its memory dropped) at ``x`` or the current map."""
+        m = state.memory
+        state = state if x is None else self._moved(state, x)
+        return dataclasses.replace(state, memory=m._replace(ostate=_optx_init(m.osolver, m.fn, state.x,
+                                                                              state.params)))

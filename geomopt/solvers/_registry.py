@@ -1,0 +1,43 @@
+"""Solvers by name: :data:`SOLVERS` and :func:`get_solver`."""
+
+from __future__ import annotations
+
+from .._errors import ParameterError
+from ._base import AbstractSolver
+from .aqp import AQP
+from .lbfgs import LBFGS
+from .newton import CM, SLIM, Newton
+
+
+def _optx(kind):
+    def make():
+        import optimistix as optx  # imported when asked for: it is slow to import
+
+        from .optimistix import Optimistix
+
+        tol = dict(rtol=1e-10, atol=1e-10)
+        solver = {"bfgs": lambda: optx.BFGS(**tol), "lbfgs": lambda: optx.LBFGS(**tol),
+                  "ncg": lambda: optx.NonlinearCG(**tol)}[kind]()
+        return Optimistix(solver)
+
+    return make
+
+
+#: name -> factory of a default-configured solver
+SOLVERS = {
+    "newton": Newton, "lbfgs": LBFGS, "slim": SLIM, "aqp": AQP, "cm": CM,
+    "optx-bfgs": _optx("bfgs"), "optx-lbfgs": _optx("lbfgs"), "optx-ncg": _optx("ncg"),
+}
+
+
+def get_solver(name_or_solver) -> AbstractSolver:
+    """A solver object by name (:data:`SOLVERS`), or the object itself."""
+    if isinstance(name_or_solver, AbstractSolver):
+        return name_or_solver
+    if not isinstance(name_or_solver, str):
+        raise ParameterError(f"solver must be a name ({', '.join(SOLVERS)}) or a solver object, "
+                             f"got {type(name_or_solver).__name__}")
+    key = name_or_solver.strip().lower().replace("_", "-")
+    if key not in SOLVERS:
+        raise ParameterError(f"unknown solver {name_or_solver!r}; valid solvers: {', '.join(SOLVERS)}")
+    return SOLVERS[key]()

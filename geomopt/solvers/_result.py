@@ -1,0 +1,311 @@
+"""The one result type of every solve: :func:`minimize`, :func:`~geomopt.untangle.untangle`,
+:func:`~geomopt.parameterize` and the bijective mode.
+
+``Result(x, outcome, certificate, stats, trace)`` with typed parts: the map, how the solve
+ended, an exact certificate of the map, the run's totals (:class:`RunStats`) and histories
+(:class:`Trace`); plus what was solved (``problem``, ``objective``, ``solver``), why it stopped
+(``reason``) and a driver's typed ``details`` (:class:`UntangleDetails`, :class:`ParamDetails`).
+
+Energies: :attr:`Result.energy` is the total ``sum_e vol_e psi(J_e)`` of the map at the end;
+:attr:`Result.mean_energy` is that total divided by the total rest area (2D) or volume (3D),
+``RunStats.volume``: the area-weighted mean density (4 at an isometry for symmetric Dirichlet in
+2D).  Untangling reports both in its normalised frame (the rest mesh scaled to the map's
+volume).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import operator
+import warnings
+from typing import Any
+
+import numpy as np
+
+from .. import certify
+from ._termination import Outcome
+
+__all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails", "ParamDetails",
+           "local_certificate"]
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalCertificate(certify.LocalCertificate):
+    """Exact checks that a map is locally injective (:class:`geomopt.certify.LocalCertificate`:
+    every element positively oriented, and the elements around every vertex and edge covering
+    its neighbourhood once), and that its handles are in place.
+
+    Attributes
+    ----------
+    handles_moved : int, fixed vertices whose position differs from the prescribed one in any
+        bit; the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
+        ``branch_vertices``, ``branch_edges``, ``boundary_overlaps``...).
+    """
+
+    handles_moved: int = 0
+
+    @property
+    def locally_injective(self) -> bool:
+        return self.ok
+
+    @property
+    def globally_injective(self) -> bool:
+        """Not certified by local checks (see :func:`geomopt.certify.certify_bijective`)."""
+        return False
+
+    @property
+    def injectivity(self) -> str:
+        """``"local"`` or ``"none"``."""
+        return "local" if self.ok else "none"
+
+    @property
+    def valid(self) -> bool:
+        """Locally injective with every handle exactly in place."""
+        return self.ok and self.handles_moved == 0
+
+
+def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) -> LocalCertificate:
+    """The :class:`LocalCertificate` of the map ``x`` (n, d) of ``problem`` (its simplices,
+    positive when ``orientation`` is +1): :func:`geomopt.certify.local_certificate` plus
+    ``handles_moved``."""
+    exact = certify.local_certificate(x, problem.simplices, orientation)
+    return LocalCertificate(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(exact)},
+                            handles_moved=int(handles_moved))
+
+
+@dataclasses.dataclass(frozen=True)
+class RunStats:
+    """Totals of a solve.
+
+    Attributes
+    ----------
+    iterations : solver iterations, summed over every phase (untangling: the inner iterations).
+    evaluations : energy (and gradient) evaluations.
+    outer_iterations : continuation steps (untangling's eps updates, scaffold rebuilds).
+    seconds : time of the loop (set-up excluded);  setup_seconds : set-up (pattern, symbolic
+        factorization, JIT compilation or cache loading, scaling).
+    energy : the final total energy;  volume : the total rest area/volume it is measured
+        against (see the module notes).
+    inverted_at_start : elements inverted in the start map (exact), where the solve counted them.
+    certify_seconds : time of the final exact certificate (part of neither ``seconds`` nor
+        ``setup_seconds``).
+    cpu_seconds, setup_cpu_seconds : process-CPU seconds of the loop and of the set-up.
+    """
+
+    iterations: int = 0
+    evaluations: int = 0
+    outer_iterations: int = 0
+    seconds: float = 0.0
+    setup_seconds: float = 0.0
+    energy: float = math.nan
+    volume: float = math.nan
+    inverted_at_start: int | None = None
+    certify_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    setup_cpu_seconds: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Trace:
+    """Histories of a solve.
+
+    Attributes
+    ----------
+    energy, seconds, grad_norm : (k,) the total energy, the solve seconds and ``|grad E|``
+        (free DOFs) at each recorded point: every iterate, the start first, when the solve
+        traced them; else the end of every phase (an outer iteration), where the phase record's
+        ``energy`` (if it has one) is the energy.
+    flips : (k,) int, inverted elements of each recorded iterate where counted (``compare``),
+        else None.
+    phases : one record per outer iteration (a NamedTuple of the continuation, e.g.
+        :class:`geomopt.untangle.UntangleRecord`); :meth:`column` reads one field of them.
+    cpu_seconds : (k,) the process-CPU seconds of the solve at each recorded point.
+    """
+
+    energy: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    seconds: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    grad_norm: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    flips: np.ndarray | None = None
+    phases: tuple = ()
+    cpu_seconds: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    def column(self, name: str, dtype=np.float64) -> np.ndarray:
+        """(outer iterations,) field ``name`` of every phase record."""
+        return np.asarray([getattr(r, name) for r in self.phases], dtype=dtype)
+
+
+@dataclasses.dataclass(frozen=True)
+class UntangleDetails:
+    """What :func:`~geomopt.untangle.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
+    the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, and the
+    elements that have a free vertex (``active_elements``)."""
+
+    theta: float
+    lam: float
+    map_scale: float = 1.0
+    rest_scale: float = 1.0
+    active_elements: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamDetails:
+    """What :func:`~geomopt.parameterize` adds: the ``start`` map (n, 2) after scaling, the
+    ``scale`` applied to it, the ``repair`` (a :class:`Result` of the untangling of a folded
+    start, or None); the bijective mode's scaffold-free iterations (``free_iterations``), edge
+    ``flips`` and final ``scaffold_triangles``."""
+
+    start: Any = None
+    scale: float = 1.0
+    repair: Any = None
+    free_iterations: int = 0
+    flips: int = 0
+    scaffold_triangles: int = 0
+
+
+def _failures(cert) -> int:
+    """Interior vertices and edges around which ``cert`` found the map not locally injective."""
+    return len(getattr(cert, "branch_vertices", ())) + len(getattr(cert, "branch_edges", ()))
+
+
+def _deprecated(old: str, new: str):
+    read = operator.attrgetter(new)
+
+    def get(self):
+        warnings.warn(f"Result.{old} is deprecated; use Result.{new}", DeprecationWarning, stacklevel=2)
+        return read(self)
+
+    return property(get, doc=f"Deprecated alias of :attr:`{new}`.")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Result:
+    """The outcome of a solve.
+
+    Attributes
+    ----------
+    x : (n, d) ndarray, the map (input frame; handles bit-identical to the prescribed ones).
+    outcome : :class:`~geomopt.solvers.Outcome`.
+    certificate : the exact certificate of ``x``: :class:`LocalCertificate` (``inverted``,
+        ``branch_vertices``, ``boundary_overlaps``..., ``handles_moved``), or for free-boundary
+        parameterization
+        :class:`geomopt.certify.Certificate` (global: boundary crossings too).  Every
+        certificate has ``inverted``, ``locally_injective`` and ``injectivity``.
+    stats : :class:`RunStats`;  trace : :class:`Trace`.
+    problem : the :class:`~geomopt.Problem` ``x`` maps;  objective : the
+        :class:`~geomopt.Objective` minimised (energy and parameters);  solver : the solver.
+    reason : why the solve stopped, when the outcome alone does not say (divergence, a time
+        limit, branch points...), else "".
+    details : :class:`UntangleDetails` or :class:`ParamDetails` (the driver's own), or None.
+    """
+
+    x: np.ndarray
+    outcome: Outcome
+    certificate: Any
+    stats: RunStats = RunStats()
+    trace: Trace = Trace()
+    problem: Any = None
+    objective: Any = None
+    solver: Any = None
+    reason: str = ""
+    details: Any = None
+
+    @property
+    def success(self) -> bool:
+        """Converged and certified: no inverted element, no branch point, handles in place."""
+        return (self.outcome is Outcome.CONVERGED and self.certificate.locally_injective
+                and getattr(self.certificate, "handles_moved", 0) == 0)
+
+    @property
+    def energy(self) -> float:
+        """The final total energy ``sum_e vol_e psi(J_e)``."""
+        return self.stats.energy
+
+    @property
+    def mean_energy(self) -> float:
+        """:attr:`energy` divided by the total rest area/volume (see the module notes)."""
+        return self.stats.energy / self.stats.volume
+
+    @property
+    def injectivity(self) -> str:
+        """``"global"`` (exact certificate: flip-free and the boundary does not overlap itself),
+        ``"local"`` (flip-free) or ``"none"``."""
+        return self.certificate.injectivity
+
+    @property
+    def min_det_rel(self) -> float:
+        """The smallest signed area/volume of ``x`` over the mean absolute one (nan when every
+        element is degenerate or there is no problem)."""
+        if self.problem is None:
+            return math.nan
+        vols = self.problem.signed_volumes(self.x)
+        scale = float(np.mean(np.abs(vols)))
+        return float(vols.min() / scale) if scale > 0 else math.nan
+
+    @property
+    def message(self) -> str:
+        cert = self.certificate
+        if self.reason and self.outcome is not Outcome.DIVERGED:
+            msg = self.reason
+        else:
+            msg = self.outcome.message + (f" ({self.reason})" if self.reason else "")
+        if cert.inverted:
+            msg += f"; {cert.inverted} inverted element(s)"
+        if getattr(cert, "handles_moved", 0):
+            msg += f"; {cert.handles_moved} handle(s) moved"
+        return msg
+
+    # -- deprecated aliases (one release) ---------------------------------------------
+    inverted = _deprecated("inverted", "certificate.inverted")
+    iterations = _deprecated("iterations", "stats.iterations")
+    inner_iterations = _deprecated("inner_iterations", "stats.iterations")
+    outer_iterations = _deprecated("outer_iterations", "stats.outer_iterations")
+    seconds = _deprecated("seconds", "stats.seconds")
+    setup_seconds = _deprecated("setup_seconds", "stats.setup_seconds")
+    initially_inverted = _deprecated("initially_inverted", "stats.inverted_at_start")
+    handles_moved = _deprecated("handles_moved", "certificate.handles_moved")
+    energy_history = _deprecated("energy_history", "trace.energy")
+    time_history = _deprecated("time_history", "trace.seconds")
+    grad_history = _deprecated("grad_history", "trace.grad_norm")
+
+    @property
+    def eps_history(self):
+        """Deprecated: ``trace.column("eps")``."""
+        warnings.warn("Result.eps_history is deprecated; use Result.trace.column('eps')", DeprecationWarning,
+                      stacklevel=2)
+        return self.trace.column("eps")
+
+    @property
+    def min_det_history(self):
+        """Deprecated: ``trace.column("min_det")``."""
+        warnings.warn("Result.min_det_history is deprecated; use Result.trace.column('min_det')",
+                      DeprecationWarning, stacklevel=2)
+        return self.trace.column("min_det")
+
+    @property
+    def inverted_history(self):
+        """Deprecated: ``trace.column("inverted", int)``."""
+        warnings.warn("Result.inverted_history is deprecated; use Result.trace.column('inverted', int)",
+                      DeprecationWarning, stacklevel=2)
+        return self.trace.column("inverted", np.int64)
+
+    @property
+    def info(self) -> dict:
+        """Deprecated: the old ``info`` dict, rebuilt from the typed fields."""
+        warnings.warn("Result.info is deprecated; use the typed fields (stats, certificate, details, "
+                      "objective, problem, solver, reason)", DeprecationWarning, stacklevel=2)
+        info = {"solver": self.solver, "evaluations": self.stats.evaluations, "objective": self.objective,
+                "problem": self.problem, "certificate": self.certificate, "injectivity": self.injectivity,
+                "elements": None if self.problem is None else self.problem.n_elements,
+                "outer_iterations": self.stats.outer_iterations,
+                "local_certificate": getattr(self.certificate, "local", self.certificate),
+                "branch_vertices": _failures(getattr(self.certificate, "local", self.certificate))}
+        if self.reason:
+            info["reason"] = self.reason
+        if self.trace.flips is not None:
+            info["flips_history"] = self.trace.flips
+            info["stopped"] = self.reason or None
+        if self.details is not None:
+            info.update(dataclasses.asdict(self.details) if not isinstance(self.details, ParamDetails)
+                        else vars(self.details))
+        return info

@@ -1,0 +1,225 @@
+"""The one loop (``iterate``), the one stopping rule (``Termination``), the one ``Result`` and
+the validated options: each protocol exercised, and the rule checked equal on host and traced
+values."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import Objective, Outcome, ParameterError, Problem, minimize
+from geomopt import generators as G
+from geomopt.solvers import (LBFGS, AbstractContinuation, Decision, Final, Newton, Progress, Result, Stats,
+                             Termination, iterate, local_certificate)
+from geomopt.solvers._termination import RUNNING
+from geomopt.untangle import UntangleOptions, untangle
+
+from conftest import grid
+
+
+def _objective(energy="symmetric_dirichlet"):
+    V, F = G.disk_mesh(4)
+    b = G.boundary_vertices(F, len(V))
+    target = V.copy()
+    target[b] = V[b] * [1.3, 0.8]
+    return Objective(Problem.planar(V, F, b, target[b]), energy), V
+
+
+# ------------------------------------------------------------------ the stopping rule
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_termination_is_the_same_rule_on_host_and_traced_values(seed):
+    """One rule, two evaluations: host floats (between steps) and traced scalars (inside
+    L-BFGS's while_loop) give the same code on random statistics, edge cases included."""
+    rng = np.random.default_rng(seed)
+    rule = Termination(rtol=1e-6, ftol=1e-6, stall=5e-4, gtol=1e-3, flat=1e-12, max_steps=10)
+    traced = jax.jit(rule.status)
+    pick = [1.0, 0.0, -1.0, 1e-300, 1e-7, math.inf, -math.inf, math.nan, 2.0, 1e8]
+    for _ in range(200):
+        s = Stats(
+            iteration=int(rng.integers(0, 3)), value=float(rng.choice(pick)), past_value=float(rng.choice(pick)),
+            decrement=float(rng.choice(pick)), step_size=1.0, grad_norm=float(rng.choice(pick)),
+            grad_norm0=float(rng.choice(pick)), extent=float(rng.choice([1.0, 1e7, 1e-7])), extent0=1.0,
+            accepted=bool(rng.integers(0, 2)), broken=bool(rng.integers(0, 5) == 0),
+            done=bool(rng.integers(0, 5) == 0), evaluations=1, floor=1e-300,
+            lower=float(rng.choice([-math.inf, 0.0])), lower_tol=1e-8)
+        device = Stats(*(jnp.asarray(v) for v in s))
+        assert rule.status(s) == int(traced(device)), s
+
+
+def test_termination_orders_its_tests():
+    rule = Termination(rtol=1e-10, max_steps=5)
+    base = Stats(iteration=1, value=1.0, decrement=1.0, extent=1.0, extent0=1.0)
+    assert rule(base) == RUNNING
+    assert rule(base._replace(iteration=5)) == Outcome.MAX_STEPS.code
+    assert rule(base._replace(decrement=1e-11)) == Outcome.CONVERGED.code
+    assert rule(base._replace(accepted=False)) == Outcome.LINE_SEARCH_FAILED.code
+    assert rule(base._replace(accepted=False, decrement=1e-15)) == Outcome.CONVERGED.code  # flat
+    assert rule(base._replace(value=math.nan, accepted=False)) == Outcome.NONFINITE.code
+    assert rule(base._replace(extent=1e7)) == Outcome.DIVERGED.code
+    assert rule(base._replace(value=-1.0, lower=0.0)) == Outcome.DIVERGED.code
+    # a stalled energy is convergence only while little more is promised
+    stalled = base._replace(past_value=1.0 + 1e-13)
+    assert rule(stalled._replace(decrement=1e-6)) == Outcome.CONVERGED.code
+    assert rule(stalled._replace(decrement=1e-3)) == RUNNING
+
+
+# ------------------------------------------------------------------ the loop's protocols
+
+
+class _Halving(AbstractContinuation):
+    """Three phases of one iteration, a record for each; after the second the solver's
+    memory is dropped; the third ends the solve."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, state, outcome):
+        self.calls.append((state.iteration, outcome))
+        k = len(self.calls)
+        record = _Rec(k, state.value)
+        if k == 3:
+            return Decision.stop_with(Outcome.CONVERGED, "three phases", record)
+        return Decision.go(restart=k == 2, record=record)
+
+    def finish(self, state, outcome, reason):
+        x = np.asarray(state.x)
+        return Final(x, outcome, local_certificate(state.objective.problem, x), reason)
+
+
+class _Rec(tuple):
+    def __new__(cls, k, energy):
+        return tuple.__new__(cls, (k, energy))
+
+    @property
+    def energy(self):
+        return self[1]
+
+    def line(self, k):
+        return f"phase {k} energy {self.energy:.6g}"
+
+
+def test_a_continuation_gets_each_phase_and_its_records_reach_trace_and_progress(capsys):
+    obj, V = _objective()
+    cont = _Halving()
+    solver = Newton(max_steps=1)
+    res = iterate(solver, obj, obj.prepare_map(V), obj.params(), continuation=cont, trace=False,
+                  progress=Progress(iterations=False))
+    assert [o for _, o in cont.calls] == [Outcome.MAX_STEPS, Outcome.MAX_STEPS, Outcome.MAX_STEPS]
+    assert res.outcome is Outcome.CONVERGED and res.reason == "three phases"
+    assert res.stats.outer_iterations == 3 and res.stats.iterations == 3
+    assert len(res.trace.phases) == 3 and len(res.trace.energy) == 3
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert [line.split()[:2] for line in lines] == [["phase", "1"], ["phase", "2"], ["phase", "3"]]
+
+
+def test_a_guard_shortens_steps_and_can_end_a_phase():
+    """The guard sees every step: a shortened state is taken as it is, None ends the phase at
+    the old iterate (the continuation, or the result, sees the outcome None)."""
+    obj, V = _objective()
+    seen = []
+
+    def guard(solver, old, new):
+        seen.append(new.iteration)
+        if new.iteration == 2:
+            return solver.restart(new, x=old.x + 0.5 * (new.x - old.x)).update(step_size=0.5 * new.step_size)
+        return None if new.iteration == 4 else new
+
+    res = iterate(Newton(), obj, obj.prepare_map(V), obj.params(), guard=guard, trace=True)
+    assert seen == [1, 2, 3, 4]
+    assert res.stats.iterations == 3 and res.outcome is Outcome.LINE_SEARCH_FAILED
+    assert len(res.trace.energy) == 4 and np.all(np.diff(res.trace.energy) < 0)
+
+
+def test_an_observer_stops_the_solve_with_its_reason():
+    obj, V = _objective()
+    res = iterate(LBFGS(), obj, obj.prepare_map(V), obj.params(),
+                  observe=lambda state, seconds: "enough" if state.iteration >= 2 else None)
+    assert res.outcome is Outcome.MAX_STEPS and res.reason == "enough" and res.stats.iterations == 2
+
+
+def test_lbfgs_advances_in_its_kernel_to_the_same_iterate_as_stepping():
+    obj, V = _objective()
+    x0 = obj.prepare_map(V)
+    stepped = iterate(LBFGS(), obj, x0, obj.params(), trace=True)
+    advanced = iterate(LBFGS(), obj, x0, obj.params(), trace=False)
+    assert stepped.stats.iterations == advanced.stats.iterations > 3
+    assert stepped.stats.evaluations == advanced.stats.evaluations
+    np.testing.assert_array_equal(stepped.x, advanced.x)
+    assert len(advanced.trace.energy) == 0 and len(stepped.trace.energy) == stepped.stats.iterations + 1
+
+
+# ------------------------------------------------------------------ Result
+
+
+def test_result_energies_and_deprecated_aliases():
+    obj, V = _objective()
+    res = minimize(obj, V, progress=False)
+    assert res.energy == pytest.approx(float(obj.value(res.x, obj.params())), rel=1e-12)
+    assert res.mean_energy == res.energy / obj.total_volume
+    for old, new in [("inverted", res.certificate.inverted), ("iterations", res.stats.iterations),
+                     ("seconds", res.stats.seconds), ("setup_seconds", res.stats.setup_seconds)]:
+        with pytest.warns(DeprecationWarning, match=f"Result.{old} is deprecated"):
+            assert getattr(res, old) == new
+    with pytest.warns(DeprecationWarning):
+        np.testing.assert_array_equal(res.energy_history, res.trace.energy)
+    with pytest.warns(DeprecationWarning):
+        assert res.info["evaluations"] == res.stats.evaluations and res.info["solver"] is res.solver
+    t = G.rotated_interior(*G.square_mesh(6), 90.0)
+    u = untangle(t.problem(), t.x0, progress=False)
+    assert u.success and isinstance(u, geomopt.untangle.UntangleResult)
+    with pytest.warns(DeprecationWarning):
+        assert list(u.eps_history) == list(u.trace.column("eps"))
+    with pytest.warns(DeprecationWarning):
+        assert u.initially_inverted == u.stats.inverted_at_start == t.inverted()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert u.injectivity == "local" and u.message == "converged" and u.min_det_rel > 0
+
+
+# ------------------------------------------------------------------ options
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda V, F: geomopt.parameterize(V, F, bijective="no", progress=False), "bijective must be True or False"),
+    (lambda V, F: geomopt.parameterize(V, F, buckets=1, progress=False), "buckets must be True or False"),
+    (lambda V, F: geomopt.parameterize(V, F, energy="garanzha", lam="1", progress=False), "lam='1' must be a number"),
+    (lambda V, F: geomopt.parameterize(V, F, bijective=True, lazy="yes", progress=False), "lazy must be True or False"),
+    (lambda V, F: geomopt.parameterize(V, F, bijective=True, inner_steps=2.5, progress=False),
+     "inner_steps must be an integer"),
+])
+def test_parameterize_refuses_mistyped_options(call, message):
+    V, F = grid(4)
+    V3 = np.c_[V, np.zeros(len(V))]
+    with pytest.raises(ParameterError, match=message) as err:
+        call(V3, F)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(keep_memory="no"), "keep_memory must be True or False"),
+    (dict(max_outer=0), "max_outer must be an integer >= 1"),
+    (dict(theta=1.5), "theta must be None or a finite number in"),
+    (dict(min_sigma=0.6, max_sigma=0.5), "min_sigma <= max_sigma"),
+    (dict(bucket="yes"), "bucket must be True or False"),
+    (dict(max_outr=3), "unknown keyword argument"),
+])
+def test_untangle_options_are_validated(bad, message):
+    t = G.rotated_interior(*G.square_mesh(4), 90.0)
+    with pytest.raises(ParameterError, match=message):
+        untangle(t.problem(), t.x0, progress=False, **bad)
+    with pytest.raises(ParameterError, match=message):
+        if "max_outr" in bad:
+            raise ParameterError("untangle: unknown keyword argument")
+        UntangleOptions(**bad)
+    ok = UntangleOptions(max_outer=3.0, theta=None)
+    assert ok.max_outer == 3 and isinstance(ok.max_outer, int)
+    assert dataclasses.replace(ok, keep_memory=False).keep_memory is False
