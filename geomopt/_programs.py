@@ -33,6 +33,7 @@ import os
 import pickle
 import sys
 import types
+import weakref
 
 import jax
 import numpy as np
@@ -46,6 +47,7 @@ _fingerprints: dict = {}
 #: what happened to each program since start-up: "loaded" (from disk), "stored" (compiled here
 #: and written), "plain" (through jax.jit); for tests and benchmarks
 stats = {"loaded": 0, "stored": 0, "plain": 0}
+_programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
 
 
 def _source_fingerprint(module_name: str) -> str:
@@ -120,6 +122,7 @@ class Program:
         self.plain = jax.jit(fun, static_argnums=self.static, compiler_options=self.options or None)
         self._calls: dict = {}
         functools.update_wrapper(self, fun)
+        _programs.add(self)
 
     def _executable(self, args):
         """(executable or None, traced arguments) for a call with ``args``."""
@@ -190,6 +193,13 @@ class Program:
         if name.startswith("__"):
             raise AttributeError(name)
         return getattr(self.plain, name)
+
+
+def clear() -> None:
+    """Forget the programs held in memory (as ``jax.clear_caches`` does for ``jax.jit``): the
+    next call looks them up on disk again, as a new process would."""
+    for program in list(_programs):
+        program._calls.clear()
 
 
 def _write(path, data: bytes) -> None:

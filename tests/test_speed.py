@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import _cache, _hostcall
+from geomopt import _cache, _hostcall, _programs
 from geomopt.lim import LimCase
 from geomopt import generators as G
 from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
@@ -25,9 +25,11 @@ def fresh_cache(tmp_path):
     before = _cache.cache_dir()
     _cache.cache_stats()
     jax.clear_caches()
+    _programs.clear()
     _cache.set_cache_dir(tmp_path / "cache")
     yield tmp_path / "cache"
     jax.clear_caches()
+    _programs.clear()
     _cache.set_cache_dir(before)
 
 
@@ -139,8 +141,6 @@ def _gather_sum(scale, x, idx):
 
 
 def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_cache):
-    from geomopt import _programs
-
     x, idx = np.linspace(0.0, 1.0, 50), np.arange(40)[::-1] % 50
     expect = 2.0 * np.sum(x[idx] * x[idx[::-1]])
     # JAX's own cache holds the program first: the kept one must still load and run (an
