@@ -11,6 +11,10 @@ Each function returns a :class:`geomopt.generators.Tangle` with the boundary fix
 * :func:`torus_box` -- a genus-1 tet domain (a box with a square hole along z);
 * :func:`twisted` -- any tet mesh whose boundary is twisted about the z axis, interior at rest;
 * :func:`squashed_box` -- a cube whose boundary is squashed along z, interior at rest.
+
+:func:`surfaces` writes held-out disk-topology surfaces of 30k-50k triangles for the
+parameterization benchmarks (``startup.py --heldout``): the shared meshes decimated or
+subdivided then decimated (libigl), and generated ruffled and saddle disks.
 """
 
 from __future__ import annotations
@@ -136,3 +140,46 @@ def squashed_box(n: int, factor: float = 0.25) -> G.Tangle:
     x0 = V.copy()
     x0[fixed, 2] *= factor
     return G.Tangle(f"cube{n}-squash{factor:g}", V, T, x0, fixed)
+
+
+def _disk_check(V, F):
+    """(V, F) without unused vertices, or None unless a disk (Euler characteristic 1, one
+    boundary loop) with no zero-area triangle."""
+    import igl
+
+    V, F = _compact(np.asarray(V, float), np.asarray(F, np.int64))
+    chi = len(V) - len(igl.edges(F)) + len(F)
+    ok = chi == 1 and len(igl.boundary_loop_all(F)) == 1 and igl.doublearea(V, F).min() > 0
+    return (V, F) if ok else None
+
+
+def surfaces(mesh_dir, out_dir):
+    """Write the held-out surfaces (OBJ) under ``out_dir``; return their paths.
+
+    igea_cut decimated to 44k triangles, armadillo_cut_low to 36k, bunny_cut upsampled then
+    decimated to 40k, camelhead Loop-subdivided then decimated to 48k (libigl's edge-collapse
+    ``decimate``), a ruffled disk of 42k and a saddle of 33k (:mod:`geomopt.generators`).
+    A result that is not a disk is skipped."""
+    import igl
+    from pathlib import Path
+
+    from geomopt import io
+
+    mesh_dir, out_dir = Path(mesh_dir), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    read = lambda name: io.read_mesh(mesh_dir / name)  # noqa: E731
+    made = {
+        "igea44k": lambda: igl.decimate(*read("igea_cut.ply"), 44000)[:2],
+        "armadillo36k": lambda: igl.decimate(*read("armadillo_cut_low.obj"), 36000)[:2],
+        "bunny40k": lambda: igl.decimate(*igl.upsample(*read("bunny_cut.obj")), 40000)[:2],
+        "camel48k": lambda: igl.decimate(*igl.loop(*read("camelhead.off")), 48000)[:2],
+        "ruffled42k": lambda: G.ruffled_disk(rings=84),
+        "saddle33k": lambda: G.saddle(rings=74, amplitude=1.5),
+    }
+    paths = []
+    for name, make in made.items():
+        mesh = _disk_check(*make())
+        if mesh is not None:
+            paths.append(out_dir / f"{name}.obj")
+            io.write_obj_with_uv(paths[-1], *mesh, np.zeros((len(mesh[0]), 2)))
+    return paths

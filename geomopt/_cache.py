@@ -23,6 +23,7 @@ child processes inherit them; otherwise it updates ``jax.config``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -34,7 +35,7 @@ _OFF = ("", "0", "off", "none", "false", "no")
 _NEVER = 1e12
 
 _lock = threading.Lock()
-_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "listening": False}
+_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "bypassed": 0, "listening": False}
 
 
 def default_dir() -> str | None:
@@ -119,6 +120,51 @@ def cache_dir() -> str | None:
     return _state["dir"]
 
 
+def programs_dir() -> str | None:
+    """Where :mod:`geomopt._programs` keeps compiled programs: ``programs`` in JAX's persistent
+    cache folder when that cache is on (so that Dask workers given the client's JAX settings
+    share it), None when off or ``GEOMOPT_PROGRAMS`` is ``off``."""
+    import jax
+
+    if os.environ.get("GEOMOPT_PROGRAMS", "on").strip().lower() in _OFF:
+        return None
+    folder = jax.config.jax_compilation_cache_dir if jax.config.jax_enable_compilation_cache else None
+    return os.path.join(folder, "programs") if folder else None
+
+
+def programs_writable() -> bool:
+    """False for geomopt's own cache folder when it is read-only; else True (a failed write
+    is skipped)."""
+    import jax
+
+    ours = os.path.abspath(jax.config.jax_compilation_cache_dir or "") == os.path.abspath(_state["dir"] or "")
+    return _state["writable"] or not ours
+
+
+@contextlib.contextmanager
+def bypassed():
+    """JAX's persistent cache off inside the block (then as before): an executable loaded from
+    it cannot be serialised again (XLA CPU then misses its kernels at run time: "Function ...
+    not found"), so :mod:`geomopt._programs` compiles the programs it keeps afresh.  Each use
+    counts as a miss in :func:`cache_stats`.  Another thread compiling meanwhile compiles
+    without the cache."""
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    with _lock:
+        on = jax.config.jax_enable_compilation_cache
+        _state["bypassed"] += 1
+        if on:
+            jax.config.update("jax_enable_compilation_cache", False)
+            compilation_cache.reset_cache()
+        try:
+            yield
+        finally:
+            if on:
+                jax.config.update("jax_enable_compilation_cache", True)
+                compilation_cache.reset_cache()
+
+
 def _count(event, **kwargs):
     # JAX's own "cache_misses" event counts writes; a miss is a lookup that was not a hit
     if event == "/jax/compilation_cache/cache_hits":
@@ -137,5 +183,6 @@ def cache_stats() -> dict:
 
             jax.monitoring.register_event_listener(_count)
             _state["listening"] = True
+        # a program compiled outside JAX's cache for geomopt._programs is a miss too
         return {"dir": _state["dir"], "writable": _state["writable"], "hits": _state["hits"],
-                "misses": _state["requests"] - _state["hits"]}
+                "misses": _state["requests"] - _state["hits"] + _state["bypassed"]}

@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _padding
+from . import _programs
 from . import _x64
 from ._geometry import dets
 from ._errors import ParameterError
@@ -75,7 +76,7 @@ class _Kernel:
 
     def _kernel(self):
         if self._jitted is None:
-            self._jitted = jax.jit(self._fun, compiler_options=xla_options(), **self._options)
+            self._jitted = _programs.jit(self._fun, compiler_options=xla_options(), **self._options)
         return self._jitted
 
     def __call__(self, *args, **kwargs):
@@ -83,7 +84,9 @@ class _Kernel:
         dynamic = [a for i, a in enumerate(args) if i not in self._static] + list(kwargs.values())
         if is_traced(dynamic):
             return self._fun(*args, **kwargs)
-        return self._kernel()(*args, **kwargs)
+        if kwargs:
+            return self._kernel().plain(*args, **kwargs)
+        return self._kernel()(*args)
 
     def __getattr__(self, name):
         if name.startswith("__"):
@@ -563,8 +566,8 @@ class Objective:
         but no throw-away evaluation."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.lower(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
-                             self.geom, self._free, self._pad(x)[0], params, *m.assembly).compile()
+        hessian_kernel.prepare(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
+                               self.geom, self._free, self._pad(x)[0], params, *m.assembly)
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""

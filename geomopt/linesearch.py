@@ -24,6 +24,7 @@ from jax import lax
 from ._config import Instance, Int, Real, validate
 from ._errors import ParameterError
 from ._x64 import float64
+from ._programs import jit as programs_jit
 from ._geometry import det, dets, edge_rows
 from ._objective import free_value_and_grad
 
@@ -299,11 +300,11 @@ class InjectiveSearch:
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""
-        _search_kernel.lower(self, objective.energy.density, objective.geom, objective.free_mask, params, x,
-                             value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0).compile()
+        _search_kernel.prepare(self, objective.energy.density, objective.geom, objective.free_mask, params, x,
+                               value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0)
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
     def vg(y):
         return free_value_and_grad(density, geom, free, y, params)

@@ -71,6 +71,7 @@ from ._config import Instance, Int, Maybe, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
 from ._x64 import float64
+from ._programs import jit as programs_jit
 from ._geometry import det
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
@@ -222,7 +223,7 @@ class UntangleRecord(NamedTuple):
 # --------------------------------------------------------------------- kernels
 
 
-@partial(jax.jit, static_argnums=0)
+@partial(programs_jit, static_argnums=0)
 def _outer_stats(density, geom, x, params):
     """(energy over all elements, min det J, #elements with det J <= 0), over the elements of
     positive rest volume (``bucket`` padding adds elements of zero volume)."""

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import _cache, _hostcall
+from geomopt import _cache, _hostcall, _programs
 from geomopt.lim import LimCase
 from geomopt import generators as G
 from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
@@ -25,9 +25,11 @@ def fresh_cache(tmp_path):
     before = _cache.cache_dir()
     _cache.cache_stats()
     jax.clear_caches()
+    _programs.clear()
     _cache.set_cache_dir(tmp_path / "cache")
     yield tmp_path / "cache"
     jax.clear_caches()
+    _programs.clear()
     _cache.set_cache_dir(before)
 
 
@@ -132,3 +134,29 @@ def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():
         assert _density_dims(e.name, e.density, tuple(sorted(e.params)))[0] == (2, 3), e.name
         e.check_dim(2), e.check_dim(3)
 
+
+
+def _gather_sum(scale, x, idx):
+    return scale * jnp.sum(x[idx] * x[idx[::-1]])
+
+
+def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_cache):
+    x, idx = np.linspace(0.0, 1.0, 50), np.arange(40)[::-1] % 50
+    expect = 2.0 * np.sum(x[idx] * x[idx[::-1]])
+    # JAX's own cache holds the program first: the kept one must still load and run (an
+    # executable loaded from JAX's cache serialises without its kernels on XLA CPU)
+    jax.jit(_gather_sum, static_argnums=0)(2.0, x, idx).block_until_ready()
+    jax.clear_caches()
+    before = dict(_programs.stats)
+    misses, first = _misses(lambda: float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)))
+    assert _programs.stats["stored"] == before["stored"] + 1 and misses == 1  # a compile is a miss
+    assert len(list((fresh_cache / "programs").glob("_gather_sum-*.xla"))) == 1
+    fresh = _programs.jit(_gather_sum, static_argnums=0)  # as a new process: nothing in memory
+    misses, again = _misses(lambda: float(fresh(2.0, x, idx)))
+    assert _programs.stats["loaded"] == before["loaded"] + 1 and misses == 0
+    assert first == again and np.isclose(first, expect, rtol=1e-13)
+    # another static value, other shapes: another program; a lambda: plain jax.jit
+    assert np.isclose(float(fresh(3.0, x[:30], idx[:20] % 30)), 3.0 * np.sum(x[:30][idx[:20] % 30] * x[:30][(idx[:20] % 30)[::-1]]))
+    assert _programs.stats["stored"] == before["stored"] + 2
+    lam = _programs.jit(lambda s, v: s * v.sum(), static_argnums=0)
+    assert float(lam(2.0, x)) == 2.0 * x.sum() and _programs.stats["plain"] == before["plain"] + 1

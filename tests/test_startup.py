@@ -72,7 +72,7 @@ from pathlib import Path  # noqa: E402
 import jax  # noqa: E402
 
 import geomopt  # noqa: E402
-from geomopt import _cache, _padding  # noqa: E402
+from geomopt import _cache, _padding, _programs  # noqa: E402
 from geomopt._objective import Objective  # noqa: E402
 from geomopt.problem import Problem  # noqa: E402
 
@@ -167,10 +167,12 @@ def cache_at(tmp_path):
 
     def use(path):
         jax.clear_caches()  # programs compiled so far are in memory: look them up on disk again
+        _programs.clear()
         return _cache.set_cache_dir(path)
 
     yield use
     jax.clear_caches()
+    _programs.clear()
     _cache.set_cache_dir(before)
 
 

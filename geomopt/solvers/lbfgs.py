@@ -34,6 +34,7 @@ import numpy as np
 from jax import lax
 
 from .._config import Int, OneOf, Real
+from .._programs import jit as programs_jit
 from .._errors import ParameterError
 from .._objective import free_value_and_grad
 from ..linesearch import InjectiveSearch
@@ -144,7 +145,7 @@ def _iteration(solver, density, geom, free, params, c):
             "f_hist": c["f_hist"].at[slot].set(jnp.where(ok, fn, f)), "pre": c["pre"], "stats": stats, **extra}
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _run_kernel(solver, density, geom, free, params, carry, max_it):
     """Iterations while the solver's termination says RUNNING and ``iteration < max_it``
     (traced): ``step`` is one call with ``max_it = iteration + 1``, so one compiled program
@@ -177,7 +178,7 @@ def _blank_carry(m, precondition, window, x, pre, stats):
     return jax.device_put(carry)
 
 
-@partial(jax.jit, static_argnums=(0, 1))
+@partial(programs_jit, static_argnums=(0, 1))
 def _reparam_kernel(laplacian, density, geom, free, params, carry):
     """``carry`` re-evaluated at its ``x`` under ``params``: value, gradient (and for the
     Laplacian seed ``K^-1 grad``), and the counters and energy window restarted; the

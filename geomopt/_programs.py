@@ -1,0 +1,222 @@
+"""Compiled programs kept on disk, so that a warm process neither traces nor compiles.
+
+JAX's persistent compilation cache (:mod:`geomopt._cache`) skips XLA's compilation, but a new
+process still traces and lowers every program to find the compiled one: 0.3-1 s per process
+for a Newton parameterization of 50k triangles (the projected Hessian kernel traces in
+0.15-0.5 s, the injective search in 0.2 s).  :class:`Program` is ``jax.jit`` whose compiled
+executables are also written with ``jax.experimental.serialize_executable`` under
+``<cache folder>/programs``, keyed by everything the trace depends on:
+
+* the function (module and qualified name) and its static arguments (energy density,
+  projection, solver configuration, sizes...) by a stable text form;
+* the structure, shapes and dtypes of the traced arguments (the size bucket, for padded
+  meshes), and whether 64-bit types are on;
+* JAX and jaxlib versions, the backend and its devices, the compiler options and ``XLA_FLAGS``,
+  and the source files of geomopt (size and modification time) and of any module a static
+  function comes from.
+
+A later process with the same key loads the executable and calls it: no trace, no lowering.
+Static arguments without a stable text form (a lambda, a local function, an object without a
+dataclass ``repr``), programs that cannot be serialised (host callbacks, captured constants)
+and calls on traced values go through plain ``jax.jit``.  With the persistent cache off, or
+``GEOMOPT_PROGRAMS=off`` in the environment, this is plain ``jax.jit``.  As with JAX's own
+cache, loading a program runs code from the cache folder: never point it at a folder that
+others can write.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import os
+import pickle
+import sys
+import types
+import weakref
+
+import jax
+import numpy as np
+
+from . import _cache
+
+_UNSTABLE = object()
+#: bumped when what is written changes (files of other formats are never read)
+_FORMAT = "geomopt-programs-1 (compiled outside JAX's cache)"
+_fingerprints: dict = {}
+#: what happened to each program since start-up: "loaded" (from disk), "stored" (compiled here
+#: and written), "plain" (through jax.jit); for tests and benchmarks
+stats = {"loaded": 0, "stored": 0, "plain": 0}
+_programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
+
+
+def _source_fingerprint(module_name: str) -> str:
+    """Size and modification time of a module's source (geomopt: the whole package)."""
+    if module_name in _fingerprints:
+        return _fingerprints[module_name]
+    mod = sys.modules.get(module_name)
+    files = []
+    if module_name == "geomopt":
+        root = os.path.dirname(os.path.abspath(__file__))
+        for base, _, names in os.walk(root):
+            files += [os.path.join(base, n) for n in names if n.endswith(".py")]
+    elif getattr(mod, "__file__", None):
+        files = [mod.__file__]
+    parts = []
+    for f in sorted(files):
+        try:
+            st = os.stat(f)
+            parts.append(f"{f}:{st.st_size}:{st.st_mtime_ns}")
+        except OSError:
+            parts.append(f"{f}:?")
+    _fingerprints[module_name] = hashlib.sha256("\n".join(parts).encode()).hexdigest()
+    return _fingerprints[module_name]
+
+
+def _stable(value, modules):
+    """A text form of a static argument that is the same in every process, or _UNSTABLE;
+    adds the modules whose source it depends on to ``modules``."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return repr(value)
+    if isinstance(value, (tuple, list)):
+        items = [_stable(v, modules) for v in value]
+        return _UNSTABLE if any(i is _UNSTABLE for i in items) else f"{type(value).__name__}({','.join(items)})"
+    if isinstance(value, (types.FunctionType, type)):
+        mod, name = getattr(value, "__module__", None), getattr(value, "__qualname__", "")
+        owner = sys.modules.get(mod)
+        try:  # the module's attribute is the function, or a wrapper of it (a jit decorator)
+            found = functools.reduce(getattr, name.split("."), owner) if owner is not None and "<" not in name else None
+        except AttributeError:
+            found = None
+        same = found is value or (found is not None and getattr(found, "__wrapped__", None) is value)
+        if not same:
+            return _UNSTABLE
+        modules.add("geomopt" if mod.startswith("geomopt") else mod)
+        return f"{mod}.{name}"
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        names = [f.name for f in dataclasses.fields(value)]
+        items = [_stable(getattr(value, n), modules) for n in names]
+        head = _stable(type(value), modules)
+        if head is _UNSTABLE or any(i is _UNSTABLE for i in items):
+            return _UNSTABLE
+        return f"{head}({','.join(f'{n}={v}' for n, v in zip(names, items))})"
+    return _UNSTABLE
+
+
+def _leaf_key(x):
+    """Shape, dtype and weak type of a traced argument, cheaply (no JAX call)."""
+    if isinstance(x, (bool, int, float, complex)):
+        return type(x)
+    return (tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False)))
+
+
+class Program:
+    """``jax.jit(fun, static_argnums=..., compiler_options=...)`` whose compiled executables are
+    kept on disk (see the module notes).  Call it like ``fun``; :meth:`prepare` loads or
+    compiles for given arguments without running; other attributes are ``jax.jit``'s."""
+
+    def __init__(self, fun, static_argnums=(), compiler_options=None):
+        self.fun = fun
+        self.static = tuple(sorted(static_argnums if isinstance(static_argnums, tuple) else (static_argnums,)))
+        self.options = dict(compiler_options or {})
+        self.plain = jax.jit(fun, static_argnums=self.static, compiler_options=self.options or None)
+        self._calls: dict = {}
+        functools.update_wrapper(self, fun)
+        _programs.add(self)
+
+    def _executable(self, args):
+        """(executable or None, traced arguments) for a call with ``args``."""
+        folder = _cache.programs_dir()
+        if folder is None:
+            return None, None
+        statics = tuple(args[i] for i in self.static)
+        dynamic = tuple(a for i, a in enumerate(args) if i not in self.static)
+        leaves, tree = jax.tree_util.tree_flatten(dynamic)
+        try:
+            key = (statics, tree, tuple(map(_leaf_key, leaves)), jax.dtypes.canonicalize_dtype(np.float64).name)
+            call = self._calls.get(key, False)
+        except (TypeError, AttributeError):  # unhashable static argument, a leaf without dtype
+            return None, None
+        if call is False:
+            call = self._calls[key] = self._load(args, statics, tree, key, folder)
+        return call, dynamic
+
+    def _load(self, args, statics, tree, key, folder):
+        modules = {"geomopt"}
+        text, name = _stable(statics, modules), _stable(self.fun, modules)
+        if text is _UNSTABLE or name is _UNSTABLE:
+            stats["plain"] += 1
+            return None
+        devices = jax.devices()
+        ident = "\n".join([_FORMAT, jax.__version__, getattr(jax, "__jaxlib_version__", ""), jax.default_backend(),
+                           f"{len(devices)} x {devices[0].device_kind}", name, text, str(tree), repr(key[2:]),
+                           repr(sorted(self.options.items())), os.environ.get("XLA_FLAGS", ""),
+                           *sorted(_source_fingerprint(m) for m in modules)])
+        path = os.path.join(folder, f"{self.fun.__name__}-{hashlib.sha256(ident.encode()).hexdigest()}.xla")
+        from jax.experimental import serialize_executable as se
+
+        try:
+            with open(path, "rb") as fh:
+                blob, in_tree, out_tree = pickle.loads(fh.read())
+            stats["loaded"] += 1
+            return se.deserialize_and_load(blob, in_tree, out_tree)
+        except Exception:  # noqa: BLE001 -- absent, partial or stale: compile it
+            pass
+        lowered = self.plain.lower(*args)
+        with _cache.bypassed():
+            compiled = lowered.compile()
+        try:
+            data = pickle.dumps(se.serialize(compiled))
+        except Exception:  # noqa: BLE001 -- host callbacks, captured constants: plain jit
+            stats["plain"] += 1
+            return None
+        if _cache.programs_writable():
+            _write(path, data)
+        stats["stored"] += 1
+        return compiled
+
+    def __call__(self, *args):
+        call, dynamic = self._executable(args)
+        return self.plain(*args) if call is None else call(*dynamic)
+
+    def prepare(self, *args) -> None:
+        """Load (or compile and keep) the program for ``args`` without running it."""
+        call, _ = self._executable(args)
+        if call is None:
+            self.plain.lower(*args).compile()
+
+    def _cache_size(self) -> int:
+        """Programs traced or loaded in this process (for no-recompile tests)."""
+        return self.plain._cache_size() + sum(c is not None for c in self._calls.values())
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.plain, name)
+
+
+def clear() -> None:
+    """Forget the programs held in memory (as ``jax.clear_caches`` does for ``jax.jit``): the
+    next call looks them up on disk again, as a new process would."""
+    for program in list(_programs):
+        program._calls.clear()
+
+
+def _write(path, data: bytes) -> None:
+    """Atomic write; a folder that cannot be written is skipped (the program is used anyway)."""
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = f"{path}.{os.getpid()}.tmp"
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
+def jit(fun=None, *, static_argnums=(), compiler_options=None):
+    """``jax.jit`` with compiled programs kept on disk (:class:`Program`); usable as ``@jit``
+    and ``@partial(jit, static_argnums=0)``."""
+    if fun is None:
+        return functools.partial(jit, static_argnums=static_argnums, compiler_options=compiler_options)
+    return Program(fun, static_argnums, compiler_options)
