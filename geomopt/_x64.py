@@ -14,11 +14,19 @@ must run in 64-bit mode (``with jax.enable_x64(True): jax.grad(f)(x)``, or
 ``jax.config.update("jax_enable_x64", True)`` at start-up); otherwise a ParameterError says so
 (:data:`MESSAGE`) instead of computing in float32.  The compiled kernels refuse to run with the
 mode off (:func:`require`): a path that escaped the wrapping fails loudly, never in float32.
+
+The outermost wrapped call on a thread first waits for the host callbacks already dispatched
+(``jax.effects_barrier()``): geomopt's callbacks (:func:`pure_callback`, the host solves of
+:mod:`geomopt.implicit` under ``jax.jit``) run JAX computations themselves, and with JAX 0.4.x's
+CPU client those, queued behind the caller's still-running jitted computation, deadlock against
+computations the caller's thread dispatches meanwhile (an un-awaited ``jax.jit`` result followed
+by an eager geomopt call).  Calls made inside a callback skip the wait (it would wait on itself).
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 
 from ._errors import ParameterError
 from ._tracing import is_traced
@@ -26,6 +34,8 @@ from ._tracing import is_traced
 MESSAGE = ("geomopt computes in float64, and JAX's 64-bit mode is off in this transformation: run it "
            "inside `with jax.enable_x64(True):` or call jax.config.update('jax_enable_x64', True) at "
            "start-up (see the README, 'float64')")
+
+_depth = threading.local()  # .n: wrapped calls (and geomopt host callbacks) running on this thread
 
 
 def enabled() -> bool:
@@ -48,14 +58,35 @@ def float64(fn, method=False):
 
     @functools.wraps(fn)
     def run(*args, **kwargs):
-        if enabled():
-            return fn(*args, **kwargs)
-        if is_traced((args[1:] if method else args, kwargs)):
+        traced = is_traced((args[1:] if method else args, kwargs))
+        if not enabled() and traced:
             raise ParameterError(MESSAGE)
-        with scope():
-            return fn(*args, **kwargs)
+        with nested(wait=not traced):
+            if enabled():
+                return fn(*args, **kwargs)
+            with scope():
+                return fn(*args, **kwargs)
 
     return run
+
+
+class nested:
+    """Context of a geomopt call on this thread; the outermost one, with ``wait``, first waits
+    for the host callbacks already dispatched (module notes)."""
+
+    def __init__(self, wait=True):
+        self.wait = wait
+
+    def __enter__(self):
+        n = getattr(_depth, "n", 0)
+        if n == 0 and self.wait:
+            import jax
+
+            jax.effects_barrier()
+        _depth.n = n + 1
+
+    def __exit__(self, *exc):
+        _depth.n -= 1
 
 
 def scope():
@@ -97,7 +128,8 @@ def pure_callback(fn, result_shapes, *args, vmap_method="sequential"):
     carried = [jax.ShapeDtypeStruct(tuple(s.shape) + (2,), np.uint32) if wide(s) else s for s in flat]
 
     def host(*a):
-        out = jax.tree_util.tree_leaves(fn(*a))
+        with nested(wait=False):  # on a callback thread: waiting would wait on this very callback
+            out = jax.tree_util.tree_leaves(fn(*a))
         return [np.ascontiguousarray(o, s.dtype).view(np.uint32).reshape(c.shape) if wide(s)
                 else np.asarray(o, s.dtype) for o, s, c in zip(out, flat, carried)]
 
