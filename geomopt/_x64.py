@@ -21,6 +21,7 @@ The outermost wrapped call on a thread first waits for the host callbacks alread
 CPU client those, queued behind the caller's still-running jitted computation, deadlock against
 computations the caller's thread dispatches meanwhile (an un-awaited ``jax.jit`` result followed
 by an eager geomopt call).  Calls made inside a callback skip the wait (it would wait on itself).
+Only JAX before 0.7 waits (:func:`_old_cpu_client`): newer clients did not deadlock.
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ class nested:
 
     def __enter__(self):
         n = getattr(_depth, "n", 0)
-        if n == 0 and self.wait:
+        if n == 0 and self.wait and _old_cpu_client():
             import jax
 
             jax.effects_barrier()
@@ -87,6 +88,15 @@ class nested:
 
     def __exit__(self, *exc):
         _depth.n -= 1
+
+
+@functools.cache
+def _old_cpu_client() -> bool:
+    """JAX before 0.7 (no ``jax.enable_x64``): the CPU client whose in-flight limit deadlocked
+    (measured on 0.4.38; the wait is skipped on newer JAX, where it was not needed)."""
+    import jax
+
+    return not hasattr(jax, "enable_x64")
 
 
 def scope():
