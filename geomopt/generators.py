@@ -181,16 +181,23 @@ def disk_mesh(rings: int, radius: float = 1.0):
     return V, _orient(V, np.asarray(F, dtype=np.int64))
 
 
+def _box_grid(name, nx, ny, nz, size):
+    """The grid vertices of a box of ``nx ny nz`` cells, ``V`` ((nx+1)(ny+1)(nz+1), 3), their
+    index array ``idx`` (nx+1, ny+1, nz+1) and each cell's lowest corner ``(i, j, k)``."""
+    if min(nx, ny, nz) < 1:
+        raise ParameterError(f"{name} needs positive sizes, got {(nx, ny, nz)}")
+    axes = [np.linspace(0.0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
+    V = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
+    cells = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
+    return V, idx, tuple(cells)
+
+
 def box_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
     """A box of ``nx ny nz`` cubes, each split into 6 tetrahedra around its main diagonal.
 
     Returns ``V`` ((nx+1)(ny+1)(nz+1), 3), ``T`` (6 nx ny nz, 4)."""
-    if min(nx, ny, nz) < 1:
-        raise ParameterError(f"box_mesh needs positive sizes, got {(nx, ny, nz)}")
-    axes = [np.linspace(0.0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
-    V = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
-    ci, cj, ck = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
+    V, idx, (ci, cj, ck) = _box_grid("box_mesh", nx, ny, nz, size)
     T = []
     for perm in [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]:
         c = [ci.copy(), cj.copy(), ck.copy()]
@@ -219,12 +226,7 @@ def hex_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)):
     """A box of ``nx ny nz`` hexahedra (VTK order, positive), the vertices of :func:`box_mesh`.
 
     Returns ``V`` ((nx+1)(ny+1)(nz+1), 3), ``H`` (nx ny nz, 8)."""
-    if min(nx, ny, nz) < 1:
-        raise ParameterError(f"hex_mesh needs positive sizes, got {(nx, ny, nz)}")
-    axes = [np.linspace(0.0, s, n + 1) for s, n in zip(size, (nx, ny, nz))]
-    V = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
-    i, j, k = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
+    V, idx, (i, j, k) = _box_grid("hex_mesh", nx, ny, nz, size)
     H = [idx[i + a, j + b, k + c] for c in (0, 1) for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
     return V, np.stack(H, 1).astype(np.int64)
 
