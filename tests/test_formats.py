@@ -239,6 +239,31 @@ def test_obj_accepted_variants_read_exactly(tmp_path):
     assert F.tolist() == [[0, 1, 2]]
 
 
+def test_obj_slash_corners_read_as_the_general_corner_parser_reads_them(tmp_path, monkeypatch):
+    """The all-'a/t' fast path gives what the general corner grammar gives, or defers to it."""
+    import geomopt.io._surface as surface
+    from geomopt.io import read_obj_with_uv
+
+    head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\n"
+    faces = ["f 1/1 2/2 3/3\nf 2/2 4/4 3/3\n", "f -4/-4 -3/-3 -2/-2\nf 2/2 4/4 3/3\n",
+             "f 1/1 2/2/1 3/3\nf 2/2 4/4 3/3\n", "f 1/1 2/2 3/3\nf 2/2 4/4 3//1\n", "f 1/1 2/2 3/\nf 2/2 4/4 3/3\n",
+             "f 1/1 2/2 3/3/\nf 2/2 4/4 3/3\n", "f 1/1 2/0 3/3\nf 2/2 4/4 3/3\n", "f 1/1 2/2 3/+3\nf 2/2 4/4 3/3\n",
+             "f 1/1 2/2 3/3\nf 2/2 4/4 3\n", "f 1/1 2/2 3/3\nf 2/2 4/5 3/3\n", "f 1/1 2/2/2 3\nf 2/2 4/4 3/3\n"]
+
+    def outcome(path):
+        try:
+            return [a.tolist() for a in read_obj_with_uv(path)]
+        except (MeshError, MeshFormatError) as exc:
+            return type(exc).__name__, str(exc)
+
+    for i, text in enumerate(faces):
+        path = put(tmp_path / f"m{i}.obj", head + text)
+        fast = outcome(path)
+        with monkeypatch.context() as m:
+            m.setattr(surface, "_slash_pairs", lambda joined, count: None)
+            assert outcome(path) == fast, text
+
+
 def test_off_variants_and_errors(tmp_path):
     ok = "COFF\n# c\n3 1 3\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2 1 0 0\n"
     V, F = read_mesh(put(tmp_path / "c.off", ok))

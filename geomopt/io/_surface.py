@@ -16,7 +16,7 @@ from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write, check_output_path
 from ._files import check_not_empty, existing_file, read_bytes
 from ._text import (INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, plain_ints, show, text_data, text_rows,
-                    write_rows)
+                    write_int_rows, write_rows)
 
 __all__ = ["MESH_EXTENSIONS", "UV_MESH_EXTENSIONS", "read_mesh", "read_obj_uv", "read_obj_with_uv",
            "write_mesh_with_uv", "write_obj_with_uv", "write_ply_with_uv", "read_obj_quads", "write_obj_quads"]
@@ -285,7 +285,11 @@ def _obj_faces(corners, counts, face_lines, seen, n_vertices, path):
 
     raw = None if b"/" in joined else plain_ints(corners, joined)  # the common case: 'f a b c'
     has_tex = np.zeros(len(corners), dtype=bool)
-    if raw is None:
+    pairs = None if raw is not None else _slash_pairs(joined, len(corners))  # the next: 'f a/t b/t c/t'
+    if pairs is not None:
+        raw, texts = pairs[0::2], pairs[1::2]
+        has_tex[:] = True
+    elif raw is None:
         if _CORNERS_RE.fullmatch(joined) is None:
             i = first_bad(corners, _CORNER_RE)
             raise MeshFormatError(f"{path}, line {line_of[i]}: cannot read face corner {show(corners[i])}; "
@@ -295,13 +299,16 @@ def _obj_faces(corners, counts, face_lines, seen, n_vertices, path):
         texts = [g[1] or g[2] for g in groups]
         has_tex = np.array([t != b"" for t in texts], dtype=bool)
     tex = np.zeros(len(corners), dtype=np.int64)
-    if has_tex.any():
+    if pairs is not None:
+        tex = texts
+    elif has_tex.any():
         present = np.flatnonzero(has_tex)
         tex[present] = ints([texts[i] for i in present], lambda i: where(present[i]))
-        if (tex[present] == 0).any():
-            i = int(present[np.flatnonzero(tex[present] == 0)[0]])
-            raise MeshFormatError(f"{path}, line {line_of[i]}: face corner {show(corners[i])} has texture "
-                                  f"index 0 (OBJ indices start at 1)")
+    zero = np.flatnonzero(has_tex & (tex == 0))
+    if zero.size:
+        i = int(zero[0])
+        raise MeshFormatError(f"{path}, line {line_of[i]}: face corner {show(corners[i])} has texture "
+                              f"index 0 (OBJ indices start at 1)")
     seen = np.repeat(seen, counts)
     index = np.where(raw > 0, raw - 1, seen + raw)
     for bad, why in (
@@ -315,6 +322,22 @@ def _obj_faces(corners, counts, face_lines, seen, n_vertices, path):
             raise error(f"{path}, line {line_of[i]}: face corner {show(corners[i])} refers to {why}")
     tex = np.where(~has_tex, -1, np.where(tex > 0, tex - 1, -2))  # -1: none; -2: relative
     return {"corners": index, "texcoords": tex, "counts": counts, "lines": face_lines}
+
+
+def _slash_pairs(joined, count):
+    """The ``2 * count`` integers of ``count`` space-separated ``a/t`` corners (``joined``), or
+    ``None`` unless every corner is exactly two plain integers around one slash.
+
+    The separators in order must alternate ``/``, space, ``/``, ..., ``/``: then every corner
+    has one slash, and :func:`plain_ints` checks that every piece between them is an integer.
+    """
+    chars = np.frombuffer(joined, dtype=np.uint8)
+    separators = chars[(chars == ord(" ")) | (chars == ord("/"))]
+    if len(separators) != 2 * count - 1 or (separators[0::2] != ord("/")).any() or \
+            (separators[1::2] != ord(" ")).any():
+        return None
+    pieces = joined.replace(b"/", b" ").split(b" ")
+    return plain_ints(pieces, joined.replace(b"/", b""))
 
 
 def _read_obj(data, path):
@@ -369,7 +392,7 @@ def write_obj_quads(path, V, Q):
 
     def write(fh):
         write_rows(fh, "v ", V)
-        np.savetxt(fh, Q + 1, fmt="f %d %d %d %d")
+        write_int_rows(fh, "f %d %d %d %d", Q + 1)
 
     return atomic_write(path, write)
 
@@ -1032,7 +1055,7 @@ def write_obj_with_uv(path, V, F, UV):
     def write(fh):
         write_rows(fh, "v ", V)
         write_rows(fh, "vt ", UV)
-        np.savetxt(fh, np.repeat(F + 1, 2, axis=1), fmt="f %d/%d %d/%d %d/%d")
+        write_int_rows(fh, "f %d/%d %d/%d %d/%d", np.repeat(F + 1, 2, axis=1))
 
     return atomic_write(path, write)
 

@@ -18,14 +18,21 @@ from .._validate import validate_indices
 from ._files import existing_file, read_bytes
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "text_data", "number_problem", "first_bad", "floats",
-           "ints", "plain_ints", "gc_paused", "text_rows", "write_rows", "read_vertex_ids", "TokenRows"]
+           "ints", "plain_ints", "gc_paused", "text_rows", "write_rows", "write_int_rows", "read_vertex_ids", "TokenRows"]
 
 _INT64_MAX = np.iinfo(np.int64).max
 
 
 def write_rows(fh, prefix, A):
     """Rows of floats, each number in the shortest form that round-trips (``repr``)."""
-    fh.writelines(prefix + " ".join(map(repr, row)) + "\n" for row in np.asarray(A, np.float64).tolist())
+    A = np.atleast_2d(np.asarray(A, np.float64)) if np.size(A) else np.zeros((0, 1))
+    fh.write(((prefix + " ".join(["%r"] * A.shape[1]) + "\n") * len(A)) % tuple(A.ravel().tolist()))
+
+
+def write_int_rows(fh, fmt, A):
+    """Rows of integers, each row formatted by the %-format ``fmt`` (one ``%d`` per column, no newline)."""
+    A = np.asarray(A, np.int64)
+    fh.write(((fmt + "\n") * len(A)) % tuple(A.ravel().tolist()))
 
 
 

@@ -17,7 +17,8 @@ from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._cells import KINDS, VTK_CELLS, WORDS, code_of
 from ._files import check_not_empty, existing_file, read_bytes
-from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_rows
+from ._text import (FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_int_rows,
+                    write_rows)
 
 __all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
 
@@ -159,7 +160,7 @@ def write_vtk_cells(path, P, C, kind):
         fh.write(f"POINTS {P.shape[0]} double\n")
         write_rows(fh, "", P)
         fh.write(f"CELLS {m} {(size + 1) * m}\n")
-        np.savetxt(fh, C, fmt=f"{size}" + " %d" * size)
+        write_int_rows(fh, f"{size}" + " %d" * size, C)
         fh.write(f"CELL_TYPES {m}\n")
         fh.write(f"{code}\n" * m)
 
@@ -214,17 +215,18 @@ class _VtkCursor:
             raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
                                   f"ends after {len(tokens)}; the file is truncated or a count is wrong")
         self.pos = len(self.data) - (len(parts[count]) if len(parts) > count else 0)
-        regex = FLOAT_RE if code[0] == "f" else INT_RE
-        bad = first_bad(tokens, regex)
-        if bad is not None and re.fullmatch(rb"[A-Za-z_]{2,}", tokens[bad]):  # the next section's keyword
-            raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
-                                  f"{show(tokens[bad])} follows after {bad}; fix the count")
         where = lambda i: f"{self.path}, {section} section, value {i + 1}"  # noqa: E731
+        try:
+            values = floats(tokens, where) if code[0] == "f" else ints(tokens, where)
+        except MeshFormatError:  # name the next section's keyword if that is what came too early
+            bad = first_bad(tokens, FLOAT_RE if code[0] == "f" else INT_RE)
+            if bad is not None and re.fullmatch(rb"[A-Za-z_]{2,}", tokens[bad]):
+                raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
+                                      f"{show(tokens[bad])} follows after {bad}; fix the count") from None
+            raise
         if code[0] == "f":
-            values = floats(tokens, where)
             with np.errstate(over="ignore"):
                 return values.astype(code)
-        values = ints(tokens, where)
         info = np.iinfo(code)
         if values.size and (values.min() < info.min or values.max() > info.max):
             raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
@@ -361,8 +363,9 @@ def _vtk_cells(cursor, a, b, path):
     else:
         flat = cursor.values(b, "i4", "CELLS").astype(np.int64)
         sizes, conn, pos = [], [], 0
-        if a and b == 5 * a and (flat[0::5] == 4).all():
-            sizes, conn = np.full(a, 4), flat.reshape(a, 5)[:, 1:].ravel()
+        k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
+        if k >= 0 and (flat[0::k + 1] == k).all():
+            sizes, conn = np.full(a, k), flat.reshape(a, k + 1)[:, 1:].ravel()
         else:
             for _ in range(a):
                 if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
