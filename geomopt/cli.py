@@ -23,6 +23,7 @@ import os
 import re
 import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -707,6 +708,35 @@ def main(argv=None) -> int:
                     schema_version=SCHEMA_VERSION,
                     versions=versions())
             print(json.dumps(args.summary, default=_json_default), flush=True)
+
+
+def entry() -> None:
+    """The ``geomopt`` console command and ``python -m geomopt``: :func:`main`, then a quick exit.
+
+    Interpreter shutdown tears down JAX's CPU client and caches (~0.1-0.2 s, nothing kept); once
+    the command has finished, its files are closed and renamed into place and only daemon threads
+    remain, so the process flushes its output, waits for JAX's dispatched effects and ends there.
+    Under a profiler, tracer or coverage tool (which report at exit) it exits normally.
+    """
+    code = main()
+    if _observed() or any(t.is_alive() and not t.daemon for t in threading.enumerate()
+                          if t is not threading.main_thread()):
+        sys.exit(code)
+    if "jax" in sys.modules:
+        import jax
+
+        jax.effects_barrier()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(code)
+
+
+def _observed() -> bool:
+    """Whether a profiler, tracer or coverage tool watches this process (it reports at exit)."""
+    monitoring = getattr(sys, "monitoring", None)  # Python 3.12+
+    tools = monitoring is not None and any(monitoring.get_tool(i) for i in range(6))
+    return sys.getprofile() is not None or sys.gettrace() is not None or bool(tools)
 
 
 def _json_default(value):

@@ -534,6 +534,42 @@ def test_python_m_geomopt_bad_input_has_no_traceback(tmp_path, command):
     assert not (tmp_path / "out.obj").exists()
 
 
+def test_entry_ends_the_process_with_mains_exit_status_unless_a_thread_still_works(monkeypatch):
+    import threading
+
+    exits = []
+
+    class Ended(Exception):
+        pass
+
+    def fake_exit(code):
+        exits.append(code)
+        raise Ended
+
+    observed = geomopt.cli._observed
+    monkeypatch.setattr(geomopt.cli, "_observed", lambda: False)  # even if this test runs under coverage
+    monkeypatch.setattr(geomopt.cli, "main", lambda: 3)
+    monkeypatch.setattr(geomopt.cli.os, "_exit", fake_exit)
+    with pytest.raises(Ended):
+        geomopt.cli.entry()
+    assert exits == [3]
+    release = threading.Event()
+    worker = threading.Thread(target=release.wait)  # a non-daemon thread: the normal exit waits for it
+    worker.start()
+    try:
+        with pytest.raises(SystemExit) as info:
+            geomopt.cli.entry()
+        assert info.value.code == 3 and exits == [3]
+    finally:
+        release.set()
+        worker.join()
+    monkeypatch.setattr(geomopt.cli, "_observed", observed)
+    monkeypatch.setattr(geomopt.cli.sys, "getprofile", lambda: object())  # a profiler reports at exit
+    with pytest.raises(SystemExit):
+        geomopt.cli.entry()
+    assert exits == [3]
+
+
 # ------------------------------------------------------------------ issue 19: exit codes and messages
 
 
