@@ -59,7 +59,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
 
 
 @float64
-def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
+def start_map(objective: Objective, x0=None, weights="uniform", progress=False, loop=None):
     """The start map of a free-boundary parameterization, as :func:`parameterize` uses it.
 
     A Tutte embedding, the plane projection or a given map; a folded one (other than Tutte, or
@@ -72,6 +72,7 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     x0 : ``None`` / ``"tutte"``, ``"projection"`` or an (n, 2) array (see :func:`parameterize`).
     weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
     progress : passed to the repair's untangling.
+    loop : the boundary loop as :func:`~geomopt.topology.check_disk` returns it (found when None).
 
     Returns
     -------
@@ -88,7 +89,7 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False):
     problem = objective.problem
     repaired = None
     # every start: a free-boundary map is certified as a disk's, so say so before any solving
-    loop = check_disk(problem.input_simplices, problem.n_vertices)
+    loop = check_disk(problem.input_simplices, problem.n_vertices) if loop is None else loop
     if x0 is None or (isinstance(x0, str) and x0 == "tutte"):
         x0 = tutte_embedding(problem.rest_vertices, problem.input_simplices, weights, boundary=loop)
         source = "the Tutte start map"
@@ -138,6 +139,7 @@ def check_scale_aware(energy, energy_params):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
     on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
     ``s = 1e-3`` (every scale-aware or scale-invariant distortion fails this test)."""
+    import jax
     import jax.numpy as jnp
 
     from .energies import get_energy
@@ -145,7 +147,9 @@ def check_scale_aware(energy, energy_params):
     e = get_energy(energy)
     # unknown or misplaced names are reported by the caller's own checks, with better advice
     params = e.resolve_params(**{k: v for k, v in energy_params.items() if k in e.params})
-    at = {s: float(e.density(s * jnp.eye(2), params)) for s in (1.0, 1e-3)}
+    # one compiled program (cached across processes) instead of dozens of eager operations
+    scaled = jax.jit(jax.vmap(lambda s: e.density(s * jnp.eye(2), params)))
+    at = dict(zip((1.0, 1e-3), np.asarray(scaled(jnp.array([1.0, 1e-3]))).tolist()))
     if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
         raise ParameterError(
             f"energy {e.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "
@@ -218,11 +222,12 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     _check_misplaced_settings(energy, solver, energy_params)
     objective = Objective(problem, energy, buckets=buckets, element_weights=element_weights, **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
-    x0, s, repaired = start_map(objective, x0, weights, progress is True)
+    loop = check_disk(problem.input_simplices, problem.n_vertices)  # once: start map and certificate
+    x0, s, repaired = start_map(objective, x0, weights, progress is True, loop)
     if x0 is None:
         return _failed_repair(repaired, problem, objective, throw)
     result = minimize(objective, x0, solver, progress=progress, throw=throw)
-    cert = certify_bijective(result.x, problem.input_simplices)
+    cert = certify_bijective(result.x, problem.input_simplices, loop)
     reason = result.reason
     if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
         reason += ("; the free boundary folded over itself there, which the bijective mode prevents "
