@@ -26,7 +26,7 @@ _T_IMPORT = time.perf_counter()
 _EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
            "/jax/core/compile/backend_compile_duration")
 _lock = threading.Lock()
-_compile = {"seconds": 0.0, "listening": False}
+_compile = {"listening": False, "spans": []}  # (start, end) of each compilation event
 
 
 def process_start() -> float:
@@ -47,20 +47,27 @@ def process_start() -> float:
 
 def _on_duration(event, duration, **kwargs):
     if event in _EVENTS:
+        end = time.perf_counter()
         with _lock:
-            _compile["seconds"] += duration
+            _compile["spans"].append((end - duration, end))
 
 
 def compile_seconds() -> float:
-    """Seconds JAX spent tracing, lowering and compiling (or loading compiled programs) since
-    the first call of this function, which starts the count (it imports JAX)."""
+    """Wall seconds in which JAX was tracing, lowering or compiling (or loading compiled
+    programs) since the first call of this function, which starts the count (it imports JAX).
+    Programs compiled at once on several threads count once: the union of their spans."""
     with _lock:
         if not _compile["listening"]:
             import jax.monitoring
 
             jax.monitoring.register_event_duration_secs_listener(_on_duration)
             _compile["listening"] = True
-        return _compile["seconds"]
+        total, covered = 0.0, float("-inf")
+        for start, end in sorted(_compile["spans"]):
+            start = max(start, covered)
+            if end > start:
+                total, covered = total + end - start, end
+        return total
 
 
 class Split:

@@ -160,3 +160,47 @@ def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_ca
     assert _programs.stats["stored"] == before["stored"] + 2
     lam = _programs.jit(lambda s, v: s * v.sum(), static_argnums=0)
     assert float(lam(2.0, x)) == 2.0 * x.sum() and _programs.stats["plain"] == before["plain"] + 1
+
+
+def test_programs_prepared_at_once_compile_on_threads_in_64_bit_mode(fresh_cache):
+    import threading
+
+    from geomopt import _timing, _x64
+
+    seen = []
+
+    def job(scale):
+        def run():
+            seen.append((threading.current_thread() is threading.main_thread(), _x64.enabled()))
+            _programs.jit(_gather_sum, static_argnums=0).prepare(scale, np.linspace(0.0, 1.0, 8), np.arange(8))
+        return run
+
+    before = _programs.stats["stored"]
+    with _x64.scope():
+        _programs.prepare_all([job(2.0), job(3.0), job(4.0)])
+        assert not any(main for main, _ in seen) and all(x64 for _, x64 in seen)
+        assert _programs.stats["stored"] == before + 3, _programs.stats  # each its own program
+        assert jax.config.jax_enable_compilation_cache  # the overlapping bypasses turned it back on
+        seen.clear()
+        with jax.default_device(jax.devices("cpu")[0]):  # a thread-local setting: run in order, here
+            _programs.prepare_all([job(5.0), job(6.0)])
+        assert seen == [(True, True), (True, True)]
+
+    # with JAX's global 64-bit switch off, the threads get the caller's scoped one
+    code = ("from geomopt import _programs, _x64\nseen = []\nwith _x64.scope():\n"
+            "    _programs.prepare_all([lambda: seen.append(_x64.enabled())] * 2)\nprint(seen)")
+    env = {**os.environ, "PYTHONPATH": str(REPO), "JAX_ENABLE_X64": "0"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.stdout.strip() == "[True, True]", out.stderr
+
+    def broken():
+        raise ValueError("first")
+
+    with pytest.raises(ValueError, match="first"):
+        _programs.prepare_all([broken, job(7.0)])
+    # compile seconds count overlapping compilations once
+    _timing.compile_seconds()
+    base = _timing.compile_seconds()
+    for start, end in ((1e6, 1e6 + 2.0), (1e6 + 1.0, 1e6 + 3.0)):
+        _timing._on_duration("/jax/core/compile/backend_compile_duration", end - start)
+    assert _timing.compile_seconds() - base < 3.0 + 1e-6
