@@ -36,7 +36,6 @@ _NEVER = 1e12
 
 _lock = threading.Lock()
 _state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "bypassed": 0, "listening": False}
-_bypass = {"active": 0, "was_on": False}  # bypassed() blocks running now, and the cache's state before them
 
 
 def default_dir() -> str | None:
@@ -129,8 +128,7 @@ def programs_dir() -> str | None:
 
     if os.environ.get("GEOMOPT_PROGRAMS", "on").strip().lower() in _OFF:
         return None
-    on = jax.config.jax_enable_compilation_cache or (_bypass["active"] > 0 and _bypass["was_on"])  # not bypassed()'s
-    folder = jax.config.jax_compilation_cache_dir if on else None
+    folder = jax.config.jax_compilation_cache_dir if jax.config.jax_enable_compilation_cache else None
     return os.path.join(folder, "programs") if folder else None
 
 
@@ -148,26 +146,21 @@ def bypassed():
     """JAX's persistent cache off inside the block (then as before): an executable loaded from
     it cannot be serialised again (XLA CPU then misses its kernels at run time: "Function ...
     not found"), so :mod:`geomopt._programs` compiles the programs it keeps afresh.  Each use
-    counts as a miss in :func:`cache_stats`.  Blocks on several threads overlap (programs
-    compiled at once, :func:`geomopt._programs.prepare_all`): the cache is off from the first
-    one's start to the last one's end; another thread compiling meanwhile compiles without it."""
+    counts as a miss in :func:`cache_stats`.  Another thread compiling meanwhile compiles
+    without the cache."""
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
     with _lock:
+        on = jax.config.jax_enable_compilation_cache
         _state["bypassed"] += 1
-        _bypass["active"] += 1
-        if _bypass["active"] == 1:
-            _bypass["was_on"] = bool(jax.config.jax_enable_compilation_cache)
-            if _bypass["was_on"]:
-                jax.config.update("jax_enable_compilation_cache", False)
-                compilation_cache.reset_cache()
-    try:
-        yield
-    finally:
-        with _lock:
-            _bypass["active"] -= 1
-            if _bypass["active"] == 0 and _bypass["was_on"]:
+        if on:
+            jax.config.update("jax_enable_compilation_cache", False)
+            compilation_cache.reset_cache()
+        try:
+            yield
+        finally:
+            if on:
                 jax.config.update("jax_enable_compilation_cache", True)
                 compilation_cache.reset_cache()
 

@@ -26,22 +26,19 @@ others can write.
 
 from __future__ import annotations
 
-import concurrent.futures
-import contextlib
 import dataclasses
 import functools
 import hashlib
 import os
 import pickle
 import sys
-import threading
 import types
 import weakref
 
 import jax
 import numpy as np
 
-from . import _cache, _x64
+from . import _cache
 
 _UNSTABLE = object()
 #: bumped when what is written changes (files of other formats are never read)
@@ -51,12 +48,6 @@ _fingerprints: dict = {}
 #: and written), "plain" (through jax.jit); for tests and benchmarks
 stats = {"loaded": 0, "stored": 0, "plain": 0}
 _programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
-_stats_lock = threading.Lock()
-
-
-def _count(what: str) -> None:
-    with _stats_lock:  # programs may be prepared on several threads (prepare_all)
-        stats[what] += 1
 
 
 def _source_fingerprint(module_name: str) -> str:
@@ -154,7 +145,7 @@ class Program:
         modules = {"geomopt"}
         text, name = _stable(statics, modules), _stable(self.fun, modules)
         if text is _UNSTABLE or name is _UNSTABLE:
-            _count("plain")
+            stats["plain"] += 1
             return None
         devices = jax.devices()
         ident = "\n".join([_FORMAT, jax.__version__, getattr(jax, "__jaxlib_version__", ""), jax.default_backend(),
@@ -167,7 +158,7 @@ class Program:
         try:
             with open(path, "rb") as fh:
                 blob, in_tree, out_tree = pickle.loads(fh.read())
-            _count("loaded")
+            stats["loaded"] += 1
             return se.deserialize_and_load(blob, in_tree, out_tree)
         except Exception:  # noqa: BLE001 -- absent, partial or stale: compile it
             pass
@@ -177,11 +168,11 @@ class Program:
         try:
             data = pickle.dumps(se.serialize(compiled))
         except Exception:  # noqa: BLE001 -- host callbacks, captured constants: plain jit
-            _count("plain")
+            stats["plain"] += 1
             return None
         if _cache.programs_writable():
             _write(path, data)
-        _count("stored")
+        stats["stored"] += 1
         return compiled
 
     def __call__(self, *args):
@@ -209,30 +200,6 @@ def clear() -> None:
     next call looks them up on disk again, as a new process would."""
     for program in list(_programs):
         program._calls.clear()
-
-
-def prepare_all(jobs) -> None:
-    """Run ``jobs`` (callables that load or compile programs, e.g. :meth:`Program.prepare`) at
-    once on threads, so that a cold start compiles its programs on every core: XLA compiles
-    outside Python's lock (a Newton set-up's three kernels: 3.1 s one after the other, the
-    largest alone 1.8 s).  The threads run in the caller's 64-bit mode; any other thread-local
-    JAX setting would not reach them, so with a default device set (``jax.default_device``) or
-    one core the jobs run here, in order.  The first job's exception is raised."""
-    jobs = list(jobs)
-    cores = os.cpu_count() or 1
-    if len(jobs) < 2 or cores < 2 or jax.config.jax_default_device is not None:
-        for job in jobs:
-            job()
-        return
-    x64 = _x64.enabled()
-
-    def run(job):
-        with _x64.scope() if x64 else contextlib.nullcontext():
-            return job()
-
-    with concurrent.futures.ThreadPoolExecutor(min(len(jobs), cores)) as pool:
-        for future in [pool.submit(run, job) for job in jobs]:
-            future.result()
 
 
 def _write(path, data: bytes) -> None:

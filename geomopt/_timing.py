@@ -26,7 +26,7 @@ _T_IMPORT = time.perf_counter()
 _EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
            "/jax/core/compile/backend_compile_duration")
 _lock = threading.Lock()
-_compile = {"listening": False, "spans": []}  # (start, end) of each compilation event
+_compile = {"seconds": 0.0, "listening": False}
 
 
 def process_start() -> float:
@@ -47,27 +47,20 @@ def process_start() -> float:
 
 def _on_duration(event, duration, **kwargs):
     if event in _EVENTS:
-        end = time.perf_counter()
         with _lock:
-            _compile["spans"].append((end - duration, end))
+            _compile["seconds"] += duration
 
 
 def compile_seconds() -> float:
-    """Wall seconds in which JAX was tracing, lowering or compiling (or loading compiled
-    programs) since the first call of this function, which starts the count (it imports JAX).
-    Programs compiled at once on several threads count once: the union of their spans."""
+    """Seconds JAX spent tracing, lowering and compiling (or loading compiled programs) since
+    the first call of this function, which starts the count (it imports JAX)."""
     with _lock:
         if not _compile["listening"]:
             import jax.monitoring
 
             jax.monitoring.register_event_duration_secs_listener(_on_duration)
             _compile["listening"] = True
-        total, covered = 0.0, float("-inf")
-        for start, end in sorted(_compile["spans"]):
-            start = max(start, covered)
-            if end > start:
-                total, covered = total + end - start, end
-        return total
+        return _compile["seconds"]
 
 
 class Split:

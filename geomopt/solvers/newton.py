@@ -10,7 +10,6 @@ its three configurations (a projection and defaults), not subclasses of one anot
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import Any, NamedTuple
 
@@ -20,7 +19,6 @@ import numpy as np
 from .._cg import NewtonCG
 from .._config import OneOf, Real
 from .._errors import ParameterError
-from .._programs import prepare_all
 from .._projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from ..linesearch import InjectiveSearch
 from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
@@ -128,13 +126,10 @@ class AbstractNewton(AbstractSolver):
             chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
             chol.analyze()
             state = self._start(objective, x0, params, NewtonMemory(factor=chol))
-            # compile (or load) every kernel the loop uses now, at once, so that setup time holds
-            # the compilation; ahead of time: no warm-up evaluation is run
-            prepare_all([functools.partial(objective.compile_hessian, state.x, params, projection)
-                         for projection in self.projection.kernels()]
-                        + [functools.partial(self.search.compile, objective, params, state.x, state.value,
-                                             state.grad)])
-            return state
+            # compile (or load) every kernel the loop uses now, so that setup time holds the
+            # compilation; ahead of time: no warm-up evaluation is run
+            for projection in self.projection.kernels():
+                objective.compile_hessian(state.x, params, projection)
         self.search.compile(objective, params, state.x, state.value, state.grad)
         return state
 
