@@ -170,7 +170,8 @@ def _parse_obj(data, path, with_uv=False):
     lines = text.split(b"\n")
     if b"\\\n" in text or text.endswith(b"\\"):
         lines = _join_continued(lines)
-    lines = [line.split(b"#", 1)[0] if b"#" in line else line for line in lines]
+    if b"#" in text:
+        lines = [line.split(b"#", 1)[0] if b"#" in line else line for line in lines]
     # the first word of every line (b"" for a blank one); 'v ' and 'f ' lines are recognised by
     # their first two bytes, any other line is split
     keys = [_OBJ_HEADS.get(line[:2]) or (line.split(None, 1) or [b""])[0] for line in lines]
@@ -192,8 +193,13 @@ def _parse_obj(data, path, with_uv=False):
                          "x y z (optionally w, or r g b)")[:, :3]
     out = {"v": V}
     if with_uv:
-        vt_rows = [(i + 1, lines[i].split()) for i, k in enumerate(keys) if k == b"vt"]
-        out["vt"] = _obj_numbers(vt_rows, path, "vt", (2, 3), "u v (optionally w)")[:, :2]
+        vt_at = [i for i, k in enumerate(keys) if k == b"vt"]
+        numbers = _statement_words(lines, vt_at, b"vt", 2)  # the common 'vt u v' lines all at once
+        if numbers is not None:
+            out["vt"] = floats(numbers, lambda i: f"{path}, line {vt_at[i // 2] + 1}").reshape(-1, 2)
+        else:
+            out["vt"] = _obj_numbers([(i + 1, lines[i].split()) for i in vt_at], path, "vt", (2, 3),
+                                     "u v (optionally w)")[:, :2]
     seen = np.searchsorted(np.array(v_at, dtype=np.int64), np.array(f_at, dtype=np.int64))  # 'v' lines before
     face_lines = np.array(f_at, dtype=np.int64) + 1
     corners = _statement_words(lines, f_at, b"f", 3)  # triangles all at once
