@@ -18,7 +18,7 @@ from geomopt.elements import (certify_elements, corner_edges, count_invalid,
 from geomopt.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
 from geomopt.problem import Problem
 from geomopt.smooth import smooth
-from geomopt.untangle import untangle
+from geomopt.untangle import STIFF_AFTER_NEWTON, untangle
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
 
@@ -321,6 +321,8 @@ def test_hex_families_untangle(family):
          "bend": lambda: G.bent_box(4, 48, 180.0, hexes=True)}[family]()
     r, c = _untangled(t)
     assert c.tests["bernstein"] + c.tests["subdivision"] + c.tests["exact"] == len(c.valid)
+    if family == "bend":  # stiff: Newton after the L-BFGS probe (L-BFGS alone took 3,014)
+        assert STIFF_AFTER_NEWTON < r.stats.iterations < STIFF_AFTER_NEWTON + 200
 
 
 # ----------------------------------------------------------------------------- smoothing
