@@ -95,7 +95,7 @@ STIFF_AFTER = 100
 
 #: inner iterations after which the default L-BFGS on hexahedra's corners continues with Newton:
 #: a Newton iteration costs about a hundred L-BFGS ones there (hex22-rot180, 85k corners: 13
-#: Newton iterations took 12 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
+#: Newton iterations took 13 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
 #: Newton iterations' worth
 STIFF_AFTER_NEWTON = 1000
 
