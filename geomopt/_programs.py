@@ -110,6 +110,18 @@ def _leaf_key(x):
     return (tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False)))
 
 
+@functools.cache
+def _lapack_ready() -> None:
+    """Lower one small ``eigh`` (no compilation): jaxlib fills its table of LAPACK functions
+    (taken from SciPy) only while it lowers a LAPACK call, so a loaded executable that calls
+    LAPACK (the 3D Hessian kernel's 9 x 9 ``eigh``) in a process that has lowered none would
+    jump through an empty table: a segmentation fault in the second ``geomopt untangle``
+    with Newton on a 3D mesh."""
+    import jax.numpy as jnp
+
+    jax.jit(jnp.linalg.eigh).lower(jax.ShapeDtypeStruct((3, 3), np.float32))
+
+
 class Program:
     """``jax.jit(fun, static_argnums=..., compiler_options=...)`` whose compiled executables are
     kept on disk (see the module notes).  Call it like ``fun``; :meth:`prepare` loads or
@@ -159,6 +171,7 @@ class Program:
             with open(path, "rb") as fh:
                 blob, in_tree, out_tree = pickle.loads(fh.read())
             stats["loaded"] += 1
+            _lapack_ready()
             return se.deserialize_and_load(blob, in_tree, out_tree)
         except Exception:  # noqa: BLE001 -- absent, partial or stale: compile it
             pass

@@ -308,7 +308,7 @@ class LocalCertificate:
         return ""
 
 
-def local_certificate(x, S, orientation: int = 1) -> LocalCertificate:
+def local_certificate(x, S, orientation: int = 1, link=None) -> LocalCertificate:
     """Exact certificate that a triangle map in the plane or a tet map is locally injective.
 
     Parameters
@@ -317,6 +317,8 @@ def local_certificate(x, S, orientation: int = 1) -> LocalCertificate:
     S : (m, 3) or (m, 4) int array, the elements (e.g. :attr:`Problem.simplices`).
     orientation : +1 or -1, the orientation every element must have (-1: a file whose
         connectivity lists elements clockwise).
+    link : (n,) bool or None, 3D only: vertices whose own boundary tests cannot fail (the
+        copies of :func:`geomopt.elements.corner_stars`; see :func:`geomopt.stars.star_overlaps_3d`).
 
     Returns
     -------
@@ -348,7 +350,7 @@ def local_certificate(x, S, orientation: int = 1) -> LocalCertificate:
     if x.shape[1] == 2:
         branch, overlaps = fan_overlaps_2d(x, S)
         return LocalCertificate(0, -1, branch, _no_edges(), overlaps, _no_edges(), time.perf_counter() - t0)
-    edges, branch, bedges, overlaps = star_overlaps_3d(x, S)
+    edges, branch, bedges, overlaps = star_overlaps_3d(x, S, link)
     return LocalCertificate(0, -1, branch, edges, overlaps, bedges, time.perf_counter() - t0)
 
 

@@ -448,7 +448,7 @@ def element_local_certificate(X, E) -> ElementLocalCertificate:
         return ElementLocalCertificate(int(bad.size), int(bad[0]), seconds=time.perf_counter() - t0,
                                        elements=cert, words=words)
     S, source = corner_stars(E, len(X))
-    star = local_certificate(X[source], S)
+    star = local_certificate(X[source], S, link=np.arange(len(source)) >= len(X))
     if star.inverted:  # valid elements have positive corners: never, but never certify then
         return ElementLocalCertificate(star.inverted, int(star.first_inverted) // E.shape[1],
                                        seconds=time.perf_counter() - t0, elements=cert, words=words)

@@ -189,12 +189,21 @@ def _boundary_faces(T):
     return single % m, single // m
 
 
-def star_overlaps_3d(X, T):
+def star_overlaps_3d(X, T, link=None):
     """Edges and vertices around which a tet map with every tet positive is not locally injective.
 
     Parameters
     ----------
     X : (n, 3) float array, the map;  T : (m, 4) int array, positively oriented under ``X``.
+    link : (n,) bool or None, vertices whose own boundary tests are skipped: the boundary
+        vertices that are not the apex of their star in :func:`geomopt.elements.corner_stars`
+        (copies of an apex's edge neighbours), and the boundary edges between two of them.
+        Those tests cannot fail there once every tet is positive and the edges to the apex pass:
+        the tets at such a copy ``c`` all contain the edge from the apex ``v``, and seen from
+        ``c`` their cones project, along ``c -> v``, onto angular wedges that turn about that
+        edge once (closed fan) or less than a full turn (open fan), so no two of them overlap;
+        an edge between two copies lies in at most the two tets of one shared face.  Each edge
+        ``(v, c)`` is still tested (interior: winding; boundary: the chain of wedges).
 
     Returns
     -------
@@ -234,17 +243,19 @@ def star_overlaps_3d(X, T):
     used = np.zeros(n, bool)
     used[T.ravel()] = True
     branch_vertices = np.flatnonzero(used & ~on_boundary & (up != 1))
-    bad_edges = _boundary_edge_failures(X, T, tet, face, on_boundary)
+    tested = on_boundary if link is None else on_boundary & ~np.asarray(link, bool)
+    bad_edges = _boundary_edge_failures(X, T, tet, face, on_boundary, tested)
     # a boundary edge covered twice at u fails the chain test too; either way it is reported
     bad_edges = np.union1d(bad_edges, twice[~interior_edge])
     boundary_edges = np.stack([bad_edges // n, bad_edges % n], axis=1)
-    bad_vertices = [np.flatnonzero(on_boundary & (up > 1)),
-                    _boundary_vertex_failures(X, T, BF, tet, face, up, down)]
+    bad_vertices = [np.flatnonzero(tested & (up > 1)),
+                    _boundary_vertex_failures(X, T, BF, tet, face, up, down, tested)]
     return branch_edges, branch_vertices, boundary_edges, np.unique(np.concatenate(bad_vertices))
 
 
-def _boundary_edge_failures(X, T, tet, face, on_boundary):
-    """Keys ``lo * n + hi`` of boundary edges whose chains of wedges overlap."""
+def _boundary_edge_failures(X, T, tet, face, on_boundary, tested):
+    """Keys ``lo * n + hi`` of boundary edges (with an end in ``tested``) whose chains of wedges
+    overlap."""
     n = len(X)
     # every (boundary face, edge): the face's third vertex starts or ends the chain about lo -> hi
     center_s, start, center_e, end = [], [], [], []
@@ -256,6 +267,8 @@ def _boundary_edge_failures(X, T, tet, face, on_boundary):
             # (j, k, l, f_local) even: the wedge about j -> k is [l, f_local)
             even = (_parity((j, k, l, f_local)) == 0)
             p, q, w = T[t, j], T[t, k], T[t, l]
+            rows = tested[p] | tested[q]
+            p, q, w = p[rows], q[rows], w[rows]
             key = np.minimum(p, q) * n + np.maximum(p, q)
             is_start = (p < q) == even
             center_s.append(key[is_start]), start.append(w[is_start])
@@ -265,7 +278,7 @@ def _boundary_edge_failures(X, T, tet, face, on_boundary):
     wc, wcd = [], []
     for i, j, k, l in _EVEN_EDGE:
         p, q = T[:, i], T[:, j]
-        rows = np.flatnonzero(on_boundary[p] & on_boundary[q])
+        rows = np.flatnonzero(on_boundary[p] & on_boundary[q] & (tested[p] | tested[q]))
         p, q, c, d = p[rows], q[rows], T[rows, k], T[rows, l]
         fwd = p < q
         wc.append(np.minimum(p, q) * n + np.maximum(p, q))
@@ -326,16 +339,19 @@ def _arcs_meet(X, v, p1, p2, q1, q2):
     return meet
 
 
-def _boundary_vertex_failures(X, T, BF, tet, face, up, down):
-    """Boundary vertices whose stars overlap: two boundary faces at the vertex sharing only it
-    meet elsewhere (the link boundary is not simple), or the count just inside a boundary
-    cycle of a non-manifold vertex is not 1 (module docstring).  ``BF`` (b, 3) the boundary
-    faces, of tets ``T[tet]`` omitting corner ``face``; ``up, down`` (n,) the counts at ``+-u``."""
+def _boundary_vertex_failures(X, T, BF, tet, face, up, down, tested):
+    """Boundary vertices (of ``tested``) whose stars overlap: two boundary faces at the vertex
+    sharing only it meet elsewhere (the link boundary is not simple), or the count just inside
+    a boundary cycle of a non-manifold vertex is not 1 (module docstring).  ``BF`` (b, 3) the
+    boundary faces, of tets ``T[tet]`` omitting corner ``face``; ``up, down`` (n,) the counts
+    at ``+-u``."""
     n = len(X)
     # corners of boundary faces: (vertex, the two other vertices: the arc seen from it)
     cv = BF.T.ravel()  # corner a of face r is entry a * b + r
     c1 = np.roll(BF, -1, axis=1).T.ravel()
     c2 = np.roll(BF, -2, axis=1).T.ravel()
+    corner = np.flatnonzero(tested[cv])  # every corner of a tested vertex, none of the others
+    cv, c1, c2 = cv[corner], c1[corner], c2[corner]
     i, j = _pairs_by_key(cv, cv)
     keep = (i < j) & (c1[i] != c1[j]) & (c1[i] != c2[j]) & (c2[i] != c1[j]) & (c2[i] != c2[j])
     i, j = i[keep], j[keep]
@@ -353,7 +369,7 @@ def _boundary_vertex_failures(X, T, BF, tet, face, up, down):
     need = (cycles > 1) | ((cycles == 1) & (up > 0) & (down > 0))
     pick = first[need[cv[first]]]
     if pick.size:
-        r = pick % len(BF)
+        r = corner[pick] % len(BF)
         q = T[tet[r], face[r]]  # the tet's vertex off the boundary face
         count = _inner_counts(X, T, cv[pick], c1[pick], c2[pick], q)
         bad.append(cv[pick][count != 1])

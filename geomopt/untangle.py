@@ -49,7 +49,7 @@ The outer loop is a continuation of the one loop (:class:`EpsContinuation`, hand
 decides to stop or picks the next eps, and asks for the solver's memory to be dropped when an
 outer iteration increased the number of inverted elements.  With the default L-BFGS, an inner
 solve that has not converged after :data:`STIFF_AFTER` iterations continues with the Laplacian
-seed (:func:`stiff_solver`), for the rest of the solve.
+seed, or with Newton on the corners of hexahedra (:func:`stiff_solver`), for the rest of the solve.
 
 ``eps`` and ``lam`` are traced parameters of the jitted kernels: the whole outer loop compiles
 once per mesh shape.
@@ -82,7 +82,7 @@ from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Fin
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
-           "stiff_solver", "next_eps", "bits_differ", "STIFF_AFTER"]
+           "stiff_solver", "next_eps", "bits_differ", "STIFF_AFTER", "STIFF_AFTER_NEWTON"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
@@ -92,6 +92,12 @@ LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses th
 
 #: inner iterations after which the default L-BFGS continues with the Laplacian seed
 STIFF_AFTER = 100
+
+#: inner iterations after which the default L-BFGS on hexahedra's corners continues with Newton:
+#: a Newton iteration costs about a hundred L-BFGS ones there (hex22-rot180, 85k corners: 13
+#: Newton iterations took 13 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
+#: Newton iterations' worth
+STIFF_AFTER_NEWTON = 1000
 
 #: what :func:`untangle` returns (one result type for every solve; kept as a name)
 UntangleResult = Result
@@ -107,9 +113,20 @@ def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver |
     does not grow with the mesh (disk 12.7k triangles rotated 180 degrees: 1,474 -> 50 inner
     iterations, 2.2 -> 0.2 s; an irregular Delaunay disk 6,855 -> 1,259), while on local
     tangles (noise) the diagonal seed converges within the probe at a third of the cost per
-    iteration and is kept."""
+    iteration and is kept.
+
+    ``corners`` in 3D (the corner tetrahedra of hexahedra): Newton (:func:`default_solver`
+    ``"newton"``).  No L-BFGS seed solves a stiff corner problem: on the hex rod of 9 x 9 x 108
+    bent by 180 degrees (69,984 corners; the tet rod of the same grid untangles in 1,565
+    Laplacian-seeded iterations) the first eps solve stalls with the Laplacian seed after 8,437
+    iterations at a mean energy of 567 with 26,627 corners inverted (6,304 at the start), with the
+    diagonal seed after 15,736 at 72 with 1,137; each later eps then stalls too and the loop never
+    untangles.  Newton reaches that eps's minimum (mean energy 4.31, every corner positive) in 73
+    iterations.  The switch comes after :data:`STIFF_AFTER_NEWTON` L-BFGS iterations."""
     if str(name).strip().lower() != "lbfgs":
         return None
+    if corners and dim == 3:
+        return default_solver("newton", dim)
     return dataclasses.replace(default_solver("lbfgs", dim, LAPLACIAN_FROM, corners), precondition="laplacian")
 
 
@@ -335,7 +352,8 @@ class EpsContinuation(AbstractContinuation):
     def __init__(self, problem, scaled, full, objective, map_scale, xs, options, details, initially, solver,
                  stiff=None):
         self.problem, self.scaled, self.full, self.objective, self.solver = problem, scaled, full, objective, solver
-        self.stiff = stiff if stiff is not None and solver.max_steps > STIFF_AFTER else None
+        self.probe = STIFF_AFTER_NEWTON if isinstance(stiff, Newton) else STIFF_AFTER
+        self.stiff = stiff if stiff is not None and solver.max_steps > self.probe else None
         self.probed = 0  # inner iterations of this outer iteration before a switch to ``stiff``
         self.k, self.xs, self.options, self.details, self.initially = map_scale, xs, options, details, initially
         self.eps = float(options.eps0)
@@ -349,15 +367,15 @@ class EpsContinuation(AbstractContinuation):
 
     @property
     def phase_solver(self):
-        """The solver of the next inner solve: capped at :data:`STIFF_AFTER` iterations while a
-        switch to ``stiff`` is pending."""
-        return self.solver if self.stiff is None else dataclasses.replace(self.solver, max_steps=STIFF_AFTER)
+        """The solver of the next inner solve: capped at :data:`STIFF_AFTER` iterations
+        (:data:`STIFF_AFTER_NEWTON` before Newton) while a switch to ``stiff`` is pending."""
+        return self.solver if self.stiff is None else dataclasses.replace(self.solver, max_steps=self.probe)
 
     def start(self, state):
         self.E = next(iter(self._stats(state.x, state.params)))
 
     def __call__(self, state, outcome) -> Decision:
-        if self.stiff is not None and outcome is Outcome.MAX_STEPS and state.iteration >= STIFF_AFTER:
+        if self.stiff is not None and outcome is Outcome.MAX_STEPS and state.iteration >= self.probe:
             # a stiff, global inner solve: the Laplacian seed from here on, same eps, same map
             self.probed, self.solver, self.stiff = state.iteration, self.stiff, None
             return Decision.go(state.params, objective=self.objective, x=state.x, solver=self.solver)
