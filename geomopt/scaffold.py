@@ -44,7 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._config import Instance, Int, Real, validate
+from ._config import Instance, Int, Maybe, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._objective import Objective
 from ._x64 import float64
@@ -493,8 +493,12 @@ class ScaffoldOptions:
         it does not change what is reachable.  On bunny_cut (outer_rtol 1e-5, inner solves
         converged fully) 1e-3 took 61 solver iterations, 1e-4 62 and 1e-2 84.
     ring_scale : float > 1, size of the enclosing polygon relative to the start's convex hull.
-    inner_steps, max_outer : int >= 1, solver iterations per outer iteration and the outer
-        iteration limit.
+    inner_steps : int >= 1 or None, solver iterations per outer iteration; None (default): 10
+        for Newton-type solvers (Newton, SLIM, CM), 50 for the others (L-BFGS, AQP, optimistix:
+        their memory or acceleration restarts with every new scaffold, so ten steps a round
+        left L-BFGS on the spiral strip at 597-1,000+ iterations depending on the Laplacian
+        backend's rounding; fifty: 45 iterations whatever the backend).
+    max_outer : int >= 1, the outer iteration limit.
     outer_rtol : float > 0 (1e-4: the mesh energy is then within about 1e-4 of the outer
         loop's limit, measured 4e-5 above the 1e-5 result on bunny_cut, for 30 instead of 40
         solver iterations); Newton-type inner solves stop when the decrement is below
@@ -504,14 +508,14 @@ class ScaffoldOptions:
 
     scaffold_weight: float = 1e-3
     ring_scale: float = 3.0
-    inner_steps: int = 10
+    inner_steps: int | None = None
     max_outer: int = 100
     outer_rtol: float = 1e-4
     lazy: bool = True
 
     def __post_init__(self):
         validate(self, scaffold_weight=Real(0.0, lo_open=True), ring_scale=Real(1.0, lo_open=True),
-                 inner_steps=Int(1), max_outer=Int(1), outer_rtol=Real(0.0, lo_open=True), lazy=Instance(bool))
+                 inner_steps=Maybe(Int(1)), max_outer=Int(1), outer_rtol=Real(0.0, lo_open=True), lazy=Instance(bool))
 
 
 class FreeRecord(NamedTuple):
@@ -644,7 +648,8 @@ def _inner_solver(solver, opts, named):
         raise ParameterError(f"the bijective mode needs a dataclass solver with a max_steps field "
                              f"(e.g. geomopt.Newton()), got {solver!r}")
     rtol = max(solver.rtol, 0.1 * opts.outer_rtol) if isinstance(solver, AbstractNewton) else solver.rtol
-    inner = dataclasses.replace(solver, max_steps=int(opts.inner_steps), rtol=rtol)
+    steps = opts.inner_steps if opts.inner_steps is not None else (10 if isinstance(solver, AbstractNewton) else 50)
+    inner = dataclasses.replace(solver, max_steps=int(steps), rtol=rtol)
     if named and inner.search.safety < 0.9:
         inner = dataclasses.replace(inner, search=dataclasses.replace(inner.search, safety=0.9))
     return inner

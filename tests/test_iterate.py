@@ -194,7 +194,7 @@ def test_result_energies_and_deprecated_aliases():
     (lambda V, F: geomopt.parameterize(V, F, energy="garanzha", lam="1", progress=False), "lam='1' must be a number"),
     (lambda V, F: geomopt.parameterize(V, F, bijective=True, lazy="yes", progress=False), "lazy must be True or False"),
     (lambda V, F: geomopt.parameterize(V, F, bijective=True, inner_steps=2.5, progress=False),
-     "inner_steps must be an integer"),
+     "inner_steps must be None or an integer"),
 ])
 def test_parameterize_refuses_mistyped_options(call, message):
     V, F = grid(4)
