@@ -61,6 +61,13 @@ def test_auto_backend_is_the_measured_winner_when_installed():
     assert linsolve.SparseCholesky(ip, ix).backend == "pardiso"
 
 
+def test_repeated_solves_take_the_backend_with_the_fastest_solves(monkeypatch):
+    for installed, expect in ((["pardiso", "cholespy", "superlu"], "cholespy"), (["pardiso", "superlu"], "pardiso"),
+                              (["pardiso", "cholmod", "cholespy", "superlu"], "cholmod"), (["superlu"], "superlu")):
+        monkeypatch.setattr(linsolve, "available_backends", lambda: installed)
+        assert linsolve.repeated_solves_backend() == expect
+
+
 # ------------------------------------------------------------------ size buckets (padding)
 
 import json  # noqa: E402

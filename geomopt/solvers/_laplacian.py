@@ -26,7 +26,7 @@ import scipy.sparse as sp
 
 from .. import _hostcall
 from .._errors import ParameterError
-from ..linsolve import SparseCholesky
+from ..linsolve import SparseCholesky, repeated_solves_backend
 from .._x64 import pure_callback
 
 #: where K^-1 is applied: see the module docstring
@@ -162,7 +162,7 @@ class RestLaplacian:
         elif n:
             L = sp.tril(H).tocsc()
             L.sort_indices()
-            self._chol = SparseCholesky(L.indptr, L.indices)
+            self._chol = SparseCholesky(L.indptr, L.indices, repeated_solves_backend())
             self._chol.factor(L.data)
 
     def solve(self, q):
