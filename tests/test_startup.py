@@ -61,6 +61,18 @@ def test_auto_backend_is_the_measured_winner_when_installed():
     assert linsolve.SparseCholesky(ip, ix).backend == "pardiso"
 
 
+def test_the_scale_awareness_check_does_not_trace_again_in_a_warm_process():
+    from geomopt.param import check_scale_aware
+
+    traces = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: traces.append(event) if event.endswith("jaxpr_trace_duration") else None)
+    check_scale_aware("mips", {})
+    traces.clear()
+    check_scale_aware("mips", {})
+    assert traces == []
+
+
 def test_repeated_solves_take_the_backend_with_the_fastest_solves(monkeypatch):
     for installed, expect in ((["pardiso", "cholespy", "superlu"], "cholespy"), (["pardiso", "superlu"], "pardiso"),
                               (["pardiso", "cholmod", "cholespy", "superlu"], "cholmod"), (["superlu"], "superlu")):
