@@ -83,8 +83,13 @@ def _signed_sizes(Dm):
         return D / (2.0 if d == 2 else 6.0)
 
 
-def _check_rest_volumes(vol, what, rel_tol=1e-12):
-    """Reject degenerate (near-zero) rest elements and mixed orientations."""
+def _check_rest_volumes(vol, what, rel_tol=1e-12, Dm=None):
+    """Reject degenerate (near-zero) rest elements and mixed orientations.
+
+    Near-zero: at most ``rel_tol`` of the mean size, or, given the edge matrices ``Dm``
+    (m, d, d), of the element's own Hadamard bound (the product of its edge lengths, times 1/2 or
+    1/6): a lone or uniformly degenerate element rounds to a tiny size of either sign, which the
+    mean alone cannot tell from a real one."""
     if not np.isfinite(vol).all():
         idx = np.flatnonzero(~np.isfinite(vol))
         raise MeshError(
@@ -98,6 +103,11 @@ def _check_rest_volumes(vol, what, rel_tol=1e-12):
             f"vertices) or its coordinates are too small for float64 (rescale it)"
         )
     small = np.abs(vol) <= rel_tol * scale
+    if Dm is not None and not is_traced(Dm):
+        Dm = np.asarray(Dm)
+        with np.errstate(all="ignore"):
+            bound = np.prod(np.linalg.norm(Dm, axis=-2), axis=-1) / (2.0 if Dm.shape[-1] == 2 else 6.0)
+        small |= np.abs(vol) <= rel_tol * bound
     if small.any():
         idx = np.flatnonzero(small)
         raise MeshError(
@@ -188,7 +198,7 @@ class Problem:
             V = V[:, :2]
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm = _edge_matrices(V, F)
-        S = F[:, [0, 2, 1]] if _flipped(_signed_sizes(Dm), "triangle") else F
+        S = F[:, [0, 2, 1]] if _flipped(_signed_sizes(Dm), "triangle", Dm) else F
         Dm = _edge_matrices(V, S)
         return cls._make("planar", 2, V, F, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
@@ -206,7 +216,7 @@ class Problem:
         V = _vertices(V, "surface problem: rest vertices", dim=3)
         F = validate_simplices(F, len(V), 3, "triangles")
         Dm, area = _local_frames(V, F)
-        _flipped(area, "triangle")
+        _flipped(area, "triangle", Dm)
         return cls._make("surface", 2, V, F, F, Dm, area, fixed, fixed_positions)
 
     @classmethod
@@ -221,7 +231,7 @@ class Problem:
         V = _vertices(V, "tet problem: rest vertices", dim=3)
         T = validate_simplices(T, len(V), 4, "tetrahedra")
         Dm = _edge_matrices(V, T)
-        S = T[:, [0, 2, 1, 3]] if _flipped(_signed_sizes(Dm), "tetrahedron") else T
+        S = T[:, [0, 2, 1, 3]] if _flipped(_signed_sizes(Dm), "tetrahedron", Dm) else T
         Dm = _edge_matrices(V, S)
         return cls._make("tet", 3, V, T, S, Dm, _signed_sizes(Dm), fixed, fixed_positions)
 
@@ -274,7 +284,7 @@ class Problem:
         else:
             Dm = _local_frames(V, S)[0] if kind == "quad_surface" else _edge_matrices(V, S)
         vol = _signed_sizes(Dm)
-        _check_rest_volumes(vol, "corner triangle" if k == 4 else "corner tetrahedron")
+        _check_rest_volumes(vol, "corner triangle" if k == 4 else "corner tetrahedron", Dm=Dm)
         return cls._make(kind, 3 if k == 8 else 2, V, S, S, Dm, vol, fixed, fixed_positions, elements=E)
 
     @classmethod
@@ -451,10 +461,10 @@ def _vertices(V, name, dim=None):
     return V
 
 
-def _flipped(vol, what) -> bool:
+def _flipped(vol, what, Dm=None) -> bool:
     """:func:`_check_rest_volumes` (True: every rest element is negatively oriented) for concrete
     sizes; traced sizes are not checked and taken as positive."""
-    return False if is_traced(vol) else _check_rest_volumes(vol, what)
+    return False if is_traced(vol) else _check_rest_volumes(vol, what, Dm=Dm)
 
 
 def check_rest_values(problem: Problem) -> Problem:

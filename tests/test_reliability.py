@@ -464,3 +464,15 @@ def test_fuzz_parameterize_corrupted_faces(F):
     except GeomoptError:
         return
     _check_param_result(res)
+
+
+def test_a_lone_degenerate_rest_element_is_refused_though_its_size_rounds_away_from_zero():
+    # found by the fuzz above: LU rounds this triangle's zero area to -8e-17, which the mean size
+    # (its own) could not call small; its own edge lengths can
+    V = np.array([[1.5, 0.125], [0.0, 1.0], [0.0, 1.0]])
+    with pytest.raises(MeshError, match="near-\\)zero size"):
+        Problem.planar(V, np.array([[0, 1, 2]]))
+    T = np.array([[0, 1, 2, 3]])
+    P = np.array([[0.1, 0.2, 0.3], [1.7, 0.3, 0.9], [0.4, 1.3, 0.2], [0.4, 1.3, 0.2]])
+    with pytest.raises(MeshError, match="zero size"):
+        Problem.tets(P, T)
