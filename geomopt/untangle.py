@@ -27,13 +27,26 @@ Departures from the paper's code, each measured on the LIM sample and on generat
   ``disk_mesh(60)``, seed 0, never untangles).  Once nothing is inverted the paper's rule
   applies uncapped (:func:`next_eps`): eps then usually drops to the floor in one step
   (the twisted cube of 48k tets: 3 outer iterations instead of 5);
+* the initial eps is a tenth of the median ``|det J|`` of the normalised start when the median
+  exceeds 10, else 1 (:func:`start_eps`): the normalisation below makes the mean determinant 1,
+  but a start whose interior vertices are scattered over the domain has determinants of both
+  signs that cancel in the mean while each is huge (``random_interior`` on an ``n x n`` grid:
+  median ``|det J|`` about ``0.1 n^2``). At ``eps = 1`` such a start is in the barrier-like
+  regime ``|det J| >> eps`` everywhere and the first inner solve's iteration count grows with the
+  mesh (quads 100^2 / 150^2 / 200^2: 1,368 / 6,416 / 13,846 Laplacian-seeded iterations;
+  triangles 2 x 224^2: 17,953) until, on 316^2 quads, it stalls with half the corners inverted
+  and the loop never untangles; from that eps the first solve's stiffness no longer grows with
+  the mesh (quads 150^2: 6,535 -> 62 inner iterations in all; 316^2: 2 outer, 144 inner
+  iterations). Starts that are tangled only locally have a median below 10 and keep the paper's
+  ``eps0 = 1`` (a larger one costs them outer iterations: a squashed quad boundary 368 inner
+  iterations at 1, 449 at its median 1.8);
 * the inner L-BFGS uses the M1QN3 diagonal seed, a loose tolerance (``1e-6``) and keeps its
   curvature pairs across outer iterations (2-5x fewer energy evaluations in total);
 * the density is evaluated without ``pow`` (not vectorised by XLA on CPU).
 
 Before solving, the map is scaled by a power of two to a box of size ~10 (exact, so scaling
 back is exact too) and the rest mesh so that its volume equals the map's: the mean
-determinant is then 1 and ``eps0 = 1`` is meaningful whatever the input units.  In 2D, rest
+determinant is then 1 and ``eps0`` is meaningful whatever the input units.  In 2D, rest
 triangles with an aspect ratio above 10 are replaced by equilateral ones, as the paper's code
 does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
 ``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
@@ -72,7 +85,7 @@ from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
 from ._x64 import float64
 from ._programs import jit as programs_jit
-from ._geometry import det
+from ._geometry import det, edge_rows
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
@@ -82,11 +95,14 @@ from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Fin
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
-           "stiff_solver", "next_eps", "bits_differ", "STIFF_AFTER", "STIFF_AFTER_NEWTON"]
+           "stiff_solver", "next_eps", "start_eps", "START_RATIO", "bits_differ", "STIFF_AFTER", "STIFF_AFTER_NEWTON"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
 
+
+#: the largest median ``|det J| / eps`` of the start's elements at the first eps (:func:`start_eps`)
+START_RATIO = 10.0
 
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
 
@@ -165,7 +181,9 @@ class UntangleOptions:
         2D, 1/2 in 3D.
     max_outer : outer (eps) iteration limit.
     energy_tol : stop once untangled and ``|E_prev - E| / E`` of an inner solve is below this.
-    eps0 : initial eps (the map is normalised so the mean det J is 1).
+    eps0 : initial eps (the map is normalised so the mean det J is 1).  None: the median
+        ``|det J|`` of the start's active elements over :data:`START_RATIO`, at least 1
+        (:func:`start_eps`).
     max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
         equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
     keep_memory : keep the L-BFGS curvature pairs across outer iterations, except after one
@@ -186,7 +204,7 @@ class UntangleOptions:
     theta: float | None = None
     max_outer: int = 200
     energy_tol: float = 1e-5
-    eps0: float = 1.0
+    eps0: float | None = None
     max_aspect: float | None = 10.0
     keep_memory: bool = True
     injective_when_untangled: bool = False
@@ -196,7 +214,7 @@ class UntangleOptions:
 
     def __post_init__(self):
         validate(self, theta=Maybe(Real(0.0, 1.0, lo_open=True, hi_open=True)), max_outer=Int(1),
-                 energy_tol=Real(0.0, 1.0, lo_open=True, hi_open=True), eps0=Real(0.0, lo_open=True),
+                 energy_tol=Real(0.0, 1.0, lo_open=True, hi_open=True), eps0=Maybe(Real(0.0, lo_open=True)),
                  max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
                  injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
                  max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool))
@@ -309,6 +327,27 @@ def next_eps(eps: float, E: float, E_prev: float, detmin: float, min_sigma: floa
         sigma = min(sigma, max_sigma)
     mu = (1.0 - sigma) * _chi_scalar(detmin, eps)
     return max(floor, 2.0 * math.sqrt(mu * (mu - detmin))) if detmin < mu else floor
+
+
+def start_eps(problem: Problem, x) -> float:
+    """The initial eps of :func:`untangle` when ``eps0`` is None: ``max(1, median |det J| /``
+    :data:`START_RATIO` ``)`` over ``problem``'s elements (the active ones of the normalised
+    problem) at the normalised start ``x`` (n, d); on the host, once.
+
+    The normalisation makes the mean ``det J`` 1, and the paper's eps = 1 suits starts whose
+    typical element has ``|det J|`` within :data:`START_RATIO` of 1 (every locally tangled
+    family: rotations and squashed boundaries have a median of 1-2, noise of two edge lengths
+    6.4).  When the typical element is far larger (interior vertices scattered over the
+    domain: determinants of both signs that cancel in the mean, ``|det J|`` growing with the
+    mesh), eps = 1 leaves nearly every element deep in the stiff regime ``|det J| >> eps`` of
+    ``chi`` and the first inner solve takes iterations that grow with the mesh, or stalls (see
+    the module notes).  This eps keeps the typical element's ``|det J| / eps`` at
+    :data:`START_RATIO` whatever the mesh size; the eps schedule shrinks it from there."""
+    if not len(problem.simplices):
+        return 1.0
+    D = det(edge_rows(problem.simplices, np.asarray(x, np.float64))) * det(problem.rest_inv)
+    m = float(np.median(np.abs(D)))
+    return max(1.0, m / START_RATIO) if math.isfinite(m) else 1.0
 
 
 def _power_of_two(v: float) -> float:
@@ -497,9 +536,11 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
         solver = default_solver(solver, problem.dim, int(active.sum()), corners)
     theta = opts.resolved_theta(problem.dim)
     scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
-    energy = garanzha.with_params(eps=opts.eps0, lam=theta / (1.0 - theta))
+    energy = garanzha.with_params(eps=1.0, lam=theta / (1.0 - theta))
     full = Objective(scaled, energy, buckets=opts.bucket)
     obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
+    if opts.eps0 is None:
+        opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
     details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()))
     eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver, stiff)
     setup = time.perf_counter() - t_setup

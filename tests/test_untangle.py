@@ -343,9 +343,42 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     # the diagonal seed throughout: the default's switch to the Laplacian seed untangles this
     # disk within its first outer iteration, where the cap does not come into play
     solver = default_solver("lbfgs", 2)
-    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30)
+    # the paper's eps0 = 1: from start_eps's (151 here) the first solve leaves 1,637 folds
+    # instead of 12,335 and the loop untangles with or without the cap
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30, eps0=1.0)
     assert result.success, result.message
     assert result.trace.column("inverted", int)[0] > 0 and result.stats.outer_iterations <= 6
+
+
+def test_start_eps_is_one_unless_the_start_is_scattered():
+    """Locally tangled starts (median |det J| of the normalised start below START_RATIO: rotated,
+    noisy, squashed boundaries) keep the paper's eps0 = 1; a start scattered over the domain
+    begins at a tenth of its median |det J|; an explicit eps0 is used as given."""
+    V, F = G.square_mesh(17)
+    V4, Q = G.quad_mesh(16, 16)
+    for t in (G.rotated_interior(V, F, 180), G.noisy_interior(V, F, 2.0, seed=1), G.squashed_boundary(V4, Q, 0.7),
+              G.noisy_interior(*G.box_mesh(5, 5, 5), 1.0, seed=1)):
+        assert untangle(t.problem(), t.x0, progress=False, max_outer=1).trace.column("eps")[0] == 1.0, t.name
+    t = G.random_interior(V4, Q, seed=1)
+    assert untangle(t.problem(), t.x0, progress=False, max_outer=1).trace.column("eps")[0] > 1.0
+    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, eps0=1.0).trace.column("eps")[0] == 1.0
+    with pytest.raises(ParameterError):
+        untangle(t.problem(), t.x0, progress=False, eps0=0.0)
+
+
+@pytest.mark.parametrize("mesh", ["quads", "triangles"])
+def test_scattered_start_first_solve_does_not_grow_with_the_mesh(mesh):
+    """Interior vertices scattered over the square (random_interior): the normalised start's
+    determinants cancel in the mean but their median is ~0.1 n^2 (about 700 here).  At eps = 1
+    the first inner solve's iterations grew with the mesh (80^2 quads 631, 2 x 80^2 triangles
+    730, 100^2 quads 1,473, 200^2 13,846) until on 316^2 quads it stalled with half the corners
+    inverted and the loop never untangled (issue 18); from start_eps both take ~105."""
+    V, S = G.quad_mesh(80, 80) if mesh == "quads" else G.square_mesh(81)
+    t = G.random_interior(V, S, seed=1)
+    result = untangle(t.problem(), t.x0, progress=False)
+    assert result.success, result.message
+    assert result.trace.column("eps")[0] > 10.0
+    assert result.stats.iterations < 250, result.stats.iterations
 
 
 def test_generators_are_valid():
