@@ -492,7 +492,7 @@ class Objective:
         """``(blocks, swap, n_blocks)``: the element-to-vertex-block map with which the kernels
         assemble the Hessian (:func:`block_hessian`), padded like :attr:`geom`: ``blocks``
         (m_padded, (d+1)(d+2)/2) int32 and ``swap`` (same shape) bool device arrays (padded
-        elements add zero blocks to block 0), ``n_blocks`` the padded block count."""
+        elements add zero blocks to their originals' blocks), ``n_blocks`` the padded block count."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
         return m.assembly[0], m.assembly[1], m.n_blocks_padded
@@ -619,7 +619,7 @@ class _Mesh:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
         with jax.ensure_compile_time_eval():  # concrete device arrays, also when built under a trace
-            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded))
+            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded, cycle=True))
             self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
         # the pattern needs the connectivity only (never the problem's possibly traced arrays)
         self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
@@ -640,13 +640,13 @@ class _Mesh:
         if self._pattern is None:
             pat = hessian_pattern(self._connectivity, self.free_dofs)
             sz = self.sizes
-            # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
-            # block 0, padded CSC entries gather block entry 0 and are cut off on the host
+            # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)
+            # add zero blocks to their originals' blocks, padded CSC entries gather block entry 0
+            # and are cut off on the host
             self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
             self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
-            extra = sz.m_padded - sz.m
-            blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
-            swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
+            blocks = _padding.pad_rows(pat.blocks, sz.m_padded, cycle=True)
+            swap = _padding.pad_rows(pat.swap, sz.m_padded, cycle=True)
             gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
             with jax.ensure_compile_time_eval():
                 self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
