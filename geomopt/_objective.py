@@ -42,27 +42,9 @@ from ._projection import as_projection, project_psd  # noqa: F401  (project_psd:
 from .linsolve import SparseCholesky
 from .problem import Problem
 
-#: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
-#: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
-#: that off made energy + gradient of 10^6 triangles 1.45x faster (CPU time 0.076 -> 0.052 s)
-#: and changes nothing elsewhere (the option only exists for CPU).  jaxlib before 0.8.1 does
-#: not know it and refuses to compile with it: see :func:`xla_options`.
-XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
-
-
-@functools.cache
-def xla_options() -> dict:
-    """:data:`XLA_OPTIONS` if the running jaxlib accepts them, else ``{}``: decided once per
-    process by compiling an identity (about 20 ms, at the first kernel call, not at import)."""
-    try:
-        jax.jit(lambda v: v, compiler_options=XLA_OPTIONS).lower(np.float64(0.0)).compile()
-    except Exception:  # noqa: BLE001 -- the error type differs across jaxlib versions
-        return {}
-    return dict(XLA_OPTIONS)
-
-
 class _Kernel:
-    """``jax.jit(fun, compiler_options=xla_options(), **options)``, made at the first call (so
+    """``jax.jit(fun, compiler_options=_programs.xla_options(), **options)`` (a kept
+    :class:`~geomopt._programs.Program`), made at the first call (so
     that importing geomopt compiles nothing); attributes (``lower``, ``_cache_size``...) are
     the jitted function's.  Called with a tracer among its non-static arguments it calls
     ``fun`` itself (XLA options exist only for a top-level jit), so that the kernel can be used
@@ -76,7 +58,7 @@ class _Kernel:
 
     def _kernel(self):
         if self._jitted is None:
-            self._jitted = _programs.jit(self._fun, compiler_options=xla_options(), **self._options)
+            self._jitted = _programs.jit(self._fun, **self._options)  # with _programs.xla_options()
         return self._jitted
 
     def __call__(self, *args, **kwargs):
@@ -95,7 +77,8 @@ class _Kernel:
 
 
 def jit(fun=None, **options):
-    """``jax.jit`` with :func:`xla_options` (usable as ``@jit`` or ``partial(jit, ...)``)."""
+    """``jax.jit`` with :func:`geomopt._programs.xla_options`, its programs kept on disk
+    (usable as ``@jit`` or ``partial(jit, ...)``)."""
     if fun is None:
         return partial(jit, **options)
     return _Kernel(fun, options)
