@@ -129,10 +129,11 @@ def dets_kernel(geom, x):
     return _dets(geom, x)
 
 
-def element_block(density, projection, J, params, vol):
+def element_block(density, projection, J, params, vol, code=0):
     """(d*d, d*d) J-space block ``vol * H`` of one element under ``projection`` (a
-    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy)."""
-    return as_projection(projection).block(density, J, params, vol)
+    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy; or
+    ``EigenFilter`` with the traced filter ``code``)."""
+    return as_projection(projection).block(density, J, params, vol, code)
 
 
 def local_pairs(d):
@@ -143,7 +144,7 @@ def local_pairs(d):
     return p, q
 
 
-def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
+def _element_blocks(density, projection, params, code, x, s, Minv, vol, swap):
     """The projected Hessian blocks of one element: (nb, d, d), block ``i`` of
     :func:`block_pairs` ``(a, b)`` oriented as stored, ``H[v-dofs, w-dofs]`` with ``v >= w``
     (the element block ``(b, a)`` where ``swap[i]``, else ``(a, b)``).
@@ -156,7 +157,7 @@ def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
     d = Minv.shape[0]
     X = x[s]
     J = (X[1:] - X[:1]).T @ Minv
-    HJ = element_block(density, projection, J, params, vol).reshape(d, d, d, d)
+    HJ = element_block(density, projection, J, params, vol, code).reshape(d, d, d, d)
     G = jnp.concatenate([-jnp.sum(Minv, axis=0, keepdims=True), Minv], axis=0)  # (d+1, d)
     T = sum(G[:, None, None, j, None] * HJ[None, :, j, :, :] for j in range(d))  # a c e l
     bi, bj = block_pairs(d)
@@ -167,9 +168,10 @@ def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
     return jnp.stack(out)
 
 
-def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks):
+def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code=0):
     """Vertex-block data (n_blocks, d, d) of the projected Hessian (all DOFs; the pattern's
-    ``gather`` picks the free lower-triangle entries).  Traceable.
+    ``gather`` picks the free lower-triangle entries).  Traceable.  ``code``: the traced filter
+    of ``EigenFilter`` (see :meth:`AbstractProjection.kernel <geomopt._projection.AbstractProjection.kernel>`).
 
     ``chunk`` > 0 (CPU) loops over chunks of that many elements, each computed and added to
     the blocks in the loop: the per-element intermediates stay in cache (measured 2x on the
@@ -178,7 +180,7 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
     loop body is compiled.  ``chunk`` = 0 vmaps over all elements at once (an accelerator)."""
     S, Minv, vol = geom
     m, d = S.shape[0], Minv.shape[-1]
-    f = jax.vmap(partial(_element_blocks, density, projection, params, x))
+    f = jax.vmap(partial(_element_blocks, density, projection, params, code, x))
     VB = jnp.zeros((n_blocks, d, d), x.dtype)
     if not chunk or m <= chunk:
         return VB.at[blocks].add(f(S, Minv, vol, swap))
@@ -194,12 +196,12 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 
 
 @partial(jit, static_argnums=(0, 1, 2, 3))
-def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, blocks, swap, gather):
+def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, code, blocks, swap, gather):
     """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
     of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
-    ``gather``."""
+    ``gather``.  ``projection, code``: a projection's :meth:`kernel` form."""
     value, grad = free_value_and_grad(density, geom, free, x, params)
-    VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks)
+    VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code)
     return value, grad, VB.reshape(-1)[gather]
 
 
@@ -537,8 +539,9 @@ class Objective:
                       x, params, self.geom)
         pat, m = self.pattern, self._mesh
         xp, cut = self._pad(x)
-        v, g, data = hessian_kernel(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
-                                    self.geom, self._free, xp, params, *m.assembly)
+        kernel, code = as_projection(projection).kernel()
+        v, g, data = hessian_kernel(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                                    self.geom, self._free, xp, params, np.int32(code), *m.assembly)
         if m.nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
@@ -549,8 +552,9 @@ class Objective:
         but no throw-away evaluation."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.prepare(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
-                               self.geom, self._free, self._pad(x)[0], params, *m.assembly)
+        kernel, code = as_projection(projection).kernel()
+        hessian_kernel.prepare(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                               self.geom, self._free, self._pad(x)[0], params, np.int32(code), *m.assembly)
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
