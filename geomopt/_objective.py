@@ -42,27 +42,9 @@ from ._projection import as_projection, project_psd  # noqa: F401  (project_psd:
 from .linsolve import SparseCholesky
 from .problem import Problem
 
-#: XLA options of every kernel here.  XLA CPU wraps small reductions (``jnp.sum(J * J)``
-#: inside a density, vmapped) into YNNPACK library calls, which cuts its loop fusion: turning
-#: that off made energy + gradient of 10^6 triangles 1.45x faster (CPU time 0.076 -> 0.052 s)
-#: and changes nothing elsewhere (the option only exists for CPU).  jaxlib before 0.8.1 does
-#: not know it and refuses to compile with it: see :func:`xla_options`.
-XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
-
-
-@functools.cache
-def xla_options() -> dict:
-    """:data:`XLA_OPTIONS` if the running jaxlib accepts them, else ``{}``: decided once per
-    process by compiling an identity (about 20 ms, at the first kernel call, not at import)."""
-    try:
-        jax.jit(lambda v: v, compiler_options=XLA_OPTIONS).lower(np.float64(0.0)).compile()
-    except Exception:  # noqa: BLE001 -- the error type differs across jaxlib versions
-        return {}
-    return dict(XLA_OPTIONS)
-
-
 class _Kernel:
-    """``jax.jit(fun, compiler_options=xla_options(), **options)``, made at the first call (so
+    """``jax.jit(fun, compiler_options=_programs.xla_options(), **options)`` (a kept
+    :class:`~geomopt._programs.Program`), made at the first call (so
     that importing geomopt compiles nothing); attributes (``lower``, ``_cache_size``...) are
     the jitted function's.  Called with a tracer among its non-static arguments it calls
     ``fun`` itself (XLA options exist only for a top-level jit), so that the kernel can be used
@@ -76,7 +58,7 @@ class _Kernel:
 
     def _kernel(self):
         if self._jitted is None:
-            self._jitted = _programs.jit(self._fun, compiler_options=xla_options(), **self._options)
+            self._jitted = _programs.jit(self._fun, **self._options)  # with _programs.xla_options()
         return self._jitted
 
     def __call__(self, *args, **kwargs):
@@ -95,7 +77,8 @@ class _Kernel:
 
 
 def jit(fun=None, **options):
-    """``jax.jit`` with :func:`xla_options` (usable as ``@jit`` or ``partial(jit, ...)``)."""
+    """``jax.jit`` with :func:`geomopt._programs.xla_options`, its programs kept on disk
+    (usable as ``@jit`` or ``partial(jit, ...)``)."""
     if fun is None:
         return partial(jit, **options)
     return _Kernel(fun, options)
@@ -146,10 +129,11 @@ def dets_kernel(geom, x):
     return _dets(geom, x)
 
 
-def element_block(density, projection, J, params, vol):
+def element_block(density, projection, J, params, vol, code=0):
     """(d*d, d*d) J-space block ``vol * H`` of one element under ``projection`` (a
-    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy)."""
-    return as_projection(projection).block(density, J, params, vol)
+    :mod:`geomopt._projection` object or name: clamp, abs, exact, SLIM's or CM's proxy; or
+    ``EigenFilter`` with the traced filter ``code``)."""
+    return as_projection(projection).block(density, J, params, vol, code)
 
 
 def local_pairs(d):
@@ -160,7 +144,7 @@ def local_pairs(d):
     return p, q
 
 
-def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
+def _element_blocks(density, projection, params, code, x, s, Minv, vol, swap):
     """The projected Hessian blocks of one element: (nb, d, d), block ``i`` of
     :func:`block_pairs` ``(a, b)`` oriented as stored, ``H[v-dofs, w-dofs]`` with ``v >= w``
     (the element block ``(b, a)`` where ``swap[i]``, else ``(a, b)``).
@@ -173,7 +157,7 @@ def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
     d = Minv.shape[0]
     X = x[s]
     J = (X[1:] - X[:1]).T @ Minv
-    HJ = element_block(density, projection, J, params, vol).reshape(d, d, d, d)
+    HJ = element_block(density, projection, J, params, vol, code).reshape(d, d, d, d)
     G = jnp.concatenate([-jnp.sum(Minv, axis=0, keepdims=True), Minv], axis=0)  # (d+1, d)
     T = sum(G[:, None, None, j, None] * HJ[None, :, j, :, :] for j in range(d))  # a c e l
     bi, bj = block_pairs(d)
@@ -184,9 +168,10 @@ def _element_blocks(density, projection, params, x, s, Minv, vol, swap):
     return jnp.stack(out)
 
 
-def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks):
+def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code=0):
     """Vertex-block data (n_blocks, d, d) of the projected Hessian (all DOFs; the pattern's
-    ``gather`` picks the free lower-triangle entries).  Traceable.
+    ``gather`` picks the free lower-triangle entries).  Traceable.  ``code``: the traced filter
+    of ``EigenFilter`` (see :meth:`AbstractProjection.kernel <geomopt._projection.AbstractProjection.kernel>`).
 
     ``chunk`` > 0 (CPU) loops over chunks of that many elements, each computed and added to
     the blocks in the loop: the per-element intermediates stay in cache (measured 2x on the
@@ -195,7 +180,7 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
     loop body is compiled.  ``chunk`` = 0 vmaps over all elements at once (an accelerator)."""
     S, Minv, vol = geom
     m, d = S.shape[0], Minv.shape[-1]
-    f = jax.vmap(partial(_element_blocks, density, projection, params, x))
+    f = jax.vmap(partial(_element_blocks, density, projection, params, code, x))
     VB = jnp.zeros((n_blocks, d, d), x.dtype)
     if not chunk or m <= chunk:
         return VB.at[blocks].add(f(S, Minv, vol, swap))
@@ -211,12 +196,12 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 
 
 @partial(jit, static_argnums=(0, 1, 2, 3))
-def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, blocks, swap, gather):
+def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, code, blocks, swap, gather):
     """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
     of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
-    ``gather``."""
+    ``gather``.  ``projection, code``: a projection's :meth:`kernel` form."""
     value, grad = free_value_and_grad(density, geom, free, x, params)
-    VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks)
+    VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code)
     return value, grad, VB.reshape(-1)[gather]
 
 
@@ -492,7 +477,7 @@ class Objective:
         """``(blocks, swap, n_blocks)``: the element-to-vertex-block map with which the kernels
         assemble the Hessian (:func:`block_hessian`), padded like :attr:`geom`: ``blocks``
         (m_padded, (d+1)(d+2)/2) int32 and ``swap`` (same shape) bool device arrays (padded
-        elements add zero blocks to block 0), ``n_blocks`` the padded block count."""
+        elements add zero blocks to their originals' blocks), ``n_blocks`` the padded block count."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
         return m.assembly[0], m.assembly[1], m.n_blocks_padded
@@ -554,8 +539,9 @@ class Objective:
                       x, params, self.geom)
         pat, m = self.pattern, self._mesh
         xp, cut = self._pad(x)
-        v, g, data = hessian_kernel(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
-                                    self.geom, self._free, xp, params, *m.assembly)
+        kernel, code = as_projection(projection).kernel()
+        v, g, data = hessian_kernel(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                                    self.geom, self._free, xp, params, np.int32(code), *m.assembly)
         if m.nnz_padded != pat.nnz:
             data = np.asarray(data)[: pat.nnz]
         return v, (self.unpad_map(g) if cut else g), data
@@ -566,8 +552,9 @@ class Objective:
         but no throw-away evaluation."""
         m = self._mesh
         m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
-        hessian_kernel.prepare(self.energy.density, as_projection(projection), self.chunk, m.n_blocks_padded,
-                               self.geom, self._free, self._pad(x)[0], params, *m.assembly)
+        kernel, code = as_projection(projection).kernel()
+        hessian_kernel.prepare(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                               self.geom, self._free, self._pad(x)[0], params, np.int32(code), *m.assembly)
 
     def dets(self, x) -> jax.Array:
         """(m,) determinant of each element's edge matrix (sign = orientation)."""
@@ -619,7 +606,7 @@ class _Mesh:
             free[problem.simplices[0, 0]] = False
         self.free_dofs = free
         with jax.ensure_compile_time_eval():  # concrete device arrays, also when built under a trace
-            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded))
+            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded, cycle=True))
             self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
         # the pattern needs the connectivity only (never the problem's possibly traced arrays)
         self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
@@ -640,13 +627,13 @@ class _Mesh:
         if self._pattern is None:
             pat = hessian_pattern(self._connectivity, self.free_dofs)
             sz = self.sizes
-            # padded kernels see bucketed sizes: padded elements add zero blocks (zero volume) to
-            # block 0, padded CSC entries gather block entry 0 and are cut off on the host
+            # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)
+            # add zero blocks to their originals' blocks, padded CSC entries gather block entry 0
+            # and are cut off on the host
             self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
             self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
-            extra = sz.m_padded - sz.m
-            blocks = np.concatenate([pat.blocks, np.zeros((extra,) + pat.blocks.shape[1:], pat.blocks.dtype)])
-            swap = np.concatenate([pat.swap, np.zeros((extra,) + pat.swap.shape[1:], bool)])
+            blocks = _padding.pad_rows(pat.blocks, sz.m_padded, cycle=True)
+            swap = _padding.pad_rows(pat.swap, sz.m_padded, cycle=True)
             gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
             with jax.ensure_compile_time_eval():
                 self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))

@@ -26,6 +26,12 @@ parameters and the element's rest volume to its ``(d*d, d*d)`` J-space block (in
 :class:`Adaptive` is not a block but a rule choosing one per Newton iteration (clamp far from
 the minimum, exact near it).  The names ``"clamp"``, ``"abs"``, ``"none"`` (``"exact"``) and
 ``"adaptive"`` are accepted wherever a projection is (:func:`as_projection`).
+
+The three eigenvalue filters share one compiled Hessian kernel: :meth:`~AbstractProjection.kernel`
+maps each to :class:`EigenFilter` and a traced code (:data:`FILTER_CODES`), so a Newton solve
+that clamps far from the minimum and takes the exact Hessian near it (:class:`Adaptive`)
+compiles one program, not two (the exact Hessian skips the eigendecomposition by a
+``lax.cond`` on the code).
 """
 
 from __future__ import annotations
@@ -34,13 +40,18 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 from ._config import Real, validate
 from ._eigh import eigh
 from ._errors import ParameterError
 
-__all__ = ["AbstractProjection", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "Adaptive", "as_projection",
-           "project_psd", "svd2", "slim_weights", "true_hessian_block", "PROJECTION_NAMES"]
+__all__ = ["AbstractProjection", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "Adaptive", "EigenFilter",
+           "as_projection", "project_psd", "filter_eigenvalues", "svd2", "slim_weights", "true_hessian_block",
+           "PROJECTION_NAMES", "FILTER_CODES"]
+
+#: the eigenvalue filters as the traced code of :func:`filter_eigenvalues`
+FILTER_CODES = {"clamp": 0, "abs": 1, "none": 2}
 
 
 def project_psd(H, method):
@@ -50,16 +61,21 @@ def project_psd(H, method):
     ``abs``: ``max(|lambda|, floor)`` (Chen et al. 2024); ``none``: unchanged.
     PSD blocks are returned unchanged up to rounding and the floor.
     """
-    if method == "none":
-        return H
+    if method not in FILTER_CODES:
+        raise ParameterError(f"unknown PSD projection {method!r}; valid: 'clamp', 'abs', 'none'")
+    return H if method == "none" else _filtered(H, FILTER_CODES[method])
+
+
+def filter_eigenvalues(H, code):
+    """:func:`project_psd` with the method as a traced int ``code`` (:data:`FILTER_CODES`),
+    the same for every block: ``code == 2`` returns ``H`` without decomposing it."""
+    return lax.cond(code == FILTER_CODES["none"], lambda H: H, lambda H: _filtered(H, code), H)
+
+
+def _filtered(H, code):
     w, Q = eigh(H)
     floor = 1e-10 * jnp.max(jnp.abs(w), axis=-1, keepdims=True)
-    if method == "clamp":
-        w = jnp.maximum(w, floor)
-    elif method == "abs":
-        w = jnp.maximum(jnp.abs(w), floor)
-    else:
-        raise ParameterError(f"unknown PSD projection {method!r}; valid: 'clamp', 'abs', 'none'")
+    w = jnp.maximum(jnp.where(code == FILTER_CODES["abs"], jnp.abs(w), w), floor)
     Qw = Q * w[..., None, :]
     # sum_l Qw[i, l] Q[j, l] as broadcast products: 1.3x faster on CPU than a batched matmul
     return sum(Qw[..., :, None, l] * Q[..., None, :, l] for l in range(Q.shape[-1]))
@@ -75,10 +91,16 @@ class AbstractProjection:
     psd = True
     proxy = False
 
-    def block(self, density, J, params, vol):
-        """(d*d, d*d) block ``vol * H`` of one element with Jacobian ``J`` (d, d)."""
+    def block(self, density, J, params, vol, code=0):
+        """(d*d, d*d) block ``vol * H`` of one element with Jacobian ``J`` (d, d); ``code`` is
+        the traced argument of :meth:`kernel` (used by :class:`EigenFilter` only)."""
         d = J.shape[-1]
         return self(density, J, params).reshape(d * d, d * d) * vol
+
+    def kernel(self) -> tuple:
+        """``(projection, code)``: the static projection a compiled Hessian kernel is made for
+        and the int it is called with; the eigenvalue filters share :class:`EigenFilter`."""
+        return self, 0
 
     def __call__(self, density, J, params):
         """(d, d, d, d) block of one element, before the volume weight."""
@@ -102,13 +124,29 @@ class _Eigen(AbstractProjection):
 
     method = "clamp"
 
-    def block(self, density, J, params, vol):
+    def block(self, density, J, params, vol, code=0):
         d = J.shape[-1]
         return project_psd(jax.hessian(density)(J, params).reshape(d * d, d * d) * vol, self.method)
 
     def __call__(self, density, J, params):
         d = J.shape[-1]
         return self.block(density, J, params, 1.0).reshape(d, d, d, d)
+
+    def kernel(self) -> tuple:
+        return EigenFilter(), FILTER_CODES[self.method]
+
+
+@dataclasses.dataclass(frozen=True)
+class EigenFilter(AbstractProjection):
+    """The Hessian kernel's form of :class:`Clamp`, :class:`Abs` and :class:`Exact`: the
+    filter is the traced ``code`` of :meth:`block` (:func:`filter_eigenvalues`)."""
+
+    def block(self, density, J, params, vol, code=0):
+        d = J.shape[-1]
+        return filter_eigenvalues(jax.hessian(density)(J, params).reshape(d * d, d * d) * vol, code)
+
+    def __call__(self, density, J, params):
+        raise ParameterError("EigenFilter is the Hessian kernel's form of clamp/abs/exact; use those")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,7 +184,7 @@ class Adaptive(AbstractProjection):
     def __post_init__(self):
         validate(self, exact_below=Real(0.0))
 
-    def block(self, density, J, params, vol):
+    def block(self, density, J, params, vol, code=0):
         raise ParameterError("Adaptive chooses a projection per iteration (select); it has no block")
 
     def kernels(self) -> tuple:

@@ -78,9 +78,10 @@ def test_cases_of_one_bucket_share_the_compiled_kernels():
 
 
 def test_padding_is_fixed_and_weightless():
-    """Padded elements are zero-volume copies of element 0, padded vertices fixed copies of
-    vertex 0: energy, gradient (real rows) and extent are the unpadded ones, and a sub-problem
-    padded like its whole shares its bucket."""
+    """Padded elements are zero-volume copies of elements 0, 1, ... (cycling: copies of one
+    element would serialise the gradient's scatter-add on its vertices), padded vertices fixed
+    copies of vertex 0: energy, gradient (real rows), Newton Hessian and extent are the
+    unpadded ones, and a sub-problem padded like its whole shares its bucket."""
     from geomopt import Objective
     from geomopt.energies import garanzha
 
@@ -91,7 +92,9 @@ def test_padding_is_fixed_and_weightless():
     sz = padded.sizes
     assert (sz.n_padded, sz.m_padded) == bucket_sizes(n, m, 2) and sz.padded
     S, Minv, vol = (np.asarray(a) for a in padded.geom)
-    assert np.array_equal(S[:m], p.simplices) and np.all(S[m:] == p.simplices[0]) and np.all(vol[m:] == 0)
+    cycled = np.arange(sz.m_padded - m) % m
+    assert np.array_equal(S[:m], p.simplices) and np.array_equal(S[m:], p.simplices[cycled]) and np.all(vol[m:] == 0)
+    assert np.array_equal(Minv[m:], Minv[cycled])
     assert np.all(np.asarray(padded.free_mask)[n:] == 0)
     x = padded.pad_map(t.x0)
     assert np.array_equal(x[:n], t.x0) and np.all(x[n:] == t.x0[0])
@@ -100,6 +103,8 @@ def test_padding_is_fixed_and_weightless():
     v1, g1 = padded.value_and_grad(x, params)
     assert float(v1) == pytest.approx(float(v0), rel=1e-14)
     np.testing.assert_allclose(np.asarray(g1)[:n], np.asarray(g0), rtol=0, atol=1e-12 * float(np.abs(g0).max()))
+    H0, H1 = (np.asarray(o.hessian(t.x0, params)[2]) for o in (plain, padded))
+    assert abs(H1 - H0).max() <= 1e-12 * abs(H0).max()
     half = slice(0, m // 2)  # a sub-problem on the same vertices (as untangle's active elements)
     sub = dataclasses.replace(p, simplices=p.simplices[half], input_simplices=p.input_simplices[half],
                               rest_inv=p.rest_inv[half], volumes=p.volumes[half])
@@ -112,7 +117,7 @@ def test_padding_is_fixed_and_weightless():
 
 def test_untangling_stats_ignore_the_padding():
     """The worst det J and the inverted count of the outer loop see only real elements (the
-    padded copies of element 0 would count it again)."""
+    padded copies of real elements would count them again)."""
     from geomopt import Objective
     from geomopt.energies import garanzha
 

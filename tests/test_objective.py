@@ -34,7 +34,7 @@ def test_dirichlet_hessian_is_cotangent_laplacian():
     from geomopt._objective import hessian_kernel
 
     _, _, data = hessian_kernel(obj.energy.density, "none", 0, pat.n_blocks, obj.geom, jnp.ones_like(V),
-                                jnp.asarray(V), obj.params(), pat.blocks, pat.swap, pat.gather)
+                                jnp.asarray(V), obj.params(), 0, pat.blocks, pat.swap, pat.gather)
     H = pat.matrix(np.asarray(data)).toarray()
     L = cot_laplacian(V, F).toarray()
     np.testing.assert_allclose(H, 2.0 * np.kron(L, np.eye(2)), atol=1e-12)
@@ -97,6 +97,44 @@ def test_project_psd(k):
         np.testing.assert_allclose(PB, B, rtol=1e-9, atol=1e-9 * np.abs(B).max())
     w_abs = np.sort(np.linalg.eigvalsh(np.asarray(project(jnp.asarray(A), "abs"))), -1)
     np.testing.assert_allclose(w_abs, np.sort(np.abs(np.linalg.eigvalsh(A)), -1), rtol=1e-8, atol=1e-8)
+
+
+@pytest.mark.parametrize("k", [4, 9])
+def test_the_traced_eigenvalue_filter_is_each_projection(k):
+    """filter_eigenvalues with a traced code is project_psd with that method, and 'none'
+    returns the blocks untouched."""
+    import jax
+
+    from geomopt._projection import FILTER_CODES, filter_eigenvalues
+
+    traced = jax.jit(filter_eigenvalues)
+    A = np.random.default_rng(k).standard_normal((50, k, k))
+    A = jnp.asarray(A + np.swapaxes(A, 1, 2))
+    for method, code in FILTER_CODES.items():
+        np.testing.assert_allclose(np.asarray(traced(A, np.int32(code))), np.asarray(project_psd(A, method)),
+                                   rtol=0, atol=1e-13 * float(jnp.abs(A).max()))
+
+
+def test_clamp_abs_and_exact_hessians_share_one_compiled_kernel():
+    """A Newton solve clamps far from the minimum and takes the exact Hessian near it: one
+    compiled Hessian program serves all three eigenvalue filters, with their own values (the
+    exact one equal to JAX's dense Hessian)."""
+    import jax
+
+    from geomopt._objective import hessian_kernel
+
+    V, F = grid(5, jitter=0.4)
+    obj = Objective(Problem.planar(V, F).with_fixed([0], V[:1]), "symmetric_dirichlet")
+    x = V * np.array([1.6, 0.7]) + 0.05 * np.random.default_rng(1).standard_normal(V.shape)
+    params = obj.params()
+    before = hessian_kernel._cache_size()
+    H = {m: obj.pattern.matrix(np.asarray(obj.hessian(x, params, m)[2])).toarray() for m in ("clamp", "abs", "none")}
+    assert hessian_kernel._cache_size() == before + 1
+    free = obj.free_dofs.reshape(-1)
+    dense = np.asarray(jax.hessian(lambda y: obj.value(y.reshape(x.shape), params))(jnp.asarray(x).reshape(-1)))
+    np.testing.assert_allclose(H["none"], dense[free][:, free], atol=1e-10 * np.abs(dense).max())
+    assert np.linalg.eigvalsh(H["none"]).min() < 0 <= np.linalg.eigvalsh(H["clamp"]).min() + 1e-9
+    assert not np.allclose(H["abs"], H["clamp"])
 
 
 def test_translation_pinned_only_for_free_problems():

@@ -125,6 +125,40 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
     assert a.solver.precondition == "diagonal"
 
 
+def _delaunay_disk(n_points, seed=0):
+    """An irregular Delaunay triangulation of the unit disk (boundary circle + random points)."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    h = np.sqrt(np.pi / n_points)
+    t = np.linspace(0.0, 2.0 * np.pi, int(2.0 * np.pi / h), endpoint=False)
+    P = rng.uniform(-1.0, 1.0, (4 * n_points, 2))
+    P = P[np.linalg.norm(P, axis=1) < 1.0 - 0.5 * h][:n_points]
+    V = np.vstack([np.c_[np.cos(t), np.sin(t)], P])
+    F = Delaunay(V).simplices
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    flip = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    F[flip] = F[flip][:, [1, 0, 2]]
+    return V, F
+
+
+def test_a_probe_that_untangles_fast_keeps_the_diagonal_seed():
+    """A noisy irregular disk needs more than STIFF_AFTER iterations in its first inner solve,
+    but each probe removes folds and energy fast (PROBE_PROGRESS): it goes on with the diagonal
+    seed; the same disk rotated by 180 degrees gains folds in its probe and switches, and so
+    does a Tutte map onto a star, which loses folds but its energy only slowly."""
+    from geomopt.untangle import STIFF_AFTER, untangle
+
+    V, F = _delaunay_disk(800, seed=1)
+    noise = G.noisy_interior(V, F, 3.0, seed=0)
+    r = untangle(noise.problem(), noise.x0, progress=False)
+    assert r.success and r.trace.phases[0].inner > STIFF_AFTER
+    assert r.solver.precondition == "diagonal"
+    for tangle in (G.rotated_interior(V, F, 180), G.tutte_nonconvex(24, "star")):
+        r = untangle(tangle.problem(), tangle.x0, progress=False)
+        assert r.success and r.solver.precondition == "laplacian"
+
+
 def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():
     from geomopt.energies import REGISTRY
     from geomopt.energies._energy import _BUILTIN_DENSITIES, _density_dims
