@@ -36,7 +36,7 @@ Departures from the paper's code, each measured on the LIM sample and on generat
   mesh (quads 100^2 / 150^2 / 200^2: 1,368 / 6,416 / 13,846 Laplacian-seeded iterations;
   triangles 2 x 224^2: 17,953) until, on 316^2 quads, it stalls with half the corners inverted
   and the loop never untangles; from that eps the first solve's stiffness no longer grows with
-  the mesh (quads 150^2: 6,535 -> 62 inner iterations in all; 316^2: 2 outer, 144 inner
+  the mesh (quads 150^2: 6,535 -> 62 inner iterations in all; 316^2: 2 outer, 142 inner
   iterations). Starts that are tangled only locally have a median below 10 and keep the paper's
   ``eps0 = 1`` (a larger one costs them outer iterations: a squashed quad boundary 368 inner
   iterations at 1, 449 at its median 1.8);

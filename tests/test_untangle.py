@@ -370,9 +370,9 @@ def test_start_eps_is_one_unless_the_start_is_scattered():
 def test_scattered_start_first_solve_does_not_grow_with_the_mesh(mesh):
     """Interior vertices scattered over the square (random_interior): the normalised start's
     determinants cancel in the mean but their median is ~0.1 n^2 (about 700 here).  At eps = 1
-    the first inner solve's iterations grew with the mesh (80^2 quads 631, 2 x 80^2 triangles
-    730, 100^2 quads 1,473, 200^2 13,846) until on 316^2 quads it stalled with half the corners
-    inverted and the loop never untangled (issue 18); from start_eps both take ~105."""
+    the first inner solve's iterations grew with the mesh (80^2 quads 614, 2 x 80^2 triangles
+    757, 100^2 quads 1,458, 200^2 13,846) until on 316^2 quads it stalled with half the corners
+    inverted and the loop never untangled (issue 18); from start_eps these take 157 and 176."""
     V, S = G.quad_mesh(80, 80) if mesh == "quads" else G.square_mesh(81)
     t = G.random_interior(V, S, seed=1)
     result = untangle(t.problem(), t.x0, progress=False)
