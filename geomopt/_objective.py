@@ -171,7 +171,7 @@ def _element_blocks(density, projection, params, code, x, s, Minv, vol, swap):
 def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code=0):
     """Vertex-block data (n_blocks, d, d) of the projected Hessian (all DOFs; the pattern's
     ``gather`` picks the free lower-triangle entries).  Traceable.  ``code``: the traced filter
-    of ``EigenFilter`` (see :meth:`AbstractProjection.kernel <geomopt._projection.AbstractProjection.kernel>`).
+    of ``EigenFilter`` (a projection's ``kernel()`` form, :mod:`geomopt._projection`).
 
     ``chunk`` > 0 (CPU) loops over chunks of that many elements, each computed and added to
     the blocks in the loop: the per-element intermediates stay in cache (measured 2x on the
@@ -199,7 +199,7 @@ def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_b
 def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, code, blocks, swap, gather):
     """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
     of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
-    ``gather``.  ``projection, code``: a projection's :meth:`kernel` form."""
+    ``gather``.  ``projection, code``: a projection's ``kernel()`` form."""
     value, grad = free_value_and_grad(density, geom, free, x, params)
     VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code)
     return value, grad, VB.reshape(-1)[gather]

@@ -158,8 +158,9 @@ class Program:
         functools.update_wrapper(self, fun)
         _programs.add(self)
 
-    @functools.cached_property
+    @property
     def options(self) -> dict:
+        """The compiler options (:func:`xla_options` unless given)."""
         return xla_options() if self._given is None else self._given
 
     @functools.cached_property

@@ -428,8 +428,9 @@ class EpsContinuation(AbstractContinuation):
         return self.solver if self.stiff is None else dataclasses.replace(self.solver, max_steps=self.probe)
 
     def _probe_progressed(self, state) -> bool:
-        """Whether the probe that just ended removed enough inverted elements to run another
-        (:data:`PROBE_PROGRESS`; never before Newton, never past the solver's own step limit)."""
+        """Whether the probe that just ended removed enough inverted elements and energy to run
+        another (:data:`PROBE_PROGRESS`; never before Newton, never past the solver's own step
+        limit)."""
         if isinstance(self.stiff, Newton) or self.probed + state.iteration >= self.solver.max_steps:
             return False
         E, _, now = self._stats(state.x, state.params)
