@@ -107,6 +107,10 @@ START_RATIO = 10.0
 
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
 
+#: the share of inverted elements at the start from which a tangle counts as local (noise,
+#: scattered vertices) and keeps the diagonal seed at any size (see :func:`default_solver`)
+LOCAL_TANGLE_SHARE = 0.25
+
 #: inner iterations after which the default L-BFGS continues with the Laplacian seed
 STIFF_AFTER = 100
 
@@ -152,7 +156,8 @@ def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver |
     return dataclasses.replace(default_solver("lbfgs", dim, LAPLACIAN_FROM, corners), precondition="laplacian")
 
 
-def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False) -> AbstractSolver:
+def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False,
+                   inverted: int = 0) -> AbstractSolver:
     """The inner solver :func:`untangle` uses for ``"lbfgs"`` or ``"newton"``.
 
     ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
@@ -162,14 +167,26 @@ def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = Fal
     1.3 -> 3.0; the LIM armadillo (24k tets) 0.66 -> 1.04 and 2D cases of ~1e4 triangles
     were slower or even with it (its host solves cost more than the iterations they save).
 
+    A start with at least :data:`LOCAL_TANGLE_SHARE` of its ``n_elements`` ``inverted`` is a
+    local tangle and keeps the diagonal seed at any size (simplices only; the stiff switch's
+    probe still hands a stalling solve to the Laplacian seed).  Global tangles invert a thin
+    band: rotations, bends and Tutte stars 0.7-10% of their elements, noise of two edge
+    lengths and scattered interiors 47-50%.  Measured at 6e4-1.4e5 elements (2-core box under
+    load, same run; inner iterations and seconds, Laplacian -> diagonal): structured disk
+    noise 83 / 1.32 -> 93 / 0.66, scattered disk 155 / 3.23 -> 142 / 1.69, Delaunay ball
+    noise 562 / 5.65 -> 387 / 3.55, cube noise 108 / 1.14 -> 99 / 1.13, Delaunay disk noise
+    925 / 13.3-13.8 -> 1,244 / 13.7-18.2 (even); a disk rotated by 180 degrees needs 739-874
+    iterations instead of 296 once ten or more diagonal steps came first.
+
     ``corners``: the problem's simplices are the corner tetrahedra of hexahedra, which need more
     L-BFGS steps per eps than tets: 30000 as in 2D (a hex rod of 6 x 6 x 72 bent by 180 degrees
     took 9942 in its first outer iteration; capped at 3000 it stalled with 67 hexahedra inverted)."""
     key = str(name).strip().lower()
+    local = not corners and inverted >= LOCAL_TANGLE_SHARE * n_elements > 0
     if key == "lbfgs":
         return LBFGS(history=10, rtol=1e-6, gtol=1e-6, max_steps=30000 if dim == 2 or corners else 3000,
                      search=InjectiveSearch(injective=False, c2=0.9),
-                     precondition="laplacian" if n_elements >= LAPLACIAN_FROM else "diagonal")
+                     precondition="laplacian" if n_elements >= LAPLACIAN_FROM and not local else "diagonal")
     if key == "newton":
         return Newton(projection="clamp", rtol=1e-7, max_steps=100,
                       search=InjectiveSearch(injective=False))
@@ -565,7 +582,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     if isinstance(solver, str):
         corners = problem.elements is not None
         stiff = stiff_solver(solver, problem.dim, corners)
-        solver = default_solver(solver, problem.dim, int(active.sum()), corners)
+        solver = default_solver(solver, problem.dim, int(active.sum()), corners, initially)
     theta = opts.resolved_theta(problem.dim)
     scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
     energy = garanzha.with_params(eps=1.0, lam=theta / (1.0 - theta))

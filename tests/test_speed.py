@@ -125,6 +125,26 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
     assert a.solver.precondition == "diagonal"
 
 
+def test_a_local_tangle_keeps_the_diagonal_seed_at_any_size(monkeypatch):
+    """From LAPLACIAN_FROM elements the default L-BFGS starts with the Laplacian seed unless a
+    quarter or more of the elements start inverted (noise, scattered vertices: a local tangle,
+    where the diagonal seed is as fast per iteration count and half the cost per iteration)."""
+    import geomopt.untangle as U
+
+    assert U.default_solver("lbfgs", 2, 60_000).precondition == "laplacian"
+    assert U.default_solver("lbfgs", 2, 60_000, inverted=15_000).precondition == "diagonal"
+    assert U.default_solver("lbfgs", 2, 60_000, inverted=14_999).precondition == "laplacian"
+    assert U.default_solver("lbfgs", 3, 60_000, corners=True, inverted=30_000).precondition == "laplacian"
+    monkeypatch.setattr(U, "LAPLACIAN_FROM", 100)  # the rule on a mesh small enough for a test
+    noise = G.noisy_interior(*G.disk_mesh(12), 2.0, seed=3)
+    rot = G.rotated_interior(*G.disk_mesh(12), 180)
+    share = [t.problem().count_inverted(t.x0) / len(t.simplices) for t in (noise, rot)]
+    assert share[0] >= 0.25 > share[1]
+    for tangle, seed in ((noise, "diagonal"), (rot, "laplacian")):
+        r = U.untangle(tangle.problem(), tangle.x0, progress=False)
+        assert r.success and r.solver.precondition == seed
+
+
 def _delaunay_disk(n_points, seed=0):
     """An irregular Delaunay triangulation of the unit disk (boundary circle + random points)."""
     from scipy.spatial import Delaunay
