@@ -247,10 +247,20 @@ def simplex_orientations(X, S) -> np.ndarray:
     s : (m,) int8 array
         ``orient2d(X[S[:, 0]], X[S[:, 1]], X[S[:, 2]])`` or the ``orient3d`` analogue.
     """
+    X, S = _as_mesh(X, S)
+    d = X.shape[1]
+    corners = [X[S[:, i]] for i in range(d + 1)]
+    return orient2d(*corners) if d == 2 else orient3d(*corners)
+
+
+def _as_mesh(X, S, dims=(2, 3)):
+    """``(X (n, d) float64, S (m, d+1))`` checked (shapes, dtypes, index range), ``d`` in
+    ``dims``; concrete values only.  Raises MeshError."""
     refuse_traced("exact orientation predicates", "they certify concrete maps; inside a trace use Objective.dets(x) (float determinants)", X)
     X = np.asarray(X)
-    if X.ndim != 2 or X.shape[1] not in (2, 3):
-        raise MeshError(f"X must be an array of shape (n, 2) or (n, 3), got shape {X.shape}")
+    if X.ndim != 2 or X.shape[1] not in dims:
+        shapes = " or ".join(f"(n, {d})" for d in dims)
+        raise MeshError(f"X must be an array of shape {shapes}, got shape {X.shape}")
     d = X.shape[1]
     X = _as_points(X, d, "X")
     S = np.asarray(S)
@@ -265,8 +275,7 @@ def simplex_orientations(X, S) -> np.ndarray:
             f"element vertex indices must lie in [0, {X.shape[0]}), "
             f"got range [{S.min()}, {S.max()}]"
         )
-    corners = [X[S[:, i]] for i in range(d + 1)]
-    return orient2d(*corners) if d == 2 else orient3d(*corners)
+    return X, S
 
 
 def count_inverted(X, S, orientation: int = 1) -> int:
@@ -311,8 +320,7 @@ def vertex_windings(X, F) -> np.ndarray:
     -------
     windings : (n,) int64; 1 at every interior vertex of a locally injective map.
     """
-    X = np.asarray(X, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
+    X, F = _as_mesh(X, F, dims=(2,))
     out = np.zeros(len(X), dtype=np.int64)
     y = X[:, 1]
     for k in range(3):
@@ -336,7 +344,7 @@ def branch_vertices(X, F) -> np.ndarray:
     """
     from .topology import boundary_vertices
 
-    X = np.asarray(X, dtype=np.float64)
+    X, F = _as_mesh(X, F, dims=(2,))
     interior = np.ones(len(X), dtype=bool)
     interior[boundary_vertices(F, len(X))] = False
     return np.flatnonzero(interior & (vertex_windings(X, F) != 1))

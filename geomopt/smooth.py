@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from ._errors import MeshError, ParameterError
+from ._validate import validate_indices
 from .elements import ElementCertificate, Quality, certify_elements, scaled_jacobian
 
 __all__ = ["SmoothResult", "smooth", "element_problem"]
@@ -102,7 +103,7 @@ def element_problem(V, E, fixed=None, rest="reference"):
                         f"of shape {E.shape} and vertices of shape {V.shape}")
     make = Problem.quads if E.shape[1] == 4 else Problem.hexes
     problem = make(V, E, rest=rest)
-    fixed = problem.boundary_vertices() if fixed is None else np.asarray(fixed, dtype=np.int64)
+    fixed = problem.boundary_vertices() if fixed is None else validate_indices(fixed, len(V), "fixed vertex indices")
     return problem.with_fixed(fixed, V[fixed])
 
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._errors import MeshFormatError, ParameterError
 
 __all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "select_kind",
-           "first_kind", "code_of"]
+           "first_kind", "code_of", "check_kinds"]
 
 #: The cells the readers return: name -> (nodes per cell, dimension).
 KINDS = {"tetra": (4, 3), "hexahedron": (8, 3), "quad": (4, 2)}
@@ -84,6 +84,17 @@ class VolumeCells:
 
     def __init__(self, points, cells):
         self.points, self.cells = points, cells
+
+
+def check_kinds(kinds, what="kind"):
+    """``kinds`` (a name or names) as a tuple of :data:`KINDS` names, else a one-line
+    :class:`~geomopt.ParameterError` naming the valid ones (``"hex"`` is not one)."""
+    kinds = tuple(kinds) if isinstance(kinds, (list, tuple)) else (kinds,)
+    unknown = [k for k in kinds if not isinstance(k, str) or k not in KINDS]
+    if unknown or not kinds:
+        raise ParameterError(f"unknown cell {what} {unknown[0] if unknown else kinds!r}; valid: "
+                             f"{', '.join(map(repr, KINDS))}")
+    return kinds
 
 
 def first_kind(found, kinds, path):

@@ -38,7 +38,7 @@ import numpy as np
 from .._errors import GeomoptError, MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_path, check_output_path
-from ._cells import KINDS, WORDS, first_kind, select_kind
+from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import check_not_empty, existing_file, read_bytes
 from ._gmsh import parse_gmsh
 from ._medit import parse_medit
@@ -161,7 +161,7 @@ def read_cells(path, kinds=("hexahedron", "quad"), format=None):
     MeshError
         Non-finite coordinates, indices out of range, repeated vertices in a cell.
     """
-    return _read(Path(path), tuple(kinds), format)
+    return _read(Path(path), check_kinds(kinds, "kinds"), format)
 
 
 def _read(path, kinds, format=None):
@@ -243,6 +243,7 @@ def write_cells(path, P, C, kind, format=None):
     As :func:`write_tets`.
     """
     path = Path(path)
+    (kind,) = check_kinds([kind])
     ext = (format or path.suffix).lower()
     if ext == ".obj" and kind == "quad":
         return write_obj_quads(path, P, C)
