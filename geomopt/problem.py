@@ -498,7 +498,8 @@ def check_initial_orientation(problem: Problem, x0) -> float:
     Returns
     -------
     float
-        The total signed area/volume of ``x0`` (positive).
+        The total signed area/volume of ``x0`` (positive; ``inf`` or ``0.0`` where it overflows
+        or underflows float64, the test being made on an exactly rescaled copy).
 
     Raises
     ------
@@ -507,16 +508,29 @@ def check_initial_orientation(problem: Problem, x0) -> float:
         not positive.
     """
     x0 = problem.check_map(x0, "initial map")
-    total = float(problem.signed_volumes(x0).sum())
+    vols, scale = _unit_volumes(problem, x0)
+    total = float(vols.sum())  # the sign of x0's own total, which may overflow or underflow
     if not total > 0:
         what = "area" if problem.dim == 2 else "volume"
         state = "negative: it is mirrored" if total < 0 else "zero: it is collapsed"
         raise MeshError(
-            f"the initial map's total signed {what} is {total:.6g}, {state} relative to the rest "
+            f"the initial map's total signed {what} is {total * scale:.6g}, {state} relative to the rest "
             f"mesh, and untangling needs a positive total; mirror the initial map (negate one "
             f"coordinate) or check that the rest and initial meshes belong together"
         )
-    return total
+    return total * scale
+
+
+def _unit_volumes(problem: Problem, x):
+    """``(vols, scale)``: the elements' signed sizes under ``x`` scaled by a power of two so
+    that its largest coordinate is about 1 (exact: the signs and the ratios are those of
+    ``x``'s, and no size overflows for coordinates up to 1e308), and the factor
+    ``scale = 2^(d e)`` that gives back ``x``'s own sizes (may be inf or 0)."""
+    x = np.asarray(x, dtype=np.float64)
+    top = float(np.abs(x).max(initial=0.0))
+    e = math.frexp(top)[1] if top > 0 else 0
+    return problem.signed_volumes(np.ldexp(x, -e)), 2.0 ** (problem.dim * e) if abs(problem.dim * e) < 1024 else (
+        math.inf if e > 0 else 0.0)
 
 
 def fixed_total_problem(problem: Problem, x) -> str | None:
@@ -529,7 +543,7 @@ def fixed_total_problem(problem: Problem, x) -> str | None:
     """
     if not problem.fixed.size:
         return None
-    vols = problem.signed_volumes(x)
+    vols, scale = _unit_volumes(problem, x)
     total = math.fsum(vols)
     if total > 1e-12 * float(np.abs(vols).sum()):
         return None
@@ -537,5 +551,5 @@ def fixed_total_problem(problem: Problem, x) -> str | None:
         return None
     what = "mirrored (oriented against the rest mesh)" if total < 0 else "collapsed"
     return (f"the fixed boundary encloses a total signed {'area' if problem.dim == 2 else 'volume'} "
-            f"of {total:g}: the map is {what}, and with the whole boundary fixed no map can "
+            f"of {total * scale:g}: the map is {what}, and with the whole boundary fixed no map can "
             f"change that total, so none is injective")

@@ -223,3 +223,24 @@ def test_bijective_start_at_extreme_scales(scale, tmp_path):
     write_obj_with_uv(src, V, F, x0)
     assert cli.main(["param", str(src), "-o", str(out), "--init", "uv", "--bijective", "--quiet"]) == 0
     assert np.isfinite(read_obj_with_uv(out)[1]).all()
+
+
+@pytest.mark.parametrize("scale", [1e-150, 1e200, 1e300])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_untangle_a_start_map_at_extreme_scales(scale, dim):
+    """The whole-boundary orientation test before untangling once summed the map's signed
+    sizes in float: at 1e200 they overflowed (``ValueError: -inf + inf in fsum``), and a tet
+    map at 1e-150 underflowed to a "collapsed" map and was refused.  Signs and ratios are
+    scale-free, so these solve as at scale 1, with the handles bit-identical."""
+    from geomopt import generators as G
+    from geomopt.problem import check_initial_orientation
+    from geomopt.untangle import untangle
+
+    tg = (G.rotated_interior(*G.square_mesh(6), 120.0) if dim == 2
+          else G.rotated_interior(*G.box_mesh(2, 3, 2), 100.0))
+    x0 = tg.x0 * scale
+    problem = tg.problem().with_fixed(tg.fixed, x0[tg.fixed])
+    check_initial_orientation(problem, x0)  # raised MeshError ("collapsed") at 1e-150 in 3D
+    res = untangle(problem, x0, progress=False)
+    assert res.success and res.certificate.inverted == 0
+    assert np.array_equal(res.x[tg.fixed].view(np.uint64), x0[tg.fixed].view(np.uint64))
