@@ -292,15 +292,9 @@ def _untangle_one(args, folder) -> int:
     with split.phase("read"):
         case = LimCase.read(folder)
         case.require_handles()
-    t_call, compiled = time.perf_counter(), compile_seconds()
-    case, res = untangle_case(case, solver=args.solver, progress=not args.quiet, bucket=True)
-    compiled = compile_seconds() - compiled
+    case, res = _timed_solve(split, lambda: untangle_case(case, solver=args.solver, progress=not args.quiet,
+                                                          bucket=True))
     st = res.stats
-    # setup: all of untangle_case but the solve loop, the certificate and JAX's compilation
-    split.add("compile", compiled)
-    split.add("solve", st.seconds)
-    split.add("certify", st.certify_seconds)
-    split.add("setup", time.perf_counter() - t_call - st.seconds - st.certify_seconds - compiled)
     with split.phase("certify"):
         quality = element_quality(res.x, case.simplices, case.to_problem().orientation)
     _log(args, f"elements {res.problem.n_elements}  outer iterations {st.outer_iterations}  "
@@ -342,6 +336,7 @@ def _quality_line(q):
 
 def _untangle_cells(args) -> int:
     """A quad / hex mesh file or case folder (:mod:`geomopt.cells`) to one certified file."""
+    from ._timing import compile_seconds
     from .cells import cell_problem, read_cell_case, write_certified
     from .elements import certify_elements
     from .untangle import untangle
@@ -352,25 +347,52 @@ def _untangle_cells(args) -> int:
         from ._errors import ParameterError
 
         raise ParameterError("--png draws triangle and tet cases only; leave it out for a quad/hex case")
-    case = read_cell_case(path)  # the output check needs the cell kind; reading writes nothing
+    split = args.timing
+    split.mark_imported()
+    compile_seconds()  # starts counting JAX's compilation
+    with split.phase("read"):
+        case = read_cell_case(path)  # the output check needs the cell kind; reading writes nothing
     _cell_output(args, case, inputs)
-    problem = cell_problem(case)
-    before = certify_elements(case.start, problem.elements)
-    res = untangle(problem, case.start, solver=args.solver, progress=not args.quiet)
-    after = certify_elements(res.x, problem.elements)
+    with split.phase("setup"):
+        problem = cell_problem(case)
+        before = certify_elements(case.start, problem.elements)
+    res = _timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet))
+    with split.phase("certify"):
+        after = certify_elements(res.x, problem.elements)
     _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(before.quality)}, "
                f"{before.invalid} invalid")
     _log(args, f"after  {_quality_line(after.quality)}, {after.invalid} invalid ({after.corner_only} only inside); "
                f"tests {after.summary()['tests']}; outer iterations {res.stats.outer_iterations}, "
                f"{res.stats.seconds:.2f} s, certified {'yes' if res.success else 'no'}")
-    _report(args, case=str(path), output=str(args.output), elements=len(case.elements), kind=case.kind,
-            outer_iterations=res.stats.outer_iterations, solve_seconds=round(res.stats.seconds, 4),
-            setup_seconds=round(res.stats.setup_seconds, 4), inverted=res.certificate.inverted, certified=bool(res.success),
+    _report(args, case=str(path), output=str(args.output), dim=problem.dim, vertices=len(res.x),
+            elements=len(case.elements), kind=case.kind, inverted_before=before.invalid,
+            inverted=res.certificate.inverted, outer_iterations=res.stats.outer_iterations,
+            inner_iterations=res.stats.iterations, evaluations=res.stats.evaluations,
+            solve_seconds=round(res.stats.seconds, 4), setup_seconds=round(res.stats.setup_seconds, 4),
+            handles_moved=res.certificate.handles_moved, outcome=res.outcome.value, certified=bool(res.success),
             message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
-    write_certified(args.output, res.x, case, problem)
+    with split.phase("write"):
+        write_certified(args.output, res.x, case, problem)
     return EXIT_OK
+
+
+def _timed_solve(split, solve):
+    """``solve()``'s value (a Result, or a tuple ending with one), its wall time split into
+    JAX's compilation, the solve loop (``stats.seconds``), the final certificate and the rest
+    (set-up)."""
+    from ._timing import compile_seconds
+
+    t, compiled = time.perf_counter(), compile_seconds()
+    out = solve()
+    compiled = compile_seconds() - compiled
+    st = (out[-1] if isinstance(out, tuple) else out).stats
+    split.add("compile", compiled)
+    split.add("solve", st.seconds)
+    split.add("certify", st.certify_seconds)
+    split.add("setup", time.perf_counter() - t - st.seconds - st.certify_seconds - compiled)
+    return out
 
 
 def cmd_smooth(args) -> int:
@@ -378,11 +400,15 @@ def cmd_smooth(args) -> int:
     from .cells import read_cell_case, write_certified
     from .smooth import smooth
 
-    case = read_cell_case(args.input)
+    split = args.timing
+    split.mark_imported()
+    with split.phase("read"):
+        case = read_cell_case(args.input)
     _cell_output(args, case, [args.input])
     fixed = None if args.fix == "boundary" else []
-    res = smooth(case.start, case.elements, energy=args.energy, solver=args.solver, fixed=fixed,
-                 max_steps=args.max_steps, progress=not args.quiet)
+    with split.phase("solve"):  # smooth's rounds, each solved and certified
+        res = smooth(case.start, case.elements, energy=args.energy, solver=args.solver, fixed=fixed,
+                     max_steps=args.max_steps, progress=not args.quiet)
     _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(res.before)}")
     _log(args, f"after  {_quality_line(res.after)}; tests {res.certificate.summary()['tests']}; "
                f"{res.iterations} iterations, {res.seconds:.2f} s")
@@ -393,7 +419,8 @@ def cmd_smooth(args) -> int:
     if not res.improved:
         return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
                      f"{res.message}")
-    write_certified(args.output, res.x, case, res.problem)
+    with split.phase("write"):
+        write_certified(args.output, res.x, case, res.problem)
     return EXIT_OK
 
 

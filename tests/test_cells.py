@@ -4,6 +4,8 @@ cases writing only certified files."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -110,14 +112,20 @@ def test_smooth_command_writes_a_certified_better_mesh(cli, tmp_path):
     b = Problem.hexes(V, H).boundary_vertices()
     assert np.array_equal(P[b], V[b])
     assert '"improved": true' in out
+    assert {"import", "read", "solve", "write", "total"} <= set(json.loads(out)["timing"])
 
 
 def test_untangle_command_on_quad_and_hex_cases(cli, tmp_path):
     V, Q = G.quad_mesh(10, 10)
     t = G.rotated_interior(V, Q, 120)
     src = io.write_cells(tmp_path / "tangled.obj", t.x0, Q, "quad")
-    code, _, err = cli("untangle", src, "-o", tmp_path / "out.msh", "--quiet")
+    code, out, err = cli("untangle", src, "-o", tmp_path / "out.msh", "--quiet", "--json")
     assert code == 0, err
+    report = json.loads(out)  # the keys README promises for every `untangle --json`
+    assert report["dim"] == 2 and report["vertices"] == len(V) and report["inverted_before"] == t.inverted()
+    assert report["inverted"] == 0 and report["handles_moved"] == 0 and report["outcome"] == "converged"
+    assert report["inner_iterations"] >= report["outer_iterations"] >= 1
+    assert {"import", "read", "compile", "setup", "solve", "certify", "write", "total"} <= set(report["timing"])
     P, Q2, _ = io.read_cells(tmp_path / "out.msh")
     assert certify_elements(P[:, :2], Q).certified and np.array_equal(P[t.fixed, :2], t.x0[t.fixed])
     # a LIM-style hex case folder: rest.vtk, init.vtk, handles.txt (its own handles, not the boundary)
