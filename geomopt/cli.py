@@ -100,7 +100,7 @@ def _output_paths(output, extensions, pictures=(), inputs=(), folder=None):
 
 def cmd_param(args) -> int:
     from . import io
-    from ._errors import MeshError
+    from ._errors import MeshError, ParameterError
     from ._timing import compile_seconds
     from .energies import get_energy
     from .param import parameterize
@@ -118,6 +118,9 @@ def cmd_param(args) -> int:
     if args.png:
         pictures = [("--png picture", args.png), ("convergence picture", str(_convergence_path(args.png)))]
     folder = getattr(args, "folder", None)  # demo: the output folder, created only to write into it
+    if args.bijective and args.init == "projection":
+        raise ParameterError("--bijective starts from the Tutte map (--init tutte, the default) or from a globally "
+                             "injective --init uv map, not from --init projection; drop one of the two options")
     _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
     t_read = time.perf_counter()
     if args.init == "uv":
@@ -208,6 +211,12 @@ def _for_the_command_line(exc, args):
     """A library message that names an API the command line does not offer, reworded."""
     from ._errors import MeshError
 
+    unfit = re.match(r"the start map x0 is not globally injective (\(.*\)); omit", str(exc))
+    if unfit is not None:
+        return MeshError(
+            f"the UV map of {args.input} (--init uv) is not globally injective {unfit.group(1)}, and --bijective "
+            f"starts from one that is; drop --bijective (a folded start is then repaired first) or start from "
+            f"--init tutte")
     found = re.match(r"the Tutte start map has (\d+) inverted or degenerate triangle\(s\)", str(exc))
     if found is None:
         return exc

@@ -613,3 +613,23 @@ def test_numpy_warnings_never_reach_stderr(tmp_path):
                            "--quiet"], capture_output=True, text=True, env=env, timeout=120)
     assert proc.returncode == 2
     one_error_line(proc.stderr, "the mesh is hopeless")
+
+
+def test_bijective_with_a_start_it_cannot_take_is_one_line_in_command_line_words(cli, tmp_path):
+    """--bijective needs a globally injective start: --init projection is refused before the mesh
+    is read, and a folded --init uv map with the options to use (not the API's "x0")."""
+    from geomopt import generators as G
+
+    t = G.rotated_interior(*G.disk_mesh(4), 150.0)
+    src = tmp_path / "folded.obj"
+    src.write_text("".join(f"v {x!r} {y!r} 0\n" for x, y in t.rest.tolist())
+                   + "".join(f"vt {u!r} {v!r}\n" for u, v in t.x0.tolist())
+                   + "".join("f {0}/{0} {1}/{1} {2}/{2}\n".format(*(f + 1)) for f in t.simplices))
+    code, _, err = cli("param", src, "-o", tmp_path / "out.obj", "--init", "projection", "--bijective", "--quiet")
+    assert code == 2
+    one_error_line(err, "--bijective", "--init projection")
+    code, _, err = cli("param", src, "-o", tmp_path / "out.obj", "--init", "uv", "--bijective", "--quiet")
+    assert code == 2
+    line = one_error_line(err, "--init uv", "inverted triangle(s)", "drop --bijective")
+    assert "x0" not in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folded.obj"]
