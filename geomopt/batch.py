@@ -25,6 +25,7 @@ from pathlib import Path
 
 from ._errors import GeomoptError, ParameterError
 from ._padding import bucket_sizes
+from .cells import cell_problem, is_cell_case, read_cell_case, write_certified
 from .lim import LimCase, untangle_case
 
 __all__ = ["SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary"]
@@ -40,6 +41,8 @@ SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "in
 def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     """Read a LIM case folder, untangle it, write ``outdir/<folder name>.obj`` (2D) or ``.vtk``
     (3D) if it certifies (:meth:`geomopt.lim.LimCase.write_certified`), and return its summary row.
+    A quad / hex case folder (``rest.vtk`` and ``init.vtk`` of VTK cell type 9 / 12,
+    :mod:`geomopt.cells`) is written to ``outdir/<folder name>.vtk``.
 
     Never raises on a bad case (``Exception``): an unreadable, malformed, unsolvable or
     uncertified case gives a row with ``certified = "no"``, the reason in ``message`` and no
@@ -62,24 +65,49 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=folder.name, certified="no")
     try:
-        case = LimCase.read(folder)
-        case.require_handles()
-        row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
-        case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket)
-        row.update(inverted_before=res.stats.inverted_at_start, inverted_after=res.certificate.inverted,
-                   outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations)
-        if not res.success:
-            row["message"] = f"not certified: {res.message}"
-        else:
-            output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
-            check = case.write_certified(res, output)
-            row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
+        (_solve_cell_case if is_cell_case(folder) else _solve_lim_case)(folder, outdir, solver, bucket, row)
     except GeomoptError as exc:
         row["message"] = str(exc)
     except Exception as exc:  # noqa: BLE001 -- one broken case must not stop the batch
         row["message"] = f"internal error: {type(exc).__name__}: {exc}"
     row["seconds"] = f"{time.perf_counter() - start:.3f}"
     return row
+
+
+def _solve_lim_case(folder, outdir, solver, bucket, row):
+    """A LIM case (triangles or tetrahedra) into ``row``; its map written if it certifies."""
+    case = LimCase.read(folder)
+    case.require_handles()
+    row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
+    case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket)
+    _solved(row, res)
+    if res.success:
+        output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
+        check = case.write_certified(res, output)
+        row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
+
+
+def _solve_cell_case(folder, outdir, solver, bucket, row):
+    """A quad / hex case folder (:mod:`geomopt.cells`) into ``row``, solved and written as
+    ``geomopt untangle FOLDER -o <name>.vtk`` does (``bucket`` does not apply)."""
+    from .untangle import untangle
+
+    case = read_cell_case(folder)
+    problem = cell_problem(case)
+    row.update(dim=problem.dim, vertices=len(case.start), elements=len(case.elements))
+    res = untangle(problem, case.start, solver=solver, progress=False)
+    _solved(row, res)
+    if res.success:
+        output = Path(outdir) / (folder.name + ".vtk")
+        check = write_certified(output, res.x, case, problem)
+        row.update(inverted_after=check["certificate"].invalid, certified="yes", output=output.name)
+
+
+def _solved(row, res):
+    row.update(inverted_before=res.stats.inverted_at_start, inverted_after=res.certificate.inverted,
+               outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations)
+    if not res.success:
+        row["message"] = f"not certified: {res.message}"
 
 
 def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None):

@@ -254,6 +254,28 @@ def test_cli_batch_exit_status_and_outputs(cli, tmp_path):
     assert [r["case"] for r in rows] == ["garbage", "no_handles", "star", "stuck", "square"]
 
 
+def test_a_batch_takes_quad_and_hex_case_folders(cli, tmp_path):
+    """The hex case folder README documents (rest.vtk + init.vtk of hexahedra, handles.txt) was
+    refused in a batch ("only tetrahedral meshes"); it is solved as the one-case command solves
+    it, beside a tet case, and written to <name>.vtk with the same bytes."""
+    root = tmp_path / "root"
+    for name, t in (("hexes", G.noisy_interior(*G.hex_mesh(3, 3, 2), 1.0, seed=3)),
+                    ("quads", G.rotated_interior(*G.quad_mesh(5, 4), 110.0))):
+        kind = "hexahedron" if t.dim == 3 else "quad"
+        (root / name).mkdir(parents=True)
+        io.write_cells(root / name / "rest.vtk", t.rest, t.simplices, kind)
+        io.write_cells(root / name / "init.vtk", t.x0, t.simplices, kind)
+        np.savetxt(root / name / "handles.txt", t.fixed, fmt="%d")
+    LimCase.from_tangle(tangles()["cube"]).write(root / "cube")
+    code, _, err = cli("untangle", root, "-o", tmp_path / "out", "--workers", "1", "--quiet")
+    assert (code, err) == (0, "")
+    rows = read_summary(tmp_path / "out" / "summary.csv")
+    assert [(r["case"], r["dim"], r["certified"]) for r in rows] == [
+        ("cube", "3", "yes"), ("hexes", "3", "yes"), ("quads", "2", "yes")]
+    assert cli("untangle", root / "hexes", "-o", tmp_path / "one.vtk", "--quiet")[0] == 0
+    assert (tmp_path / "one.vtk").read_bytes() == (tmp_path / "out" / "hexes.vtk").read_bytes()
+
+
 def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
     monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     ts = tangles()
