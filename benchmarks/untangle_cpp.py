@@ -95,6 +95,7 @@ CASES = {
     "ball12k-rot180": lambda: H.delaunay_ball(1500, "rot180"),
     "ball12k-noise": lambda: H.delaunay_ball(1500, "noise2"),
     "ball60k-rot180": lambda: H.delaunay_ball(8000, "rot180"),
+    "ball60k-noise": lambda: H.delaunay_ball(8000, "noise2"),
     "lbox20-rot90": lambda: G.rotated_interior(*H.l_box(20), 90),
     "lrod10x40-twist0.5": lambda: H.twisted(*H.l_box(10, 40), 0.5, "lrod-twist0.5"),
     "torus20-twist0.5": lambda: H.twisted(*H.torus_box(20), 0.5, "torus-twist0.5"),

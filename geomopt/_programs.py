@@ -26,6 +26,7 @@ others can write.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -45,8 +46,9 @@ _UNSTABLE = object()
 _FORMAT = "geomopt-programs-1 (compiled outside JAX's cache)"
 _fingerprints: dict = {}
 #: what happened to each program since start-up: "loaded" (from disk), "stored" (compiled here
-#: and written), "plain" (through jax.jit); for tests and benchmarks
-stats = {"loaded": 0, "stored": 0, "plain": 0}
+#: and written), "plain" (through jax.jit), "broken" (loaded but failed at its first call:
+#: deleted, plain jax.jit instead); for tests and benchmarks
+stats = {"loaded": 0, "stored": 0, "plain": 0, "broken": 0}
 _programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
 
 #: XLA options of every program (unless it names its own).  XLA CPU wraps reductions and
@@ -155,6 +157,7 @@ class Program:
         self.static = tuple(sorted(static_argnums if isinstance(static_argnums, tuple) else (static_argnums,)))
         self._given = None if compiler_options is None else dict(compiler_options)
         self._calls: dict = {}
+        self._unproven: dict = {}  # key -> file of a loaded executable not yet run
         functools.update_wrapper(self, fun)
         _programs.add(self)
 
@@ -168,21 +171,25 @@ class Program:
         return jax.jit(self.fun, static_argnums=self.static, compiler_options=self.options or None)
 
     def _executable(self, args):
-        """(executable or None, traced arguments) for a call with ``args``."""
-        folder = _cache.programs_dir()
-        if folder is None:
-            return None, None
+        """(executable or None, its arguments, key) for a call with ``args``; called inside
+        ``jit``/``grad``/``vmap`` (traced arguments): ``fun`` itself, inlined into that trace
+        (XLA options can only be given to the outermost program), with key None."""
         statics = tuple(args[i] for i in self.static)
         dynamic = tuple(a for i, a in enumerate(args) if i not in self.static)
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+            return self.fun, args, None
+        folder = _cache.programs_dir()
+        if folder is None:
+            return None, None, None
         try:
             key = (statics, tree, tuple(map(_leaf_key, leaves)), jax.dtypes.canonicalize_dtype(np.float64).name)
             call = self._calls.get(key, False)
         except (TypeError, AttributeError):  # unhashable static argument, a leaf without dtype
-            return None, None
+            return None, None, None
         if call is False:
             call = self._calls[key] = self._load(args, statics, tree, key, folder)
-        return call, dynamic
+        return call, dynamic, key
 
     def _load(self, args, statics, tree, key, folder):
         modules = {"geomopt"}
@@ -203,7 +210,9 @@ class Program:
                 blob, in_tree, out_tree = pickle.loads(fh.read())
             stats["loaded"] += 1
             _lapack_ready()
-            return se.deserialize_and_load(blob, in_tree, out_tree)
+            loaded = se.deserialize_and_load(blob, in_tree, out_tree)
+            self._unproven[key] = path
+            return loaded
         except Exception:  # noqa: BLE001 -- absent, partial or stale: compile it
             pass
         lowered = self.plain.lower(*args)
@@ -220,12 +229,25 @@ class Program:
         return compiled
 
     def __call__(self, *args):
-        call, dynamic = self._executable(args)
-        return self.plain(*args) if call is None else call(*dynamic)
+        call, dynamic, key = self._executable(args)
+        if call is None:
+            return self.plain(*args)
+        if key is None or key not in self._unproven:  # key None: traced, ``fun`` itself
+            return call(*dynamic)
+        try:  # a loaded executable's first run, waited for: a broken file must not end the solve
+            out = jax.block_until_ready(call(*dynamic))
+        except Exception:  # noqa: BLE001 -- e.g. "Function ... not found" from a damaged file
+            self._calls[key] = None
+            stats["broken"] += 1
+            with contextlib.suppress(OSError):
+                os.remove(self._unproven.pop(key))
+            return self.plain(*args)
+        del self._unproven[key]
+        return out
 
     def prepare(self, *args) -> None:
         """Load (or compile and keep) the program for ``args`` without running it."""
-        call, _ = self._executable(args)
+        call, _, _ = self._executable(args)
         if call is None:
             self.plain.lower(*args).compile()
 
@@ -244,6 +266,7 @@ def clear() -> None:
     next call looks them up on disk again, as a new process would."""
     for program in list(_programs):
         program._calls.clear()
+        program._unproven.clear()
 
 
 def _write(path, data: bytes) -> None:

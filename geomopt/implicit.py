@@ -573,6 +573,7 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
     solver, options : passed to :func:`geomopt.untangle.untangle`.
     """
     from .energies import garanzha
+    from .untangle import badly_shaped
     from .untangle import untangle as run
 
     d = problem.dim
@@ -588,7 +589,7 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
         problem = check_rest_values(jax.tree_util.tree_map(np.asarray, problem))
         result = run(problem, np.asarray(x0), solver=solver, theta=float(theta), progress=False, **options)
         _require(result, "implicit.untangle")
-        bad = _badly_shaped(problem, max_aspect)
+        bad = badly_shaped(problem, max_aspect)
         return result.x, np.array([result.details.map_scale, result.trace.column("eps")[-1]]), bad
 
     x1, (k, eps), bad = _constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
@@ -607,30 +608,13 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
     return argmin(objective, {"eps": eps, "lam": lam}, x1, polish, linear_solver)
 
 
-def _aspect_ratio(P):
-    """(m,) ``lmax (l1+l2+l3) / (4 sqrt(3) area)`` of triangles P (m, 3, k), as untangling
-    measures it (1 = equilateral)."""
-    l = np.linalg.norm(P[:, [1, 2, 0]] - P, axis=2)
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    area = 0.5 * (np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) if P.shape[2] == 2
-                  else np.linalg.norm(np.cross(e1, e2), axis=1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return l.max(1) * l.sum(1) / (4.0 * np.sqrt(3.0) * area)
-
-
-def _badly_shaped(problem, max_aspect):
-    """(m,) the rest triangles that untangling replaces by equilateral ones."""
-    if max_aspect is None or problem.dim != 2:
-        return np.zeros(problem.n_elements, bool)
-    return _aspect_ratio(problem.rest_vertices[problem.simplices]) > max_aspect
-
-
 def _untangle_problem(problem, x0, k, bad):
     """The rest geometry of untangling's energy in the problem's units: ``J`` multiplied by
     ``k / s`` (the map scaled by ``k``, the rest by ``s = (map volume / rest volume)^(1/d)``,
     ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
     edge length.  Traceable in the problem's arrays."""
     from ._geometry import dets
+    from .untangle import equilateral_rest
 
     d = problem.dim
     P = problem
@@ -638,11 +622,5 @@ def _untangle_problem(problem, x0, k, bad):
     map_vol = jnp.sum(dets(P.simplices, k * x)) / (2.0 if d == 2 else 6.0)
     rest_vol = jnp.sum(P.volumes)
     s = jnp.where(map_vol > 0, (jnp.abs(map_vol) / rest_vol) ** (1.0 / d), k)
-    rest_inv, vol = P.rest_inv, P.volumes
-    if np.any(bad):
-        E = P.rest_vertices[P.simplices]
-        a = jnp.mean(jnp.linalg.norm(E[:, [1, 2, 0]] - E, axis=2), axis=1)
-        Dm = a[:, None, None] * jnp.array([[1.0, 0.5], [0.0, 0.5 * np.sqrt(3.0)]])
-        rest_inv = jnp.where(bad[:, None, None], jnp.linalg.inv(Dm), rest_inv)
-        vol = jnp.where(bad, np.sqrt(3.0) / 4.0 * a * a, vol)
+    rest_inv, vol = equilateral_rest(P, bad) if np.any(bad) else (P.rest_inv, P.volumes)
     return dataclasses.replace(P, rest_inv=rest_inv * (k / s), volumes=vol)

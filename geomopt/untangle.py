@@ -305,22 +305,35 @@ def _aspect_ratio(P):
         return l.max(1) * l.sum(1) / (4.0 * np.sqrt(3.0) * area)
 
 
+def badly_shaped(problem: Problem, max_aspect: float | None) -> np.ndarray:
+    """(m,) bool: the rest triangles whose aspect ratio is above ``max_aspect``, which
+    untangling replaces by equilateral ones (:func:`equilateral_rest`); none in 3D, for
+    quads or with ``max_aspect`` None."""
+    if max_aspect is None or problem.dim != 2 or problem.elements is not None:
+        return np.zeros(problem.n_elements, bool)
+    return _aspect_ratio(np.asarray(problem.rest_vertices)[problem.simplices]) > max_aspect
+
+
+def equilateral_rest(problem: Problem, bad: np.ndarray):
+    """``(rest_inv, volumes)`` of ``problem`` with the ``bad`` rest triangles replaced by
+    equilateral ones of their mean edge length (as Garanzha et al.'s 2D code does).  NumPy for
+    NumPy arrays, else JAX: traceable in the problem's arrays (:func:`geomopt.implicit.untangle`)."""
+    arrays = (problem.rest_vertices, problem.rest_inv, problem.volumes)
+    xp = np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
+    E = problem.rest_vertices[problem.simplices]
+    a = xp.mean(xp.linalg.norm(E[:, [1, 2, 0]] - E, axis=2), axis=1)
+    Dm = a[:, None, None] * xp.array([[[1.0, 0.5], [0.0, 0.5 * np.sqrt(3.0)]]])
+    safe = xp.where(bad[:, None, None], Dm, xp.eye(2)[None])  # no inverse of a degenerate kept triangle
+    rest_inv = xp.where(bad[:, None, None], xp.linalg.inv(safe), problem.rest_inv)
+    return rest_inv, xp.where(bad, np.sqrt(3.0) / 4.0 * a * a, problem.volumes)
+
+
 def _equilateral_rest(problem: Problem, max_aspect: float) -> Problem:
-    """Replace rest triangles with aspect ratio above ``max_aspect`` by equilateral ones with the
-    mean edge length (as Garanzha et al.'s 2D code does).  Triangles only."""
-    P = problem.rest_vertices[problem.simplices]
-    ar = _aspect_ratio(P)
-    bad = ar > max_aspect
+    """``problem`` with :func:`equilateral_rest` applied to its :func:`badly_shaped` triangles."""
+    bad = badly_shaped(problem, max_aspect)
     if not bad.any():
         return problem
-    a = np.linalg.norm(P[bad][:, [1, 2, 0]] - P[bad], axis=2).mean(1)
-    Dm = np.zeros((bad.sum(), 2, 2))
-    Dm[:, 0, 0] = a
-    Dm[:, 0, 1] = 0.5 * a
-    Dm[:, 1, 1] = 0.5 * np.sqrt(3.0) * a
-    rest_inv, vol = problem.rest_inv.copy(), problem.volumes.copy()
-    rest_inv[bad] = np.linalg.inv(Dm)
-    vol[bad] = np.sqrt(3.0) / 4.0 * a * a
+    rest_inv, vol = equilateral_rest(problem, bad)
     return dataclasses.replace(problem, rest_inv=rest_inv, volumes=vol)
 
 
@@ -655,8 +668,7 @@ def _normalised(problem, x0, active, opts):
     scaled = dataclasses.replace(
         problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
         rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
-    if opts.max_aspect is not None and d == 2 and problem.elements is None:  # triangles only
-        scaled = _equilateral_rest(scaled, opts.max_aspect)
+    scaled = _equilateral_rest(scaled, opts.max_aspect)
     sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
                               input_simplices=scaled.input_simplices[active],
                               rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])

@@ -126,6 +126,29 @@ def test_untangled_map_derivative_matches_re_solves():
     assert Problem.planar(V, F, B, h0).count_inverted(np.asarray(x)) == 0
 
 
+def test_untangled_map_derivative_through_equilateral_rest_triangles():
+    """Rest triangles above max_aspect are replaced by equilateral ones of their mean edge
+    length (geomopt.untangle.equilateral_rest): the derivative with respect to the rest
+    vertices flows through those edge lengths, against re-solves."""
+    from geomopt.untangle import badly_shaped
+
+    V, F = grid(5, jitter=0.3)
+    B = boundary_vertices(F, len(V))
+    inner = np.setdiff1d(np.arange(len(V)), B)
+    x0 = V.copy()
+    c = V[inner] - 0.5
+    x0[inner] = 0.5 + c @ np.array([[np.cos(1.5), -np.sin(1.5)], [np.sin(1.5), np.cos(1.5)]]).T
+    bad = badly_shaped(Problem.planar(V, F, B, V[B]), 2.0)
+    assert 0 < bad.sum() < len(F)
+    rng = np.random.default_rng(4)
+
+    def loss(V):
+        x = implicit.untangle(Problem.planar(V, F, B, x0[B]), x0, 0.1, max_aspect=2.0)
+        return x[inner[2], 0] + 2 * x[inner[5], 1]
+
+    _directional_check(loss, (V,), (jax.grad(loss)(V),), rng, step=1e-6)
+
+
 def test_min_norm_gauge_convention_against_a_dense_pseudo_inverse():
     """A gauge-dependent quantity (the whole map) gets dx = -H^+ dg/dt: orthogonal to the
     translations and the rotation at the optimum."""

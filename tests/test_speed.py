@@ -215,3 +215,42 @@ def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_ca
     assert _programs.stats["stored"] == before["stored"] + 2
     lam = _programs.jit(lambda s, v: s * v.sum(), static_argnums=0)
     assert float(lam(2.0, x)) == 2.0 * x.sum() and _programs.stats["plain"] == before["plain"] + 1
+
+
+def test_a_kept_program_composes_with_jit_grad_and_vmap(fresh_cache):
+    """Called on traced values a kept program is its function inlined into the caller's trace
+    (a compiled executable takes no tracers, and XLA options only go to the outermost jit)."""
+    x, idx = np.linspace(0.0, 1.0, 30), np.arange(20)[::-1] % 30
+    kept = _programs.jit(_gather_sum, static_argnums=0)
+    expect = float(kept(2.0, x, idx))
+    assert float(jax.jit(lambda v: kept(2.0, v, idx))(x)) == pytest.approx(expect, rel=1e-14)
+    grad = jax.grad(lambda v: kept(2.0, v, idx))(x)
+    np.testing.assert_allclose(grad, jax.grad(lambda v: _gather_sum(2.0, v, idx))(x), rtol=1e-14)
+    np.testing.assert_allclose(jax.vmap(lambda v: kept(2.0, v, idx))(np.stack([x, 2 * x])), [expect, 4 * expect],
+                               rtol=1e-14)
+
+
+def test_a_kept_program_that_fails_at_its_first_run_is_deleted_and_jitted_again(fresh_cache, monkeypatch):
+    """A damaged file (XLA CPU once reported "Function bitcast_concatenate_fusion not found"
+    running a loaded program) must cost a compile, not the solve."""
+    from jax.experimental import serialize_executable as se
+
+    x, idx = np.linspace(0.0, 1.0, 30), np.arange(20)[::-1] % 30
+    expect = 2.0 * np.sum(x[idx] * x[idx[::-1]])
+    assert np.isclose(float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)), expect, rtol=1e-13)
+    kept = list((fresh_cache / "programs").glob("_gather_sum-*.xla"))
+    assert len(kept) == 1
+
+    def broken(*args, **kwargs):
+        def run(*a):
+            raise RuntimeError("INTERNAL: Function bitcast_concatenate_fusion not found")
+        return run
+
+    monkeypatch.setattr(se, "deserialize_and_load", broken)
+    before = dict(_programs.stats)
+    fresh = _programs.jit(_gather_sum, static_argnums=0)
+    assert np.isclose(float(fresh(2.0, x, idx)), expect, rtol=1e-13)
+    assert _programs.stats["loaded"] == before["loaded"] + 1 and _programs.stats["broken"] == before["broken"] + 1
+    assert not kept[0].exists()
+    assert np.isclose(float(fresh(2.0, x, idx)), expect, rtol=1e-13)  # the plain program from now on
+    assert _programs.stats["loaded"] == before["loaded"] + 1

@@ -153,8 +153,9 @@ _CORNER_RE = re.compile(_CORNER)
 #: Space-separated corners (the ``f`` corners of a file joined by single spaces).
 _CORNERS_RE = re.compile(_CORNER + rb"(?: " + _CORNER + rb")*")
 _CORNER_FIND_RE = re.compile(rb"(?:^| )" + _CORNER)
-#: First two bytes of the lines whose first word is known without splitting them.
+#: First two (three) bytes of the lines whose first word is known without splitting them.
 _OBJ_HEADS = {b"v ": b"v", b"v\t": b"v", b"f ": b"f", b"f\t": b"f", b"": b""}
+_OBJ_HEADS3 = {b"vt ": b"vt", b"vt\t": b"vt"}
 
 
 def _parse_obj(data, path, with_uv=False):
@@ -172,9 +173,10 @@ def _parse_obj(data, path, with_uv=False):
         lines = _join_continued(lines)
     if b"#" in text:
         lines = [line.split(b"#", 1)[0] if b"#" in line else line for line in lines]
-    # the first word of every line (b"" for a blank one); 'v ' and 'f ' lines are recognised by
-    # their first two bytes, any other line is split
-    keys = [_OBJ_HEADS.get(line[:2]) or (line.split(None, 1) or [b""])[0] for line in lines]
+    # the first word of every line (b"" for a blank one); 'v ', 'f ' and 'vt ' lines are
+    # recognised by their first bytes, any other line is split
+    keys = [_OBJ_HEADS.get(line[:2]) or _OBJ_HEADS3.get(line[:3]) or (line.split(None, 1) or [b""])[0]
+            for line in lines]
     strange = set(keys) - _OBJ_IGNORED - {b"v", b"f", b"vt", b""}
     if strange:
         lineno, key = next((i + 1, k) for i, k in enumerate(keys) if k in strange)
