@@ -187,8 +187,9 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     list of summary rows (dicts), in the order of ``cases``.
 
     An interrupt (``KeyboardInterrupt``: Ctrl-C, or SIGTERM/SIGHUP under the command line)
-    still writes ``summary.csv``: the cases that finished, and a "not solved: the batch was
-    interrupted" row for each other one; then it propagates.
+    still writes ``summary.csv``: the cases that finished, a "not solved: the batch was
+    interrupted" row for each other one (certified, statistics lost, for one whose output this
+    batch wrote before its row arrived); then it propagates.
     """
     from . import io
 
@@ -198,6 +199,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     io.check_outputs([("summary", summary, (".csv",))] + [outdir / (c.name + ext) for c in cases
                                                           for ext in (".obj", ".vtk")], cases, outdir)
     rows = [None] * len(cases)  # filled as cases finish
+    started = time.time()
     try:
         if scheduler is None and workers <= 1:
             io.create_output_folder(outdir)  # nothing is created before the run can start
@@ -209,9 +211,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
             _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM/SIGHUP from the command line: say what finished
         if outdir.is_dir():
-            write_summary(summary, [row or _failed_row(c, "not solved: the batch was interrupted before this "
-                                                          "case finished (summary incomplete)")
-                                    for row, c in zip(rows, cases)])
+            write_summary(summary, [row or _interrupted_row(c, outdir, started) for row, c in zip(rows, cases)])
         raise
     write_summary(summary, rows)
     return rows
@@ -343,6 +343,26 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, 
                 if report:
                     report(row, done, len(cases))
     return rows
+
+
+def _interrupted_row(folder, outdir, started):
+    """The row of a case whose own row did not arrive before an interrupt: "not solved", or,
+    when its output was written during this batch (only a certified file is ever written,
+    :func:`solve_case`; a Dask worker may have written it before its row reached the client),
+    certified with its statistics lost."""
+    for ext in (".obj", ".vtk"):
+        out = Path(outdir) / (Path(folder).name + ext)
+        try:
+            written = out.stat().st_mtime >= started
+        except OSError:
+            continue
+        if written:
+            row = _failed_row(folder, "the batch was interrupted after this case's certified output was "
+                                      "written; its statistics were lost (summary incomplete)")
+            row.update(certified="yes", output=out.name)
+            return row
+    return _failed_row(folder, "not solved: the batch was interrupted before this case finished "
+                               "(summary incomplete)")
 
 
 def _failed_row(folder, message):

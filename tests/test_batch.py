@@ -363,6 +363,48 @@ def test_a_batch_stopped_by_sigterm_writes_the_summary_of_what_finished(tmp_path
     assert all("interrupted" in r["message"] and "summary incomplete" in r["message"] for r in rows[1:])
 
 
+WRITTEN_THEN_SLOW = """
+import sys, time
+import geomopt.batch, geomopt.cli
+
+real = geomopt.batch.solve_case
+
+def written_then_slow(folder, outdir, *a, **k):
+    row = real(folder, outdir, *a, **k)
+    if str(folder).endswith("b"):  # as a Dask worker whose row has not reached the client yet
+        print("written", flush=True)
+        time.sleep(120)
+    return row
+
+geomopt.batch.solve_case = written_then_slow
+sys.exit(geomopt.cli.main(["untangle", sys.argv[1], "-o", sys.argv[2], "--workers", "1", "--quiet"]))
+"""
+
+
+def test_an_interrupted_batch_says_which_outputs_it_wrote_before_their_rows_arrived(tmp_path):
+    ts = tangles()
+    for name in ("a", "b", "c"):
+        LimCase.from_tangle(ts["square"]).write(tmp_path / "cases" / name)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "c.obj").write_text("an older batch's output\n")  # not written by this batch
+    os.utime(out / "c.obj", (0, 0))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(WRITTEN_THEN_SLOW), str(tmp_path / "cases"),
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline() == "written\n"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    rows = read_summary(out / "summary.csv")
+    assert [(r["case"], r["certified"], r["output"]) for r in rows] == [("a", "yes", "a.obj"), ("b", "yes", "b.obj"),
+                                                                          ("c", "no", "")]
+    assert "statistics were lost" in rows[1]["message"] and "not solved" in rows[2]["message"]
+
+
 def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli, tmp_path, monkeypatch):
     monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     LimCase.from_tangle(tangles()["square"]).write(tmp_path / "cases" / "sq")
