@@ -264,6 +264,18 @@ def test_obj_slash_corners_read_as_the_general_corner_parser_reads_them(tmp_path
             assert outcome(path) == fast, text
 
 
+def test_obj_vt_w_is_read_only_when_zero(tmp_path):
+    """'vt u v w' maps are planar only with w = 0: any other w is refused, not dropped."""
+    from geomopt.io import read_obj_with_uv
+
+    head = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+    faces = "f 1/1 2/2 3/3\n"
+    _, uv, _ = read_obj_with_uv(put(tmp_path / "w0.obj", head + "vt 0 0 0\nvt 1 0\nvt 0 1 -0.0\n" + faces))
+    np.testing.assert_array_equal(uv, [[0, 0], [1, 0], [0, 1]])
+    with pytest.raises(MeshFormatError, match=r"line 6: 'vt' line has a third coordinate w = '0.5'"):
+        read_obj_with_uv(put(tmp_path / "w.obj", head + "vt 0 0\nvt 1 0 0\nvt 0 1 0.5\n" + faces))
+
+
 def test_off_variants_and_errors(tmp_path):
     ok = "COFF\n# c\n3 1 3\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2 1 0 0\n"
     V, F = read_mesh(put(tmp_path / "c.off", ok))

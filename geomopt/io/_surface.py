@@ -200,8 +200,9 @@ def _parse_obj(data, path, with_uv=False):
         if numbers is not None:
             out["vt"] = floats(numbers, lambda i: f"{path}, line {vt_at[i // 2] + 1}").reshape(-1, 2)
         else:
-            out["vt"] = _obj_numbers([(i + 1, lines[i].split()) for i in vt_at], path, "vt", (2, 3),
-                                     "u v (optionally w)")[:, :2]
+            rows = [(i + 1, lines[i].split()) for i in vt_at]
+            out["vt"] = _obj_numbers(rows, path, "vt", (2, 3), "u v (optionally w)")[:, :2]
+            _planar_vt(rows, path)
     seen = np.searchsorted(np.array(v_at, dtype=np.int64), np.array(f_at, dtype=np.int64))  # 'v' lines before
     face_lines = np.array(f_at, dtype=np.int64) + 1
     corners = _statement_words(lines, f_at, b"f", 3)  # triangles all at once
@@ -217,6 +218,15 @@ def _parse_obj(data, path, with_uv=False):
         corners = [c for t in rows for c in t[1:]]
     out.update(_obj_faces(corners, counts, face_lines, seen, len(v_at), path))
     return out
+
+
+def _planar_vt(rows, path):
+    """Refuse a ``vt u v w`` line (valid numbers) whose ``w`` is not 0: the map it belongs to
+    is planar, and dropping ``w`` would read it inexactly."""
+    for lineno, words in rows:
+        if len(words) == 4 and float(words[3]) != 0.0:
+            raise MeshFormatError(f"{path}, line {lineno}: 'vt' line has a third coordinate w = "
+                                  f"{show(words[3])}; a planar map needs 'vt u v' (or w = 0)")
 
 
 def _statement_words(lines, at, key, width):
