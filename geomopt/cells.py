@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import MeshError, MeshFormatError, SolveError
+from ._errors import GeomoptError, MeshError, MeshFormatError, SolveError
 
 __all__ = ["CellCase", "CELL_EXTENSIONS", "is_cell_case", "read_cell_case", "cell_problem", "write_certified"]
 
@@ -93,7 +93,11 @@ def read_cell_case(path) -> CellCase:
 
     path = Path(path)
     if not path.is_dir():
-        P, E, _ = io.read_cells(path, _KINDS)
+        try:
+            P, E, _ = io.read_cells(path, _KINDS)
+        except MeshFormatError as exc:
+            _refuse_tets(path, exc)
+            raise
         return CellCase(_planar(P, E, path), E, None, _boundary(E, len(P)), path)
     for name in ("rest.vtk", "init.vtk"):
         if not (path / name).is_file():
@@ -108,6 +112,20 @@ def read_cell_case(path) -> CellCase:
     handles = (io.read_vertex_ids(handles_file, len(rest)) if handles_file.exists()
                else _boundary(E, len(rest)))
     return CellCase(_planar(init, E, path / "init.vtk"), E, _planar(rest, E, path / "rest.vtk"), handles, path)
+
+
+def _refuse_tets(path, exc):
+    """Raise a MeshFormatError pointing to the LIM folder layout when ``path``, refused as a
+    quad / hex mesh (``exc``), is a tetrahedral mesh."""
+    from . import io
+
+    try:
+        io.read_cells(path, ("tetra",))
+    except GeomoptError:
+        return
+    raise MeshFormatError(f"{path} is a tetrahedral mesh; untangling tetrahedra needs a LIM case folder "
+                          f"(rest.vtk, init.vtk, handles.txt: see README) to give the rest shape beside the "
+                          f"tangled map") from exc
 
 
 def _planar(P, E, path):

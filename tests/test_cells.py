@@ -70,6 +70,22 @@ def test_mixed_and_wrong_cells_are_refused(tmp_path):
         io.read_tets(tmp_path / "h.mesh")
 
 
+def test_a_tet_mesh_given_as_a_hex_case_points_to_the_lim_folder(tmp_path):
+    from geomopt.cells import read_cell_case
+    from geomopt.io import write_vtk_tets
+
+    V, T = G.box_mesh(2, 2, 2)
+    write_vtk_tets(tmp_path / "tets.vtk", V, T)
+    with pytest.raises(MeshFormatError, match="is a tetrahedral mesh; untangling tetrahedra needs a LIM case folder"):
+        read_cell_case(tmp_path / "tets.vtk")
+    P3, H = _meshes()["hexahedron"]  # a mixed mesh keeps its own message
+    io.write_cells(tmp_path / "h.mesh", P3, H, "hexahedron")
+    text = (tmp_path / "h.mesh").read_text().replace("End", "Tetrahedra\n1\n1 2 3 4 0\nEnd")
+    (tmp_path / "mixed.mesh").write_text(text)
+    with pytest.raises(MeshFormatError, match=r"cells other than hexahedra \(tetra\)"):
+        read_cell_case(tmp_path / "mixed.mesh")
+
+
 def test_gmsh_made_hex_meshes_are_read_exactly(tmp_path):
     gmsh = pytest.importorskip("gmsh")
     gmsh.initialize()
