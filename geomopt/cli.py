@@ -98,6 +98,20 @@ def _output_paths(output, extensions, pictures=(), inputs=(), folder=None):
     return io.check_outputs(files, inputs, folder)[0]
 
 
+def _param_input(args):
+    """``(V, F, x0, start)`` of ``geomopt param``: the mesh, the start map (an array, None for
+    Tutte's or ``"projection"``) and how the log names it."""
+    from . import io
+
+    if args.init == "uv":
+        V, F, x0 = io.read_obj_uv(args.input)
+        return V, F, x0, "its own UV start map"
+    V, F = io.read_mesh(args.input)
+    if args.init == "tutte":
+        return V, F, None, f"{args.weights} Tutte start"
+    return V, F, args.init, "plane projection start"
+
+
 def cmd_param(args) -> int:
     from . import io
     from ._errors import MeshError, ParameterError
@@ -122,15 +136,8 @@ def cmd_param(args) -> int:
         raise ParameterError("--bijective starts from the Tutte map (--init tutte, the default) or from a globally "
                              "injective --init uv map, not from --init projection; drop one of the two options")
     _output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
-    t_read = time.perf_counter()
-    if args.init == "uv":
-        V, F, x0 = io.read_obj_uv(args.input)
-        start = "its own UV start map"
-    else:
-        V, F = io.read_mesh(args.input)
-        x0 = None if args.init == "tutte" else args.init
-        start = f"{args.weights} Tutte start" if args.init == "tutte" else "plane projection start"
-    split.add("read", time.perf_counter() - t_read)
+    with split.phase("read"):
+        V, F, x0, start = _param_input(args)
     _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
                f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
