@@ -38,7 +38,7 @@ SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "in
                    "outer_iterations", "inner_iterations", "seconds", "certified", "output", "message")
 
 
-def solve_case(folder, outdir, solver="lbfgs", bucket=True):
+def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
     """Read a LIM case folder, untangle it, write ``outdir/<folder name>.obj`` (2D) or ``.vtk``
     (3D) if it certifies (:meth:`geomopt.lim.LimCase.write_certified`), and return its summary row.
     A quad / hex case folder (``rest.vtk`` and ``init.vtk`` of VTK cell type 9 / 12,
@@ -55,6 +55,8 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     solver : inner solver name for :func:`geomopt.untangle.untangle`.
     bucket : pad to a size bucket (:mod:`geomopt._padding`), so that cases of similar sizes
         share compiled kernels.
+    start : where untangling starts (``UntangleOptions.start``: ``"auto"``, ``"given"``,
+        ``"harmonic"``).
 
     Returns
     -------
@@ -65,7 +67,7 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=folder.name, certified="no")
     try:
-        (_solve_cell_case if is_cell_case(folder) else _solve_lim_case)(folder, outdir, solver, bucket, row)
+        (_solve_cell_case if is_cell_case(folder) else _solve_lim_case)(folder, outdir, solver, bucket, row, start)
     except GeomoptError as exc:
         row["message"] = str(exc)
     except Exception as exc:  # noqa: BLE001 -- one broken case must not stop the batch
@@ -74,12 +76,12 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True):
     return row
 
 
-def _solve_lim_case(folder, outdir, solver, bucket, row):
+def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
     """A LIM case (triangles or tetrahedra) into ``row``; its map written if it certifies."""
     case = LimCase.read(folder)
     case.require_handles()
     row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
-    case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket)
+    case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket, start=start)
     _solved(row, res)
     if res.success:
         output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
@@ -87,7 +89,7 @@ def _solve_lim_case(folder, outdir, solver, bucket, row):
         row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
 
 
-def _solve_cell_case(folder, outdir, solver, bucket, row):
+def _solve_cell_case(folder, outdir, solver, bucket, row, start="auto"):
     """A quad / hex case folder (:mod:`geomopt.cells`) into ``row``, solved and written as
     ``geomopt untangle FOLDER -o <name>.vtk`` does (``bucket`` does not apply)."""
     from .untangle import untangle
@@ -95,7 +97,7 @@ def _solve_cell_case(folder, outdir, solver, bucket, row):
     case = read_cell_case(folder)
     problem = cell_problem(case)
     row.update(dim=problem.dim, vertices=len(case.start), elements=len(case.elements))
-    res = untangle(problem, case.start, solver=solver, progress=False)
+    res = untangle(problem, case.start, solver=solver, progress=False, start=start)
     _solved(row, res)
     if res.success:
         output = Path(outdir) / (folder.name + ".vtk")
@@ -110,13 +112,13 @@ def _solved(row, res):
         row["message"] = f"not certified: {res.message}"
 
 
-def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None):
+def _solve_cases(folders, outdir, solver, bucket, settings=None, after=None, start="auto"):
     """:func:`solve_case` for each folder in turn (one Dask task), under the client's JAX
     ``settings`` (:func:`jax_settings`); ``after`` is the result of the task this one waited
     for (unused)."""
     if settings:
         _apply_jax_settings(settings)
-    return [solve_case(f, outdir, solver, bucket) for f in folders]
+    return [solve_case(f, outdir, solver, bucket, start) for f in folders]
 
 
 # --------------------------------------------------------------------- many cases
@@ -164,7 +166,7 @@ def write_summary(path, rows):
 
 
 def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=True, report=None,
-              chunk=None):
+              chunk=None, start="auto"):
     """Untangle many LIM cases and write their outputs and ``outdir/summary.csv``.
 
     Parameters
@@ -181,6 +183,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
         bucket compiles once.  The serial and the Dask runs write the same files, bit for bit.
     report : optional callable ``(row, done, total)`` called as each case finishes.
     chunk : cases per Dask task (default: about 8 tasks per worker, at most 16 cases each).
+    start : where each untangling starts (``UntangleOptions.start``).
 
     Returns
     -------
@@ -204,11 +207,11 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
         if scheduler is None and workers <= 1:
             io.create_output_folder(outdir)  # nothing is created before the run can start
             for i, c in enumerate(cases):
-                rows[i] = solve_case(c, outdir, solver, bucket)
+                rows[i] = solve_case(c, outdir, solver, bucket, start)
                 if report:
                     report(rows[i], i + 1, len(cases))
         else:
-            _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows)
+            _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows, start)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM/SIGHUP from the command line: say what finished
         if outdir.is_dir():
             write_summary(summary, [row or _interrupted_row(c, outdir, started) for row, c in zip(rows, cases)])
@@ -281,7 +284,7 @@ def _tasks(cases, size):
     return out
 
 
-def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows):
+def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows, start="auto"):
     """Solve ``cases`` on Dask, filling ``rows`` (one per case) as they finish."""
     import contextlib
     import logging
@@ -313,7 +316,7 @@ def _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, 
 
         def submit(group, after=None, priority=0):
             fut = client.submit(_solve_cases, [str(cases[i]) for i in group], str(outdir), solver, bucket,
-                                settings, after, pure=False, priority=priority,
+                                settings, after, start, pure=False, priority=priority,
                                 key=f"geomopt-batch-{run_id}-{len(futures)}")
             futures[fut] = (group, after is not None)
             return fut

@@ -309,7 +309,7 @@ def _untangle_one(args, folder) -> int:
         case = LimCase.read(folder)
         case.require_handles()
     case, res = _timed_solve(split, lambda: untangle_case(case, solver=args.solver, progress=not args.quiet,
-                                                          bucket=True))
+                                                          bucket=True, start=args.start))
     st = res.stats
     with split.phase("certify"):
         quality = element_quality(res.x, case.simplices, case.to_problem().orientation)
@@ -323,7 +323,7 @@ def _untangle_one(args, folder) -> int:
             outer_iterations=st.outer_iterations, inner_iterations=st.iterations,
             evaluations=st.evaluations, solve_seconds=round(st.seconds, 4),
             setup_seconds=round(st.setup_seconds, 4), handles_moved=res.certificate.handles_moved,
-            min_det_rel=res.min_det_rel, outcome=res.outcome.value, certified=bool(res.success),
+            start=res.details.start, min_det_rel=res.min_det_rel, outcome=res.outcome.value, certified=bool(res.success),
             message=res.message, **quality, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
@@ -372,21 +372,23 @@ def _untangle_cells(args) -> int:
     with split.phase("setup"):
         problem = cell_problem(case)
         before = certify_elements(case.start, problem.elements)
-    res = _timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet))
+    res = _timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet,
+                                                     start=args.start))
     with split.phase("certify"):
         after = certify_elements(res.x, problem.elements)
     _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(before.quality)}, "
                f"{before.invalid} invalid")
     _log(args, f"after  {_quality_line(after.quality)}, {after.invalid} invalid ({after.corner_only} only inside); "
                f"tests {after.summary()['tests']}; outer iterations {res.stats.outer_iterations}, "
-               f"{res.stats.seconds:.2f} s, certified {'yes' if res.success else 'no'}")
+               f"{res.stats.seconds:.2f} s from the {res.details.start} map, certified "
+               f"{'yes' if res.success else 'no'}")
     _report(args, case=str(path), output=str(args.output), dim=problem.dim, vertices=len(res.x),
             elements=len(case.elements), kind=case.kind, inverted_before=before.invalid,
             inverted=res.certificate.inverted, outer_iterations=res.stats.outer_iterations,
             inner_iterations=res.stats.iterations, evaluations=res.stats.evaluations,
             solve_seconds=round(res.stats.seconds, 4), setup_seconds=round(res.stats.setup_seconds, 4),
-            handles_moved=res.certificate.handles_moved, outcome=res.outcome.value, certified=bool(res.success),
-            message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
+            handles_moved=res.certificate.handles_moved, start=res.details.start, outcome=res.outcome.value,
+            certified=bool(res.success), message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     with split.phase("write"):
@@ -455,7 +457,7 @@ def _untangle_batch(args) -> int:
         _log(args, f"[{done}/{total}] {row['case']}: {status} ({row['seconds']} s)")
 
     rows = run_batch(cases, args.output, solver=args.solver, workers=workers, scheduler=args.scheduler,
-                     report=report)
+                     report=report, start=args.start)
     failed = sum(row["certified"] != "yes" for row in rows)
     summary = Path(args.output) / "summary.csv"
     _report(args, output=str(args.output), summary=str(summary), workers=workers, scheduler=args.scheduler,
@@ -631,6 +633,10 @@ def _add_untangle(sub):
                          "certified case and summary.csv")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
+    sp.add_argument("--start", default="auto", choices=["auto", "given", "harmonic"],
+                    help="where untangling starts: the given map, the harmonic extension of the handles "
+                         "(its free vertices moved), or auto (default: the harmonic extension for quads and "
+                         "hexahedra when it has fewer inverted corners, else the given map)")
     sp.add_argument("--png", default=None,
                     help="also save a picture of the start and the result, inverted elements in red")
     where = sp.add_mutually_exclusive_group()

@@ -79,8 +79,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 
-from ._config import Instance, Int, Maybe, Real, validate
+from ._config import Instance, Int, Maybe, OneOf, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
 from ._tracing import refuse_traced
 from ._x64 import float64
@@ -89,14 +90,17 @@ from ._geometry import det, edge_rows
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
+from .linsolve import NotPositiveDefinite, SparseCholesky
 from .problem import Problem, fixed_total_problem
+from .topology import connected_components
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
-                      Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
+                      Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate,
+                      rest_laplacian)
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
            "stiff_solver", "next_eps", "start_eps", "START_RATIO", "bits_differ", "STIFF_AFTER",
-           "STIFF_AFTER_NEWTON", "PROBE_PROGRESS"]
+           "STIFF_AFTER_NEWTON", "PROBE_PROGRESS", "STARTS", "harmonic_start", "choose_start"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
@@ -124,6 +128,9 @@ PROBE_PROGRESS = (0.9, 0.5)
 #: Newton iterations took 13 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
 #: Newton iterations' worth
 STIFF_AFTER_NEWTON = 1000
+
+#: the values of ``UntangleOptions.start`` (see :func:`choose_start`)
+STARTS = ("auto", "given", "harmonic")
 
 #: what :func:`untangle` returns (one result type for every solve; kept as a name)
 UntangleResult = Result
@@ -222,6 +229,11 @@ class UntangleOptions:
     bucket : pad the problem to its size bucket (``Objective(buckets=True)``,
         :mod:`geomopt._padding`), so that meshes of similar sizes share compiled kernels; same
         certificate, same map up to the rounding of sums over elements.
+    start : where the eps loop starts (:data:`STARTS`): ``"given"`` ``x0``; ``"harmonic"`` ``x0``
+        with its free vertices replaced by the harmonic extension of the handles
+        (:func:`harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
+        hexahedra when it has fewer inverted corners than ``x0``, else ``x0`` (see
+        :func:`choose_start`).
     """
 
     theta: float | None = None
@@ -234,13 +246,15 @@ class UntangleOptions:
     min_sigma: float = 0.5
     max_sigma: float = 0.5
     bucket: bool = False
+    start: str = "auto"
 
     def __post_init__(self):
         validate(self, theta=Maybe(Real(0.0, 1.0, lo_open=True, hi_open=True)), max_outer=Int(1),
                  energy_tol=Real(0.0, 1.0, lo_open=True, hi_open=True), eps0=Maybe(Real(0.0, lo_open=True)),
                  max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
                  injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
-                 max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool))
+                 max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool),
+                 start=OneOf(STARTS))
         if not self.min_sigma <= self.max_sigma:
             raise ParameterError(f"UntangleOptions: need min_sigma <= max_sigma, got {self.min_sigma} and "
                                  f"{self.max_sigma}")
@@ -384,6 +398,73 @@ def start_eps(problem: Problem, x) -> float:
     D = det(edge_rows(problem.simplices, np.asarray(x, np.float64))) * det(problem.rest_inv)
     m = float(np.median(np.abs(D)))
     return max(1.0, m / START_RATIO) if math.isfinite(m) else 1.0
+
+
+def harmonic_start(problem: Problem, x0) -> np.ndarray | None:
+    """``x0`` (n, d) with its free vertices moved to the harmonic extension of the handles, or
+    None where that is undefined (no handle, or a connected part of the mesh without one).
+
+    The extension minimises the rest Dirichlet energy ``sum_e vol_e |J_e|^2`` (quads and
+    hexahedra: over their corner simplices) with the handles at ``problem.fixed_positions``:
+    one sparse Cholesky solve with the rest Laplacian (:func:`~geomopt.solvers.rest_laplacian`)
+    on the free vertices.  It is the far end of the eps continuation: for ``|det J| << eps``,
+    ``chi(det J, eps) ~ eps / 2`` and what is left of the untangling energy is its Dirichlet
+    term, so the minimiser tends to this map as eps grows.  Vertices no element uses keep
+    their ``x0`` rows."""
+    x = problem.check_map(x0)
+    fixed = np.asarray(problem.fixed, np.int64)
+    if not len(problem.simplices) or not len(fixed):
+        return None
+    count, labels = connected_components(problem.simplices, problem.n_vertices)
+    anchored = np.zeros(count, bool)
+    anchored[labels[fixed][labels[fixed] >= 0]] = True
+    if not anchored.all():
+        return None
+    free = problem.free_mask & (labels >= 0)
+    if not free.any():
+        return None
+    K = rest_laplacian(problem).tocsr()
+    L = sp.tril(K[free][:, free]).tocsc()
+    L.sort_indices()
+    chol = SparseCholesky(L.indptr, L.indices)
+    try:
+        chol.factor(L.data)
+        x[free] = chol.solve(-(K[free][:, ~free] @ x[~free]))
+    except NotPositiveDefinite:  # a rest mesh whose Laplacian is not definite on the free part
+        return None
+    return x
+
+
+def _inverted_corners(problem: Problem, x) -> int:
+    """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point."""
+    return int(np.count_nonzero(~(problem.signed_volumes(x) > 0)))
+
+
+def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:
+    """``(x, which)``: the map :func:`untangle`'s eps loop starts from, and ``"given"`` (``x0``)
+    or ``"harmonic"`` (:func:`harmonic_start`), for ``UntangleOptions.start`` (:data:`STARTS`).
+
+    ``"auto"`` takes the harmonic extension for quads and hexahedra when ``x0`` has an
+    inverted corner and the extension has fewer.  On their corner simplices no L-BFGS seed
+    solves the first eps of a global tangle and the stiff phase is projected Newton on every
+    corner (:func:`stiff_solver`): the hex rod of 20 x 20 x 240 bent by 180 degrees (96,000
+    hexahedra) ran 24 minutes without finishing from ``x0``; its harmonic extension has no
+    inverted corner and certifies after 8 inner iterations.  Simplices keep ``x0`` under
+    ``"auto"``: L-BFGS with the Laplacian seed untangles their global tangles at the authors'
+    speed or better (benchmarks/README.md), and a map that stays near ``x0`` is kept."""
+    if start not in STARTS:
+        raise ParameterError(f"start must be one of {STARTS}, got {start!r}")
+    if start == "given" or (start == "auto" and (problem.elements is None or _inverted_corners(problem, x0) == 0)):
+        return x0, "given"
+    xh = harmonic_start(problem, x0)
+    if xh is None:
+        if start == "harmonic":
+            raise ParameterError("start='harmonic' needs a handle in every connected part of the mesh (the "
+                                 "harmonic extension of the handles is undefined otherwise); use start='given'")
+        return x0, "given"
+    if start == "auto" and _inverted_corners(problem, xh) >= _inverted_corners(problem, x0):
+        return x0, "given"
+    return xh, "harmonic"
 
 
 def _power_of_two(v: float) -> float:
@@ -591,19 +672,20 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     if not fixed_part.ok:
         raise MeshError(f"{fixed_part.message}; every element there has all its vertices fixed, so the "
                         f"handles make a locally injective map impossible: free some of them or move them")
+    x_start, which = choose_start(problem, x0, opts.start)
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
     if isinstance(solver, str):
         corners = problem.elements is not None
         stiff = stiff_solver(solver, problem.dim, corners)
         solver = default_solver(solver, problem.dim, int(active.sum()), corners, initially)
     theta = opts.resolved_theta(problem.dim)
-    scaled, sub, xs, k, s = _normalised(problem, x0, active, opts)
+    scaled, sub, xs, k, s = _normalised(problem, x_start, active, opts)
     energy = garanzha.with_params(eps=1.0, lam=theta / (1.0 - theta))
     full = Objective(scaled, energy, buckets=opts.bucket)
     obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
     if opts.eps0 is None:
         opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
-    details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()))
+    details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()), which)
     eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver, stiff)
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,

@@ -141,6 +141,10 @@ def test_untangle_command_on_quad_and_hex_cases(cli, tmp_path):
     assert report["dim"] == 2 and report["vertices"] == len(V) and report["inverted_before"] == t.inverted()
     assert report["inverted"] == 0 and report["handles_moved"] == 0 and report["outcome"] == "converged"
     assert report["inner_iterations"] >= report["outer_iterations"] >= 1
+    assert report["start"] == "harmonic"  # auto: the boundary's harmonic extension has no inverted corner
+    code, out, err = cli("untangle", src, "-o", tmp_path / "given.msh", "--quiet", "--json", "--start", "given")
+    assert code == 0, err
+    assert json.loads(out)["start"] == "given" and json.loads(out)["inner_iterations"] > 1
     assert {"import", "read", "compile", "setup", "solve", "certify", "write", "total"} <= set(report["timing"])
     P, Q2, _ = io.read_cells(tmp_path / "out.msh")
     assert certify_elements(P[:, :2], Q).certified and np.array_equal(P[t.fixed, :2], t.x0[t.fixed])

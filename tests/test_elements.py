@@ -18,7 +18,7 @@ from geomopt.elements import (certify_elements, corner_edges, count_invalid,
 from geomopt.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
 from geomopt.problem import Problem
 from geomopt.smooth import smooth
-from geomopt.untangle import STIFF_AFTER_NEWTON, untangle
+from geomopt.untangle import STIFF_AFTER_NEWTON, choose_start, harmonic_start, untangle
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
 
@@ -294,11 +294,14 @@ def test_certificate_reports_tests_and_quality():
 # ----------------------------------------------------------------------------- untangling
 
 
-def _untangled(tangle):
+def _untangled(tangle, start="given"):
+    """Untangled and certified; from the tangled map itself by default (the eps loop's test: with
+    the boundary at rest the harmonic start of ``"auto"`` is the rest mesh)."""
     p = tangle.problem()
     assert tangle.inverted() > 0
-    r = untangle(p, tangle.x0, progress=False)
+    r = untangle(p, tangle.x0, progress=False, start=start)
     assert r.success, (tangle.name, r.message)
+    assert r.details.start == ("given" if start == "given" else "harmonic")
     c = certify_elements(r.x, p.elements)
     assert c.certified and r.certificate.inverted == 0
     assert np.array_equal(r.x[tangle.fixed], tangle.x0[tangle.fixed])
@@ -323,6 +326,68 @@ def test_hex_families_untangle(family):
     assert c.tests["bernstein"] + c.tests["subdivision"] + c.tests["exact"] == len(c.valid)
     if family == "bend":  # stiff: Newton after the L-BFGS probe (L-BFGS alone took 3,014)
         assert STIFF_AFTER_NEWTON < r.stats.iterations < STIFF_AFTER_NEWTON + 200
+
+
+@pytest.mark.parametrize("kind", ["quad", "hex"])
+def test_harmonic_start_reproduces_an_affine_boundary(kind):
+    """The rest Laplacian of the corner simplices has linear precision on a grid: the harmonic
+    extension of an affine image of the boundary is that affine map, whatever the interior was."""
+    V, E = G.quad_mesh(5, 7) if kind == "quad" else G.hex_mesh(3, 4, 5)
+    p0 = Problem.quads(V, E) if kind == "quad" else Problem.hexes(V, E)
+    b = p0.boundary_vertices()
+    A = np.array([[1.3, 0.4], [-0.2, 0.9]]) if kind == "quad" else np.array(
+        [[1.3, 0.4, 0.1], [-0.2, 0.9, 0.3], [0.1, -0.3, 1.1]])
+    target = V @ A.T + 0.7
+    p = Problem.quads(V, E, b, target[b]) if kind == "quad" else Problem.hexes(V, E, b, target[b])
+    x0 = G.noisy_interior(V, E, 2.0, seed=3).x0
+    x0[b] = target[b]
+    x = harmonic_start(p, x0)
+    assert np.abs(x - target).max() < 1e-12 and np.array_equal(x[b], target[b])
+
+
+def test_auto_start_untangles_a_bent_hex_rod_from_the_harmonic_extension():
+    """The bend that needs Newton after a 1,000-iteration L-BFGS probe from its tangled map (the
+    family test above) takes a few iterations from the harmonic extension of its boundary."""
+    t = G.bent_box(4, 48, 180.0, hexes=True)
+    x, which = choose_start(t.problem(), t.x0)
+    assert which == "harmonic" and t.problem().count_inverted(x) < t.inverted()
+    r, c = _untangled(t, "auto")
+    assert r.stats.iterations < 50 and r.stats.inverted_at_start == t.inverted()
+
+
+def test_auto_start_keeps_the_given_map(monkeypatch):
+    import geomopt.untangle as U
+
+    V, Q = G.quad_mesh(6, 6)
+    t = G.rotated_interior(V, Q, 120)
+    p = t.problem()
+    assert choose_start(p, V)[1] == "given"  # nothing inverted: the extension is not even made
+    assert choose_start(p, t.x0, "given")[1] == "given"
+    assert choose_start(p, t.x0)[1] == "harmonic"
+    # simplices keep their map under auto (the rest of untangling is measured on it)
+    Vt, T = G.box_mesh(2, 2, 8)
+    tt = G.bent_box(2, 8, 180.0)
+    assert choose_start(tt.problem(), tt.x0)[1] == "given" and choose_start(tt.problem(), tt.x0, "harmonic")[1] == \
+        "harmonic"
+    # no handle: the extension is undefined
+    free = Problem.quads(V, Q)
+    assert choose_start(free, t.x0)[1] == "given"
+    with pytest.raises(ParameterError, match="handle in every connected part"):
+        choose_start(free, t.x0, "harmonic")
+    # an extension with as many inverted corners as the map is not taken
+    monkeypatch.setattr(U, "harmonic_start", lambda problem, x0: x0.copy())
+    assert choose_start(p, t.x0)[1] == "given"
+
+
+def test_harmonic_start_needs_a_handle_in_every_part():
+    V, Q = G.quad_mesh(3, 3)
+    two = np.concatenate([Q, Q + len(V)])
+    W = np.concatenate([V, V + [2.0, 0.0]])
+    b = Problem.quads(V, Q).boundary_vertices()
+    p = Problem.quads(W, two, b, W[b])  # handles on the first copy only
+    assert harmonic_start(p, W) is None
+    p2 = Problem.quads(W, two, np.concatenate([b, b + len(V)]), np.concatenate([W[b], W[b + len(V)]]))
+    assert np.abs(harmonic_start(p2, W) - W).max() < 1e-12
 
 
 # ----------------------------------------------------------------------------- smoothing

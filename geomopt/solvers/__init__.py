@@ -13,6 +13,7 @@ Newton-type solvers are objects: :class:`Adaptive`, :class:`Clamp`, :class:`Abs`
 from .._projection import Abs, AbstractProjection, Adaptive, Clamp, CMProxy, Exact, SLIMProxy
 from ._base import AbstractSolver, State
 from ._iterate import AbstractContinuation, Decision, Final, Progress, iterate, minimize
+from ._laplacian import rest_laplacian
 from ._registry import SOLVERS, get_solver
 from ._result import LocalCertificate, ParamDetails, Result, RunStats, Trace, UntangleDetails, local_certificate
 from ._termination import DIVERGENCE_FACTOR, Outcome, Stats, Termination
@@ -24,4 +25,4 @@ __all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State",
            "Outcome", "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails",
            "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final", "AbstractContinuation", "Progress",
            "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection", "Adaptive", "Clamp", "Abs", "Exact",
-           "SLIMProxy", "CMProxy"]
+           "SLIMProxy", "CMProxy", "rest_laplacian"]

@@ -141,14 +141,16 @@ class Trace:
 @dataclasses.dataclass(frozen=True)
 class UntangleDetails:
     """What :func:`~geomopt.untangle.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
-    the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, and the
-    elements that have a free vertex (``active_elements``)."""
+    the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, the
+    elements that have a free vertex (``active_elements``), and the map the eps loop started
+    from (``start``: ``"given"`` or ``"harmonic"``, see :func:`geomopt.untangle.choose_start`)."""
 
     theta: float
     lam: float
     map_scale: float = 1.0
     rest_scale: float = 1.0
     active_elements: int = 0
+    start: str = "given"
 
 
 @dataclasses.dataclass(frozen=True)
