@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ._errors import ParameterError
 
 __all__ = [
-    "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "newton_linear_solver",
+    "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM", "newton_linear_solver",
     "BACKENDS",
     "CG_FROM_DOFS",
 ]
@@ -108,15 +108,31 @@ def available_backends():
     return out
 
 
-def repeated_solves_backend() -> str:
-    """The installed backend with the fastest solves once factored, for a matrix factored once
-    and solved many times (the Laplacian seed of L-BFGS, a solve per iteration).  Measured,
-    cotangent Laplacians (solve with d right-hand sides / factor, seconds): 67k vertices in the
-    plane: cholespy 0.0079 / 0.375, PARDISO 0.0145 / 0.192, SuperLU 0.0134 / 0.348; 12k in
-    space: 0.0036 / 0.207, 0.0054 / 0.072, 0.0059 / 0.166 -- PARDISO factors fastest (the
-    Newton order, :func:`available_backends`) but its solves cost the most."""
+#: vertices (rows per coordinate) from which a 3D Laplacian solved many times is factored by
+#: PARDISO rather than cholespy (see :func:`repeated_solves_backend`)
+PARDISO_3D_FROM = 20_000
+
+
+def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
+    """The installed backend for a matrix factored once and solved many times (the Laplacian
+    seed of L-BFGS, a solve per iteration), ``n`` rows per coordinate in ``dim`` dimensions.
+
+    Below :data:`PARDISO_3D_FROM` rows in 3D, and in 2D, the fastest solves once factored.
+    Measured, cotangent Laplacians (solve with d right-hand sides / factor, seconds): 67k
+    vertices in the plane: cholespy 0.0079 / 0.375, PARDISO 0.0145 / 0.192, SuperLU 0.0134 /
+    0.348; 12k in space: 0.0036 / 0.207, 0.0054 / 0.072, 0.0059 / 0.166 -- PARDISO factors
+    fastest (the Newton order, :func:`available_backends`) but its solves cost the most.
+
+    From :data:`PARDISO_3D_FROM` rows in 3D, PARDISO (nested dissection): cholespy's ordering
+    fills in far more there and its factorization outgrows hundreds of solves (factor / solve
+    with 3 right-hand sides, cholespy -> PARDISO): the corner Laplacian of 46^3 hexahedra
+    (91k rows) 38.1 / 0.080 -> 3.6 / 0.121, of 30^3 (24k) 2.27 / 0.014 -> 0.42 / 0.020, a hex
+    rod of 20 x 20 x 240 (86k) 8.3 / 0.065 -> 1.6 / 0.078; a box of 83k tetrahedra (12k rows)
+    0.51 / 0.0052 -> 0.12 / 0.0072 stays with cholespy."""
     installed = available_backends()
-    return next(b for b in ("cholmod", "cholespy", "pardiso", "superlu") if b in installed)
+    order = ("cholmod", "pardiso", "cholespy", "superlu") if dim == 3 and n >= PARDISO_3D_FROM else \
+        ("cholmod", "cholespy", "pardiso", "superlu")
+    return next(b for b in order if b in installed)
 
 
 class SparseCholesky:

@@ -162,7 +162,7 @@ class RestLaplacian:
         elif n:
             L = sp.tril(H).tocsc()
             L.sort_indices()
-            self._chol = SparseCholesky(L.indptr, L.indices, repeated_solves_backend())
+            self._chol = SparseCholesky(L.indptr, L.indices, repeated_solves_backend(d, n if self.per_vertex else n // d))
             self._chol.factor(L.data)
 
     def solve(self, q):
