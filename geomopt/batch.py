@@ -62,7 +62,7 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
     -------
     dict with the keys of :data:`SUMMARY_COLUMNS` (strings and ints).
     """
-    start = time.perf_counter()
+    t0 = time.perf_counter()
     folder = Path(folder)
     row = dict.fromkeys(SUMMARY_COLUMNS, "")
     row.update(case=folder.name, certified="no")
@@ -72,7 +72,7 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
         row["message"] = str(exc)
     except Exception as exc:  # noqa: BLE001 -- one broken case must not stop the batch
         row["message"] = f"internal error: {type(exc).__name__}: {exc}"
-    row["seconds"] = f"{time.perf_counter() - start:.3f}"
+    row["seconds"] = f"{time.perf_counter() - t0:.3f}"
     return row
 
 

@@ -274,6 +274,12 @@ def test_a_batch_takes_quad_and_hex_case_folders(cli, tmp_path):
         ("cube", "3", "yes"), ("hexes", "3", "yes"), ("quads", "2", "yes")]
     assert cli("untangle", root / "hexes", "-o", tmp_path / "one.vtk", "--quiet")[0] == 0
     assert (tmp_path / "one.vtk").read_bytes() == (tmp_path / "out" / "hexes.vtk").read_bytes()
+    # --start reaches every case of a batch: the same bytes as the one-case command with it
+    code, _, err = cli("untangle", root, "-o", tmp_path / "given", "--workers", "1", "--quiet", "--start", "given")
+    assert (code, err) == (0, "")
+    assert cli("untangle", root / "hexes", "-o", tmp_path / "one_given.vtk", "--quiet", "--start", "given")[0] == 0
+    given = (tmp_path / "given" / "hexes.vtk").read_bytes()
+    assert given == (tmp_path / "one_given.vtk").read_bytes() != (tmp_path / "one.vtk").read_bytes()
 
 
 def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
