@@ -3,7 +3,8 @@
 Usage::
 
     python benchmarks/quadhex.py families [--sizes 1000,10000,100000]
-    python benchmarks/quadhex.py cpp --cpp /path/to/untangle3d_locked [--n 37] [--repeat 1]
+    python benchmarks/quadhex.py cpp --cpp /path/to/untangle3d_locked [--family noise|squash|bend] [--n 37]
+                                     [--repeat 1]
     python benchmarks/quadhex.py gmsh [--n 12]
     python benchmarks/quadhex.py smooth
     python benchmarks/quadhex.py energy [--m 1000000] [--repeat 20]
@@ -19,8 +20,10 @@ given`` starts every case from its tangled map (the eps loop's own test; the def
 starts from the harmonic extension of the boundary when that has fewer inverted corners, which for
 a boundary at rest is the rest mesh itself).
 
-``cpp``: a noisy hex block of ``n^3`` hexahedra (37: 50,653) beside the authors' C++
-(Garanzha et al. 2021, ``untangle3d``) on the same input: the C++ takes tetrahedral meshes, so it
+``cpp``: a noisy hex block of ``n^3`` hexahedra (37: 50,653; ``--family squash``: its boundary
+squashed; ``bend``: a rod of ``n x n x 12 n`` bent by 180 degrees) beside the authors' C++
+(Garanzha et al. 2021, ``untangle3d``) on the same input, geomopt from its default start
+(``auto``) and from the tangled map the C++ gets (``given``): the C++ takes tetrahedral meshes, so it
 gets the 8 corner tetrahedra of every hexahedron -- the same energy (each corner tetrahedron
 weighted by its rest volume, theta = 1/2) -- with the boundary vertices locked.  The C++ locks
 the vertices of tetrahedron faces without a neighbour, which for overlapping corner
@@ -152,21 +155,26 @@ def _read_medit_points(path, n):
     return np.array([[float(v) for v in lines[i + 2 + k].split()[:3]] for k in range(n)])
 
 
-def _geomopt_run(p, x0, precondition=None):
-    """untangle with the default solver, or L-BFGS with the given seed ("diagonal"/"laplacian")."""
-    import dataclasses
-
-    from geomopt.untangle import default_solver
-
-    solver = "lbfgs" if precondition is None else dataclasses.replace(
-        default_solver("lbfgs", p.dim, p.n_elements, corners=True), precondition=precondition)
+def _geomopt_run(p, x0, start):
+    """untangle with the default solver from ``start`` ("auto": the user's default; "given": the
+    tangled map the C++ gets)."""
     t0 = time.perf_counter()
-    r = untangle(p, x0, solver=solver, progress=False)
+    r = untangle(p, x0, progress=False, start=start)
     return r, time.perf_counter() - t0
 
 
+def _cpp_case(family, n):
+    """(V, H, tangle) of the ``cpp`` comparison: a noisy block of n^3 hexahedra, a block with a
+    squashed boundary, or a rod of n x n x 12 n bent by 180 degrees."""
+    if family == "bend":
+        t = G.bent_box(n, 12 * n, 180.0, hexes=True)
+        return t.rest, t.simplices, t
+    V, H = G.hex_mesh(n, n, n)
+    return V, H, (G.noisy_interior(V, H, 1.0, seed=0) if family == "noise" else G.squashed_boundary(V, H, 0.6))
+
+
 def cmd_cpp(args):
-    V, H, t = _block(args.n)
+    V, H, t = _cpp_case(args.family, args.n)
     p = Problem.hexes(V, H, t.fixed, t.x0[t.fixed])
     S = corner_simplices(p.elements)
     threads = str(os.cpu_count())
@@ -175,9 +183,9 @@ def cmd_cpp(args):
         _write_medit_tets(init, t.x0, S)
         _write_medit_tets(rest, V, S)
         np.savetxt(lock, t.fixed, fmt="%d")
-        print(f"block {args.n}^3 = {len(H)} hexahedra ({len(S)} corner tets), {t.inverted()} invalid at start; "
+        print(f"{args.family} {args.n}: {len(H)} hexahedra ({len(S)} corner tets), {t.inverted()} invalid at start; "
               f"uptime: {os.popen('uptime').read().strip()}", flush=True)
-        cold = {pre: _geomopt_run(p, t.x0, pre)[1] for pre in ("diagonal", "laplacian")}
+        cold = {start: _geomopt_run(p, t.x0, start)[1] for start in ("auto", "given")}
         rows = []
         for rep in range(args.repeat):
             t0 = time.perf_counter()
@@ -193,11 +201,12 @@ def cmd_cpp(args):
                              cold_s="", outer=outer, inner="", certified=cc.certified,
                              sj_min=round(cc.quality.min, 4), ratio_solve=1.0, ratio_call=1.0))
             print(json.dumps(rows[-1]), flush=True)
-            for pre in ("diagonal", "laplacian"):
-                r, wall = _geomopt_run(p, t.x0, pre)
+            for start in ("auto", "given"):
+                r, wall = _geomopt_run(p, t.x0, start)
                 cg = certify_elements(r.x, p.elements)
-                rows.append(dict(rep=rep, run=f"geomopt L-BFGS ({pre} seed)", solve_s=round(r.stats.seconds, 2),
-                                 call_s=round(wall, 2), cold_s=round(cold[pre], 2), outer=r.stats.outer_iterations,
+                rows.append(dict(rep=rep, run=f"geomopt (start {start} -> {r.details.start})",
+                                 solve_s=round(r.stats.seconds, 2), call_s=round(wall, 2),
+                                 cold_s=round(cold[start], 2), outer=r.stats.outer_iterations,
                                  inner=r.stats.iterations, certified=cg.certified and r.success,
                                  sj_min=round(cg.quality.min, 4), ratio_solve=round(r.stats.seconds / cpp_solve, 3),
                                  ratio_call=round(wall / cpp_wall, 3)))
@@ -522,6 +531,7 @@ def main():
     c = sub.add_parser("cpp")
     c.add_argument("--cpp", required=True)
     c.add_argument("--n", type=int, default=37)
+    c.add_argument("--family", default="noise", choices=["noise", "squash", "bend"])
     c.add_argument("--repeat", type=int, default=1)
     g = sub.add_parser("gmsh")
     g.add_argument("--n", type=int, default=12)

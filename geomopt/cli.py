@@ -323,7 +323,8 @@ def _untangle_one(args, folder) -> int:
             outer_iterations=st.outer_iterations, inner_iterations=st.iterations,
             evaluations=st.evaluations, solve_seconds=round(st.seconds, 4),
             setup_seconds=round(st.setup_seconds, 4), handles_moved=res.certificate.handles_moved,
-            start=res.details.start, min_det_rel=res.min_det_rel, outcome=res.outcome.value, certified=bool(res.success),
+            start=getattr(res.details, "start", None), min_det_rel=res.min_det_rel, outcome=res.outcome.value,
+            certified=bool(res.success),
             message=res.message, **quality, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
@@ -380,15 +381,15 @@ def _untangle_cells(args) -> int:
                f"{before.invalid} invalid")
     _log(args, f"after  {_quality_line(after.quality)}, {after.invalid} invalid ({after.corner_only} only inside); "
                f"tests {after.summary()['tests']}; outer iterations {res.stats.outer_iterations}, "
-               f"{res.stats.seconds:.2f} s from the {res.details.start} map, certified "
+               f"{res.stats.seconds:.2f} s from the {getattr(res.details, 'start', 'given')} map, certified "
                f"{'yes' if res.success else 'no'}")
     _report(args, case=str(path), output=str(args.output), dim=problem.dim, vertices=len(res.x),
             elements=len(case.elements), kind=case.kind, inverted_before=before.invalid,
             inverted=res.certificate.inverted, outer_iterations=res.stats.outer_iterations,
             inner_iterations=res.stats.iterations, evaluations=res.stats.evaluations,
             solve_seconds=round(res.stats.seconds, 4), setup_seconds=round(res.stats.setup_seconds, 4),
-            handles_moved=res.certificate.handles_moved, start=res.details.start, outcome=res.outcome.value,
-            certified=bool(res.success), message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
+            handles_moved=res.certificate.handles_moved, start=getattr(res.details, "start", None),
+            outcome=res.outcome.value, certified=bool(res.success), message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     with split.phase("write"):
