@@ -358,10 +358,12 @@ def test_start_eps_is_one_unless_the_start_is_scattered():
     V4, Q = G.quad_mesh(16, 16)
     for t in (G.rotated_interior(V, F, 180), G.noisy_interior(V, F, 2.0, seed=1), G.squashed_boundary(V4, Q, 0.7),
               G.noisy_interior(*G.box_mesh(5, 5, 5), 1.0, seed=1)):
-        assert untangle(t.problem(), t.x0, progress=False, max_outer=1).trace.column("eps")[0] == 1.0, t.name
-    t = G.random_interior(V4, Q, seed=1)
-    assert untangle(t.problem(), t.x0, progress=False, max_outer=1).trace.column("eps")[0] > 1.0
-    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, eps0=1.0).trace.column("eps")[0] == 1.0
+        assert untangle(t.problem(), t.x0, progress=False, max_outer=1, start="given").trace.column("eps")[0] == 1.0, \
+            t.name
+    t = G.random_interior(V4, Q, seed=1)  # quads: from the given map, not the harmonic start of "auto"
+    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, start="given").trace.column("eps")[0] > 1.0
+    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, eps0=1.0, start="given").trace.column(
+        "eps")[0] == 1.0
     with pytest.raises(ParameterError):
         untangle(t.problem(), t.x0, progress=False, eps0=0.0)
 
@@ -375,7 +377,7 @@ def test_scattered_start_first_solve_does_not_grow_with_the_mesh(mesh):
     inverted and the loop never untangled (issue 18); from start_eps these take 157 and 176."""
     V, S = G.quad_mesh(80, 80) if mesh == "quads" else G.square_mesh(81)
     t = G.random_interior(V, S, seed=1)
-    result = untangle(t.problem(), t.x0, progress=False)
+    result = untangle(t.problem(), t.x0, progress=False, start="given")  # quads: not the harmonic start
     assert result.success, result.message
     assert result.trace.column("eps")[0] > 10.0
     assert result.stats.iterations < 250, result.stats.iterations
