@@ -185,7 +185,7 @@ def cmd_cpp(args):
         np.savetxt(lock, t.fixed, fmt="%d")
         print(f"{args.family} {args.n}: {len(H)} hexahedra ({len(S)} corner tets), {t.inverted()} invalid at start; "
               f"uptime: {os.popen('uptime').read().strip()}", flush=True)
-        cold = {start: _geomopt_run(p, t.x0, start)[1] for start in ("auto", "given")}
+        cold = {start: _geomopt_run(p, t.x0, start)[1] for start in args.starts}
         rows = []
         for rep in range(args.repeat):
             t0 = time.perf_counter()
@@ -201,7 +201,7 @@ def cmd_cpp(args):
                              cold_s="", outer=outer, inner="", certified=cc.certified,
                              sj_min=round(cc.quality.min, 4), ratio_solve=1.0, ratio_call=1.0))
             print(json.dumps(rows[-1]), flush=True)
-            for start in ("auto", "given"):
+            for start in args.starts:
                 r, wall = _geomopt_run(p, t.x0, start)
                 cg = certify_elements(r.x, p.elements)
                 rows.append(dict(rep=rep, run=f"geomopt (start {start} -> {r.details.start})",
@@ -532,6 +532,8 @@ def main():
     c.add_argument("--cpp", required=True)
     c.add_argument("--n", type=int, default=37)
     c.add_argument("--family", default="noise", choices=["noise", "squash", "bend"])
+    c.add_argument("--starts", default="auto,given", type=lambda s: s.split(","),
+                   help="geomopt's UntangleOptions.start values to run (default auto,given)")
     c.add_argument("--repeat", type=int, default=1)
     g = sub.add_parser("gmsh")
     g.add_argument("--n", type=int, default=12)

@@ -399,10 +399,11 @@ def fixed_star_certificate(x, S, fixed) -> LocalCertificate:
     # a vertex (edge) is judged only when no element outside the fixed positive part contains it
     open_vertex = np.zeros(n, bool)
     open_vertex[S[~sub].ravel()] = True
-    open_edges = _edge_keys(S[~sub], n)
 
-    def closed_edges(E):
-        return E[~np.isin(E[:, 0] * n + E[:, 1], open_edges)]
+    def closed_edges(E):  # the open edges only when there is an edge to judge (1.7 s at 50k hexahedra)
+        if not len(E):
+            return E
+        return E[~np.isin(E[:, 0] * n + E[:, 1], _edge_keys(S[~sub], n))]
 
     return LocalCertificate(
         0, -1, cert.branch_vertices[~open_vertex[cert.branch_vertices]],
