@@ -189,8 +189,13 @@ def cmd_cpp(args):
         rows = []
         for rep in range(args.repeat):
             t0 = time.perf_counter()
-            cp = subprocess.run([args.cpp, str(init), str(rest), str(out)], capture_output=True, text=True,
-                                env={**os.environ, "LOCK_FILE": str(lock), "OMP_NUM_THREADS": threads})
+            try:
+                cp = subprocess.run([args.cpp, str(init), str(rest), str(out)], capture_output=True, text=True,
+                                    env={**os.environ, "LOCK_FILE": str(lock), "OMP_NUM_THREADS": threads},
+                                    timeout=args.cpp_timeout)
+            except subprocess.TimeoutExpired as exc:  # reported as not finished (nan seconds, not certified)
+                cp = subprocess.CompletedProcess(exc.cmd, -9, "", "")
+                out.unlink(missing_ok=True)
             cpp_wall = time.perf_counter() - t0
             m = re.search(r"running time: ([0-9.eE+-]+) s", cp.stderr)
             cpp_solve = float(m.group(1)) if m else float("nan")
@@ -532,6 +537,7 @@ def main():
     c.add_argument("--cpp", required=True)
     c.add_argument("--n", type=int, default=37)
     c.add_argument("--family", default="noise", choices=["noise", "squash", "bend"])
+    c.add_argument("--cpp-timeout", type=float, default=None, help="seconds after which the C++ is stopped")
     c.add_argument("--starts", default="auto,given", type=lambda s: s.split(","),
                    help="geomopt's UntangleOptions.start values to run (default auto,given)")
     c.add_argument("--repeat", type=int, default=1)
