@@ -436,8 +436,12 @@ def harmonic_start(problem: Problem, x0) -> np.ndarray | None:
 
 
 def _inverted_corners(problem: Problem, x) -> int:
-    """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point."""
-    return int(np.count_nonzero(~(problem.signed_volumes(x) > 0)))
+    """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point, on
+    ``x`` scaled by a power of two to a box of about :data:`BOX` (exact, so that a map at 1e-150
+    is not counted as collapsed)."""
+    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
+    k = _power_of_two(BOX / span) if span > 0 else 1.0
+    return int(np.count_nonzero(~(problem.signed_volumes(x * k) > 0)))
 
 
 def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:

@@ -353,6 +353,9 @@ def test_auto_start_untangles_a_bent_hex_rod_from_the_harmonic_extension():
     assert which == "harmonic" and t.problem().count_inverted(x) < t.inverted()
     r, c = _untangled(t, "auto")
     assert r.stats.iterations < 50 and r.stats.inverted_at_start == t.inverted()
+    for scale in (1e-150, 1e200):  # the corner counts are taken on an exactly rescaled copy
+        p = Problem.hexes(t.rest, t.problem().elements, t.fixed, t.x0[t.fixed] * scale)
+        assert choose_start(p, t.x0 * scale)[1] == "harmonic", scale
 
 
 def test_auto_start_keeps_the_given_map(monkeypatch):
