@@ -439,9 +439,7 @@ def _inverted_corners(problem: Problem, x) -> int:
     """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point, on
     ``x`` scaled by a power of two to a box of about :data:`BOX` (exact, so that a map at 1e-150
     is not counted as collapsed)."""
-    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
-    k = _power_of_two(BOX / span) if span > 0 else 1.0
-    return int(np.count_nonzero(~(problem.signed_volumes(x * k) > 0)))
+    return int(np.count_nonzero(~(problem.signed_volumes(x * _box_scale(x)) > 0)))
 
 
 def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:
@@ -473,6 +471,12 @@ def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray,
 
 def _power_of_two(v: float) -> float:
     return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
+
+
+def _box_scale(x) -> float:
+    """The power of two that scales the map ``x`` (n, d) to a box of about :data:`BOX`."""
+    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
+    return _power_of_two(BOX / span) if span > 0 else 1.0
 
 
 def bits_differ(a, b) -> int:
@@ -745,8 +749,7 @@ def _normalised(problem, x0, active, opts):
     ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
     ``max_aspect`` in 2D), ``sub`` its active elements."""
     d = problem.dim
-    span = float(np.max(x0.max(axis=0) - x0.min(axis=0)))
-    k = _power_of_two(BOX / span) if span > 0 else 1.0
+    k = _box_scale(x0)
     xs = x0 * k
     map_vol = float(problem.signed_volumes(xs).sum())
     rest_vol = float(problem.volumes.sum())
