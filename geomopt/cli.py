@@ -324,8 +324,7 @@ def _untangle_one(args, folder) -> int:
             evaluations=st.evaluations, solve_seconds=round(st.seconds, 4),
             setup_seconds=round(st.setup_seconds, 4), handles_moved=res.certificate.handles_moved,
             start=getattr(res.details, "start", None), min_det_rel=res.min_det_rel, outcome=res.outcome.value,
-            certified=bool(res.success),
-            message=res.message, **quality, **_cache_summary())
+            certified=bool(res.success), message=res.message, **quality, **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
@@ -389,7 +388,8 @@ def _untangle_cells(args) -> int:
             inner_iterations=res.stats.iterations, evaluations=res.stats.evaluations,
             solve_seconds=round(res.stats.seconds, 4), setup_seconds=round(res.stats.setup_seconds, 4),
             handles_moved=res.certificate.handles_moved, start=getattr(res.details, "start", None),
-            outcome=res.outcome.value, certified=bool(res.success), message=res.message, before=before.summary(), after=after.summary(), **_cache_summary())
+            outcome=res.outcome.value, certified=bool(res.success), message=res.message, before=before.summary(),
+            after=after.summary(), **_cache_summary())
     if not res.success:
         return _fail(f"not certified: {res.message}")
     with split.phase("write"):

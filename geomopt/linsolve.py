@@ -28,7 +28,8 @@ import scipy.sparse as sp
 from ._errors import ParameterError
 
 __all__ = [
-    "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM", "newton_linear_solver",
+    "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM",
+    "newton_linear_solver",
     "BACKENDS",
     "CG_FROM_DOFS",
 ]
@@ -163,6 +164,16 @@ class SparseCholesky:
         if backend == "cholespy":
             self._ip32 = self.indptr.astype(np.int32)
             self._ix32 = self.indices.astype(np.int32)
+
+    @classmethod
+    def factored(cls, A, backend="auto") -> "SparseCholesky":
+        """The factorization of the symmetric positive-definite sparse matrix ``A`` (n, n), from
+        its lower triangle.  Raises :class:`NotPositiveDefinite` when it is not."""
+        L = sp.tril(A).tocsc()
+        L.sort_indices()
+        chol = cls(L.indptr, L.indices, backend)
+        chol.factor(L.data)
+        return chol
 
     def _csc(self, data):
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))

@@ -79,7 +79,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse as sp
 
 from ._config import Instance, Int, Maybe, OneOf, Real, validate
 from ._errors import MeshError, ParameterError, SolveError
@@ -424,12 +423,8 @@ def harmonic_start(problem: Problem, x0) -> np.ndarray | None:
     if not free.any():
         return None
     K = rest_laplacian(problem).tocsr()
-    L = sp.tril(K[free][:, free]).tocsc()
-    L.sort_indices()
-    chol = SparseCholesky(L.indptr, L.indices)
     try:
-        chol.factor(L.data)
-        x[free] = chol.solve(-(K[free][:, ~free] @ x[~free]))
+        x[free] = SparseCholesky.factored(K[free][:, free]).solve(-(K[free][:, ~free] @ x[~free]))
     except NotPositiveDefinite:  # a rest mesh whose Laplacian is not definite on the free part
         return None
     return x
@@ -456,15 +451,16 @@ def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray,
     speed or better (benchmarks/README.md), and a map that stays near ``x0`` is kept."""
     if start not in STARTS:
         raise ParameterError(f"start must be one of {STARTS}, got {start!r}")
-    if start == "given" or (start == "auto" and (problem.elements is None or _inverted_corners(problem, x0) == 0)):
+    if start == "given" or (start == "auto" and problem.elements is None):
         return x0, "given"
-    xh = harmonic_start(problem, x0)
+    given = _inverted_corners(problem, x0) if start == "auto" else None
+    xh = harmonic_start(problem, x0) if given != 0 else None
     if xh is None:
         if start == "harmonic":
             raise ParameterError("start='harmonic' needs a handle in every connected part of the mesh (the "
                                  "harmonic extension of the handles is undefined otherwise); use start='given'")
         return x0, "given"
-    if start == "auto" and _inverted_corners(problem, xh) >= _inverted_corners(problem, x0):
+    if start == "auto" and _inverted_corners(problem, xh) >= given:
         return x0, "given"
     return xh, "harmonic"
 

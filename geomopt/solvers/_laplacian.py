@@ -160,10 +160,7 @@ class RestLaplacian:
                 jnp.asarray(C.data), jnp.asarray(1.0 / H.diagonal()) if n else jnp.zeros(0),
                 jnp.float64(rtol), int(maxiter), self.per_vertex)
         elif n:
-            L = sp.tril(H).tocsc()
-            L.sort_indices()
-            self._chol = SparseCholesky(L.indptr, L.indices, repeated_solves_backend(d, n if self.per_vertex else n // d))
-            self._chol.factor(L.data)
+            self._chol = SparseCholesky.factored(H, repeated_solves_backend(d, n if self.per_vertex else n // d))
 
     def solve(self, q):
         out = np.zeros_like(q)
