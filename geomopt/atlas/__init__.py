@@ -1,0 +1,2 @@
+"""Texture atlases of any triangle surface: cut into disk charts, flatten each chart flip-free,
+pack the charts into the unit square without overlap, and certify the whole atlas exactly."""
