@@ -28,7 +28,17 @@ from ._padding import bucket_sizes
 from .cells import cell_problem, is_cell_case, read_cell_case, write_certified
 from .lim import LimCase, untangle_case
 
-__all__ = ["SUMMARY_COLUMNS", "batch_cases", "solve_case", "run_batch", "write_summary"]
+__all__ = ["SUMMARY_COLUMNS", "batch_cases", "dask_available", "solve_case", "run_batch", "write_summary"]
+
+#: what to install for batches on Dask (``distributed`` is an extra, not a dependency)
+DASK_EXTRA = 'pip install "geomopt[batch]"'
+
+
+def dask_available() -> bool:
+    """Whether Dask's ``distributed`` (the ``[batch]`` extra) can be imported here."""
+    import importlib.util
+
+    return importlib.util.find_spec("distributed") is not None
 
 # --------------------------------------------------------------------- one case
 
@@ -204,6 +214,9 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     rows = [None] * len(cases)  # filled as cases finish
     started = time.time()
     try:
+        if (scheduler is not None or workers > 1) and not dask_available():
+            raise ParameterError(f"batches on several workers or a scheduler run on Dask, which is not "
+                                 f"installed: {DASK_EXTRA}, or pass workers=1 (--workers 1)")
         if scheduler is None and workers <= 1:
             io.create_output_folder(outdir)  # nothing is created before the run can start
             for i, c in enumerate(cases):

@@ -444,11 +444,15 @@ def cmd_smooth(args) -> int:
 
 
 def _untangle_batch(args) -> int:
-    from .batch import batch_cases, run_batch
+    from .batch import DASK_EXTRA, batch_cases, dask_available, run_batch
 
     cases = batch_cases(args.case)
     workers = args.workers or min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                                   else (os.cpu_count() or 1), len(cases))
+    if args.workers is None and args.scheduler is None and workers > 1 and not dask_available():
+        print(f"geomopt: solving the cases one after another in this process (Dask is not installed; "
+              f"{DASK_EXTRA} to use {workers} worker processes)", file=sys.stderr, flush=True)
+        workers = 1
     where = (f"the Dask scheduler at {args.scheduler}" if args.scheduler else
              f"{workers} local worker process(es)" if workers > 1 else "this process")
     _log(args, f"{len(cases)} case(s) to {args.output}, on {where}")

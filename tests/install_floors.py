@@ -59,14 +59,17 @@ def _python_for(requires: str) -> str:
 
 
 def minimum_pins(python: str) -> list[str]:
-    """``name==X`` for every ``name>=X`` dependency whose marker holds for ``python``."""
+    """``name==X`` for every ``name>=X`` dependency (and ``[batch]`` requirement) whose marker
+    holds for ``python``."""
     code = ("import json, sys; from packaging.requirements import Requirement; "
             "reqs = [Requirement(r) for r in json.loads(sys.argv[1])]; "
             "print(json.dumps([[r.name, [[s.operator, s.version] for s in r.specifier]] "
             "for r in reqs if r.marker is None or r.marker.evaluate()]))")
     import json
 
-    out = subprocess.run([python, "-c", code, json.dumps(_project()["dependencies"])],
+    # the declared floors of the dependencies and of the [batch] extra (Dask, which the suite runs)
+    declared = _project()["dependencies"] + _project()["optional-dependencies"]["batch"]
+    out = subprocess.run([python, "-c", code, json.dumps(declared)],
                          check=True, capture_output=True, text=True).stdout
     pins = []
     for name, specs in json.loads(out):

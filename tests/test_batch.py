@@ -419,3 +419,24 @@ def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli
     assert code == 2 and err.startswith("geomopt: error: cannot reach the Dask scheduler at not a url")
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_without_dask_a_batch_runs_in_this_process_or_names_the_extra(cli, tmp_path, monkeypatch):
+    """Dask distributed is the [batch] extra: without it the command's default batch solves the
+    cases in its own process (one line on stderr says so), while asking for workers or a
+    scheduler is refused with one line naming the extra, before anything is created."""
+    import geomopt.batch
+
+    monkeypatch.setattr(geomopt.batch, "dask_available", lambda: False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    good = tmp_path / "good"
+    for name in ("square", "cube"):
+        LimCase.from_tangle(tangles()[name]).write(good / name)
+    code, _, err = cli("untangle", good, "-o", tmp_path / "out", "--quiet")
+    assert code == 0 and "Dask is not installed" in err and 'geomopt[batch]' in err
+    assert len(err.splitlines()) == 1
+    assert sorted(os.listdir(tmp_path / "out")) == ["cube.vtk", "square.obj", "summary.csv"]
+    for args in (("--workers", "2"), ("--scheduler", "tcp://127.0.0.1:1")):
+        code, _, err = cli("untangle", good, "-o", tmp_path / "refused", "--quiet", *args)
+        assert code == 2 and 'geomopt[batch]' in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "refused").exists()
