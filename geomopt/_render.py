@@ -5,7 +5,8 @@ out one colour per triangle: jagged and stripy wherever a check is smaller than 
 and useless for judging conformality.  :func:`render_uv_checker` rasterises the surface
 instead: an orthographic camera, a z-buffer, and per pixel the UV coordinates interpolated
 barycentrically, the checkerboard evaluated there, and Lambert shading from the face normal.
-Everything is vectorised over (triangle, candidate pixel) pairs, in chunks.
+Triangles are scan-converted by matplotlib's Agg (:func:`rasterize`); the per-pixel work
+is vectorised NumPy.
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ __all__ = ["camera_rotation", "project", "rasterize", "render_uv_checker", "vert
 
 #: the two squares of the checkerboard (RGB in [0, 1]): white and orange
 CHECKER_COLORS = ((0.97, 0.97, 0.95), (0.95, 0.55, 0.10))
-_CHUNK = 4_000_000  # candidate (triangle, pixel) pairs per vectorised batch
+#: bits of a triangle's number drawn at once (three 8-bit colour channels); more triangles
+#: than 2**CODE_BITS - 1 are drawn again for the higher bits
+CODE_BITS = 24
 
 
 def camera_rotation(elev: float, azim: float, up: str = "y") -> np.ndarray:
@@ -50,6 +53,15 @@ def project(V, rotation, size):
 def rasterize(xy, depth, F, size):
     """Visible triangle and barycentric coordinates per pixel.
 
+    The triangles are drawn far to near (by the depth of their centroids: the painter's
+    algorithm) by matplotlib's Agg rasteriser, each in a flat colour that encodes its index,
+    and read back; per covered pixel the barycentric coordinates of its centre in that
+    triangle follow from the triangle's two edge functions.  A C++ scanline fill of each
+    triangle once, then O(pixels) NumPy: about 6x cheaper than testing every (triangle, pixel
+    of its bounding box) pair against a z-buffer.  Agg fills every pixel a triangle touches,
+    so a pixel on an edge goes to the nearer of the two triangles and its coordinates may lie
+    just outside it; they are clipped to the triangle.
+
     Parameters
     ----------
     xy : (n, 2) pixel coordinates (column, row) of the vertices;  depth : (n,), larger nearer.
@@ -57,59 +69,57 @@ def rasterize(xy, depth, F, size):
 
     Returns
     -------
-    face : (height, width) int, the nearest triangle covering each pixel centre, -1 for none.
+    face : (height, width) int, the nearest triangle covering each pixel, -1 for none.
     bary : (height, width, 3) float, its barycentric coordinates there (0 where ``face`` is -1).
     """
     width, height = size
-    F = np.asarray(F, np.int64)
+    xy, F = np.asarray(xy, np.float64), np.asarray(F, np.int64)
     T = xy[F]  # (m, 3, 2)
-    lo = np.clip(np.floor(T.min(axis=1) - 0.5).astype(np.int64) + 1, 0, [width, height])
-    hi = np.clip(np.floor(T.max(axis=1) - 0.5).astype(np.int64) + 1, 0, [width, height])
-    count = np.maximum(hi[:, 0] - lo[:, 0], 0) * np.maximum(hi[:, 1] - lo[:, 1], 0)
-    best = np.full(width * height, -np.inf)
-    face = np.full(width * height, -1, np.int64)
-    bary = np.zeros((width * height, 3))
-    ends = np.searchsorted(np.cumsum(count), np.arange(_CHUNK, count.sum() + _CHUNK, _CHUNK), side="right")
-    start = 0
-    for end in np.unique(np.r_[ends, len(F)]):
-        if end > start:
-            _raster_chunk(np.arange(start, end), T, depth[F], lo, hi, count, width, best, face, bary)
-        start = end
+    e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    drawn = np.flatnonzero(np.abs(area) > 1e-12)  # a triangle of no area covers no pixel centre
+    drawn = drawn[np.argsort(np.asarray(depth, np.float64)[F[drawn]].mean(axis=1), kind="stable")]
+    face = np.full(height * width, -1, np.int64)
+    shift = 0
+    while (len(F) + 1) >> shift:  # CODE_BITS bits of the face number per drawing
+        code = _draw_codes(T[drawn], ((drawn + 1) >> shift) & ((1 << CODE_BITS) - 1), size).ravel()
+        face = np.where(code >= 0, np.maximum(face, 0) + (code << shift), face)
+        shift += CODE_BITS
+    face -= face >= 0  # codes are face + 1: 0 is a pixel no triangle covers
+    hit = np.flatnonzero(face >= 0)
+    f = face[hit]
+    px, py = hit % width + 0.5, hit // width + 0.5
+    l1 = ((px - T[f, 0, 0]) * e2[f, 1] - (py - T[f, 0, 1]) * e2[f, 0]) / area[f]
+    l2 = ((py - T[f, 0, 1]) * e1[f, 0] - (px - T[f, 0, 0]) * e1[f, 1]) / area[f]
+    lam = np.clip(np.stack([1.0 - l1 - l2, l1, l2], axis=1), 0.0, None)
+    bary = np.zeros((height * width, 3))
+    bary[hit] = lam / lam.sum(axis=1, keepdims=True)
     return face.reshape(height, width), bary.reshape(height, width, 3)
 
 
-def _raster_chunk(tri, T, Z, lo, hi, count, width, best, face, bary):
-    """Rasterise the triangles ``tri`` into the flat buffers ``best`` / ``face`` / ``bary``.
+def _draw_codes(T, codes, size):
+    """(height, width) int: the 24-bit ``codes`` (k,) of the triangles ``T`` (k, 3, 2), drawn
+    in order (later ones on top) without anti-aliasing, or -1 where none is drawn."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import PolyCollection
+    from matplotlib.figure import Figure
 
-    The barycentric coordinates are affine in the pixel position: each triangle's two edge
-    functions are set up once (``l = K[0] px + K[1] py + K[2]``), so a candidate pixel costs
-    two dot products instead of the gathers of its corners."""
-    a, b, c = T[tri, 0], T[tri, 1], T[tri, 2]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    ok = np.abs(area) > 1e-12
-    tri, a, b, c, area = tri[ok], a[ok], b[ok], c[ok], area[ok]
-    K = np.stack([np.stack([c[:, 1] - a[:, 1], a[:, 0] - c[:, 0], c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]], 1),
-                  np.stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], 1)],
-                 1) / area[:, None, None]  # (t, 2, 3): l1, l2
-    n = count[tri]
-    own = np.repeat(np.arange(len(tri)), n)
-    k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)  # index within each box
-    w = np.maximum(hi[tri, 0] - lo[tri, 0], 1)[own]
-    px = lo[tri, 0][own] + k % w + 0.5
-    py = lo[tri, 1][own] + k // w + 0.5
-    Ko = K[own]
-    l1 = Ko[:, 0, 0] * px + Ko[:, 0, 1] * py + Ko[:, 0, 2]
-    l2 = Ko[:, 1, 0] * px + Ko[:, 1, 1] * py + Ko[:, 1, 2]
-    l0 = 1.0 - l1 - l2
-    tol = -1e-9
-    inside = (l0 >= tol) & (l1 >= tol) & (l2 >= tol)
-    lam = np.stack([l0[inside], l1[inside], l2[inside]], axis=1)
-    tri = tri[own[inside]]
-    pix = (py[inside] - 0.5).astype(np.int64) * width + (px[inside] - 0.5).astype(np.int64)
-    z = np.einsum("ij,ij->i", lam, Z[tri])
-    np.maximum.at(best, pix, z)  # the nearest depth per pixel, over this and earlier chunks
-    win = z == best[pix]
-    face[pix[win]], bary[pix[win]] = tri[win], lam[win]
+    width, height = size
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
+    fig.patch.set_alpha(0.0)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    ax.set_axis_off()
+    ax.set_xlim(0, width)
+    ax.set_ylim(height, 0)  # row 0 at the top
+    rgba = np.ones((len(codes), 4))
+    rgba[:, :3] = np.stack([codes >> 16, (codes >> 8) & 255, codes & 255], axis=1) / 255.0
+    ax.add_collection(PolyCollection(T, facecolors=rgba, edgecolors="none", linewidths=0.0,
+                                     antialiaseds=False, snap=False))
+    canvas.draw()
+    buf = np.asarray(canvas.buffer_rgba()).astype(np.int64)
+    code = (buf[..., 0] << 16) | (buf[..., 1] << 8) | buf[..., 2]
+    return np.where(buf[..., 3] == 255, code, -1)
 
 
 def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=20,
@@ -123,8 +133,8 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     view: orthographic, from elevation ``elev`` and azimuth ``azim`` (degrees) about the world
     axis ``up`` (:func:`camera_rotation`; the default is a three-quarter view from +z, y up,
     the usual convention of scanned meshes).  Smooth Lambert shading from ``light`` (camera
-    coordinates), two-sided; the image is rendered ``supersample`` times larger and averaged
-    down (anti-aliased edges); pixels the surface does not cover are transparent.
+    coordinates), two-sided, evaluated at the vertices and interpolated; the image is rendered
+    ``supersample`` times larger and averaged down (anti-aliased edges); pixels the surface does not cover are transparent.
     """
     V, uv = np.asarray(V, np.float64), np.asarray(uv, np.float64)
     F = np.asarray(F, np.int64)
@@ -135,11 +145,10 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     f, b = face[hit], bary[hit]
     lo, span = uv.min(axis=0), max(float(np.ptp(uv, axis=0).max()), 1e-300)
     t = np.einsum("ij,ijk->ik", b, (uv[F[f]] - lo) / span * checks)
-    odd = (np.floor(t[:, 0]) + np.floor(t[:, 1])) % 2 == 1
-    rgb = np.where(odd[:, None], CHECKER_COLORS[1], CHECKER_COLORS[0])
-    normal = np.einsum("ij,ijk->ik", b, vertex_normals(V, F)[F[f]]) @ R.T
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    lam = np.abs(normal @ (np.asarray(light) / np.linalg.norm(light)))
+    orange = _filtered_checker(t, hit)[:, None]
+    rgb = (1.0 - orange) * np.asarray(CHECKER_COLORS[0]) + orange * np.asarray(CHECKER_COLORS[1])
+    lit = vertex_normals(V, F) @ (R.T @ (np.asarray(light, np.float64) / np.linalg.norm(light)))
+    lam = np.abs(np.einsum("ij,ij->i", b, lit[F[f]]))  # Gouraud: shaded per vertex, interpolated
     image = np.zeros(face.shape + (4,))
     image[hit, :3] = np.clip(rgb * (0.3 + 0.7 * lam[:, None]), 0.0, 1.0)
     image[hit, 3] = 1.0
@@ -148,6 +157,32 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     alpha = image[..., 3].mean(axis=(1, 3))
     rgb = (image[..., :3] * image[..., 3:]).mean(axis=(1, 3)) / np.maximum(alpha, 1e-300)[..., None]
     return np.concatenate([rgb, alpha[..., None]], axis=-1)
+
+
+def _filtered_checker(t, hit):
+    """(k,) share of the second colour in each pixel: the checkerboard ``t`` (k, 2) (UV in
+    checks; squares with an odd sum of floors are the second colour) box-filtered over the
+    pixel's footprint, its UV change to the neighbouring pixels (``hit`` (h, w): the pixels
+    ``t`` belongs to, in row-major order).  Anti-aliased borders without supersampling: a
+    pixel whose centre lies on one side of a border is mostly of that side's colour."""
+    grid = np.full(hit.shape + (2,), np.nan)
+    grid[hit] = t
+    foot = np.zeros_like(grid)
+    for a in (0, 1):  # per direction, the larger of the steps to the pixels on either side
+        step = np.abs(np.diff(grid, axis=a))
+        before, after = ([(0, 0)] * 3 for _ in range(2))
+        before[a], after[a] = (1, 0), (0, 1)
+        foot += np.nan_to_num(np.fmax(np.pad(step, before, constant_values=np.nan),
+                                      np.pad(step, after, constant_values=np.nan)))
+    w = np.minimum(foot[hit], 2.0)  # at two checks per pixel the average is the mean colour
+
+    def ramp(x):  # the integral of the square wave +1 on [0, 1), -1 on [1, 2)
+        return 1.0 - np.abs(np.mod(x, 2.0) - 1.0)
+
+    sharp = np.where(np.mod(np.floor(t), 2.0) == 0.0, 1.0, -1.0)
+    safe = np.maximum(w, 1e-9)
+    wave = np.where(w > 1e-9, (ramp(t + safe / 2) - ramp(t - safe / 2)) / safe, sharp)
+    return 0.5 - 0.5 * wave[:, 0] * wave[:, 1]
 
 
 def vertex_normals(V, F):

@@ -97,3 +97,32 @@ def test_distortion_of_a_similarity_and_a_stretch():
     d = plot.distortion(flat, V3[:, :2] * [3.0, 1.0])
     assert np.allclose(d["conformal"], 3.0) and np.allclose(d["area"], 3.0)
     assert plot.distortion(problem, V3[:, :2])["area"].shape == (len(F),)
+
+
+def test_many_triangles_are_numbered_over_several_drawings(monkeypatch):
+    """Triangle numbers wider than one drawing's colour bits are drawn in several passes with
+    the same painter's order: 3 bits a pass gives the faces and coordinates of 24 bits."""
+    import geomopt._render as render
+
+    V = np.r_[SQUARE_V, SQUARE_V * [0.5, 0.5, 1] + [0.25, 0.25, 1.0]]
+    V, F = np.r_[V, V + [2.0, 0.0, 0.0]], np.r_[SQUARE_F, SQUARE_F + 4]
+    F = np.r_[F, F + 8, F + 8]  # 12 triangles (the last four twice): numbers up to 12 need 2 passes
+    R = camera_rotation(90.0, -90.0, "z")
+    args = (*project(V, R, (96, 48)), F, (96, 48))
+    face, bary = rasterize(*args)
+    monkeypatch.setattr(render, "CODE_BITS", 3)
+    face3, bary3 = rasterize(*args)
+    assert len(np.unique(face)) == 9 and (face == face3).all() and (bary == bary3).all()
+
+
+def test_checker_borders_are_anti_aliased_without_supersampling():
+    """Each pixel's colour is the checkerboard averaged over the pixel: pure inside a square,
+    a blend only in the pixels a border crosses (a row of 200 pixels crosses 7 borders), and
+    mostly the colour of the side its centre lies on (7 checks over 192 pixels: every border
+    falls inside a pixel)."""
+    img = render_uv_checker(SQUARE_V, SQUARE_F, SQUARE_V[:, :2], size=(200, 200), elev=90.0, azim=-90.0,
+                            up="z", checks=7, light=(0.0, 0.0, 1.0), supersample=1)
+    white, orange = (np.abs(img[..., :3] - c).sum(axis=-1) < 0.02 for c in CHECKER_COLORS)
+    row = ~(white | orange)[100, 5:-5]  # blended pixels in a row through the middle
+    assert 6 <= np.count_nonzero(row) <= 18
+    assert np.count_nonzero(white[100, 5:-5]) > 70 and np.count_nonzero(orange[100, 5:-5]) > 70
