@@ -54,6 +54,28 @@ def test_public_module_declares_all(name):
     assert not missing, f"{name}.__all__ names {missing}, which {name} does not define"
 
 
+def modules_with_examples() -> list[str]:
+    """geomopt's modules (private ones too) whose docstrings hold ``>>>`` examples."""
+    names = []
+    for path in sorted((ROOT / "geomopt").rglob("*.py")):
+        if ">>>" in path.read_text(encoding="utf-8"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return names
+
+
+@pytest.mark.parametrize("name", modules_with_examples())
+def test_docstring_examples_run_as_written(name, tmp_path, monkeypatch):
+    """Every ``Examples`` section is a doctest: its output is what the code prints."""
+    import doctest
+
+    monkeypatch.chdir(tmp_path)  # examples may write files
+    module = importlib.import_module(name)
+    failed, tried = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
+                                    report=True, verbose=False)
+    assert tried and not failed, f"{failed} of {tried} docstring example(s) of {name} fail (see the output)"
+
+
 def _references() -> list[str]:
     section = README.split("## References", 1)[1]
     return [entry for entry in re.split(r"\n- ", section)[1:]]

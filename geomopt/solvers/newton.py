@@ -213,7 +213,30 @@ class Newton(AbstractNewton):
     Projected Newton converges only linearly near a minimum because the projection changes
     the Hessian of elements that are indefinite there (symmetric Dirichlet has many), so the
     default ``Adaptive()`` clamps while far from the minimum and switches to the exact Hessian
-    near it (see :class:`~geomopt._projection.Adaptive`)."""
+    near it (see :class:`~geomopt._projection.Adaptive`).
+
+    Attributes
+    ----------
+    projection : ``Adaptive()`` (default), ``Clamp()``, ``Abs()`` or ``Exact()``: how each
+        element Hessian is made positive semi-definite (:class:`AbstractNewton`).
+    linear_solver : ``"auto"`` (default; :func:`geomopt.linsolve.newton_linear_solver`), a
+        sparse Cholesky backend (``"pardiso"``, ``"cholmod"``, ``"cholespy"``, ``"superlu"``) or
+        ``"cg"`` (inexact Newton by block-Jacobi CG in JAX).
+    rtol : 1e-10; stop when the Newton decrement or the energy decrease is below ``rtol * |E|``.
+    max_steps : 200; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    regularization : 1e-9; relative diagonal shift (raised when a factorization fails).
+    search : ``InjectiveSearch(expand=3)``: the injective bound, Armijo backtracking, and up to
+        three step doublings.
+    cg : the CG direction's settings (:class:`geomopt._cg.NewtonCG`).
+
+    Examples
+    --------
+    >>> import geomopt
+    >>> V, F = geomopt.data.load("camelhead")
+    >>> res = geomopt.parameterize(V, F, solver=geomopt.Newton(rtol=1e-8, max_steps=50), progress=False)
+    >>> res.outcome.name, res.success
+    ('CONVERGED', True)
+    """
 
     projection: Any = Adaptive()
     search: InjectiveSearch = InjectiveSearch(expand=3)
