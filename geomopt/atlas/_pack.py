@@ -32,6 +32,7 @@ from scipy.spatial import ConvexHull
 from .._errors import MeshError, ParameterError, SolveError
 from .._validate import validate_simplices, validate_vertices
 from ..predicates import orient2d
+from ..topology import boundary_half_edges
 from ._certify import certify_atlas
 from ._raster import dilate, rasterize
 
@@ -41,6 +42,8 @@ _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.
                   np.array([[-1.0, 0.0], [0.0, -1.0]]), np.array([[0.0, 1.0], [-1.0, 0.0]])]
 _FIRST_GUESS = 0.75  # packing efficiency assumed when choosing the pixel size
 _TRIES = 4
+_SHRINK = (0.99, 0.97, 0.95, 0.93)  # squares tried below the greedy packing's, while they fit
+_BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: about 2 passes for 30 charts at 512 (~1 s)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,22 +91,37 @@ def _area(u, f) -> float:
     return 0.5 * float(np.sum((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])))
 
 
-def _min_rect_rotation(u) -> np.ndarray:
-    """(2, 2) rotation turning the minimum-area bounding rectangle of the points ``u`` (n, 2)
-    axis-aligned, its long side along x."""
+def _rotation(c, s) -> np.ndarray:
+    return np.array([[c, -s], [s, c]])
+
+
+def _base_rotations(u, big: bool) -> list[np.ndarray]:
+    """Rotations (2, 2) to try a chart at (each then by quarter turns): the one making the
+    minimum-area bounding rectangle of the points ``u`` (n, 2) axis-aligned, long side along x
+    (rotating calipers: that rectangle has a side on a hull edge, Freeman & Shapira 1975), and for
+    a ``big`` chart also the one making its bounding square smallest (sampled every half degree):
+    a long chart may fit the square only diagonally."""
     try:
         hull = u[ConvexHull(u).vertices]
     except Exception:  # noqa: BLE001 -- qhull refuses flat or tiny point sets: keep the chart as it is
-        return np.eye(2)
+        return [np.eye(2)]
     e = np.roll(hull, -1, axis=0) - hull
     e = e / np.linalg.norm(e, axis=1, keepdims=True)
-    # in the frame of edge direction e: x' = e . p, y' = e_perp . p
+    # turning edge direction e onto +x: x' = e . p, y' = e_perp . p
     xs, ys = e @ hull.T, np.stack([-e[:, 1], e[:, 0]], 1) @ hull.T
     w, h = np.ptp(xs, axis=1), np.ptp(ys, axis=1)
     k = int(np.argmin(w * h))
-    c, s = e[k]
-    R = np.array([[c, s], [-s, c]])
-    return R if w[k] >= h[k] else _QUARTER_TURNS[1] @ R
+    R = _rotation(e[k, 0], -e[k, 1])
+    out = [R if w[k] >= h[k] else _QUARTER_TURNS[1] @ R]
+    if big:
+        a = np.deg2rad(np.arange(0.0, 90.0, 0.5))
+        c, s = np.cos(a), np.sin(a)
+        side = np.maximum(np.ptp(np.outer(c, hull[:, 0]) - np.outer(s, hull[:, 1]), axis=1),
+                          np.ptp(np.outer(s, hull[:, 0]) + np.outer(c, hull[:, 1]), axis=1))
+        j = int(np.argmin(side))
+        if side[j] < 0.98 * max(w[k], h[k]):
+            out.append(_rotation(c[j], s[j]))
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,12 +135,15 @@ class _Shape:
     origin: np.ndarray
 
 
-def _shapes(u, f, R0, h, r, rotate) -> list[_Shape]:
+def _shapes(u, B, bases, turns, h, r) -> list[_Shape]:
+    """The chart ``u`` (n, 2) with boundary edges ``B`` (s, 2) at each base rotation turned by
+    each of ``turns``, on pixels of size ``h``, grown by ``r`` pixels."""
     out = []
-    for turn in _QUARTER_TURNS if rotate else _QUARTER_TURNS[:1]:
-        R = turn @ R0  # exact products: the turns are signed permutations
-        mask, origin = rasterize((u @ R.T) / h, f)
-        out.append(_Shape(R, mask, dilate(mask, r), origin))
+    for R0 in bases:
+        for turn in turns:
+            R = turn @ R0  # exact products: the turns are signed permutations
+            mask, origin = rasterize((u @ R.T) / h, B)
+            out.append(_Shape(R, mask, dilate(mask, r), origin))
     return out
 
 
@@ -140,10 +161,11 @@ def _free_spots(occ_hat, fshape, window, grown) -> np.ndarray:
     return C < 0.5
 
 
-def _best_spot(occ, extent, shapes, r):
-    """The best (key, shape index, y, x) over the orientations of one chart; ``extent`` = (rows,
-    cols) occupied so far (pixels from 0).  Key: the side of the bounding square of everything
-    placed, then the area of its bounding rectangle, then the lowest and leftmost spot."""
+def _best_spot(occ, extent, shapes, r, bound):
+    """The best (key, shape index, y, x) over the orientations of one chart, or None when it does
+    not fit; ``extent`` = (rows, cols) occupied so far (pixels from 0); ``bound``: the chart must
+    end within ``bound + r`` pixels (None: no bound).  Key: the side of the bounding square of
+    everything placed, then the area of its bounding rectangle, then the lowest and leftmost spot."""
     rows, cols = extent
     reach = max(max(s.grown.shape) for s in shapes)
     window = (rows + reach, cols + reach)
@@ -154,26 +176,32 @@ def _best_spot(occ, extent, shapes, r):
         free = _free_spots(occ_hat, fshape, window, s.grown)
         ch, cw = s.mask.shape
         dh, dw = s.grown.shape
-        while True:
+        if bound is not None:
+            free = free[:max(bound - ch + 1, 0), :max(bound - cw + 1, 0)]
+        while free.any():
             # the key grows with y and with x: per row the first free column is the row's best
             has = free.any(axis=1)
             ys = np.flatnonzero(has)
             xs = np.argmax(free[ys], axis=1)
             R2 = np.maximum(rows, ys + r + ch) - r
             C2 = np.maximum(cols, xs + r + cw) - r
-            j = int(np.argmin((np.maximum(R2, C2) << 32) | (R2 * C2)))
+            j = int(np.argmin((np.maximum(R2, C2) << 32) | (R2 * C2))) if bound is None else 0
             y, x = int(ys[j]), int(xs[j])
             if not (occ[y:y + dh, x:x + dw] & s.grown).any():  # exact re-check of the FFT's answer
                 break
             free[y, x] = False
+        else:
+            continue
         side = max(R2[j], C2[j])
-        cand = ((int(side), int(R2[j] * C2[j]), y, x), k, y, x)
+        cand = ((int(side), int(R2[j] * C2[j]), y, x) if bound is None else (y, x), k, y, x)
         best = cand if best is None or cand[0] < best[0] else best
     return best
 
 
-def _place(all_shapes, order, r):
-    """Place the charts in ``order``; returns per chart (shape index, pixel translation (2,))."""
+def _place(all_shapes, order, r, bound=None):
+    """Place the charts in ``order``; returns per chart (shape index, pixel translation (2,)),
+    or None when a chart does not fit within ``bound``.  Unbounded, each chart goes where the
+    bounding square grows least; bounded, at the lowest and leftmost free spot."""
     cap = 2 * sum(max(s.grown.shape) for s in (sh[0] for sh in all_shapes)) + 1
     occ = np.zeros((64, 64), bool)
     rows = cols = 0
@@ -185,16 +213,43 @@ def _place(all_shapes, order, r):
         if need[0] > occ.shape[0] or need[1] > occ.shape[1]:
             grow = min(cap, 2 * max(need + occ.shape))
             occ = np.pad(occ, ((0, grow - occ.shape[0]), (0, grow - occ.shape[1])))
-        _, k, y, x = _best_spot(occ, (rows, cols), shapes, r)
+        spot = _best_spot(occ, (rows, cols), shapes, r, bound)
+        if spot is None:
+            return None
+        _, k, y, x = spot
         s = shapes[k]
         ch, cw = s.mask.shape
         occ[y + r:y + r + ch, x + r:x + r + cw] |= s.mask
         rows, cols = max(rows, y + r + ch), max(cols, x + r + cw)
-        placed[i] = (k, np.array([x + r, y + r], np.float64) - s.origin)
+        placed[i] = (s.R, np.array([x + r, y + r], np.float64) - s.origin)
     return placed
 
 
-def _layout(U, Fs, R0s, area, margin, rotate, resolution):
+def _search(U, shapes, h, r, passes):
+    """Up to ``passes`` packings; returns the best (placed, side in pixels).  First the greedy
+    packing with the charts by decreasing longest side, then by decreasing area; then, in the
+    better order, bottom-left packings into squares 1, 3, 5, ... percent smaller than the greedy
+    one's while they fit."""
+    def side(placed):
+        return _side([(u @ R.T) / h + t for u, (R, t) in zip(U, placed)])
+
+    orders = [np.argsort([-max(max(s.mask.shape) for s in sh) for sh in shapes], kind="stable"),
+              np.argsort([-sh[0].mask.sum() for sh in shapes], kind="stable")]
+    found = []
+    for order in orders[:passes]:
+        placed = _place(shapes, order, r)
+        found.append((side(placed), placed, order))
+    greedy, best, order = min(found, key=lambda f: f[0])
+    best_side = greedy
+    for shrink in _SHRINK[:max(passes - len(orders), 0)]:
+        placed = _place(shapes, order, r, bound=int(greedy * shrink))
+        if placed is None:
+            break
+        best_side, best = min((best_side, best), (side(placed), placed), key=lambda f: f[0])
+    return best, best_side
+
+
+def _layout(U, Bs, bases, turns, area, margin, resolution):
     """Pack at a pixel size giving about ``resolution`` pixels a side; returns (rotations (k, 2, 2),
     pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
     ``margin`` of the packed side."""
@@ -203,17 +258,13 @@ def _layout(U, Fs, R0s, area, margin, rotate, resolution):
     tried = set()
     while True:
         tried.add(r)
-        shapes = [_shapes(u, f, R0, h, r, rotate) for u, f, R0 in zip(U, Fs, R0s)]
-        order = np.argsort([-s[0].grown.size for s in shapes], kind="stable")
-        placed = [(shapes[i][k].R, t) for i, (k, t) in enumerate(_place(shapes, order, r))]
-        side = _side([(u @ R.T) / h + t for u, (R, t) in zip(U, placed)])
+        shapes = [_shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
+        passes = int(np.clip(_BUDGET / (len(U) * resolution**2), 1, 2 + len(_SHRINK)))
+        placed, side = _search(U, shapes, h, r, passes)
         want = math.ceil(margin * side)
-        if want <= r or want in tried:
-            if want <= r:
-                return np.array([p[0] for p in placed]), np.array([p[1] for p in placed]), h
-            r = max(tried) + 1
-        else:
-            r = want
+        if want <= r:
+            return np.array([p[0] for p in placed]), np.array([p[1] for p in placed]), h
+        r = max(tried) + 1 if want in tried else want
 
 
 def _side(P) -> float:
@@ -266,10 +317,15 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
         raise ParameterError(f"resolution must be at least 16 pixels, got {resolution}")
     U, Fs = _check_charts(uvs, faces)
     area = sum(_area(u, f) for u, f in zip(U, Fs))
-    R0s = [_min_rect_rotation(u[np.unique(f)]) if rotate else np.eye(2) for u, f in zip(U, Fs)]
+    Bs = [boundary_half_edges(f) for f in Fs]
+    bases, turns = [[np.eye(2)]] * len(U), _QUARTER_TURNS[:1]
+    if rotate:
+        big = 0.3 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
+        bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big) for u, B in zip(U, Bs)]
+        turns = _QUARTER_TURNS
     res = int(resolution)
     for _ in range(_TRIES):
-        R, t, h = _layout(U, Fs, R0s, area, margin, rotate, res)
+        R, t, h = _layout(U, Bs, bases, turns, area, margin, res)
         out, scale, offsets = _to_unit_square(U, R, t, h)
         cert = _certify_packed(out, Fs)
         if cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):

@@ -19,8 +19,6 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from ..topology import boundary_half_edges
-
 __all__ = ["dilate", "rasterize"]
 
 _EPS = 1e-7  # pixels; far above the rounding of coordinates below 2**20 pixels (2**-32)
@@ -74,25 +72,25 @@ def _nonzero_fill(a, b, shape) -> np.ndarray:
     return np.cumsum(diff, axis=1)[:, :W] > 0
 
 
-def rasterize(q, faces) -> tuple[np.ndarray, np.ndarray]:
+def rasterize(q, boundary) -> tuple[np.ndarray, np.ndarray]:
     """Conservative raster of one chart.
 
     Parameters
     ----------
     q : (n, 2) float array, the chart's vertices in pixel units.
-    faces : (m, 3) int array, its positively oriented triangles.
+    boundary : (s, 2) int array, the chart's boundary edges, directed with the chart to their
+        left (:func:`geomopt.topology.boundary_half_edges` of positively oriented triangles).
 
     Returns
     -------
     mask : (H, W) bool, row ``i`` column ``j`` is the pixel ``[x0 + j, x0 + j + 1] x [y0 + i, y0 + i + 1]``.
     origin : (2,) int64, ``(x0, y0)``, the pixel corner where the mask starts.
     """
-    B = boundary_half_edges(faces)
-    used = q[np.unique(faces)]
-    origin = np.floor(used.min(axis=0) - _EPS).astype(np.int64)
-    top = np.floor(used.max(axis=0) + _EPS).astype(np.int64)
+    a, b = q[boundary[:, 0]], q[boundary[:, 1]]
+    origin = np.floor(a.min(axis=0) - _EPS).astype(np.int64)  # the region's extremes are on its boundary
+    top = np.floor(a.max(axis=0) + _EPS).astype(np.int64)
     shape = (int(top[1] - origin[1]) + 1, int(top[0] - origin[0]) + 1)
-    a, b = q[B[:, 0]] - origin, q[B[:, 1]] - origin
+    a, b = a - origin, b - origin
     mask = _nonzero_fill(a, b, shape)
     mask[_supercover(a, b, shape)] = True
     return mask, origin
