@@ -40,9 +40,10 @@ __all__ = ["Packing", "pack_charts"]
 
 _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.0, 0.0]]),
                   np.array([[-1.0, 0.0], [0.0, -1.0]]), np.array([[0.0, 1.0], [-1.0, 0.0]])]
-_FIRST_GUESS = 0.75  # packing efficiency assumed when choosing the pixel size
+_FIRST_GUESS = 0.6  # packing efficiency assumed when choosing the pixel size
+_MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency down to 0.5): no re-packing
 _TRIES = 4
-_SHRINK = (0.99, 0.97, 0.95, 0.93)  # squares tried below the greedy packing's, while they fit
+_SHRINK = (0.99, 0.97, 0.95)  # squares tried below the greedy packing's, while they fit
 _BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: about 2 passes for 30 charts at 512 (~1 s)
 
 
@@ -252,9 +253,9 @@ def _search(U, shapes, h, r, passes):
 def _layout(U, Bs, bases, turns, area, margin, resolution):
     """Pack at a pixel size giving about ``resolution`` pixels a side; returns (rotations (k, 2, 2),
     pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
-    ``margin`` of the packed side."""
+    ``margin`` of the packed side (a finer margin than needed only costs space)."""
     h = math.sqrt(area / _FIRST_GUESS) / resolution
-    r = math.ceil(margin * resolution)
+    r = math.ceil(margin * resolution * _MARGIN_SLACK)
     tried = set()
     while True:
         tried.add(r)
@@ -320,7 +321,7 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     Bs = [boundary_half_edges(f) for f in Fs]
     bases, turns = [[np.eye(2)]] * len(U), _QUARTER_TURNS[:1]
     if rotate:
-        big = 0.3 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
+        big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
         bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big) for u, B in zip(U, Bs)]
         turns = _QUARTER_TURNS
     res = int(resolution)
