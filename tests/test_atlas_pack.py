@@ -150,10 +150,15 @@ def test_packing_keeps_charts_unturned_without_rotate():
     assert certify_atlas(*as_atlas(p.uvs, faces)).ok
 
 
-def test_packing_efficiency_of_rectangles_is_high():
-    """Equal rectangles tile: a good packer fills most of the square (margin 0)."""
+def test_packing_turns_tilted_rectangles_upright_and_tiles_them():
+    """Equal rectangles given at random angles: turned to their minimum-area rectangles they tile,
+    and a good packer fills most of the square (margin 0)."""
     V, F = g.square_mesh(3)
-    uvs = [V * [2.0, 1.0]] * 8
+    rng = np.random.default_rng(3)
+    uvs = []
+    for a in rng.uniform(0, 2 * np.pi, 8):
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        uvs.append((V * [2.0, 1.0]) @ R.T)
     p = pack_charts(uvs, [F] * 8, margin=0.0, resolution=256)
     assert certify_atlas(*as_atlas(p.uvs, [F] * 8)).ok
     assert p.efficiency > 0.85
