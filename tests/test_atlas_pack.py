@@ -57,7 +57,28 @@ def disk_chart(rng):
     return V * rng.uniform(0.2, 1.5), F
 
 
-ZOO = (grid_chart, strip_chart, l_chart, star_chart, disk_chart)
+def annulus(r0, r1, turn, n_t=48, n_r=3):
+    """An annular sector from angle 0 to ``turn`` (radians): a closed ring for ``turn = 2 pi``."""
+    closed = np.isclose(turn, 2 * np.pi)
+    m = n_t if closed else n_t + 1
+    t = np.linspace(0, turn, m, endpoint=not closed)
+    r = np.linspace(r0, r1, n_r)
+    V = np.stack([np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel()], 1)
+    F = []
+    for i in range(n_r - 1):
+        for j in range(n_t):
+            a, b = i * m + j, i * m + (j + 1) % m
+            F += [[a, b + m, b], [a, a + m, b + m]]
+    return V, np.array(F, dtype=np.int64)
+
+
+def ring_chart(rng):
+    """A chart with a hole (smaller charts may be packed into it)."""
+    V, F = annulus(rng.uniform(0.3, 0.7), 1.0, 2 * np.pi, n_t=24)
+    return V * rng.uniform(0.5, 1.5), F
+
+
+ZOO = (grid_chart, strip_chart, l_chart, star_chart, disk_chart, ring_chart)
 
 
 def random_charts(k, seed):
@@ -164,6 +185,16 @@ def test_packing_turns_tilted_rectangles_upright_and_tiles_them():
     assert p.efficiency > 0.85
 
 
+@pytest.mark.parametrize("scale", [2.0**-900, 1.0, 2.0**900])
+def test_packing_at_extreme_scales(scale):
+    uvs, faces = random_charts(4, 11)
+    p = pack_charts([u * scale for u in uvs], faces, resolution=128)
+    assert certify_atlas(*as_atlas(p.uvs, faces)).ok
+    for u_in, u, a, o in zip(uvs, p.uvs, p.angles, p.offsets):
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        np.testing.assert_allclose(u, (p.scale * scale) * u_in @ R.T + o, atol=1e-12)
+
+
 def test_pack_refuses_bad_charts():
     V, F = g.square_mesh(3)
     with pytest.raises(MeshError, match="not positively oriented"):
@@ -220,21 +251,6 @@ def test_certificate_finds_a_chart_inside_another():
     cert = certify_atlas(*as_atlas([V + 0.1, W + 0.3], [F, G]))
     assert cert.overlapping_pairs.tolist() == [[0, 1]]
     assert len(cert.self_overlapping) == 0 and len(cert.inverted) == 0 and not cert.ok
-
-
-def annulus(r0, r1, turn, n_t=48, n_r=3):
-    """An annular sector from angle 0 to ``turn`` (radians): a closed ring for ``turn = 2 pi``."""
-    closed = np.isclose(turn, 2 * np.pi)
-    m = n_t if closed else n_t + 1
-    t = np.linspace(0, turn, m, endpoint=not closed)
-    r = np.linspace(r0, r1, n_r)
-    V = np.stack([np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel()], 1)
-    F = []
-    for i in range(n_r - 1):
-        for j in range(n_t):
-            a, b = i * m + j, i * m + (j + 1) % m
-            F += [[a, b + m, b], [a, a + m, b + m]]
-    return V, np.array(F, dtype=np.int64)
 
 
 def test_certificate_finds_a_chart_overlapping_itself():

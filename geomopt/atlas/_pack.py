@@ -317,6 +317,9 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     if int(resolution) < 16:
         raise ParameterError(f"resolution must be at least 16 pixels, got {resolution}")
     U, Fs = _check_charts(uvs, faces)
+    # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
+    unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
+    U = [u * unit for u in U]
     area = sum(_area(u, f) for u, f in zip(U, Fs))
     Bs = [boundary_half_edges(f) for f in Fs]
     bases, turns = [[np.eye(2)]] * len(U), _QUARTER_TURNS[:1]
@@ -333,7 +336,7 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
             side = _side(out)
             angles = np.arctan2(R[:, 1, 0], R[:, 0, 0])
             efficiency = sum(_area(u, f) for u, f in zip(out, Fs)) / side**2
-            return Packing(out, float(scale), angles, offsets, float(efficiency))
+            return Packing(out, float(scale) * unit, angles, offsets, float(efficiency))
         res *= 2
     raise SolveError(f"pack_charts could not certify a packing ({cert.message}); report this with the charts")
 
