@@ -6,14 +6,17 @@ B. Lévy et al. 2002's "Tetris" packer), vectorised:
 1. Each chart is turned so that its minimum-area bounding rectangle is axis-aligned (rotating
    calipers over the convex hull: the optimal rectangle has a side on a hull edge, Freeman &
    Shapira 1975), then tried at that angle plus 0, 90, 180 and 270 degrees (90-degree turns are
-   exact in floating point).  Rotations only: a chart is never mirrored.
+   exact in floating point); a chart long enough to decide the square's side is also tried at the
+   angle of its smallest bounding square (diagonally).  Rotations only: a chart is never mirrored.
 2. At a pixel size chosen from the charts' total area and ``resolution``, each orientation is
    rasterised conservatively (:mod:`geomopt.atlas._raster`) and grown by the margin.
 3. Largest first, each chart goes where its grown raster meets no pixel of the charts placed so
    far and the bounding square of everything placed grows least (ties: the smaller bounding
    rectangle, then the lowest and leftmost spot).  All free spots of one orientation come from one
    FFT correlation of the occupancy bitmap with the raster (the occupancy's transform is shared by
-   the four orientations); the chosen spot is re-checked exactly on the bitmaps.
+   the four orientations); the chosen spot is re-checked exactly on the bitmaps.  Within a budget
+   of passes (charts x pixels), a second chart order is tried, then bottom-left packings into
+   slightly smaller squares; the smallest square wins.
 4. The placed charts are scaled so that their bounding square is ``[0, 1]^2``; a packing whose
    margin, after that scaling, fell short (the extent was under-estimated) is redone with a wider
    margin in pixels, and the result is certified exactly (:func:`certify_atlas`): charts disjoint
@@ -44,7 +47,7 @@ _FIRST_GUESS = 0.6  # packing efficiency assumed when choosing the pixel size
 _MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency down to 0.5): no re-packing
 _TRIES = 4
 _SHRINK = (0.99, 0.97, 0.95)  # squares tried below the greedy packing's, while they fit
-_BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: about 2 passes for 30 charts at 512 (~1 s)
+_BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: 2 passes for 30 charts at 512, 5 for up to 12
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,7 +203,7 @@ def _best_spot(occ, extent, shapes, r, bound):
 
 
 def _place(all_shapes, order, r, bound=None):
-    """Place the charts in ``order``; returns per chart (shape index, pixel translation (2,)),
+    """Place the charts in ``order``; returns per chart (rotation (2, 2), pixel translation (2,)),
     or None when a chart does not fit within ``bound``.  Unbounded, each chart goes where the
     bounding square grows least; bounded, at the lowest and leftmost free spot."""
     cap = 2 * sum(max(s.grown.shape) for s in (sh[0] for sh in all_shapes)) + 1
