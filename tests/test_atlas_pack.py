@@ -201,6 +201,8 @@ def test_pack_refuses_bad_charts():
         pack_charts([V, V * [-1, 1]], [F, F])
     with pytest.raises(MeshError, match="one face array per chart"):
         pack_charts([V], [F, F])
+    with pytest.raises(MeshError, match="no face uses"):
+        pack_charts([np.concatenate([V, [[5.0, 5.0]]])], [F])
     with pytest.raises(ParameterError, match="margin"):
         pack_charts([V], [F], margin=0.5)
 

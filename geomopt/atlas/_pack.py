@@ -81,6 +81,9 @@ def _check_charts(uvs, faces):
     for i, (u, f) in enumerate(zip(uvs, faces)):
         u = validate_vertices(u, f"chart {i}'s uvs", dim=2)
         f = validate_simplices(f, len(u), 3, name=f"chart {i}'s faces")
+        unused = len(u) - len(np.unique(f))
+        if unused:
+            raise MeshError(f"chart {i} has {unused} uv rows that no face uses; drop them (they would not be packed)")
         bad = np.count_nonzero(orient2d(u[f[:, 0]], u[f[:, 1]], u[f[:, 2]]) != 1)
         if bad:
             raise MeshError(f"chart {i} has {bad} triangles that are not positively oriented; pack flip-free "
