@@ -46,6 +46,7 @@ _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.
 _FIRST_GUESS = 0.6  # packing efficiency assumed when choosing the pixel size
 _MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency down to 0.5): no re-packing
 _TRIES = 4
+_BAND = 64  # rows of spots per FFT when looking for the lowest spot inside the packed rectangle
 _SHRINK = (0.99, 0.97, 0.95)  # squares tried below the greedy packing's, while they fit
 _BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: 2 passes for 30 charts at 512, 5 for up to 12
 
@@ -205,13 +206,54 @@ def _best_spot(occ, extent, shapes, r, bound):
     return best
 
 
+def _lowest_inside(occ, extent, shapes, r, bound):
+    """The lowest, then leftmost, free spot (key, shape index, y, x) that does not grow the
+    bounding rectangle of everything placed (or, ``bound`` given, that stays within it), or None.
+
+    Every such spot ties on the greedy key, so the lowest wins; bands of ``_BAND`` rows are searched
+    from the bottom, each with FFTs of the band only, and the search stops at the first band with a
+    free spot: a small chart late in the packing costs a few band-sized FFTs, not canvas-sized ones."""
+    rows, cols = extent
+    if bound is None:
+        top = [rows - r - s.mask.shape[0] for s in shapes]
+        right = [cols - r - s.mask.shape[1] for s in shapes]
+    else:  # bottom-left: any spot within the bound, none above the first free row ``rows``
+        top = [min(bound - s.mask.shape[0], rows) for s in shapes]
+        right = [bound - s.mask.shape[1] for s in shapes]
+    live = [k for k in range(len(shapes)) if top[k] >= 0 and right[k] >= 0]
+    if not live:
+        return None
+    dh_max = max(shapes[k].grown.shape[0] for k in live)
+    width = max(right[k] + shapes[k].grown.shape[1] for k in live)
+    fshape = (scipy.fft.next_fast_len(_BAND + dh_max - 1, True), scipy.fft.next_fast_len(width, True))
+    g_hat = {k: scipy.fft.rfft2(shapes[k].grown[::-1, ::-1].astype(np.float32), fshape) for k in live}
+    for y0 in range(0, max(top[k] for k in live) + 1, _BAND):
+        o_hat = scipy.fft.rfft2(occ[y0:y0 + _BAND + dh_max - 1, :width].astype(np.float32), fshape)
+        best = None
+        for k in live:
+            dh, dw = shapes[k].grown.shape
+            n_y = min(_BAND, top[k] - y0 + 1)
+            if n_y <= 0:
+                continue
+            free = scipy.fft.irfft2(o_hat * g_hat[k], fshape)[dh - 1:dh - 1 + n_y, dw - 1:dw + right[k]] < 0.5
+            for j in np.flatnonzero(free.ravel()):  # row-major: lowest, then leftmost
+                y, x = y0 + j // free.shape[1], j % free.shape[1]
+                if not (occ[y:y + dh, x:x + dw] & shapes[k].grown).any():  # exact re-check
+                    if best is None or (y, x) < best[2:]:
+                        best = (None, k, int(y), int(x))
+                    break
+        if best is not None:
+            return best
+    return None
+
+
 def _place(all_shapes, order, r, bound=None):
     """Place the charts in ``order``; returns per chart (rotation (2, 2), pixel translation (2,)),
     or None when a chart does not fit within ``bound``.  Unbounded, each chart goes where the
     bounding square grows least; bounded, at the lowest and leftmost free spot."""
     cap = 2 * sum(max(s.grown.shape) for s in (sh[0] for sh in all_shapes)) + 1
     occ = np.zeros((64, 64), bool)
-    rows = cols = 0
+    rows = cols = filled = 0
     placed = [None] * len(all_shapes)
     for i in order:
         shapes = all_shapes[i]
@@ -220,13 +262,18 @@ def _place(all_shapes, order, r, bound=None):
         if need[0] > occ.shape[0] or need[1] > occ.shape[1]:
             grow = min(cap, 2 * max(need + occ.shape))
             occ = np.pad(occ, ((0, grow - occ.shape[0]), (0, grow - occ.shape[1])))
-        spot = _best_spot(occ, (rows, cols), shapes, r, bound)
+        # a chart needing over half the free pixels of the rectangle rarely fits inside: go direct
+        roomy = rows and shapes[0].mask.sum() < 0.5 * ((rows - r) * (cols - r) - filled)
+        spot = _lowest_inside(occ, (rows, cols), shapes, r, bound) if roomy else None
+        if spot is None:
+            spot = _best_spot(occ, (rows, cols), shapes, r, bound)
         if spot is None:
             return None
         _, k, y, x = spot
         s = shapes[k]
         ch, cw = s.mask.shape
         occ[y + r:y + r + ch, x + r:x + r + cw] |= s.mask
+        filled += int(s.mask.sum())
         rows, cols = max(rows, y + r + ch), max(cols, x + r + cw)
         placed[i] = (s.R, np.array([x + r, y + r], np.float64) - s.origin)
     return placed
