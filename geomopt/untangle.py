@@ -49,7 +49,8 @@ back is exact too) and the rest mesh so that its volume equals the map's: the me
 determinant is then 1 and ``eps0`` is meaningful whatever the input units.  In 2D, rest
 triangles with an aspect ratio above 10 are replaced by equilateral ones, as the paper's code
 does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
-``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
+``D-`` and the stopping test), and so are the connected parts without a handle, held at a
+certified map (:mod:`geomopt.starts`: at the first eps their energy is lowest collapsed to a point).  The handles are written back from ``problem.fixed_positions``
 at the end (bit-exact), and the result is certified with the exact orientation predicate
 (:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
 a map with every element positive can still wind twice around an interior vertex (2D) or edge
@@ -226,7 +227,9 @@ class UntangleOptions:
         with its free vertices replaced by the harmonic extension of the handles
         (:func:`harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
         hexahedra when it has fewer inverted corners than ``x0``, else ``x0`` (see
-        :func:`choose_start`).
+        :func:`choose_start`), decided per connected part.  Whatever ``start``, a connected
+        part without a handle is held at a certified map, not solved
+        (:func:`geomopt.starts.hold_free_parts`).
     """
 
     theta: float | None = None
@@ -594,6 +597,16 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
     :class:`UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
     ``energy`` and ``mean_energy`` are measured in the normalised frame.
+
+    Stars whose every element has all its vertices fixed and that overlap in ``x0``
+    (:meth:`~geomopt.Problem.certify_fixed`) are the same in every map with these handles: the
+    rest is solved, and a map locally injective everywhere else ends
+    ``Outcome.CERTIFIED_EXCEPT_FIXED`` (not ``success``; ``certificate.forced`` lists them).
+
+    Raises
+    ------
+    MeshError
+        The rest mesh of a triangle or tet problem is not locally injective (exact, at set-up).
     """
     refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
                   "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)

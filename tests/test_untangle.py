@@ -713,3 +713,17 @@ def test_cli_refuses_a_rest_mesh_that_is_not_locally_injective_in_one_line(tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rest mesh itself is not locally injective" in err[0], err
     assert not out.exists()
+
+
+def test_a_mirrored_part_without_handles_gets_a_proper_rotation_of_its_rest_shape():
+    """The best orthogonal fit of the rest shape onto a mirrored map is a reflection, which
+    would invert every element: the rotation is taken without it (Kabsch's sign fix)."""
+    from geomopt.starts import hold_free_parts
+
+    V, F = G.square_mesh(4)
+    p = Problem.planar(V, F)
+    x0 = V * [-1.0, 1.0]
+    x0[5] += [0.4, 0.3]  # and tangled
+    held = hold_free_parts(p, x0)
+    assert (held.given, held.rest, held.pinned) == (0, 1, 0) and len(held.held) == len(V)
+    assert p.certify(held.x).ok
