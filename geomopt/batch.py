@@ -27,8 +27,10 @@ from ._errors import GeomoptError, ParameterError
 from ._padding import bucket_sizes
 from .cells import cell_problem, is_cell_case, read_cell_case, write_certified
 from .lim import LimCase, untangle_case
+from .solvers import Outcome
 
-__all__ = ["SUMMARY_COLUMNS", "batch_cases", "dask_available", "solve_case", "run_batch", "write_summary"]
+__all__ = ["SUMMARY_COLUMNS", "EXCEPT_FIXED", "batch_cases", "dask_available", "solve_case", "run_batch",
+           "write_summary"]
 
 #: what to install for batches on Dask (``distributed`` is an extra, not a dependency)
 DASK_EXTRA = 'pip install "geomopt[batch]"'
@@ -40,12 +42,17 @@ def dask_available() -> bool:
 
     return importlib.util.find_spec("distributed") is not None
 
+
 # --------------------------------------------------------------------- one case
 
 
 #: the columns of ``summary.csv``, one row per case
 SUMMARY_COLUMNS = ("case", "dim", "vertices", "elements", "inverted_before", "inverted_after",
-                   "outer_iterations", "inner_iterations", "seconds", "certified", "output", "message")
+                   "outer_iterations", "inner_iterations", "seconds", "certified", "outcome", "output", "message")
+
+#: ``certified`` of a case written but not certified everywhere: its handles alone make it overlap
+#: where every element has all its vertices fixed (outcome ``certified_except_fixed``)
+EXCEPT_FIXED = "except_fixed"
 
 
 def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
@@ -56,7 +63,10 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
 
     Never raises on a bad case (``Exception``): an unreadable, malformed, unsolvable or
     uncertified case gives a row with ``certified = "no"``, the reason in ``message`` and no
-    file.  Interrupts (``KeyboardInterrupt``) propagate.
+    file.  A LIM case certified wherever a free vertex reaches but overlapping where its handles
+    fix every element (outcome ``certified_except_fixed``) is written, with ``certified =``
+    :data:`EXCEPT_FIXED` and the overlap in ``message``.  Interrupts (``KeyboardInterrupt``)
+    propagate.
 
     Parameters
     ----------
@@ -93,10 +103,11 @@ def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
     row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
     case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket, start=start)
     _solved(row, res)
-    if res.success:
+    if res.success or res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED:
         output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
         check = case.write_certified(res, output)
-        row.update(inverted_after=check["inverted"], certified="yes", output=output.name)
+        row.update(inverted_after=check["inverted"], certified="yes" if check["certified"] else EXCEPT_FIXED,
+                   output=output.name, message=res.message if not check["certified"] else "")
 
 
 def _solve_cell_case(folder, outdir, solver, bucket, row, start="auto"):
@@ -117,7 +128,8 @@ def _solve_cell_case(folder, outdir, solver, bucket, row, start="auto"):
 
 def _solved(row, res):
     row.update(inverted_before=res.stats.inverted_at_start, inverted_after=res.certificate.inverted,
-               outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations)
+               outer_iterations=res.stats.outer_iterations, inner_iterations=res.stats.iterations,
+               outcome=res.outcome.value)
     if not res.success:
         row["message"] = f"not certified: {res.message}"
 

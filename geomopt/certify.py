@@ -329,6 +329,41 @@ class LocalCertificate:
                     f"{more(len(self.boundary_overlaps), 'vertices')}")
         return ""
 
+    @property
+    def failures(self) -> int:
+        """Vertices and edges listed as not locally injective (0 when :attr:`ok` or when an
+        element is inverted: the lists are not computed then)."""
+        return sum(len(a) for a in (self.branch_vertices, self.branch_edges, self.boundary_overlaps,
+                                    self.boundary_edge_overlaps))
+
+    def beyond(self, forced: "LocalCertificate") -> "LocalCertificate":
+        """This certificate without the vertices and edges that ``forced`` lists too.
+
+        ``forced`` is what the handles make certain (:func:`fixed_star_certificate` of the
+        input: stars whose every vertex is fixed); the copy lists only the failures a solver
+        could have removed, so ``beyond(forced).ok`` means the map is locally injective
+        wherever some free vertex reaches (``inverted`` is kept as it is).  A vertex at an end
+        of a forced edge is forced too, whatever its star holds: every neighbourhood of it
+        holds points of the edge, around which the map overlaps."""
+        ends = np.concatenate([np.ravel(forced.branch_edges), np.ravel(forced.boundary_edge_overlaps)])
+        vertices = np.concatenate([forced.branch_vertices, forced.boundary_overlaps, ends])
+        return dataclasses.replace(
+            self, branch_vertices=_rows_not_in(self.branch_vertices, vertices),
+            branch_edges=_rows_not_in(self.branch_edges, forced.branch_edges),
+            boundary_overlaps=_rows_not_in(self.boundary_overlaps, vertices),
+            boundary_edge_overlaps=_rows_not_in(self.boundary_edge_overlaps, forced.boundary_edge_overlaps))
+
+
+def _rows_not_in(a, b) -> np.ndarray:
+    """The vertex ids (k,) or sorted edges (k, 2) of ``a`` that ``b`` does not list."""
+    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+    if not len(a) or not len(b):
+        return a
+    if a.ndim == 1:
+        return a[~np.isin(a, b)]
+    n = int(max(a.max(), b.max())) + 1
+    return a[~np.isin(a[:, 0] * n + a[:, 1], b[:, 0] * n + b[:, 1])]
+
 
 def local_certificate(x, S, orientation: int = 1, link=None) -> LocalCertificate:
     """Exact certificate that a triangle map in the plane or a tet map is locally injective.

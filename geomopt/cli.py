@@ -30,10 +30,13 @@ from pathlib import Path
 
 __all__ = [
     "main", "build_parser", "cmd_param", "cmd_untangle", "cmd_compare", "cmd_demo", "EXIT_OK",
-    "EXIT_FAILED", "EXIT_USAGE", "PICTURE_EXTENSIONS",
+    "EXIT_FAILED", "EXIT_USAGE", "EXIT_EXCEPT_FIXED", "PICTURE_EXTENSIONS",
 ]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+#: ``untangle``: the map was written, certified wherever a free vertex reaches, but the handles
+#: alone make it overlap where every element has all its vertices fixed (``certified_except_fixed``)
+EXIT_EXCEPT_FIXED = 3
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
 PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
@@ -296,6 +299,7 @@ def _untangle_one(args, folder) -> int:
     from ._timing import compile_seconds
     from .lim import LimCase, untangle_case
     from .quality import element_quality
+    from .solvers import Outcome
 
     split = args.timing
     split.mark_imported()
@@ -324,8 +328,10 @@ def _untangle_one(args, folder) -> int:
             evaluations=st.evaluations, solve_seconds=round(st.seconds, 4),
             setup_seconds=round(st.setup_seconds, 4), handles_moved=res.certificate.handles_moved,
             start=getattr(res.details, "start", None), min_det_rel=res.min_det_rel, outcome=res.outcome.value,
-            certified=bool(res.success), message=res.message, **quality, **_cache_summary())
-    if not res.success:
+            certified=bool(res.success), message=res.message, forced_overlaps=_forced_overlaps(res), **quality,
+            **_cache_summary())
+    except_fixed = res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED
+    if not (res.success or except_fixed):
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
     with contextlib.ExitStack() as outputs:  # the picture lands only with a certified output
@@ -334,7 +340,18 @@ def _untangle_one(args, folder) -> int:
                                   Path(args.png).suffix[1:].lower())
         with split.phase("write"):
             case.write_certified(res, args.output)
+    if except_fixed:  # written, and said even with --quiet: the input's handles make it overlap
+        print(f"geomopt: warning: {args.output} written but not certified everywhere: {res.message}",
+              file=sys.stderr, flush=True)
+        return EXIT_EXCEPT_FIXED
     return EXIT_OK
+
+
+def _forced_overlaps(res) -> int:
+    """Vertices and edges where the handles alone make every map overlap (the input's
+    ``Problem.certify_fixed``), as the result's certificate lists them."""
+    forced = getattr(res.certificate, "forced", None)
+    return 0 if forced is None else forced.failures
 
 
 def _cell_output(args, case, inputs):
@@ -444,7 +461,7 @@ def cmd_smooth(args) -> int:
 
 
 def _untangle_batch(args) -> int:
-    from .batch import DASK_EXTRA, batch_cases, dask_available, run_batch
+    from .batch import DASK_EXTRA, EXCEPT_FIXED, batch_cases, dask_available, run_batch
 
     cases = batch_cases(args.case)
     workers = args.workers or min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
@@ -458,19 +475,27 @@ def _untangle_batch(args) -> int:
     _log(args, f"{len(cases)} case(s) to {args.output}, on {where}")
 
     def report(row, done, total):
-        status = "certified" if row["certified"] == "yes" else f"not certified: {row['message']}"
+        status = {"yes": "certified", EXCEPT_FIXED: f"written, certified except where the handles fix it: "
+                  f"{row['message']}"}.get(row["certified"], f"not certified: {row['message']}")
         _log(args, f"[{done}/{total}] {row['case']}: {status} ({row['seconds']} s)")
 
     rows = run_batch(cases, args.output, solver=args.solver, workers=workers, scheduler=args.scheduler,
                      report=report, start=args.start)
-    failed = sum(row["certified"] != "yes" for row in rows)
+    except_fixed = sum(row["certified"] == EXCEPT_FIXED for row in rows)
+    failed = sum(row["certified"] not in ("yes", EXCEPT_FIXED) for row in rows)
     summary = Path(args.output) / "summary.csv"
     _report(args, output=str(args.output), summary=str(summary), workers=workers, scheduler=args.scheduler,
-            cases=len(rows), certified=len(rows) - failed, not_certified=failed, rows=rows, **_cache_summary())
+            cases=len(rows), certified=len(rows) - failed - except_fixed, certified_except_fixed=except_fixed,
+            not_certified=failed, rows=rows, **_cache_summary())
     if failed:
         print(f"geomopt: {failed} of {len(rows)} case(s) not certified (no output written for them); "
               f"see {summary}", file=sys.stderr, flush=True)
         return EXIT_FAILED
+    if except_fixed:
+        print(f"geomopt: warning: {except_fixed} of {len(rows)} case(s) written but not certified everywhere: "
+              f"their handles alone make them overlap (certified = {EXCEPT_FIXED}); see {summary}",
+              file=sys.stderr, flush=True)
+        return EXIT_EXCEPT_FIXED
     _log(args, f"all {len(rows)} case(s) certified; summary in {summary}")
     return EXIT_OK
 

@@ -49,7 +49,8 @@ back is exact too) and the rest mesh so that its volume equals the map's: the me
 determinant is then 1 and ``eps0`` is meaningful whatever the input units.  In 2D, rest
 triangles with an aspect ratio above 10 are replaced by equilateral ones, as the paper's code
 does.  Elements whose vertices are all fixed are left out of the inner energy (but not of
-``D-`` and the stopping test).  The handles are written back from ``problem.fixed_positions``
+``D-`` and the stopping test), and so are the connected parts without a handle, held at a
+certified map (:mod:`geomopt.starts`: at the first eps their energy is lowest collapsed to a point).  The handles are written back from ``problem.fixed_positions``
 at the end (bit-exact), and the result is certified with the exact orientation predicate
 (:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
 a map with every element positive can still wind twice around an interior vertex (2D) or edge
@@ -89,19 +90,16 @@ from ._geometry import det, edge_rows
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
-from .linsolve import NotPositiveDefinite, SparseCholesky
 from .problem import Problem, fixed_total_problem
-from .topology import connected_components
+from .starts import STARTS, box_scale, choose_start, harmonic_start, hold_free_parts
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
-                      Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate,
-                      rest_laplacian)
+                      Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
            "stiff_solver", "next_eps", "start_eps", "START_RATIO", "bits_differ", "STIFF_AFTER",
            "STIFF_AFTER_NEWTON", "PROBE_PROGRESS", "STARTS", "harmonic_start", "choose_start"]
 
-BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
 
 
@@ -127,9 +125,6 @@ PROBE_PROGRESS = (0.9, 0.5)
 #: Newton iterations took 13 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
 #: Newton iterations' worth
 STIFF_AFTER_NEWTON = 1000
-
-#: the values of ``UntangleOptions.start`` (see :func:`choose_start`)
-STARTS = ("auto", "given", "harmonic")
 
 #: what :func:`untangle` returns (one result type for every solve; kept as a name)
 UntangleResult = Result
@@ -232,7 +227,9 @@ class UntangleOptions:
         with its free vertices replaced by the harmonic extension of the handles
         (:func:`harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
         hexahedra when it has fewer inverted corners than ``x0``, else ``x0`` (see
-        :func:`choose_start`).
+        :func:`choose_start`), decided per connected part.  Whatever ``start``, a connected
+        part without a handle is held at a certified map, not solved
+        (:func:`geomopt.starts.hold_free_parts`).
     """
 
     theta: float | None = None
@@ -399,82 +396,6 @@ def start_eps(problem: Problem, x) -> float:
     return max(1.0, m / START_RATIO) if math.isfinite(m) else 1.0
 
 
-def harmonic_start(problem: Problem, x0) -> np.ndarray | None:
-    """``x0`` (n, d) with its free vertices moved to the harmonic extension of the handles, or
-    None where that is undefined (no handle, or a connected part of the mesh without one).
-
-    The extension minimises the rest Dirichlet energy ``sum_e vol_e |J_e|^2`` (quads and
-    hexahedra: over their corner simplices) with the handles at ``problem.fixed_positions``:
-    one sparse Cholesky solve with the rest Laplacian (:func:`~geomopt.solvers.rest_laplacian`)
-    on the free vertices.  It is the far end of the eps continuation: for ``|det J| << eps``,
-    ``chi(det J, eps) ~ eps / 2`` and what is left of the untangling energy is its Dirichlet
-    term, so the minimiser tends to this map as eps grows.  Vertices no element uses keep
-    their ``x0`` rows."""
-    x = problem.check_map(x0)
-    fixed = np.asarray(problem.fixed, np.int64)
-    if not len(problem.simplices) or not len(fixed):
-        return None
-    count, labels = connected_components(problem.simplices, problem.n_vertices)
-    anchored = np.zeros(count, bool)
-    anchored[labels[fixed][labels[fixed] >= 0]] = True
-    if not anchored.all():
-        return None
-    free = problem.free_mask & (labels >= 0)
-    if not free.any():
-        return None
-    K = rest_laplacian(problem).tocsr()
-    try:
-        x[free] = SparseCholesky.factored(K[free][:, free]).solve(-(K[free][:, ~free] @ x[~free]))
-    except NotPositiveDefinite:  # a rest mesh whose Laplacian is not definite on the free part
-        return None
-    return x
-
-
-def _inverted_corners(problem: Problem, x) -> int:
-    """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point, on
-    ``x`` scaled by a power of two to a box of about :data:`BOX` (exact, so that a map at 1e-150
-    is not counted as collapsed)."""
-    return int(np.count_nonzero(~(problem.signed_volumes(x * _box_scale(x)) > 0)))
-
-
-def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:
-    """``(x, which)``: the map :func:`untangle`'s eps loop starts from, and ``"given"`` (``x0``)
-    or ``"harmonic"`` (:func:`harmonic_start`), for ``UntangleOptions.start`` (:data:`STARTS`).
-
-    ``"auto"`` takes the harmonic extension for quads and hexahedra when ``x0`` has an
-    inverted corner and the extension has fewer.  On their corner simplices no L-BFGS seed
-    solves the first eps of a global tangle and the stiff phase is projected Newton on every
-    corner (:func:`stiff_solver`): the hex rod of 20 x 20 x 240 bent by 180 degrees (96,000
-    hexahedra) ran 24 minutes without finishing from ``x0``; its harmonic extension has no
-    inverted corner and certifies after 8 inner iterations.  Simplices keep ``x0`` under
-    ``"auto"``: L-BFGS with the Laplacian seed untangles their global tangles at the authors'
-    speed or better (benchmarks/README.md), and a map that stays near ``x0`` is kept."""
-    if start not in STARTS:
-        raise ParameterError(f"start must be one of {STARTS}, got {start!r}")
-    if start == "given" or (start == "auto" and problem.elements is None):
-        return x0, "given"
-    given = _inverted_corners(problem, x0) if start == "auto" else None
-    xh = harmonic_start(problem, x0) if given != 0 else None
-    if xh is None:
-        if start == "harmonic":
-            raise ParameterError("start='harmonic' needs a handle in every connected part of the mesh (the "
-                                 "harmonic extension of the handles is undefined otherwise); use start='given'")
-        return x0, "given"
-    if start == "auto" and _inverted_corners(problem, xh) >= given:
-        return x0, "given"
-    return xh, "harmonic"
-
-
-def _power_of_two(v: float) -> float:
-    return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
-
-
-def _box_scale(x) -> float:
-    """The power of two that scales the map ``x`` (n, d) to a box of about :data:`BOX`."""
-    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
-    return _power_of_two(BOX / span) if span > 0 else 1.0
-
-
 def bits_differ(a, b) -> int:
     """Rows of ``a`` and ``b`` (k, d) that differ in any bit (handles moved: exact)."""
     a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
@@ -520,8 +441,9 @@ class EpsContinuation(AbstractContinuation):
     """
 
     def __init__(self, problem, scaled, full, objective, map_scale, xs, options, details, initially, solver,
-                 stiff=None):
+                 stiff=None, forced=None):
         self.problem, self.scaled, self.full, self.objective, self.solver = problem, scaled, full, objective, solver
+        self.forced = forced  # the input's overlaps that the handles alone make (Problem.certify_fixed)
         self.probe = STIFF_AFTER_NEWTON if isinstance(stiff, Newton) else STIFF_AFTER
         self.stiff = stiff if stiff is not None and solver.max_steps > self.probe else None
         self.probed = 0  # inner iterations of this outer iteration before a switch to ``stiff``
@@ -604,16 +526,33 @@ class EpsContinuation(AbstractContinuation):
             outcome, xs_final = Outcome.NONFINITE, self.xs
         out = xs_final[: problem.n_vertices] / k  # without bucket padding
         out[problem.fixed] = problem.fixed_positions
-        moved = bits_differ(out[problem.fixed], problem.fixed_positions)
         t_certify = time.perf_counter()
-        cert = local_certificate(problem, out, moved)  # exact: orientations, fans/stars around vertices, edges
-        if outcome is Outcome.CONVERGED and not cert.valid:
-            outcome = Outcome.NOT_INJECTIVE
-            if not cert.inverted and not cert.ok:
-                reason = _local_reason(problem, cert)
+        outcome, cert, reason = judged(problem, out, outcome, reason, self.forced)
         return Final(out, outcome, cert, reason, problem=problem, energy=self.E,
                      volume=self.full.total_volume, details=self.details, inverted_at_start=self.initially,
                      certify_seconds=time.perf_counter() - t_certify)
+
+
+def judged(problem, x, outcome, reason="", forced=None):
+    """``(outcome, certificate, reason)`` of the final map ``x`` (n, d): its exact
+    :class:`~geomopt.solvers.LocalCertificate` (``forced``, the input's
+    :meth:`~geomopt.Problem.certify_fixed`, attached when it lists an overlap), and CONVERGED
+    kept only for a valid map: CERTIFIED_EXCEPT_FIXED when it fails only where ``forced`` says
+    the handles alone make it fail, else NOT_INJECTIVE with the first failure a free vertex
+    could have removed."""
+    cert = local_certificate(problem, x, bits_differ(x[problem.fixed], problem.fixed_positions))
+    if forced is not None and not forced.ok:
+        cert = dataclasses.replace(cert, forced=forced)
+    if outcome is not Outcome.CONVERGED or cert.valid:
+        return outcome, cert, reason
+    if cert.valid_except_forced:
+        return Outcome.CERTIFIED_EXCEPT_FIXED, cert, (
+            f"converged, but the handles alone make the map overlap at {forced.failures} vertices and edges whose "
+            f"elements all have every vertex fixed (a property of the input, the same for every map with these "
+            f"handles; first: {forced.message}); everywhere else the map is certified locally injective")
+    if not cert.inverted and not cert.ok:
+        reason = _local_reason(problem, cert if cert.forced is None else cert.beyond(cert.forced))
+    return Outcome.NOT_INJECTIVE, cert, reason
 
 
 def _local_reason(problem, cert) -> str:
@@ -658,6 +597,16 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
     :class:`UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
     ``energy`` and ``mean_energy`` are measured in the normalised frame.
+
+    Stars whose every element has all its vertices fixed and that overlap in ``x0``
+    (:meth:`~geomopt.Problem.certify_fixed`) are the same in every map with these handles: the
+    rest is solved, and a map locally injective everywhere else ends
+    ``Outcome.CERTIFIED_EXCEPT_FIXED`` (not ``success``; ``certificate.forced`` lists them).
+
+    Raises
+    ------
+    MeshError
+        The rest mesh of a triangle or tet problem is not locally injective (exact, at set-up).
     """
     refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
                   "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)
@@ -666,39 +615,74 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
         raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
     check_progress(progress, "untangle")
     t_setup = time.perf_counter()
+    _check_rest(problem)  # exact, before anything is compiled
     x0 = problem.check_map(x0)
     initially = problem.count_inverted(x0)
-    active = problem.free_mask[problem.simplices].any(axis=1)
-    why = _refusal(problem, x0, initially, active)
+    why = _refusal(problem, x0, initially, problem.free_mask[problem.simplices].any(axis=1))
     if why:
         return _early_result(problem, x0, initially, t_setup, throw, why)
-    fixed_part = problem.certify_fixed(x0)  # stars no free vertex changes (quads/hexahedra: their tangent cones)
-    if not fixed_part.ok:
-        raise MeshError(f"{fixed_part.message}; every element there has all its vertices fixed, so the "
-                        f"handles make a locally injective map impossible: free some of them or move them")
+    forced = problem.certify_fixed(x0)  # stars no free vertex changes (quads/hexahedra: their tangent cones)
     x_start, which = choose_start(problem, x0, opts.start)
+    parts = hold_free_parts(problem, x_start)  # parts without a handle: held at a certified map
+    held = np.union1d(problem.fixed, parts.held)
+    solving = problem.with_fixed(held, parts.x[held]) if len(parts.held) else problem
+    active = solving.free_mask[solving.simplices].any(axis=1)
+    theta = opts.resolved_theta(problem.dim)
+    details = UntangleDetails(theta, theta / (1.0 - theta), 1.0, 1.0, int(active.sum()), which,
+                              parts.given + parts.rest + parts.pinned, parts.rest)
+    if not active.any():  # nothing left to move: the map is certified as it is
+        result = _held_result(problem, parts.x, initially, forced, t_setup, details)
+    else:
+        before = time.perf_counter() - t_setup
+        result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress)
+        result = dataclasses.replace(result, problem=problem, stats=dataclasses.replace(
+            result.stats, setup_seconds=result.stats.setup_seconds + before))
+    if throw and not result.success:
+        raise SolveError(f"untangling failed: {result.message}", result)
+    return result
+
+
+def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress) -> Result:
+    """The eps loop on ``solving`` (``problem`` with its handle-free parts held) from ``x_start``."""
+    t_setup = time.perf_counter()
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
     if isinstance(solver, str):
         corners = problem.elements is not None
         stiff = stiff_solver(solver, problem.dim, corners)
         solver = default_solver(solver, problem.dim, int(active.sum()), corners, initially)
-    theta = opts.resolved_theta(problem.dim)
-    scaled, sub, xs, k, s = _normalised(problem, x_start, active, opts)
-    energy = garanzha.with_params(eps=1.0, lam=theta / (1.0 - theta))
+    scaled, sub, xs, k, s = _normalised(solving, x_start, active, opts)
+    energy = garanzha.with_params(eps=1.0, lam=details.lam)
     full = Objective(scaled, energy, buckets=opts.bucket)
     obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
     if opts.eps0 is None:
         opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
-    details = UntangleDetails(theta, theta / (1.0 - theta), k, s, int(active.sum()), which)
-    eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver, stiff)
+    details = dataclasses.replace(details, map_scale=k, rest_scale=s)
+    eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced)
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False)
-    result = dataclasses.replace(result, stats=dataclasses.replace(
+    return dataclasses.replace(result, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
-    if throw and not result.success:
-        raise SolveError(f"untangling failed: {result.message}", result)
-    return result
+
+
+def _held_result(problem, x, initially, forced, t_setup, details) -> Result:
+    """The result when no vertex is left to move (every part held or fixed): ``x`` certified."""
+    t = time.perf_counter()
+    outcome, cert, reason = judged(problem, x, Outcome.CONVERGED, "", forced)
+    stats = RunStats(setup_seconds=t - t_setup, inverted_at_start=initially, certify_seconds=time.perf_counter() - t)
+    return Result(x, outcome, cert, stats, problem=problem, reason=reason, details=details)
+
+
+def _check_rest(problem: Problem) -> None:
+    """MeshError (one line) when the rest mesh of a triangle (planar) or tet problem is not
+    locally injective (exact, :meth:`Problem.certify` of the rest vertices): every element is
+    measured against it, and its fold is no fault of the handles or of the start map."""
+    if problem.kind not in ("planar", "tet"):
+        return
+    cert = problem.certify(np.asarray(problem.rest_vertices, dtype=np.float64))
+    if not cert.ok:
+        raise MeshError(f"the rest mesh itself is not locally injective: {cert.message}; untangling measures every "
+                        f"element against the rest mesh, so fix the rest mesh (e.g. rest.vtk, or the 'v' lines)")
 
 
 def _phase_progress(progress):
@@ -745,7 +729,7 @@ def _normalised(problem, x0, active, opts):
     ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
     ``max_aspect`` in 2D), ``sub`` its active elements."""
     d = problem.dim
-    k = _box_scale(x0)
+    k = box_scale(x0)
     xs = x0 * k
     map_vol = float(problem.signed_volumes(xs).sum())
     rest_vol = float(problem.volumes.sum())

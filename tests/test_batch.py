@@ -440,3 +440,22 @@ def test_without_dask_a_batch_runs_in_this_process_or_names_the_extra(cli, tmp_p
         code, _, err = cli("untangle", good, "-o", tmp_path / "refused", "--quiet", *args)
         assert code == 2 and 'geomopt[batch]' in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "refused").exists()
+
+
+def test_a_case_whose_handles_force_an_overlap_is_written_and_said(cli, tmp_path):
+    """Issue 30: the tets around an edge turn 1.5 times with every vertex fixed; the batch writes
+    it beside a certified case, marks it except_fixed (not yes) with the overlap, and exits 3."""
+    from test_fixed_stars import edge_case
+
+    X, T, rest, fixed = edge_case(1.5, 0.75, 10, False)
+    LimCase.from_tangle(G.Tangle("forced", rest, T, X, fixed)).write(tmp_path / "in" / "forced")
+    LimCase.from_tangle(tangles()["cube"]).write(tmp_path / "in" / "cube")
+    code, out, err = cli("untangle", tmp_path / "in", "-o", tmp_path / "out", "--workers", "1", "--quiet")
+    assert code == 3 and len(err.splitlines()) == 1 and "1 of 2 case(s) written but not certified everywhere" in err
+    assert sorted(os.listdir(tmp_path / "out")) == ["cube.vtk", "forced.vtk", "summary.csv"]
+    rows = {r["case"]: r for r in read_summary(tmp_path / "out" / "summary.csv")}
+    assert (rows["cube"]["certified"], rows["cube"]["outcome"]) == ("yes", "converged")
+    forced = rows["forced"]
+    assert (forced["certified"], forced["outcome"], forced["output"]) == ("except_fixed", "certified_except_fixed",
+                                                                            "forced.vtk")
+    assert "handles alone" in forced["message"] and "(0, 1)" in forced["message"]

@@ -1,8 +1,10 @@
 """Handles that make every map fail the local certificate (certify.fixed_star_certificate).
 
 A vertex (2D) or edge/vertex (3D) whose whole star has every vertex fixed is certified the
-same way by every map with those handles; when that star already overlaps itself, untangling
-is pointless and is refused before solving (LIM's armadillo-598 had 5 such boundary edges).
+same way by every map with those handles; when that star already overlaps itself, that is a
+property of the input: untangling solves the rest, certifies it wherever a free vertex reaches,
+and reports the forced overlap (outcome ``certified_except_fixed``, CLI exit status 3, the map
+written), never as plain success (LIM's armadillo-598 has 5 such boundary edges, issue 30).
 """
 
 from __future__ import annotations
@@ -11,9 +13,15 @@ import numpy as np
 import pytest
 
 from conftest import shared_path
-from geomopt import MeshError, Problem
+import dataclasses
+import json
+
+from geomopt import Problem, SolveError
 from geomopt import cli
-from geomopt.certify import fixed_star_certificate
+from geomopt.solvers import Outcome
+from geomopt.certify import fixed_star_certificate, local_certificate
+from geomopt.io import read_vtk_tets
+from geomopt.predicates import count_inverted
 from geomopt.generators import Tangle
 from geomopt.lim import LimCase
 from geomopt.untangle import untangle
@@ -64,35 +72,85 @@ def edge_case(turns, rest_turns, k, closed):
     return X, T, rest, fixed
 
 
+def _except_fixed(problem, X, field, where):
+    """Solved, the free vertex moved, the forced overlap reported (not success, not refused)."""
+    res = untangle(problem, X, progress=False)
+    assert res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED and not res.success, res.message
+    cert = res.certificate
+    assert cert.inverted == 0 and cert.handles_moved == 0 and not cert.ok and cert.valid_except_forced
+    assert getattr(cert.forced, field).tolist() == where and cert.beyond(cert.forced).ok
+    assert "handles alone" in res.message and "property of the input" in res.message
+    with pytest.raises(SolveError, match="handles alone"):
+        untangle(problem, X, progress=False, throw=True)
+    return res
+
+
 @pytest.mark.parametrize("closed, field", [(True, "branch_vertices"), (False, "boundary_overlaps")])
-def test_fixed_2d_fan_that_overlaps_is_refused_before_solving(closed, field):
+def test_fixed_2d_fan_that_overlaps_is_solved_and_reported(closed, field):
     X, F, rest, fixed = fan_case(2.0 if closed else 1.5, 1.0 if closed else 0.75, 12, closed)
     cert = fixed_star_certificate(X, F, fixed)
     assert not cert.ok and list(getattr(cert, field)) == [0]
+    X = X.copy()
+    X[-1] = -X[-1]  # the free vertex's triangle starts inverted: the solver must untangle it
     problem = Problem.planar(rest, F, fixed, X[fixed])
-    with pytest.raises(MeshError, match=r"vertex 0 .*handles make a locally injective map impossible"):
-        untangle(problem, X, progress=lambda *a: pytest.fail("solved"))
+    assert problem.count_inverted(X) == 1
+    _except_fixed(problem, X, field, [0])
 
 
 @pytest.mark.parametrize("closed, field", [(True, "branch_edges"), (False, "boundary_edge_overlaps")])
-def test_fixed_3d_edge_star_that_overlaps_is_refused(closed, field):
+def test_fixed_3d_edge_star_that_overlaps_is_solved_and_reported(closed, field):
     X, T, rest, fixed = edge_case(2.0 if closed else 1.5, 1.0 if closed else 0.75, 10, closed)
     cert = fixed_star_certificate(X, T, fixed)
     assert not cert.ok and getattr(cert, field).tolist() == [[0, 1]]
     for e in (-1000, 1000):  # extreme scales, exactly (powers of two)
         assert getattr(fixed_star_certificate(np.ldexp(X, e), T, fixed), field).tolist() == [[0, 1]]
-    with pytest.raises(MeshError, match=r"edge \(0, 1\).*impossible"):
-        untangle(Problem.tets(rest, T, fixed, X[fixed]), X, progress=False)
+    _except_fixed(Problem.tets(rest, T, fixed, X[fixed]), X, field, [[0, 1]])
 
 
-def test_cli_exits_2_and_writes_nothing(tmp_path, capsys):
+def test_beyond_excuses_the_forced_stars_and_the_ends_of_forced_edges_only():
+    X, T, rest, fixed = edge_case(1.5, 0.75, 10, False)
+    forced = fixed_star_certificate(X, T, fixed)
+    full = local_certificate(X, T)
+    assert forced.boundary_edge_overlaps.tolist() == [[0, 1]] and 0 in full.boundary_overlaps
+    assert not forced.failures == full.failures  # vertex 0's star holds the free vertex: not in forced...
+    assert full.beyond(forced).ok  # ...but it is an end of the forced edge: it cannot be injective
+    other = dataclasses.replace(full, boundary_overlaps=np.r_[full.boundary_overlaps, 7],
+                                branch_edges=np.array([[2, 3]]))
+    left = other.beyond(forced)
+    assert left.boundary_overlaps.tolist() == [7] and left.branch_edges.tolist() == [[2, 3]] and not left.ok
+    assert forced.beyond(forced).ok
+
+
+def test_cli_writes_the_map_and_exits_3(tmp_path, capsys):
     X, T, rest, fixed = edge_case(1.5, 0.75, 10, False)
     folder = LimCase.from_tangle(Tangle("wrapped", rest, T, X, fixed)).write(tmp_path / "case")
     out = tmp_path / "out.vtk"
-    assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "impossible" in err[0] and "(0, 1)" in err[0], err
-    assert not out.exists()
+    assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet", "--json"]) == cli.EXIT_EXCEPT_FIXED == 3
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "written but not certified everywhere" in err[0] and "(0, 1)" in err[0], err
+    summary = json.loads(captured.out)
+    assert (summary["outcome"], summary["success"], summary["certified"], summary["exit_status"]) == (
+        "certified_except_fixed", False, False, 3)
+    assert summary["forced_overlaps"] >= 1 and summary["inverted"] == 0 and summary["handles_moved"] == 0
+    back = LimCase.read(folder).write_certified(read_vtk_tets(out)[0], tmp_path / "again.vtk")
+    assert back["outcome"] == "certified_except_fixed" and not back["certified"] and back["forced"] >= 1
+
+
+def test_write_certified_still_refuses_a_failure_a_free_vertex_reaches(tmp_path):
+    """The forced overlap is excused in the written file, nothing else: the free vertex's tet
+    inverted (or its boundary overlapping) is refused, and no file is left."""
+    X, T, rest, fixed = edge_case(1.5, 0.75, 10, False)
+    case = LimCase.from_tangle(Tangle("wrapped", rest, T, X, fixed))
+    res = untangle(*case.to_problem()[:2], progress=False)
+    assert res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED
+    assert case.write_certified(res, tmp_path / "ok.vtk")["outcome"] == "certified_except_fixed"
+    bad = res.x.copy()
+    free = np.setdiff1d(np.arange(len(X)), fixed)
+    bad[free] = 2.0 * bad[0] - bad[free]  # the free vertex reflected through vertex 0
+    with pytest.raises(SolveError, match="did not certify"):
+        case.write_certified(bad, tmp_path / "bad.vtk")
+    assert not (tmp_path / "bad.vtk").exists()
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -138,12 +196,19 @@ def test_inverted_fixed_elements_are_left_to_the_orientation_check():
     assert list(cert.boundary_overlaps) == [0]
 
 
-def test_armadillo_598_is_refused_naming_the_edge(capsys, tmp_path):
-    """The API refusal is in test_untangle's LIM case test; here the certificate and the CLI."""
+def test_armadillo_598_is_solved_and_its_forced_overlap_reported(capsys, tmp_path):
+    """LIM's armadillo-598: the benchmark's criterion (handles exact, no inverted tet) met in the
+    file written, and the 5 boundary edges its handles make overlap reported (exit 3)."""
     folder = shared_path("lim", "3D", "Deform_Armadillo", "armadillo-598")
-    problem, x0 = LimCase.read(folder).to_problem()[:2]  # its tets are listed clockwise
+    case = LimCase.read(folder)
+    problem, x0 = case.to_problem()[:2]  # its tets are listed clockwise
     cert = fixed_star_certificate(x0, problem.simplices, problem.fixed)
     assert len(cert.boundary_edge_overlaps) == 5 and cert.boundary_edge_overlaps[0].tolist() == [752, 782]
     out = tmp_path / "out.vtk"
-    assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet"]) == 2
-    assert not out.exists() and "impossible" in capsys.readouterr().err
+    assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet"]) == 3
+    assert "(752, 782)" in capsys.readouterr().err
+    X, T = read_vtk_tets(out)
+    assert np.array_equal(T, case.simplices) and np.array_equal(X[case.handles], case.init[case.handles])
+    vol = np.einsum("ij,ij->i", X[T[:, 1]] - X[T[:, 0]], np.cross(X[T[:, 2]] - X[T[:, 0]], X[T[:, 3]] - X[T[:, 0]]))
+    assert (vol < 0).all()  # every tet keeps the (negative) rest orientation: none inverted
+    assert count_inverted(X, problem.simplices) == 0  # and exactly so

@@ -48,15 +48,17 @@ def _bits_equal(a, b):
 def test_lim_case_untangled_and_certified(folder, tmp_path):
     if folder is None:
         pytest.skip(f"LIM sample data not found under {LIM_ROOT} (clone the project next to shared/)")
+    case, result = untangle_case(folder, progress=False)
     if folder.name == "armadillo-598":
         # every tet around 5 boundary edges has all four vertices fixed, and those tets turn
         # 1.0-1.2 times around each edge in the given handle positions: no map with these
-        # handles is locally injective (it used to be certified, issue 19); the setup refuses
-        # it before solving (certify.fixed_star_certificate; tests/test_fixed_stars.py)
-        with pytest.raises(MeshError, match=r"boundary edge \(752, 782\).*impossible"):
-            untangle_case(folder, progress=False)
+        # handles is locally injective there (a property of the input, issue 19); everything a
+        # free vertex reaches is, and the forced overlap is reported (issue 30; tests/test_fixed_stars.py)
+        assert result.outcome is Outcome.CERTIFIED_EXCEPT_FIXED and not result.success, result.message
+        assert result.certificate.valid_except_forced and "(752, 782)" in result.message
+        check = case.write_certified(result, tmp_path / "out.vtk")
+        assert check["outcome"] == "certified_except_fixed" and check["inverted"] == check["handles_moved"] == 0
         return
-    case, result = untangle_case(folder, progress=False)
     assert result.success, result.message
     assert result.stats.inverted_at_start > 0
     H = case.handles
@@ -282,12 +284,12 @@ def test_bad_arguments():
         untangle(t.problem(), t.x0, solver="gradient-descent", progress=False)
     with pytest.raises(ParameterError):
         untangle(t.problem(), t.x0, theta=1.5, progress=False)
-    # no handles is no longer an error: a free boundary (tests/test_freeboundary.py)
+    # no handles is no longer an error: a free boundary (tests/test_freeboundary.py); a tangled
+    # mesh without any handle is one part without a handle: held at its rest shape moved onto
+    # the given map (the eps loop ended flip-free around a branch vertex there, issue 30)
     free = Problem.planar(t.rest, t.simplices)
     res = untangle(free, t.x0, progress=False)
-    # ... but this one ends flip-free around a branch vertex: honestly not a success
-    assert res.certificate.inverted == 0 and len(res.certificate.branch_vertices) >= 1
-    assert not res.success and "branch" in res.message
+    assert res.success and (res.details.free_parts, res.details.rest_parts) == (1, 1), res.message
 
 
 def test_outer_loop_compiles_once():
@@ -608,3 +610,120 @@ def test_two_loop_with_a_tracked_seed_equals_the_applied_seed():
                                      lambda pq: gamma * pq, jnp.asarray(g),
                                      W=jnp.asarray(np.einsum("ab,ibc->iac", P, Y)), z=jnp.asarray(P @ g))
     np.testing.assert_allclose(np.asarray(tracked), np.asarray(apply), rtol=1e-12)
+
+
+# ------------------------------------------------- connected parts without handles (issue 30)
+
+
+def _two_blocks(tangle_b):
+    """Two 3^3 hex blocks side by side: A's interior rotated by 120 degrees, its boundary the
+    handles; B without any handle, at rest (``tangle_b`` False) or with noisy vertices."""
+    V, H = G.hex_mesh(3, 3, 3)
+    a = G.rotated_interior(V, H, 120.0)
+    b = G.noisy_interior(V, H, 1.0, seed=2).x0 if tangle_b else V
+    W, HH = np.concatenate([V, V + [2.0, 0.0, 0.0]]), np.concatenate([H, H + len(V)])
+    x0 = np.concatenate([a.x0, b + [2.0, 0.0, 0.0]])
+    return Problem.hexes(W, HH, a.fixed, a.x0[a.fixed]), x0, a, len(V)
+
+
+def test_a_valid_part_without_handles_keeps_the_harmonic_start_of_the_others():
+    """--start auto dropped the harmonic start for the whole mesh when one part had no handle
+    (failed, hexahedra folded inside, the free block collapsed to a point); now the handled
+    block starts from its harmonic extension as it does alone, the free one is held as given."""
+    problem, x0, a, n = _two_blocks(False)
+    alone = untangle(a.problem(), a.x0, progress=False)
+    res = untangle(problem, x0, progress=False)
+    assert res.success, res.message
+    assert res.details.start == "harmonic" and (res.details.free_parts, res.details.rest_parts) == (1, 0)
+    assert res.stats.outer_iterations == alone.stats.outer_iterations == 1
+    assert _bits_equal(res.x[n:], x0[n:]) and res.problem is problem
+
+
+def test_a_tangled_part_without_handles_is_held_at_its_rest_shape():
+    """Two tangled blocks, one without any handle, ran for minutes in the eps loop (the free
+    block collapses at the first eps); it is replaced by its rest shape moved by the best
+    similarity onto its given map, and certifies with the other block's few iterations."""
+    from geomopt.starts import hold_free_parts
+
+    problem, x0, a, n = _two_blocks(True)
+    assert problem.count_inverted(x0) > a.inverted() > 0
+    res = untangle(problem, x0, progress=False)
+    assert res.success, res.message
+    assert (res.details.free_parts, res.details.rest_parts) == (1, 1) and res.stats.outer_iterations <= 2
+    held = hold_free_parts(problem, x0)
+    assert held.held.tolist() == list(range(n, 2 * n)) and _bits_equal(res.x[n:], held.x[n:])
+    B = res.x[n:] - res.x[n:].mean(axis=0)
+    R = problem.rest_vertices[:n] - problem.rest_vertices[:n].mean(axis=0)
+    Q, *_ = np.linalg.lstsq(R, B, rcond=None)  # a rotation times a scale: a similarity
+    assert np.abs(R @ Q - B).max() < 1e-12 and np.linalg.det(Q) > 0
+    s = np.linalg.svd(Q, compute_uv=False)
+    assert np.ptp(s) < 1e-12 * s[0]
+    # the 2D analogue, triangles: same rule
+    V, F = G.square_mesh(4)
+    t = G.rotated_interior(V, F, 90.0)
+    noisy = G.noisy_interior(V, F, 1.0, seed=1).x0
+    W, FF = np.concatenate([V, V + [2.0, 0.0]]), np.concatenate([F, F + len(V)])
+    p2 = Problem.planar(W, FF, t.fixed, t.x0[t.fixed])
+    r2 = untangle(p2, np.concatenate([t.x0, noisy + [2.0, 0.0]]), progress=False)
+    assert r2.success and (r2.details.free_parts, r2.details.rest_parts) == (1, 1), r2.message
+
+
+def test_harmonic_start_is_taken_per_part():
+    from geomopt.starts import choose_start, harmonic_start
+
+    problem, x0, a, n = _two_blocks(True)
+    xh = harmonic_start(problem, x0)
+    assert _bits_equal(xh[n:], x0[n:])  # the part without a handle keeps its map
+    assert np.abs(xh[:n] - a.rest).max() < 1e-12  # the other: its extension (the rest grid, boundary at rest)
+    x, which = choose_start(problem, x0)
+    assert which == "harmonic" and _bits_equal(x, xh)
+    with pytest.raises(ParameterError, match="needs a handle"):
+        choose_start(Problem.hexes(problem.rest_vertices, problem.elements), x0, "harmonic")
+
+
+def _doubled_rest():
+    """Tets around the interior edge (0, 1) turning twice at rest (every tet positive), the
+    ring fixed at a once-turning star, the axis vertices free and swapped (tangled)."""
+    from test_local_injectivity import edge_star
+
+    rest, T = edge_star(2.0, 11, True)
+    once, _ = edge_star(1.0, 11, True)
+    ring = np.arange(2, len(rest))
+    x0 = once.copy()
+    x0[[0, 1]] = x0[[1, 0]]
+    return rest, T, ring, x0
+
+
+def test_a_rest_mesh_that_is_not_locally_injective_is_refused_at_setup(monkeypatch):
+    """It was blamed on 'the fixed boundary ... check the handle positions' after a solve."""
+    rest, T, ring, x0 = _doubled_rest()
+    problem = Problem.tets(rest, T, ring, x0[ring])
+    monkeypatch.setattr(untangle_module, "iterate", lambda *a, **k: pytest.fail("solved"))
+    with pytest.raises(MeshError, match=r"^the rest mesh itself is not locally injective: .*edge \(0, 1\)"):
+        untangle(problem, x0, progress=False)
+
+
+def test_cli_refuses_a_rest_mesh_that_is_not_locally_injective_in_one_line(tmp_path, capsys):
+    from geomopt import cli
+
+    rest, T, ring, x0 = _doubled_rest()
+    folder = LimCase.from_tangle(G.Tangle("doubled", rest, T, x0, ring)).write(tmp_path / "case")
+    out = tmp_path / "out.vtk"
+    assert cli.main(["untangle", str(folder), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rest mesh itself is not locally injective" in err[0], err
+    assert not out.exists()
+
+
+def test_a_mirrored_part_without_handles_gets_a_proper_rotation_of_its_rest_shape():
+    """The best orthogonal fit of the rest shape onto a mirrored map is a reflection, which
+    would invert every element: the rotation is taken without it (Kabsch's sign fix)."""
+    from geomopt.starts import hold_free_parts
+
+    V, F = G.square_mesh(4)
+    p = Problem.planar(V, F)
+    x0 = V * [-1.0, 1.0]
+    x0[5] += [0.4, 0.3]  # and tangled
+    held = hold_free_parts(p, x0)
+    assert (held.given, held.rest, held.pinned) == (0, 1, 0) and len(held.held) == len(V)
+    assert p.certify(held.x).ok

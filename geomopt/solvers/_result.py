@@ -41,9 +41,14 @@ class LocalCertificate(certify.LocalCertificate):
     handles_moved : int, fixed vertices whose position differs from the prescribed one in any
         bit; the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
         ``branch_vertices``, ``branch_edges``, ``boundary_overlaps``...).
+    forced : the failures the handles alone make certain, or None: the input's
+        :meth:`~geomopt.Problem.certify_fixed` (stars whose every vertex is fixed that overlap).
+        They stay listed above (``ok`` is False); :attr:`valid_except_forced` says whether every
+        other vertex and edge is certified.
     """
 
     handles_moved: int = 0
+    forced: Any = None
 
     @property
     def locally_injective(self) -> bool:
@@ -63,6 +68,13 @@ class LocalCertificate(certify.LocalCertificate):
     def valid(self) -> bool:
         """Locally injective with every handle exactly in place."""
         return self.ok and self.handles_moved == 0
+
+    @property
+    def valid_except_forced(self) -> bool:
+        """Not :attr:`valid`, but only at the stars :attr:`forced` lists: no inverted element, every
+        handle in place, and every vertex and edge a free vertex reaches locally injective."""
+        return (self.forced is not None and not self.ok and self.inverted == 0 and self.handles_moved == 0
+                and self.beyond(self.forced).ok)
 
 
 def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) -> LocalCertificate:
@@ -143,7 +155,9 @@ class UntangleDetails:
     """What :func:`~geomopt.untangle.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
     the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, the
     elements that have a free vertex (``active_elements``), and the map the eps loop started
-    from (``start``: ``"given"`` or ``"harmonic"``, see :func:`geomopt.untangle.choose_start`)."""
+    from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.starts.choose_start`);
+    the connected parts without a handle (``free_parts``), held at a certified map, ``rest_parts`` of
+    them at their rest shape (see :func:`geomopt.starts.hold_free_parts`)."""
 
     theta: float
     lam: float
@@ -151,6 +165,8 @@ class UntangleDetails:
     rest_scale: float = 1.0
     active_elements: int = 0
     start: str = "given"
+    free_parts: int = 0
+    rest_parts: int = 0
 
 
 @dataclasses.dataclass(frozen=True)

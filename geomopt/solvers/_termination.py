@@ -35,6 +35,9 @@ class Outcome(enum.Enum):
     NONFINITE = "nonfinite"
     NOT_INJECTIVE = "not_injective"
     DIVERGED = "diverged"
+    #: untangling: locally injective wherever a free vertex reaches, but the handles alone make
+    #: some star overlap (every element there has all its vertices fixed): a property of the input
+    CERTIFIED_EXCEPT_FIXED = "certified_except_fixed"
 
     @property
     def code(self) -> int:
@@ -58,6 +61,9 @@ class Outcome(enum.Enum):
             "or elements overlapping around a vertex or edge)",
             "diverged": "the solve diverged: the energy fell without bound or below its known "
             "lower bound (check the energy and its parameters, or fix more vertices)",
+            "certified_except_fixed": "every element is positive and the map is locally injective wherever "
+            "a free vertex reaches, but the handles alone make it overlap where every element has all its "
+            "vertices fixed (a property of the input)",
         }[self.value]
 
 
