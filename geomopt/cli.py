@@ -439,7 +439,7 @@ def cmd_smooth(args) -> int:
         return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
                      f"{res.message}")
     with split.phase("write"):
-        write_certified(args.output, res.x, case, res.problem)
+        write_certified(args.output, res.x, case, res.problem.with_fixed(*res.handles))  # in the file's frame
     return EXIT_OK
 
 

@@ -90,6 +90,7 @@ from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
 from .linsolve import NotPositiveDefinite, SparseCholesky
+from .predicates import box_scale, differing_rows
 from .problem import Problem, fixed_total_problem
 from .topology import connected_components
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
@@ -98,7 +99,7 @@ from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Fin
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
-           "stiff_solver", "next_eps", "start_eps", "START_RATIO", "bits_differ", "STIFF_AFTER",
+           "stiff_solver", "next_eps", "start_eps", "START_RATIO", "STIFF_AFTER",
            "STIFF_AFTER_NEWTON", "PROBE_PROGRESS", "STARTS", "harmonic_start", "choose_start"]
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
@@ -434,7 +435,7 @@ def _inverted_corners(problem: Problem, x) -> int:
     """Simplices (quads / hexahedra: corner simplices) with ``det J <= 0`` in floating point, on
     ``x`` scaled by a power of two to a box of about :data:`BOX` (exact, so that a map at 1e-150
     is not counted as collapsed)."""
-    return int(np.count_nonzero(~(problem.signed_volumes(x * _box_scale(x)) > 0)))
+    return int(np.count_nonzero(~(problem.signed_volumes(x * box_scale(x, BOX)) > 0)))
 
 
 def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:
@@ -463,22 +464,6 @@ def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray,
     if start == "auto" and _inverted_corners(problem, xh) >= given:
         return x0, "given"
     return xh, "harmonic"
-
-
-def _power_of_two(v: float) -> float:
-    return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
-
-
-def _box_scale(x) -> float:
-    """The power of two that scales the map ``x`` (n, d) to a box of about :data:`BOX`."""
-    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
-    return _power_of_two(BOX / span) if span > 0 else 1.0
-
-
-def bits_differ(a, b) -> int:
-    """Rows of ``a`` and ``b`` (k, d) that differ in any bit (handles moved: exact)."""
-    a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
-    return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
 
 
 # --------------------------------------------------------------------- the outer loop
@@ -604,7 +589,7 @@ class EpsContinuation(AbstractContinuation):
             outcome, xs_final = Outcome.NONFINITE, self.xs
         out = xs_final[: problem.n_vertices] / k  # without bucket padding
         out[problem.fixed] = problem.fixed_positions
-        moved = bits_differ(out[problem.fixed], problem.fixed_positions)
+        moved = int(np.count_nonzero(differing_rows(out[problem.fixed], problem.fixed_positions)))
         t_certify = time.perf_counter()
         cert = local_certificate(problem, out, moved)  # exact: orientations, fans/stars around vertices, edges
         if outcome is Outcome.CONVERGED and not cert.valid:
@@ -745,7 +730,7 @@ def _normalised(problem, x0, active, opts):
     ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
     ``max_aspect`` in 2D), ``sub`` its active elements."""
     d = problem.dim
-    k = _box_scale(x0)
+    k = box_scale(x0, BOX)
     xs = x0 * k
     map_vol = float(problem.signed_volumes(xs).sum())
     rest_vol = float(problem.volumes.sum())
