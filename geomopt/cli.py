@@ -796,6 +796,19 @@ def _json_default(value):
     return str(value)
 
 
+def _warning_line(show):
+    """``warnings.showwarning`` printing each geomopt warning as one ``geomopt: warning:`` line
+    on stderr (even with --quiet, as errors are); other warnings go to ``show``."""
+    from ._errors import GeomoptWarning
+
+    def line(message, category, filename, lineno, file=None, text=None):
+        if not issubclass(category, GeomoptWarning):
+            return show(message, category, filename, lineno, file, text)
+        print(f"geomopt: warning: {message}", file=sys.stderr, flush=True)
+
+    return line
+
+
 def _run(args) -> int:
     from ._errors import GeomoptError, SolveError
 
@@ -807,6 +820,7 @@ def _run(args) -> int:
         with _signals_raise(), warnings.catch_warnings():
             if not args.debug:  # errors are one line: no NumPy RuntimeWarning (overflow, 0/0...) on stderr
                 warnings.simplefilter("ignore", RuntimeWarning)
+            warnings.showwarning = _warning_line(warnings.showwarning)
             return args.func(args)
     except SolveError as exc:
         if args.debug:

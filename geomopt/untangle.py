@@ -678,7 +678,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     eps = EpsContinuation(problem, scaled, full, obj, k, xs, opts, details, initially, solver, stiff)
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
-                     progress=_phase_progress(progress), trace=False, throw=False)
+                     progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
+                     warn=not throw)  # raised below with the whole set-up time
     result = dataclasses.replace(result, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
     if throw and not result.success:
