@@ -622,7 +622,7 @@ class ScaffoldContinuation(AbstractContinuation):
             return Decision.stop_with(Outcome.CONVERGED, record=record)
         if self.outer >= self.opts.max_outer:
             return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
-                                      f"{self.opts.max_outer})", record=record)
+                                      f"{self.opts.max_outer}) before converging", record=record)
         return Decision.go(objective=self._combined(X, self.S), x=X, record=record)
 
     def finish(self, state, outcome, reason) -> Final:

@@ -34,7 +34,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._validate import validate_indices
-from .elements import ElementCertificate, Quality, certify_elements, scaled_jacobian
+from .elements import ElementCertificate, Quality, scaled_jacobian
 
 __all__ = ["SmoothResult", "smooth", "element_problem"]
 

@@ -373,10 +373,11 @@ def _max_steps_message(result, solver, label) -> str:
     if result.reason:  # an outer scheme's limit, named with its option
         what, how = result.reason, "raise that limit"
     else:
-        what = f"{name} stopped at its iteration limit (max_steps={getattr(solver, 'max_steps', '?')})"
+        what = (f"{name} stopped at its iteration limit (max_steps={getattr(solver, 'max_steps', '?')}) "
+                f"before converging")
         how = f"raise it: {name}(max_steps=...), or --max-steps on the command line"
-    return (f"{label}: {what} before converging, after {st.iterations} iterations and {st.seconds:.3g} s; "
-            f"the map returned is not converged (outcome max_steps): {how}")
+    return (f"{label}: {what}, after {st.iterations} iterations and {st.seconds:.3g} s; the map returned is "
+            f"not converged (outcome max_steps): {how}")
 
 
 def _caller_level() -> int:
