@@ -18,7 +18,8 @@ from . import _cache  # noqa: E402
 _cache.configure()
 
 from ._cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
-from ._errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError  # noqa: E402
+from ._errors import (GeomoptError, GeomoptWarning, MaxStepsWarning, MeshError, MeshFormatError,  # noqa: E402
+                      ParameterError, SolveError)
 
 # public name -> module that defines it (imported on first use, PEP 562)
 _LAZY = {
@@ -50,7 +51,8 @@ def __dir__():
 
 
 __all__ = [
-    "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
+    "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError", "GeomoptWarning",
+    "MaxStepsWarning",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
     "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data", "energies", "io",
     "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",

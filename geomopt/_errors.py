@@ -2,7 +2,8 @@
 
 Every error geomopt raises on bad input derives from :class:`GeomoptError`, so
 callers (and the command line) can catch one type.  Messages say what is wrong
-and what to do about it.
+and what to do about it.  Every warning derives from :class:`GeomoptWarning` (the command
+line prints each as one ``geomopt: warning: ...`` line).
 """
 
 from __future__ import annotations
@@ -34,3 +35,13 @@ class SolveError(GeomoptError):
     def __init__(self, message: str, result=None):
         super().__init__(message)
         self.result = result
+
+
+class GeomoptWarning(UserWarning):
+    """Base class of geomopt's warnings: a result is returned, but it is not what was asked for."""
+
+
+class MaxStepsWarning(GeomoptWarning):
+    """A solve stopped at its iteration limit (a solver's ``max_steps``, or an outer scheme's
+    limit) before converging; its result is returned with outcome ``MAX_STEPS``.  Not issued
+    when the caller asked for ``throw=True`` (the :class:`SolveError` says it then)."""

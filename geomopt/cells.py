@@ -13,7 +13,8 @@ of quads or hexahedra:
 
 :func:`write_certified` writes the result beside the output, reads it back and certifies the
 file exactly (locally injective: every element valid everywhere and no vertex or edge wound
-twice, :func:`geomopt.elements.element_local_certificate`; handles bit for bit), and only then moves it onto the output (:func:`geomopt.io.atomic_path`).
+twice, :func:`geomopt.elements.element_local_certificate`; handles equal as numbers), and only
+then moves it onto the output (:func:`geomopt.io.atomic_path`).
 """
 
 from __future__ import annotations
@@ -162,8 +163,8 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
     certified exactly: the cells read back are the case's, the map is locally injective
     (:meth:`~geomopt.problem.Problem.certify`: every element valid everywhere,
     oriented as ``problem.elements``, and no vertex or edge wound twice or overlapping) and the
-    handles are bit-identical to ``problem.fixed_positions``.  Only then is it moved onto
-    ``path``.
+    handles equal ``problem.fixed_positions`` as numbers (:func:`geomopt.predicates.differing_rows`:
+    ``-0.0`` is ``0.0``).  Only then is it moved onto ``path``.
 
     Returns
     -------
@@ -173,9 +174,11 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
     Raises
     ------
     SolveError
-        The written file does not certify; nothing is left at ``path``.
+        The written file does not certify; nothing is left at ``path`` (the message does not say so:
+        the command line adds it).
     """
     from . import io
+    from .predicates import differing_rows
 
     ext = (format or Path(path).suffix).lower()
     with io.atomic_path(path, f"{case.kind} mesh") as tmp:
@@ -185,9 +188,8 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
         if not np.array_equal(E, case.elements):
             raise SolveError(f"{path}: the cells read back differ from the input's")
         cert = problem.certify(back)  # elements valid everywhere, no branch point, no boundary overlap
-        a, b = np.ascontiguousarray(back[problem.fixed]), np.ascontiguousarray(problem.fixed_positions)
-        moved = int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=1)))
+        moved = int(np.count_nonzero(differing_rows(back[problem.fixed], problem.fixed_positions)))
         if not cert.ok or moved:
             why = cert.message if not cert.ok else f"{moved} handle(s) moved"
-            raise SolveError(f"the written file did not certify ({why}); nothing was written")
+            raise SolveError(f"the written file did not certify ({why})")
     return {"path": Path(path), "certificate": cert.elements, "local_certificate": cert}

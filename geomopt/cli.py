@@ -456,7 +456,7 @@ def cmd_smooth(args) -> int:
         return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
                      f"{res.message}")
     with split.phase("write"):
-        write_certified(args.output, res.x, case, res.problem)
+        write_certified(args.output, res.x, case, res.problem.with_fixed(*res.handles))  # in the file's frame
     return EXIT_OK
 
 
@@ -825,8 +825,29 @@ def _json_default(value):
     return str(value)
 
 
+class _Warnings:
+    """``warnings.showwarning`` that keeps geomopt's warnings (other warnings go to ``show``)
+    to be printed as one ``geomopt: warning: ...`` line each (even with --quiet, as errors
+    are) when the command succeeds: a failure's one error line already says why."""
+
+    def __init__(self, show):
+        self.show, self.messages = show, []
+
+    def __call__(self, message, category, filename, lineno, file=None, text=None):
+        from ._errors import GeomoptWarning
+
+        if not issubclass(category, GeomoptWarning):
+            return self.show(message, category, filename, lineno, file, text)
+        if str(message) not in self.messages:
+            self.messages.append(str(message))
+
+    def print(self):
+        for message in self.messages:
+            print(f"geomopt: warning: {message}", file=sys.stderr, flush=True)
+
+
 def _run(args) -> int:
-    from ._errors import GeomoptError, SolveError
+    from ._errors import GeomoptError, GeomoptWarning, SolveError
 
     if args.json:
         from ._cache import cache_stats
@@ -836,7 +857,12 @@ def _run(args) -> int:
         with _signals_raise(), warnings.catch_warnings():
             if not args.debug:  # errors are one line: no NumPy RuntimeWarning (overflow, 0/0...) on stderr
                 warnings.simplefilter("ignore", RuntimeWarning)
-            return args.func(args)
+            warnings.simplefilter("always", GeomoptWarning)  # each run's own, deduplicated by _Warnings
+            warnings.showwarning = said = _Warnings(warnings.showwarning)
+            code = args.func(args)
+            if code == EXIT_OK:
+                said.print()
+            return code
     except SolveError as exc:
         if args.debug:
             raise

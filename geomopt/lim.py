@@ -28,8 +28,9 @@ from ._errors import MeshError, MeshFormatError, SolveError
 from .certify import local_certificate
 from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets,
                  write_obj_with_uv, write_vtk_tets)
+from .predicates import differing_rows
 from .problem import Problem, fixed_total_problem
-from .untangle import bits_differ, untangle
+from .untangle import untangle
 
 __all__ = ["LimCase", "LimProblem", "untangle_case", "read_lim_case", "lim_case_dim", "lim_cases"]
 
@@ -265,8 +266,8 @@ class LimCase(Mapping):
         is written beside ``path`` and read back: the map must be locally injective (exact
         predicates, :func:`geomopt.certify.local_certificate`: every element in the case's
         orientation, :meth:`to_problem`'s ``orientation``, and the elements around every
-        vertex and edge covering it once) and every handle at its ``init`` position bit for
-        bit.  The one exception is what the input itself fixes: vertices and edges whose every
+        vertex and edge covering it once) and every handle at its ``init`` position (equal as
+        numbers, :func:`geomopt.predicates.differing_rows`).  The one exception is what the input itself fixes: vertices and edges whose every
         element has all its vertices fixed and that overlap in the case's own handle positions
         (:meth:`~geomopt.Problem.certify_fixed`; the same in every map with these handles) are
         reported, not refused.  Only a file that certifies is renamed onto ``path``, so one that
@@ -298,7 +299,7 @@ class LimCase(Mapping):
             back = self._written(x, tmp)
             # exact: orientations, and the elements around every vertex and edge
             cert = local_certificate(back, self.simplices, orientation=self.to_problem().orientation)
-            moved = bits_differ(back[self.handles], self.init[self.handles])
+            moved = int(np.count_nonzero(differing_rows(back[self.handles], self.init[self.handles])))
             left = cert if cert.ok or cert.inverted else cert.beyond(self._forced)
             if not left.ok or moved:
                 why = "; ".join(filter(None, [left.message, f"{moved} handle(s) moved" if moved else ""]))

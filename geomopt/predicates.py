@@ -16,12 +16,15 @@ An element with a NaN or infinite coordinate has no orientation and gets ``0``, 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._tracing import refuse_traced
 
-__all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted"]
+__all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted", "differing_rows",
+           "box_scale"]
 
 _EPS = 2.0**-53  # half an ulp of 1.0: the relative rounding error of one operation
 CCW_ERRBOUND_A = (3.0 + 16.0 * _EPS) * _EPS
@@ -348,3 +351,27 @@ def branch_vertices(X, F) -> np.ndarray:
     interior = np.ones(len(X), dtype=bool)
     interior[boundary_vertices(F, len(X))] = False
     return np.flatnonzero(interior & (vertex_windings(X, F) != 1))
+
+
+def differing_rows(a, b) -> np.ndarray:
+    """Which rows of ``a`` and ``b`` (k, d) differ as numbers, exactly: the test of a handle
+    kept in place.  ``-0.0`` equals ``0.0`` (the same point: meshes made by mirroring or
+    trigonometry carry both, and arithmetic may turn one into the other); NaN equals nothing.
+
+    Returns
+    -------
+    (k,) bool.
+    """
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    return (a != b).any(axis=-1)
+
+
+def box_scale(x, box: float = 1.0) -> float:
+    """The power of two ``k`` with ``x * k`` (x (n, d)) spanning about ``box``; 1.0 for an
+    empty, flat or non-finite ``x``.  Multiplying by ``k`` and dividing back are exact in
+    float64 (away from overflow and subnormals), so sizes, energies and float tests computed
+    on ``x * k`` are those of ``x`` without overflowing at 1e200 or underflowing at 1e-150."""
+    x = np.asarray(x, dtype=np.float64)
+    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if x.size else 0.0
+    v = box / span if span > 0 else 0.0
+    return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0

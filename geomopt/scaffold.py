@@ -621,7 +621,8 @@ class ScaffoldContinuation(AbstractContinuation):
         if outcome is Outcome.CONVERGED and drop <= self.opts.outer_rtol * abs(self.energies[-1]):
             return Decision.stop_with(Outcome.CONVERGED, record=record)
         if self.outer >= self.opts.max_outer:
-            return Decision.stop_with(Outcome.MAX_STEPS, record=record)
+            return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
+                                      f"{self.opts.max_outer}) before converging", record=record)
         return Decision.go(objective=self._combined(X, self.S), x=X, record=record)
 
     def finish(self, state, outcome, reason) -> Final:
@@ -743,7 +744,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
         first, guard, start = inner, None, cont.scaffolded(x0)
     setup = time.perf_counter() - t_start
     result = iterate(first, start[0], start[1], objective.params(), continuation=cont, guard=guard,
-                     progress=report, trace=False)
+                     progress=report, trace=False, label="bijective solve", warn=not throw)
     result = dataclasses.replace(
         result, trace=Trace(np.asarray(cont.energies), np.asarray(cont.times), np.full(len(cont.times), np.nan),
                             None, result.trace.phases),

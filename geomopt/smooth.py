@@ -34,7 +34,7 @@ import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._validate import validate_indices
-from .elements import ElementCertificate, Quality, certify_elements, scaled_jacobian
+from .elements import ElementCertificate, Quality, scaled_jacobian
 
 __all__ = ["SmoothResult", "smooth", "element_problem"]
 
@@ -59,7 +59,11 @@ class SmoothResult:
     rounds : int, solves run (1 when nothing was held).
     outcome : the last solve's :class:`~geomopt.solvers.Outcome`.
     iterations : int, over all solves;  seconds : float, all solves.
-    problem : the :class:`~geomopt.Problem` solved first (its ``elements`` oriented, its handles).
+    problem : the :class:`~geomopt.Problem` solved first (its ``elements`` oriented, its handles),
+        in the frame of ``x * scale``.
+    scale : the power of two the input was multiplied by before solving
+        (:func:`geomopt.predicates.box_scale`: exact, so that meshes at 1e200 or 1e-150 smooth as
+        at size 1).
     """
 
     x: np.ndarray
@@ -72,6 +76,7 @@ class SmoothResult:
     iterations: int
     seconds: float
     problem: object = None
+    scale: float = 1.0
 
     @property
     def improved(self) -> bool:
@@ -80,7 +85,15 @@ class SmoothResult:
 
     @property
     def moved(self) -> bool:
-        return not np.array_equal(self.x, self.problem.rest_vertices) if self.problem is not None else True
+        if self.problem is None:
+            return True
+        return not np.array_equal(self.x * self.scale, self.problem.rest_vertices)
+
+    @property
+    def handles(self):
+        """``(fixed, positions)``: the ids (h,) of the vertices held in place and their
+        positions (h, d) in ``x``'s frame (the input's)."""
+        return self.problem.fixed, self.problem.fixed_positions / self.scale
 
     @property
     def message(self) -> str:
@@ -132,19 +145,18 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     Raises
     ------
     MeshError
-        The mesh is malformed, or some element of ``V`` is not valid (untangle it first).
+        The mesh is malformed, or ``V`` is not locally injective (an element not valid, a
+        vertex wound twice, a boundary fan overlapping itself: untangle it first).
     """
     from ._objective import Objective
+    from .predicates import box_scale
     from .solvers import get_solver, minimize
 
-    problem = element_problem(V, E, fixed, rest)
-    E = problem.elements
     V = np.asarray(V, dtype=np.float64)
-    start = certify_elements(V, E)
-    if not start.certified:
-        raise MeshError(f"{start.invalid} element(s) of the input are not valid (their Jacobian is not positive "
-                        f"everywhere; {start.corner_only} only inside); smoothing keeps a valid mesh valid: "
-                        f"untangle it first (geomopt untangle)")
+    scale = box_scale(V) if V.ndim == 2 else 1.0  # exact: at 1e200 or 1e-150 as at 1
+    problem = element_problem(V * scale, E, fixed, rest)
+    E, V = problem.elements, V * scale
+    start = _certified_input(problem, V)
     solver = get_solver(solver)
     if not getattr(getattr(solver, "search", None), "injective", True):
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
@@ -171,7 +183,23 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     if not local.ok:  # a free boundary folded over itself: the input
         x, held, local = V, np.zeros(0, np.int64), None
     cert = start if local is None else local.elements
-    return SmoothResult(x, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds, problem)
+    return SmoothResult(x / scale, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds,
+                        problem, scale)
+
+
+def _certified_input(problem, V):
+    """The :class:`~geomopt.elements.ElementCertificate` of the input ``V`` (n, d); MeshError
+    unless ``V`` is locally injective (exact: :meth:`~geomopt.problem.Problem.certify`)."""
+    local = problem.certify(V)
+    start = local.elements
+    if not start.certified:
+        raise MeshError(f"{start.invalid} element(s) of the input are not valid (their Jacobian is not positive "
+                        f"everywhere; {start.corner_only} only inside); smoothing keeps a valid mesh valid: "
+                        f"untangle it first (geomopt untangle)")
+    if not local.ok:
+        raise MeshError(f"the input mesh is not locally injective: {local.message}; smoothing keeps a locally "
+                        f"injective mesh locally injective: untangle it first (geomopt untangle) or repair it")
+    return start
 
 
 def _worse(X, E, floor, sj_input):

@@ -34,26 +34,17 @@ import numpy as np
 
 from ._errors import ParameterError
 from .linsolve import NotPositiveDefinite, SparseCholesky
+from .predicates import box_scale
 from .problem import Problem
 from .solvers import rest_laplacian
 from .topology import connected_components
 
-__all__ = ["STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "HeldParts", "box_scale"]
+__all__ = ["STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "HeldParts"]
 
 #: the values of ``UntangleOptions.start`` (see :func:`choose_start`)
 STARTS = ("auto", "given", "harmonic")
 
 BOX = 10.0  # the map is scaled to about this size (Garanzha et al.'s code uses 10)
-
-
-def _power_of_two(v: float) -> float:
-    return float(2.0 ** round(math.log2(v))) if v > 0 and math.isfinite(v) else 1.0
-
-
-def box_scale(x) -> float:
-    """The power of two that scales the map ``x`` (n, d) to a box of about :data:`BOX`."""
-    span = float(np.max(x.max(axis=0) - x.min(axis=0))) if len(x) else 0.0
-    return _power_of_two(BOX / span) if span > 0 else 1.0
 
 
 def _parts(problem: Problem):
@@ -101,7 +92,7 @@ def _inverted_corners(problem: Problem, x, labels, count) -> np.ndarray:
     """(count,) simplices (quads / hexahedra: corner simplices) of each part with ``det J <= 0``
     in floating point, on ``x`` scaled by a power of two to a box of about :data:`BOX` (exact,
     so that a map at 1e-150 is not counted as collapsed)."""
-    bad = ~(problem.signed_volumes(x * box_scale(x)) > 0)
+    bad = ~(problem.signed_volumes(x * box_scale(x, BOX)) > 0)
     return np.bincount(labels[problem.simplices[:, 0]], weights=bad, minlength=count).astype(np.int64)
 
 

@@ -90,14 +90,15 @@ from ._geometry import det, edge_rows
 from ._objective import Objective, jacobians, total_energy
 from .energies import garanzha
 from .linesearch import InjectiveSearch
+from .predicates import box_scale, differing_rows
 from .problem import Problem, fixed_total_problem
-from .starts import STARTS, box_scale, choose_start, harmonic_start, hold_free_parts
+from .starts import BOX, STARTS, choose_start, harmonic_start, hold_free_parts
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
                       Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
 from .solvers._iterate import check_progress
 
 __all__ = ["UntangleResult", "UntangleOptions", "UntangleRecord", "EpsContinuation", "untangle", "default_solver",
-           "stiff_solver", "next_eps", "start_eps", "START_RATIO", "bits_differ", "STIFF_AFTER",
+           "stiff_solver", "next_eps", "start_eps", "START_RATIO", "STIFF_AFTER",
            "STIFF_AFTER_NEWTON", "PROBE_PROGRESS", "STARTS", "harmonic_start", "choose_start"]
 
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
@@ -396,10 +397,6 @@ def start_eps(problem: Problem, x) -> float:
     return max(1.0, m / START_RATIO) if math.isfinite(m) else 1.0
 
 
-def bits_differ(a, b) -> int:
-    """Rows of ``a`` and ``b`` (k, d) that differ in any bit (handles moved: exact)."""
-    a, b = np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64)
-    return int(np.count_nonzero((a.view(np.uint64) != b.view(np.uint64)).any(axis=-1)))
 
 
 # --------------------------------------------------------------------- the outer loop
@@ -540,7 +537,8 @@ def judged(problem, x, outcome, reason="", forced=None):
     kept only for a valid map: CERTIFIED_EXCEPT_FIXED when it fails only where ``forced`` says
     the handles alone make it fail, else NOT_INJECTIVE with the first failure a free vertex
     could have removed."""
-    cert = local_certificate(problem, x, bits_differ(x[problem.fixed], problem.fixed_positions))
+    moved = int(np.count_nonzero(differing_rows(x[problem.fixed], problem.fixed_positions)))
+    cert = local_certificate(problem, x, moved)
     if forced is not None and not forced.ok:
         cert = dataclasses.replace(cert, forced=forced)
     if outcome is not Outcome.CONVERGED or cert.valid:
@@ -634,7 +632,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
         result = _held_result(problem, parts.x, initially, forced, t_setup, details)
     else:
         before = time.perf_counter() - t_setup
-        result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress)
+        result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress, throw)
         result = dataclasses.replace(result, problem=problem, stats=dataclasses.replace(
             result.stats, setup_seconds=result.stats.setup_seconds + before))
     if throw and not result.success:
@@ -642,7 +640,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     return result
 
 
-def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress) -> Result:
+def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress, throw) -> Result:
     """The eps loop on ``solving`` (``problem`` with its handle-free parts held) from ``x_start``."""
     t_setup = time.perf_counter()
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
@@ -660,7 +658,8 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
     eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced)
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
-                     progress=_phase_progress(progress), trace=False, throw=False)
+                     progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
+                     warn=not throw)  # raised by untangle with the whole set-up time
     return dataclasses.replace(result, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
 
@@ -729,7 +728,7 @@ def _normalised(problem, x0, active, opts):
     ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
     ``max_aspect`` in 2D), ``sub`` its active elements."""
     d = problem.dim
-    k = box_scale(x0)
+    k = box_scale(x0, BOX)
     xs = x0 * k
     map_vol = float(problem.signed_volumes(xs).sum())
     rest_vol = float(problem.volumes.sum())

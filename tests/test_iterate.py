@@ -223,3 +223,47 @@ def test_untangle_options_are_validated(bad, message):
     ok = UntangleOptions(max_outer=3.0, theta=None)
     assert ok.max_outer == 3 and isinstance(ok.max_outer, int)
     assert dataclasses.replace(ok, keep_memory=False).keep_memory is False
+
+
+# ------------------------------------------------------------------ the step limit, said (issue 30 item 8)
+
+
+def test_a_solve_stopped_at_max_steps_warns_where_the_user_called_it():
+    """SLIM ran 1,000 iterations for 25 minutes and returned MAX_STEPS with progress off and no
+    word: now one MaxStepsWarning names the solver, the limit and how to raise it."""
+    from geomopt import SLIM, MaxStepsWarning
+
+    obj, V = _objective()
+    with pytest.warns(MaxStepsWarning) as caught:
+        res = minimize(obj, V, solver=SLIM(max_steps=2), progress=False)
+    assert res.outcome is Outcome.MAX_STEPS and len(caught) == 1
+    message = str(caught[0].message)
+    for words in ("SLIM stopped at its iteration limit (max_steps=2)", "after 2 iterations", "SLIM(max_steps=...)",
+                  "--max-steps"):
+        assert words in message, message
+    assert caught[0].filename == __file__  # the user's line, not geomopt's
+
+
+def test_no_max_steps_warning_on_converged_observed_or_thrown_solves():
+    """Silent when the solve converged (its phases may stop at a step limit on the way: a
+    continuation took over), when the caller's own observer stopped it, and under throw=True
+    (the SolveError says it)."""
+    from geomopt import MaxStepsWarning, SolveError
+
+    obj, V = _objective()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MaxStepsWarning)
+        assert minimize(obj, V, progress=False).outcome is Outcome.CONVERGED
+        phased = iterate(Newton(max_steps=1), obj, obj.prepare_map(V), obj.params(), continuation=_Halving(),
+                         trace=False)
+        assert phased.outcome is Outcome.CONVERGED
+        observed = iterate(LBFGS(), obj, obj.prepare_map(V), obj.params(),
+                           observe=lambda state, seconds: "enough" if state.iteration >= 2 else None)
+        assert observed.outcome is Outcome.MAX_STEPS
+        with pytest.raises(SolveError, match="iteration limit"):
+            minimize(obj, V, solver=Newton(max_steps=1), progress=False, throw=True)
+        t = G.rotated_interior(*G.square_mesh(6), 120.0)
+        with pytest.raises(SolveError, match="outer-iteration limit"):
+            untangle(t.problem(), t.x0, progress=False, max_outer=1, throw=True)
+    with pytest.warns(MaxStepsWarning, match=r"untangling: stopped at the outer-iteration limit \(max_outer=1\)"):
+        untangle(t.problem(), t.x0, progress=False, max_outer=1)

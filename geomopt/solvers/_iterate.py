@@ -27,14 +27,16 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import sys
 import time
+import warnings
 from collections.abc import Mapping
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from .._errors import ParameterError, SolveError
+from .._errors import MaxStepsWarning, ParameterError, SolveError
 from .._tracing import refuse_traced
 from .._x64 import float64
 from ._registry import get_solver
@@ -202,6 +204,7 @@ class _Run:
         self.energy, self.seconds, self.cpus, self.grads, self.phases = [], [], [], [], []
         self.iterations = self.evaluations = 0
         self.solve = self.cpu = 0.0  # wall and process-CPU seconds of the solve
+        self.observed_stop = False  # the observer ended the solve (its caller's own limit)
 
     @contextlib.contextmanager
     def clock(self):
@@ -255,6 +258,7 @@ def _phase(solver, state, guard, run):
         if code != RUNNING:
             return state, Outcome.of(code), ""
         if why:
+            run.observed_stop = True
             return state, Outcome.MAX_STEPS, why
         if guard is None and solver.advance is not None and not run.stepwise:
             with run.clock():
@@ -312,7 +316,7 @@ def _as_progress(progress, total):
 @float64
 def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation | None = None,
             guard: Callable | None = None, observe: Callable | None = None, progress=False,
-            trace: bool = True, throw: bool = False, label: str = "solve") -> Result:
+            trace: bool = True, throw: bool = False, label: str = "solve", warn: bool = True) -> Result:
     """Minimise ``objective`` from ``x0`` with ``solver``: the one loop (see the module notes).
 
     Parameters
@@ -329,6 +333,9 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
         solver may run whole phases in its jitted kernel).
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless it ``success``.
     label : what failed, in the exception's message.
+    warn : issue a :class:`~geomopt.MaxStepsWarning` when the solve stops at its iteration
+        limit (outcome MAX_STEPS) and ``throw`` is False, except when the observer stopped it;
+        a driver that raises on the result itself passes its own ``not throw``.
 
     Returns
     -------
@@ -353,7 +360,33 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     else:
         final = certified(objective, state, outcome, x0)
         final = final._replace(reason=final.reason or reason)
-    return _result(final, solver, objective, state, run, (setup, setup_cpu), throw, label)
+    result = _result(final, solver, objective, state, run, (setup, setup_cpu), throw, label)
+    if warn and result.outcome is Outcome.MAX_STEPS and not run.observed_stop:
+        warnings.warn(_max_steps_message(result, solver, label), MaxStepsWarning, stacklevel=_caller_level())
+    return result
+
+
+def _max_steps_message(result, solver, label) -> str:
+    """What a solve stopped at its iteration limit tells the user: which limit, how far it
+    got, and how to raise it."""
+    name, st = type(solver).__name__, result.stats
+    if result.reason:  # an outer scheme's limit, named with its option
+        what, how = result.reason, "raise that limit"
+    else:
+        what = (f"{name} stopped at its iteration limit (max_steps={getattr(solver, 'max_steps', '?')}) "
+                f"before converging")
+        how = f"raise it: {name}(max_steps=...), or --max-steps on the command line"
+    return (f"{label}: {what}, after {st.iterations} iterations and {st.seconds:.3g} s; the map returned is "
+            f"not converged (outcome max_steps): {how}")
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` of the first frame outside geomopt (where the user called it)."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _result(final: Final, solver, objective, state, run, setup, throw, label) -> Result:

@@ -38,8 +38,8 @@ class LocalCertificate(certify.LocalCertificate):
 
     Attributes
     ----------
-    handles_moved : int, fixed vertices whose position differs from the prescribed one in any
-        bit; the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
+    handles_moved : int, fixed vertices whose position differs from the prescribed one as a
+        number (:func:`geomopt.predicates.differing_rows`); the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
         ``branch_vertices``, ``branch_edges``, ``boundary_overlaps``...).
     forced : the failures the handles alone make certain, or None: the input's
         :meth:`~geomopt.Problem.certify_fixed` (stars whose every vertex is fixed that overlap).
@@ -205,7 +205,7 @@ class Result:
 
     Attributes
     ----------
-    x : (n, d) ndarray, the map (input frame; handles bit-identical to the prescribed ones).
+    x : (n, d) ndarray, the map (input frame; handles equal to the prescribed ones as numbers).
     outcome : :class:`~geomopt.solvers.Outcome`.
     certificate : the exact certificate of ``x``: :class:`LocalCertificate` (``inverted``,
         ``branch_vertices``, ``boundary_overlaps``..., ``handles_moved``), or for free-boundary
