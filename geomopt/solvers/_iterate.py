@@ -222,11 +222,10 @@ class _Run:
         """Record and report one iterate; the observer's reason to stop, or ""."""
         if self.trace:
             self.point(state, state.value)
+        seconds = self.cpu if self.observed_clock == "cpu" else self.solve
         if self.report is not None:
-            self.report(state, self.solve, state.value / self.volume)
-        if self.observe is None:
-            return ""
-        return self.observe(state, self.cpu if self.observed_clock == "cpu" else self.solve) or ""
+            self.report(state, seconds, state.value / self.volume)
+        return (self.observe(state, seconds) or "") if self.observe is not None else ""
 
     def phase(self, state, record):
         """Record a phase's end: its record, and without a per-iterate trace its point (the
@@ -324,9 +323,10 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
         energy parameters (``objective.params(...)``).
     continuation : an :class:`AbstractContinuation`, or None (one phase).
     guard : ``guard(solver, old, new) -> State | None``, or None.
-    observe : ``observe(state, seconds) -> str | None``, or None; ``seconds`` is the solve time
-        so far on ``clock``: ``"wall"`` (elapsed) or ``"cpu"`` (the process's CPU time, every
-        thread summed).
+    observe : ``observe(state, seconds) -> str | None``, or None.
+    clock : the solve seconds the observer and the progress see: ``"wall"`` (elapsed, the
+        default) or ``"cpu"`` (the process's CPU time, every thread summed); the trace and the
+        result's stats hold both.
     progress : True (a bar on a terminal, lines otherwise, on stderr), False, a
         :class:`Progress`, or a callable ``(state, seconds, mean_energy)`` called per iterate.
     trace : record the energy, solve seconds and gradient norm of every iterate (else the
