@@ -7,8 +7,17 @@ iteration the wall and CPU time of the solve, the energy, the gradient norm and 
 inverted elements by the exact predicate (:mod:`geomopt.predicates`): the point of the
 comparison is that every solver stays flip-free.  ``setup`` (``init`` and a first
 ``terminate``: JIT compilation, sparsity pattern, symbolic analysis) is measured separately and
-never counted in the solve time; neither is the bookkeeping done after each step.  What a
-solver compiles lazily during its first steps does count (repeat to see warm times).
+never counted in the solve time; neither is the bookkeeping done after each step.
+
+**Timing.**  By default (``warmup=True``) each solver first runs once untimed, with the same
+limits, from the same start, and is discarded: what a solver compiles lazily during its first
+steps (AQP's first iterate, the search's rarer branches) is then not solve time.  This costs one
+more solve per solver; ``warmup=False`` times the first, cold run.  ``clock`` chooses what the
+limit ``max_seconds``, the figure's time axis, the LaTeX table and the choice of the median
+run use: ``"wall"`` (default; elapsed time, what a user waits and what papers usually report)
+or ``"cpu"`` (the process's CPU time, every thread summed: steadier on a loaded, shared machine,
+but a solver that runs several threads is charged for all of them).  Both clocks are always
+recorded (``history.csv``, ``summary.csv``, the text report).
 
 **Energies.**  ``energy`` is the total ``E = sum_e vol_e psi(J_e)``, ``mean_energy`` is
 ``E / sum_e vol_e`` (4 at an isometry for symmetric Dirichlet); the relative gap of an iterate
@@ -58,9 +67,17 @@ from .solvers import CM, Newton, Outcome, Progress, get_solver, iterate
 __all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
 
-#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D)
-DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm", "optx-lbfgs")
+#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D).
+#: Not ``optx-lbfgs``: optimistix's L-BFGS seeds its inverse Hessian with the scalar
+#: ``s.y / y.y`` and has no preconditioner hook, and on 10^4-triangle meshes from the Tutte map
+#: it stalls (camelhead: gap 1.9 after 1,000 iterations; geomopt's L-BFGS with the same scalar
+#: seed 1.5, with its Laplacian seed converged in 265); name it to compare it.
+DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
 TOLERANCES = (1e-2, 1e-4, 1e-6)
+#: what ``clock`` may name: elapsed (wall) or process CPU seconds of the solve
+CLOCKS = ("wall", "cpu")
+#: figure formats :meth:`Comparison.write` writes (PDF / PS with TrueType fonts)
+FORMATS = ("png", "pdf", "svg", "eps", "ps")
 HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
                    "grad_norm", "flips")
 _BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
@@ -189,6 +206,9 @@ class Comparison:
     tolerances : the gaps the summary reports iterations and seconds to.
     source : dict, where the problem came from (input path and file hash, start map) for the
         manifest.
+    clock : ``"wall"`` or ``"cpu"``: the seconds the figure, the LaTeX table and the median run
+        use (:meth:`times`); both are recorded.
+    warmup : whether each solver ran once untimed before its timed runs.
     """
 
     runs: dict
@@ -199,14 +219,20 @@ class Comparison:
     label: str = ""
     tolerances: tuple = TOLERANCES
     source: dict = dataclasses.field(default_factory=dict)
+    clock: str = "wall"
+    warmup: bool = False
+
+    def times(self, run: SolverRun) -> np.ndarray:
+        """(iterations + 1,) solve seconds of every iterate of ``run`` on :attr:`clock`."""
+        return run.cpu_history if self.clock == "cpu" else run.time_history
 
     @property
     def results(self) -> dict:
-        """Solver name -> the :class:`SolverRun` of median wall time among its repeats (its
-        map and traces are the ones written and drawn)."""
+        """Solver name -> the :class:`SolverRun` of median time (on :attr:`clock`) among its
+        repeats (its map and traces are the ones written and drawn)."""
         out = {}
         for name, runs in self.runs.items():
-            order = np.argsort([r.seconds for r in runs], kind="stable")
+            order = np.argsort([self.times(r)[-1] for r in runs], kind="stable")
             out[name] = runs[int(order[(len(runs) - 1) // 2])]
         return out
 
@@ -255,7 +281,7 @@ class Comparison:
                    "iterations": r.iterations, "wall_s": _median(x.seconds for x in runs),
                    "cpu_s": _median(x.cpu_seconds for x in runs), "setup_s": runs[0].setup_seconds,
                    "setup_cpu_s": runs[0].setup_cpu_seconds,
-                   "s_per_it": _median(x.seconds / max(x.iterations, 1) for x in runs), "energy": r.energy,
+                   "s_per_it": _median(self.times(x)[-1] / max(x.iterations, 1) for x in runs), "energy": r.energy,
                    "mean_energy": r.energy / self.area, "gap": float(self.gap(name)[-1]),
                    "max_flips": max(int(x.flips_history.max()) for x in runs), "repeats": len(runs)}
             hits = [self.hits(x) for x in runs]
@@ -297,7 +323,8 @@ class Comparison:
         """A plain-text table: per solver the outcome, totals, and iterations / wall / CPU
         seconds to each tolerance (medians over the repeats)."""
         reps = max(len(r) for r in self.runs.values())
-        head = f"{self.label}; {self.describe_reference()}" + (f"; medians of {reps} runs" if reps > 1 else "")
+        head = (f"{self.label}; {self.describe_reference()}" + (f"; medians of {reps} runs" if reps > 1 else "")
+                + f"; {'after an untimed warm-up' if self.warmup else 'cold (no warm-up)'}, {self.clock} clock")
         return head + "\n" + _table(self.summary_rows(), self.tolerances)
 
     def manifest(self) -> dict:
@@ -320,23 +347,28 @@ class Comparison:
             "reference": {"energy": self.reference.energy, "mean_energy": self.reference_mean_energy,
                           "source": self.reference.source, **_manifest.config(self.reference.detail)},
             "tolerances": list(self.tolerances), "solvers": solvers,
+            "timing": {"clock": self.clock, "warmup": self.warmup,
+                       "convention": "solve seconds exclude setup and bookkeeping; clock 'cpu' is the "
+                                     "process CPU time (all threads), 'wall' elapsed time"},
         }
 
-    def figure(self, log_x: bool = False, dpi: int = 100):
-        """The convergence figure (:func:`geomopt._compare_report.comparison_figure`)."""
+    def figure(self, log_x: bool = False, dpi: int = 100, layout: str = "wide", font_size: float | None = None):
+        """The convergence figure (:func:`geomopt._compare_report.comparison_figure`: ``layout``
+        ``"wide"`` or ``"column"``, ``font_size`` in points); save it with
+        :func:`geomopt._compare_report.save_figure` for TrueType fonts in PDF."""
         from ._compare_report import comparison_figure
 
-        return comparison_figure({self.label: self}, log_x=log_x, dpi=dpi)
+        return comparison_figure({self.label: self}, log_x=log_x, dpi=dpi, layout=layout, font_size=font_size)
 
     def output_names(self, formats=("png",)):
         """The file names :meth:`write` writes."""
         return _output_names(list(self.runs), self.objective.problem.dim, formats)
 
-    def write(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+    def write(self, out, formats=("png",), log_x=False, extra=None, *, layout="wide", font_size=None) -> dict:
         """Write ``history.csv``, ``summary.csv``, ``table.tex``, ``manifest.json``, a map per
         solver and ``convergence.<format>`` per format into the folder ``out`` (created if
         missing, not its parents: :func:`geomopt.io.check_outputs`), each atomically; ``extra``
-        is added to the manifest.
+        is added to the manifest; ``log_x``, ``layout``, ``font_size``: :meth:`figure`.
 
         Returns
         -------
@@ -348,7 +380,8 @@ class Comparison:
         columns = summary_columns(self.tolerances)
         _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
         paths.update(self._write_maps(out))
-        paths.update(_write_common(out, {self.label: self}, formats, log_x, extra))
+        paths.update(_write_common(out, {self.label: self}, formats, extra, dict(log_x=log_x, layout=layout,
+                                                                                 font_size=font_size)))
         return paths
 
     def _write_maps(self, out) -> dict:
@@ -386,10 +419,12 @@ class ComparisonSet:
         """Every comparison's :meth:`Comparison.summary_rows`, each with ``mesh`` first."""
         return [{"mesh": key, **row} for key, c in self.comparisons.items() for row in c.summary_rows()]
 
-    def figure(self, log_x: bool = False, dpi: int = 100):
+    def figure(self, log_x: bool = False, dpi: int = 100, layout: str = "wide", font_size: float | None = None):
+        """:meth:`Comparison.figure` of every comparison, one row (wide) or panel (column) each."""
         from ._compare_report import comparison_figure
 
-        return comparison_figure({c.label: c for c in self.comparisons.values()}, log_x=log_x, dpi=dpi)
+        return comparison_figure({c.label: c for c in self.comparisons.values()}, log_x=log_x, dpi=dpi,
+                                 layout=layout, font_size=font_size)
 
     def output_names(self, formats=("png",)):
         names = _common_names(formats)
@@ -397,14 +432,15 @@ class ComparisonSet:
             names += [f"{key}/{n}" for n in c.output_names(formats)]
         return names
 
-    def write(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+    def write(self, out, formats=("png",), log_x=False, extra=None, **figure) -> dict:
         """Each comparison into ``out/<mesh name>/`` (:meth:`Comparison.write`), then
-        :meth:`write_combined`."""
+        :meth:`write_combined`; ``figure``: ``layout``, ``font_size``."""
         out = _prepare_folder(out, _common_names(formats))
-        paths = {key: c.write(out / key, formats, log_x) for key, c in self.comparisons.items()}
-        return {**paths, **self.write_combined(out, formats, log_x, extra)}
+        paths = {key: c.write(out / key, formats, log_x, **figure) for key, c in self.comparisons.items()}
+        return {**paths, **self.write_combined(out, formats, log_x, extra, **figure)}
 
-    def write_combined(self, out, formats=("png",), log_x=False, extra=None) -> dict:
+    def write_combined(self, out, formats=("png",), log_x=False, extra=None, *, layout="wide",
+                       font_size=None) -> dict:
         """Over all comparisons: ``summary.csv`` (with a ``mesh`` column), ``table.tex``,
         ``manifest.json`` and ``convergence.<format>`` (one row of panels per mesh) in ``out``."""
         out = _prepare_folder(out, _common_names(formats))
@@ -413,7 +449,8 @@ class ComparisonSet:
         paths = {"summary": out / "summary.csv"}
         _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
         by_label = {c.label: c for c in self.comparisons.values()}
-        paths.update(_write_common(out, by_label, formats, log_x, extra))
+        paths.update(_write_common(out, by_label, formats, extra, dict(log_x=log_x, layout=layout,
+                                                                       font_size=font_size)))
         return paths
 
 
@@ -458,7 +495,8 @@ def _table(rows, tolerances) -> str:
 @float64
 def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=None, weights="uniform",
             max_seconds=None, max_steps=None, reference="auto", repeat=1, tolerances=TOLERANCES, out=None,
-            formats=("png",), log_x=False, progress=False, **energy_params) -> Comparison:
+            formats=("png",), log_x=False, progress=False, clock="wall", warmup=True, layout="wide",
+            font_size=None, **energy_params) -> Comparison:
     """Run several solvers on one problem from the same start map and trace each iteration.
 
     Parameters
@@ -481,16 +519,21 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     x0 : (n, d) start map, used as given (not rescaled; in the input's frame for a LIM case).
         Default: the free-boundary Tutte start (:func:`~geomopt.param.start_map`, ``weights``)
         or the LIM case's map.  It must be flip-free (exact predicate).
-    max_seconds : float > 0, stop a solver once its solve time (setup excluded) reaches this;
-        its outcome is then ``"max_seconds"`` (``Outcome.MAX_STEPS``).
+    max_seconds : float > 0, stop a solver once its solve time (setup excluded, on ``clock``)
+        reaches this; its outcome is then ``"max_seconds"`` (``Outcome.MAX_STEPS``).
     max_steps : int >= 1, iteration limit of every solver (default: each solver's own).
     reference : ``"auto"`` (a tight Newton solve from the same start, run after the solvers),
         a float (the reference *mean* energy, as printed), or ``"best"`` (the lowest energy
         any solver reached).
     repeat : int >= 1, runs per solver; times are medians over them.
+    clock : ``"wall"`` (default) or ``"cpu"``: the seconds ``max_seconds``, the figure, the
+        LaTeX table and the choice of the median run use (see the module notes, Timing).
+    warmup : True (default): one untimed, discarded run per solver before its timed runs, so
+        that lazy compilation is not solve time; False: the first run is timed cold.
     tolerances : the relative gaps the summary reports iterations and seconds to.
-    out : folder to :meth:`~Comparison.write` the files into (``formats`` of the figure, and
-        ``log_x``); every output path is checked *before* solving
+    out : folder to :meth:`~Comparison.write` the files into (``formats`` of the figure: png,
+        pdf, svg, eps, ps; ``log_x``, ``layout`` ``"wide"`` or ``"column"`` (one panel, a paper
+        column wide), ``font_size`` in points); every output path is checked *before* solving
         (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``, and the folder's
         parent must exist), the folder is created after solving.
     progress : True: per-iteration progress and one line per run on stderr.
@@ -508,24 +551,29 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     objective, start, mirror, label, source = _problem(mesh, faces, energy, x0, weights, energy_params)
     problem = objective.problem
     named = _solvers(solvers, problem, max_steps)
-    settings = _settings(max_seconds, reference, repeat, tolerances, formats)
+    settings = _settings(max_seconds, reference, repeat, tolerances, formats,
+                         dict(clock=clock, warmup=warmup, layout=layout, font_size=font_size))
     if out is not None:
         _prepare_folder(out, _output_names(list(named), problem.dim, settings["formats"]), _inputs([mesh]),
                         create=False)
     label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, {objective.energy.name}"
-    runs = {}
+    runs, limit, clock = {}, settings["max_seconds"], settings["clock"]
     for name, solver in named.items():
-        runs[name] = tuple(_run(name, solver, objective, start, settings["max_seconds"], progress,
-                                f" [{k + 1}/{settings['repeat']}]" if settings["repeat"] > 1 else "")
+        if settings["warmup"]:  # untimed, discarded: what the solver compiles lazily
+            _run(name, solver, objective, start, limit, progress, " [warm-up]", clock)
+        runs[name] = tuple(_run(name, solver, objective, start, limit, progress,
+                                f" [{k + 1}/{settings['repeat']}]" if settings["repeat"] > 1 else "", clock)
                            for k in range(settings["repeat"]))
     ref = _reference(settings["reference"], runs, objective, start, progress)
-    comparison = Comparison(runs, ref, objective, start, mirror, label, settings["tolerances"], source)
+    comparison = Comparison(runs, ref, objective, start, mirror, label, settings["tolerances"], source, clock,
+                            settings["warmup"])
     if out is not None:
-        comparison.write(out, settings["formats"], log_x)
+        comparison.write(out, settings["formats"], log_x, layout=settings["layout"], font_size=settings["font_size"])
     return comparison
 
 
-def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, **options) -> ComparisonSet:
+def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, layout="wide", font_size=None,
+                   **options) -> ComparisonSet:
     """:func:`compare` on each of several meshes (paths, or a dict name -> mesh) with the same
     ``options``; with ``out``, each comparison is written into ``out/<name>/`` (its outputs
     checked before it is solved) and the combined table, manifest and figure into ``out``.
@@ -540,16 +588,17 @@ def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, **options
     for key in meshes:
         if not _NAME.fullmatch(str(key)):
             raise ParameterError(f"compare: mesh name {key!r} cannot be a folder name; use letters, digits and _.+-")
-    formats = _settings(None, "auto", 1, TOLERANCES, formats)["formats"]
+    figure = _settings(None, "auto", 1, TOLERANCES, formats, dict(layout=layout, font_size=font_size))
+    formats, figure = figure["formats"], {"layout": figure["layout"], "font_size": figure["font_size"]}
     if out is not None:  # created now: each mesh's folder is checked in it before its solves
         out = _prepare_folder(out, _common_names(formats), _inputs(meshes.values()))
     comparisons = {}
     for key, mesh in meshes.items():
         comparisons[key] = compare(mesh, out=None if out is None else out / key, formats=formats, log_x=log_x,
-                                   **options)
+                                   **figure, **options)
     result = ComparisonSet(comparisons)
     if out is not None:
-        result.write_combined(out, formats, log_x)
+        result.write_combined(out, formats, log_x, **figure)
     return result
 
 
@@ -557,8 +606,9 @@ def _mesh_key(mesh) -> str:
     return Path(mesh).stem if not Path(mesh).is_dir() else Path(mesh).name
 
 
-def _settings(max_seconds, reference, repeat, tolerances, formats) -> dict:
-    """The numeric settings of :func:`compare`, checked before anything runs."""
+def _settings(max_seconds, reference, repeat, tolerances, formats, timing_and_figure) -> dict:
+    """The settings of :func:`compare`, checked before anything runs (``timing_and_figure``:
+    ``clock``, ``warmup``, ``layout``, ``font_size``; those left out get their defaults)."""
     if max_seconds is not None:
         max_seconds = _positive(max_seconds, "max_seconds")
     if isinstance(reference, str) and reference not in ("auto", "best"):
@@ -575,16 +625,33 @@ def _settings(max_seconds, reference, repeat, tolerances, formats) -> dict:
     if not tol or any(not (0 < t < 1) for t in tol):
         raise ParameterError(f"compare: tolerances must be relative gaps in (0, 1), got {tolerances!r}")
     formats = tuple(formats)
-    bad = [f for f in formats if f not in ("png", "pdf", "svg")]
+    bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
-        raise ParameterError(f"compare: figure formats are png, pdf and svg, got {', '.join(bad) or 'none'}")
+        raise ParameterError(f"compare: figure formats are {', '.join(FORMATS)}, got {', '.join(bad) or 'none'}")
     return {"max_seconds": max_seconds, "reference": reference, "repeat": int(repeat),
-            "tolerances": tuple(sorted(tol, reverse=True)), "formats": formats}
+            "tolerances": tuple(sorted(tol, reverse=True)), "formats": formats, **_timing_and_figure(**timing_and_figure)}
 
 
-def _run(name, solver, objective, x0, max_seconds, progress, tag="") -> SolverRun:
+def _timing_and_figure(clock="wall", warmup=True, layout="wide", font_size=None) -> dict:
+    from ._compare_report import LAYOUTS
+
+    if clock not in CLOCKS:
+        raise ParameterError(f"compare: clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+    if not isinstance(warmup, (bool, np.bool_)):
+        raise ParameterError(f"compare: warmup must be True or False, got {warmup!r}")
+    if layout not in LAYOUTS:
+        raise ParameterError(f"compare: figure layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    if font_size is not None:
+        size = float(font_size) if isinstance(font_size, (int, float, np.number)) else math.nan
+        if not (1.0 <= size <= 72.0):
+            raise ParameterError(f"compare: font_size must be a number of points in [1, 72], got {font_size!r}")
+        font_size = size
+    return {"clock": clock, "warmup": bool(warmup), "layout": layout, "font_size": font_size}
+
+
+def _run(name, solver, objective, x0, max_seconds, progress, tag="", clock="wall") -> SolverRun:
     """One solver through :func:`~geomopt.solvers.iterate`, every iterate observed: its
-    inverted elements counted (exact) and the time limit applied.  Only the solver's calls are
+    inverted elements counted (exact) and the time limit applied (on ``clock``).  Only the solver's calls are
     timed (wall and process CPU); the observer's time is not solve time.  The final map is
     certified there (:class:`~geomopt.solvers.LocalCertificate`): a CONVERGED solve whose map
     is not locally injective ends NOT_INJECTIVE."""
@@ -596,7 +663,8 @@ def _run(name, solver, objective, x0, max_seconds, progress, tag="") -> SolverRu
         flips.append(problem.count_inverted(objective.unpad_map(np.asarray(state.x))))
         return TIME_LIMIT if max_seconds is not None and seconds >= max_seconds else None
 
-    res = iterate(solver, objective, x0, objective.params(), observe=observe, progress=report, trace=True)
+    res = iterate(solver, objective, x0, objective.params(), observe=observe, progress=report, trace=True,
+                  clock=clock)
     t, st = res.trace, res.stats
     run = SolverRun(name, solver, res.x, res.outcome, "max_seconds" if res.reason == TIME_LIMIT else None,
                     res.certificate.inverted, t.energy, t.seconds, t.cpu_seconds, t.grad_norm,
@@ -778,23 +846,24 @@ def _write_csv(path, columns, rows):
     return io.atomic_write(path, write)
 
 
-def _write_common(out, comparisons: dict, formats, log_x, extra) -> dict:
-    """``table.tex``, ``manifest.json`` and ``convergence.<format>`` of ``comparisons``
+def _write_common(out, comparisons: dict, formats, extra, figure) -> dict:
+    """``table.tex``, ``manifest.json`` and ``convergence.<format>`` (``figure``: the keyword
+    arguments of :func:`~geomopt._compare_report.comparison_figure`) of ``comparisons``
     (label -> :class:`Comparison`) into ``out``."""
-    from ._compare_report import comparison_figure, latex_table
+    from ._compare_report import comparison_figure, latex_table, save_figure
 
     paths = {"table": io.atomic_write(out / "table.tex", lambda fh: fh.write(latex_table(comparisons)))}
     manifest = {"schema_version": _manifest.SCHEMA_VERSION, "kind": "geomopt.compare",
                 "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "versions": _manifest.versions(), "environment": _manifest.environment(),
                 "comparisons": {label: c.manifest() for label, c in comparisons.items()},
-                "figure": {"formats": list(formats), "log_x": bool(log_x)}, **(extra or {})}
+                "figure": {"formats": list(formats), **figure}, **(extra or {})}
     paths["manifest"] = io.atomic_write(out / "manifest.json",
                                         lambda fh: fh.write(json.dumps(manifest, indent=1, default=str) + "\n"))
-    fig = comparison_figure(comparisons, log_x=log_x)
+    fig = comparison_figure(comparisons, **figure)
     for fmt in formats:
         buf = _io.BytesIO()
-        fig.savefig(buf, format=fmt)
+        save_figure(fig, buf, fmt)
         paths[f"convergence.{fmt}"] = io.atomic_write(out / f"convergence.{fmt}",
                                                       lambda fh, data=buf.getvalue(): fh.write(data), mode="wb")
     return paths

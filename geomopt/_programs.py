@@ -11,11 +11,18 @@ executables are also written with ``jax.experimental.serialize_executable`` unde
   projection, solver configuration, sizes...) by a stable text form;
 * the structure, shapes and dtypes of the traced arguments (the size bucket, for padded
   meshes), and whether 64-bit types are on;
-* JAX and jaxlib versions, the backend and its devices, the compiler options and ``XLA_FLAGS``,
-  and the source files of geomopt (size and modification time) and of any module a static
-  function comes from.
+* geomopt, JAX and jaxlib versions, the backend, its platform version and devices, the host's
+  CPU (architecture and feature flags: XLA CPU compiles for the host's instruction set), the
+  compiler options and ``XLA_FLAGS``, and the source files of geomopt (size and modification
+  time) and of any module a static function comes from.
 
 A later process with the same key loads the executable and calls it: no trace, no lowering.
+The file name is only a hash of the key: each file starts with a header that holds the whole
+key (the fields above, in words) and the size and SHA-256 of the executable after it.  A file
+is run only when its header equals what the caller asks for and its bytes match their
+checksum; any other file (one swapped with another energy's, copied from another version, a
+machine with other CPU features, damaged or of an older format) is ignored, counted in
+``stats["rejected"]``, compiled afresh and replaced atomically.
 Static arguments without a stable text form (a lambda, a local function, an object without a
 dataclass ``repr``), programs that cannot be serialised (host callbacks, captured constants)
 and calls on traced values go through plain ``jax.jit``.  With the persistent cache off, or
@@ -30,25 +37,31 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import json
 import os
 import pickle
+import platform
 import sys
 import types
 import weakref
 
 import jax
+import jaxlib
 import numpy as np
 
 from . import _cache
+from ._version import __version__
 
 _UNSTABLE = object()
 #: bumped when what is written changes (files of other formats are never read)
-_FORMAT = "geomopt-programs-1 (compiled outside JAX's cache)"
+_FORMAT = "geomopt-programs-2 (compiled outside JAX's cache, header with the key)"
+_MAGIC = b"GEOMOPT-PROGRAM 2\n"
 _fingerprints: dict = {}
 #: what happened to each program since start-up: "loaded" (from disk), "stored" (compiled here
 #: and written), "plain" (through jax.jit), "broken" (loaded but failed at its first call:
-#: deleted, plain jax.jit instead); for tests and benchmarks
-stats = {"loaded": 0, "stored": 0, "plain": 0, "broken": 0}
+#: deleted, plain jax.jit instead), "rejected" (a file whose header is not the caller's key or
+#: whose bytes fail their checksum: never run, compiled afresh); for tests and benchmarks
+stats = {"loaded": 0, "stored": 0, "plain": 0, "broken": 0, "rejected": 0}
 _programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
 
 #: XLA options of every program (unless it names its own).  XLA CPU wraps reductions and
@@ -192,29 +205,25 @@ class Program:
         return call, dynamic, key
 
     def _load(self, args, statics, tree, key, folder):
-        modules = {"geomopt"}
-        text, name = _stable(statics, modules), _stable(self.fun, modules)
-        if text is _UNSTABLE or name is _UNSTABLE:
+        ident = self._identity(statics, tree, key)
+        if ident is None:
             stats["plain"] += 1
             return None
-        devices = jax.devices()
-        ident = "\n".join([_FORMAT, jax.__version__, getattr(jax, "__jaxlib_version__", ""), jax.default_backend(),
-                           f"{len(devices)} x {devices[0].device_kind}", name, text, str(tree), repr(key[2:]),
-                           repr(sorted(self.options.items())), os.environ.get("XLA_FLAGS", ""),
-                           *sorted(_source_fingerprint(m) for m in modules)])
-        path = os.path.join(folder, f"{self.fun.__name__}-{hashlib.sha256(ident.encode()).hexdigest()}.xla")
+        text = json.dumps(ident, sort_keys=True)
+        path = os.path.join(folder, f"{self.fun.__name__}-{hashlib.sha256(text.encode()).hexdigest()}.xla")
         from jax.experimental import serialize_executable as se
 
-        try:
-            with open(path, "rb") as fh:
-                blob, in_tree, out_tree = pickle.loads(fh.read())
-            stats["loaded"] += 1
-            _lapack_ready()
-            loaded = se.deserialize_and_load(blob, in_tree, out_tree)
-            self._unproven[key] = path
-            return loaded
-        except Exception:  # noqa: BLE001 -- absent, partial or stale: compile it
-            pass
+        data = _read(path, ident)
+        if data is not None:
+            try:
+                blob, in_tree, out_tree = pickle.loads(data)
+                stats["loaded"] += 1
+                _lapack_ready()
+                loaded = se.deserialize_and_load(blob, in_tree, out_tree)
+                self._unproven[key] = path
+                return loaded
+            except Exception:  # noqa: BLE001 -- checksummed but not loadable here: compile it
+                pass
         lowered = self.plain.lower(*args)
         with _cache.bypassed():
             compiled = lowered.compile()
@@ -224,9 +233,25 @@ class Program:
             stats["plain"] += 1
             return None
         if _cache.programs_writable():
-            _write(path, data)
+            _write(path, _header(ident, data) + data)
         stats["stored"] += 1
         return compiled
+
+    def _identity(self, statics, tree, key) -> dict | None:
+        """Everything the compiled program depends on, as a dict of strings (the file's
+        header and, hashed, its name); None when a static argument has no stable text form."""
+        modules = {"geomopt"}
+        text, name = _stable(statics, modules), _stable(self.fun, modules)
+        if text is _UNSTABLE or name is _UNSTABLE:
+            return None
+        devices = jax.devices()
+        return {"format": _FORMAT, "geomopt": __version__, "jax": jax.__version__,
+                "jaxlib": jaxlib.__version__, "backend": jax.default_backend(),
+                "platform": str(getattr(devices[0].client, "platform_version", "")),
+                "devices": f"{len(devices)} x {devices[0].device_kind}", "cpu": _cpu(), "function": name,
+                "static": text, "tree": str(tree), "arguments": repr(key[2:]),
+                "options": repr(sorted(self.options.items())), "xla_flags": os.environ.get("XLA_FLAGS", ""),
+                "sources": " ".join(sorted(_source_fingerprint(m) for m in modules))}
 
     def __call__(self, *args):
         call, dynamic, key = self._executable(args)
@@ -267,6 +292,48 @@ def clear() -> None:
     for program in list(_programs):
         program._calls.clear()
         program._unproven.clear()
+
+
+@functools.cache
+def _cpu() -> str:
+    """The host's architecture and CPU feature flags (Linux: ``/proc/cpuinfo``; elsewhere the
+    processor's name), so that a cache folder copied to a machine without, say, AVX-512 is not
+    run there."""
+    flags = ""
+    with contextlib.suppress(OSError):
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            flags = next((line.split(":", 1)[1].strip() for line in fh
+                          if line.split(":", 1)[0].strip() in ("flags", "Features")), "")
+    flags = " ".join(sorted(flags.split())) or platform.processor()
+    return f"{platform.machine()} {hashlib.sha256(flags.encode()).hexdigest()[:16]}"
+
+
+def _header(ident: dict, data: bytes) -> bytes:
+    """The first bytes of a program file: a magic line, then one JSON line with the key the
+    program was compiled for and the size and SHA-256 of ``data`` (the pickled executable)."""
+    head = {"key": ident, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    return _MAGIC + json.dumps(head, sort_keys=True).encode() + b"\n"
+
+
+def _read(path, ident: dict) -> bytes | None:
+    """The pickled executable in ``path`` if its header is ``ident`` and its bytes match the
+    header's checksum; None when the file is absent, and (counted as rejected) when it is
+    anything else -- another key, another format, damaged."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except OSError:
+        return None
+    try:
+        line, _, data = raw[len(_MAGIC):].partition(b"\n")
+        head = json.loads(line) if raw.startswith(_MAGIC) else None
+        if (isinstance(head, dict) and head.get("key") == ident and head.get("bytes") == len(data)
+                and head.get("sha256") == hashlib.sha256(data).hexdigest()):
+            return data
+    except ValueError:  # not JSON, not UTF-8
+        pass
+    stats["rejected"] += 1
+    return None
 
 
 def _write(path, data: bytes) -> None:

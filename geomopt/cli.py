@@ -540,7 +540,8 @@ def cmd_compare(args) -> int:
     options = dict(solvers=args.solvers, energy=args.energy, weights=args.weights, max_seconds=args.max_seconds,
                    max_steps=args.max_steps, reference=args.reference, repeat=args.repeat,
                    tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
-                   log_x=args.log_x, progress=not args.quiet)
+                   log_x=args.log_x, progress=not args.quiet, clock=args.clock, warmup=args.warmup,
+                   layout=args.layout, font_size=args.font_size)
     if len(args.mesh) == 1:
         res = compare(args.mesh[0], out=args.output, **options)
     else:
@@ -710,7 +711,8 @@ def _add_compare(sub):
                     help="output folder: history.csv, summary.csv, table.tex, manifest.json, <solver>.obj "
                          "(.vtk for tets), convergence.<format>")
     sp.add_argument("--solvers", default=None,
-                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm,optx-lbfgs; cm only in 2D)")
+                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D; "
+                         "optx-lbfgs, optx-bfgs, optx-ncg on request)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the free-boundary start map")
@@ -721,10 +723,24 @@ def _add_compare(sub):
     sp.add_argument("--tolerances", default="1e-2,1e-4,1e-6",
                     help="relative gaps the table reports iterations and seconds to (default 1e-2,1e-4,1e-6)")
     sp.add_argument("--max-seconds", type=float, default=None,
-                    help="stop each solver after this many seconds of solve time (setup excluded)")
+                    help="stop each solver after this many seconds of solve time (setup excluded, on --clock)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit of every solver")
-    sp.add_argument("--format", default="png", help="figure formats, comma-separated: png, pdf, svg (default png)")
+    sp.add_argument("--clock", default="wall", choices=["wall", "cpu"],
+                    help="seconds used by --max-seconds, the figure's time axis, table.tex and the median run: "
+                         "wall (elapsed, the default) or cpu (process CPU time, all threads summed: steadier "
+                         "on a loaded machine); both are always in the CSV files")
+    sp.add_argument("--no-warmup", dest="warmup", action="store_false",
+                    help="time each solver's first, cold run (default: one untimed warm-up run per solver "
+                         "first, so that lazy compilation is not solve time)")
+    sp.add_argument("--format", default="png",
+                    help="figure formats, comma-separated: png, pdf, svg, eps, ps (default png; PDF and "
+                         "PostScript embed TrueType fonts)")
     sp.add_argument("--log-x", action="store_true", help="log scale on the seconds and iteration axes")
+    sp.add_argument("--layout", default="wide", choices=["wide", "column"],
+                    help="figure: three panels per mesh, 15 in wide (default), or column: the gap against "
+                         "seconds alone, 3.4 in wide (one paper column)")
+    sp.add_argument("--font-size", type=float, default=None,
+                    help="figure font size in points (default 10 wide, 8 column)")
     _common_options(sp)
     sp.set_defaults(func=cmd_compare)
 

@@ -4,9 +4,11 @@ agreeing with them bit for bit, fixed-boundary (LIM) cases, refusals before any 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import importlib
 import json
 import os
+import time
 
 import numpy as np
 import pytest
@@ -15,7 +17,7 @@ import geomopt
 import geomopt.cli
 from geomopt import MeshError, ParameterError, Problem, io
 from geomopt._compare import HISTORY_COLUMNS, TOLERANCES, Comparison, summary_columns
-from geomopt._compare_report import STYLES
+from geomopt._compare_report import STYLES, latex_table
 from geomopt._manifest import array_hash
 from geomopt.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
 from geomopt.linesearch import InjectiveSearch
@@ -361,3 +363,115 @@ def test_max_seconds_stops_each_solver_and_says_so():
         assert r.iterations == 1 and r.status == "max_seconds"
         assert r.outcome is geomopt.Outcome.MAX_STEPS and r.stopped == "max_seconds"
     assert [s["outcome"] for s in res.summary_rows()] == ["max_seconds", "max_seconds"]
+
+
+# ------------------------------------------------------------------ submission-safe (issue 33 item 2)
+
+
+def no_type3(path):
+    """A PDF / PostScript figure whose text is embedded as TrueType (Type 42), not Type 3."""
+    data = path.read_bytes()
+    if path.suffix == ".pdf":
+        assert b"/Subtype /Type3" not in data and (b"/Subtype /TrueType" in data or b"/CIDFontType2" in data)
+    else:
+        assert b"/FontType 3" not in data and b"/FontType 42" in data
+    return True
+
+
+def test_pdf_and_postscript_figures_embed_truetype_fonts(tmp_path):
+    res = geomopt.compare(V3, F, solvers=["newton"], formats=("pdf", "eps", "png"), out=tmp_path / "o")
+    assert no_type3(tmp_path / "o" / "convergence.pdf") and no_type3(tmp_path / "o" / "convergence.eps")
+    assert res.figure().texts or res.figure().legends  # the figure has text to embed
+
+
+class _Clock:
+    """A process-CPU clock that runs 10 s per reading (wall time is untouched)."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        self.t += 10.0
+        return self.t
+
+
+def test_clock_cpu_drives_the_limit_the_axis_the_table_and_the_median(monkeypatch, tmp_path):
+    monkeypatch.setattr(time, "process_time", _Clock())  # the solve loop's clock (geomopt.solvers.iterate)
+    wall = geomopt.compare(V3, F, solvers=["newton"], max_seconds=5.0, warmup=False)
+    assert wall.clock == "wall" and wall.results["newton"].status == "converged"
+    as_cpu, key = dataclasses.replace(wall, clock="cpu"), f"{TOLERANCES[0]:.0e}"
+    row = as_cpu.summary_rows()[0]  # the table's seconds are the clock's: here 10 s per reading
+    assert row[f"cpu_s_to_{key}"] > 5.0 and f" & {row[f'it_to_{key}']} & {row[f'cpu_s_to_{key}']:.2f} & " in \
+        latex_table({"m": as_cpu})
+    cpu = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], max_seconds=5.0, clock="cpu", warmup=False,
+                          repeat=3, out=tmp_path / "o")
+    for name, r in cpu.results.items():  # 20 "CPU seconds" per iteration: stopped at the first
+        assert r.iterations == 1 and r.status == "max_seconds", name
+        assert r.cpu_seconds > 5.0 > r.seconds
+    line = cpu.figure().axes[0].lines[0]
+    np.testing.assert_array_equal(line.get_xdata(), cpu.results["newton"].cpu_history[cpu.gap("newton") > 0])
+    assert "CPU seconds" not in cpu.figure().axes[0].get_xlabel() and "(CPU" in cpu.figure().axes[0].get_xlabel()
+    table = (tmp_path / "o" / "table.tex").read_text()
+    assert "it & CPU s" in table and "wall s" not in table
+    m = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert next(iter(m["comparisons"].values()))["timing"]["clock"] == "cpu"
+    runs = cpu.runs["lbfgs"]  # the median run is the one of median CPU time
+    assert cpu.results["lbfgs"].cpu_seconds == np.median([r.cpu_seconds for r in runs])
+    with pytest.raises(ParameterError, match="clock must be"):
+        geomopt.compare(V3, F, solvers=["newton"], clock="gpu")
+
+
+@dataclasses.dataclass(frozen=True)
+class LazyLBFGS(LBFGS):
+    """L-BFGS whose first step in the process takes 1.5 s more (as lazy compilation does)."""
+
+    def step(self, state):
+        if not LAZY:
+            time.sleep(1.5)
+            LAZY.append(True)
+        return super().step(state)
+
+
+LAZY = []
+
+
+@pytest.mark.parametrize("warmup", [True, False])
+def test_one_untimed_warmup_keeps_lazy_compilation_out_of_the_solve_time(warmup):
+    LAZY.clear()
+    res = geomopt.compare(V3, F, solvers={"lazy": LazyLBFGS()}, warmup=warmup)
+    (run,) = res.runs["lazy"]
+    assert LAZY and (run.seconds < 1.5 if warmup else run.seconds >= 1.5)
+    assert res.warmup is warmup and ("untimed warm-up" if warmup else "cold") in res.report()
+
+
+def test_column_figure_has_one_panel_per_mesh_and_the_font_size_asked(tmp_path):
+    res = geomopt._compare.compare_meshes({"a": write_obj(tmp_path / "a.obj", V3, F),
+                                           "b": write_obj(tmp_path / "b.obj", 2 * V3, F)},
+                                          solvers=["newton"], warmup=False)
+    fig = res.figure(layout="column", font_size=6.5)
+    assert len(fig.axes) == 2 and fig.get_size_inches()[0] == pytest.approx(3.4)
+    assert {ax.xaxis.label.get_fontsize() for ax in fig.axes} == {6.5}
+    assert fig.legends[0].get_texts()[0].get_fontsize() == 6.5
+    wide = res.figure()
+    assert len(wide.axes) == 6 and wide.get_size_inches()[0] == pytest.approx(15.0)
+    assert wide.axes[0].xaxis.label.get_fontsize() == 10.0
+    for bad in (dict(layout="tall"), dict(font_size=0), dict(font_size="big")):
+        with pytest.raises(ParameterError, match="layout must be|font_size must be"):
+            geomopt.compare(V3, F, solvers=["newton"], **bad)
+
+
+def test_cli_clock_warmup_layout_font_size_and_truetype_pdf(cli, tmp_path):
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    out = tmp_path / "o"
+    code, stdout, err = cli("compare", mesh, "-o", out, "--solvers", "newton", "--clock", "cpu", "--no-warmup",
+                            "--layout", "column", "--font-size", "7", "--format", "pdf,png", "--quiet")
+    assert (code, stdout, err) == (0, "", "")
+    m = json.loads((out / "manifest.json").read_text())
+    timing = next(iter(m["comparisons"].values()))["timing"]
+    assert (timing["clock"], timing["warmup"]) == ("cpu", False)
+    assert m["figure"] == {"formats": ["pdf", "png"], "log_x": False, "layout": "column", "font_size": 7.0}
+    assert png_size((out / "convergence.png").read_bytes())[0] == 340  # 3.4 in at 100 dpi
+    assert no_type3(out / "convergence.pdf") and "it & CPU s" in (out / "table.tex").read_text()
+    with pytest.raises(SystemExit) as exit_:
+        cli("compare", mesh, "-o", tmp_path / "p", "--solvers", "newton", "--clock", "gpu")
+    assert exit_.value.code == 2 and not (tmp_path / "p").exists()

@@ -29,3 +29,146 @@ def test_a_loaded_lapack_program_runs_in_a_new_process(tmp_path):
         run = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
         assert run.returncode == 0 and run.stdout.split()[-1] == "True", (run.returncode, run.stderr[-2000:])
     assert any((tmp_path / "cache" / "programs").iterdir())
+
+
+# --- issue 30 item 2: a program file is run only for the key its header names ---------------
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import _cache, _programs
+from geomopt import generators as G
+
+
+@pytest.fixture
+def fresh_cache(tmp_path):
+    before = _cache.cache_dir()
+    jax.clear_caches()
+    _programs.clear()
+    _cache.set_cache_dir(tmp_path / "cache")
+    yield tmp_path / "cache" / "programs"
+    jax.clear_caches()
+    _programs.clear()
+    _cache.set_cache_dir(before)
+
+
+def _scaled_sum(scale, x):
+    return scale * jnp.sum(x * x)
+
+
+X = np.linspace(0.0, 1.0, 40)
+
+
+def _kept(folder, scale):
+    """Compile and keep the program for ``scale``; its file."""
+    before = set(folder.glob("_scaled_sum-*.xla")) if folder.exists() else set()
+    assert float(_programs.jit(_scaled_sum, static_argnums=0)(scale, X)) == pytest.approx(scale * np.sum(X * X))
+    (path,) = set(folder.glob("_scaled_sum-*.xla")) - before
+    return path
+
+
+def _split(path):
+    magic, head, data = path.read_bytes().split(b"\n", 2)
+    return magic, json.loads(head), data
+
+
+def _run_fresh(scale):
+    """The program for ``scale`` as a new process finds it: nothing in memory."""
+    _programs.clear()
+    before = dict(_programs.stats)
+    out = float(_programs.jit(_scaled_sum, static_argnums=0)(scale, X))
+    return out, {k: _programs.stats[k] - before[k] for k in before}
+
+
+def test_swapped_program_files_are_not_run(fresh_cache):
+    two, three = _kept(fresh_cache, 2.0), _kept(fresh_cache, 3.0)
+    a, b = two.read_bytes(), three.read_bytes()
+    two.write_bytes(b), three.write_bytes(a)  # the same function and shapes, other static arguments
+    out, delta = _run_fresh(2.0)
+    assert out == pytest.approx(2.0 * np.sum(X * X), rel=1e-14)  # 3x as much when the file was trusted
+    assert delta["rejected"] == 1 and delta["loaded"] == 0 and delta["stored"] == 1
+    assert _split(two)[1]["key"]["static"] == "tuple(2.0)"  # replaced by the right program
+    out, delta = _run_fresh(2.0)
+    assert delta["loaded"] == 1 and delta["rejected"] == 0 and out == pytest.approx(2.0 * np.sum(X * X))
+
+
+@pytest.mark.parametrize("field, value", [("jax", "0.0.1"), ("jaxlib", "0.0.1"), ("geomopt", "0.0.0"),
+                                          ("cpu", "x86_64 0000000000000000"), ("backend", "gpu"),
+                                          ("function", "tests.other"), ("static", "tuple(3.0)"),
+                                          ("arguments", "((((41,), 'float64', False),), 'float64')")])
+def test_a_file_whose_header_names_another_key_is_not_run(fresh_cache, field, value):
+    """A file copied from another version, machine or program, with a valid checksum: its
+    header differs from the key in one field; its program is another one (3x), never run."""
+    two, three = _kept(fresh_cache, 2.0), _kept(fresh_cache, 3.0)
+    magic, head, data = _split(three)
+    head["key"] = dict(_split(two)[1]["key"], **{field: value})
+    two.write_bytes(b"\n".join([magic, json.dumps(head).encode(), data]))
+    out, delta = _run_fresh(2.0)
+    assert out == pytest.approx(2.0 * np.sum(X * X), rel=1e-14)
+    assert delta["rejected"] == 1 and delta["loaded"] == 0 and delta["stored"] == 1
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated", "flipped", "header only", "old format"])
+def test_a_damaged_program_file_is_compiled_again(fresh_cache, damage):
+    import pickle
+
+    two = _kept(fresh_cache, 2.0)
+    raw = two.read_bytes()
+    magic, head, data = _split(two)
+    flipped = bytearray(raw)
+    flipped[-100] ^= 0x10
+    two.write_bytes({"empty": b"", "truncated": raw[: len(raw) // 2], "flipped": bytes(flipped),
+                     "header only": magic + b"\n" + json.dumps(head).encode() + b"\n",
+                     "old format": data}[damage])
+    out, delta = _run_fresh(2.0)
+    assert out == pytest.approx(2.0 * np.sum(X * X), rel=1e-14)
+    assert delta["rejected"] == 1 and delta["stored"] == 1 and delta["broken"] == 0
+    assert _split(two)[2] and pickle.loads(_split(two)[2])  # rewritten whole
+
+
+def test_swapped_energy_kernels_give_the_asked_energy(fresh_cache):
+    """The issue's case: the symmetric Dirichlet and MIPS energy kernels of one size bucket
+    swapped; the symmetric Dirichlet energy must be its own (>= 4 per unit area), not MIPS's."""
+    V, F = G.square_mesh(6)
+    problem = geomopt.Problem.planar(V, F)
+    x = V * np.array([1.6, 0.7])  # a stretched, flip-free map
+    values = {}
+    for energy in ("symmetric_dirichlet", "mips"):
+        before = set(fresh_cache.glob("energy_kernel-*.xla")) if fresh_cache.exists() else set()
+        values[energy] = float(geomopt.Objective(problem, energy).value(x))
+        (values[energy + " file"],) = set(fresh_cache.glob("energy_kernel-*.xla")) - before
+    sd, mips = values["symmetric_dirichlet file"], values["mips file"]
+    a, b = sd.read_bytes(), mips.read_bytes()
+    sd.write_bytes(b), mips.write_bytes(a)
+    jax.clear_caches()
+    _programs.clear()
+    for energy in ("symmetric_dirichlet", "mips"):
+        assert float(geomopt.Objective(problem, energy).value(x)) == pytest.approx(values[energy], rel=1e-13)
+    assert values["symmetric_dirichlet"] != pytest.approx(values["mips"])
+
+
+RACE = """
+import numpy as np, geomopt
+from geomopt import _programs, generators as G
+V, F = G.square_mesh(5)
+print(float(geomopt.Objective(geomopt.Problem.planar(V, F), "symmetric_dirichlet").value(V * np.array([1.5, 0.5]))))
+print(_programs.stats["rejected"])
+"""
+
+
+def test_two_processes_on_one_empty_cache_both_keep_a_valid_file(tmp_path):
+    env = dict(os.environ, GEOMOPT_CACHE_DIR=str(tmp_path / "cache"), GEOMOPT_PROGRAMS="on",
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    runs = [subprocess.Popen([sys.executable, "-c", RACE], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True) for _ in range(2)]
+    outs = [run.communicate(timeout=600) for run in runs]
+    assert all(run.returncode == 0 for run in runs), [err[-2000:] for _, err in outs]
+    assert outs[0][0].split()[0] == outs[1][0].split()[0]
+    again = subprocess.run([sys.executable, "-c", RACE], env=env, capture_output=True, text=True, timeout=600)
+    assert again.stdout.split() == [outs[0][0].split()[0], "0"]  # every kept file read back whole
+    assert not list((tmp_path / "cache" / "programs").glob("*.tmp"))

@@ -198,9 +198,9 @@ class _Run:
     """The bookkeeping of one :func:`iterate` call: the solve clock (solver and continuation
     calls only), the traces, the reports and the totals over phases."""
 
-    def __init__(self, objective, trace, progress, observe):
+    def __init__(self, objective, trace, progress, observe, clock="wall"):
         self.volume = objective.total_volume
-        self.trace, self.report, self.observe = trace, progress, observe
+        self.trace, self.report, self.observe, self.observed_clock = trace, progress, observe, clock
         self.energy, self.seconds, self.cpus, self.grads, self.phases = [], [], [], [], []
         self.iterations = self.evaluations = 0
         self.solve = self.cpu = 0.0  # wall and process-CPU seconds of the solve
@@ -225,9 +225,10 @@ class _Run:
         """Record and report one iterate; the observer's reason to stop, or ""."""
         if self.trace:
             self.point(state, state.value)
+        seconds = self.cpu if self.observed_clock == "cpu" else self.solve
         if self.report is not None:
-            self.report(state, self.solve, state.value / self.volume)
-        return (self.observe(state, self.solve) or "") if self.observe is not None else ""
+            self.report(state, seconds, state.value / self.volume)
+        return (self.observe(state, seconds) or "") if self.observe is not None else ""
 
     def phase(self, state, record):
         """Record a phase's end: its record, and without a per-iterate trace its point (the
@@ -316,7 +317,8 @@ def _as_progress(progress, total):
 @float64
 def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation | None = None,
             guard: Callable | None = None, observe: Callable | None = None, progress=False,
-            trace: bool = True, throw: bool = False, label: str = "solve", warn: bool = True) -> Result:
+            trace: bool = True, throw: bool = False, label: str = "solve", warn: bool = True,
+            clock: str = "wall") -> Result:
     """Minimise ``objective`` from ``x0`` with ``solver``: the one loop (see the module notes).
 
     Parameters
@@ -327,6 +329,9 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     continuation : an :class:`AbstractContinuation`, or None (one phase).
     guard : ``guard(solver, old, new) -> State | None``, or None.
     observe : ``observe(state, seconds) -> str | None``, or None.
+    clock : the solve seconds the observer and the progress see: ``"wall"`` (elapsed, the
+        default) or ``"cpu"`` (the process's CPU time, every thread summed); the trace and the
+        result's stats hold both.
     progress : True (a bar on a terminal, lines otherwise, on stderr), False, a
         :class:`Progress`, or a callable ``(state, seconds, mean_energy)`` called per iterate.
     trace : record the energy, solve seconds and gradient norm of every iterate (else the
@@ -347,7 +352,9 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     if continuation is not None:
         continuation.start(state)
     setup, setup_cpu = time.perf_counter() - t0, time.process_time() - c0
-    run = _Run(objective, trace, report, observe)
+    if clock not in ("wall", "cpu"):
+        raise ParameterError(f"iterate: clock must be 'wall' or 'cpu', got {clock!r}")
+    run = _Run(objective, trace, report, observe, clock)
     if trace:
         run.point(state, state.value)  # the start (not reported, not observed)
     try:
