@@ -357,14 +357,21 @@ class AdjointSystem:
             self.value = float(value)
             data = np.array(data)
             self._pin(data, pat)
-            self.chol = obj.cholesky(kind)
-            try:
-                self.chol.factor(data)
-            except NotPositiveDefinite:
-                raise SolveError(self._not_pd()) from None
+            self.chol, self.data = obj.cholesky(kind), data
+            self._factor()
             self.grad = np.asarray(obj.unpad_map(grad))
         if self.check:
             self._check_decrement()
+
+    def _factor(self):
+        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.linsolve.SparseCholesky`
+        (its symbolic analysis shared, its numeric factor refactored by any later solve of the
+        mesh: :attr:`generation` is the factorization that holds this map's matrix)."""
+        try:
+            self.chol.factor(self.data)
+        except NotPositiveDefinite:
+            raise SolveError(self._not_pd()) from None
+        self.generation = self.chol.generation
 
     def _pin(self, data, pat):
         """Replace the rows and columns of the pinned free DOFs by identity ones, in place."""
@@ -411,7 +418,10 @@ class AdjointSystem:
     def _solve_free(self, b):
         if self.kind == "cg":
             return self._cg_solve(b)
-        return self.chol.solve(b)
+        with _lock:  # another solve of the mesh (a forward, a batch element) refactored it since
+            if self.chol.generation != self.generation:
+                self._factor()
+            return self.chol.solve(b)
 
     def _embed(self, mu_free, shape):
         """The free-DOF solution ``mu_free`` as an (n, d) array (zero on fixed DOFs and gauge
