@@ -12,9 +12,22 @@ so a cotangent ``xbar`` of the map pulls back as
 
 (one JAX reverse-over-forward pass of the energy), as in optimistix's ``ImplicitAdjoint`` and
 jaxopt's ``custom_root`` (Blondel et al. 2022, "Efficient and modular implicit
-differentiation").  :func:`argmin` wires this with ``jax.custom_vjp``, so ``jax.grad``,
-``jax.vjp``, ``jax.jacrev`` and ``jax.vmap`` work, eagerly and inside ``jax.jit`` (where the
-forward solve and the sparse solve run on the host through ``jax.pure_callback``).
+differentiation").  :func:`argmin` wires this as a ``jax.custom_jvp``: the tangent is
+``dx = -H^+ (dg/dtheta) dtheta``, the right-hand side a (compiled) JAX ``jvp`` of the gradient,
+the solve a ``jax.lax.custom_linear_solve`` (symmetric) whose solve runs on the host; JAX
+transposes both for reverse mode.  So ``jax.jvp``, ``jax.jacfwd``, ``jax.grad``, ``jax.vjp``,
+``jax.jacrev`` and ``jax.vmap`` of them work, eagerly and inside ``jax.jit`` (the forward solve and
+the sparse solves run on the host through ``jax.pure_callback``, one per batch element), and so
+do second derivatives (``jax.hessian``) of maps held by handles: the solve's operator is the
+exact Hessian-vector product, whose own derivative enters through ``custom_linear_solve``;
+where the map has a gauge (below) the derivative of ``H^+`` is not that, and second
+derivatives are refused (SolveError).
+
+**One factorization per optimum.**  The numeric factor of a mesh is shared by every solve of it
+(its symbolic analysis too): a forward's adjoint system keeps its own matrix and refactors it
+when another solve (the next batch element under ``vmap``, a second solve in the same loss)
+refactored the shared factor since (:attr:`geomopt.linsolve.SparseCholesky.generation`), so each
+backward solves with the Hessian at its own optimum.
 
 **Conventions.**
 
@@ -41,7 +54,9 @@ forward solve and the sparse solve run on the host through ``jax.pure_callback``
   decrement ``g.H^+ g / 2`` exceeds :data:`DECREMENT_RTOL` ``* |E|`` (not a tight enough
   optimum for the theorem); an exact Hessian that is not positive definite modulo the gauge
   (a saddle or a degenerate minimum: the map is then not a differentiable function of its
-  inputs).  Under ``jax.jit`` these surface as JAX's runtime error carrying the message.
+  inputs).  Under ``jax.jit`` (or ``jax.hessian``'s batching) these surface as JAX's runtime
+  error (``jax.errors.JaxRuntimeError``: no exception class crosses a compiled program) whose
+  text ends with the class name and message, e.g. ``SolveError: implicit differentiation: ...``.
 
 **Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
 (:func:`geomopt.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linsolve`,
@@ -129,23 +144,23 @@ def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto")
     def forward(obj, p, x0):
         return _host(partial(_forward, solve, linear_solver), (shape, token), obj, p, x0)
 
-    @jax.custom_vjp
-    def f(obj, p, x0):
-        return forward(obj, p, x0)[0]
+    @jax.custom_jvp
+    def f(obj, p, x0):  # (the map, the token of its forward's context)
+        return forward(obj, p, x0)
 
-    def fwd(obj, p, x0):
-        x, tok = forward(obj, p, x0)
-        return x, (obj, p, x0, x, tok)
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        obj, p, x0 = primals
+        x, tok = f(obj, p, x0)  # through this very rule again under a second derivative
+        dg = _residual_tangent(obj, p, x, *tangents[:2])
 
-    def bwd(res, xbar):
-        obj, p, x0, x, tok = res
-        lam = _host(partial(_adjoint, linear_solver), shape, tok, obj, p, x, xbar)
-        cot_obj, cot_p = _pullback(obj, p, x, lam)
-        neg = partial(jax.tree_util.tree_map, jnp.negative)
-        return neg(cot_obj), neg(cot_p), jax.tree_util.tree_map(jnp.zeros_like, x0)
+        def solve(_, b):  # H^+ b on the host, with the factorization of this very optimum
+            return _host(partial(_adjoint, linear_solver), shape, tok, obj, p, x, b)
 
-    f.defvjp(fwd, bwd)
-    x = f(objective, params, x0)
+        dx = -jax.lax.custom_linear_solve(partial(_hvp, tok, obj, p, x), dg, solve, symmetric=True)
+        return (x, tok), (dx, np.zeros((), jax.dtypes.float0))
+
+    x = f(objective, params, x0)[0]
     fixed = objective.problem.fixed
     return x.at[fixed].set(objective.problem.fixed_positions) if fixed.size else x
 
@@ -159,17 +174,51 @@ def _host(fn, shapes, *args):
     return pure_callback(fn, shapes, *args, vmap_method="sequential")
 
 
+def _residual(obj, p, x):
+    """``grad_x E(x, obj, p)`` (n, d) with the handle rows of ``x`` taken from the objective
+    (so that handle positions get their share of the derivative)."""
+    P = obj.problem
+    xh = x.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x
+    return jax.grad(lambda y: obj.value(y, p))(xh)
+
+
 @jax.jit
-def _pullback(objective, params, x, lam):
-    """``d/d(objective, params) <grad_x E(x, objective, params), lam>`` with the handle rows of
-    ``x`` taken from the objective (so handle positions get their share)."""
+def _residual_tangent(obj, p, x, dobj, dp):
+    """``d/d(obj, p) grad_x E(x, obj, p) . (dobj, dp)`` (n, d): the right-hand side of the
+    forward-mode solve, linear in the tangents (its transpose is reverse mode's pullback);
+    compiled, also when transposed."""
+    return jax.jvp(partial(_residual, x=x), (obj, p), (dobj, dp))[1]
 
-    def gdot(obj, p):
-        P = obj.problem
-        xh = x.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x
-        return jax.jvp(lambda y: obj.value(y, p), (xh,), (lam,))[1]
 
-    return jax.grad(gdot, argnums=(0, 1))(objective, params)
+@jax.custom_jvp
+def _hvp(tok, obj, p, x, v):
+    """The exact Hessian at ``x`` on the free DOFs applied to ``v`` (n, d): the operator whose
+    inverse the host solve applies, traced only when a second derivative differentiates it
+    (then refused where the map has a gauge: the derivative of ``H^+`` is not ``H``'s)."""
+    free = jnp.asarray(obj.free_dofs, v.dtype)
+    return jax.jvp(partial(_residual, obj, p), (x,), (v * free,))[1] * free
+
+
+@_hvp.defjvp
+def _hvp_jvp(primals, tangents):
+    one = _host(_gauge_free, jax.ShapeDtypeStruct((), jnp.float64), *primals[:4])
+    out, dout = jax.jvp(_hvp.fun, primals, tangents)
+    return out, dout * one
+
+
+@float64
+def _gauge_free(token, objective, params, x):
+    """1.0 when the map ``x`` has no gauge motion (:func:`gauge_motions`), else SolveError."""
+    with _lock:
+        ctx = _CONTEXTS.get(int(np.asarray(token))) or {}
+    system = ctx.get("system")
+    obj = ctx.get("objective") or _concrete(objective)
+    r = system.N.shape[1] if system is not None else gauge_motions(obj, _floats(params), np.asarray(x)).shape[1]
+    if r:
+        raise SolveError(f"implicit differentiation: second derivatives (jax.hessian, jacfwd of grad) of a map "
+                         f"with {r} gauge motion(s) (translations/rotations/scale that leave the energy "
+                         f"unchanged) are not supported; hold the map by handles, or use first derivatives")
+    return np.float64(1.0)
 
 
 # --------------------------------------------------------------------- host side

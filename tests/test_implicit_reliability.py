@@ -59,6 +59,24 @@ def _param_loss(kind, linear_solver):
     return loss, (1.0 + 0.5 * rng.uniform(size=(3, len(F))), np.array([0.2, 0.3, 0.45]))
 
 
+def _raises(cls, pattern):
+    """``cls`` itself, or (its class lost in a compiled program: jax.jit, jax.hessian's vmap) JAX's
+    runtime error carrying geomopt's class name and message."""
+    import contextlib
+    import re
+
+    @contextlib.contextmanager
+    def check():
+        with pytest.raises((cls, jax.errors.JaxRuntimeError)) as info:
+            yield
+        text = str(info.value)
+        if not isinstance(info.value, cls):
+            assert re.search(f"{cls.__name__}: .*{pattern}", text), text[-600:]
+        assert re.search(pattern, text), text[-600:]
+
+    return check()
+
+
 CASES = {"planar": _handle_loss, "tet": _handle_loss, "surface": _param_loss}
 
 
@@ -107,3 +125,86 @@ def test_lax_map_and_jacrev_rows_after_other_solves():
     for i in range(len(lams)):
         for a, b in zip(mapped, grad(hs[i], lams[i])):
             np.testing.assert_allclose(a[i], b, rtol=1e-8, atol=1e-8 * np.abs(b).max())
+
+
+@pytest.mark.parametrize("kind", ["planar", "tet"])
+def test_forward_mode_jvp_and_jacfwd_match_reverse_mode_and_re_solves(kind):
+    """Item 7: jax.jvp (one linear solve per tangent with the optimum's factorization) against
+    central differences; jax.jacfwd equals jax.jacrev, eagerly and under jax.jit."""
+    loss, (hs, lams) = _handle_loss(kind, "auto")
+    h, lam = hs[0], lams[0]
+    rng = np.random.default_rng(9)
+    dh, step = rng.standard_normal(h.shape), 1e-5
+    dh /= np.linalg.norm(dh)
+    _, t = jax.jvp(loss, (h, lam), (dh, 0.5))
+    fd = (float(loss(h + step * dh, lam + 0.5 * step)) - float(loss(h - step * dh, lam - 0.5 * step))) / (2 * step)
+    assert abs(float(t) - fd) <= FD_RTOL * abs(fd) and abs(fd) > 1e-6, (float(t), fd)
+    rev = jax.jacrev(loss, argnums=(0, 1))(h, lam)
+    fwd = jax.jit(jax.jacfwd(loss, argnums=(0, 1)))(h, lam)
+    for a, b in zip(fwd, rev):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max())
+
+
+def test_hessian_through_a_solve_matches_differences_of_gradients():
+    """Item 7: second derivatives (forward over reverse: the Hessian's derivative enters
+    through the linear solve's operator) against central differences of jax.grad."""
+    loss, (hs, lams) = _handle_loss("planar", "auto")
+    h, lam, step = hs[0], lams[0], 1e-5
+    g = jax.grad(loss, argnums=1)
+    H = jax.hessian(loss, argnums=(0, 1))(h, lam)
+    fd = (float(g(h, lam + step)) - float(g(h, lam - step))) / (2 * step)
+    assert abs(float(H[1][1]) - fd) <= 1e-5 * abs(fd) and abs(fd) > 1e-6, (float(H[1][1]), fd)
+    dh = np.random.default_rng(10).standard_normal(h.shape)
+    fd = (float(g(h + step * dh, lam)) - float(g(h - step * dh, lam))) / (2 * step)
+    an = float(np.sum(np.asarray(H[1][0]) * dh))
+    assert abs(an - fd) <= 1e-5 * abs(fd), (an, fd)
+
+
+def test_second_derivatives_of_a_map_with_a_gauge_are_refused():
+    """Item 7: where the map has a gauge (free boundary), H^+ is a pseudo-inverse whose
+    derivative is not the solve's: a second derivative is refused with one line, never wrong."""
+    loss, (ws, ts) = _param_loss("surface", "auto")
+    assert np.isfinite(float(jax.grad(loss, argnums=1)(ws[0], ts[0])))
+    with _raises(SolveError, "second derivatives .* gauge"):
+        jax.hessian(loss, argnums=1)(ws[0], ts[0])
+
+
+@pytest.mark.parametrize("how", ["grad", "jit", "vmap"])
+@pytest.mark.parametrize("bad", ["degenerate", "inverted"])
+def test_a_bad_traced_rest_triangle_raises_instead_of_a_nan_energy(bad, how):
+    """Item 7: traced rest vertices skip the constructor's value checks; a degenerate or
+    inverted rest triangle must still raise MeshError (not give a NaN or wrong energy)."""
+    V, F = grid(4)
+    W = V.copy()
+    if bad == "degenerate":
+        W[5] = W[6]
+    else:
+        W[5] = [0.75, 0.5]  # an interior vertex moved past its neighbour: triangles fold
+    x = V * 1.1
+
+    def energy(V):
+        return Objective(Problem.planar(V, F), "symmetric_dirichlet").value(x)
+
+    assert np.isfinite(float(jax.jit(energy)(V)))
+    fn = {"grad": jax.grad(energy), "jit": jax.jit(energy), "vmap": jax.jit(jax.vmap(energy))}[how]
+    with _raises(MeshError, "rest triangle"):
+        jax.block_until_ready(fn(W[None] if how == "vmap" else W))
+
+
+def test_a_refused_solve_keeps_geomopt_s_class_and_message_eagerly_and_under_jit():
+    """Item 7: the refusal of a loose optimum reaches the user as SolveError eagerly and in
+    forward mode, and under jax.jit as JAX's runtime error carrying 'SolveError: <message>'."""
+    from geomopt.solvers import LBFGS
+
+    make, V, S, H, h0, v, x0 = _handles("planar")
+    loose = LBFGS(rtol=1e-4, gtol=1e-3)
+
+    def loss(h):
+        return jnp.sum(implicit.minimize(Objective(make(V, S, H, h), "symmetric_dirichlet"), x0, loose)[v])
+
+    with pytest.raises(SolveError, match="tight enough"):
+        jax.grad(loss)(h0)
+    with pytest.raises(SolveError, match="tight enough"):
+        jax.jvp(loss, (h0,), (h0,))
+    with _raises(SolveError, "tight enough optimum .* solve to a tighter tolerance"):
+        jax.block_until_ready(jax.jit(jax.grad(loss))(h0))
