@@ -74,7 +74,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import functools
 import itertools
 import threading
 from functools import partial
@@ -82,10 +81,10 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 
 from ._cg import NewtonCG, cg_system, pcg
 from ._errors import ParameterError, SolveError
+from ._gauge import gauge_motions, gauge_pins
 from ._objective import Objective, block_hessian, check_element_weights, jit
 from ._tracing import is_traced
 from ._x64 import float64, pure_callback
@@ -152,6 +151,8 @@ def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto")
     def f_jvp(primals, tangents):
         obj, p, x0 = primals
         x, tok = f(obj, p, x0)  # through this very rule again under a second derivative
+        if not is_traced(obj, p, x):  # eager: the JAX assembly here, not inside the solve's callback
+            _adjoint_system(linear_solver, tok, obj, p, x)
         dg = _residual_tangent(obj, p, x, *tangents[:2])
 
         def solve(_, b):  # H^+ b on the host, with the factorization of this very optimum
@@ -272,100 +273,23 @@ def _forward(solve, linear_solver, objective, params, x0):
 @float64
 def _adjoint(linear_solver, token, objective, params, x, xbar):
     """``lam = H^+ P xbar`` (n, d) at the optimum ``x`` (module notes)."""
+    return _adjoint_system(linear_solver, token, objective, params, x).solve(np.asarray(xbar, np.float64))
+
+
+@float64
+def _adjoint_system(linear_solver, token, objective, params, x):
+    """The :class:`AdjointSystem` of the forward ``token``: kept by the forward, else assembled
+    at ``x`` (the forward ran elsewhere or long ago, or its refining step was too long) and kept.
+    Its JAX assembly deadlocked inside a host callback on an 11k-triangle mesh: eagerly, the
+    forward-mode rule calls this directly first."""
     with _lock:
         ctx = _CONTEXTS.get(int(np.asarray(token)))
-    if ctx is None:  # the forward ran elsewhere or long ago: assemble from the residuals
+    if ctx is None:
         ctx = {}
-    system = ctx.get("system")
-    if system is None:
+    if ctx.get("system") is None:
         obj = ctx.get("objective") or _concrete(objective)
-        system = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
-        ctx["system"] = system
-    return system.solve(np.asarray(xbar, np.float64))
-
-
-# --------------------------------------------------------------------- the gauge
-
-
-def _symmetries(energy, params, d):
-    return _symmetries_of(energy.density, tuple(sorted(params.items())), d)
-
-
-@functools.lru_cache(maxsize=64)
-def _symmetries_of(density, params, d, samples=4, rtol=1e-9):
-    """(rotation, scale): whether the density is invariant under ``J -> R J`` (rotations of the
-    map) and ``J -> s J``, tested on random Jacobians with ``det J > 0``."""
-    rng = np.random.default_rng(0)
-    p = {k: jnp.float64(v) for k, v in params}
-    psi = jax.vmap(density, in_axes=(0, None))
-    J = np.eye(d) + 0.3 * rng.standard_normal((samples, d, d))
-    J[np.linalg.det(J) < 0, 0] *= -1
-    A = rng.standard_normal((d, d))
-    R = scipy.linalg.expm(A - A.T)
-    base = np.asarray(psi(J, p))
-    ok = np.isfinite(base)
-
-    def same(other):
-        return bool(np.all(np.abs(np.asarray(psi(other, p)) - base)[ok] <= rtol * np.abs(base[ok]).clip(1e-300)))
-
-    return same(R @ J), same(1.7 * J)
-
-
-def gauge_motions(objective: Objective, params, x) -> np.ndarray:
-    """An orthonormal basis (n*d, r) of the motions of the map ``x`` (n, d) that leave the energy
-    unchanged and every handle in place: translations (always symmetries), rotations and
-    scaling when the density is invariant under them (tested on it), restricted to those that
-    fix the handles.  ``r = 0`` for a map held by enough handles."""
-    P = objective.problem
-    n, d = x.shape
-    rotation, scale = _symmetries(objective.energy, params, d)
-    gens = [np.tile(np.eye(d)[c], (n, 1)) for c in range(d)]
-    if rotation:
-        axes = [np.array([[0.0, -1.0], [1.0, 0.0]])] if d == 2 else [
-            np.cross(np.eye(3)[a], np.eye(3)) for a in range(3)]  # skew generators: v -> e_a x v
-        gens += [x @ K.T for K in axes]
-    if scale:
-        gens.append(x.copy())
-    G = np.stack([g.reshape(-1) for g in gens], 1)
-    handles = (P.fixed[:, None] * d + np.arange(d)).reshape(-1)
-    if handles.size:
-        G = G @ _null(G[handles])
-    return _orthonormal(G)
-
-
-def _null(A, rtol=1e-10):
-    """Orthonormal basis of the null space of ``A`` (k, r): (r, r - rank)."""
-    if A.shape[0] == 0:
-        return np.eye(A.shape[1])
-    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # no (k, k) U for tall A
-    rank = int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))
-    return Vt[rank:].T
-
-
-def _orthonormal(G, rtol=1e-10):
-    if G.shape[1] == 0:
-        return G
-    U, s, _ = np.linalg.svd(G, full_matrices=False)
-    return U[:, : int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))]
-
-
-def gauge_pins(N, free_dofs) -> np.ndarray:
-    """The free DOFs (indices into the free numbering) to pin so that the pinned DOFs together
-    with the objective's own gauge pin meet every motion of ``N`` (n*d, r) transversally: the
-    motions vanishing on the objective's pin, restricted to the free DOFs, pivoted by QR."""
-    free = free_dofs.reshape(-1)
-    if N.shape[1] == 0:
-        return np.zeros(0, np.int64)
-    M = N @ _null(N[~free & _moving(N)])
-    if M.shape[1] == 0:
-        return np.zeros(0, np.int64)
-    _, _, piv = scipy.linalg.qr(M[free].T, pivoting=True, mode="economic")
-    return np.sort(piv[: M.shape[1]])
-
-
-def _moving(N):
-    """DOFs that some motion of ``N`` moves (handles never do)."""
-    return np.abs(N).max(axis=1) > 0
+        ctx["system"] = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
+    return ctx["system"]
 
 
 # --------------------------------------------------------------------- the adjoint system
@@ -540,13 +464,21 @@ def _require(result, where):
 
 def _constant(fn, shapes, *args):
     """``fn(*args)`` run on the host with zero derivative (a step of a solve whose outcome is
-    locally constant in the inputs), concrete inputs under eager ``jax.grad`` too."""
+    locally constant in the inputs), concrete inputs under eager ``jax.grad`` too; forward and
+    reverse mode (a zero tangent transposes to zero cotangents)."""
 
-    def run(*args):
+    @jax.custom_jvp
+    def f(*args):
         return _host(fn, shapes, *args)
 
-    f = jax.custom_vjp(run)
-    f.defvjp(lambda *args: (run(*args), args), lambda args, _: jax.tree_util.tree_map(jnp.zeros_like, args))
+    def zero(o):
+        return jnp.zeros_like(o) if jnp.issubdtype(o.dtype, jnp.inexact) else np.zeros(o.shape, jax.dtypes.float0)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        out = f(*primals)
+        return out, jax.tree_util.tree_map(zero, out)
+
     return f(*args)
 
 

@@ -208,3 +208,23 @@ def test_a_refused_solve_keeps_geomopt_s_class_and_message_eagerly_and_under_jit
         jax.jvp(loss, (h0,), (h0,))
     with _raises(SolveError, "tight enough optimum .* solve to a tighter tolerance"):
         jax.block_until_ready(jax.jit(jax.grad(loss))(h0))
+
+
+def test_forward_mode_through_untangling_equals_reverse_mode():
+    """Item 7: implicit.untangle (its untangling a zero-derivative host step, its polish an
+    implicit solve) in forward mode: jvp equals the reverse-mode gradient's projection."""
+    V, F = grid(5)
+    B = boundary_vertices(F, len(V))
+    inner = np.setdiff1d(np.arange(len(V)), B)
+    x0 = V.copy()
+    c = V[inner] - 0.5
+    x0[inner] = 0.5 + c @ np.array([[np.cos(1.5), -np.sin(1.5)], [np.sin(1.5), np.cos(1.5)]]).T
+    h0 = V[B] + 0.02 * np.random.default_rng(11).standard_normal((len(B), 2))
+
+    def loss(h):
+        return implicit.untangle(Problem.planar(V, F, B, h), x0, 0.1)[inner[2], 0]
+
+    dh = np.random.default_rng(12).standard_normal(h0.shape)
+    t = float(jax.jvp(loss, (h0,), (dh,))[1])
+    g = float(np.sum(np.asarray(jax.grad(loss)(h0)) * dh))
+    assert abs(t - g) <= 1e-9 * abs(g) and abs(g) > 1e-6, (t, g)
