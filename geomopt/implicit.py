@@ -12,9 +12,22 @@ so a cotangent ``xbar`` of the map pulls back as
 
 (one JAX reverse-over-forward pass of the energy), as in optimistix's ``ImplicitAdjoint`` and
 jaxopt's ``custom_root`` (Blondel et al. 2022, "Efficient and modular implicit
-differentiation").  :func:`argmin` wires this with ``jax.custom_vjp``, so ``jax.grad``,
-``jax.vjp``, ``jax.jacrev`` and ``jax.vmap`` work, eagerly and inside ``jax.jit`` (where the
-forward solve and the sparse solve run on the host through ``jax.pure_callback``).
+differentiation").  :func:`argmin` wires this as a ``jax.custom_jvp``: the tangent is
+``dx = -H^+ (dg/dtheta) dtheta``, the right-hand side a (compiled) JAX ``jvp`` of the gradient,
+the solve a ``jax.lax.custom_linear_solve`` (symmetric) whose solve runs on the host; JAX
+transposes both for reverse mode.  So ``jax.jvp``, ``jax.jacfwd``, ``jax.grad``, ``jax.vjp``,
+``jax.jacrev`` and ``jax.vmap`` of them work, eagerly and inside ``jax.jit`` (the forward solve and
+the sparse solves run on the host through ``jax.pure_callback``, one per batch element), and so
+do second derivatives (``jax.hessian``) of maps held by handles: the solve's operator is the
+exact Hessian-vector product, whose own derivative enters through ``custom_linear_solve``;
+where the map has a gauge (below) the derivative of ``H^+`` is not that, and second
+derivatives are refused (SolveError).
+
+**One factorization per optimum.**  The numeric factor of a mesh is shared by every solve of it
+(its symbolic analysis too): a forward's adjoint system keeps its own matrix and refactors it
+when another solve (the next batch element under ``vmap``, a second solve in the same loss)
+refactored the shared factor since (:attr:`geomopt.linsolve.SparseCholesky.generation`), so each
+backward solves with the Hessian at its own optimum.
 
 **Conventions.**
 
@@ -41,7 +54,9 @@ forward solve and the sparse solve run on the host through ``jax.pure_callback``
   decrement ``g.H^+ g / 2`` exceeds :data:`DECREMENT_RTOL` ``* |E|`` (not a tight enough
   optimum for the theorem); an exact Hessian that is not positive definite modulo the gauge
   (a saddle or a degenerate minimum: the map is then not a differentiable function of its
-  inputs).  Under ``jax.jit`` these surface as JAX's runtime error carrying the message.
+  inputs).  Under ``jax.jit`` (or ``jax.hessian``'s batching) these surface as JAX's runtime
+  error (``jax.errors.JaxRuntimeError``: no exception class crosses a compiled program) whose
+  text ends with the class name and message, e.g. ``SolveError: implicit differentiation: ...``.
 
 **Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
 (:func:`geomopt.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linsolve`,
@@ -59,7 +74,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import functools
 import itertools
 import threading
 from functools import partial
@@ -67,10 +81,10 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 
 from ._cg import NewtonCG, cg_system, pcg
 from ._errors import ParameterError, SolveError
+from ._gauge import gauge_motions, gauge_pins
 from ._objective import Objective, block_hessian, check_element_weights, jit
 from ._tracing import is_traced
 from ._x64 import float64, pure_callback
@@ -129,23 +143,25 @@ def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto")
     def forward(obj, p, x0):
         return _host(partial(_forward, solve, linear_solver), (shape, token), obj, p, x0)
 
-    @jax.custom_vjp
-    def f(obj, p, x0):
-        return forward(obj, p, x0)[0]
+    @jax.custom_jvp
+    def f(obj, p, x0):  # (the map, the token of its forward's context)
+        return forward(obj, p, x0)
 
-    def fwd(obj, p, x0):
-        x, tok = forward(obj, p, x0)
-        return x, (obj, p, x0, x, tok)
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        obj, p, x0 = primals
+        x, tok = f(obj, p, x0)  # through this very rule again under a second derivative
+        if not is_traced(obj, p, x):  # eager: the JAX assembly here, not inside the solve's callback
+            _adjoint_system(linear_solver, tok, obj, p, x)
+        dg = _residual_tangent(obj, p, x, *tangents[:2])
 
-    def bwd(res, xbar):
-        obj, p, x0, x, tok = res
-        lam = _host(partial(_adjoint, linear_solver), shape, tok, obj, p, x, xbar)
-        cot_obj, cot_p = _pullback(obj, p, x, lam)
-        neg = partial(jax.tree_util.tree_map, jnp.negative)
-        return neg(cot_obj), neg(cot_p), jax.tree_util.tree_map(jnp.zeros_like, x0)
+        def solve(_, b):  # H^+ b on the host, with the factorization of this very optimum
+            return _host(partial(_adjoint, linear_solver), shape, tok, obj, p, x, b)
 
-    f.defvjp(fwd, bwd)
-    x = f(objective, params, x0)
+        dx = -jax.lax.custom_linear_solve(partial(_hvp, tok, obj, p, x), dg, solve, symmetric=True)
+        return (x, tok), (dx, np.zeros((), jax.dtypes.float0))
+
+    x = f(objective, params, x0)[0]
     fixed = objective.problem.fixed
     return x.at[fixed].set(objective.problem.fixed_positions) if fixed.size else x
 
@@ -159,17 +175,51 @@ def _host(fn, shapes, *args):
     return pure_callback(fn, shapes, *args, vmap_method="sequential")
 
 
+def _residual(obj, p, x):
+    """``grad_x E(x, obj, p)`` (n, d) with the handle rows of ``x`` taken from the objective
+    (so that handle positions get their share of the derivative)."""
+    P = obj.problem
+    xh = x.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x
+    return jax.grad(lambda y: obj.value(y, p))(xh)
+
+
 @jax.jit
-def _pullback(objective, params, x, lam):
-    """``d/d(objective, params) <grad_x E(x, objective, params), lam>`` with the handle rows of
-    ``x`` taken from the objective (so handle positions get their share)."""
+def _residual_tangent(obj, p, x, dobj, dp):
+    """``d/d(obj, p) grad_x E(x, obj, p) . (dobj, dp)`` (n, d): the right-hand side of the
+    forward-mode solve, linear in the tangents (its transpose is reverse mode's pullback);
+    compiled, also when transposed."""
+    return jax.jvp(partial(_residual, x=x), (obj, p), (dobj, dp))[1]
 
-    def gdot(obj, p):
-        P = obj.problem
-        xh = x.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x
-        return jax.jvp(lambda y: obj.value(y, p), (xh,), (lam,))[1]
 
-    return jax.grad(gdot, argnums=(0, 1))(objective, params)
+@jax.custom_jvp
+def _hvp(tok, obj, p, x, v):
+    """The exact Hessian at ``x`` on the free DOFs applied to ``v`` (n, d): the operator whose
+    inverse the host solve applies, traced only when a second derivative differentiates it
+    (then refused where the map has a gauge: the derivative of ``H^+`` is not ``H``'s)."""
+    free = jnp.asarray(obj.free_dofs, v.dtype)
+    return jax.jvp(partial(_residual, obj, p), (x,), (v * free,))[1] * free
+
+
+@_hvp.defjvp
+def _hvp_jvp(primals, tangents):
+    one = _host(_gauge_free, jax.ShapeDtypeStruct((), jnp.float64), *primals[:4])
+    out, dout = jax.jvp(_hvp.fun, primals, tangents)
+    return out, dout * one
+
+
+@float64
+def _gauge_free(token, objective, params, x):
+    """1.0 when the map ``x`` has no gauge motion (:func:`gauge_motions`), else SolveError."""
+    with _lock:
+        ctx = _CONTEXTS.get(int(np.asarray(token))) or {}
+    system = ctx.get("system")
+    obj = ctx.get("objective") or _concrete(objective)
+    r = system.N.shape[1] if system is not None else gauge_motions(obj, _floats(params), np.asarray(x)).shape[1]
+    if r:
+        raise SolveError(f"implicit differentiation: second derivatives (jax.hessian, jacfwd of grad) of a map "
+                         f"with {r} gauge motion(s) (translations/rotations/scale that leave the energy "
+                         f"unchanged) are not supported; hold the map by handles, or use first derivatives")
+    return np.float64(1.0)
 
 
 # --------------------------------------------------------------------- host side
@@ -223,100 +273,23 @@ def _forward(solve, linear_solver, objective, params, x0):
 @float64
 def _adjoint(linear_solver, token, objective, params, x, xbar):
     """``lam = H^+ P xbar`` (n, d) at the optimum ``x`` (module notes)."""
+    return _adjoint_system(linear_solver, token, objective, params, x).solve(np.asarray(xbar, np.float64))
+
+
+@float64
+def _adjoint_system(linear_solver, token, objective, params, x):
+    """The :class:`AdjointSystem` of the forward ``token``: kept by the forward, else assembled
+    at ``x`` (the forward ran elsewhere or long ago, or its refining step was too long) and kept.
+    Its JAX assembly deadlocked inside a host callback on an 11k-triangle mesh: eagerly, the
+    forward-mode rule calls this directly first."""
     with _lock:
         ctx = _CONTEXTS.get(int(np.asarray(token)))
-    if ctx is None:  # the forward ran elsewhere or long ago: assemble from the residuals
+    if ctx is None:
         ctx = {}
-    system = ctx.get("system")
-    if system is None:
+    if ctx.get("system") is None:
         obj = ctx.get("objective") or _concrete(objective)
-        system = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
-        ctx["system"] = system
-    return system.solve(np.asarray(xbar, np.float64))
-
-
-# --------------------------------------------------------------------- the gauge
-
-
-def _symmetries(energy, params, d):
-    return _symmetries_of(energy.density, tuple(sorted(params.items())), d)
-
-
-@functools.lru_cache(maxsize=64)
-def _symmetries_of(density, params, d, samples=4, rtol=1e-9):
-    """(rotation, scale): whether the density is invariant under ``J -> R J`` (rotations of the
-    map) and ``J -> s J``, tested on random Jacobians with ``det J > 0``."""
-    rng = np.random.default_rng(0)
-    p = {k: jnp.float64(v) for k, v in params}
-    psi = jax.vmap(density, in_axes=(0, None))
-    J = np.eye(d) + 0.3 * rng.standard_normal((samples, d, d))
-    J[np.linalg.det(J) < 0, 0] *= -1
-    A = rng.standard_normal((d, d))
-    R = scipy.linalg.expm(A - A.T)
-    base = np.asarray(psi(J, p))
-    ok = np.isfinite(base)
-
-    def same(other):
-        return bool(np.all(np.abs(np.asarray(psi(other, p)) - base)[ok] <= rtol * np.abs(base[ok]).clip(1e-300)))
-
-    return same(R @ J), same(1.7 * J)
-
-
-def gauge_motions(objective: Objective, params, x) -> np.ndarray:
-    """An orthonormal basis (n*d, r) of the motions of the map ``x`` (n, d) that leave the energy
-    unchanged and every handle in place: translations (always symmetries), rotations and
-    scaling when the density is invariant under them (tested on it), restricted to those that
-    fix the handles.  ``r = 0`` for a map held by enough handles."""
-    P = objective.problem
-    n, d = x.shape
-    rotation, scale = _symmetries(objective.energy, params, d)
-    gens = [np.tile(np.eye(d)[c], (n, 1)) for c in range(d)]
-    if rotation:
-        axes = [np.array([[0.0, -1.0], [1.0, 0.0]])] if d == 2 else [
-            np.cross(np.eye(3)[a], np.eye(3)) for a in range(3)]  # skew generators: v -> e_a x v
-        gens += [x @ K.T for K in axes]
-    if scale:
-        gens.append(x.copy())
-    G = np.stack([g.reshape(-1) for g in gens], 1)
-    handles = (P.fixed[:, None] * d + np.arange(d)).reshape(-1)
-    if handles.size:
-        G = G @ _null(G[handles])
-    return _orthonormal(G)
-
-
-def _null(A, rtol=1e-10):
-    """Orthonormal basis of the null space of ``A`` (k, r): (r, r - rank)."""
-    if A.shape[0] == 0:
-        return np.eye(A.shape[1])
-    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # no (k, k) U for tall A
-    rank = int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))
-    return Vt[rank:].T
-
-
-def _orthonormal(G, rtol=1e-10):
-    if G.shape[1] == 0:
-        return G
-    U, s, _ = np.linalg.svd(G, full_matrices=False)
-    return U[:, : int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))]
-
-
-def gauge_pins(N, free_dofs) -> np.ndarray:
-    """The free DOFs (indices into the free numbering) to pin so that the pinned DOFs together
-    with the objective's own gauge pin meet every motion of ``N`` (n*d, r) transversally: the
-    motions vanishing on the objective's pin, restricted to the free DOFs, pivoted by QR."""
-    free = free_dofs.reshape(-1)
-    if N.shape[1] == 0:
-        return np.zeros(0, np.int64)
-    M = N @ _null(N[~free & _moving(N)])
-    if M.shape[1] == 0:
-        return np.zeros(0, np.int64)
-    _, _, piv = scipy.linalg.qr(M[free].T, pivoting=True, mode="economic")
-    return np.sort(piv[: M.shape[1]])
-
-
-def _moving(N):
-    """DOFs that some motion of ``N`` moves (handles never do)."""
-    return np.abs(N).max(axis=1) > 0
+        ctx["system"] = AdjointSystem(obj, _floats(params), np.asarray(x, np.float64), linear_solver, check=False)
+    return ctx["system"]
 
 
 # --------------------------------------------------------------------- the adjoint system
@@ -357,14 +330,21 @@ class AdjointSystem:
             self.value = float(value)
             data = np.array(data)
             self._pin(data, pat)
-            self.chol = obj.cholesky(kind)
-            try:
-                self.chol.factor(data)
-            except NotPositiveDefinite:
-                raise SolveError(self._not_pd()) from None
+            self.chol, self.data = obj.cholesky(kind), data
+            self._factor()
             self.grad = np.asarray(obj.unpad_map(grad))
         if self.check:
             self._check_decrement()
+
+    def _factor(self):
+        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.linsolve.SparseCholesky`
+        (its symbolic analysis shared, its numeric factor refactored by any later solve of the
+        mesh: :attr:`generation` is the factorization that holds this map's matrix)."""
+        try:
+            self.chol.factor(self.data)
+        except NotPositiveDefinite:
+            raise SolveError(self._not_pd()) from None
+        self.generation = self.chol.generation
 
     def _pin(self, data, pat):
         """Replace the rows and columns of the pinned free DOFs by identity ones, in place."""
@@ -411,7 +391,10 @@ class AdjointSystem:
     def _solve_free(self, b):
         if self.kind == "cg":
             return self._cg_solve(b)
-        return self.chol.solve(b)
+        with _lock:  # another solve of the mesh (a forward, a batch element) refactored it since
+            if self.chol.generation != self.generation:
+                self._factor()
+            return self.chol.solve(b)
 
     def _embed(self, mu_free, shape):
         """The free-DOF solution ``mu_free`` as an (n, d) array (zero on fixed DOFs and gauge
@@ -481,13 +464,21 @@ def _require(result, where):
 
 def _constant(fn, shapes, *args):
     """``fn(*args)`` run on the host with zero derivative (a step of a solve whose outcome is
-    locally constant in the inputs), concrete inputs under eager ``jax.grad`` too."""
+    locally constant in the inputs), concrete inputs under eager ``jax.grad`` too; forward and
+    reverse mode (a zero tangent transposes to zero cotangents)."""
 
-    def run(*args):
+    @jax.custom_jvp
+    def f(*args):
         return _host(fn, shapes, *args)
 
-    f = jax.custom_vjp(run)
-    f.defvjp(lambda *args: (run(*args), args), lambda args, _: jax.tree_util.tree_map(jnp.zeros_like, args))
+    def zero(o):
+        return jnp.zeros_like(o) if jnp.issubdtype(o.dtype, jnp.inexact) else np.zeros(o.shape, jax.dtypes.float0)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        out = f(*primals)
+        return out, jax.tree_util.tree_map(zero, out)
+
     return f(*args)
 
 

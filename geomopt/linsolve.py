@@ -144,6 +144,12 @@ class SparseCholesky:
     ----------
     indptr, indices : the CSC pattern of the lower triangle (sorted row indices per column).
     backend : one of ``BACKENDS``.
+
+    Attributes
+    ----------
+    generation : int, counts the numeric factorizations: a caller that keeps the matrix it
+        factored can tell whether the factor still is of that matrix (another caller sharing the
+        symbolic analysis may have refactored it since) and refactor before solving.
     """
 
     def __init__(self, indptr, indices, backend="auto"):
@@ -161,6 +167,7 @@ class SparseCholesky:
         self.n = len(indptr) - 1
         self._analysis = None
         self._factor = None
+        self.generation = 0
         if backend == "cholespy":
             self._ip32 = self.indptr.astype(np.int32)
             self._ix32 = self.indices.astype(np.int32)
@@ -199,7 +206,9 @@ class SparseCholesky:
             self._analysis = analyze(A, mode="supernodal", ordering_method="metis")
 
     def factor(self, data):
-        """Numeric factorization of the matrix with values ``data`` (nnz,)."""
+        """Numeric factorization of the matrix with values ``data`` (nnz,) (replaces the previous
+        one: :attr:`generation` counts them)."""
+        self.generation += 1
         data = np.ascontiguousarray(data, dtype=np.float64)
         if not np.isfinite(data).all():
             raise NotPositiveDefinite("matrix has non-finite entries")

@@ -289,6 +289,8 @@ class Problem:
 
     @classmethod
     def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions, elements=None):
+        if is_traced(V, vol):
+            _check_traced_rest(kind, V, vol)
         p = cls(
             kind=kind,
             dim=d,
@@ -471,14 +473,28 @@ def check_rest_values(problem: Problem) -> Problem:
     """Run the value checks that a problem built from traced rest vertices or handle positions
     skipped (finite coordinates, no degenerate rest element, every rest element positively
     oriented), on its now concrete arrays; returns ``problem``.  Raises MeshError."""
-    what = {"tet": "tetrahedron"}.get(problem.kind, "triangle")
-    validate_vertices(problem.rest_vertices, "rest vertices")
+    _check_rest_arrays(problem.kind, problem.rest_vertices, problem.volumes)
     if problem.fixed.size:
         validate_vertices(problem.fixed_positions, "fixed positions")
-    if _check_rest_volumes(np.asarray(problem.volumes), what):
+    return problem
+
+
+def _check_rest_arrays(kind, V, vol):
+    """The value checks of :func:`check_rest_values` on rest vertices (n, d') and element sizes
+    (m,) (NumPy arrays).  Raises MeshError."""
+    what = {"tet": "tetrahedron"}.get(kind, "triangle")
+    validate_vertices(np.asarray(V), "rest vertices")
+    if _check_rest_volumes(np.asarray(vol), what):
         raise MeshError(f"every rest {what} is negatively oriented: a problem built from traced rest "
                         f"vertices takes the elements as given; reverse their order (e.g. F[:, [0, 2, 1]])")
-    return problem
+
+
+def _check_traced_rest(kind, V, vol):
+    """Traced rest vertices: the checks of :func:`check_rest_values` run on the host with the
+    user's program (``jax.debug.callback``, per batch element under ``vmap``), so that a
+    degenerate or inverted rest element raises MeshError instead of giving a NaN energy (inside
+    ``jax.jit`` the error reaches the caller as JAX's runtime error carrying this message)."""
+    jax.debug.callback(functools.partial(_check_rest_arrays, kind), V, vol)
 
 
 def check_initial_orientation(problem: Problem, x0) -> float:

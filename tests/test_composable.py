@@ -1,12 +1,14 @@
 """Issue 17 item 1: the mesh energy composes with jit / grad / hessian / jvp / vjp / vmap, and a
 Problem built from traced rest vertices gives the shape derivative."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from geomopt import Objective, ParameterError, Problem
+from geomopt import MeshError, Objective, ParameterError, Problem
 from geomopt.problem import check_rest_values
 
 from conftest import cube_tets, grid
@@ -162,13 +164,14 @@ def test_problem_and_objective_are_pytrees_keyed_by_content():
 def test_traced_construction_skips_value_checks_that_concrete_input_runs():
     V, F = grid(4)
     Fcw = F[:, [0, 2, 1]]
-    # concrete: a clockwise mesh is reordered; traced: taken as given (negative sizes)
+    # concrete: a clockwise mesh is reordered; traced: taken as given, its values checked on the
+    # host with the program (issue 30: a bad traced rest element gave a NaN energy, no error)
     assert (Problem.planar(V, Fcw).volumes > 0).all()
-    vols = jax.jit(lambda V: Problem.planar(V, Fcw).volumes)(V)
-    assert (np.asarray(vols) < 0).all()
-    traced = jax.jit(lambda V: Problem.planar(V, Fcw))(V)
-    with pytest.raises(Exception, match="negatively oriented"):
-        check_rest_values(traced)
+    with pytest.raises(Exception, match="MeshError: every rest triangle is negatively oriented"):
+        jax.block_until_ready(jax.jit(lambda V: Problem.planar(V, Fcw).volumes)(V))
+    flipped = dataclasses.replace(Problem.planar(V, F), volumes=-Problem.planar(V, F).volumes)
+    with pytest.raises(MeshError, match="negatively oriented"):
+        check_rest_values(flipped)
     check_rest_values(jax.jit(lambda V: Problem.planar(V, F))(V))
     with pytest.raises(ParameterError, match="traced float32"):
         jax.jit(lambda V: Problem.planar(V, F))(V.astype(np.float32))
