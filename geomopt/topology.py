@@ -445,3 +445,43 @@ def _check_one_boundary(F, n, E) -> np.ndarray:
             f"the surface has genus {(1 - chi) // 2}; cut its handles open to get a disk"
         )
     return loops[0]
+
+
+# --------------------------------------------------------------------------- sphere check
+
+def check_sphere(F, n_vertices) -> None:
+    """Check that a triangle mesh is a closed, manifold, connected surface of genus 0.
+
+    Checks, in order: valid indices, no face repeating a vertex, no unreferenced vertices,
+    manifold edges, consistent orientation, one connected component, no boundary, manifold
+    vertices, and Euler characteristic ``V - E + F == 2``.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+    n_vertices : int
+
+    Raises
+    ------
+    MeshError
+        One line naming the first failed check and what to do about it.
+    """
+    F = as_faces(F, n_vertices)
+    n = _as_count(n_vertices)
+    E = _check_manifold_faces(F, n)
+    open_edges = int((_twins(F) < 0).sum())
+    if open_edges:
+        raise MeshError(
+            f"the mesh has a boundary ({len(boundary_loops(F))} loop(s), {open_edges} edges): only a closed "
+            "genus-0 surface maps onto the sphere; fill its holes first")
+    bad = _fans_per_vertex(F, n) > 1
+    if bad.any():
+        raise MeshError(
+            f"{int(bad.sum())} non-manifold (pinched) vertices, whose faces do not form a single fan; "
+            "split these vertices (one copy per fan)")
+    chi = n - E.shape[0] + F.shape[0]
+    if chi != 2:
+        raise MeshError(
+            f"Euler characteristic V - E + F = {n} - {E.shape[0]} + {F.shape[0]} = {chi}, not 2: the surface "
+            f"has genus {(2 - chi) // 2} and only genus 0 maps onto the sphere; make an atlas instead "
+            "(geomopt param without --sphere)")
