@@ -207,8 +207,10 @@ def test_sphere_figure_draws_the_map():
     V, F = random_hull(4, 40)
     x, _ = sphere_start(V, F)
     fig = plot.sphere_figure(V, F, x, dpi=20)
-    image = fig.axes[2].images[0].get_array()  # the sphere, coloured by area ratio
-    assert len(fig.axes) == 4 and image.shape[0] > 50 and np.ptp(np.asarray(image)[..., :3]) > 0.2
+    image = np.asarray(fig.axes[2].images[0].get_array())  # the sphere, coloured by area ratio
+    covered = image[..., 3] > 0.99
+    hue = image[..., 0][covered] - image[..., 2][covered]  # coolwarm: red above 1, blue below (grey: 0)
+    assert len(fig.axes) == 4 and covered.sum() > 1000 and hue.max() > 0.1 and hue.min() < -0.1
 
 
 def test_cli_refuses_a_torus_with_one_line(tmp_path):
