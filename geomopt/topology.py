@@ -24,6 +24,7 @@ __all__ = [
     "same_side_facets",
     "nonmanifold_facets",
     "check_disk",
+    "check_sphere",
 ]
 
 
@@ -365,9 +366,10 @@ def check_disk(F, n_vertices) -> np.ndarray:
     return _check_one_boundary(F, n, E)
 
 
-def _check_manifold_faces(F, n) -> np.ndarray:
-    """:func:`check_disk`'s checks of the faces (no repeated vertex, no unused vertex, manifold
-    edges, consistent orientation, one component); returns the unique edges."""
+def _check_manifold_faces(F, n, sphere=False) -> np.ndarray:
+    """:func:`check_disk`'s (or with ``sphere``, :func:`check_sphere`'s) checks of the faces (no
+    repeated vertex, no unused vertex, manifold edges, consistent orientation, one component);
+    returns the unique edges."""
     m = F.shape[0]
 
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
@@ -389,7 +391,8 @@ def _check_manifold_faces(F, n) -> np.ndarray:
     if (face_count > 2).any():
         raise MeshError(
             f"{int((face_count > 2).sum())} non-manifold edges (used by more than 2 faces); "
-            "a disk's edges are used by 1 or 2 faces: split or remove the extra faces"
+            + ("a closed surface's edges are used by 2 faces" if sphere else "a disk's edges are used by 1 or 2 faces")
+            + ": split or remove the extra faces"
         )
 
     same_direction, _ = same_side_facets(F)
@@ -403,8 +406,8 @@ def _check_manifold_faces(F, n) -> np.ndarray:
     count, _ = connected_components(F, n)
     if count > 1:
         raise MeshError(
-            f"the mesh has {count} connected components; a disk has one: "
-            "keep one component or parameterize each separately"
+            f"the mesh has {count} connected components; {'a sphere' if sphere else 'a disk'} has one: "
+            f"keep one component or {'map' if sphere else 'parameterize'} each separately"
         )
     return E
 
@@ -468,7 +471,7 @@ def check_sphere(F, n_vertices) -> None:
     """
     F = as_faces(F, n_vertices)
     n = _as_count(n_vertices)
-    E = _check_manifold_faces(F, n)
+    E = _check_manifold_faces(F, n, sphere=True)
     open_edges = int((_twins(F) < 0).sum())
     if open_edges:
         raise MeshError(
