@@ -627,6 +627,9 @@ class _Mesh:
     @property
     def pattern(self) -> HessianPattern:
         if self._pattern is None:
+            if self._connectivity.simplices.shape[1] == self._connectivity.dim:  # cones over the origin
+                raise ParameterError("a map onto the sphere has no assembled Hessian (its Jacobians are not "
+                                     "linear in x): minimise it with L-BFGS (geomopt.sphere_map)")
             pat = hessian_pattern(self._connectivity, self.free_dofs)
             sz = self.sizes
             # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)

@@ -163,6 +163,9 @@ def test_refuses_a_hessian_solver_and_a_collapsing_energy():
         geomopt.sphere_map(V, F, solver="newton", progress=False)
     with pytest.raises(ParameterError, match="shrinks"):
         geomopt.sphere_map(V, F, energy="dirichlet", progress=False)
+    obj = geomopt.Objective(Problem.sphere(V, F), "symmetric_dirichlet")  # by hand: the objective says it too
+    with pytest.raises(ParameterError, match="no assembled Hessian"):
+        geomopt.minimize(obj, sphere_start(V, F)[0], "newton", progress=False)
 
 
 def test_energy_gradient_matches_finite_differences():
