@@ -90,9 +90,9 @@ def save_layout(path, x, F, face_values=None, title="", label="distortion", vmin
     save_figure(layout_figure(x, F, face_values, title, label, vmin, vmax, dpi=120), path, format)
 
 
-def _surface_panels(render, caption, view, dpi):
-    """A 16 x 7.5 inch figure with three panels: ``render(pixels, azimuth)`` (an RGBA image) seen
-    from ``view`` (large, titled ``caption``) and from the other side (smaller); returns the
+def _surface_panels(render, caption, view, dpi, title):
+    """A 16 x 7.5 inch figure (``title`` above) with three panels: ``render(pixels, azimuth)`` (an
+    RGBA image) seen from ``view`` (large, titled ``caption``) and from the other side (smaller); returns the
     figure, the third (empty) axes and the large panel's pixel size.  The renders have about
     1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
     downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels."""
@@ -103,6 +103,8 @@ def _surface_panels(render, caption, view, dpi):
         ax.imshow(render(px, azim), interpolation="antialiased")
         ax.set_axis_off()
         ax.set_title(name, fontsize=11)
+    if title:
+        fig.suptitle(title, fontsize=12)
     return fig, right, size
 
 
@@ -121,10 +123,8 @@ def param_figure(V, F, uv, face_values=None, title="", label="distortion", check
     fig, right, _ = _surface_panels(
         lambda px, azim: render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks,
                                            supersample=1),
-        f"{checks} x {checks} checkerboard through the UV map", view, dpi)
+        f"{checks} x {checks} checkerboard through the UV map", view, dpi, title)
     _layout(fig, right, uv, F, face_values, "UV layout", label)
-    if title:
-        fig.suptitle(title, fontsize=12)
     return fig
 
 
@@ -158,15 +158,13 @@ def sphere_figure(V, F, x, face_values=None, title="", label="log2 area ratio", 
     fig, right, size = _surface_panels(
         lambda px, azim: render_sphere_checker(V, F, x, size=(px, px), elev=view[0], azim=azim, up=up,
                                                checks=checks, supersample=1),
-        "latitude-longitude checks through the map", view, dpi)
+        "latitude-longitude checks through the map", view, dpi, title)
     y = x / np.linalg.norm(x, axis=1, keepdims=True)
     right.imshow(render_surface(y, F, lambda f, b, hit: mappable.to_rgba(values[f])[:, :3], size=(size, size),
                                 elev=view[0], azim=view[1], up=up, supersample=1), interpolation="antialiased")
     right.set_axis_off()
     right.set_title("the sphere", fontsize=11)
     fig.colorbar(mappable, ax=right, shrink=0.8, label=label)
-    if title:
-        fig.suptitle(title, fontsize=12)
     return fig
 
 
