@@ -40,13 +40,14 @@ import numpy as np
 from ._errors import MeshError, ParameterError
 from ._objective import Objective, element_densities
 from ._tracing import refuse_traced
+from ._validate import validate_vertices
 from ._x64 import float64
 from .certify import SphereCertificate, certify_sphere, spherical_areas
 from .param import check_scale_aware, mesh_arrays
 from .problem import Problem
 from .solvers import LBFGS, AbstractContinuation, Decision, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
-from .topology import boundary_loops, check_sphere
+from .topology import as_faces, boundary_loops, check_sphere
 from .tutte import tutte_embedding
 
 __all__ = ["sphere_map", "sphere_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
@@ -127,8 +128,9 @@ def sphere_start(V, F, pole=None, weights="uniform"):
     MeshError : not a closed genus-0 manifold mesh, or no certified start (rounding on a
         badly shaped mesh: remesh it).
     """
-    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    V = validate_vertices(V, "rest vertices", dim=3)
     n = len(V)
+    F = as_faces(F, n)
     check_sphere(F, n)
     if pole is None:
         pole = int(np.argmax(np.bincount(F.ravel(), minlength=n)))
