@@ -102,7 +102,7 @@ def main():
         res = geomopt.sphere_map(V, F, progress=False)
         cert = res.certificate
         row(name, "geomopt.sphere_map", time.perf_counter() - t, V, F, res.x,
-            f"{'ok' if res.success else 'FAILS'}: {res.stats.iterations} it, area {cert.area:.12g}")
+            f"{'ok' if res.success else 'FAILS'}: {res.stats.iterations} it ({res.stats.seconds:.1f} s), area {cert.area:.12g}")
 
 
 if __name__ == "__main__":
