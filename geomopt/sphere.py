@@ -50,7 +50,7 @@ from .solvers._iterate import check_progress
 from .topology import as_faces, boundary_loops, check_sphere
 from .tutte import tutte_embedding
 
-__all__ = ["sphere_map", "sphere_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
+__all__ = ["sphere_map", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
 
 #: halvings of the stereographic scale before the start is given up (each halves every cap)
 MAX_HALVINGS = 60
@@ -59,8 +59,9 @@ MAX_HALVINGS = 60
 @dataclasses.dataclass(frozen=True)
 class SphereDetails:
     """What :func:`sphere_map` adds to its :class:`~geomopt.solvers.Result`: the certified
-    ``start`` map (n, 3), its ``pole`` vertex and stereographic ``scale``, the halvings of the
-    scale its exact check needed, and the start's :class:`~geomopt.certify.SphereCertificate`."""
+    ``start`` map (n, 3), its ``pole`` vertex and stereographic ``scale`` (-1 and nan for a
+    given start), the halvings of the scale its exact check needed, and the start's
+    :class:`~geomopt.certify.SphereCertificate`."""
 
     start: np.ndarray
     pole: int
@@ -155,6 +156,21 @@ def sphere_start(V, F, pole=None, weights="uniform"):
                     f"pole or weights")
 
 
+def given_start(problem, x0):
+    """``(x, details)`` for a start map ``x0`` (n, 3) of :func:`sphere_map`'s ``problem``: its
+    directions, once the mesh is checked (:func:`geomopt.topology.check_sphere`) and ``x0``
+    certified a bijection onto the sphere; MeshError otherwise."""
+    check_sphere(problem.input_simplices, problem.n_vertices)
+    x = problem.check_map(x0, "start map x0")
+    with np.errstate(all="ignore"):
+        x = x / np.linalg.norm(x, axis=1, keepdims=True)
+    cert = certify_sphere(x, problem.input_simplices)
+    if not cert.ok:
+        raise MeshError(f"the start map x0 is not a bijection onto the sphere ({cert.message}); omit x0 for the "
+                        f"certified stereographic start")
+    return x, SphereDetails(x, -1, math.nan, 0, cert)
+
+
 def _areas(V, F):
     return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
@@ -191,7 +207,7 @@ class _OnTheSphere(AbstractContinuation):
 
 @float64
 def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=True, throw=False, *,
-               pole=None, weights="uniform", buckets=True, **energy_params):
+               x0=None, pole=None, weights="uniform", buckets=True, **energy_params):
     """Map a closed genus-0 triangle mesh bijectively onto the unit sphere, minimising distortion.
 
     Parameters
@@ -206,6 +222,9 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
     solver : ``None`` (:func:`default_solver`), ``"lbfgs"`` or an :class:`~geomopt.LBFGS` (the
         sphere map's Jacobians are not linear in ``x``, so no assembled-Hessian solver applies).
     progress, throw : see :func:`~geomopt.solvers.minimize`.
+    x0 : None (the certified stereographic start, :func:`sphere_start`) or an (n, 3) start map
+        (directions: e.g. another method's sphere map), which must itself certify
+        (:func:`geomopt.certify.certify_sphere`).
     pole, weights : the start's pole vertex and Tutte weights (:func:`sphere_start`).
     buckets : pad to size buckets (shared compiled kernels), see :func:`~geomopt.parameterize`.
 
@@ -234,7 +253,8 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
                              f"is not linear in x, so {type(solver).__name__}'s assembled Hessian does not apply); "
                              f"pass solver='lbfgs' or an LBFGS(...)")
     problem = Problem.sphere(V, F)  # rest checks first: zero-area faces, orientation, non-manifold edges
-    x0, details = sphere_start(V, problem.input_simplices, pole, weights)
+    x0, details = (sphere_start(V, problem.input_simplices, pole, weights) if x0 is None else
+                   given_start(problem, x0))
     objective = Objective(problem, energy, buckets=buckets, **energy_params)
     return iterate(solver, objective, objective.prepare_map(x0), objective.params(),
                    continuation=_OnTheSphere(objective, details, x0), progress=progress, trace=True,

@@ -89,6 +89,18 @@ def test_certificate_rejects_a_flipped_triangle():
     assert "inverted" in cert.message
 
 
+def test_a_given_start_must_certify():
+    V, F = random_hull(5, 40)
+    x, _ = sphere_start(V, F)
+    R = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    R = R * np.sign(np.linalg.det(R))  # a rotation keeps the certificate
+    res = geomopt.sphere_map(V, F, x0=2.0 * x @ R.T, progress=False)
+    assert res.success and np.allclose(res.details.start, x @ R.T)
+    x[F[0, 0]] = -x[F[0, 0]]  # folded
+    with pytest.raises(MeshError, match="start map x0 is not a bijection"):
+        geomopt.sphere_map(V, F, x0=x, progress=False)
+
+
 def double_cover(k=10, rings=8):
     """A latitude-longitude sphere mesh (poles of degree ``k``) and its image under ``z -> z^2``
     (stereographic coordinates): every triangle positive, the sphere covered twice."""
