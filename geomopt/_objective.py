@@ -34,7 +34,7 @@ import scipy.sparse as sp
 from . import _padding
 from . import _programs
 from . import _x64
-from ._geometry import dets
+from ._geometry import chord_jacobians, dets
 from ._errors import ParameterError
 from ._tracing import StaticKey, is_traced, refuse_traced
 from .energies import Energy, get_energy
@@ -93,6 +93,8 @@ CPU_CHUNK = 1024
 def jacobians(geom, x):
     S, Minv, _ = geom
     X = x[S]  # (m, d+1, d)
+    if S.shape[1] == x.shape[-1]:  # triangles mapped onto the sphere (cones over the origin)
+        return chord_jacobians(X, Minv)
     Ds = jnp.swapaxes(X[:, 1:] - X[:, :1], 1, 2)  # columns = edges
     return Ds @ Minv
 
@@ -414,7 +416,7 @@ class Objective:
         traced = {k: v for k, v in params.items() if is_traced(v)}
         energy = get_energy(energy, **{k: v for k, v in params.items() if k not in traced})
         energy.resolve_params(**traced)  # known names
-        energy.check_dim(problem.dim)
+        energy.check_dim(np.shape(problem.rest_inv)[-1])  # the Jacobians' size (2 for the sphere)
         mesh = _Mesh(problem, _padding.Sizes.of(problem, buckets))
         w = check_element_weights(element_weights, problem.n_elements)
         vol = problem.volumes if w is None else problem.volumes * w
@@ -625,6 +627,9 @@ class _Mesh:
     @property
     def pattern(self) -> HessianPattern:
         if self._pattern is None:
+            if self._connectivity.simplices.shape[1] == self._connectivity.dim:  # cones over the origin
+                raise ParameterError("a map onto the sphere has no assembled Hessian (its Jacobians are not "
+                                     "linear in x): minimise it with L-BFGS (geomopt.sphere_map)")
             pat = hessian_pattern(self._connectivity, self.free_dofs)
             sz = self.sizes
             # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["camera_rotation", "project", "rasterize", "render_uv_checker", "vertex_normals", "CHECKER_COLORS"]
+__all__ = ["camera_rotation", "project", "rasterize", "render_surface", "render_uv_checker", "render_sphere_checker",
+           "vertex_normals", "CHECKER_COLORS"]
 
 #: the two squares of the checkerboard (RGB in [0, 1]): white and orange
 CHECKER_COLORS = ((0.97, 0.97, 0.95), (0.95, 0.55, 0.10))
@@ -122,31 +123,28 @@ def _draw_codes(T, codes, size):
     return np.where(buf[..., 3] == 255, code, -1)
 
 
-def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=20,
-                      light=(0.35, 0.5, 1.0), supersample=2):
-    """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3)
-    textured with a ``checks`` x ``checks`` checkerboard through the UV map ``uv`` (n, 2),
-    evaluated per pixel.
+def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", light=(0.35, 0.5, 1.0),
+                   supersample=2):
+    """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3), each
+    pixel coloured by ``colour(face, bary, hit)`` -> (k, 3) RGB: ``face`` (k,) and ``bary``
+    (k, 3) the face and barycentric coordinates of the k covered pixels, ``hit`` (h, w) bool
+    which pixels they are (row-major).
 
-    The checkerboard spans the UV map's bounding square: its squares come out as squares on
-    the surface where the map is conformal, all of one size where it preserves area.  The
-    view: orthographic, from elevation ``elev`` and azimuth ``azim`` (degrees) about the world
-    axis ``up`` (:func:`camera_rotation`; the default is a three-quarter view from +z, y up,
-    the usual convention of scanned meshes).  Smooth Lambert shading from ``light`` (camera
+    The view: orthographic, from elevation ``elev`` and azimuth ``azim`` (degrees) about the
+    world axis ``up`` (:func:`camera_rotation`; the default is a three-quarter view from +z, y
+    up, the usual convention of scanned meshes).  Smooth Lambert shading from ``light`` (camera
     coordinates), two-sided, evaluated at the vertices and interpolated; the image is rendered
-    ``supersample`` times larger and averaged down (anti-aliased edges); pixels the surface does not cover are transparent.
+    ``supersample`` times larger and averaged down (anti-aliased edges); pixels the surface does
+    not cover are transparent.
     """
-    V, uv = np.asarray(V, np.float64), np.asarray(uv, np.float64)
+    V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
     R = camera_rotation(elev, azim, up)
     big = (size[0] * supersample, size[1] * supersample)
     face, bary = rasterize(*project(V, R, big), F, big)
     hit = face >= 0
     f, b = face[hit], bary[hit]
-    lo, span = uv.min(axis=0), max(float(np.ptp(uv, axis=0).max()), 1e-300)
-    t = np.einsum("ij,ijk->ik", b, (uv[F[f]] - lo) / span * checks)
-    orange = _filtered_checker(t, hit)[:, None]
-    rgb = (1.0 - orange) * np.asarray(CHECKER_COLORS[0]) + orange * np.asarray(CHECKER_COLORS[1])
+    rgb = colour(f, b, hit)
     lit = vertex_normals(V, F) @ (R.T @ (np.asarray(light, np.float64) / np.linalg.norm(light)))
     lam = np.abs(np.einsum("ij,ij->i", b, lit[F[f]]))  # Gouraud: shaded per vertex, interpolated
     image = np.zeros(face.shape + (4,))
@@ -157,6 +155,51 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     alpha = image[..., 3].mean(axis=(1, 3))
     rgb = (image[..., :3] * image[..., 3:]).mean(axis=(1, 3)) / np.maximum(alpha, 1e-300)[..., None]
     return np.concatenate([rgb, alpha[..., None]], axis=-1)
+
+
+def _checker_rgb(orange):
+    """(k, 3) the checkerboard's colours for the (k,) shares of its second colour."""
+    orange = orange[:, None]
+    return (1.0 - orange) * np.asarray(CHECKER_COLORS[0]) + orange * np.asarray(CHECKER_COLORS[1])
+
+
+def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=20,
+                      light=(0.35, 0.5, 1.0), supersample=2):
+    """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3)
+    textured with a ``checks`` x ``checks`` checkerboard through the UV map ``uv`` (n, 2),
+    evaluated per pixel and box-filtered over its footprint (:func:`render_surface`: the view,
+    shading and anti-aliasing).
+
+    The checkerboard spans the UV map's bounding square: its squares come out as squares on
+    the surface where the map is conformal, all of one size where it preserves area.
+    """
+    uv, F = np.asarray(uv, np.float64), np.asarray(F, np.int64)
+    lo, span = uv.min(axis=0), max(float(np.ptp(uv, axis=0).max()), 1e-300)
+
+    def colour(f, b, hit):
+        return _checker_rgb(_filtered_checker(np.einsum("ij,ijk->ik", b, (uv[F[f]] - lo) / span * checks), hit))
+
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
+
+
+def render_sphere_checker(V, F, x, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=12,
+                          light=(0.35, 0.5, 1.0), supersample=2):
+    """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3)
+    textured through its map ``x`` (n, 3) onto the unit sphere with a latitude-longitude
+    checkerboard (``checks`` bands of latitude, ``2 checks`` of longitude), evaluated per pixel
+    on the interpolated and normalised sphere point (no seam; anti-aliased by supersampling).
+    Where the map is conformal the checks look as they do on the sphere (squares away from the
+    poles)."""
+    x, F = np.asarray(x, np.float64), np.asarray(F, np.int64)
+
+    def colour(f, b, hit):
+        p = np.einsum("ij,ijk->ik", b, x[F[f]])
+        p /= np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-300)
+        lat = np.floor(np.arccos(np.clip(p[:, 2], -1.0, 1.0)) / np.pi * checks)
+        lon = np.floor((np.arctan2(p[:, 1], p[:, 0]) / np.pi + 1.0) * checks)
+        return _checker_rgb(np.mod(lat + lon, 2.0))
+
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
 
 
 def _filtered_checker(t, hit):

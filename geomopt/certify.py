@@ -51,12 +51,13 @@ import numpy as np
 from ._errors import MeshError, ParameterError
 from ._tracing import refuse_traced
 from ._validate import validate_indices, validate_vertices
-from .predicates import orient2d, simplex_orientations
+from .predicates import cone_orientations, orient2d, simplex_orientations
 from .stars import fan_overlaps_2d, star_overlaps_3d
 from .topology import check_disk
 
-__all__ = ["Certificate", "LocalCertificate", "certify_bijective", "fixed_star_certificate",
-           "local_certificate", "loop_crossings", "polygon_crossings", "polygon_orientation"]
+__all__ = ["Certificate", "LocalCertificate", "SphereCertificate", "certify_bijective", "certify_sphere",
+           "fixed_star_certificate", "local_certificate", "loop_crossings", "polygon_crossings",
+           "polygon_orientation", "spherical_areas"]
 
 # Largest number of (edge, cell) entries per edge before the grid cells are made coarser.
 _MAX_CELLS_PER_EDGE = 4.0
@@ -556,3 +557,109 @@ def certify_bijective(x, F, loop=None) -> Certificate:
     else:
         crossings, orientation = np.zeros((0, 2), np.int64), 0
     return Certificate(local.inverted, loop, crossings, orientation, time.perf_counter() - t0, local)
+
+
+# --------------------------------------------------------------------------- sphere maps
+
+
+def spherical_areas(x, F) -> np.ndarray:
+    """(m,) signed areas of the geodesic triangles spanned by the directions ``x`` (n, 3) on the
+    unit sphere (lengths do not matter), ``F`` (m, 3): Van Oosterom & Strackee's
+    ``2 atan2(det[a, b, c], 1 + a.b + b.c + c.a)`` on the normalised corners; in (0, 2 pi) for
+    a positively oriented triangle (float, not exact)."""
+    x = np.asarray(x, dtype=np.float64)
+    y = x / np.linalg.norm(x, axis=1, keepdims=True)
+    a, b, c = (y[np.asarray(F)[:, k]] for k in range(3))
+    det = np.einsum("ij,ij->i", a, np.cross(b, c))
+    dots = np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) + np.einsum("ij,ij->i", c, a)
+    return 2.0 * np.arctan2(det, 1.0 + dots)
+
+
+@dataclasses.dataclass(frozen=True)
+class SphereCertificate:
+    """The outcome of :func:`certify_sphere`.
+
+    Attributes
+    ----------
+    inverted : int, triangles not positively oriented about the centre (exact).
+    first_inverted : int, the first such triangle, or -1.
+    area : float, the sum of the triangles' spherical areas (``4 pi`` for a map covering the
+        sphere once; nan when a vertex is at the centre or not finite).
+    degree : int, ``round(area / 4 pi)`` when no triangle is inverted (how many times the map
+        covers the sphere), else 0.
+    seconds : float, time taken.
+    """
+
+    inverted: int
+    first_inverted: int
+    area: float
+    degree: int
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        """Every triangle positive and the sphere covered once: a bijection onto the sphere."""
+        return self.inverted == 0 and self.degree == 1
+
+    locally_injective = ok  # a positive map of degree k > 1 has branch points (Riemann-Hurwitz)
+
+    @property
+    def globally_injective(self) -> bool:
+        return self.ok
+
+    @property
+    def injectivity(self) -> str:
+        """``"global"`` (a certified bijection onto the sphere) or ``"none"``."""
+        return "global" if self.ok else "none"
+
+    @property
+    def message(self) -> str:
+        """One line naming the failure ("" when :attr:`ok`)."""
+        if self.inverted:
+            return (f"{self.inverted} triangle(s) inverted or degenerate about the sphere's centre (first: "
+                    f"triangle {self.first_inverted})")
+        if self.degree != 1:
+            return (f"the triangles' spherical areas sum to {self.area:.6g} = {self.area / (4 * np.pi):.6g} x 4 pi: "
+                    f"the map covers the sphere {self.degree} times, not once")
+        return ""
+
+
+#: how far the spherical areas' float sum may be from 4 pi: far below the 4 pi (k - 1) by which
+#: a positive map covering the sphere k times differs, far above the sum's rounding
+SPHERE_AREA_TOL = 1e-6 * 4.0 * np.pi
+
+
+def certify_sphere(x, F) -> SphereCertificate:
+    """Exact certificate that a map of a closed genus-0 triangle mesh onto the sphere is a bijection.
+
+    Parameters
+    ----------
+    x : (n, 3) float array, the map (directions from the centre).
+    F : (m, 3) int array, the triangles, oriented so that a valid map turns them
+        counter-clockwise seen from outside.
+
+    Returns
+    -------
+    :class:`SphereCertificate`; ``ok`` holds iff every triangle is positively oriented about the
+    centre (exact: ``orient3d(0, a, b, c) > 0``, :func:`geomopt.predicates.cone_orientations`)
+    and the spherical areas sum to ``4 pi`` within :data:`SPHERE_AREA_TOL`.
+
+    Why this suffices: with every triangle positive, the map is orientation preserving on every
+    open triangle and the number of triangles covering a point of the sphere (off the edges'
+    images) is the same everywhere, the map's degree ``k >= 1``; so the areas sum to exactly
+    ``4 pi k``.  A float sum within ``SPHERE_AREA_TOL`` of ``4 pi`` rules out every ``k > 1``;
+    degree 1 means almost every point has one preimage, so the open triangles are disjoint and
+    no vertex is a branch point (its neighbourhood would be covered twice): a homeomorphism.
+    """
+    t0 = time.perf_counter()
+    x = np.asarray(x, dtype=np.float64)
+    sign = cone_orientations(x, F)
+    bad = np.flatnonzero(sign != 1)
+    with np.errstate(all="ignore"):
+        area = float(np.sum(spherical_areas(x, F)))
+    degree = 0
+    if bad.size == 0 and np.isfinite(area):
+        k = round(area / (4.0 * np.pi))
+        degree = int(k) if abs(area - 4.0 * np.pi * k) <= SPHERE_AREA_TOL else 0
+    return SphereCertificate(int(bad.size), int(bad[0]) if bad.size else -1, area, degree,
+                             time.perf_counter() - t0)

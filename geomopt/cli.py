@@ -125,6 +125,8 @@ def cmd_param(args) -> int:
     split = args.timing
     split.mark_imported()
     compile_seconds()  # starts counting JAX's compilation
+    if args.sphere:
+        return _param_sphere(args)
     energy = get_energy(args.energy)
     solver = _solver(args.solver)
     if args.max_steps is not None:
@@ -188,6 +190,51 @@ def cmd_param(args) -> int:
         with split.phase("write"):
             io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
                                   format=Path(args.output).suffix[1:])
+    return EXIT_OK
+
+
+def _param_sphere(args) -> int:
+    """``geomopt param --sphere``: a closed genus-0 mesh onto the unit sphere, certified
+    (:func:`geomopt.sphere.sphere_map`); the OBJ keeps the faces, its vertices on the sphere."""
+    import dataclasses
+    import math
+
+    from . import io, plot
+    from ._errors import ParameterError
+    from .sphere import default_solver, sphere_distortion, sphere_map
+
+    if args.bijective or args.init != "tutte" or args.uv_range != "raw":
+        raise ParameterError("--sphere makes its own certified start and writes vertices, not UVs: leave out "
+                             "--bijective, --init and --uv-range")
+    # newton is the parser's default: the sphere's default L-BFGS then
+    solver = default_solver() if args.solver == "newton" else _solver(args.solver)
+    if args.max_steps is not None:
+        solver = dataclasses.replace(solver, max_steps=args.max_steps)
+    pictures = [("--png picture", args.png)] if args.png else []
+    _output_paths(args.output, (".obj",), pictures, [args.input], getattr(args, "folder", None))
+    with args.timing.phase("read"):
+        V, F = io.read_mesh(args.input)
+    _log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; onto the sphere, energy {args.energy}, L-BFGS")
+    res = sphere_map(V, F, energy=args.energy, solver=solver, progress=not args.quiet, weights=args.weights)
+    st, cert, dist = res.stats, res.certificate, sphere_distortion(V, F, res.x)
+    _log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  mean energy "
+               f"{res.mean_energy:.10g}  area ratio {dist['area_min']:.3g}..{dist['area_max']:.3g}  flips "
+               f"{cert.inverted}  spherical area {cert.area:.12g} (4 pi = {4 * math.pi:.12g})  outcome {res.outcome.value}")
+    _report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F), sphere=True,
+            energy_name=args.energy, iterations=st.iterations, solve_seconds=round(st.seconds, 4),
+            mean_energy=res.mean_energy, flips=cert.inverted, spherical_area=cert.area, degree=cert.degree,
+            area_ratio_min=dist["area_min"], area_ratio_max=dist["area_max"], injectivity=res.injectivity,
+            outcome=res.outcome.value, message=res.message)
+    if not res.success:
+        return _fail(f"not certified: {res.message}")
+    with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
+        if args.png:
+            title = (f"{Path(args.input).name}: {len(F)} triangles onto the sphere, {args.energy}, mean energy "
+                     f"{res.mean_energy:.6g}, certified bijective")
+            plot.save_sphere_figure(outputs.enter_context(io.atomic_output(args.png, "wb")), V, F, res.x,
+                                    title=title, format=Path(args.png).suffix[1:].lower())
+        with args.timing.phase("write"):
+            io.write_obj(outputs.enter_context(io.atomic_path(args.output)), res.x, F)
     return EXIT_OK
 
 
@@ -646,6 +693,9 @@ def _add_param(sub):
     sp.add_argument("--png", default=None,
                     help="also save the UV map (checkerboard on the surface beside the distortion layout; "
                          ".png, .pdf or .svg) and a <name>_convergence plot")
+    sp.add_argument("--sphere", action="store_true",
+                    help="map a closed genus-0 mesh onto the unit sphere instead (L-BFGS, certified bijective): "
+                         "-o writes an .obj with the same faces, its vertices on the sphere")
     _common_options(sp)
     sp.set_defaults(func=cmd_param)
 

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._render import render_uv_checker
+from ._render import render_sphere_checker, render_surface, render_uv_checker
 
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
-    "save_untangle_figure", "convergence_figure", "save_convergence", "INVERTED",
+    "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
+    "INVERTED",
 ]
 
 INVERTED = "#d62728"  # red: inverted elements in every picture
@@ -89,6 +90,24 @@ def save_layout(path, x, F, face_values=None, title="", label="distortion", vmin
     save_figure(layout_figure(x, F, face_values, title, label, vmin, vmax, dpi=120), path, format)
 
 
+def _surface_panels(render, caption, view, dpi, title):
+    """A 16 x 7.5 inch figure (``title`` above) with three panels: ``render(pixels, azimuth)`` (an
+    RGBA image) seen from ``view`` (large, titled ``caption``) and from the other side (smaller); returns the
+    figure, the third (empty) axes and the large panel's pixel size.  The renders have about
+    1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
+    downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels."""
+    fig = _figure(16, 7.5, dpi)
+    front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
+    size = int(round(9.0 * dpi))
+    for ax, azim, px, name in ((front, view[1], size, caption), (back, view[1] + 180.0, size // 2, "other side")):
+        ax.imshow(render(px, azim), interpolation="antialiased")
+        ax.set_axis_off()
+        ax.set_title(name, fontsize=11)
+    if title:
+        fig.suptitle(title, fontsize=12)
+    return fig, right, size
+
+
 def param_figure(V, F, uv, face_values=None, title="", label="distortion", checks=20, view=(15.0, 30.0),
                  up="y", dpi=100):
     """A UV map ``uv`` (n, 2) of the surface ``V`` (n, 3), ``F`` (m, 3), in two panels.
@@ -101,20 +120,11 @@ def param_figure(V, F, uv, face_values=None, title="", label="distortion", check
     inches; ``title`` above all three.
     """
     V, F, uv = np.asarray(V, np.float64), np.asarray(F), np.asarray(uv, np.float64)
-    fig = _figure(16, 7.5, dpi)
-    front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
-    # about 1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
-    # downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels
-    size = int(round(9.0 * dpi))
-    for ax, azim, px, name in ((front, view[1], size, f"{checks} x {checks} checkerboard through the UV map"),
-                               (back, view[1] + 180.0, size // 2, "other side")):
-        ax.imshow(render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks,
-                                    supersample=1), interpolation="antialiased")
-        ax.set_axis_off()
-        ax.set_title(name, fontsize=11)
+    fig, right, _ = _surface_panels(
+        lambda px, azim: render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks,
+                                           supersample=1),
+        f"{checks} x {checks} checkerboard through the UV map", view, dpi, title)
     _layout(fig, right, uv, F, face_values, "UV layout", label)
-    if title:
-        fig.suptitle(title, fontsize=12)
     return fig
 
 
@@ -122,6 +132,46 @@ def save_param_figure(path, V, F, uv, face_values=None, title="", label="distort
                       view=(15.0, 30.0), up="y"):
     """Save :func:`param_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG)."""
     save_figure(param_figure(V, F, uv, face_values, title, label, checks, view, up, dpi=110), path, format)
+
+
+def sphere_figure(V, F, x, face_values=None, title="", label="log2 area ratio", checks=12, view=(15.0, 30.0),
+                  up="y", dpi=100):
+    """A map ``x`` (n, 3) of the closed surface ``V`` (n, 3), ``F`` (m, 3) onto the unit sphere,
+    in three panels: the surface textured through the map with a latitude-longitude checkerboard
+    (:func:`geomopt._render.render_sphere_checker`), seen from ``view`` = (elevation, azimuth)
+    about ``up`` and, smaller, from the other side; and the sphere itself, its triangles coloured
+    by ``face_values`` (m,) (default: ``log2`` of each triangle's spherical over its rest area,
+    both normalised to total ``4 pi``, :func:`geomopt.sphere.sphere_distortion`) on a symmetric
+    scale.  16 x 7.5 inches; ``title`` above all three."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    V, F, x = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(x, np.float64)
+    if face_values is None:
+        from .sphere import sphere_distortion
+
+        face_values = np.log2(np.maximum(sphere_distortion(V, F, x)["area_ratio"], 1e-12))
+    values = np.asarray(face_values, np.float64)
+    top = max(float(np.abs(values).max()), 1e-12)
+    mappable = ScalarMappable(Normalize(-top, top), colormaps["coolwarm"])
+    fig, right, size = _surface_panels(
+        lambda px, azim: render_sphere_checker(V, F, x, size=(px, px), elev=view[0], azim=azim, up=up,
+                                               checks=checks, supersample=1),
+        "latitude-longitude checks through the map", view, dpi, title)
+    y = x / np.linalg.norm(x, axis=1, keepdims=True)
+    right.imshow(render_surface(y, F, lambda f, b, hit: mappable.to_rgba(values[f])[:, :3], size=(size, size),
+                                elev=view[0], azim=view[1], up=up, supersample=1), interpolation="antialiased")
+    right.set_axis_off()
+    right.set_title("the sphere", fontsize=11)
+    fig.colorbar(mappable, ax=right, shrink=0.8, label=label)
+    return fig
+
+
+def save_sphere_figure(path, V, F, x, face_values=None, title="", label="log2 area ratio", checks=12, format=None,
+                       view=(15.0, 30.0), up="y"):
+    """Save :func:`sphere_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG)."""
+    save_figure(sphere_figure(V, F, x, face_values, title, label, checks, view, up, dpi=110), path, format)
 
 
 def _boundary_faces(T):

@@ -23,8 +23,8 @@ import numpy as np
 from ._errors import MeshError, ParameterError
 from ._tracing import refuse_traced
 
-__all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted", "differing_rows",
-           "box_scale"]
+__all__ = ["orient2d", "orient3d", "normal_signs", "simplex_orientations", "count_inverted", "cone_orientations",
+           "differing_rows", "box_scale"]
 
 _EPS = 2.0**-53  # half an ulp of 1.0: the relative rounding error of one operation
 CCW_ERRBOUND_A = (3.0 + 16.0 * _EPS) * _EPS
@@ -254,6 +254,30 @@ def simplex_orientations(X, S) -> np.ndarray:
     d = X.shape[1]
     corners = [X[S[:, i]] for i in range(d + 1)]
     return orient2d(*corners) if d == 2 else orient3d(*corners)
+
+
+def cone_orientations(X, F) -> np.ndarray:
+    """Exact orientation of every triangle of a map onto the sphere about its centre.
+
+    Parameters
+    ----------
+    X : (n, 3) float array
+        Vertex positions (directions from the centre; their lengths do not matter).
+    F : (m, 3) int array
+        Triangles.
+
+    Returns
+    -------
+    s : (m,) int8 array
+        ``orient3d(0, X[a], X[b], X[c])``, the sign of ``det[X[a], X[b], X[c]]``: ``+1`` when
+        the triangle turns counter-clockwise seen from outside the sphere.
+    """
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise MeshError(f"the triangles must have shape (m, 3), got shape {F.shape}")
+    # checked as the tets (a, a, b, c): shapes, dtypes and index range
+    X, T = _as_mesh(X, F[:, [0, 0, 1, 2]], dims=(3,))
+    return orient3d(np.zeros((len(T), 3)), X[T[:, 1]], X[T[:, 2]], X[T[:, 3]])
 
 
 def _as_mesh(X, S, dims=(2, 3)):

@@ -69,8 +69,11 @@ def _local_frames(V, F):
 
 
 def _edge_matrices(P, S):
-    """Edge matrices ``[p1-p0, ..., pd-p0]`` as columns: (m, d, d)."""
+    """Edge matrices ``[p1-p0, ..., pd-p0]`` as columns: (m, d, d); ``[pa, pb, pc]`` for the
+    triangles ``S`` (m, 3) of a sphere map, cones over the origin (:mod:`geomopt._geometry`)."""
     with np.errstate(all="ignore"):  # overflow shows up as non-finite sizes
+        if S.shape[1] == P.shape[-1]:
+            return _xp(P).swapaxes(P[S], 1, 2)
         return _xp(P).swapaxes(P[S[:, 1:]] - P[S[:, :1]], 1, 2)
 
 
@@ -144,7 +147,7 @@ def _check_facet_orientation(kind, S):
             f"{np.flatnonzero(where)[:6].tolist()}): every map of such a mesh folds there; split "
             f"or remove the extra {what}")
     idx = np.flatnonzero(bad)
-    if kind == "surface":
+    if kind in ("surface", "sphere"):
         raise MeshError(
             f"inconsistent face orientation: {count} edge(s) are traversed in the same direction "
             f"by two triangles (triangles {idx[:6].tolist()}): a face is listed clockwise among "
@@ -218,6 +221,26 @@ class Problem:
         Dm, area = _local_frames(V, F)
         _flipped(area, "triangle", Dm)
         return cls._make("surface", 2, V, F, F, Dm, area, fixed, fixed_positions)
+
+    @classmethod
+    def sphere(cls, V, F):
+        """Triangles of a closed 3D surface mapped onto the unit sphere (:func:`geomopt.sphere_map`).
+
+        V : (n, 3); F : (m, 3), consistently oriented (outward normals for a positive map).
+        A map is (n, 3), each vertex standing for its direction ``x / |x|``; a triangle is
+        positively oriented when ``det[x_a, x_b, x_c] > 0`` (the cone over the origin,
+        :mod:`geomopt._geometry`), and its Jacobian (2x2) is that of its chord triangle in the
+        tangent plane (:func:`geomopt._geometry.chord_jacobians`) against the rest triangle in
+        its local frame.  The rest areas are scaled to total ``4 pi`` (the sphere's), so an
+        isometric density means no area distortion on average.  Only value and gradient
+        solvers apply (the Jacobian is not linear in the map: no assembled Hessian).
+        """
+        V = _vertices(V, "sphere problem: rest vertices", dim=3)
+        F = validate_simplices(F, len(V), 3, "triangles")
+        Dm, area = _local_frames(V, F)
+        _flipped(area, "triangle", Dm)
+        scale = math.sqrt(4.0 * math.pi / float(np.sum(area)))  # lengths, so areas sum to 4 pi
+        return cls._make("sphere", 3, V, F, F, Dm * scale, area * scale**2, None, None)
 
     @classmethod
     def tets(cls, V, T, fixed=None, fixed_positions=None):
@@ -375,8 +398,10 @@ class Problem:
             from .elements import count_invalid
 
             return count_invalid(x, self.elements)
-        from .predicates import count_inverted
+        from .predicates import cone_orientations, count_inverted
 
+        if self.kind == "sphere":
+            return int(np.count_nonzero(cone_orientations(np.asarray(x, dtype=np.float64), self.simplices) != 1))
         refuse_traced("Problem.count_inverted (exact predicates)", "it certifies concrete maps; inside a trace "
                       "use Objective.dets(x) (float determinants)", x)
         return int(count_inverted(np.asarray(x, dtype=np.float64), self.simplices))
@@ -401,6 +426,10 @@ class Problem:
             from .elements import element_local_certificate
 
             return element_local_certificate(x, self.elements)
+        if self.kind == "sphere":
+            from .certify import certify_sphere
+
+            return certify_sphere(x, self.simplices)
         from .certify import local_certificate
 
         return local_certificate(x, self.simplices)

@@ -24,6 +24,7 @@ __all__ = [
     "same_side_facets",
     "nonmanifold_facets",
     "check_disk",
+    "check_sphere",
 ]
 
 
@@ -365,9 +366,10 @@ def check_disk(F, n_vertices) -> np.ndarray:
     return _check_one_boundary(F, n, E)
 
 
-def _check_manifold_faces(F, n) -> np.ndarray:
-    """:func:`check_disk`'s checks of the faces (no repeated vertex, no unused vertex, manifold
-    edges, consistent orientation, one component); returns the unique edges."""
+def _check_manifold_faces(F, n, sphere=False) -> np.ndarray:
+    """:func:`check_disk`'s (or with ``sphere``, :func:`check_sphere`'s) checks of the faces (no
+    repeated vertex, no unused vertex, manifold edges, consistent orientation, one component);
+    returns the unique edges."""
     m = F.shape[0]
 
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
@@ -389,7 +391,8 @@ def _check_manifold_faces(F, n) -> np.ndarray:
     if (face_count > 2).any():
         raise MeshError(
             f"{int((face_count > 2).sum())} non-manifold edges (used by more than 2 faces); "
-            "a disk's edges are used by 1 or 2 faces: split or remove the extra faces"
+            + ("a closed surface's edges are used by 2 faces" if sphere else "a disk's edges are used by 1 or 2 faces")
+            + ": split or remove the extra faces"
         )
 
     same_direction, _ = same_side_facets(F)
@@ -403,8 +406,8 @@ def _check_manifold_faces(F, n) -> np.ndarray:
     count, _ = connected_components(F, n)
     if count > 1:
         raise MeshError(
-            f"the mesh has {count} connected components; a disk has one: "
-            "keep one component or parameterize each separately"
+            f"the mesh has {count} connected components; {'a sphere' if sphere else 'a disk'} has one: "
+            f"keep one component or {'map' if sphere else 'parameterize'} each separately"
         )
     return E
 
@@ -445,3 +448,43 @@ def _check_one_boundary(F, n, E) -> np.ndarray:
             f"the surface has genus {(1 - chi) // 2}; cut its handles open to get a disk"
         )
     return loops[0]
+
+
+# --------------------------------------------------------------------------- sphere check
+
+def check_sphere(F, n_vertices) -> None:
+    """Check that a triangle mesh is a closed, manifold, connected surface of genus 0.
+
+    Checks, in order: valid indices, no face repeating a vertex, no unreferenced vertices,
+    manifold edges, consistent orientation, one connected component, no boundary, manifold
+    vertices, and Euler characteristic ``V - E + F == 2``.
+
+    Parameters
+    ----------
+    F : (m, 3) int array
+    n_vertices : int
+
+    Raises
+    ------
+    MeshError
+        One line naming the first failed check and what to do about it.
+    """
+    F = as_faces(F, n_vertices)
+    n = _as_count(n_vertices)
+    E = _check_manifold_faces(F, n, sphere=True)
+    open_edges = int((_twins(F) < 0).sum())
+    if open_edges:
+        raise MeshError(
+            f"the mesh has a boundary ({len(boundary_loops(F))} loop(s), {open_edges} edges): only a closed "
+            "genus-0 surface maps onto the sphere; fill its holes first")
+    bad = _fans_per_vertex(F, n) > 1
+    if bad.any():
+        raise MeshError(
+            f"{int(bad.sum())} non-manifold (pinched) vertices, whose faces do not form a single fan; "
+            "split these vertices (one copy per fan)")
+    chi = n - E.shape[0] + F.shape[0]
+    if chi != 2:
+        raise MeshError(
+            f"Euler characteristic V - E + F = {n} - {E.shape[0]} + {F.shape[0]} = {chi}, not 2: the surface "
+            f"has genus {(2 - chi) // 2} and only genus 0 maps onto the sphere; make an atlas instead "
+            "(geomopt param without --sphere)")

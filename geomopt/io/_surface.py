@@ -415,6 +415,19 @@ def write_obj_quads(path, V, Q):
     return atomic_write(path, write)
 
 
+def write_obj(path, V, F):
+    """Write a triangle mesh as OBJ (``v x y z``, ``f a b c``), full precision, atomic;
+    :func:`read_mesh` reads it back bit for bit."""
+    V = validate_vertices(V, "V", dim=3)
+    F = validate_simplices(F, V.shape[0], 3, "F")
+
+    def write(fh):
+        write_rows(fh, "v ", V)
+        write_int_rows(fh, "f %d %d %d", F + 1)
+
+    return atomic_write(path, write)
+
+
 def read_obj_uv(path):
     """Read an OBJ mesh and its UV map (``vt``) as one map position per vertex.
 

@@ -1,0 +1,285 @@
+"""Spherical parameterization of closed genus-0 surfaces: a certified start, the injective
+search on the sphere, and an exact certificate that the map covers the sphere once.
+
+:func:`sphere_map` maps a closed, manifold, connected genus-0 triangle mesh bijectively onto the
+unit sphere, minimising a distortion energy of the chord triangles (any density of 2x2
+Jacobians: :meth:`geomopt.Problem.sphere`):
+
+1. **Start** (:func:`sphere_start`): one vertex ``v``'s star is removed; the rest is a disk
+   whose boundary is ``v``'s link, which goes onto the unit circle, and the interior is Tutte
+   embedded (flip-free, Tutte 1963).  The plane, scaled by ``s``, is wrapped onto the sphere by
+   inverse stereographic projection, ``v`` at the south pole.  A planar circle of centre ``c``
+   and radius ``r`` is the image of a spherical cap smaller than a hemisphere iff
+   ``s^2 (r^2 - |c|^2) < 1``: below that bound on every triangle's circumcircle, each chord
+   triangle turns counter-clockwise about the centre as its planar triangle does, and the
+   triangles through the pole do too (the link is convex around the origin).  The start is
+   then certified exactly, ``s`` halved until it is (a few times at most).
+2. **Search**: the map ``x`` (n, 3) stands for the directions ``x / |x|``.  A triangle stays
+   positive along ``x + t d`` until ``det[x_a + t d_a, x_b + t d_b, x_c + t d_c]``, a cubic in
+   ``t``, vanishes; radial rescaling never changes its sign, so this is the tet bound of
+   :mod:`geomopt.linesearch` with the apex at the centre (:mod:`geomopt._geometry`), used by
+   L-BFGS through the one loop (:func:`geomopt.solvers.iterate`).  The energy is invariant to
+   each vertex's length, so the gradient is tangent; the map is projected onto the sphere at
+   the end.  The rotation gauge is fixed by the objective's pinned vertex.
+3. **Certificate** (:func:`geomopt.certify.certify_sphere`): every triangle positively
+   oriented about the centre (exact) and the spherical areas summing to ``4 pi``: degree 1, a
+   bijection.  A map that fails it is never a success.
+
+References: Gotsman, Gu & Sheffer 2003 (spherical embeddings); Praun & Hoppe 2003 (spherical
+parametrization and remeshing); Smith & Schaefer 2015 (the injective step bound).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from ._errors import MeshError, ParameterError
+from ._objective import Objective, element_densities
+from ._tracing import refuse_traced
+from ._validate import validate_vertices
+from ._x64 import float64
+from .certify import SphereCertificate, certify_sphere, spherical_areas
+from .param import check_scale_aware, mesh_arrays
+from .problem import Problem
+from .solvers import LBFGS, AbstractContinuation, Decision, Final, Outcome, get_solver, iterate
+from .solvers._iterate import check_progress
+from .topology import as_faces, boundary_loops, check_sphere
+from .tutte import tutte_embedding
+
+__all__ = ["sphere_map", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
+
+#: halvings of the stereographic scale before the start is given up (each halves every cap)
+MAX_HALVINGS = 60
+
+
+@dataclasses.dataclass(frozen=True)
+class SphereDetails:
+    """What :func:`sphere_map` adds to its :class:`~geomopt.solvers.Result`: the certified
+    ``start`` map (n, 3), its ``pole`` vertex and stereographic ``scale`` (-1 and nan for a
+    given start), the halvings of the scale its exact check needed, and the start's
+    :class:`~geomopt.certify.SphereCertificate`."""
+
+    start: np.ndarray
+    pole: int
+    scale: float
+    halvings: int
+    start_certificate: SphereCertificate
+
+
+def stereographic(p, s: float = 1.0) -> np.ndarray:
+    """(n, 3) inverse stereographic projection of the plane points ``p`` (n, 2) scaled by ``s``
+    onto the unit sphere: the origin to the north pole ``(0, 0, 1)``, infinity to the south
+    pole; counter-clockwise planar triangles turn counter-clockwise seen from outside."""
+    q = s * np.asarray(p, dtype=np.float64)
+    r2 = np.sum(q * q, axis=1, keepdims=True)
+    return np.concatenate([2.0 * q, 1.0 - r2], axis=1) / (1.0 + r2)
+
+
+def _cap_bound(P, F) -> float:
+    """``max over triangles of r^2 - |c|^2`` for the circumcircles (centre c, radius r) of the
+    planar triangles ``P[F]``: the power of the origin with respect to each circle, negated
+    (``|a|^2 - 2 a.c`` for a corner ``a``)."""
+    a, b, c = (P[F[:, k]] for k in range(3))
+    d = 2.0 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    ab, ac = b - a, c - a
+    lab, lac = np.sum(ab * ab, axis=1), np.sum(ac * ac, axis=1)
+    with np.errstate(all="ignore"):
+        centre = a + np.stack([ac[:, 1] * lab - ab[:, 1] * lac, ab[:, 0] * lac - ac[:, 0] * lab], axis=1) / d[:, None]
+        q = np.sum(a * a, axis=1) - 2.0 * np.sum(a * centre, axis=1)
+    return float(np.max(np.where(np.isfinite(q), q, np.inf)))
+
+
+def _disk_without(F, n, pole):
+    """The faces of the mesh less ``pole``'s star, renumbered without ``pole``: ``(faces,
+    keep, loop)``, ``keep`` (n-1,) the old ids of the new vertices, ``loop`` the link of
+    ``pole`` (new ids) in half-edge direction."""
+    rest = F[~np.any(F == pole, axis=1)]
+    keep = np.delete(np.arange(n), pole)
+    new = np.full(n, -1, np.int64)
+    new[keep] = np.arange(n - 1)
+    rest = new[rest]
+    loops = boundary_loops(rest)
+    if len(loops) != 1:  # cannot happen on a manifold vertex of a checked mesh
+        raise MeshError(f"the link of vertex {pole} is not one loop; the mesh is not a manifold there")
+    return rest, keep, loops[0]
+
+
+@float64
+def sphere_start(V, F, pole=None, weights="uniform"):
+    """A certified start map of a closed genus-0 mesh onto the unit sphere (see the module notes).
+
+    Parameters
+    ----------
+    V : (n, 3) rest vertices;  F : (m, 3) triangles, consistently oriented (checked by
+        :func:`geomopt.topology.check_sphere`).
+    pole : the vertex put at the south pole (default: one of highest degree).
+    weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
+
+    Returns
+    -------
+    x : (n, 3) float64 unit vectors, every triangle positively oriented about the centre and the
+        sphere covered once (certified exactly);  details : :class:`SphereDetails`.
+
+    Raises
+    ------
+    MeshError : not a closed genus-0 manifold mesh, or no certified start (rounding on a
+        badly shaped mesh: remesh it).
+    """
+    V = validate_vertices(V, "rest vertices", dim=3)
+    n = len(V)
+    F = as_faces(F, n)
+    check_sphere(F, n)
+    if pole is None:
+        pole = int(np.argmax(np.bincount(F.ravel(), minlength=n)))
+    elif not (isinstance(pole, (int, np.integer)) and 0 <= pole < n):
+        raise ParameterError(f"pole must be a vertex index in [0, {n}), got {pole!r}")
+    rest, keep, loop = _disk_without(F, n, pole)
+    P = tutte_embedding(V[keep], rest, weights, boundary=loop)
+    star = float(np.sum(_areas(V, F[np.any(F == pole, axis=1)])))
+    share = min(max(star / float(np.sum(_areas(V, F))), 1e-12), 0.5)
+    # the cap outside the unit circle gets the pole star's share of the area when the bound allows
+    s = min(math.sqrt((1.0 - share) / share), 0.9 / math.sqrt(max(_cap_bound(P, rest), 1e-300)))
+    for halvings in range(MAX_HALVINGS + 1):
+        x = np.zeros((n, 3))
+        x[keep] = stereographic(P, s)
+        x[pole] = (0.0, 0.0, -1.0)
+        cert = certify_sphere(x, F)
+        if cert.ok:
+            return x, SphereDetails(x, int(pole), s, halvings, cert)
+        s *= 0.5
+    raise MeshError(f"no certified start map onto the sphere after {MAX_HALVINGS} halvings of the stereographic "
+                    f"scale (its triangles are too badly shaped for float64); remesh more evenly or try another "
+                    f"pole or weights")
+
+
+def given_start(problem, x0):
+    """``(x, details)`` for a start map ``x0`` (n, 3) of :func:`sphere_map`'s ``problem``: its
+    directions, once the mesh is checked (:func:`geomopt.topology.check_sphere`) and ``x0``
+    certified a bijection onto the sphere; MeshError otherwise."""
+    check_sphere(problem.input_simplices, problem.n_vertices)
+    x = problem.check_map(x0, "start map x0")
+    with np.errstate(all="ignore"):
+        x = x / np.linalg.norm(x, axis=1, keepdims=True)
+    cert = certify_sphere(x, problem.input_simplices)
+    if not cert.ok:
+        raise MeshError(f"the start map x0 is not a bijection onto the sphere ({cert.message}); omit x0 for the "
+                        f"certified stereographic start")
+    return x, SphereDetails(x, -1, math.nan, 0, cert)
+
+
+def _areas(V, F):
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+
+
+def default_solver() -> LBFGS:
+    """:func:`sphere_map`'s L-BFGS: no gradient test (``gtol=0``: the Tutte start's gradient is
+    some 1e14, so a test relative to it stops at energies far from the minimum; measured on cow),
+    converged when 20 iterations lower the energy by less than 2e-5 relative, up to 3,000."""
+    return LBFGS(gtol=0.0, rtol=1e-6, window=20, max_steps=3000)
+
+
+class _OnTheSphere(AbstractContinuation):
+    """Ends the one phase of :func:`sphere_map`: the map projected onto the sphere and
+    certified (:func:`geomopt.certify.certify_sphere`); CONVERGED demoted to NOT_INJECTIVE when
+    the certificate fails."""
+
+    def __init__(self, objective, details, start):
+        self.objective, self.details, self.x0 = objective, details, start
+
+    def __call__(self, state, outcome):
+        return Decision.stop_with(outcome if outcome is not None else Outcome.LINE_SEARCH_FAILED)
+
+    def finish(self, state, outcome, reason):
+        x = self.objective.unpad_map(np.asarray(state.x))
+        if not np.isfinite(x).all():
+            outcome, x = Outcome.NONFINITE, self.x0
+        t0 = time.perf_counter()
+        x = x / np.linalg.norm(x, axis=1, keepdims=True)
+        cert = certify_sphere(x, self.objective.problem.simplices)
+        if outcome is Outcome.CONVERGED and not cert.ok:
+            outcome, reason = Outcome.NOT_INJECTIVE, cert.message
+        return Final(x, outcome, cert, reason, details=self.details, certify_seconds=time.perf_counter() - t0)
+
+
+@float64
+def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=True, throw=False, *,
+               x0=None, pole=None, weights="uniform", buckets=True, **energy_params):
+    """Map a closed genus-0 triangle mesh bijectively onto the unit sphere, minimising distortion.
+
+    Parameters
+    ----------
+    V : (n, 3) float rest vertex positions, or a mesh object with ``.vertices`` and ``.faces``
+        when ``F`` is None.
+    F : (m, 3) int triangles, consistently oriented (the map keeps their orientation: outward
+        normals map to triangles counter-clockwise seen from outside the sphere).
+    energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet), a density
+        of 2x2 Jacobians evaluated on the chord triangles against the rest triangles scaled to
+        total area ``4 pi`` (:meth:`geomopt.Problem.sphere`).
+    solver : ``None`` (:func:`default_solver`), ``"lbfgs"`` or an :class:`~geomopt.LBFGS` (the
+        sphere map's Jacobians are not linear in ``x``, so no assembled-Hessian solver applies).
+    progress, throw : see :func:`~geomopt.solvers.minimize`.
+    x0 : None (the certified stereographic start, :func:`sphere_start`) or an (n, 3) start map
+        (directions: e.g. another method's sphere map), which must itself certify
+        (:func:`geomopt.certify.certify_sphere`).
+    pole, weights : the start's pole vertex and Tutte weights (:func:`sphere_start`).
+    buckets : pad to size buckets (shared compiled kernels), see :func:`~geomopt.parameterize`.
+
+    Returns
+    -------
+    :class:`~geomopt.solvers.Result` whose ``x`` (n, 3) are unit vectors (same vertex order;
+    the faces are ``F``), ``certificate`` a :class:`~geomopt.certify.SphereCertificate` (exact:
+    ``success`` only when converged with every triangle positive about the centre and the sphere
+    covered once; ``injectivity`` is then ``"global"``), ``details`` a :class:`SphereDetails`.
+
+    Raises
+    ------
+    MeshError : not a closed, edge-manifold, connected genus-0 mesh (boundary, other genus,
+        non-manifold edges or vertices, zero-area faces...), one line.
+    ParameterError : unknown energy or parameter, a solver other than L-BFGS, or an energy that
+        lets the map collapse (e.g. Dirichlet).
+    SolveError : only with ``throw=True``, when the result is not converged and certified.
+    """
+    refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
+    V, F = mesh_arrays(V, F)
+    check_progress(progress, "sphere_map")
+    check_scale_aware(energy, energy_params)
+    solver = default_solver() if solver is None else get_solver(solver)
+    if not isinstance(solver, LBFGS):
+        raise ParameterError(f"sphere_map minimises with L-BFGS (value and gradient only: the map onto the sphere "
+                             f"is not linear in x, so {type(solver).__name__}'s assembled Hessian does not apply); "
+                             f"pass solver='lbfgs' or an LBFGS(...)")
+    problem = Problem.sphere(V, F)  # rest checks first: zero-area faces, orientation, non-manifold edges
+    x0, details = (sphere_start(V, problem.input_simplices, pole, weights) if x0 is None else
+                   given_start(problem, x0))
+    objective = Objective(problem, energy, buckets=buckets, **energy_params)
+    return iterate(solver, objective, objective.prepare_map(x0), objective.params(),
+                   continuation=_OnTheSphere(objective, details, x0), progress=progress, trace=True,
+                   throw=throw, label="sphere_map")
+
+
+@float64
+def sphere_distortion(V, F, x) -> dict:
+    """Distortion of a map ``x`` (n, 3) of the closed mesh ``V`` (n, 3), ``F`` (m, 3) onto the
+    unit sphere (``x`` need not be normalised, nor flip-free).
+
+    Returns
+    -------
+    dict: ``"symmetric_dirichlet"``, the area-weighted mean symmetric Dirichlet density of the
+    chord triangles (:meth:`geomopt.Problem.sphere`; 4 at an isometry); ``"area_ratio"`` (m,),
+    each triangle's signed spherical area over its rest area scaled to total ``4 pi`` (1 where
+    area is kept), and its ``"area_min"``, ``"area_max"`` and (unweighted) ``"area_mean"``; ``"inverted"``,
+    the triangles not positively oriented about the centre (exact).
+    """
+    problem = Problem.sphere(V, F)
+    objective = Objective(problem, "symmetric_dirichlet")
+    x = np.asarray(x, dtype=np.float64)
+    density = np.asarray(element_densities(objective, x))
+    ratio = spherical_areas(x, problem.simplices) / problem.volumes
+    w = problem.volumes / problem.volumes.sum()
+    return {"symmetric_dirichlet": float(np.sum(w * density)), "area_ratio": ratio,
+            "area_min": float(ratio.min()), "area_max": float(ratio.max()), "area_mean": float(ratio.mean()),
+            "inverted": problem.count_inverted(x)}
