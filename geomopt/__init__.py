@@ -26,10 +26,10 @@ _LAZY = {
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
     "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
-    "ComparisonSet": "._compare",
+    "ComparisonSet": "._compare", "make_atlas": ".atlas",
 }
 _SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
-               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit")
+               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit", "atlas")
 
 
 def __getattr__(name):
@@ -52,7 +52,7 @@ def __dir__():
 __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data", "energies", "io",
+    "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "make_atlas", "data", "energies", "io",
     "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",
     "__version__",
 ]
