@@ -19,7 +19,7 @@ from .charts import split_charts
 from .cones import log_scale, scale_estimate
 from .seams import EdgeGraph, cut_path_to_seams, topological_cut
 
-__all__ = ["cut_surface", "chart_estimate"]
+__all__ = ["cut_surface", "chart_estimate", "relieve"]
 
 
 def _component_roots(g: EdgeGraph):
@@ -77,11 +77,18 @@ def chart_estimate(V, chart):
     return mean, area, (int(chart.vertices[k[np.argmin(log_area[k])]]) if len(k) else -1)
 
 
-def _relieve(g: EdgeGraph, cost, cut, target, max_cuts):
+def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
     """Greedy cone cuts (module doc, step c) until the area-weighted estimate is at most
-    ``target`` or ``max_cuts`` cuts were made."""
+    ``target`` or ``max_cuts`` cuts were made.
+
+    Returns
+    -------
+    cut : (k,) bool, ``cut`` with the new cuts;  estimate : float, the area-weighted estimate
+    at the end;  made : int, the number of cuts made.
+    """
     known = {}  # chart key (its first face) -> (mean, area, vertex)
-    for _ in range(max_cuts + 1):
+    cut = cut.copy()
+    for made in range(max_cuts + 1):
         split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
         first = np.full(split.count, len(g.F))
         np.minimum.at(first, split.chart, np.arange(len(g.F)))
@@ -92,19 +99,22 @@ def _relieve(g: EdgeGraph, cost, cut, target, max_cuts):
             rows.append(known[int(first[c])])
         mean = np.array([r[0] for r in rows])
         area = np.array([r[1] for r in rows])
-        if np.sum(mean * area) <= target * area.sum() or _ == max_cuts:
+        estimate = float(np.sum(mean * area) / area.sum())
+        if estimate <= target or made == max_cuts:
             break
         excess = np.where([r[2] >= 0 for r in rows], (mean - target) * area, -np.inf)
         c = int(np.argmax(excess))
+        if not np.isfinite(excess[c]):
+            break  # no chart has an interior vertex left to cut from
         seams = np.unique(g.E[cut | g.boundary].ravel())
         path = cut_path_to_seams(g, cost, rows[c][2], seams)
         cut[path] = True
         known.pop(int(first[c]))
-    return cut
+    return cut, estimate, made
 
 
-def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200) -> np.ndarray:
-    """(k,) bool, the interior edges of ``g`` to cut (module doc).
+def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
+    """The interior edges of ``g`` to cut (module doc), as :func:`relieve` returns them.
 
     Parameters
     ----------
@@ -116,4 +126,4 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200) -> np.nd
     labels, roots = _component_roots(g)
     cut = topological_cut(g, cost, roots)
     cut = _open_spheres(g, cost, cut, labels, roots)
-    return _relieve(g, cost, cut, target, max_cuts)
+    return relieve(g, cost, cut, target, max_cuts)
