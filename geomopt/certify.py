@@ -56,7 +56,7 @@ from .stars import fan_overlaps_2d, star_overlaps_3d
 from .topology import check_disk
 
 __all__ = ["Certificate", "LocalCertificate", "certify_bijective", "fixed_star_certificate",
-           "local_certificate", "polygon_crossings", "polygon_orientation"]
+           "local_certificate", "loop_crossings", "polygon_crossings", "polygon_orientation"]
 
 # Largest number of (edge, cell) entries per edge before the grid cells are made coarser.
 _MAX_CELLS_PER_EDGE = 4.0
@@ -82,26 +82,25 @@ def _segments_meet(a, b, c, d) -> np.ndarray:
     return (o1 * o2 <= 0) & (o3 * o4 <= 0)
 
 
-def _adjacent_overlaps(P, ex, ey) -> np.ndarray:
-    """Indices ``i`` such that edges ``i`` and ``i + 1`` (mod k) share more than their common
-    vertex ``P[i + 1]``: collinear and not pointing in strictly opposite directions from it (this
-    includes a zero-length edge).  ``ex, ey`` (k,) are the edge vectors ``P[i + 1] - P[i]``.
+def _adjacent_overlaps(P, nxt, ex, ey) -> np.ndarray:
+    """Indices ``i`` such that edges ``i`` and ``nxt[i]`` share more than their common
+    vertex ``P[nxt[i]]``: collinear and not pointing in strictly opposite directions from it (this
+    includes a zero-length edge).  ``ex, ey`` (k,) are the edge vectors ``P[nxt[i]] - P[i]``.
     Exact: the sign of a float difference is exact.
 
-    From the shared vertex, edge ``i`` points along ``-e_i`` and edge ``i + 1`` along
-    ``e_(i+1)``; these are strictly opposite per axis when ``e_i`` is not zero and has the
-    signs of ``e_(i+1)``, and then the edges cannot overlap."""
+    From the shared vertex, edge ``i`` points along ``-e_i`` and edge ``nxt[i]`` along
+    ``e_nxt[i]``; these are strictly opposite per axis when ``e_i`` is not zero and has the
+    signs of ``e_nxt[i]``, and then the edges cannot overlap."""
     sx = (ex > 0).view(np.int8) - (ex < 0).view(np.int8)
     sy = (ey > 0).view(np.int8) - (ey < 0).view(np.int8)
-    opposite = (sx == np.roll(sx, -1)) & (sy == np.roll(sy, -1)) & ((sx != 0) | (sy != 0))
+    opposite = (sx == sx[nxt]) & (sy == sy[nxt]) & ((sx != 0) | (sy != 0))
     rest = np.flatnonzero(~opposite)  # strictly opposite directions never overlap
-    k = len(P)
-    flat = orient2d(P[rest], P[(rest + 1) % k], P[(rest + 2) % k]) == 0
+    flat = orient2d(P[rest], P[nxt[rest]], P[nxt[nxt[rest]]]) == 0
     return rest[flat]
 
 
-def _grid_candidates(lox, loy, hix, hiy):
-    """Candidate pairs ``(i, j)`` of non-consecutive edges whose bounding boxes
+def _grid_candidates(lox, loy, hix, hiy, nxt):
+    """Candidate pairs ``(i, j)`` of non-consecutive edges (``j != nxt[i]``, ``i != nxt[j]``) whose bounding boxes
     ``[lox, hix] x [loy, hiy]`` (each (k,), coordinates within [-1, 1]) overlap, touching
     included; each pair once, in no particular order.
 
@@ -154,8 +153,7 @@ def _grid_candidates(lox, loy, hix, hiy):
     s = 1
     while p.size:
         i, j = edge[p], edge[p + s]
-        d = j - i  # > 0
-        keep = (d != 1) & (d != k - 1)
+        keep = (nxt[i] != j) & (nxt[j] != i)
         i, j, q = i[keep], j[keep], p[keep]
         keep = (lox[i] <= hix[j]) & (lox[j] <= hix[i]) & (loy[i] <= hiy[j]) & (loy[j] <= hiy[i])
         I.append(i[keep])
@@ -194,24 +192,48 @@ def polygon_crossings(P) -> np.ndarray:
         ``P`` is not a finite (k, 2) array with k >= 3.
     """
     P = _as_polygon(P)
+    return loop_crossings(P, np.roll(np.arange(len(P)), -1))
+
+
+def loop_crossings(P, nxt) -> np.ndarray:
+    """Pairs of edges of a set of closed loops that cross, touch or overlap.  Exact.
+
+    The loops' vertices are the rows of ``P``; edge ``i`` runs from ``P[i]`` to ``P[nxt[i]]``
+    (``nxt`` is a permutation whose cycles are the loops, each of at least 3 edges).  Edges
+    ``i`` and ``nxt[i]`` are consecutive: they must meet only at ``P[nxt[i]]``; any other two
+    edges, of the same loop or of two loops, must not meet at all (the module docstring's rule,
+    extended to several loops).  One grid broad phase for all loops.
+
+    Parameters
+    ----------
+    P : (k, 2) finite float64 array, the loop vertices (a point may appear in several rows).
+    nxt : (k,) int array, the next row along each loop.
+
+    Returns
+    -------
+    pairs : (q, 2) int64 array
+        Edge index pairs ``(i, j)``, ``i < j``, sorted, that meet where they must not.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    nxt = np.asarray(nxt, dtype=np.int64)
     k = len(P)
     x, y = P[:, 0].copy(), P[:, 1].copy()
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    xn, yn = x[nxt], y[nxt]
     pairs = []
-    adj = _adjacent_overlaps(P, xn - x, yn - y)
-    # the broad phase sees the polygon scaled by a power of two to a box within [-1, 1]: a
+    adj = _adjacent_overlaps(P, nxt, xn - x, yn - y)
+    # the broad phase sees the loops scaled by a power of two to a box within [-1, 1]: a
     # monotone map of each coordinate (exact, or rounded for tiny coordinates beside huge ones),
     # which keeps every box overlap, and keeps the grid's arithmetic away from overflow
     # (1 / h for subnormal coordinates) and from underflow; the exact tests see P itself
-    top = float(np.max(np.abs(P)))
+    top = float(np.max(np.abs(P))) if k else 0.0
     if top > 0:
         x, y, xn, yn = (np.ldexp(a, -int(np.frexp(top)[1])) for a in (x, y, xn, yn))
     if adj.size:
-        a, b = adj, (adj + 1) % k
+        a, b = adj, nxt[adj]
         pairs.append(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
     if k > 3:
-        i, j = _grid_candidates(np.minimum(x, xn), np.minimum(y, yn), np.maximum(x, xn), np.maximum(y, yn))
-        hit = _segments_meet(P[i], P[(i + 1) % k], P[j], P[(j + 1) % k])
+        i, j = _grid_candidates(np.minimum(x, xn), np.minimum(y, yn), np.maximum(x, xn), np.maximum(y, yn), nxt)
+        hit = _segments_meet(P[i], P[nxt[i]], P[j], P[nxt[j]])
         i, j = i[hit], j[hit]
         pairs.append(np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1))
     if not pairs:

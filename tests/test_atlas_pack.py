@@ -1,0 +1,322 @@
+"""Chart packing (geomopt.atlas.pack_charts) and the exact atlas certificate (certify_atlas)."""
+
+import numpy as np
+import pytest
+
+from geomopt import generators as g
+from geomopt._errors import MeshError, ParameterError
+from geomopt.atlas import AtlasCertificate, certify_atlas, chart_boundary_loops, pack_charts
+from geomopt.certify import loop_crossings
+from geomopt.predicates import orient2d
+
+# ------------------------------------------------------------------ chart zoo
+
+
+def _keep(V, F, keep):
+    """The faces ``F[keep]`` with their vertices renumbered."""
+    F = F[keep]
+    used, F = np.unique(F, return_inverse=True)
+    return V[used], F.reshape(-1, 3)
+
+
+def grid_chart(rng):
+    V, F = g.square_mesh(int(rng.integers(3, 9)))
+    return V * [rng.uniform(0.3, 2.0), rng.uniform(0.3, 2.0)], F
+
+
+def strip_chart(rng):
+    V, F = g.square_mesh(6)
+    return V * [rng.uniform(1.0, 3.0), rng.uniform(0.02, 0.08)], F
+
+
+def l_chart(rng):
+    V, F = g.square_mesh(9)
+    c = V[F].mean(axis=1)
+    return _keep(V * rng.uniform(0.5, 2.0), F, ~((c[:, 0] > 0.5) & (c[:, 1] > 0.5)))
+
+
+def star_chart(rng, n_r=5, n_t=40):
+    """A polar grid (centre fan, then rings) whose rays are scaled by a positive function of
+    the angle: every triangle keeps two vertices on one ray and one on the next, so it stays
+    counter-clockwise."""
+    arms, depth = int(rng.integers(3, 8)), rng.uniform(0.2, 0.7)
+    t = 2 * np.pi * np.arange(n_t) / n_t
+    f = 1 - depth * 0.5 * (1 + np.cos(arms * t))
+    r = np.arange(1, n_r + 1) / n_r
+    V = np.concatenate([[[0.0, 0.0]], (np.outer(r, f)[..., None] * np.stack([np.cos(t), np.sin(t)], 1)).reshape(-1, 2)])
+    j = np.arange(n_t)
+    F = [np.stack([np.zeros(n_t, np.int64), 1 + j, 1 + (j + 1) % n_t], 1)]
+    for i in range(n_r - 1):
+        a, b = 1 + i * n_t + j, 1 + i * n_t + (j + 1) % n_t
+        F += [np.stack([a, a + n_t, b + n_t], 1), np.stack([a, b + n_t, b], 1)]
+    return V * rng.uniform(0.2, 1.5), np.concatenate(F)
+
+
+def disk_chart(rng):
+    V, F = g.disk_mesh(int(rng.integers(2, 6)))
+    return V * rng.uniform(0.2, 1.5), F
+
+
+ZOO = (grid_chart, strip_chart, l_chart, star_chart, disk_chart)
+
+
+def random_charts(k, seed):
+    """``k`` charts of the zoo, each turned by a random angle and moved anywhere."""
+    rng = np.random.default_rng(seed)
+    uvs, faces = [], []
+    for _ in range(k):
+        V, F = ZOO[int(rng.integers(len(ZOO)))](rng)
+        a = rng.uniform(0, 2 * np.pi)
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        V = V @ R.T + rng.normal(size=2) * 3
+        assert (orient2d(V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]) == 1).all()
+        uvs.append(V)
+        faces.append(F)
+    return uvs, faces
+
+
+def as_atlas(uvs, faces):
+    """Concatenate per-chart arrays into (uv, uv_faces, chart)."""
+    sizes = [len(u) for u in uvs]
+    shift = np.cumsum(sizes) - sizes
+    F = np.concatenate([f + s for f, s in zip(faces, shift)])
+    chart = np.repeat(np.arange(len(faces)), [len(f) for f in faces])
+    return np.concatenate(uvs), F, chart
+
+
+def signed_area(u, f):
+    a, b, c = u[f[:, 0]], u[f[:, 1]], u[f[:, 2]]
+    return 0.5 * np.sum((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
+def segment_distance(a, b, c, d):
+    """Distances between segments ab and cd (rows), assuming they do not intersect."""
+    def point_seg(p, a, b):
+        e = b - a
+        t = np.clip(np.sum((p - a) * e, -1) / np.maximum(np.sum(e * e, -1), 1e-300), 0, 1)
+        return np.linalg.norm(p - a - t[..., None] * e, axis=-1)
+    return np.minimum.reduce([point_seg(a, c, d), point_seg(b, c, d), point_seg(c, a, b), point_seg(d, a, b)])
+
+
+def min_chart_distance(uvs, faces):
+    """The least distance between boundary edges of two different charts (brute force)."""
+    segs = []
+    for i, (u, f) in enumerate(zip(uvs, faces)):
+        loops, _ = chart_boundary_loops(f, np.zeros(len(f), np.int64))
+        for lp in loops:
+            segs.append((u[lp], u[np.roll(lp, -1)], np.full(len(lp), i)))
+    A, B, C = (np.concatenate(x) for x in zip(*segs))
+    best = np.inf
+    for s in range(len(A)):
+        other = C > C[s]
+        if other.any():
+            best = min(best, float(segment_distance(A[s], B[s], A[other], B[other]).min()))
+    return best
+
+
+# ------------------------------------------------------------------ packing
+
+
+@pytest.mark.parametrize("k, seed, resolution", [(1, 0, 128), (2, 1, 128), (7, 2, 256), (30, 3, 128), (60, 4, 128)])
+def test_packing_is_certified_rigid_in_range_and_spaced(k, seed, resolution):
+    uvs, faces = random_charts(k, seed)
+    margin = 0.01
+    p = pack_charts(uvs, faces, margin=margin, resolution=resolution)
+    cert = certify_atlas(*as_atlas(p.uvs, faces))
+    assert cert.ok, cert.message
+    allpts = np.concatenate(p.uvs)
+    assert allpts.min() >= 0 and allpts.max() <= 1
+    assert np.isclose(max(np.ptp(allpts, axis=0)), 1.0, atol=1e-12)  # the bounding square is the unit square
+    assert p.angles.shape == (k,) and p.offsets.shape == (k, 2)
+    for u_in, f, u, a, o in zip(uvs, faces, p.uvs, p.angles, p.offsets):
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])  # det +1: no mirror
+        np.testing.assert_allclose(u, p.scale * u_in @ R.T + o, atol=1e-12)
+        assert np.isclose(signed_area(u, f), p.scale**2 * signed_area(u_in, f), rtol=1e-9)
+    area = sum(signed_area(u, f) for u, f in zip(p.uvs, faces))
+    assert np.isclose(p.efficiency, area / max(np.ptp(allpts, axis=0)) ** 2, rtol=1e-12)
+    if k > 1:
+        assert min_chart_distance(p.uvs, faces) >= margin
+    assert p.efficiency > (0.3 if k > 1 else 0.2)
+
+
+def test_packing_keeps_charts_unturned_without_rotate():
+    uvs, faces = random_charts(5, 7)
+    p = pack_charts(uvs, faces, rotate=False, resolution=128)
+    assert np.all(p.angles == 0)
+    assert certify_atlas(*as_atlas(p.uvs, faces)).ok
+
+
+def test_packing_efficiency_of_rectangles_is_high():
+    """Equal rectangles tile: a good packer fills most of the square (margin 0)."""
+    V, F = g.square_mesh(3)
+    uvs = [V * [2.0, 1.0]] * 8
+    p = pack_charts(uvs, [F] * 8, margin=0.0, resolution=256)
+    assert certify_atlas(*as_atlas(p.uvs, [F] * 8)).ok
+    assert p.efficiency > 0.85
+
+
+def test_pack_refuses_bad_charts():
+    V, F = g.square_mesh(3)
+    with pytest.raises(MeshError, match="not positively oriented"):
+        pack_charts([V, V * [-1, 1]], [F, F])
+    with pytest.raises(MeshError, match="one face array per chart"):
+        pack_charts([V], [F, F])
+    with pytest.raises(ParameterError, match="margin"):
+        pack_charts([V], [F], margin=0.5)
+
+
+# ------------------------------------------------------------------ the certificate
+
+
+def two_squares(gap_x):
+    """Two unit-grid squares of side 0.3: [0.1, 0.4]^2 and [gap_x, gap_x + 0.3] x [0.1, 0.4]."""
+    V, F = g.square_mesh(4, 0.3)
+    return as_atlas([V + [0.1, 0.1], V + [gap_x, 0.1]], [F, F])
+
+
+def test_certificate_accepts_a_clean_atlas():
+    cert = certify_atlas(*two_squares(0.5))
+    assert isinstance(cert, AtlasCertificate)
+    assert cert.ok and "certified" in cert.message
+
+
+def test_certificate_decides_a_one_ulp_overlap_exactly():
+    right = float(two_squares(0.5)[0][:16, 0].max())  # the first square's right side, as rounded
+    apart = certify_atlas(*two_squares(np.nextafter(right, 1)))
+    touching = certify_atlas(*two_squares(right))
+    crossing = certify_atlas(*two_squares(np.nextafter(right, 0)))
+    assert apart.ok, apart.message
+    assert touching.overlapping_pairs.tolist() == [[0, 1]]
+    assert crossing.overlapping_pairs.tolist() == [[0, 1]]
+    assert not touching.ok and not crossing.ok
+
+
+def test_certificate_finds_a_flipped_triangle_and_a_mirrored_chart():
+    uv, F, chart = two_squares(0.5)
+    F1 = F.copy()
+    F1[3] = F1[3][[0, 2, 1]]
+    cert = certify_atlas(uv, F1, chart)
+    assert cert.inverted.tolist() == [3] and not cert.ok
+    uv2 = uv.copy()
+    second = np.unique(F[chart == 1])
+    uv2[second, 0] = 1.3 - uv2[second, 0]  # the second chart mirrored in place
+    cert = certify_atlas(uv2, F, chart)
+    assert set(cert.inverted.tolist()) == set(np.flatnonzero(chart == 1).tolist())
+    assert cert.self_overlapping.tolist() == [1] and not cert.ok
+
+
+def test_certificate_finds_a_chart_inside_another():
+    V, F = g.square_mesh(4, 0.6)
+    W, G = g.square_mesh(3, 0.1)
+    cert = certify_atlas(*as_atlas([V + 0.1, W + 0.3], [F, G]))
+    assert cert.overlapping_pairs.tolist() == [[0, 1]]
+    assert len(cert.self_overlapping) == 0 and len(cert.inverted) == 0 and not cert.ok
+
+
+def annulus(r0, r1, turn, n_t=48, n_r=3):
+    """An annular sector from angle 0 to ``turn`` (radians): a closed ring for ``turn = 2 pi``."""
+    closed = np.isclose(turn, 2 * np.pi)
+    m = n_t if closed else n_t + 1
+    t = np.linspace(0, turn, m, endpoint=not closed)
+    r = np.linspace(r0, r1, n_r)
+    V = np.stack([np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel()], 1)
+    F = []
+    for i in range(n_r - 1):
+        for j in range(n_t):
+            a, b = i * m + j, i * m + (j + 1) % m
+            F += [[a, b + m, b], [a, a + m, b + m]]
+    return V, np.array(F, dtype=np.int64)
+
+
+def test_certificate_finds_a_chart_overlapping_itself():
+    V, F = annulus(0.2, 0.4, 2 * np.pi + 0.7)  # positively oriented everywhere, wraps past its start
+    uv, F, chart = as_atlas([V + 0.5], [F])
+    assert (orient2d(uv[F[:, 0]], uv[F[:, 1]], uv[F[:, 2]]) == 1).all()
+    cert = certify_atlas(uv, F, chart)
+    assert cert.self_overlapping.tolist() == [0] and not cert.ok
+
+
+def test_certificate_of_a_chart_with_a_hole():
+    """A ring is injective; a chart in its hole is not inside it; one on the ring is."""
+    V, F = annulus(0.2, 0.4, 2 * np.pi)
+    W, G = g.square_mesh(3, 0.1)
+    alone = certify_atlas(*as_atlas([V + 0.5], [F]))
+    assert alone.ok, alone.message
+    in_hole = certify_atlas(*as_atlas([V + 0.5, W + 0.45], [F, G]))
+    assert in_hole.ok, in_hole.message
+    on_ring = certify_atlas(*as_atlas([V + 0.5, W + [0.75, 0.45]], [F, G]))
+    assert on_ring.overlapping_pairs.tolist() == [[0, 1]]
+    wound_twice = np.concatenate([F, F + len(V)])  # two copies of the ring stacked: coverage 2
+    cert = certify_atlas(np.concatenate([V, V]) + 0.5, wound_twice, np.zeros(len(wound_twice), np.int64))
+    assert cert.self_overlapping.tolist() == [0]
+
+
+def test_certificate_finds_a_t_touch():
+    V, F = g.square_mesh(4, 0.3)  # [0.1, 0.4]^2; the triangle's tip touches its right side
+    tri = np.array([[0.4, 0.25], [0.6, 0.1], [0.6, 0.4]])
+    cert = certify_atlas(*as_atlas([V + 0.1, tri], [F, np.array([[0, 1, 2]])]))
+    assert cert.overlapping_pairs.tolist() == [[0, 1]] and not cert.ok
+    tri[0, 0] = np.nextafter(0.4, 1)
+    assert certify_atlas(*as_atlas([V + 0.1, tri], [F, np.array([[0, 1, 2]])])).ok
+
+
+def test_certificate_counts_uvs_out_of_range():
+    uv, F, chart = two_squares(0.5)
+    uv[0] = [-1e-300, 0.1]
+    uv[-1, 1] = 1.0 + 2**-52
+    cert = certify_atlas(uv, F, chart)
+    assert cert.out_of_range == 2 and not cert.ok and "outside" in cert.message
+
+
+def test_certificate_refuses_malformed_input():
+    uv, F, chart = two_squares(0.5)
+    with pytest.raises(MeshError, match="chart"):
+        certify_atlas(uv, F, chart[:-1])
+    with pytest.raises(MeshError, match="uv"):
+        certify_atlas(uv[:, :1], F, chart)
+
+
+def test_chart_boundary_loops_split_shared_rows():
+    V, F = g.square_mesh(3)  # 8 triangles; charts: left and right halves share the middle column
+    c = V[F].mean(axis=1)[:, 0] > 0.5
+    loops, owner = chart_boundary_loops(F, c.astype(np.int64))
+    assert owner.tolist() == [0, 1]
+    assert all(len(lp) == 6 for lp in loops)
+    assert set(loops[0].tolist()) == {0, 1, 3, 4, 6, 7}
+
+
+def test_loop_crossings_of_several_loops_match_brute_force():
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        sizes = rng.integers(3, 7, size=3)
+        P = rng.integers(0, 4, size=(sizes.sum(), 2)).astype(np.float64)
+        start = np.cumsum(sizes) - sizes
+        nxt = np.arange(len(P)) + 1
+        nxt[start + sizes - 1] = start
+        want = set()
+        for i in range(len(P)):
+            for j in range(i + 1, len(P)):
+                a, b, cc, d = P[i], P[nxt[i]], P[j], P[nxt[j]]
+                if nxt[i] == j or nxt[j] == i:
+                    # consecutive: bad iff collinear and not pointing opposite ways from the shared vertex
+                    e0, e1 = (b - a, d - cc) if nxt[i] == j else (d - cc, b - a)
+                    bad = e0[0] * e1[1] - e0[1] * e1[0] == 0 and np.dot(e0, e1) <= 0
+                else:
+                    bad = _brute_meet(a, b, cc, d)
+                if bad:
+                    want.add((i, j))
+        got = {tuple(p) for p in loop_crossings(P, nxt).tolist()}
+        assert got == want
+
+
+def _brute_meet(a, b, c, d):
+    def o(p, q, r):
+        return np.sign((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+
+    def on(p, q, r):
+        return min(p[0], q[0]) <= r[0] <= max(p[0], q[0]) and min(p[1], q[1]) <= r[1] <= max(p[1], q[1])
+    o1, o2, o3, o4 = o(a, b, c), o(a, b, d), o(c, d, a), o(c, d, b)
+    if o1 * o2 < 0 and o3 * o4 < 0:
+        return True
+    return ((o1 == 0 and on(a, b, c)) or (o2 == 0 and on(a, b, d)) or (o3 == 0 and on(c, d, a))
+            or (o4 == 0 and on(c, d, b)))
