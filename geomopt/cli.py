@@ -558,8 +558,8 @@ def _margin(text) -> float:
         value = float(text)
     except ValueError:
         value = -1.0
-    if not 0.0 <= value <= 0.25:
-        raise argparse.ArgumentTypeError(f"must be a number in [0, 0.25], got {text!r}")
+    if not 0.0 <= value < 0.25:
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 0.25), got {text!r}")
     return value
 
 

@@ -24,6 +24,7 @@ from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
+from .split import split_to_pack
 
 __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
 
@@ -44,6 +45,9 @@ class AtlasOptions:
         :func:`~geomopt.atlas.flatten.flatten_to`).  Lower: more seams.
     crease : how much cheaper a seam is along a crease (:func:`~geomopt.atlas.seams.edge_costs`).
     max_cuts : the most cone cuts.
+    min_efficiency : split the largest flattened chart and repack while the packing efficiency
+        (chart area / unit square) is below this and each split raises it
+        (:func:`~geomopt.atlas.split.split_to_pack`).
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
@@ -51,12 +55,13 @@ class AtlasOptions:
     max_distortion: float = 4.15
     crease: float = 2.0
     max_cuts: int = 200
+    min_efficiency: float = 0.7
     margin: float = 0.005
     rotate: bool = True
 
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
-                 margin=Real(0.0, 0.25), rotate=Instance(bool))
+                 min_efficiency=Real(0.0, 1.0), margin=Real(0.0, 0.25, hi_open=True), rotate=Instance(bool))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,15 +142,17 @@ def _say(progress, stage, **info):
         progress(stage, info)
 
 
-def _assemble(n_faces, split, meshes, packed):
-    """Per-corner UVs ``(uv, uv_faces, vertex)`` from the packed chart maps."""
+def _assemble(n_faces, meshes, packed):
+    """Per-corner UVs ``(uv, uv_faces, vertex, chart)`` from the packed chart maps."""
     uv, uv_faces, vertex, offset = [], np.empty((n_faces, 3), dtype=np.int64), [], 0
-    for mesh, x in zip(meshes, packed):
+    chart = np.empty(n_faces, dtype=np.int64)
+    for c, (mesh, x) in enumerate(zip(meshes, packed)):
         uv.append(np.asarray(x, dtype=np.float64))
         uv_faces[mesh.faces] = mesh.F + offset
+        chart[mesh.faces] = c
         vertex.append(mesh.vertices)
         offset += len(mesh.wedges)
-    return np.concatenate(uv), uv_faces, np.concatenate(vertex)
+    return np.concatenate(uv), uv_faces, np.concatenate(vertex), chart
 
 
 @float64
@@ -194,12 +201,15 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
 
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
                                              options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info))
-    packing = pack_charts([r.x for r in results], [m.F for m in meshes], margin=options.margin,
-                          rotate=options.rotate)
-    uv, uv_faces, wedge = _assemble(len(F), split, meshes, packing.uvs)
-    certificate = certify_atlas(uv, uv_faces, split.chart)
+    def pack(maps, faces):
+        return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
+
+    meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency)
+    results = [results[i] for i in owner]
+    uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
+    certificate = certify_atlas(uv, uv_faces, chart)
     metrics = atlas_metrics(V, F, uv, uv_faces)
-    atlas = Atlas(uv, uv_faces, split.chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
+    atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
                   certificate, tuple(results), time.perf_counter() - t0)
     _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
          mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet)
