@@ -5,7 +5,8 @@ into; two halves of it leave less empty space.  :func:`split_flat_chart` cuts a 
 across its longest direction (the principal axis of its triangles' centroids, area-weighted) at
 the area median: each side's connected pieces keep their flattened coordinates (a part of a
 flip-free, injective map is one), so no chart is solved again.  :func:`split_to_pack` splits the
-largest chart and repacks while the packing efficiency grows and stays below the goal.
+largest chart not tried yet and repacks, keeping a split only when the packing efficiency grows,
+while it is below the goal.
 """
 
 from __future__ import annotations
@@ -76,8 +77,9 @@ def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5):
 
 
 def split_to_pack(meshes, maps, pack, goal, max_splits=16):
-    """Split the largest chart and repack (``pack(maps, faces) -> Packing``) while the packing
-    efficiency is below ``goal`` and each split raises it.
+    """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
+    keeping the split when it raises the packing efficiency, while that is below ``goal``
+    (at most ``max_splits`` tries).
 
     Returns
     -------
@@ -102,7 +104,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16):
         new_maps = maps[:i] + [p[1] for p in pieces] + maps[i + 1:]
         trial = pack(new_maps, [m.F for m in new_meshes])
         if trial.efficiency <= packing.efficiency:
-            break
+            continue  # this chart stays whole; try the next largest
         shift = len(pieces) - 1
         tried = {j if j < i else j + shift for j in tried if j != i}
         meshes, maps, packing = new_meshes, new_maps, trial
