@@ -36,13 +36,14 @@ def _face_components(F, keep):
     return connected_components(graph.tocsr(), directed=False)[1]
 
 
-def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5):
+def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1):
     """Cut a flattened chart in two across its longest direction (module doc).
 
     Parameters
     ----------
     mesh : the chart's :class:`~geomopt.atlas.charts.ChartMesh`;  x : (nc, 2) its flattening.
     quantile : where along the axis, as a fraction of the chart's area.
+    axis : -1 across the longest direction, 0 across the shortest.
 
     Returns
     -------
@@ -57,7 +58,7 @@ def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5):
     A = _areas(P)
     mean = np.average(c, axis=0, weights=A)
     cov = ((c - mean) * A[:, None]).T @ (c - mean)
-    t = c @ np.linalg.eigh(cov)[1][:, -1]
+    t = c @ np.linalg.eigh(cov)[1][:, axis]
     order = np.argsort(t)
     cut_at = t[order][np.searchsorted(np.cumsum(A[order]), quantile * A.sum())]
     pieces = []
@@ -97,7 +98,8 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16):
         if area[i] < 0:
             break
         tried.add(i)
-        pieces = split_flat_chart(meshes[i], maps[i])
+        pieces = next(filter(None, (split_flat_chart(meshes[i], maps[i], q, axis) for axis in (-1, 0)
+                                    for q in (0.5, 0.35, 0.65))), None)
         if pieces is None:
             continue
         new_meshes = meshes[:i] + [p[0] for p in pieces] + meshes[i + 1:]
