@@ -36,6 +36,30 @@ def _face_components(F, keep):
     return connected_components(graph.tocsr(), directed=False)[1]
 
 
+def _smoothed(F, side, rounds=3):
+    """``side`` (m,) bool with every face that has at least two edge neighbours on the other
+    side moved over, ``rounds`` times: a straighter cut line, without faces that touch the other
+    side at a vertex only (which would leave a piece pinched there, not a disk)."""
+    from ..topology import unique_edges
+
+    _, _, edge_of = unique_edges(F)
+    e = edge_of.ravel()
+    f = np.repeat(np.arange(len(F)), 3)
+    order = np.argsort(e, kind="stable")
+    e, f = e[order], f[order]
+    pair = np.flatnonzero(e[1:] == e[:-1])
+    a, b = f[pair], f[pair + 1]
+    side = side.copy()
+    for _ in range(rounds):
+        other = np.bincount(a, side[b] != side[a], minlength=len(F)) + np.bincount(b, side[a] != side[b],
+                                                                                    minlength=len(F))
+        flip = other >= 2
+        if not flip.any():
+            break
+        side[flip] = ~side[flip]
+    return side
+
+
 def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1):
     """Cut a flattened chart in two across its longest direction (module doc).
 
@@ -62,7 +86,8 @@ def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1):
     order = np.argsort(t)
     cut_at = t[order][np.searchsorted(np.cumsum(A[order]), quantile * A.sum())]
     pieces = []
-    for side in (t <= cut_at, t > cut_at):
+    low = _smoothed(mesh.F, t <= cut_at)
+    for side in (low, ~low):
         if not side.any():
             return None
         faces = np.flatnonzero(side)
