@@ -19,27 +19,8 @@ from .charts import ChartMesh
 __all__ = ["split_flat_chart", "split_to_pack"]
 
 
-def _face_components(F, keep):
-    """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges."""
-    from scipy.sparse.csgraph import connected_components
-
-    from ..topology import unique_edges
-
-    G = F[keep]
-    _, count, edge_of = unique_edges(G)
-    e = edge_of.ravel()
-    f = np.repeat(np.arange(len(G)), 3)
-    order = np.argsort(e, kind="stable")
-    e, f = e[order], f[order]
-    pair = np.flatnonzero(e[1:] == e[:-1])
-    graph = sp.coo_matrix((np.ones(len(pair)), (f[pair], f[pair + 1])), shape=(len(G), len(G)))
-    return connected_components(graph.tocsr(), directed=False)[1]
-
-
-def _smoothed(F, side, rounds=3):
-    """``side`` (m,) bool with every face that has at least two edge neighbours on the other
-    side moved over, ``rounds`` times: a straighter cut line, without faces that touch the other
-    side at a vertex only (which would leave a piece pinched there, not a disk)."""
+def _face_pairs(F):
+    """``(a, b)``: the pairs of faces of ``F`` (m, 3) that share an edge."""
     from ..topology import unique_edges
 
     _, _, edge_of = unique_edges(F)
@@ -48,7 +29,24 @@ def _smoothed(F, side, rounds=3):
     order = np.argsort(e, kind="stable")
     e, f = e[order], f[order]
     pair = np.flatnonzero(e[1:] == e[:-1])
-    a, b = f[pair], f[pair + 1]
+    return f[pair], f[pair + 1]
+
+
+def _face_components(F, keep):
+    """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges."""
+    from scipy.sparse.csgraph import connected_components
+
+    G = F[keep]
+    a, b = _face_pairs(G)
+    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(G), len(G)))
+    return connected_components(graph.tocsr(), directed=False)[1]
+
+
+def _smoothed(F, side, rounds=3):
+    """``side`` (m,) bool with every face that has at least two edge neighbours on the other
+    side moved over, ``rounds`` times: a straighter cut line, without faces that touch the other
+    side at a vertex only (which would leave a piece pinched there, not a disk)."""
+    a, b = _face_pairs(F)
     side = side.copy()
     for _ in range(rounds):
         other = np.bincount(a, side[b] != side[a], minlength=len(F)) + np.bincount(b, side[a] != side[b],
