@@ -77,9 +77,16 @@ def chart_estimate(V, chart):
     return mean, area, (int(chart.vertices[k[np.argmin(log_area[k])]]) if len(k) else -1)
 
 
+def _stalled(history, window=10, gain=1e-3):
+    """Whether the last ``window`` cuts lowered the estimate by less than ``gain`` (relative):
+    on coarse meshes the most shrunk vertex can sit next to the seams, and more slits there
+    only make the chart ragged."""
+    return len(history) > window and history[-window - 1] - history[-1] < gain * history[-1]
+
+
 def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
     """Greedy cone cuts (module doc, step c) until the area-weighted estimate is at most
-    ``target`` or ``max_cuts`` cuts were made.
+    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.
 
     Returns
     -------
@@ -88,6 +95,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
     """
     known = {}  # chart key (its first face) -> (mean, area, vertex)
     cut = cut.copy()
+    history = []
     for made in range(max_cuts + 1):
         split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
         first = np.full(split.count, len(g.F))
@@ -100,7 +108,8 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
         mean = np.array([r[0] for r in rows])
         area = np.array([r[1] for r in rows])
         estimate = float(np.sum(mean * area) / area.sum())
-        if estimate <= target or made == max_cuts:
+        history.append(estimate)
+        if estimate <= target or made == max_cuts or _stalled(history):
             break
         excess = np.where([r[2] >= 0 for r in rows], (mean - target) * area, -np.inf)
         c = int(np.argmax(excess))
