@@ -57,7 +57,28 @@ def disk_chart(rng):
     return V * rng.uniform(0.2, 1.5), F
 
 
-ZOO = (grid_chart, strip_chart, l_chart, star_chart, disk_chart)
+def annulus(r0, r1, turn, n_t=48, n_r=3):
+    """An annular sector from angle 0 to ``turn`` (radians): a closed ring for ``turn = 2 pi``."""
+    closed = np.isclose(turn, 2 * np.pi)
+    m = n_t if closed else n_t + 1
+    t = np.linspace(0, turn, m, endpoint=not closed)
+    r = np.linspace(r0, r1, n_r)
+    V = np.stack([np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel()], 1)
+    F = []
+    for i in range(n_r - 1):
+        for j in range(n_t):
+            a, b = i * m + j, i * m + (j + 1) % m
+            F += [[a, b + m, b], [a, a + m, b + m]]
+    return V, np.array(F, dtype=np.int64)
+
+
+def ring_chart(rng):
+    """A chart with a hole (smaller charts may be packed into it)."""
+    V, F = annulus(rng.uniform(0.3, 0.7), 1.0, 2 * np.pi, n_t=24)
+    return V * rng.uniform(0.5, 1.5), F
+
+
+ZOO = (grid_chart, strip_chart, l_chart, star_chart, disk_chart, ring_chart)
 
 
 def random_charts(k, seed):
@@ -98,19 +119,23 @@ def segment_distance(a, b, c, d):
     return np.minimum.reduce([point_seg(a, c, d), point_seg(b, c, d), point_seg(c, a, b), point_seg(d, a, b)])
 
 
-def min_chart_distance(uvs, faces):
-    """The least distance between boundary edges of two different charts (brute force)."""
+def min_chart_distance(uvs, faces, within):
+    """The least distance between boundary edges of two different charts, or ``within`` when no
+    two charts' bounding boxes come closer than that (brute force over those pairs)."""
     segs = []
-    for i, (u, f) in enumerate(zip(uvs, faces)):
+    for u, f in zip(uvs, faces):
         loops, _ = chart_boundary_loops(f, np.zeros(len(f), np.int64))
-        for lp in loops:
-            segs.append((u[lp], u[np.roll(lp, -1)], np.full(len(lp), i)))
-    A, B, C = (np.concatenate(x) for x in zip(*segs))
-    best = np.inf
-    for s in range(len(A)):
-        other = C > C[s]
-        if other.any():
-            best = min(best, float(segment_distance(A[s], B[s], A[other], B[other]).min()))
+        lp = np.concatenate(loops)
+        nxt = np.concatenate([np.roll(x, -1) for x in loops])
+        segs.append((u[lp], u[nxt]))
+    lo = np.array([u.min(axis=0) for u in uvs]) - within
+    hi = np.array([u.max(axis=0) for u in uvs])
+    best = within
+    for i in range(len(uvs)):
+        for j in range(i + 1, len(uvs)):
+            if (lo[i] <= hi[j]).all() and (lo[j] <= hi[i]).all():
+                (a, b), (c, d) = segs[i], segs[j]
+                best = min(best, float(segment_distance(a[:, None], b[:, None], c[None], d[None]).min()))
     return best
 
 
@@ -135,7 +160,7 @@ def test_packing_is_certified_rigid_in_range_and_spaced(k, seed, resolution):
     area = sum(signed_area(u, f) for u, f in zip(p.uvs, faces))
     assert np.isclose(p.efficiency, area / max(np.ptp(allpts, axis=0)) ** 2, rtol=1e-12)
     if k > 1:
-        assert min_chart_distance(p.uvs, faces) >= margin
+        assert min_chart_distance(p.uvs, faces, 2 * margin) >= margin
     assert p.efficiency > (0.3 if k > 1 else 0.2)
 
 
@@ -146,13 +171,28 @@ def test_packing_keeps_charts_unturned_without_rotate():
     assert certify_atlas(*as_atlas(p.uvs, faces)).ok
 
 
-def test_packing_efficiency_of_rectangles_is_high():
-    """Equal rectangles tile: a good packer fills most of the square (margin 0)."""
+def test_packing_turns_tilted_rectangles_upright_and_tiles_them():
+    """Equal rectangles given at random angles: turned to their minimum-area rectangles they tile,
+    and a good packer fills most of the square (margin 0)."""
     V, F = g.square_mesh(3)
-    uvs = [V * [2.0, 1.0]] * 8
+    rng = np.random.default_rng(3)
+    uvs = []
+    for a in rng.uniform(0, 2 * np.pi, 8):
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        uvs.append((V * [2.0, 1.0]) @ R.T)
     p = pack_charts(uvs, [F] * 8, margin=0.0, resolution=256)
     assert certify_atlas(*as_atlas(p.uvs, [F] * 8)).ok
     assert p.efficiency > 0.85
+
+
+@pytest.mark.parametrize("scale", [2.0**-900, 1.0, 2.0**900])
+def test_packing_at_extreme_scales(scale):
+    uvs, faces = random_charts(4, 11)
+    p = pack_charts([u * scale for u in uvs], faces, resolution=128)
+    assert certify_atlas(*as_atlas(p.uvs, faces)).ok
+    for u_in, u, a, o in zip(uvs, p.uvs, p.angles, p.offsets):
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        np.testing.assert_allclose(u, (p.scale * scale) * u_in @ R.T + o, atol=1e-12)
 
 
 def test_pack_refuses_bad_charts():
@@ -161,6 +201,8 @@ def test_pack_refuses_bad_charts():
         pack_charts([V, V * [-1, 1]], [F, F])
     with pytest.raises(MeshError, match="one face array per chart"):
         pack_charts([V], [F, F])
+    with pytest.raises(MeshError, match="no face uses"):
+        pack_charts([np.concatenate([V, [[5.0, 5.0]]])], [F])
     with pytest.raises(ParameterError, match="margin"):
         pack_charts([V], [F], margin=0.5)
 
@@ -211,21 +253,6 @@ def test_certificate_finds_a_chart_inside_another():
     cert = certify_atlas(*as_atlas([V + 0.1, W + 0.3], [F, G]))
     assert cert.overlapping_pairs.tolist() == [[0, 1]]
     assert len(cert.self_overlapping) == 0 and len(cert.inverted) == 0 and not cert.ok
-
-
-def annulus(r0, r1, turn, n_t=48, n_r=3):
-    """An annular sector from angle 0 to ``turn`` (radians): a closed ring for ``turn = 2 pi``."""
-    closed = np.isclose(turn, 2 * np.pi)
-    m = n_t if closed else n_t + 1
-    t = np.linspace(0, turn, m, endpoint=not closed)
-    r = np.linspace(r0, r1, n_r)
-    V = np.stack([np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel()], 1)
-    F = []
-    for i in range(n_r - 1):
-        for j in range(n_t):
-            a, b = i * m + j, i * m + (j + 1) % m
-            F += [[a, b + m, b], [a, a + m, b + m]]
-    return V, np.array(F, dtype=np.int64)
 
 
 def test_certificate_finds_a_chart_overlapping_itself():

@@ -97,11 +97,12 @@ def chart_boundary_loops(uv_faces, chart):
     F = np.asarray(uv_faces, dtype=np.int64)
     chart = np.asarray(chart, dtype=np.int64)
     # one vertex per (chart, UV row): a loop never passes from one chart to another
-    keys, local = np.unique(np.stack([np.repeat(chart, 3), F.ravel()], axis=1), axis=0, return_inverse=True)
+    n = int(F.max()) + 1
+    keys, local = np.unique(np.repeat(chart, 3) * n + F.ravel(), return_inverse=True)
     local_loops = boundary_loops(local.reshape(-1, 3))
-    owner = np.array([keys[lp[0], 0] for lp in local_loops], dtype=np.int64)
+    owner = np.array([keys[lp[0]] // n for lp in local_loops], dtype=np.int64)
     order = np.argsort(owner, kind="stable")  # largest loop first within a chart
-    return [keys[local_loops[i], 1] for i in order], owner[order]
+    return [keys[local_loops[i]] % n for i in order], owner[order]
 
 
 def _check_atlas(uv, uv_faces, chart):
@@ -171,12 +172,15 @@ def _coverage_findings(P, nxt, loop_of, loop_chart):
     n_loops = len(loop_chart)
     s = _loop_orientations(P, nxt, loop_of, n_loops).astype(np.int64)
     q = np.searchsorted(loop_of, np.arange(n_loops))  # first vertex of each loop
-    edge_chart = loop_chart[loop_of]
+    edge_chart = loop_chart[loop_of]  # ascending: loops of a chart are consecutive
+    charts = np.unique(loop_chart)
+    first, last = np.searchsorted(edge_chart, charts), np.searchsorted(edge_chart, charts, side="right")
+    lo, hi = np.minimum.reduceat(P, first), np.maximum.reduceat(P, first)
+    Q = P[q]
     bad, pairs = set(), set()
-    for c in np.unique(loop_chart):
-        edges = np.flatnonzero(edge_chart == c)  # contiguous: loops of a chart are consecutive
-        lo, hi = P[edges].min(axis=0), P[edges].max(axis=0)
-        inside = np.flatnonzero(((P[q] >= lo) & (P[q] <= hi)).all(axis=1))
+    for c, a, b, l, h in zip(charts, first, last, lo, hi):
+        edges = np.arange(a, b)
+        inside = np.flatnonzero(((Q >= l) & (Q <= h)).all(axis=1))
         w = _windings(P, nxt, loop_of, q[inside], edges)
         own = loop_chart[inside] == c
         W, sl = w[own], s[inside[own]]

@@ -6,14 +6,17 @@ B. Lévy et al. 2002's "Tetris" packer), vectorised:
 1. Each chart is turned so that its minimum-area bounding rectangle is axis-aligned (rotating
    calipers over the convex hull: the optimal rectangle has a side on a hull edge, Freeman &
    Shapira 1975), then tried at that angle plus 0, 90, 180 and 270 degrees (90-degree turns are
-   exact in floating point).  Rotations only: a chart is never mirrored.
+   exact in floating point); a chart long enough to decide the square's side is also tried at the
+   angle of its smallest bounding square (diagonally).  Rotations only: a chart is never mirrored.
 2. At a pixel size chosen from the charts' total area and ``resolution``, each orientation is
    rasterised conservatively (:mod:`geomopt.atlas._raster`) and grown by the margin.
 3. Largest first, each chart goes where its grown raster meets no pixel of the charts placed so
    far and the bounding square of everything placed grows least (ties: the smaller bounding
    rectangle, then the lowest and leftmost spot).  All free spots of one orientation come from one
    FFT correlation of the occupancy bitmap with the raster (the occupancy's transform is shared by
-   the four orientations); the chosen spot is re-checked exactly on the bitmaps.
+   the four orientations); the chosen spot is re-checked exactly on the bitmaps.  Within a budget
+   of passes (charts x pixels), a second chart order is tried, then bottom-left packings into
+   slightly smaller squares; the smallest square wins.
 4. The placed charts are scaled so that their bounding square is ``[0, 1]^2``; a packing whose
    margin, after that scaling, fell short (the extent was under-estimated) is redone with a wider
    margin in pixels, and the result is certified exactly (:func:`certify_atlas`): charts disjoint
@@ -40,10 +43,12 @@ __all__ = ["Packing", "pack_charts"]
 
 _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.0, 0.0]]),
                   np.array([[-1.0, 0.0], [0.0, -1.0]]), np.array([[0.0, 1.0], [-1.0, 0.0]])]
-_FIRST_GUESS = 0.75  # packing efficiency assumed when choosing the pixel size
+_FIRST_GUESS = 0.6  # packing efficiency assumed when choosing the pixel size
+_MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency down to 0.5): no re-packing
 _TRIES = 4
-_SHRINK = (0.99, 0.97, 0.95, 0.93)  # squares tried below the greedy packing's, while they fit
-_BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: about 2 passes for 30 charts at 512 (~1 s)
+_BAND = 64  # rows of spots per FFT when looking for the lowest spot inside the packed rectangle
+_SHRINK = (0.99, 0.97, 0.95)  # squares tried below the greedy packing's, while they fit
+_BUDGET = 30 * 512**2 * 2  # charts x pixels x passes: 2 passes for 30 charts at 512, 5 for up to 12
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +82,9 @@ def _check_charts(uvs, faces):
     for i, (u, f) in enumerate(zip(uvs, faces)):
         u = validate_vertices(u, f"chart {i}'s uvs", dim=2)
         f = validate_simplices(f, len(u), 3, name=f"chart {i}'s faces")
+        unused = len(u) - len(np.unique(f))
+        if unused:
+            raise MeshError(f"chart {i} has {unused} uv rows that no face uses; drop them (they would not be packed)")
         bad = np.count_nonzero(orient2d(u[f[:, 0]], u[f[:, 1]], u[f[:, 2]]) != 1)
         if bad:
             raise MeshError(f"chart {i} has {bad} triangles that are not positively oriented; pack flip-free "
@@ -198,13 +206,54 @@ def _best_spot(occ, extent, shapes, r, bound):
     return best
 
 
+def _lowest_inside(occ, extent, shapes, r, bound):
+    """The lowest, then leftmost, free spot (key, shape index, y, x) that does not grow the
+    bounding rectangle of everything placed (or, ``bound`` given, that stays within it), or None.
+
+    Every such spot ties on the greedy key, so the lowest wins; bands of ``_BAND`` rows are searched
+    from the bottom, each with FFTs of the band only, and the search stops at the first band with a
+    free spot: a small chart late in the packing costs a few band-sized FFTs, not canvas-sized ones."""
+    rows, cols = extent
+    if bound is None:
+        top = [rows - r - s.mask.shape[0] for s in shapes]
+        right = [cols - r - s.mask.shape[1] for s in shapes]
+    else:  # bottom-left: any spot within the bound, none above the first free row ``rows``
+        top = [min(bound - s.mask.shape[0], rows) for s in shapes]
+        right = [bound - s.mask.shape[1] for s in shapes]
+    live = [k for k in range(len(shapes)) if top[k] >= 0 and right[k] >= 0]
+    if not live:
+        return None
+    dh_max = max(shapes[k].grown.shape[0] for k in live)
+    width = max(right[k] + shapes[k].grown.shape[1] for k in live)
+    fshape = (scipy.fft.next_fast_len(_BAND + dh_max - 1, True), scipy.fft.next_fast_len(width, True))
+    g_hat = {k: scipy.fft.rfft2(shapes[k].grown[::-1, ::-1].astype(np.float32), fshape) for k in live}
+    for y0 in range(0, max(top[k] for k in live) + 1, _BAND):
+        o_hat = scipy.fft.rfft2(occ[y0:y0 + _BAND + dh_max - 1, :width].astype(np.float32), fshape)
+        best = None
+        for k in live:
+            dh, dw = shapes[k].grown.shape
+            n_y = min(_BAND, top[k] - y0 + 1)
+            if n_y <= 0:
+                continue
+            free = scipy.fft.irfft2(o_hat * g_hat[k], fshape)[dh - 1:dh - 1 + n_y, dw - 1:dw + right[k]] < 0.5
+            for j in np.flatnonzero(free.ravel()):  # row-major: lowest, then leftmost
+                y, x = y0 + j // free.shape[1], j % free.shape[1]
+                if not (occ[y:y + dh, x:x + dw] & shapes[k].grown).any():  # exact re-check
+                    if best is None or (y, x) < best[2:]:
+                        best = (None, k, int(y), int(x))
+                    break
+        if best is not None:
+            return best
+    return None
+
+
 def _place(all_shapes, order, r, bound=None):
-    """Place the charts in ``order``; returns per chart (shape index, pixel translation (2,)),
+    """Place the charts in ``order``; returns per chart (rotation (2, 2), pixel translation (2,)),
     or None when a chart does not fit within ``bound``.  Unbounded, each chart goes where the
     bounding square grows least; bounded, at the lowest and leftmost free spot."""
     cap = 2 * sum(max(s.grown.shape) for s in (sh[0] for sh in all_shapes)) + 1
     occ = np.zeros((64, 64), bool)
-    rows = cols = 0
+    rows = cols = filled = 0
     placed = [None] * len(all_shapes)
     for i in order:
         shapes = all_shapes[i]
@@ -213,13 +262,18 @@ def _place(all_shapes, order, r, bound=None):
         if need[0] > occ.shape[0] or need[1] > occ.shape[1]:
             grow = min(cap, 2 * max(need + occ.shape))
             occ = np.pad(occ, ((0, grow - occ.shape[0]), (0, grow - occ.shape[1])))
-        spot = _best_spot(occ, (rows, cols), shapes, r, bound)
+        # a chart needing over half the free pixels of the rectangle rarely fits inside: go direct
+        roomy = rows and shapes[0].mask.sum() < 0.5 * ((rows - r) * (cols - r) - filled)
+        spot = _lowest_inside(occ, (rows, cols), shapes, r, bound) if roomy else None
+        if spot is None:
+            spot = _best_spot(occ, (rows, cols), shapes, r, bound)
         if spot is None:
             return None
         _, k, y, x = spot
         s = shapes[k]
         ch, cw = s.mask.shape
         occ[y + r:y + r + ch, x + r:x + r + cw] |= s.mask
+        filled += int(s.mask.sum())
         rows, cols = max(rows, y + r + ch), max(cols, x + r + cw)
         placed[i] = (s.R, np.array([x + r, y + r], np.float64) - s.origin)
     return placed
@@ -252,9 +306,9 @@ def _search(U, shapes, h, r, passes):
 def _layout(U, Bs, bases, turns, area, margin, resolution):
     """Pack at a pixel size giving about ``resolution`` pixels a side; returns (rotations (k, 2, 2),
     pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
-    ``margin`` of the packed side."""
+    ``margin`` of the packed side (a finer margin than needed only costs space)."""
     h = math.sqrt(area / _FIRST_GUESS) / resolution
-    r = math.ceil(margin * resolution)
+    r = math.ceil(margin * resolution * _MARGIN_SLACK)
     tried = set()
     while True:
         tried.add(r)
@@ -316,11 +370,14 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     if int(resolution) < 16:
         raise ParameterError(f"resolution must be at least 16 pixels, got {resolution}")
     U, Fs = _check_charts(uvs, faces)
+    # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
+    unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
+    U = [u * unit for u in U]
     area = sum(_area(u, f) for u, f in zip(U, Fs))
     Bs = [boundary_half_edges(f) for f in Fs]
     bases, turns = [[np.eye(2)]] * len(U), _QUARTER_TURNS[:1]
     if rotate:
-        big = 0.3 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
+        big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
         bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big) for u, B in zip(U, Bs)]
         turns = _QUARTER_TURNS
     res = int(resolution)
@@ -332,7 +389,7 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
             side = _side(out)
             angles = np.arctan2(R[:, 1, 0], R[:, 0, 0])
             efficiency = sum(_area(u, f) for u, f in zip(out, Fs)) / side**2
-            return Packing(out, float(scale), angles, offsets, float(efficiency))
+            return Packing(out, float(scale) * unit, angles, offsets, float(efficiency))
         res *= 2
     raise SolveError(f"pack_charts could not certify a packing ({cert.message}); report this with the charts")
 
