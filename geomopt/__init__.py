@@ -27,10 +27,11 @@ _LAZY = {
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
     "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
-    "ComparisonSet": "._compare", "sphere_map": ".sphere",
+    "ComparisonSet": "._compare", "sphere_map": ".sphere", "make_atlas": ".atlas",
 }
 _SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
-               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit", "sphere")
+               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit", "sphere",
+               "atlas")
 
 
 def __getattr__(name):
@@ -54,7 +55,8 @@ __all__ = [
     "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError", "GeomoptWarning",
     "MaxStepsWarning",
     "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "sphere_map", "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data", "energies", "io",
+    "sphere_map", "make_atlas", "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data",
+    "energies", "io",
     "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",
     "__version__",
 ]

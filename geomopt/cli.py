@@ -148,6 +148,10 @@ def cmd_param(args) -> int:
     if Path(args.input).suffix.lower() == ".stl":
         _log(args, f"{args.input}: STL stores every triangle's corners separately; welded the "
                    f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
+    from .atlas.command import is_disk, param_atlas
+
+    if args.atlas or not is_disk(F, len(V)):  # closed, several boundary loops or components: charts
+        return param_atlas(args, V, F, energy, solver, _log, _report, _fail)
     t_solve, compiled = time.perf_counter(), compile_seconds()
     try:
         res = parameterize(V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
@@ -567,7 +571,7 @@ def cmd_demo(args) -> int:
     data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"),
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, margin=0.005,
                             uv_range="raw", json=args.json, summary=args.summary, timing=args.timing)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary
@@ -626,6 +630,16 @@ def _floats(text, option):
         raise ParameterError(f"{option} takes comma-separated numbers (e.g. 1e-2,1e-4,1e-6), got {text!r}") from None
 
 
+def _margin(text) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value < 0.25:
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 0.25), got {text!r}")
+    return value
+
+
 def _positive_int(text) -> int:
     try:
         value = int(text)
@@ -668,8 +682,10 @@ def _add_param(sub):
     """The ``param`` command's options."""
     from ._names import ENERGIES, SOLVERS
 
-    sp = sub.add_parser("param", help="parameterize a disk-topology surface (free boundary)")
-    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL), one boundary loop")
+    sp = sub.add_parser("param", help="parameterize a surface: a disk with a free boundary, any other "
+                                      "surface as a certified atlas")
+    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL): a disk, or any edge-manifold surface "
+                                  "(an atlas)")
     sp.add_argument("-o", "--output", required=True,
                     help="output .obj (one vt per vertex) or .ply (binary, double x y z u v)")
     sp.add_argument("--energy", default="symmetric_dirichlet", metavar="NAME",
@@ -685,6 +701,11 @@ def _add_param(sub):
     sp.add_argument("--bijective", action="store_true",
                     help="keep the boundary from crossing itself (a scaffold around the mesh): a globally "
                          "injective map, certified exactly")
+    sp.add_argument("--atlas", action="store_true",
+                    help="cut into charts and pack them (a texture atlas) even when the mesh is a disk; a "
+                         "mesh that is not a disk (closed, several boundary loops or components) always is")
+    sp.add_argument("--margin", type=_margin, default=0.005,
+                    help="atlas: gap between packed charts, a fraction of the unit square (default 0.005)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
                     help="UVs written as solved (raw, the default: a map of about the surface's own "

@@ -38,6 +38,8 @@ projection, so ``V[:, :2]`` is a bijective start map:
 * :func:`spiral_strip` — a narrow band along an Archimedean spiral, lifted into a ramp;
 * :func:`ruffled_disk` — a disk with large waves along its rim (a lettuce leaf);
 * :func:`saddle` — a (monkey) saddle over a disk.
+
+Closed surfaces (for atlases): :func:`holed_plate` — a slab with square holes, of any genus.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ __all__ = [
     "Tangle", "square_mesh", "disk_mesh", "box_mesh", "quad_mesh", "hex_mesh", "sector_mesh",
     "boundary_vertices", "rotated_interior", "noisy_interior", "random_interior", "tutte_nonconvex",
     "twisted_box", "bent_box", "squashed_boundary", "perturb_mesh",
-    "polygon", "POLYGONS", "spiral_strip", "ruffled_disk", "saddle",
+    "polygon", "POLYGONS", "spiral_strip", "ruffled_disk", "saddle", "holed_plate",
 ]
 
 
@@ -553,3 +555,34 @@ def saddle(rings: int = 16, order: int = 2, amplitude: float = 1.0):
     if int(order) < 2 or not amplitude > 0:
         raise ParameterError(f"saddle needs order >= 2 and amplitude > 0, got {order}, {amplitude}")
     return _graph_over_disk(rings, lambda r, th: amplitude * r**order * np.cos(order * th))
+
+
+def holed_plate(holes: int = 2, cells: int = 2, thickness: float = 1.0):
+    """A closed surface of genus ``holes``: a slab ``(2 holes + 1) x 3`` blocks wide with a square
+    hole through every other block of its middle row, each block ``cells x cells`` grid squares
+    of side 1, ``thickness`` thick (one cell of wall).  Sharp edges everywhere (a CAD-like part).
+
+    Returns ``V`` (n, 3), ``F`` (m, 3) consistently oriented, outward normals."""
+    if int(holes) < 0 or int(cells) < 1 or not thickness > 0:
+        raise ParameterError(f"holed_plate needs holes >= 0, cells >= 1 and thickness > 0, got "
+                             f"{holes}, {cells}, {thickness}")
+    holes, cells = int(holes), int(cells)
+    nx, ny = (2 * holes + 1) * cells, 3 * cells
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    keep = ~(((i // cells) % 2 == 1) & (j // cells == 1))
+    i, j = i[keep], j[keep]
+    corner = lambda di, dj: (i + di) * (ny + 1) + (j + dj)  # noqa: E731
+    a, b, c, d = corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1)
+    top = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    n2 = (nx + 1) * (ny + 1)
+    gx, gy = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), indexing="ij")
+    V = np.concatenate([np.column_stack([gx.ravel(), gy.ravel(), np.full(n2, thickness)]),
+                        np.column_stack([gx.ravel(), gy.ravel(), np.zeros(n2)])]).astype(np.float64)
+    H = np.stack([top, np.roll(top, -1, axis=1)], axis=-1).reshape(-1, 2)
+    key = H[:, 0] * n2 + H[:, 1]
+    rim = H[~np.isin(key, H[:, 1] * n2 + H[:, 0])]  # half-edges a -> b with no twin
+    p, q = rim[:, 0], rim[:, 1]
+    walls = np.concatenate([np.stack([q, p, p + n2], 1), np.stack([q, p + n2, q + n2], 1)])
+    F = np.concatenate([top, top[:, ::-1] + n2, walls])
+    used, F = np.unique(F, return_inverse=True)
+    return V[used], F.reshape(-1, 3).astype(np.int64)

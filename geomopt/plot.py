@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._render import render_sphere_checker, render_surface, render_uv_checker
+from ._render import camera_rotation, project, rasterize, render_sphere_checker, render_surface, render_uv_checker
 
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
+    "atlas_figure", "save_atlas_figure",
     "INVERTED",
 ]
 
@@ -172,6 +173,64 @@ def save_sphere_figure(path, V, F, x, face_values=None, title="", label="log2 ar
                        view=(15.0, 30.0), up="y"):
     """Save :func:`sphere_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG)."""
     save_figure(sphere_figure(V, F, x, face_values, title, label, checks, view, up, dpi=110), path, format)
+
+
+def _visible_seams(V, F, seams, rotation, size):
+    """(s, 2, 2) pixel segments of the seam edges ``seams`` (s, 2) whose midpoint is not hidden
+    behind the surface."""
+    xy, depth = project(V, rotation, size)
+    face, bary = rasterize(xy, depth, F, size)
+    mid_xy = 0.5 * (xy[seams[:, 0]] + xy[seams[:, 1]])
+    mid_z = 0.5 * (depth[seams[:, 0]] + depth[seams[:, 1]])
+    col = np.clip(mid_xy[:, 0].astype(int), 0, size[0] - 1)
+    row = np.clip(mid_xy[:, 1].astype(int), 0, size[1] - 1)
+    f = face[row, col]
+    front = np.einsum("ij,ij->i", bary[row, col], depth[F[np.maximum(f, 0)]])
+    tol = 0.01 * float(np.ptp(depth))
+    seen = (f < 0) | (mid_z >= front - tol)
+    return np.stack([xy[seams[seen, 0]], xy[seams[seen, 1]]], axis=1)
+
+
+def atlas_figure(V, F, uv, uv_faces, chart, seams, title="", checks=20, view=(15.0, 30.0), up="y", dpi=100):
+    """A texture atlas in two panels: left, a ``checks`` x ``checks`` checkerboard through the
+    atlas on the surface (:func:`geomopt._render.render_uv_checker`), seen from ``view``, with
+    the visible seams drawn in red; right, the atlas in the unit square, charts coloured.
+
+    Parameters
+    ----------
+    V : (n, 3);  F : (m, 3);  uv : (k, 2) one UV per chart corner;  uv_faces : (m, 3) UV rows of
+    the face corners;  chart : (m,) chart of each face;  seams : (s, 2) input vertex pairs.
+    """
+    from matplotlib.collections import LineCollection
+
+    V, F, uv = np.asarray(V, np.float64), np.asarray(F), np.asarray(uv, np.float64)
+    T, seams = np.asarray(uv_faces), np.asarray(seams, dtype=np.int64).reshape(-1, 2)
+    vertex = np.zeros(len(uv), dtype=np.int64)
+    vertex[T] = F  # the surface point of each UV row
+    fig = _figure(15, 7.5, dpi)
+    left, right = fig.subplots(1, 2)
+    size = int(round(9.0 * dpi))  # 1.5x the pixels shown, as param_figure's
+    left.imshow(render_uv_checker(V[vertex], T, uv, size=(size, size), elev=view[0], azim=view[1], up=up,
+                                  checks=checks, supersample=1), interpolation="antialiased")
+    left.add_collection(LineCollection(_visible_seams(V, F, seams, camera_rotation(view[0], view[1], up),
+                                                      (size, size)), colors=INVERTED, linewidths=1.2))
+    left.set_axis_off()
+    left.set_title(f"{checks} x {checks} checkerboard through the atlas, seams in red", fontsize=11)
+    right.tripcolor(uv[:, 0], uv[:, 1], T, facecolors=np.asarray(chart) % 20, cmap="tab20", vmin=0, vmax=19,
+                    edgecolors="none")
+    right.plot([0, 1, 1, 0, 0], [0, 0, 1, 1, 0], color="k", lw=0.8)
+    right.set_aspect("equal")
+    right.set_axis_off()
+    right.set_title(f"{int(np.max(chart)) + 1} charts in the unit square", fontsize=11)
+    if title:
+        fig.suptitle(title, fontsize=12)
+    return fig
+
+
+def save_atlas_figure(path, V, F, uv, uv_faces, chart, seams, title="", checks=20, format=None,
+                      view=(15.0, 30.0), up="y"):
+    """Save :func:`atlas_figure` to ``path`` (110 dpi)."""
+    save_figure(atlas_figure(V, F, uv, uv_faces, chart, seams, title, checks, view, up, dpi=110), path, format)
 
 
 def _boundary_faces(T):

@@ -3,6 +3,7 @@
 ``camelhead``: the camel head of libigl's parameterization tutorials (11,381 vertices, 22,704
 triangles, one boundary loop of 56 edges: a disk), from Sorkine & Cohen-Or 2004,
 "Least-squares meshes" (see ``SOURCES.md`` in this folder for its provenance and hash).
+``3holes``: a closed surface of genus 3 (3,596 vertices, 7,200 triangles), for atlases.
 
 Examples
 --------
@@ -18,7 +19,7 @@ from pathlib import Path
 __all__ = ["MESHES", "path", "load"]
 
 #: bundled mesh name -> file name in this folder
-MESHES = {"camelhead": "camelhead.off"}
+MESHES = {"camelhead": "camelhead.off", "3holes": "3holes.off"}
 
 
 def path(name: str = "camelhead") -> Path:

@@ -1003,16 +1003,23 @@ def read_obj_with_uv(path):
 # ------------------------------------------------------------------- mesh with UV
 
 
-def _mesh_with_uv(V, F, UV):
-    """Validated ``(V (n,3), F (m,3), UV (n,2))`` for the writers."""
+def _mesh_with_uv(V, F, UV, uv_faces=None):
+    """Validated ``(V (n,3), F (m,3), UV (n,2))`` for the writers; with ``uv_faces`` (m, 3),
+    ``(V, F, UV (k, 2), uv_faces)``: one UV row per face corner group (an atlas)."""
     V = validate_vertices(V, "V", dim=3)
     UV = validate_vertices(UV, "UV", dim=2)
+    if uv_faces is not None:
+        F = validate_simplices(F, V.shape[0], 3, "F")
+        T = validate_simplices(uv_faces, UV.shape[0], 3, "uv_faces")
+        if T.shape != F.shape:
+            raise MeshError(f"uv_faces has {T.shape[0]} rows but F has {F.shape[0]}; give one UV triangle per face")
+        return V, F, UV, T
     if UV.shape[0] != V.shape[0]:
         raise MeshError(f"UV has {UV.shape[0]} rows but V has {V.shape[0]}; give one UV per vertex")
     return V, validate_simplices(F, V.shape[0], 3, "F"), UV
 
 
-def write_mesh_with_uv(path, V, F, UV, format=None):
+def write_mesh_with_uv(path, V, F, UV, format=None, uv_faces=None):
     """Write a mesh and a per-vertex map in the format ``path``'s extension names (see :data:`UV_MESH_EXTENSIONS`).
 
     ``.obj``: :func:`write_obj_with_uv`; ``.ply``: :func:`write_ply_with_uv`.  Both keep
@@ -1031,6 +1038,8 @@ def write_mesh_with_uv(path, V, F, UV, format=None):
     format : {None, "obj", "ply"}
         The format, when ``path``'s extension does not say it (e.g. a temporary file from
         :func:`atomic_path`).  Case is ignored.
+    uv_faces : None, or (m, 3) int the UV row of each face corner (an atlas: ``UV`` (k, 2) then
+        holds one row per chart corner); OBJ only.
 
     Returns
     -------
@@ -1051,11 +1060,17 @@ def write_mesh_with_uv(path, V, F, UV, format=None):
     writers = {"obj": write_obj_with_uv, "ply": write_ply_with_uv}
     if format.lower() not in writers:
         raise GeomoptError(f"cannot write a mesh with a map as {format!r}; supported: {', '.join(writers)}")
+    if uv_faces is not None:
+        if format.lower() != "obj":
+            raise GeomoptError(f"an atlas (UVs per chart corner) is written as .obj, not {format!r}: "
+                               f"PLY holds one UV per vertex")
+        return write_obj_with_uv(path, V, F, UV, uv_faces)
     return writers[format.lower()](path, V, F, UV)
 
 
-def write_obj_with_uv(path, V, F, UV):
-    """Write a mesh and a per-vertex map as OBJ: ``v`` lines, one ``vt`` per vertex, ``f a/a b/b c/c``.
+def write_obj_with_uv(path, V, F, UV, uv_faces=None):
+    """Write a mesh and a per-vertex map as OBJ: ``v`` lines, one ``vt`` per vertex, ``f a/a b/b c/c``;
+    or, with ``uv_faces``, an atlas: one ``vt`` per UV row and ``f a/ta b/tb c/tc``.
 
     This is the LIM 2D ``input.obj`` layout, so :func:`read_obj_with_uv` reads it back
     exactly.  Numbers are written in their shortest exact (round-trip) form.  Atomic.
@@ -1068,8 +1083,10 @@ def write_obj_with_uv(path, V, F, UV):
         Vertex positions (``v`` lines, in this order).
     F : array_like, shape (m, 3), integer
         Triangles, 0-based (written 1-based).
-    UV : array_like, shape (n, 2)
-        Map / texture coordinates, one per vertex (``vt`` lines).
+    UV : array_like, shape (n, 2) or, with ``uv_faces``, (k, 2)
+        Map / texture coordinates, one per vertex (``vt`` lines), or one per UV row.
+    uv_faces : None or array_like, shape (m, 3), integer
+        The UV row of each face corner (0-based), for a map cut along seams (an atlas).
 
     Returns
     -------
@@ -1079,14 +1096,19 @@ def write_obj_with_uv(path, V, F, UV):
     Raises
     ------
     MeshError
-        Invalid ``V``, ``F`` or ``UV``, or ``UV`` not one row per vertex.
+        Invalid ``V``, ``F``, ``UV`` or ``uv_faces``, or ``UV`` not one row per vertex
+        (without ``uv_faces``).
     """
-    V, F, UV = _mesh_with_uv(V, F, UV)
+    if uv_faces is None:
+        V, F, UV = _mesh_with_uv(V, F, UV)
+        T = F
+    else:
+        V, F, UV, T = _mesh_with_uv(V, F, UV, uv_faces)
 
     def write(fh):
         write_rows(fh, "v ", V)
         write_rows(fh, "vt ", UV)
-        write_int_rows(fh, "f %d/%d %d/%d %d/%d", np.repeat(F + 1, 2, axis=1))
+        write_int_rows(fh, "f %d/%d %d/%d %d/%d", np.stack([F + 1, T + 1], axis=2).reshape(-1, 6))
 
     return atomic_write(path, write)
 

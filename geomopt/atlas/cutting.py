@@ -1,0 +1,138 @@
+"""The seam graph of an atlas: which edges to cut so that every chart is a disk that flattens with
+low distortion.
+
+Three steps (in the spirit of Sheffer & Hart's Seamster and of Gu, Gortler & Hoppe's geometry
+images): (a) topology, :func:`~geomopt.atlas.seams.topological_cut` opens every component with
+handles or several boundary loops into a disk along cheap edges; (b) a closed genus-0 component
+is opened by one cheap path between its two points of most concentrated curvature, far apart;
+(c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
+(:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
+excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
+vertex to the boundary keeps a disk a disk, so every chart stays one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .charts import split_charts
+from .cones import log_scale, scale_estimate
+from .seams import EdgeGraph, cut_path_to_seams, topological_cut
+
+__all__ = ["cut_surface", "chart_estimate", "relieve"]
+
+
+def _component_roots(g: EdgeGraph):
+    """``(labels, closed_roots)``: the component of each vertex and one vertex of every
+    component without boundary."""
+    from ..topology import connected_components
+
+    _, labels = connected_components(g.F, len(g.V))
+    open_ = np.zeros(labels.max() + 1, dtype=bool)
+    open_[labels[g.E[g.boundary].ravel()]] = True
+    _, first = np.unique(labels, return_index=True)
+    return labels, first[~open_]
+
+
+def _open_spheres(g: EdgeGraph, cost, cut, labels, roots):
+    """Cut every closed component that the topological cut left whole (genus 0) along the
+    cheapest path between its most shrunk vertex ``a`` (most concentrated curvature, by
+    :func:`~geomopt.atlas.cones.log_scale` on the closed surface) and the most shrunk vertex
+    among those at least half its largest distance from ``a``."""
+    from scipy.sparse.csgraph import dijkstra
+
+    touched = np.zeros(labels.max() + 1, dtype=bool)
+    touched[labels[g.E[cut].ravel()]] = True
+    for r in roots:
+        comp = labels[r]
+        if touched[comp]:
+            continue
+        verts = np.flatnonzero(labels == comp)
+        faces = np.flatnonzero(labels[g.F[:, 0]] == comp)
+        local = np.searchsorted(verts, g.F[faces])
+        u = log_scale(g.V[verts], local, [])
+        a = verts[int(np.argmin(u))]
+        d = dijkstra(g.adjacency(g.length), indices=a)[verts]
+        far = np.flatnonzero(d >= 0.5 * d.max())
+        b = verts[far[int(np.argmin(u[far]))]]
+        cut[cut_path_to_seams(g, cost, a, np.array([b]))] = True
+    return cut
+
+
+def chart_estimate(V, chart):
+    """``(mean, area, vertex)``: the estimated mean symmetric Dirichlet of a disk chart
+    (:class:`~geomopt.atlas.charts.ChartMesh`), its 3D area, and its most shrunk interior
+    vertex (an input vertex id of ``V``, or -1 when it has none)."""
+    Vc = V[chart.vertices]
+    loop = chart.disk_loop()
+    if loop is None:
+        raise RuntimeError("a chart of the seam graph is not a disk")  # never: see module doc
+    u = log_scale(Vc, chart.F, loop)
+    mean, log_area = scale_estimate(Vc, chart.F, u)
+    P = Vc[chart.F]
+    area = 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
+    inner = np.ones(len(Vc), dtype=bool)
+    inner[loop] = False
+    k = np.flatnonzero(inner)
+    return mean, area, (int(chart.vertices[k[np.argmin(log_area[k])]]) if len(k) else -1)
+
+
+def _stalled(history, window=10, gain=1e-3):
+    """Whether the last ``window`` cuts lowered the estimate by less than ``gain`` (relative):
+    on coarse meshes the most shrunk vertex can sit next to the seams, and more slits there
+    only make the chart ragged."""
+    return len(history) > window and history[-window - 1] - history[-1] < gain * history[-1]
+
+
+def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
+    """Greedy cone cuts (module doc, step c) until the area-weighted estimate is at most
+    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.
+
+    Returns
+    -------
+    cut : (k,) bool, ``cut`` with the new cuts;  estimate : float, the area-weighted estimate
+    at the end;  made : int, the number of cuts made.
+    """
+    known = {}  # chart key (its first face) -> (mean, area, vertex)
+    cut = cut.copy()
+    history = []
+    for made in range(max_cuts + 1):
+        split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+        first = np.full(split.count, len(g.F))
+        np.minimum.at(first, split.chart, np.arange(len(g.F)))
+        rows = []
+        for c in range(split.count):
+            if int(first[c]) not in known:
+                known[int(first[c])] = chart_estimate(g.V, split.mesh(c))
+            rows.append(known[int(first[c])])
+        mean = np.array([r[0] for r in rows])
+        area = np.array([r[1] for r in rows])
+        estimate = float(np.sum(mean * area) / area.sum())
+        history.append(estimate)
+        if estimate <= target or made == max_cuts or _stalled(history):
+            break
+        excess = np.where([r[2] >= 0 for r in rows], (mean - target) * area, -np.inf)
+        c = int(np.argmax(excess))
+        if not np.isfinite(excess[c]):
+            break  # no chart has an interior vertex left to cut from
+        seams = np.unique(g.E[cut | g.boundary].ravel())
+        path = cut_path_to_seams(g, cost, rows[c][2], seams)
+        cut[path] = True
+        known.pop(int(first[c]))
+    return cut, estimate, made
+
+
+def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
+    """The interior edges of ``g`` to cut (module doc), as :func:`relieve` returns them.
+
+    Parameters
+    ----------
+    g : :class:`~geomopt.atlas.seams.EdgeGraph` of a manifold, consistently oriented mesh.
+    cost : (k,) edge costs (:func:`~geomopt.atlas.seams.edge_costs`).
+    target : the estimated area-weighted mean symmetric Dirichlet to reach (4 = isometric).
+    max_cuts : the most cone cuts.
+    """
+    labels, roots = _component_roots(g)
+    cut = topological_cut(g, cost, roots)
+    cut = _open_spheres(g, cost, cut, labels, roots)
+    return relieve(g, cost, cut, target, max_cuts)

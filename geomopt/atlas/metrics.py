@@ -1,0 +1,106 @@
+"""The figures an atlas is judged by, computed from per-corner UVs alone, so that any atlas
+(geomopt's or another tool's) is measured the same way: charts, seams and their 3D length,
+area-weighted mean symmetric Dirichlet (4 at an isometry) of the scale-normalised map, the
+worst triangle, packing efficiency and mirrored charts."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..topology import unique_edges
+
+__all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet"]
+
+
+@dataclasses.dataclass(frozen=True)
+class AtlasMetrics:
+    """Figures of an atlas (see :func:`atlas_metrics`)."""
+
+    charts: int
+    seam_length: float
+    mean_symmetric_dirichlet: float
+    worst_symmetric_dirichlet: float
+    efficiency: float
+    mirrored_charts: int
+
+
+def uv_charts(uv_faces) -> tuple:
+    """``(count, chart)``: the charts of an atlas, faces joined by shared UV vertices; ``chart``
+    (m,) int64."""
+    from scipy.sparse.csgraph import connected_components
+
+    T = np.asarray(uv_faces, dtype=np.int64)
+    m, n = len(T), int(T.max()) + 1
+    f = np.repeat(np.arange(m), 3)
+    graph = sp.coo_matrix((np.ones(3 * m, dtype=np.int8), (f, m + T.ravel())), shape=(m + n, m + n))
+    _, label = connected_components(graph.tocsr(), directed=False)
+    _, chart = np.unique(label[:m], return_inverse=True)
+    return int(chart.max()) + 1, chart.astype(np.int64)
+
+
+def seam_edges(F, uv_faces) -> np.ndarray:
+    """(s, 2) int64 interior edges of the mesh ``F`` (m, 3) whose two faces do not share both
+    UV vertices of the edge (``uv_faces`` (m, 3), per-corner UV ids), as sorted vertex pairs."""
+    F, T = np.asarray(F, dtype=np.int64), np.asarray(uv_faces, dtype=np.int64)
+    E, count, edge_of = unique_edges(F)
+    # per half-edge: the UV ids at its start and end, ordered by the mesh vertex ids
+    a, b = F.ravel(), np.roll(F, -1, axis=1).ravel()
+    ta, tb = T.ravel(), np.roll(T, -1, axis=1).ravel()
+    lo_uv, hi_uv = np.where(a < b, ta, tb), np.where(a < b, tb, ta)
+    e = edge_of.ravel()
+    n_uv = int(T.max()) + 1
+    key = lo_uv * n_uv + hi_uv
+    kinds = np.unique(np.stack([e, key], axis=1), axis=0)
+    per_edge = np.bincount(kinds[:, 0], minlength=len(E))
+    return E[(count == 2) & (per_edge > 1)]
+
+
+def face_symmetric_dirichlet(V, F, uv, uv_faces) -> np.ndarray:
+    """(m,) symmetric Dirichlet ``|J|_F^2 + |J^-1|_F^2`` of each triangle, the UVs first scaled
+    so that their total (unsigned) area equals the 3D area; ``inf`` on a collapsed triangle."""
+    V, uv = np.asarray(V, dtype=np.float64), np.asarray(uv, dtype=np.float64)
+    P, Q = V[np.asarray(F)], uv[np.asarray(uv_faces)]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    A3 = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    f1, f2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
+    A2 = 0.5 * np.abs(f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
+    s = np.sqrt(A3.sum() / A2.sum())
+    f1, f2, A2 = s * f1, s * f2, s * s * A2
+    # |J|_F^2 = sum over edges of cot-weighted squared uv lengths / (2 A3); same form for J^-1
+    g11, g12, g22 = np.sum(e1 * e1, 1), np.sum(e1 * e2, 1), np.sum(e2 * e2, 1)
+    h11, h12, h22 = np.sum(f1 * f1, 1), np.sum(f1 * f2, 1), np.sum(f2 * f2, 1)
+    # tr(G^-1 H) and tr(H^-1 G), G, H the metric tensors of the 3D and UV triangle
+    detG, detH = 4 * A3 ** 2, 4 * A2 ** 2
+    tr = g22 * h11 - 2 * g12 * h12 + g11 * h22
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = tr / detG + tr / detH
+    return np.where(A2 > 0, out, np.inf)
+
+
+def atlas_metrics(V, F, uv, uv_faces) -> AtlasMetrics:
+    """The :class:`AtlasMetrics` of per-corner UVs ``uv`` (k, 2), ``uv_faces`` (m, 3) on the
+    mesh ``V`` (n, 3), ``F`` (m, 3).  Efficiency is the UV area over the area of the bounding
+    square of all UVs; a chart is mirrored when its total signed UV area is negative."""
+    V, uv, F, T = (np.asarray(V, dtype=np.float64), np.asarray(uv, dtype=np.float64),
+                   np.asarray(F, dtype=np.int64), np.asarray(uv_faces, dtype=np.int64))
+    count, chart = uv_charts(T)
+    seams = seam_edges(F, T)
+    Q = uv[T]
+    f1, f2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
+    signed = 0.5 * (f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
+    used = uv[np.unique(T)]
+    side = float(np.ptp(used, axis=0).max())
+    sd = face_symmetric_dirichlet(V, F, uv, T)
+    P = V[F]
+    A3 = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    return AtlasMetrics(
+        charts=count,
+        seam_length=float(np.linalg.norm(V[seams[:, 1]] - V[seams[:, 0]], axis=1).sum()),
+        mean_symmetric_dirichlet=float(np.sum(A3 * sd) / A3.sum()),
+        worst_symmetric_dirichlet=float(sd.max()),
+        efficiency=float(np.abs(signed).sum() / side ** 2) if side > 0 else 0.0,
+        mirrored_charts=int(np.count_nonzero(np.bincount(chart, signed, minlength=count) < 0)),
+    )

@@ -1,0 +1,195 @@
+"""Where the seams of an atlas go: the edge graph of a surface, the cost of cutting each edge, a
+topological cut graph (tree-cotree) that opens every component into a disk, and cheapest cut
+paths from a vertex to the seams.
+
+Costs follow Seamster's idea (Sheffer & Hart 2002) that a seam is least seen along creases: an
+edge costs its 3D length divided by ``1 + crease * sharpness``, where sharpness is the dihedral
+angle (radians, 0 = flat) and counts 1.5 times at a concave crease.  The topological cut is the
+tree-cotree construction of Eppstein (2003) with Erickson & Whittlesey's (2005) greedy choice:
+a shortest-path forest ``T`` grown by cost from the boundary vertices (or one root per closed
+component), a maximum dual spanning tree ``C`` of the edges outside ``T`` weighted by the cost of
+the loop each closes, and the edges in neither, together with their ``T`` paths, as the cut.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..topology import unique_edges
+
+__all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "cut_path_to_seams"]
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeGraph:
+    """The edges of a manifold, consistently oriented triangle mesh.
+
+    Attributes
+    ----------
+    V : (n, 3) float64;  F : (m, 3) int64.
+    E : (k, 2) int64 unique edges, ``E[:, 0] < E[:, 1]``.
+    edge_of : (m, 3) int64, the edge of half-edge ``(F[f, c], F[f, c + 1])``.
+    edge_faces : (k, 2) int64, the faces on each edge (``-1`` in column 1 on the boundary).
+    length : (k,) float64 3D edge lengths.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    E: np.ndarray
+    edge_of: np.ndarray
+    edge_faces: np.ndarray
+    length: np.ndarray
+
+    @property
+    def boundary(self) -> np.ndarray:
+        """(k,) bool, edges with one face."""
+        return self.edge_faces[:, 1] < 0
+
+    def adjacency(self, weight) -> sp.csr_matrix:
+        """(n, n) symmetric sparse matrix of ``weight`` (k,) on the edges (positive weights)."""
+        n = len(self.V)
+        i, j = self.E[:, 0], self.E[:, 1]
+        return sp.coo_matrix((np.r_[weight, weight], (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
+
+
+def edge_graph(V, F) -> EdgeGraph:
+    """The :class:`EdgeGraph` of ``V`` (n, 3) and ``F`` (m, 3) (edges used by at most 2 faces)."""
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    E, _, edge_of = unique_edges(F)
+    faces = np.full((len(E), 2), -1, dtype=np.int64)
+    flat, f = edge_of.ravel(), np.repeat(np.arange(len(F)), 3)
+    order = np.argsort(flat, kind="stable")
+    first = np.r_[True, flat[order][1:] != flat[order][:-1]]
+    faces[flat[order][first], 0] = f[order][first]
+    faces[flat[order][~first], 1] = f[order][~first]
+    length = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+    return EdgeGraph(V, F, E, edge_of, faces, length)
+
+
+def edge_costs(g: EdgeGraph, crease: float = 2.0, defects=None) -> np.ndarray:
+    """(k,) cost of cutting each edge: its length over ``1 + crease * sharpness`` (module doc).
+
+    Boundary edges get their length (they are open already).  With ``defects`` (n,) (the angle
+    defects), an edge costs ``1 + 4 max(0, -K)`` times more at each saddle end ``K < 0``: a seam
+    bending at a saddle leaves one side more than a full turn, which no flip-free flattening
+    keeps from overlapping itself there."""
+    N = np.cross(g.V[g.F[:, 1]] - g.V[g.F[:, 0]], g.V[g.F[:, 2]] - g.V[g.F[:, 0]])
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    inner = ~g.boundary
+    f1, f2 = g.edge_faces[inner, 0], g.edge_faces[inner, 1]
+    angle = np.arccos(np.clip(np.sum(N[f1] * N[f2], axis=1), -1.0, 1.0))
+    # concave when the far corner of the second face lies above the first face's plane
+    far = g.F[f2].sum(axis=1) - g.E[inner].sum(axis=1)
+    concave = np.sum((g.V[far] - g.V[g.E[inner, 0]]) * N[f1], axis=1) > 0
+    sharp = angle * np.where(concave, 1.5, 1.0)
+    cost = g.length.copy()
+    cost[inner] /= 1.0 + crease * sharp
+    if defects is not None:
+        saddle = 1.0 + 4.0 * np.maximum(-np.asarray(defects), 0.0)
+        cost *= saddle[g.E[:, 0]] * saddle[g.E[:, 1]]
+    return np.maximum(cost, 1e-12 * max(float(g.length.max()), 1e-300))
+
+
+def _dijkstra(adjacency, sources):
+    """Distances and predecessors of a multi-source shortest-path forest."""
+    from scipy.sparse.csgraph import dijkstra
+
+    dist, pred, _ = dijkstra(adjacency, directed=False, indices=np.asarray(sources), min_only=True,
+                             return_predecessors=True)
+    return dist, pred
+
+
+def _edge_index(g: EdgeGraph):
+    """A function mapping vertex pairs (a, b) to edge rows of ``g.E``."""
+    n = len(g.V)
+    keys = g.E[:, 0] * n + g.E[:, 1]
+
+    def index(a, b):
+        a, b = np.asarray(a), np.asarray(b)
+        return np.searchsorted(keys, np.minimum(a, b) * n + np.maximum(a, b))
+
+    return index
+
+
+def _max_spanning_forest(n_nodes, a, b, weight) -> np.ndarray:
+    """(len(a),) bool, the edges ``(a, b)`` of a maximum spanning forest (Kruskal)."""
+    parent = list(range(n_nodes))
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    keep = np.zeros(len(a), dtype=bool)
+    for e in np.argsort(-weight, kind="stable").tolist():
+        ra, rb = find(int(a[e])), find(int(b[e]))
+        if ra != rb:
+            parent[ra] = rb
+            keep[e] = True
+    return keep
+
+
+def _prune(g: EdgeGraph, cut: np.ndarray) -> np.ndarray:
+    """``cut`` without its dangling interior edges: repeatedly drop an interior cut edge with
+    an end that no other cut or boundary edge touches (cutting it opens nothing)."""
+    cut = cut.copy()
+    on = cut | g.boundary
+    degree = np.bincount(g.E[on].ravel(), minlength=len(g.V))
+    incident = [[] for _ in range(len(g.V))]
+    for e in np.flatnonzero(cut).tolist():
+        incident[g.E[e, 0]].append(e)
+        incident[g.E[e, 1]].append(e)
+    stack = [v for v in range(len(g.V)) if degree[v] == 1]
+    while stack:
+        v = stack.pop()
+        for e in incident[v]:
+            if cut[e]:
+                cut[e] = False
+                for w in g.E[e].tolist():
+                    degree[w] -= 1
+                    if degree[w] == 1:
+                        stack.append(w)
+                break
+    return cut
+
+
+def topological_cut(g: EdgeGraph, cost: np.ndarray, roots) -> np.ndarray:
+    """(k,) bool, interior edges to cut so that every component becomes a disk, or (for a
+    closed genus-0 component) stays a sphere that a single cut path then opens.
+
+    Parameters
+    ----------
+    g : the mesh's :class:`EdgeGraph`;  cost : (k,) positive edge costs (:func:`edge_costs`).
+    roots : vertex ids, one per closed component (the boundary vertices root the others).
+    """
+    sources = np.unique(np.r_[g.E[g.boundary].ravel(), np.asarray(roots, dtype=np.int64)])
+    dist, pred = _dijkstra(g.adjacency(cost), sources)
+    index = _edge_index(g)
+    child = np.flatnonzero(pred >= 0)
+    in_tree = np.zeros(len(g.E), dtype=bool)
+    in_tree[index(child, pred[child])] = True
+    inner = ~g.boundary
+    loop = dist[g.E[:, 0]] + dist[g.E[:, 1]] + cost
+    # tree edges may join the dual tree only when nothing else connects it
+    weight = np.where(in_tree, -1.0 - loop.max(), loop)
+    e = np.flatnonzero(inner)
+    dual = _max_spanning_forest(len(g.F), g.edge_faces[e, 0], g.edge_faces[e, 1], weight[e])
+    cut = inner.copy()
+    cut[e[dual]] = False
+    return _prune(g, cut)
+
+
+def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.ndarray) -> list:
+    """Edges (rows of ``g.E``) of the cheapest path from vertex ``target`` to any vertex of
+    ``seams`` (a vertex id array), by ``cost``; empty when ``target`` is on the seams."""
+    dist, pred = _dijkstra(g.adjacency(cost), seams)
+    index = _edge_index(g)
+    path, v = [], int(target)
+    while pred[v] >= 0:
+        path.append(int(index(v, pred[v])))
+        v = int(pred[v])
+    return path
