@@ -241,7 +241,10 @@ class Program:
         """Everything the compiled program depends on, as a dict of strings (the file's
         header and, hashed, its name); None when a static argument has no stable text form."""
         modules = {"geomopt"}
-        text, name = _stable(statics, modules), _stable(self.fun, modules)
+        text = _stable(statics, modules)
+        if modules != {"geomopt"}:  # e.g. a user's energy density: its source and the globals it
+            return None  # reads (a notebook's, a config's) are no part of any key: JAX's cache only
+        name = _stable(self.fun, modules)
         if text is _UNSTABLE or name is _UNSTABLE:
             return None
         devices = jax.devices()

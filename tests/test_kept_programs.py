@@ -172,3 +172,30 @@ def test_two_processes_on_one_empty_cache_both_keep_a_valid_file(tmp_path):
     again = subprocess.run([sys.executable, "-c", RACE], env=env, capture_output=True, text=True, timeout=600)
     assert again.stdout.split() == [outs[0][0].split()[0], "0"]  # every kept file read back whole
     assert not list((tmp_path / "cache" / "programs").glob("*.tmp"))
+
+
+K = 1.0  # read by _user_density: a module global a user changes between runs
+
+
+def _user_density(x):
+    return K * jnp.sum(x * x)
+
+
+def _apply(density, x):
+    return density(x)
+
+
+def test_a_static_function_from_outside_geomopt_is_never_kept(fresh_cache, monkeypatch):
+    """A user's energy density (here from this test module) is keyed by nothing that sees its
+    source or the globals it reads: a notebook that changes K and solves again loaded the
+    program kept for the old K (wrong map, wrong energy, no error).  Such programs run through
+    plain jax.jit (JAX's own cache keys the HLO, constants included) and no file is kept."""
+    kept = _programs.jit(_apply, static_argnums=0)
+    before = dict(_programs.stats)
+    assert float(kept(_user_density, X)) == pytest.approx(np.sum(X * X))
+    assert _programs.stats["plain"] == before["plain"] + 1 and _programs.stats["stored"] == before["stored"]
+    assert not fresh_cache.exists() or not list(fresh_cache.glob("_apply-*.xla"))
+    monkeypatch.setattr(sys.modules[__name__], "K", 5.0)
+    _programs.clear()
+    jax.clear_caches()
+    assert float(_programs.jit(_apply, static_argnums=0)(_user_density, X)) == pytest.approx(5.0 * np.sum(X * X))
