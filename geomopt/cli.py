@@ -501,8 +501,8 @@ def cmd_smooth(args) -> int:
                f"{res.iterations} iterations, {res.seconds:.2f} s")
     _report(args, input=str(args.input), output=str(args.output), elements=len(case.elements), kind=case.kind,
             before=res.before.as_dict(), after=res.after.as_dict(), held=len(res.held), rounds=res.rounds,
-            improved=res.improved, iterations=res.iterations, solve_seconds=round(res.seconds, 4),
-            message=res.message, **_cache_summary())
+            improved=res.improved, outcome=res.outcome.value, iterations=res.iterations,
+            solve_seconds=round(res.seconds, 4), message=res.message, **_cache_summary())
     if not res.improved:
         return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
                      f"{res.message}")

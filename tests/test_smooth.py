@@ -5,6 +5,8 @@ as at size 1 (as untangling does)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -171,5 +173,7 @@ def test_the_command_line_says_a_solve_stopped_at_its_step_limit_in_one_line(cli
     lines = err.strip().splitlines()
     assert code == 0 and lines and all(line.startswith("geomopt: warning: ") for line in lines), err
     assert "Newton stopped at its iteration limit (max_steps=1)" in lines[0] and "--max-steps" in lines[0]
-    code, _, err = cli("smooth", src, "-o", tmp_path / "out2.vtk", "--quiet")
-    assert code == 0 and err == ""
+    code, out, err = cli("smooth", src, "-o", tmp_path / "out1.vtk", "--quiet", "--max-steps", "1", "--json")
+    assert json.loads(out)["outcome"] == "max_steps"  # a script reading --json sees it too
+    code, out, err = cli("smooth", src, "-o", tmp_path / "out2.vtk", "--quiet", "--json")
+    assert code == 0 and err == "" and json.loads(out)["outcome"] == "converged"
