@@ -571,7 +571,7 @@ def cmd_demo(args) -> int:
     data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, margin=0.005,
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, sphere=False, margin=0.005,
                             uv_range="raw", json=args.json, summary=args.summary, timing=args.timing)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary

@@ -198,8 +198,18 @@ def atlas_figure(V, F, uv, uv_faces, chart, seams, title="", checks=20, view=(15
 
     Parameters
     ----------
-    V : (n, 3);  F : (m, 3);  uv : (k, 2) one UV per chart corner;  uv_faces : (m, 3) UV rows of
-    the face corners;  chart : (m,) chart of each face;  seams : (s, 2) input vertex pairs.
+    V : (n, 3) float
+        The surface's vertices.
+    F : (m, 3) int
+        Its triangles.
+    uv : (k, 2) float
+        One UV per chart corner.
+    uv_faces : (m, 3) int
+        The UV rows of the face corners.
+    chart : (m,) int
+        The chart of each face.
+    seams : (s, 2) int
+        The seams as input vertex pairs.
     """
     from matplotlib.collections import LineCollection
 

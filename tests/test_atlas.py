@@ -48,7 +48,12 @@ def two_components():
     return np.r_[V1, V2 + [4.0, 0.0, 0.0]], np.r_[F1, F2 + len(V1)]
 
 
-CASES = {"torus": torus, "genus2": genus2, "sphere": sphere, "three_loops": three_loops,
+def tetrahedron():
+    """The smallest closed surface: every vertex pair is an edge, so no cut path has two edges."""
+    return np.eye(4, 3, -1), np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+
+
+CASES = {"tetrahedron": tetrahedron, "torus": torus, "genus2": genus2, "sphere": sphere, "three_loops": three_loops,
          "two_components": two_components}
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from geomopt import generators as G
-from geomopt import hexvalid
+from geomopt import Outcome, hexvalid
 from geomopt._errors import MeshError, ParameterError
 from geomopt._objective import Objective
 from geomopt.elements import (certify_elements, corner_edges, count_invalid,
@@ -570,7 +570,8 @@ def test_hex_certificate_finds_a_boundary_edge_overlapping_itself(turns):
 def test_fixed_stars_are_judged_on_the_elements_tangent_cones():
     """A hex slab one element thick has every vertex on the boundary: with all of them fixed
     the plain fixed-star check on the overlapping corner tetrahedra would refuse it; judged on
-    the tangent cones it passes.  A fixed quad fan winding twice is refused before solving."""
+    the tangent cones it passes.  A fixed quad fan winding twice is
+    solved and reported as forced by the handles."""
     from geomopt.certify import fixed_star_certificate
     from geomopt.elements import corner_simplices
 
@@ -584,5 +585,6 @@ def test_fixed_stars_are_judged_on_the_elements_tangent_cones():
     q = Problem.quads(V2, Q).with_fixed(np.arange(len(V2)), X)
     c = q.certify_fixed(X)
     assert not c.ok and c.branch_vertices.tolist() == [0]
-    with pytest.raises(MeshError, match="branch point"):
-        untangle(q, X, progress=False)
+    r = untangle(q, X, progress=False)  # forced by the handles: reported, not refused (issue 30 item 5)
+    assert r.outcome == Outcome.CERTIFIED_EXCEPT_FIXED and not r.success
+    assert r.certificate.forced.branch_vertices.tolist() == [0]

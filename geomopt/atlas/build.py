@@ -124,7 +124,7 @@ def check_atlas_input(V, F):
                         f"remove or repair them (e.g. trimesh's remove_degenerate_faces) before making an atlas")
     _, count, _ = unique_edges(F)
     if (count > 2).any():
-        raise MeshError(f"{int((count > 2).sum())} non-manifold edge(s) (used by more than 2 faces); an atlas "
+        raise MeshError(f"{int((count > 2).sum())} non-manifold edges (used by more than 2 faces); an atlas "
                         f"needs an edge-manifold mesh: split or remove the extra faces")
     same, _ = same_side_facets(F)
     if same:

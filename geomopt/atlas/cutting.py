@@ -55,8 +55,18 @@ def _open_spheres(g: EdgeGraph, cost, cut, labels, roots):
         d = dijkstra(g.adjacency(g.length), indices=a)[verts]
         far = np.flatnonzero(d >= 0.5 * d.max())
         b = verts[far[int(np.argmin(u[far]))]]
-        cut[cut_path_to_seams(g, cost, a, np.array([b]))] = True
+        path = cut_path_to_seams(g, cost, a, np.array([b]))
+        if len(path) == 1:  # a one-edge slit leaves both sides on the same two vertices: not a disk
+            path.append(_cheapest_edge_at(g, cost, b, path[0]))
+        cut[path] = True
     return cut
+
+
+def _cheapest_edge_at(g: EdgeGraph, cost, v, other):
+    """The cheapest edge (row of ``g.E``) at vertex ``v`` other than edge ``other``."""
+    at = np.flatnonzero((g.E == v).any(axis=1))
+    at = at[at != other]
+    return int(at[np.argmin(cost[at])])
 
 
 def chart_estimate(V, chart):

@@ -66,10 +66,24 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
 
     Parameters
     ----------
-    g, cost : the :class:`~geomopt.atlas.seams.EdgeGraph` and its edge costs;  cut : (k,) bool
-    the seam graph, whose charts' estimate is ``estimate``;  goal : the mean symmetric Dirichlet
-    to reach;  solve : ``(Vc, Fc) -> Result``;  max_cuts : the most further cone cuts;
-    say : ``(stage, **info)`` progress;  rounds : the most re-cutting rounds.
+    g : EdgeGraph
+        The surface's :class:`~geomopt.atlas.seams.EdgeGraph`.
+    cost : (k,) float
+        Its edge costs.
+    cut : (k,) bool
+        The seam graph, whose charts' conformal estimate is ``estimate``.
+    estimate : float
+        That estimate.
+    goal : float
+        The area-weighted mean symmetric Dirichlet to reach.
+    solve : callable
+        ``(Vc, Fc) -> Result``, one chart's flattening.
+    max_cuts : int
+        The most further cone cuts.
+    say : callable
+        ``(stage, **info)`` progress.
+    rounds : int
+        The most re-cutting rounds.
 
     Returns
     -------
