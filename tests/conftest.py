@@ -9,6 +9,18 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+#: each worker process imports JAX and compiles its own programs (about 1 GB): cap the count
+MAX_WORKERS = 8
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject's addopts): one worker per core, at most MAX_WORKERS."""
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_WORKERS))
+
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
