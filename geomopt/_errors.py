@@ -2,8 +2,8 @@
 
 Every error geomopt raises derives from :class:`GeomoptError`, so callers (and the command
 line) can catch one type.  Bad input (a malformed mesh or file, an invalid name or value) is
-also a :class:`ValueError` (:class:`MeshError`, :class:`ParameterError`); a solve that did not
-give the certified map asked for is a :class:`RuntimeError` (:class:`SolveError`), never a
+also a ``ValueError`` (:class:`MeshError`, :class:`ParameterError`); a solve that did not
+give the certified map asked for is a ``RuntimeError`` (:class:`SolveError`), never a
 ``ValueError``, so that ``except ValueError`` around input checks does not swallow a failed
 solve.  Messages say what is wrong and what to do about it.  Every warning derives from
 :class:`GeomoptWarning` (the command line prints each as one ``geomopt: warning: ...`` line).
