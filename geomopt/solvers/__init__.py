@@ -22,9 +22,8 @@ from .aqp import AQP
 from .lbfgs import LBFGS
 from .newton import CM, SLIM, AbstractNewton, Newton
 
-__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State", "Stats", "Termination",
-           "Outcome", "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate",
-           "Details", "UntangleDetails", "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final",
-           "AbstractContinuation", "Progress",
-           "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection", "Adaptive", "Clamp", "Abs", "Exact",
-           "SLIMProxy", "CMProxy", "rest_laplacian"]
+__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State", "Stats", "Termination", "Outcome",
+           "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details",
+           "UntangleDetails", "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final",
+           "AbstractContinuation", "Progress", "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection",
+           "Adaptive", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "rest_laplacian"]
