@@ -19,19 +19,20 @@ _cache.configure()
 
 from ._cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
 from ._errors import (GeomoptError, GeomoptWarning, MaxStepsWarning, MeshError, MeshFormatError,  # noqa: E402
-                      ParameterError, SolveError)
+                      NotPositiveDefinite, ParameterError, SolveError)
 
 # public name -> module that defines it (imported on first use, PEP 562)
 _LAZY = {
     "Objective": "._objective", "parameterize": ".param", "Problem": ".problem",
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
-    "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "tutte_embedding": ".tutte",
-    "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
+    "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "smooth": ".smoothing",
+    "tutte_embedding": ".tutte", "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
     "ComparisonSet": "._compare", "sphere_map": ".sphere", "make_atlas": ".atlas",
 }
-_SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "tetio", "plot", "untangle",
+# public submodules reachable as attributes without an import of their own (imported on first use)
+_SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "plot", "untangle",
                "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit", "sphere",
-               "atlas")
+               "atlas", "smoothing")
 
 
 def __getattr__(name):
@@ -51,12 +52,9 @@ def __dir__():
     return sorted(set(globals()) | set(_LAZY) | set(_SUBMODULES))
 
 
+# every public name above: the errors and cache functions imported here, the lazy names, the
+# submodules (tests/test_api_names.py checks that nothing else is public)
 __all__ = [
-    "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError", "GeomoptWarning",
-    "MaxStepsWarning",
-    "Objective", "Problem", "Newton", "LBFGS", "SLIM", "AQP", "CM", "Outcome", "Result", "minimize", "parameterize",
-    "sphere_map", "make_atlas", "compare", "Comparison", "compare_meshes", "ComparisonSet", "tutte_embedding", "data",
-    "energies", "io",
-    "predicates", "implicit", "set_cache_dir", "cache_dir", "cache_stats",
-    "__version__",
+    "__version__", "GeomoptError", "MeshError", "MeshFormatError", "ParameterError", "SolveError", "GeomoptWarning",
+    "MaxStepsWarning", "NotPositiveDefinite", "set_cache_dir", "cache_dir", "cache_stats", *_LAZY, *_SUBMODULES,
 ]

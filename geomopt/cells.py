@@ -191,5 +191,5 @@ def write_certified(path, x, case: CellCase, problem, format=None) -> dict:
         moved = int(np.count_nonzero(differing_rows(back[problem.fixed], problem.fixed_positions)))
         if not cert.ok or moved:
             why = cert.message if not cert.ok else f"{moved} handle(s) moved"
-            raise SolveError(f"the written file did not certify ({why})")
+            raise SolveError(f"the written file did not certify ({why})", certificate=cert)
     return {"path": Path(path), "certificate": cert.elements, "local_certificate": cert}

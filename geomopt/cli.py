@@ -483,9 +483,9 @@ def _timed_solve(split, solve):
 
 
 def cmd_smooth(args) -> int:
-    """Smooth a valid quad / hex mesh (:func:`geomopt.smooth.smooth`) into a certified file."""
+    """Smooth a valid quad / hex mesh (:func:`geomopt.smooth`) into a certified file."""
     from .cells import read_cell_case, write_certified
-    from .smooth import smooth
+    from .smoothing import smooth
 
     split = args.timing
     split.mark_imported()
@@ -496,18 +496,21 @@ def cmd_smooth(args) -> int:
     with split.phase("solve"):  # smooth's rounds, each solved and certified
         res = smooth(case.start, case.elements, energy=args.energy, solver=args.solver, fixed=fixed,
                      max_steps=args.max_steps, progress=not args.quiet)
-    _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(res.before)}")
-    _log(args, f"after  {_quality_line(res.after)}; tests {res.certificate.summary()['tests']}; "
-               f"{res.iterations} iterations, {res.seconds:.2f} s")
+    d, st = res.details, res.stats
+    seconds = st.seconds + st.setup_seconds  # every solve, set-up included
+    _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(d.before)}")
+    _log(args, f"after  {_quality_line(d.after)}; tests {d.elements.summary()['tests']}; "
+               f"{st.iterations} iterations, {seconds:.2f} s")
     _report(args, input=str(args.input), output=str(args.output), elements=len(case.elements), kind=case.kind,
-            before=res.before.as_dict(), after=res.after.as_dict(), held=len(res.held), rounds=res.rounds,
-            improved=res.improved, outcome=res.outcome.value, iterations=res.iterations,
-            solve_seconds=round(res.seconds, 4), message=res.message, **_cache_summary())
-    if not res.improved:
+            before=d.before.as_dict(), after=d.after.as_dict(), held=len(d.held), rounds=st.outer_iterations,
+            improved=d.improved, outcome=res.outcome.value, iterations=st.iterations,
+            solve_seconds=round(seconds, 4), message=d.message, **_cache_summary())
+    if not d.improved:
         return _fail(f"not improved (no smoothing keeps every element at least as good as the input's worst): "
-                     f"{res.message}")
+                     f"{d.message}" + (f"; {res.reason}" if res.reason else ""))
+    handles = res.problem.fixed, res.problem.fixed_positions / d.scale  # in the file's frame (exact: a power of 2)
     with split.phase("write"):
-        write_certified(args.output, res.x, case, res.problem.with_fixed(*res.handles))  # in the file's frame
+        write_certified(args.output, res.x, case, res.problem.with_fixed(*handles))
     return EXIT_OK
 
 

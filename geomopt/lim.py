@@ -303,7 +303,7 @@ class LimCase(Mapping):
             left = cert if cert.ok or cert.inverted else cert.beyond(self._forced)
             if not left.ok or moved:
                 why = "; ".join(filter(None, [left.message, f"{moved} handle(s) moved" if moved else ""]))
-                raise SolveError(f"the written file did not certify: {why}")
+                raise SolveError(f"the written file did not certify: {why}", certificate=cert)
         return {"path": Path(path), "inverted": 0, "handles_moved": 0, "certified": cert.ok,
                 "outcome": "certified" if cert.ok else "certified_except_fixed", "forced": cert.failures,
                 "message": cert.message}

@@ -25,7 +25,7 @@ import sys
 import numpy as np
 import scipy.sparse as sp
 
-from ._errors import ParameterError
+from ._errors import NotPositiveDefinite, ParameterError
 
 __all__ = [
     "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM",
@@ -67,10 +67,6 @@ def _silence_c_output():
         for fd, copy in zip((1, 2), saved):
             os.dup2(copy, fd)
             os.close(copy)
-
-
-class NotPositiveDefinite(ArithmeticError):
-    """The factorization failed or produced a non-finite solution."""
 
 
 def _have(module):

@@ -45,7 +45,7 @@ from ._x64 import float64
 from .certify import SphereCertificate, certify_sphere, spherical_areas
 from .param import check_scale_aware, mesh_arrays
 from .problem import Problem
-from .solvers import LBFGS, AbstractContinuation, Decision, Final, Outcome, get_solver, iterate
+from .solvers import LBFGS, AbstractContinuation, Decision, Details, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
 from .topology import as_faces, boundary_loops, check_sphere
 from .tutte import tutte_embedding
@@ -57,7 +57,7 @@ MAX_HALVINGS = 60
 
 
 @dataclasses.dataclass(frozen=True)
-class SphereDetails:
+class SphereDetails(Details):
     """What :func:`sphere_map` adds to its :class:`~geomopt.solvers.Result`: the certified
     ``start`` map (n, 3), its ``pole`` vertex and stereographic ``scale`` (-1 and nan for a
     given start), the halvings of the scale its exact check needed, and the start's

@@ -6,10 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geomopt import MeshError, ParameterError, io
+from geomopt import MeshError, ParameterError, io, smooth
 from geomopt import generators as G
 from geomopt.predicates import branch_vertices, vertex_windings
-from geomopt.smooth import smooth
 
 
 @pytest.mark.parametrize("kind", ["hex", "hexahedra", 12, ("hexahedron", "hex")])

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 
 from geomopt import generators as G
-from geomopt import Outcome, hexvalid
+from geomopt import Outcome, hexvalid, smooth
 from geomopt._errors import MeshError, ParameterError
 from geomopt._objective import Objective
 from geomopt.elements import (certify_elements, corner_edges, count_invalid,
                               quality, scaled_jacobian, valid_elements)
 from geomopt.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
 from geomopt.problem import Problem
-from geomopt.smooth import smooth
 from geomopt.untangle import STIFF_AFTER_NEWTON, choose_start, harmonic_start, untangle
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
@@ -403,8 +402,9 @@ def test_smooth_raises_the_worst_element_of_a_perturbed_non_box_hex_mesh():
     V, H = G.sector_mesh(3, 6, 3, perturb=0.4, seed=1)
     before = quality(V, H)
     r = smooth(V, H)
-    assert r.certificate.certified and r.improved and r.rounds == 1 and not len(r.held)
-    assert r.after.min > before.min + 0.3 and r.after.mean > before.mean
+    d = r.details
+    assert r.success and d.elements.certified and d.improved and r.stats.outer_iterations == 1 and not len(d.held)
+    assert d.after.min > before.min + 0.3 and d.after.mean > before.mean
     assert np.array_equal(r.x[Problem.hexes(V, H).boundary_vertices()], V[Problem.hexes(V, H).boundary_vertices()])
 
 
@@ -418,8 +418,13 @@ def test_smooth_never_lowers_the_minimum_scaled_jacobian():
     X0 = np.stack([s, needle + t * (1.0 - needle)], 1)
     before = quality(X0, Q)
     r = smooth(X0, Q)
-    assert r.certificate.certified and r.after.min >= before.min and r.improved
-    assert r.rounds > 1 and 0 < len(r.held) < 20 and r.after.below_0_2 < before.below_0_2
+    d = r.details
+    assert r.success and d.elements.certified and d.after.min >= before.min and d.improved
+    assert r.stats.outer_iterations > 1 and 0 < len(d.held) < 20 and d.after.below_0_2 < before.below_0_2
+    worst = smooth(X0, Q, max_rounds=1)  # the one solve allowed makes the worst element worse: the input
+    assert worst.outcome is Outcome.MAX_STEPS and not worst.success and not worst.details.improved
+    assert np.array_equal(worst.x, X0) and "input is returned" in worst.message and not len(worst.details.held)
+    assert worst.details.after == before and worst.certificate.locally_injective
     with pytest.raises(MeshError, match="untangle it first"):
         smooth(G.rotated_interior(*G.quad_mesh(4, 4), 90).x0, G.quad_mesh(4, 4)[1])
 

@@ -160,28 +160,28 @@ def test_lbfgs_advances_in_its_kernel_to_the_same_iterate_as_stepping():
 # ------------------------------------------------------------------ Result
 
 
-def test_result_energies_and_deprecated_aliases():
+#: the Result aliases deprecated for one release, then removed (issue 32)
+REMOVED_ALIASES = ("inverted", "iterations", "inner_iterations", "outer_iterations", "seconds", "setup_seconds",
+                   "initially_inverted", "handles_moved", "energy_history", "time_history", "grad_history",
+                   "eps_history", "min_det_history", "inverted_history", "info")
+
+
+def test_result_energies_typed_fields_and_no_aliases():
     obj, V = _objective()
     res = minimize(obj, V, progress=False)
     assert res.energy == pytest.approx(float(obj.value(res.x, obj.params())), rel=1e-12)
     assert res.mean_energy == res.energy / obj.total_volume
-    for old, new in [("inverted", res.certificate.inverted), ("iterations", res.stats.iterations),
-                     ("seconds", res.stats.seconds), ("setup_seconds", res.stats.setup_seconds)]:
-        with pytest.warns(DeprecationWarning, match=f"Result.{old} is deprecated"):
-            assert getattr(res, old) == new
-    with pytest.warns(DeprecationWarning):
-        np.testing.assert_array_equal(res.energy_history, res.trace.energy)
-    with pytest.warns(DeprecationWarning):
-        assert res.info["evaluations"] == res.stats.evaluations and res.info["solver"] is res.solver
+    assert res.stats.iterations == len(res.trace.energy) - 1 > 0 and res.details is None
+    assert [name for name in REMOVED_ALIASES if hasattr(res, name)] == []
     t = G.rotated_interior(*G.square_mesh(6), 90.0)
-    u = untangle(t.problem(), t.x0, progress=False)
-    assert u.success and isinstance(u, geomopt.untangle.UntangleResult)
-    with pytest.warns(DeprecationWarning):
-        assert list(u.eps_history) == list(u.trace.column("eps"))
-    with pytest.warns(DeprecationWarning):
-        assert u.initially_inverted == u.stats.inverted_at_start == t.inverted()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        u = untangle(t.problem(), t.x0, progress=False)
+        assert u.success and isinstance(u, geomopt.untangle.UntangleResult)
+        assert isinstance(u.details, geomopt.solvers.UntangleDetails)
+        assert isinstance(u.details, geomopt.solvers.Details)
+        assert len(u.trace.column("eps")) == u.stats.outer_iterations > 0
+        assert u.stats.inverted_at_start == t.inverted() > 0
         assert u.injectivity == "local" and u.message == "converged" and u.min_det_rel > 0
 
 

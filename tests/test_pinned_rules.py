@@ -20,7 +20,7 @@ import geomopt
 from geomopt import SolveError, generators as G, io
 from geomopt.cells import read_cell_case, write_certified
 from geomopt.lim import LimCase
-from geomopt.smooth import element_problem
+from geomopt.smoothing import element_problem
 from geomopt.solvers import Outcome, Stats, Termination
 from geomopt.solvers._termination import RUNNING
 from geomopt.untangle import EpsContinuation, untangle
@@ -90,6 +90,8 @@ def test_cells_write_certified_certifies_the_file_not_the_map_in_memory(monkeypa
         with pytest.raises(SolveError, match="the written file did not certify") as info:
             write_certified(out, V, case, problem)
         assert words in str(info.value) and "nothing was written" not in str(info.value)
+        # what failed travels with it: the file's certificate (its elements fold only when thrown out)
+        assert info.value.result is None and info.value.certificate.ok == words.startswith("1 handle")
         monkeypatch.undo()
         assert out.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.vtk", "out.vtk"]  # no temporary left
@@ -127,8 +129,9 @@ def test_lim_write_certified_certifies_the_file_not_the_map_in_memory(monkeypatc
     for how, words in ((_shift_row(int(case.handles[0]), 1e-9), r"1 handle\(s\) moved"),
                        (_shift_row(interior, 10.0), "inverted or degenerate")):
         monkeypatch.setattr(lim, name, writer(how))
-        with pytest.raises(SolveError, match=words):
+        with pytest.raises(SolveError, match=words) as info:
             case.write_certified(x, out)
+        assert (info.value.certificate.inverted > 0) == (words == "inverted or degenerate")
         monkeypatch.undo()
         assert out.read_bytes() == before
 

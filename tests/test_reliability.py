@@ -277,7 +277,30 @@ def test_nonfinite_solve_ends_nonfinite_without_a_nan_map(density):
     assert res.certificate.inverted == obj.problem.count_inverted(res.x)
     with pytest.raises(SolveError, match="NaN/inf") as info:
         minimize(obj, V, Newton(max_steps=20), progress=False, throw=True)
-    assert info.value.result.outcome is Outcome.NONFINITE
+    assert info.value.result.outcome is info.value.outcome is Outcome.NONFINITE
+    assert info.value.certificate is info.value.result.certificate
+
+
+def test_a_failed_solve_is_a_runtime_error_not_a_value_error():
+    """`except ValueError` around a call (for its input checks) must not swallow a solve that
+    failed: SolveError is a GeomoptError and a RuntimeError; bad input stays a ValueError."""
+    from geomopt import _errors, linsolve
+
+    assert issubclass(SolveError, GeomoptError) and issubclass(SolveError, RuntimeError)
+    assert not issubclass(SolveError, ValueError) and not issubclass(GeomoptError, ValueError)
+    assert issubclass(MeshError, ValueError) and issubclass(ParameterError, ValueError)
+    errors = [c for c in vars(_errors).values() if isinstance(c, type) and issubclass(c, Exception)
+              and not issubclass(c, Warning)]
+    assert len(errors) == 6 and all(issubclass(e, GeomoptError) for e in errors)
+    assert issubclass(linsolve.NotPositiveDefinite, GeomoptError) and issubclass(linsolve.NotPositiveDefinite,
+                                                                                 ArithmeticError)
+    P, x0 = _dead_inverted_problem()
+    with pytest.raises(RuntimeError) as info:
+        try:
+            minimize(Objective(P, "dirichlet"), x0, progress=False, throw=True)
+        except ValueError:  # user code guarding its input: the failed solve passes through
+            pytest.fail("a failed solve was caught as a ValueError")
+    assert type(info.value) is SolveError and info.value.outcome is not Outcome.CONVERGED
 
 
 # ------------------------------------------------------------------ honest outcomes

@@ -1,10 +1,11 @@
-"""geomopt.tetio: each advertised tet format read exactly or refused, written so it reads back exactly."""
+"""Tet-mesh formats (geomopt.io.read_tets / write_tets): each advertised format read exactly or
+refused, written so it reads back exactly."""
 
 import numpy as np
 import pytest
 
 import geomopt
-from geomopt import tetio
+from geomopt import io
 
 from conftest import cube_tets
 
@@ -45,9 +46,9 @@ def _jittered(n=2):
 @pytest.mark.parametrize("ext", [".vtk", ".vtu", ".msh", ".mesh"])
 def test_every_format_round_trips_bit_exactly_and_creates_only_the_file(tmp_path, ext):
     V, T = _jittered()
-    path = tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+    path = io.write_tets(tmp_path / f"cube{ext}", V, T)
     assert [p.name for p in tmp_path.iterdir()] == [f"cube{ext}"]
-    P2, T2 = tetio.read_tets(path)
+    P2, T2 = io.read_tets(path)
     np.testing.assert_array_equal(P2, V)
     np.testing.assert_array_equal(T2, T)
     assert P2.dtype == np.float64 and T2.dtype == np.int64
@@ -58,7 +59,7 @@ def test_every_format_round_trips_bit_exactly_and_creates_only_the_file(tmp_path
 def test_gmsh_22_and_41_and_medit_text_read_exactly(tmp_path):
     for name, text in (("a.msh", MSH22), ("b.msh", MSH41), ("c.mesh", MEDIT)):
         (tmp_path / name).write_text(text)
-        P, T = tetio.read_tets(tmp_path / name)
+        P, T = io.read_tets(tmp_path / name)
         np.testing.assert_array_equal(P, _P1)
         np.testing.assert_array_equal(T, _T1)
 
@@ -68,7 +69,7 @@ def test_gmsh_22_written_by_meshio_reads_exactly(tmp_path):
 
     V, T = _jittered()
     meshio.gmsh.write(str(tmp_path / "c.msh"), meshio.Mesh(V, [("tetra", T)]), fmt_version="2.2", binary=False)
-    P2, T2 = tetio.read_tets(tmp_path / "c.msh")
+    P2, T2 = io.read_tets(tmp_path / "c.msh")
     np.testing.assert_array_equal(P2, V)
     np.testing.assert_array_equal(T2, T)
 
@@ -78,7 +79,7 @@ def test_gmsh_node_tags_need_not_be_contiguous(tmp_path):
     (tmp_path / "a.msh").write_text(_msh22(tags))
     (tmp_path / "b.msh").write_text(_msh41(tags))
     for name in ("a.msh", "b.msh"):
-        P, T = tetio.read_tets(tmp_path / name)
+        P, T = io.read_tets(tmp_path / name)
         np.testing.assert_array_equal(P, _P1)  # file order
         np.testing.assert_array_equal(T, _T1)  # tags mapped to those rows
 
@@ -86,12 +87,12 @@ def test_gmsh_node_tags_need_not_be_contiguous(tmp_path):
 def test_gmsh_boundary_faces_beside_the_tets_are_ignored_other_volume_cells_refused(tmp_path):
     text = MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace("$EndElements", "7 2 2 0 1 1 2 3\n$EndElements")
     (tmp_path / "a.msh").write_text(text)
-    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "a.msh")[1], _T1)
+    np.testing.assert_array_equal(io.read_tets(tmp_path / "a.msh")[1], _T1)
     text = MSH22.replace("$Elements\n6\n", "$Elements\n7\n").replace(
         "$EndElements", "7 5 2 0 1 1 2 3 4 5 6 7 8\n$EndElements")
     (tmp_path / "b.msh").write_text(text)
     with pytest.raises(geomopt.MeshFormatError, match="non-tetrahedral volume cells.*hexahedron"):
-        tetio.read_tets(tmp_path / "b.msh")
+        io.read_tets(tmp_path / "b.msh")
 
 
 _ELEM_LINE = "$Elements\n6\n"
@@ -159,7 +160,7 @@ def _malformed_text(name, tmp_path):
             return good.rsplit("10\n", 1)[0]
         points = good[good.index("POINTS"):good.index("CELLS")]
         return good.replace("CELLS", points + "CELLS")
-    tetio.write_tets(tmp_path / "ok.vtu", _P1, _T1)
+    io.write_tets(tmp_path / "ok.vtu", _P1, _T1)
     good = (tmp_path / "ok.vtu").read_text()
     return good[: len(good) // 2]
 
@@ -170,7 +171,7 @@ def test_malformed_files_are_refused_with_a_message_saying_what_is_wrong(tmp_pat
     path = tmp_path / f"{name}.{ext}"
     path.write_text(_malformed_text(name, tmp_path))
     with pytest.raises(geomopt.MeshFormatError, match=message) as info:
-        tetio.read_tets(path)
+        io.read_tets(path)
     assert str(path) in str(info.value)
     assert capfd.readouterr() == ("", "")  # meshio's own messages are not printed
 
@@ -180,7 +181,7 @@ def test_vtk_keywords_are_case_insensitive_as_in_vtk_itself(tmp_path):
     text = (tmp_path / "up.vtk").read_text()
     (tmp_path / "low.vtk").write_text(text.replace("POINTS", "points").replace("CELLS", "cells")
                                       .replace("CELL_TYPES", "cell_types").replace("double", "DOUBLE"))
-    for read in (geomopt.io.read_vtk_tets, tetio.read_tets):
+    for read in (geomopt.io.read_vtk_tets, io.read_tets):
         P, T = read(tmp_path / "low.vtk")
         np.testing.assert_array_equal(P, _P1)
         np.testing.assert_array_equal(T, _T1)
@@ -193,21 +194,21 @@ _UNSUPPORTED = [".stl", ".off", ".ply", ".obj", ".ugrid", ".xdmf", ".med", ".h5m
 def test_unsupported_extensions_are_refused_on_write_and_read_creating_nothing(tmp_path, ext):
     V, T = _jittered(1)
     with pytest.raises(geomopt.MeshFormatError, match=r"supported tet-mesh formats: \.vtk .*\.vtu .*\.msh .*\.mesh"):
-        tetio.write_tets(tmp_path / f"cube{ext}", V, T)
+        io.write_tets(tmp_path / f"cube{ext}", V, T)
     assert not any(tmp_path.iterdir())
     (tmp_path / f"cube{ext}").write_text(MSH22)
     with pytest.raises(geomopt.MeshFormatError, match="supported tet-mesh formats"):
-        tetio.read_tets(tmp_path / f"cube{ext}")
+        io.read_tets(tmp_path / f"cube{ext}")
 
 
 def test_meshio_warnings_are_not_printed(tmp_path, capfd):
     # meshio warns (on stderr, through rich) about Medit sections it skips; the read is still exact
     (tmp_path / "a.mesh").write_text(MEDIT.replace("End\n", "RequiredVertices\n2\n1\n2\nEnd\n"))
-    P, T = tetio.read_tets(tmp_path / "a.mesh")
+    P, T = io.read_tets(tmp_path / "a.mesh")
     np.testing.assert_array_equal(T, _T1)
     V, T = _jittered(1)
     for ext in (".msh", ".mesh", ".vtu"):
-        tetio.write_tets(tmp_path / f"w{ext}", V, T)
+        io.write_tets(tmp_path / f"w{ext}", V, T)
     assert capfd.readouterr() == ("", "")
 
 
@@ -225,7 +226,7 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, mon
 
     monkeypatch.setattr(meshio.vtu, "write", broken)
     with pytest.raises(geomopt.GeomoptError, match="could not write .*c.vtu.*disk on fire.*nothing was written"):
-        tetio.write_tets(target, V, T)
+        io.write_tets(target, V, T)
     assert [p.name for p in tmp_path.iterdir()] == ["c.vtu"] and target.read_text() == "old"
 
 
@@ -234,21 +235,21 @@ def test_invalid_arrays_and_contents_are_mesh_errors(tmp_path):
 
     V, T = cube_tets(1)
     with pytest.raises(geomopt.MeshError):
-        tetio.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
+        io.write_tets(tmp_path / "bad.vtu", V, T + 100)  # index out of range
     assert not any(tmp_path.iterdir())
     meshio.vtu.write(str(tmp_path / "tris.vtu"), meshio.Mesh(V, [("triangle", T[:, :3])]))
     with pytest.raises(geomopt.MeshFormatError, match="no tetrahedra"):
-        tetio.read_tets(tmp_path / "tris.vtu")
+        io.read_tets(tmp_path / "tris.vtu")
     bad = V.copy()
     bad[0, 0] = np.nan
     meshio.vtu.write(str(tmp_path / "nan.vtu"), meshio.Mesh(bad, [("tetra", T)]))
     with pytest.raises(geomopt.MeshError):
-        tetio.read_tets(tmp_path / "nan.vtu")
+        io.read_tets(tmp_path / "nan.vtu")
     with pytest.raises(geomopt.MeshFormatError, match="does not exist"):
-        tetio.read_tets(tmp_path / "missing.msh")
+        io.read_tets(tmp_path / "missing.msh")
     (tmp_path / "empty.mesh").write_text("")
     with pytest.raises(geomopt.MeshFormatError, match="empty"):
-        tetio.read_tets(tmp_path / "empty.mesh")
+        io.read_tets(tmp_path / "empty.mesh")
 
 
 # ------------------------------------------------------------------ issue 19: read exactly or refuse
@@ -315,7 +316,7 @@ def _cube_vtu(**kw):
                                 dict(fmt="binary", order=">", header="UInt64"), dict(version="0.1")])
 def test_vtu_every_encoding_reads_exactly(tmp_path, kw):
     (tmp_path / "c.vtu").write_bytes(_cube_vtu(**kw))
-    P, T = tetio.read_tets(tmp_path / "c.vtu")
+    P, T = io.read_tets(tmp_path / "c.vtu")
     np.testing.assert_array_equal(P, _P1)
     np.testing.assert_array_equal(T, _T1)
 
@@ -326,7 +327,7 @@ def test_vtu_pieces_and_boundary_cells_read_in_file_order(tmp_path):
     pieces = [(_P1, np.r_[_T1[:2].ravel(), tri], [4, 8, 11], [10, 10, 5]),
               (_P1, np.r_[[5], _T1[2:].ravel()], [1, 5, 9, 13, 17], [1, 10, 10, 10, 10])]
     (tmp_path / "p.vtu").write_bytes(_vtu(pieces, fmt="raw", compressor="zlib"))
-    P, T = tetio.read_tets(tmp_path / "p.vtu")
+    P, T = io.read_tets(tmp_path / "p.vtu")
     np.testing.assert_array_equal(P, np.vstack([_P1, _P1]))
     np.testing.assert_array_equal(T, np.vstack([_T1[:2], _T1[2:] + 8]))
 
@@ -355,7 +356,7 @@ def test_vtu_cells_not_as_declared_are_refused(tmp_path, capfd, name):
         path = tmp_path / f"bad-{fmt}.vtu"
         path.write_bytes(_vtu([(_P1, conn, offsets, types)], fmt=fmt))
         with pytest.raises(geomopt.MeshFormatError, match=words) as info:
-            tetio.read_tets(path)
+            io.read_tets(path)
         assert str(path) in str(info.value) and "\n" not in str(info.value)
     assert capfd.readouterr() == ("", "")
 
@@ -372,7 +373,7 @@ def test_vtu_structure_not_as_declared_is_refused(tmp_path, edit, words):
     path = tmp_path / "bad.vtu"
     path.write_bytes(edit(_cube_vtu(fmt="binary", compressor="zlib")))
     with pytest.raises(geomopt.MeshFormatError, match=words):
-        tetio.read_tets(path)
+        io.read_tets(path)
 
 
 def test_vtu_truncated_binary_data_is_refused(tmp_path):
@@ -380,7 +381,7 @@ def test_vtu_truncated_binary_data_is_refused(tmp_path):
     at = good.index(b"</AppendedData>")
     (tmp_path / "t.vtu").write_bytes(good[:at - 20] + good[at:])
     with pytest.raises(geomopt.MeshFormatError, match="ends inside|truncated"):
-        tetio.read_tets(tmp_path / "t.vtu")
+        io.read_tets(tmp_path / "t.vtu")
 
 
 @pytest.mark.parametrize("make", [_msh22, _msh41])
@@ -390,7 +391,7 @@ def test_gmsh_node_tag_zero_or_negative_is_refused_with_its_line(tmp_path, make,
     tags = [bad] + list(range(2, 9))
     (tmp_path / "z.msh").write_text(make(tags))
     with pytest.raises(geomopt.MeshFormatError, match=rf"line \d+: node tag {bad}; Gmsh node tags start at 1"):
-        tetio.read_tets(tmp_path / "z.msh")
+        io.read_tets(tmp_path / "z.msh")
 
 
 def test_valid_files_meshio_refused_are_read(tmp_path):
@@ -400,7 +401,7 @@ def test_valid_files_meshio_refused_are_read(tmp_path):
     for name, text in (("mixed.msh", mixed), ("empty.msh", empty_block), ("bom.msh", "\ufeff" + MSH22),
                        ("bom.mesh", "\ufeff" + MEDIT)):
         (tmp_path / name).write_text(text, encoding="utf-8")
-        P, T = tetio.read_tets(tmp_path / name)
+        P, T = io.read_tets(tmp_path / name)
         np.testing.assert_array_equal(P, _P1)
         np.testing.assert_array_equal(T, _T1)
     points = "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in _P1.tolist())
@@ -409,10 +410,10 @@ def test_valid_files_meshio_refused_are_read(tmp_path):
                 + f"CELLS 7 24\nOFFSETS {kind}\n" + " ".join(str(4 * i) for i in range(7))
                 + f"\nCONNECTIVITY {kind}\n" + " ".join(map(str, _T1.ravel())) + "\nCELL_TYPES 6\n" + "10\n" * 6)
         (tmp_path / f"{kind}.vtk").write_text(text)
-        P, T = tetio.read_tets(tmp_path / f"{kind}.vtk")
+        P, T = io.read_tets(tmp_path / f"{kind}.vtk")
         np.testing.assert_array_equal(T, _T1)
     (tmp_path / "bom.vtu").write_bytes(b"\xef\xbb\xbf" + _cube_vtu())
-    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "bom.vtu")[1], _T1)
+    np.testing.assert_array_equal(io.read_tets(tmp_path / "bom.vtu")[1], _T1)
 
 
 def test_medit_version_1_coordinates_are_read_as_written(tmp_path):
@@ -423,7 +424,7 @@ def test_medit_version_1_coordinates_are_read_as_written(tmp_path):
     text = text.split("Vertices\n8\n")[0] + "Vertices\n8\n" + "".join(f"{x!r} {y!r} {z!r} 0\n" for x, y, z in P.tolist()) \
         + "Tetrahedra" + text.split("Tetrahedra", 1)[1]
     (tmp_path / "v1.mesh").write_text(text)
-    got, T = tetio.read_tets(tmp_path / "v1.mesh")
+    got, T = io.read_tets(tmp_path / "v1.mesh")
     np.testing.assert_array_equal(got, P)
     assert (got.astype(np.float32) != got).any()
 
@@ -438,7 +439,7 @@ def test_vtu_an_array_given_twice_is_refused_not_picked(tmp_path):
         " ".join(map(str, _T1[:, ::-1].ravel())) + "</DataArray>"
     (tmp_path / "d.vtu").write_text(good.replace("</Cells>", second + "</Cells>"))
     with pytest.raises(geomopt.MeshFormatError, match="two DataArrays named 'connectivity'"):
-        tetio.read_tets(tmp_path / "d.vtu")
+        io.read_tets(tmp_path / "d.vtu")
 
 
 def test_vtu_integer_points_read_exactly_or_refused(tmp_path):
@@ -453,17 +454,17 @@ def test_vtu_integer_points_read_exactly_or_refused(tmp_path):
             body + text[end:]
         (tmp_path / "i.vtu").write_text(text)
         if ok:
-            np.testing.assert_array_equal(tetio.read_tets(tmp_path / "i.vtu")[0], pts.astype(np.float64))
+            np.testing.assert_array_equal(io.read_tets(tmp_path / "i.vtu")[0], pts.astype(np.float64))
         else:
             with pytest.raises(geomopt.MeshFormatError, match="beyond 2\\*\\*53"):
-                tetio.read_tets(tmp_path / "i.vtu")
+                io.read_tets(tmp_path / "i.vtu")
 
 
 def test_vtu_empty_cells_are_legal_and_skipped(tmp_path):
     """VTK_EMPTY_CELL (type 0) has no points: equal offsets there are not a duplicated offset."""
     (tmp_path / "e.vtu").write_bytes(_vtu([(_P1, _T1.ravel(), np.r_[4 * np.arange(1, 4), 12, 4 * np.arange(4, 7)],
                                              [10, 10, 10, 0, 10, 10, 10])]))
-    np.testing.assert_array_equal(tetio.read_tets(tmp_path / "e.vtu")[1], _T1)
+    np.testing.assert_array_equal(io.read_tets(tmp_path / "e.vtu")[1], _T1)
 
 
 @pytest.mark.parametrize("section, extra", [("Vertices", "Vertices\n8\n" + "9 9 9 0\n" * 8),
@@ -472,7 +473,7 @@ def test_medit_a_section_given_twice_is_refused(tmp_path, section, extra):
     """A second Vertices section silently replaced the first (Medit's own reader keeps only one)."""
     (tmp_path / "two.mesh").write_text(MEDIT.replace("End\n", extra + "End\n"))
     with pytest.raises(geomopt.MeshFormatError, match=f"second {section} section"):
-        tetio.read_tets(tmp_path / "two.mesh")
+        io.read_tets(tmp_path / "two.mesh")
 
 
 def test_fuzz_found_crashes_are_one_line_refusals(tmp_path):
@@ -480,7 +481,7 @@ def test_fuzz_found_crashes_are_one_line_refusals(tmp_path):
     a non-numeric NumberOfComponents (ValueError) escaped as internal errors."""
     (tmp_path / "n.mesh").write_text(MEDIT.replace("Dimension 3\n", "Dimension 3\n7\n"))
     with pytest.raises(geomopt.MeshFormatError, match="line 3: expected a section keyword"):
-        tetio.read_tets(tmp_path / "n.mesh")
+        io.read_tets(tmp_path / "n.mesh")
     (tmp_path / "c.vtu").write_bytes(_cube_vtu().replace(b'NumberOfComponents="3"', b'NumberOfComponents="3x"'))
     with pytest.raises(geomopt.MeshFormatError, match="expected 3 components"):
-        tetio.read_tets(tmp_path / "c.vtu")
+        io.read_tets(tmp_path / "c.vtu")

@@ -391,7 +391,8 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
             efficiency = sum(_area(u, f) for u, f in zip(out, Fs)) / side**2
             return Packing(out, float(scale) * unit, angles, offsets, float(efficiency))
         res *= 2
-    raise SolveError(f"pack_charts could not certify a packing ({cert.message}); report this with the charts")
+    raise SolveError(f"pack_charts could not certify a packing ({cert.message}); report this with the charts",
+                     certificate=cert)
 
 
 def _certify_packed(uvs, faces):

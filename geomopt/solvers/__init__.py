@@ -15,14 +15,15 @@ from ._base import AbstractSolver, State
 from ._iterate import AbstractContinuation, Decision, Final, Progress, iterate, minimize
 from ._laplacian import rest_laplacian
 from ._registry import SOLVERS, get_solver
-from ._result import LocalCertificate, ParamDetails, Result, RunStats, Trace, UntangleDetails, local_certificate
+from ._result import (Details, LocalCertificate, ParamDetails, Result, ResultCertificate, RunStats, Trace,
+                      UntangleDetails, local_certificate)
 from ._termination import DIVERGENCE_FACTOR, Outcome, Stats, Termination
 from .aqp import AQP
 from .lbfgs import LBFGS
 from .newton import CM, SLIM, AbstractNewton, Newton
 
-__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State", "Stats", "Termination",
-           "Outcome", "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails",
-           "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final", "AbstractContinuation", "Progress",
-           "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection", "Adaptive", "Clamp", "Abs", "Exact",
-           "SLIMProxy", "CMProxy", "rest_laplacian"]
+__all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State", "Stats", "Termination", "Outcome",
+           "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details",
+           "UntangleDetails", "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final",
+           "AbstractContinuation", "Progress", "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection",
+           "Adaptive", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "rest_laplacian"]

@@ -1,10 +1,11 @@
 """The one result type of every solve: :func:`minimize`, :func:`~geomopt.untangle.untangle`,
-:func:`~geomopt.parameterize` and the bijective mode.
+:func:`~geomopt.parameterize` and the bijective mode, :func:`~geomopt.sphere_map` and
+:func:`~geomopt.smooth`.
 
 ``Result(x, outcome, certificate, stats, trace)`` with typed parts: the map, how the solve
 ended, an exact certificate of the map, the run's totals (:class:`RunStats`) and histories
 (:class:`Trace`); plus what was solved (``problem``, ``objective``, ``solver``), why it stopped
-(``reason``) and a driver's typed ``details`` (:class:`UntangleDetails`, :class:`ParamDetails`).
+(``reason``) and a driver's typed ``details`` (a :class:`Details`).
 
 Energies: :attr:`Result.energy` is the total ``sum_e vol_e psi(J_e)`` of the map at the end;
 :attr:`Result.mean_energy` is that total divided by the total rest area (2D) or volume (3D),
@@ -17,8 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import operator
-import warnings
 from typing import Any
 
 import numpy as np
@@ -26,8 +25,8 @@ import numpy as np
 from .. import certify
 from ._termination import Outcome
 
-__all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "UntangleDetails", "ParamDetails",
-           "local_certificate"]
+__all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details", "UntangleDetails",
+           "ParamDetails", "local_certificate"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +48,13 @@ class LocalCertificate(certify.LocalCertificate):
 
     handles_moved: int = 0
     forced: Any = None
+
+    @classmethod
+    def of(cls, exact: certify.LocalCertificate, handles_moved: int = 0) -> LocalCertificate:
+        """``exact`` (a :class:`geomopt.certify.LocalCertificate`, e.g. a quad / hex map's
+        :class:`~geomopt.elements.ElementLocalCertificate`) with ``handles_moved``."""
+        return cls(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(certify.LocalCertificate)},
+                   handles_moved=int(handles_moved))
 
     @property
     def locally_injective(self) -> bool:
@@ -85,8 +91,7 @@ def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) 
     simplices as one mesh)."""
     exact = (problem.certify(x) if getattr(problem, "elements", None) is not None and orientation == 1 else
              certify.local_certificate(x, problem.simplices, orientation))
-    return LocalCertificate(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(certify.LocalCertificate)},
-                            handles_moved=int(handles_moved))
+    return LocalCertificate.of(exact, handles_moved)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,8 +155,20 @@ class Trace:
         return np.asarray([getattr(r, name) for r in self.phases], dtype=dtype)
 
 
+#: what :attr:`Result.certificate` is: every one has ``inverted``, ``locally_injective`` and
+#: ``injectivity``
+ResultCertificate = LocalCertificate | certify.Certificate | certify.SphereCertificate
+
+
 @dataclasses.dataclass(frozen=True)
-class UntangleDetails:
+class Details:
+    """Base class of what a driver adds to its :class:`Result` (:attr:`Result.details`):
+    :class:`UntangleDetails`, :class:`ParamDetails`, :class:`geomopt.sphere.SphereDetails`,
+    :class:`geomopt.smoothing.SmoothDetails`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class UntangleDetails(Details):
     """What :func:`~geomopt.untangle.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
     the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, the
     elements that have a free vertex (``active_elements``), and the map the eps loop started
@@ -170,33 +187,18 @@ class UntangleDetails:
 
 
 @dataclasses.dataclass(frozen=True)
-class ParamDetails:
+class ParamDetails(Details):
     """What :func:`~geomopt.parameterize` adds: the ``start`` map (n, 2) after scaling, the
     ``scale`` applied to it, the ``repair`` (a :class:`Result` of the untangling of a folded
     start, or None); the bijective mode's scaffold-free iterations (``free_iterations``), edge
     ``flips`` and final ``scaffold_triangles``."""
 
-    start: Any = None
+    start: np.ndarray | None = None
     scale: float = 1.0
-    repair: Any = None
+    repair: Result | None = None
     free_iterations: int = 0
     flips: int = 0
     scaffold_triangles: int = 0
-
-
-def _failures(cert) -> int:
-    """Interior vertices and edges around which ``cert`` found the map not locally injective."""
-    return len(getattr(cert, "branch_vertices", ())) + len(getattr(cert, "branch_edges", ()))
-
-
-def _deprecated(old: str, new: str):
-    read = operator.attrgetter(new)
-
-    def get(self):
-        warnings.warn(f"Result.{old} is deprecated; use Result.{new}", DeprecationWarning, stacklevel=2)
-        return read(self)
-
-    return property(get, doc=f"Deprecated alias of :attr:`{new}`.")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -207,29 +209,32 @@ class Result:
     ----------
     x : (n, d) ndarray, the map (input frame; handles equal to the prescribed ones as numbers).
     outcome : :class:`~geomopt.solvers.Outcome`.
-    certificate : the exact certificate of ``x``: :class:`LocalCertificate` (``inverted``,
-        ``branch_vertices``, ``boundary_overlaps``..., ``handles_moved``), or for free-boundary
-        parameterization
-        :class:`geomopt.certify.Certificate` (global: boundary crossings too).  Every
-        certificate has ``inverted``, ``locally_injective`` and ``injectivity``.
+    certificate : the exact certificate of ``x`` (:data:`ResultCertificate`):
+        :class:`LocalCertificate` (``inverted``, ``branch_vertices``, ``boundary_overlaps``...,
+        ``handles_moved``), for free-boundary parameterization :class:`geomopt.certify.Certificate`
+        (global: boundary crossings too), for :func:`~geomopt.sphere_map`
+        :class:`geomopt.certify.SphereCertificate`.  Every certificate has ``inverted``,
+        ``locally_injective`` and ``injectivity``.
     stats : :class:`RunStats`;  trace : :class:`Trace`.
     problem : the :class:`~geomopt.Problem` ``x`` maps;  objective : the
         :class:`~geomopt.Objective` minimised (energy and parameters);  solver : the solver.
     reason : why the solve stopped, when the outcome alone does not say (divergence, a time
         limit, branch points...), else "".
-    details : :class:`UntangleDetails` or :class:`ParamDetails` (the driver's own), or None.
+    details : the driver's own :class:`Details` (:class:`UntangleDetails`, :class:`ParamDetails`,
+        :class:`geomopt.sphere.SphereDetails`, :class:`geomopt.smoothing.SmoothDetails`), or None
+        (:func:`minimize`)
     """
 
     x: np.ndarray
     outcome: Outcome
-    certificate: Any
+    certificate: ResultCertificate
     stats: RunStats = RunStats()
     trace: Trace = Trace()
     problem: Any = None
     objective: Any = None
     solver: Any = None
     reason: str = ""
-    details: Any = None
+    details: Details | None = None
 
     @property
     def success(self) -> bool:
@@ -275,58 +280,3 @@ class Result:
         if getattr(cert, "handles_moved", 0):
             msg += f"; {cert.handles_moved} handle(s) moved"
         return msg
-
-    # -- deprecated aliases (one release) ---------------------------------------------
-    inverted = _deprecated("inverted", "certificate.inverted")
-    iterations = _deprecated("iterations", "stats.iterations")
-    inner_iterations = _deprecated("inner_iterations", "stats.iterations")
-    outer_iterations = _deprecated("outer_iterations", "stats.outer_iterations")
-    seconds = _deprecated("seconds", "stats.seconds")
-    setup_seconds = _deprecated("setup_seconds", "stats.setup_seconds")
-    initially_inverted = _deprecated("initially_inverted", "stats.inverted_at_start")
-    handles_moved = _deprecated("handles_moved", "certificate.handles_moved")
-    energy_history = _deprecated("energy_history", "trace.energy")
-    time_history = _deprecated("time_history", "trace.seconds")
-    grad_history = _deprecated("grad_history", "trace.grad_norm")
-
-    @property
-    def eps_history(self):
-        """Deprecated: ``trace.column("eps")``."""
-        warnings.warn("Result.eps_history is deprecated; use Result.trace.column('eps')", DeprecationWarning,
-                      stacklevel=2)
-        return self.trace.column("eps")
-
-    @property
-    def min_det_history(self):
-        """Deprecated: ``trace.column("min_det")``."""
-        warnings.warn("Result.min_det_history is deprecated; use Result.trace.column('min_det')",
-                      DeprecationWarning, stacklevel=2)
-        return self.trace.column("min_det")
-
-    @property
-    def inverted_history(self):
-        """Deprecated: ``trace.column("inverted", int)``."""
-        warnings.warn("Result.inverted_history is deprecated; use Result.trace.column('inverted', int)",
-                      DeprecationWarning, stacklevel=2)
-        return self.trace.column("inverted", np.int64)
-
-    @property
-    def info(self) -> dict:
-        """Deprecated: the old ``info`` dict, rebuilt from the typed fields."""
-        warnings.warn("Result.info is deprecated; use the typed fields (stats, certificate, details, "
-                      "objective, problem, solver, reason)", DeprecationWarning, stacklevel=2)
-        info = {"solver": self.solver, "evaluations": self.stats.evaluations, "objective": self.objective,
-                "problem": self.problem, "certificate": self.certificate, "injectivity": self.injectivity,
-                "elements": None if self.problem is None else self.problem.n_elements,
-                "outer_iterations": self.stats.outer_iterations,
-                "local_certificate": getattr(self.certificate, "local", self.certificate),
-                "branch_vertices": _failures(getattr(self.certificate, "local", self.certificate))}
-        if self.reason:
-            info["reason"] = self.reason
-        if self.trace.flips is not None:
-            info["flips_history"] = self.trace.flips
-            info["stopped"] = self.reason or None
-        if self.details is not None:
-            info.update(dataclasses.asdict(self.details) if not isinstance(self.details, ParamDetails)
-                        else vars(self.details))
-        return info

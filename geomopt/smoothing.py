@@ -23,80 +23,70 @@ that got worse than their input shape and are close to falling below the worst a
 them.  So the
 output is always valid with a minimum scaled Jacobian at least the input's, and smooth
 elsewhere (the input itself when ``MAX_ROUNDS`` solves do not get there).
+
+:func:`smooth` (also ``geomopt.smooth``) returns the :class:`~geomopt.solvers.Result` every
+driver returns, with :class:`SmoothDetails`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 
 from ._errors import MeshError, ParameterError
 from ._validate import validate_indices
 from .elements import ElementCertificate, Quality, scaled_jacobian
+from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
 
-__all__ = ["SmoothResult", "smooth", "element_problem"]
+__all__ = ["SmoothDetails", "smooth", "element_problem", "MAX_ROUNDS", "RISK"]
 
 #: solves before :func:`smooth` gives up and returns its input
 MAX_ROUNDS = 8
 #: elements that the minimum makes worse than their input shape and that end within this
 #: scaled Jacobian of the input's worst are held with the ones below it
 RISK = 0.1
+#: the :class:`~geomopt.solvers.RunStats` fields summed over :func:`smooth`'s solves
+_SUMMED = ("iterations", "evaluations", "seconds", "setup_seconds", "cpu_seconds", "setup_cpu_seconds")
 
 
 @dataclasses.dataclass(frozen=True)
-class SmoothResult:
-    """The outcome of :func:`smooth`.
+class SmoothDetails(Details):
+    """What :func:`smooth` adds to its :class:`~geomopt.solvers.Result` (``details``).
+
+    The result's ``certificate`` is the exact :class:`~geomopt.solvers.LocalCertificate` of
+    ``x`` (elements valid everywhere, no vertex wound twice, no free boundary overlapping
+    itself, handles in place); ``stats.outer_iterations`` counts the solves (1 when nothing was
+    held), ``stats.iterations`` / ``seconds`` sum them; ``problem`` is the problem solved first
+    (its ``elements`` oriented, its handles) and, like ``stats.energy``, in the frame of
+    ``x * scale``.
 
     Attributes
     ----------
-    x : (n, d) the smoothed vertices (the input where nothing improved).
-    before, after : :class:`~geomopt.elements.Quality` of the input and of ``x``.
-    certificate : :class:`~geomopt.elements.ElementCertificate` of ``x`` (exact).
+    before : :class:`~geomopt.elements.Quality` of the input.
+    after : :class:`~geomopt.elements.Quality` of ``x``.
+    elements : :class:`~geomopt.elements.ElementCertificate` of ``x`` (exact: which test
+        decided each element).
     held : (h,) int64, vertices held at their input positions (beside the fixed ones) because
         the energy minimum made an element around them worse than the input's worst.
-    rounds : int, solves run (1 when nothing was held).
-    outcome : the last solve's :class:`~geomopt.solvers.Outcome`.
-    iterations : int, over all solves;  seconds : float, all solves.
-    problem : the :class:`~geomopt.Problem` solved first (its ``elements`` oriented, its handles),
-        in the frame of ``x * scale``.
     scale : the power of two the input was multiplied by before solving
         (:func:`geomopt.predicates.box_scale`: exact, so that meshes at 1e200 or 1e-150 smooth as
         at size 1).
+    improved : ``x`` certified, its minimum scaled Jacobian not lower than the input's, and
+        different from the input.
     """
 
-    x: np.ndarray
     before: Quality
     after: Quality
-    certificate: ElementCertificate
+    elements: ElementCertificate
     held: np.ndarray
-    rounds: int
-    outcome: object
-    iterations: int
-    seconds: float
-    problem: object = None
     scale: float = 1.0
-
-    @property
-    def improved(self) -> bool:
-        """Valid, the minimum scaled Jacobian not lower, and the mesh moved."""
-        return self.certificate.certified and self.after.min >= self.before.min and self.moved
-
-    @property
-    def moved(self) -> bool:
-        if self.problem is None:
-            return True
-        return not np.array_equal(self.x * self.scale, self.problem.rest_vertices)
-
-    @property
-    def handles(self):
-        """``(fixed, positions)``: the ids (h,) of the vertices held in place and their
-        positions (h, d) in ``x``'s frame (the input's)."""
-        return self.problem.fixed, self.problem.fixed_positions / self.scale
+    improved: bool = False
 
     @property
     def message(self) -> str:
+        """One line: the minimum and mean scaled Jacobian and the elements below 0.2, before
+        and after, and the vertices held."""
         held = f"; {len(self.held)} vertices held where the minimum would be worse" if len(self.held) else ""
         return (f"min scaled Jacobian {self.before.min:.4f} -> {self.after.min:.4f}, mean "
                 f"{self.before.mean:.4f} -> {self.after.mean:.4f}, below 0.2: {self.before.below_0_2} -> "
@@ -121,13 +111,14 @@ def element_problem(V, E, fixed=None, rest="reference"):
 
 
 def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference", max_steps=None,
-           progress=False, max_rounds=MAX_ROUNDS, **params) -> SmoothResult:
+           progress=False, max_rounds=MAX_ROUNDS, **params) -> Result:
     """Smooth a valid quad or hex mesh without inverting anything or worsening its worst element.
 
     Parameters
     ----------
-    V : (n, 2) quad or (n, 3) hex vertex positions;  E : (m, 4) quads or (m, 8) hexahedra (VTK
-        order), every element valid on ``V`` (a positive Jacobian everywhere).
+    V : (n, 2) quad or (n, 3) hex vertex positions.
+    E : (m, 4) quads or (m, 8) hexahedra (VTK order), every element valid on ``V`` (a positive
+        Jacobian everywhere).
     energy : an energy name or object (default ``"winslow"``); ``params`` its parameters.
     solver : a solver name or object with an injective search (default projected Newton).
     fixed : vertex ids held in place (default: the boundary vertices).
@@ -139,57 +130,93 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
 
     Returns
     -------
-    :class:`SmoothResult`, its ``x`` valid (exact) with a minimum scaled Jacobian at least
-    the input's.
+    :class:`~geomopt.solvers.Result` with :class:`SmoothDetails`: ``x`` locally injective
+    (exact) with a minimum scaled Jacobian at least the input's; ``outcome`` the last solve's,
+    MAX_STEPS when ``max_rounds`` solves each made an element worse (``x`` is then the input),
+    NOT_INJECTIVE when the minimum folds a free boundary over itself (``x`` the input too; the
+    reason in ``reason``).
 
     Raises
     ------
     MeshError
         The mesh is malformed, or ``V`` is not locally injective (an element not valid, a
         vertex wound twice, a boundary fan overlapping itself: untangle it first).
+    ParameterError
+        The solver's line search is not injective, or an energy or solver is unknown.
     """
-    from ._objective import Objective
     from .predicates import box_scale
-    from .solvers import get_solver, minimize
+    from .solvers import get_solver
 
     V = np.asarray(V, dtype=np.float64)
     scale = box_scale(V) if V.ndim == 2 else 1.0  # exact: at 1e200 or 1e-150 as at 1
     problem = element_problem(V * scale, E, fixed, rest)
-    E, V = problem.elements, V * scale
+    V = V * scale
     start = _certified_input(problem, V)
     solver = get_solver(solver)
     if not getattr(getattr(solver, "search", None), "injective", True):
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
     if max_steps is not None:
         solver = dataclasses.replace(solver, max_steps=max_steps)
-    held, current, x = np.zeros(0, np.int64), problem, V
+    if not isinstance(max_rounds, int) or max_rounds < 1:
+        raise ParameterError(f"smooth: max_rounds must be a whole number >= 1, got {max_rounds!r}")
+    solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, max_rounds, params)
+    local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
+    if not local.ok:  # a free boundary folded over itself: the input
+        outcome, reason = Outcome.NOT_INJECTIVE, (f"the minimum is not locally injective ({local.message}); the "
+                                                  f"input is returned")
+        x, held, local = V, np.zeros(0, np.int64), start
+    before, after = start.elements.quality, local.elements.quality
+    details = SmoothDetails(before, after, local.elements, held, scale,
+                            local.ok and after.min >= before.min and not np.array_equal(x, V))
+    return Result(x / scale, outcome, _certificate(local, problem, x), _totals(solves, x), problem=problem,
+                  objective=solves[-1].objective, solver=solver, reason=reason, details=details)
+
+
+def _rounds(problem, V, start, energy, solver, progress, max_rounds, params):
+    """``(solves, x, held, outcome, reason)``: :func:`smooth`'s minimisations from ``V`` (each
+    a :class:`~geomopt.solvers.Result`), holding the vertices of the elements the last one made
+    worse than the input's worst (``start``: the input's certificate) until none is; after
+    ``max_rounds`` solves, the input ``V``, nothing held, MAX_STEPS."""
+    from ._objective import Objective
+    from .solvers import minimize
+
+    E, held, current, solves = problem.elements, np.zeros(0, np.int64), problem, []
     sj_input = scaled_jacobian(V, E)
-    iterations, seconds, outcome = 0, 0.0, None
-    for rounds in range(1, max_rounds + 1):
-        t0 = time.perf_counter()
-        result = minimize(Objective(current, energy, buckets=True, **params), V, solver=solver, progress=progress)
-        seconds += time.perf_counter() - t0
-        iterations += int(result.stats.iterations)
-        outcome, x = result.outcome, np.asarray(result.x, dtype=np.float64)
-        worse, at_risk = _worse(x, E, start.quality.min, sj_input)
+    for _ in range(max_rounds):
+        solves.append(minimize(Objective(current, energy, buckets=True, **params), V, solver=solver,
+                               progress=progress))
+        x = np.asarray(solves[-1].x, dtype=np.float64)
+        worse, at_risk = _worse(x, E, start.elements.quality.min, sj_input)
         if not worse.any():
-            break
+            return solves, x, held, solves[-1].outcome, solves[-1].reason
         held = np.union1d(held, np.setdiff1d(np.unique(E[worse | at_risk]), problem.fixed))
         both = np.union1d(problem.fixed, held)
         current = problem.with_fixed(both, V[both])
-    else:
-        x, held = V, np.zeros(0, np.int64)  # nothing better found: the input
-    local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
-    if not local.ok:  # a free boundary folded over itself: the input
-        x, held, local = V, np.zeros(0, np.int64), None
-    cert = start if local is None else local.elements
-    return SmoothResult(x / scale, start.quality, cert.quality, cert, held, rounds, outcome, iterations, seconds,
-                        problem, scale)
+    return solves, V, np.zeros(0, np.int64), Outcome.MAX_STEPS, (
+        f"each of {max_rounds} solves made an element worse than the input's worst; the input is returned")
+
+
+def _certificate(local, problem, x) -> LocalCertificate:
+    """The :class:`~geomopt.solvers.LocalCertificate` of ``x`` from its exact ``local`` one and
+    the handles of ``problem`` (exact: :func:`geomopt.predicates.differing_rows`)."""
+    from .predicates import differing_rows
+
+    return LocalCertificate.of(local, np.count_nonzero(differing_rows(x[problem.fixed], problem.fixed_positions)))
+
+
+def _totals(solves, x) -> RunStats:
+    """The :class:`~geomopt.solvers.RunStats` of :func:`smooth`: the solves' sums, their count as
+    ``outer_iterations``, and the last one's energy when ``x`` is its map (else nan)."""
+    last = solves[-1].stats
+    mine = np.array_equal(x, np.asarray(solves[-1].x, dtype=np.float64))
+    return RunStats(**{name: sum(getattr(r.stats, name) for r in solves) for name in _SUMMED},
+                    outer_iterations=len(solves), energy=last.energy if mine else float("nan"), volume=last.volume,
+                    inverted_at_start=0)
 
 
 def _certified_input(problem, V):
-    """The :class:`~geomopt.elements.ElementCertificate` of the input ``V`` (n, d); MeshError
-    unless ``V`` is locally injective (exact: :meth:`~geomopt.problem.Problem.certify`)."""
+    """The exact :class:`~geomopt.elements.ElementLocalCertificate` of the input ``V`` (n, d)
+    (:meth:`~geomopt.problem.Problem.certify`); MeshError unless ``V`` is locally injective."""
     local = problem.certify(V)
     start = local.elements
     if not start.certified:
@@ -199,7 +226,7 @@ def _certified_input(problem, V):
     if not local.ok:
         raise MeshError(f"the input mesh is not locally injective: {local.message}; smoothing keeps a locally "
                         f"injective mesh locally injective: untangle it first (geomopt untangle) or repair it")
-    return start
+    return local
 
 
 def _worse(X, E, floor, sj_input):
