@@ -39,7 +39,7 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_EXCEPT_FIXED = 3
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
-PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
+from ._save import PICTURE_EXTENSIONS  # noqa: E402
 
 
 def _log(args, *msg):
@@ -303,22 +303,16 @@ def _cache_summary() -> dict:
 
 def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
-    import numpy as np
-
     from . import io, plot
-    from ._objective import element_densities
+    from ._save import save_param_picture
 
     obj = res.objective
-    dens = np.asarray(element_densities(obj, res.x))
-    rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
     title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
              f"{res.stats.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
              f"injective {res.injectivity}")
-    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
-                           np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
-                           label="log10(density / its isometric value)" if rest else
-                           f"{obj.energy.name} density", format=base.suffix[1:].lower())
+    save_param_picture(outputs.enter_context(io.atomic_output(base, "wb")), res, V, F, uv, title,
+                       base.suffix[1:].lower())
     vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
                           {args.solver: (res.trace.seconds, res.trace.energy / vol, res.trace.grad_norm / vol)},
