@@ -547,6 +547,18 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     MeshError : invalid mesh or start map, or a start map with inverted elements.
     ParameterError : unknown or duplicate solver, invalid limits, ``cm`` on tets.
     GeomoptError : the output folder or a file in it cannot be written.
+
+    Examples
+    --------
+    Two solvers on a tent of four triangles, from the same Tutte start (``out=`` would write the
+    traces, tables and figures):
+
+    >>> import geomopt
+    >>> V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
+    >>> comparison = geomopt.compare(V, F, solvers=["newton", "lbfgs"])
+    >>> {name: run.outcome.value for name, run in comparison.results.items()}
+    {'newton': 'converged', 'lbfgs': 'converged'}
     """
     objective, start, mirror, label, source = _problem(mesh, faces, energy, x0, weights, energy_params)
     problem = objective.problem

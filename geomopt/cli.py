@@ -39,7 +39,7 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_EXCEPT_FIXED = 3
 
 #: Picture formats ``--png`` writes (matplotlib's own backends, no extra dependency).
-PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
+from ._save import PICTURE_EXTENSIONS  # noqa: E402
 
 
 def _log(args, *msg):
@@ -303,22 +303,16 @@ def _cache_summary() -> dict:
 
 def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
-    import numpy as np
-
     from . import io, plot
-    from ._objective import element_densities
+    from ._save import save_param_picture
 
     obj = res.objective
-    dens = np.asarray(element_densities(obj, res.x))
-    rest = obj.energy.value_at_rest(2)
     base, conv = Path(png), _convergence_path(png)
     title = (f"{Path(args.input).name}: {len(F)} triangles, {obj.energy.name} by {args.solver}, "
              f"{res.stats.iterations} iterations, mean energy {res.energy / obj.total_volume:.8g}, "
              f"injective {res.injectivity}")
-    plot.save_param_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, uv,
-                           np.log10(np.maximum(dens / rest, 1.0)) if rest else dens, title=title,
-                           label="log10(density / its isometric value)" if rest else
-                           f"{obj.energy.name} density", format=base.suffix[1:].lower())
+    save_param_picture(outputs.enter_context(io.atomic_output(base, "wb")), res, V, F, uv, title,
+                       base.suffix[1:].lower())
     vol = obj.total_volume
     plot.save_convergence(outputs.enter_context(io.atomic_output(conv, "wb")),
                           {args.solver: (res.trace.seconds, res.trace.energy / vol, res.trace.grad_norm / vol)},
@@ -332,7 +326,11 @@ def cmd_untangle(args) -> int:
     from .cells import is_cell_case
 
     if len(args.case) == 1 and is_cell_case(args.case[0]):
-        return _untangle_cells(args)
+        return _untangle_mesh(args)
+    if args.rest is not None or args.handles is not None:
+        raise ParameterError(f"--rest and --handles go with one mesh file (geomopt untangle TANGLED --rest REST "
+                             f"-o OUT); {args.case[0] if len(args.case) == 1 else 'a batch'} "
+                             f"{'holds its own rest mesh and handles' if len(args.case) == 1 else 'cannot take them'}")
 
     out = Path(args.output)
     to_file = out.suffix.lower() in (".obj", ".vtk") or (out.exists() and not out.is_dir())
@@ -345,12 +343,10 @@ def cmd_untangle(args) -> int:
 
 
 def _untangle_one(args, folder) -> int:
-    from . import io
     from ._errors import ParameterError
     from ._timing import compile_seconds
     from .lim import LimCase, untangle_case
     from .quality import element_quality
-    from .solvers import Outcome
 
     split = args.timing
     split.mark_imported()
@@ -381,16 +377,28 @@ def _untangle_one(args, folder) -> int:
             start=getattr(res.details, "start", None), min_det_rel=res.min_det_rel, outcome=res.outcome.value,
             certified=bool(res.success), message=res.message, forced_overlaps=_forced_overlaps(res), **quality,
             **_cache_summary())
+    orientation = case.to_problem().orientation  # the input's own connectivity and frame
+    return _written_untangled(args, res, lambda: case.write_certified(res, args.output),
+                              lambda png, fmt: _save_untangle_figure(png, case.init, res.x, case.simplices,
+                                                                     orientation, str(case.path or ""), fmt))
+
+
+def _written_untangled(args, res, write, picture) -> int:
+    """The exit status of an untangled case, its file written by ``write()`` (certified on the file)
+    and its ``--png`` by ``picture(file, format)`` only when the map is certified, or certified except
+    where the input's handles alone make it overlap (exit 3, said even with --quiet)."""
+    from . import io
+    from .solvers import Outcome
+
     except_fixed = res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED
     if not (res.success or except_fixed):
         return _fail(f"not certified: {res.message}")
     # written beside the output and certified there: a file that does not certify never replaces it
     with contextlib.ExitStack() as outputs:  # the picture lands only with a certified output
         if args.png:
-            _save_untangle_figure(case, res, outputs.enter_context(io.atomic_output(args.png, "wb")),
-                                  Path(args.png).suffix[1:].lower())
-        with split.phase("write"):
-            case.write_certified(res, args.output)
+            picture(outputs.enter_context(io.atomic_output(args.png, "wb")), Path(args.png).suffix[1:].lower())
+        with args.timing.phase("write"):
+            write()
     if except_fixed:  # written, and said even with --quiet: the input's handles make it overlap
         print(f"geomopt: warning: {args.output} written but not certified everywhere: {res.message}",
               file=sys.stderr, flush=True)
@@ -405,64 +413,72 @@ def _forced_overlaps(res) -> int:
     return 0 if forced is None else forced.failures
 
 
-def _cell_output(args, case, inputs):
-    """Check ``-o`` for a quad / hex case (:data:`geomopt.cells.CELL_EXTENSIONS`, ``.obj`` for quads)."""
+def _cell_output(args, case, inputs, pictures=()):
+    """Check ``-o`` (and ``pictures``) for a tet / quad / hex case (:data:`geomopt.cells.CELL_EXTENSIONS`,
+    ``.obj`` for quads only)."""
     from .cells import CELL_EXTENSIONS
 
     allowed = CELL_EXTENSIONS if case.kind == "quad" else tuple(e for e in CELL_EXTENSIONS if e != ".obj")
-    _output_paths(args.output, allowed, [], inputs)
+    _output_paths(args.output, allowed, pictures, inputs)
 
 
 def _quality_line(q):
-    return (f"min scaled Jacobian {q.min:.4f}, mean {q.mean:.4f}, {q.below_0} below 0, "
-            f"{q.below_0_2} below 0.2")
+    """One line of scaled-Jacobian figures: a :func:`geomopt.quality.quality_summary` or a
+    :class:`geomopt.elements.Quality`."""
+    q = q if isinstance(q, dict) else {f"sj_{k}": v for k, v in q.as_dict().items()}
+    return (f"min scaled Jacobian {q['sj_min']:.4f}, mean {q['sj_mean']:.4f}, {q['sj_below_0']} below 0, "
+            f"{q['sj_below_0_2']} below 0.2")
 
 
-def _untangle_cells(args) -> int:
-    """A quad / hex mesh file or case folder (:mod:`geomopt.cells`) to one certified file."""
+def _untangle_mesh(args) -> int:
+    """One tet / quad / hex mesh file (rest shapes from ``--rest`` or reference squares / cubes,
+    handles from ``--handles`` or the boundary) or quad / hex case folder (:mod:`geomopt.cells`)
+    to one certified file: one path for every kind of element."""
+    from ._errors import ParameterError
     from ._timing import compile_seconds
     from .cells import cell_problem, read_cell_case, write_certified
-    from .elements import certify_elements
+    from .quality import quality_summary
     from .untangle import untangle
 
     path = Path(args.case[0])
     inputs = [str(p) for p in path.iterdir()] if path.is_dir() else [str(path)]
-    if args.png:
-        from ._errors import ParameterError
-
-        raise ParameterError("--png draws triangle and tet cases only; leave it out for a quad/hex case")
+    inputs += [str(p) for p in (args.rest, args.handles) if p is not None]
     split = args.timing
     split.mark_imported()
     compile_seconds()  # starts counting JAX's compilation
     with split.phase("read"):
-        case = read_cell_case(path)  # the output check needs the cell kind; reading writes nothing
-    _cell_output(args, case, inputs)
+        case = read_cell_case(path, rest=args.rest, handles=args.handles)  # -o's check needs the kind
+    if args.png and case.kind != "tetra":
+        raise ParameterError("--png draws triangle and tet cases only; leave it out for a quad/hex case")
+    _cell_output(args, case, inputs, [("--png picture", args.png)] if args.png else [])
     with split.phase("setup"):
         problem = cell_problem(case)
-        before = certify_elements(case.start, problem.elements)
+        before = quality_summary(problem, case.start)
     res = _timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet,
                                                      start=args.start))
     with split.phase("certify"):
-        after = certify_elements(res.x, problem.elements)
-    _log(args, f"{len(case.elements)} {case.kind} elements: before {_quality_line(before.quality)}, "
-               f"{before.invalid} invalid")
-    _log(args, f"after  {_quality_line(after.quality)}, {after.invalid} invalid ({after.corner_only} only inside); "
-               f"tests {after.summary()['tests']}; outer iterations {res.stats.outer_iterations}, "
+        after = quality_summary(problem, res.x)
+    words = {"tetra": "tetrahedra", "quad": "quads", "hexahedron": "hexahedra"}[case.kind]
+    _log(args, f"{len(case.elements)} {words}: before {_quality_line(before)}, {before['invalid']} invalid")
+    tests = f" ({after['corner_only']} only inside); tests {after['tests']}" if after["tests"] else ""
+    _log(args, f"after  {_quality_line(after)}, {after['invalid']} invalid{tests}; outer iterations "
+               f"{res.stats.outer_iterations}, "
                f"{res.stats.seconds:.2f} s from the {getattr(res.details, 'start', 'given')} map, certified "
                f"{'yes' if res.success else 'no'}")
-    _report(args, case=str(path), output=str(args.output), dim=problem.dim, vertices=len(res.x),
-            elements=len(case.elements), kind=case.kind, inverted_before=before.invalid,
+    _report(args, case=str(path), rest=args.rest, handles_file=args.handles, output=str(args.output), dim=problem.dim,
+            vertices=len(res.x), elements=len(case.elements), kind=case.kind, inverted_before=before["invalid"],
             inverted=res.certificate.inverted, outer_iterations=res.stats.outer_iterations,
             inner_iterations=res.stats.iterations, evaluations=res.stats.evaluations,
             solve_seconds=round(res.stats.seconds, 4), setup_seconds=round(res.stats.setup_seconds, 4),
-            handles_moved=res.certificate.handles_moved, start=getattr(res.details, "start", None),
-            outcome=res.outcome.value, certified=bool(res.success), message=res.message, before=before.summary(),
-            after=after.summary(), **_cache_summary())
-    if not res.success:
-        return _fail(f"not certified: {res.message}")
-    with split.phase("write"):
-        write_certified(args.output, res.x, case, problem)
-    return EXIT_OK
+            fixed_vertices=len(problem.fixed), handles_moved=res.certificate.handles_moved,
+            start=getattr(res.details, "start", None), min_det_rel=res.min_det_rel, outcome=res.outcome.value,
+            certified=bool(res.success), message=res.message, forced_overlaps=_forced_overlaps(res),
+            min_size_ratio=res.min_det_rel, min_scaled_jacobian=after["sj_min"],
+            mean_scaled_jacobian=after["sj_mean"], before=before, after=after, **_cache_summary())
+    forced = getattr(res.certificate, "forced", None)
+    return _written_untangled(args, res, lambda: write_certified(args.output, res.x, case, problem, forced=forced),
+                              lambda png, fmt: _save_untangle_figure(png, case.start, res.x, problem.simplices,
+                                                                     1, str(path), fmt))
 
 
 def _timed_solve(split, solve):
@@ -484,13 +500,13 @@ def _timed_solve(split, solve):
 
 def cmd_smooth(args) -> int:
     """Smooth a valid quad / hex mesh (:func:`geomopt.smooth`) into a certified file."""
-    from .cells import read_cell_case, write_certified
+    from .cells import SMOOTH_KINDS, read_cell_case, write_certified
     from .smoothing import smooth
 
     split = args.timing
     split.mark_imported()
     with split.phase("read"):
-        case = read_cell_case(args.input)
+        case = read_cell_case(args.input, kinds=SMOOTH_KINDS)
     _cell_output(args, case, [args.input])
     fixed = None if args.fix == "boundary" else []
     with split.phase("solve"):  # smooth's rounds, each solved and certified
@@ -554,16 +570,14 @@ def _untangle_batch(args) -> int:
     return EXIT_OK
 
 
-def _save_untangle_figure(case, res, png, format=None):
-    """Start and result with inverted elements (exact predicate, in the orientation the
-    output must have) marked."""
+def _save_untangle_figure(png, start, x, S, orientation, title, format=None):
+    """Start and result maps with the elements ``S`` (triangles or tetrahedra) not oriented as
+    ``orientation`` (+1 or -1; exact predicate) marked."""
     from . import plot
     from .predicates import simplex_orientations
 
-    S, orientation = case.simplices, case.to_problem().orientation
-    start = case.init[:, :2] if case.dim == 2 else case.init
-    bad = [simplex_orientations(x, S) != orientation for x in (start, res.x)]
-    plot.save_untangle_figure(png, start, res.x, S, *bad, title=str(case.path or ""), format=format)
+    bad = [simplex_orientations(m, S) != orientation for m in (start, x)]
+    plot.save_untangle_figure(png, start, x, S, *bad, title=title, format=format)
 
 
 def cmd_demo(args) -> int:
@@ -726,16 +740,23 @@ def _add_param(sub):
 
 def _add_untangle(sub):
     """The ``untangle`` command's options."""
-    sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles) or a quad/hex mesh")
+    sp = sub.add_parser("untangle", help="untangle LIM benchmark cases (fixed handles) or a tet/quad/hex mesh")
     sp.add_argument("case", nargs="+",
                     help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D, with "
                          "triangles, tets, quads or hexahedra), or several, or folders holding case "
-                         "folders; or one quad/hex mesh file (.vtk .vtu .msh .mesh, .obj for quads), "
-                         "untangled with its boundary fixed and squares/cubes as rest shapes")
+                         "folders; or one tangled tet/quad/hex mesh file (.vtk .vtu .msh .mesh, .obj for "
+                         "quads), untangled with its boundary fixed (or --handles) and the rest shapes of "
+                         "--rest (quads/hexahedra without it: squares/cubes)")
     sp.add_argument("-o", "--output", required=True,
-                    help="one case: output OBJ (2D) or VTK (3D), any quad/hex mesh format for a quad/hex "
-                         "case; otherwise an output folder, which gets <case folder name>.obj/.vtk per "
-                         "certified case and summary.csv")
+                    help="one case: output OBJ (2D) or VTK (3D), any tet/quad/hex mesh format for a mesh "
+                         "file or quad/hex case; otherwise an output folder, which gets <case folder "
+                         "name>.obj/.vtk per certified case and summary.csv")
+    sp.add_argument("--rest", default=None, metavar="REST",
+                    help="one mesh file: its rest mesh, a file with the same vertices and cells (required "
+                         "for tets)")
+    sp.add_argument("--handles", default=None, metavar="FILE",
+                    help="one mesh file: the fixed vertices, 0-based ids one per line as a LIM case's "
+                         "handles.txt (default: the boundary vertices)")
     sp.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"],
                     help="inner solver (default lbfgs, measured fastest for untangling)")
     sp.add_argument("--start", default="auto", choices=["auto", "given", "harmonic"],

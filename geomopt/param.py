@@ -212,6 +212,17 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         triangles for a barrier energy (infinite there).
     ParameterError : unknown energy/solver/weights name or invalid energy parameter.
     SolveError : only with ``throw=True``, when the result is not converged and flip-free.
+
+    Examples
+    --------
+    A tent of four triangles around a raised centre, flattened with a free boundary:
+
+    >>> import geomopt
+    >>> V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
+    >>> result = geomopt.parameterize(V, F, progress=False)
+    >>> result.outcome.name, result.success, result.injectivity, result.x.shape
+    ('CONVERGED', True, 'global', (5, 2))
     """
     refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
                   "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)

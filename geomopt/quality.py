@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["size_ratios", "scaled_jacobians", "element_quality"]
+__all__ = ["size_ratios", "scaled_jacobians", "element_quality", "quality_summary"]
 
 #: the corners' edge vectors: corner i of a simplex and the vertices it is joined to, in an
 #: order whose determinant has the simplex's orientation
@@ -65,3 +65,21 @@ def element_quality(x, simplices, orientation: int = 1) -> dict:
     sj = scaled_jacobians(x, simplices, orientation)
     return {"min_size_ratio": float(np.min(orientation * size_ratios(x, simplices))),
             "min_scaled_jacobian": float(np.min(sj)), "mean_scaled_jacobian": float(np.mean(sj))}
+
+
+def quality_summary(problem, x) -> dict:
+    """The figures ``geomopt untangle`` reports of a map ``x`` (n, d) of ``problem`` (a
+    :class:`~geomopt.Problem` of any kind of element), keyed as
+    :meth:`geomopt.elements.ElementCertificate.summary`: ``elements``, ``invalid`` (elements
+    without a positive Jacobian everywhere, exact), ``corner_only`` (hexahedra valid at their
+    corners only), ``tests`` (which validity test decided how many elements), ``sj_min``,
+    ``sj_mean``, ``sj_below_0`` and ``sj_below_0_2`` (scaled Jacobians: of the quads / hexahedra,
+    :func:`geomopt.elements.scaled_jacobian`, or of the simplices, :func:`scaled_jacobians`)."""
+    if problem.elements is not None:
+        from .elements import certify_elements
+
+        return certify_elements(x, problem.elements).summary()
+    sj = scaled_jacobians(x, problem.simplices)
+    return {"elements": len(sj), "invalid": problem.count_inverted(x), "corner_only": 0, "tests": {},
+            "sj_min": float(sj.min()), "sj_mean": float(sj.mean()), "sj_below_0": int(np.count_nonzero(sj < 0)),
+            "sj_below_0_2": int(np.count_nonzero(sj < 0.2))}

@@ -242,6 +242,18 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
     ParameterError : unknown energy or parameter, a solver other than L-BFGS, or an energy that
         lets the map collapse (e.g. Dirichlet).
     SolveError : only with ``throw=True``, when the result is not converged and certified.
+
+    Examples
+    --------
+    An octahedron onto the unit sphere:
+
+    >>> import numpy as np
+    >>> import geomopt
+    >>> V = [[0, 0, 1], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, -1]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1], [5, 2, 1], [5, 3, 2], [5, 4, 3], [5, 1, 4]]
+    >>> result = geomopt.sphere_map(V, F, progress=False)
+    >>> result.success, result.injectivity, bool(np.allclose(np.linalg.norm(result.x, axis=1), 1.0))
+    (True, 'global', True)
     """
     refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
     V, F = mesh_arrays(V, F)

@@ -605,6 +605,17 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     ------
     MeshError
         The rest mesh of a triangle or tet problem is not locally injective (exact, at set-up).
+
+    Examples
+    --------
+    A 4 x 4 grid whose interior is rotated by 180 degrees (folded), its boundary fixed:
+
+    >>> from geomopt import generators
+    >>> from geomopt.untangle import untangle
+    >>> tangle = generators.rotated_interior(*generators.square_mesh(4), 180.0)
+    >>> result = untangle(tangle.problem(), tangle.x0, progress=False)
+    >>> tangle.inverted(), result.certificate.inverted, result.success
+    (4, 0, True)
     """
     refuse_traced("geomopt.untangle.untangle", "for the untangled map as a differentiable function of the problem "
                   "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)

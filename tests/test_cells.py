@@ -70,20 +70,119 @@ def test_mixed_and_wrong_cells_are_refused(tmp_path):
         io.read_tets(tmp_path / "h.mesh")
 
 
-def test_a_tet_mesh_given_as_a_hex_case_points_to_the_lim_folder(tmp_path):
-    from geomopt.cells import read_cell_case
+def test_a_tet_mesh_needs_its_rest_mesh_and_smooth_refuses_it(tmp_path):
+    from geomopt.cells import SMOOTH_KINDS, read_cell_case
     from geomopt.io import write_vtk_tets
 
     V, T = G.box_mesh(2, 2, 2)
     write_vtk_tets(tmp_path / "tets.vtk", V, T)
-    with pytest.raises(MeshFormatError, match="is a tetrahedral mesh; untangling tetrahedra needs a LIM case folder"):
+    with pytest.raises(MeshError, match="tetrahedral mesh: .* needs the rest mesh: give it with --rest REST"):
         read_cell_case(tmp_path / "tets.vtk")
+    with pytest.raises(MeshFormatError, match="is a tetrahedral mesh; smoothing takes quad and hex meshes"):
+        read_cell_case(tmp_path / "tets.vtk", kinds=SMOOTH_KINDS)
     P3, H = _meshes()["hexahedron"]  # a mixed mesh keeps its own message
     io.write_cells(tmp_path / "h.mesh", P3, H, "hexahedron")
     text = (tmp_path / "h.mesh").read_text().replace("End", "Tetrahedra\n1\n1 2 3 4 0\nEnd")
     (tmp_path / "mixed.mesh").write_text(text)
-    with pytest.raises(MeshFormatError, match=r"cells other than hexahedra \(tetra\)"):
-        read_cell_case(tmp_path / "mixed.mesh")
+    for kinds in ({}, {"kinds": SMOOTH_KINDS}):
+        with pytest.raises(MeshFormatError, match=r"cells other than hexahedra \(tetra\)"):
+            read_cell_case(tmp_path / "mixed.mesh", **kinds)
+
+
+def _tangled_tets(tmp_path, flip=False):
+    """A tangled tet cube as two files in two formats (rest.msh, tangled.vtu) and its Tangle;
+    ``flip``: every tet listed negatively oriented (as the LIM armadillo's)."""
+    from conftest import cube_tets
+
+    V, T = cube_tets(3)
+    t = G.noisy_interior(V, T, 2.0, seed=1)
+    T = T[:, [0, 2, 1, 3]] if flip else T
+    rest = io.write_cells(tmp_path / "rest.msh", V, T, "tetra")
+    tangled = io.write_cells(tmp_path / "tangled.vtu", t.x0, T, "tetra")
+    return rest, tangled, t, T
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_untangle_command_on_a_tet_mesh_file_with_its_rest_mesh(cli, tmp_path, flip):
+    from geomopt.certify import local_certificate
+
+    rest, tangled, t, T = _tangled_tets(tmp_path, flip)
+    assert t.inverted() > 0
+    code, out, err = cli("untangle", tangled, "--rest", rest, "-o", tmp_path / "out.mesh", "--quiet", "--json")
+    assert code == 0, err
+    report = json.loads(out)  # the keys of the folder mode, and the kind
+    assert report["kind"] == "tetra" and report["dim"] == 3 and report["elements"] == len(T)
+    assert report["inverted_before"] == t.inverted() > report["inverted"] == 0
+    assert report["certified"] and report["outcome"] == "converged" and report["forced_overlaps"] == 0
+    assert report["handles_moved"] == 0 and report["min_scaled_jacobian"] > 0 and report["min_det_rel"] > 0
+    assert report["fixed_vertices"] == len(t.fixed)  # the boundary by default
+    P, T2, kind = io.read_cells(tmp_path / "out.mesh", ("tetra",))
+    assert kind == "tetra" and np.array_equal(T2, T)
+    assert local_certificate(P, T, orientation=-1 if flip else 1).ok
+    assert np.array_equal(P[t.fixed], t.x0[t.fixed])
+
+
+def test_untangle_command_takes_the_handles_of_a_handles_file(cli, tmp_path):
+    rest, tangled, t, T = _tangled_tets(tmp_path)
+    chosen = t.fixed[::3]
+    (tmp_path / "handles.txt").write_text("".join(f"{i}\n" for i in chosen))
+    code, out, err = cli("untangle", tangled, "--rest", rest, "--handles", tmp_path / "handles.txt",
+                         "-o", tmp_path / "out.vtk", "--quiet", "--json")
+    assert code == 0, err
+    assert json.loads(out)["fixed_vertices"] == len(chosen)
+    P, _, _ = io.read_cells(tmp_path / "out.vtk", ("tetra",))
+    assert np.array_equal(P[chosen], t.x0[chosen])
+    # a quad mesh with a rest mesh of its own (not reference squares) and handles from a file
+    V, Q = G.quad_mesh(6, 6)
+    tq = G.rotated_interior(V, Q, 120)
+    io.write_cells(tmp_path / "qrest.vtk", V, Q, "quad")
+    io.write_cells(tmp_path / "qtangled.obj", tq.x0, Q, "quad")
+    np.savetxt(tmp_path / "qhandles.txt", tq.fixed, fmt="%d")
+    code, out, err = cli("untangle", tmp_path / "qtangled.obj", "--rest", tmp_path / "qrest.vtk", "--handles",
+                         tmp_path / "qhandles.txt", "-o", tmp_path / "q.vtu", "--quiet", "--json")
+    assert code == 0, err
+    assert json.loads(out)["kind"] == "quad" and json.loads(out)["fixed_vertices"] == len(tq.fixed)
+    P, _, _ = io.read_cells(tmp_path / "q.vtu")
+    assert certify_elements(P[:, :2], Q).certified
+
+
+def _rest_variants(tmp_path, rest, T):
+    """Rest meshes that do not belong to the tangled file: one (unused) vertex more; the same
+    tetrahedra in another order."""
+    V, _ = io.read_tets(rest)
+    extra = io.write_cells(tmp_path / "extra.vtk", np.vstack([V, V[:1] + 5.0]), T, "tetra")
+    swapped = io.write_cells(tmp_path / "swapped.vtk", V, T[::-1], "tetra")
+    return extra, swapped
+
+
+@pytest.mark.parametrize("make,words", [
+    (lambda d, r, t, e, s: ["--rest", s], ["different cells", "first difference at cell 0"]),
+    (lambda d, r, t, e, s: ["--rest", e], ["vertices but", "same count and order"]),
+    (lambda d, r, t, e, s: [], ["needs the rest mesh", "--rest REST"]),
+    (lambda d, r, t, e, s: ["--rest", r, "--handles", d / "bad.txt"], ["handles has 1 indices outside 0..63"]),
+    (lambda d, r, t, e, s: ["--rest", r, "-o", r], ["is the input file"]),
+    (lambda d, r, t, e, s: ["--rest", r, "--png", d / "pic.png", "-o", d / "out.obj"], [".obj"]),
+])
+def test_untangle_refuses_mismatched_files_in_one_line(cli, tmp_path, make, words):
+    rest, tangled, t, T = _tangled_tets(tmp_path)
+    extra, swapped = _rest_variants(tmp_path, rest, T)
+    (tmp_path / "bad.txt").write_text(f"0\n{len(t.rest)}\n")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    argv = make(tmp_path, rest, tangled, extra, swapped)
+    argv = argv if "-o" in argv else argv + ["-o", tmp_path / "out.vtk"]
+    code, _, err = cli("untangle", tangled, *argv, "--quiet")
+    assert code == 2
+    one_error_line(err, *words)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # nothing written, no input replaced
+
+
+def test_rest_and_handles_options_are_for_one_mesh_file(cli, tmp_path):
+    from geomopt.lim import LimCase
+
+    case = LimCase.from_tangle(G.noisy_interior(*G.box_mesh(2, 2, 2), 1.0)).write(tmp_path / "case")
+    code, _, err = cli("untangle", case, "--rest", case / "rest.vtk", "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 2 and "go with one mesh file" in one_error_line(err)
+    assert not (tmp_path / "out.vtk").exists()
 
 
 def test_gmsh_made_hex_meshes_are_read_exactly(tmp_path):

@@ -177,6 +177,17 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
     Raises
     ------
     MeshError : invalid or non-manifold input (:func:`check_atlas_input`).
+
+    Examples
+    --------
+    A closed tetrahedron (no boundary, so no single disk) becomes a certified atlas:
+
+    >>> import geomopt
+    >>> V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    >>> F = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
+    >>> atlas = geomopt.make_atlas(V, F, progress=False)
+    >>> atlas.certificate.ok, atlas.uv_faces.shape
+    (True, (4, 3))
     """
     from ..param import check_scale_aware, mesh_arrays
     from ..solvers._iterate import check_progress

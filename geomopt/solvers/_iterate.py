@@ -436,6 +436,22 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     injective ends NOT_INJECTIVE.  A solve whose map grows without bound
     (``DIVERGENCE_FACTOR`` times its start and rest size) or whose energy falls below the
     energy's known lower bound ends DIVERGED, its reason in ``reason`` and ``message``.
+
+    Examples
+    --------
+    A 3 x 3 grid with its boundary fixed and its middle vertex pushed off centre: the symmetric
+    Dirichlet minimum puts it back.
+
+    >>> import geomopt
+    >>> from geomopt import generators
+    >>> V, F = generators.square_mesh(3)
+    >>> boundary = [0, 1, 2, 3, 5, 6, 7, 8]
+    >>> problem = geomopt.Problem.planar(V, F, fixed=boundary, fixed_positions=V[boundary])
+    >>> x0 = V.copy()
+    >>> x0[4] += [0.2, -0.1]
+    >>> result = geomopt.minimize(geomopt.Objective(problem, "symmetric_dirichlet"), x0, progress=False)
+    >>> result.success, bool(abs(result.x[4] - [0.5, 0.5]).max() < 1e-6)
+    (True, True)
     """
     refuse_traced("geomopt.minimize", "for a map differentiable in the objective (rest shape, handles, weights) "
                   "and params use geomopt.implicit.minimize", objective, x0, params)

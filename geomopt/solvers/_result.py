@@ -280,3 +280,108 @@ class Result:
         if getattr(cert, "handles_moved", 0):
             msg += f"; {cert.handles_moved} handle(s) moved"
         return msg
+
+    def save(self, path, png=None, *, inputs=()):
+        """Write the map to ``path`` and, with ``png``, its picture: both atomically, both or
+        neither.
+
+        A surface or planar triangle map is written as the mesh with one UV per vertex
+        (``.obj`` or ``.ply``, :func:`geomopt.io.write_mesh_with_uv`), a sphere map as the mesh
+        on the sphere (``.obj``), a tet / quad / hex map as the mapped mesh (``.vtk``,
+        ``.vtu``, ``.msh``, ``.mesh``; ``.obj`` for quads), as the command line writes them;
+        full precision.  The picture (``.png``, ``.pdf`` or ``.svg``, triangle and sphere maps
+        only) is what ``geomopt param --png`` draws: the map as a checkerboard on the surface
+        beside the layout coloured by distortion.  The map is written as it is, certified or
+        not (check :attr:`success` first).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The map file.
+        png : str or os.PathLike, optional
+            The picture file.
+        inputs : iterable of str or os.PathLike
+            Files neither output may replace (e.g. the mesh read).
+
+        Returns
+        -------
+        tuple of pathlib.Path
+            The files written, ``(path,)`` or ``(path, png)``.
+
+        Raises
+        ------
+        ParameterError
+            The result does not know its mesh (no ``problem``), has no file or picture for its
+            kind of map, or an extension is not one of the above; nothing is written.
+        GeomoptError
+            An output cannot be written, the two are the same file, or one is an input
+            (:func:`geomopt.io.check_outputs`); nothing is written.
+
+        Examples
+        --------
+        >>> import geomopt
+        >>> V = [[0, 0, 0], [1, 0, 0], [1, 1, 0.2], [0, 1, 0]]
+        >>> result = geomopt.parameterize(V, [[0, 1, 2], [0, 2, 3]], progress=False)
+        >>> [str(p) for p in result.save("square.obj", png="square.png")]
+        ['square.obj', 'square.png']
+        >>> geomopt.io.read_obj_uv("square.obj")[2].shape
+        (4, 2)
+        """
+        from .._save import save_result
+
+        return save_result(self, path, png, inputs)
+
+    # -- deprecated aliases (one release) ---------------------------------------------
+    inverted = _deprecated("inverted", "certificate.inverted")
+    iterations = _deprecated("iterations", "stats.iterations")
+    inner_iterations = _deprecated("inner_iterations", "stats.iterations")
+    outer_iterations = _deprecated("outer_iterations", "stats.outer_iterations")
+    seconds = _deprecated("seconds", "stats.seconds")
+    setup_seconds = _deprecated("setup_seconds", "stats.setup_seconds")
+    initially_inverted = _deprecated("initially_inverted", "stats.inverted_at_start")
+    handles_moved = _deprecated("handles_moved", "certificate.handles_moved")
+    energy_history = _deprecated("energy_history", "trace.energy")
+    time_history = _deprecated("time_history", "trace.seconds")
+    grad_history = _deprecated("grad_history", "trace.grad_norm")
+
+    @property
+    def eps_history(self):
+        """Deprecated: ``trace.column("eps")``."""
+        warnings.warn("Result.eps_history is deprecated; use Result.trace.column('eps')", DeprecationWarning,
+                      stacklevel=2)
+        return self.trace.column("eps")
+
+    @property
+    def min_det_history(self):
+        """Deprecated: ``trace.column("min_det")``."""
+        warnings.warn("Result.min_det_history is deprecated; use Result.trace.column('min_det')",
+                      DeprecationWarning, stacklevel=2)
+        return self.trace.column("min_det")
+
+    @property
+    def inverted_history(self):
+        """Deprecated: ``trace.column("inverted", int)``."""
+        warnings.warn("Result.inverted_history is deprecated; use Result.trace.column('inverted', int)",
+                      DeprecationWarning, stacklevel=2)
+        return self.trace.column("inverted", np.int64)
+
+    @property
+    def info(self) -> dict:
+        """Deprecated: the old ``info`` dict, rebuilt from the typed fields."""
+        warnings.warn("Result.info is deprecated; use the typed fields (stats, certificate, details, "
+                      "objective, problem, solver, reason)", DeprecationWarning, stacklevel=2)
+        info = {"solver": self.solver, "evaluations": self.stats.evaluations, "objective": self.objective,
+                "problem": self.problem, "certificate": self.certificate, "injectivity": self.injectivity,
+                "elements": None if self.problem is None else self.problem.n_elements,
+                "outer_iterations": self.stats.outer_iterations,
+                "local_certificate": getattr(self.certificate, "local", self.certificate),
+                "branch_vertices": _failures(getattr(self.certificate, "local", self.certificate))}
+        if self.reason:
+            info["reason"] = self.reason
+        if self.trace.flips is not None:
+            info["flips_history"] = self.trace.flips
+            info["stopped"] = self.reason or None
+        if self.details is not None:
+            info.update(dataclasses.asdict(self.details) if not isinstance(self.details, ParamDetails)
+                        else vars(self.details))
+        return info

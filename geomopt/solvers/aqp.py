@@ -69,11 +69,13 @@ class AQP(AbstractSolver):
 
     Attributes
     ----------
-    condition : the condition number ``kappa`` the acceleration is tuned for:
+    condition : 100 (>= 1); the condition number ``kappa`` the acceleration is tuned for:
         ``theta = (1 - 1/sqrt(kappa)) / (1 + 1/sqrt(kappa))`` (Nesterov; Kovalsky et al. 2016).
-    rtol, max_steps : as for every solver (relative energy decrease / decrement test).
-    search : the :class:`~geomopt.linesearch.InjectiveSearch` (default: first trial at most a
-        quarter of the flip bound, see the module notes); the momentum move is capped and
+    rtol : 1e-10; stop when the decrement of the step taken or the energy decrease is below
+        ``rtol * |E|`` (:attr:`termination`).
+    max_steps : 2000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    search : the :class:`~geomopt.linesearch.InjectiveSearch`, default ``InjectiveSearch(safety=0.25)``:
+        first trial at most a quarter of the flip bound (see the module notes); the momentum move is capped and
         checked by the same search (:meth:`~geomopt.linesearch.InjectiveSearch.cap`,
         :meth:`~geomopt.linesearch.InjectiveSearch.admissible`).
     """

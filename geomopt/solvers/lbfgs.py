@@ -215,19 +215,20 @@ class LBFGS(AbstractSolver):
 
     Attributes
     ----------
-    history : number of correction pairs kept (``m``).
-    rtol : stop when the last ``window`` steps decreased the energy by less than
+    history : 10 (>= 1); number of correction pairs kept (``m``).
+    rtol : 1e-10; stop when the last ``window`` steps decreased the energy by less than
         ``window * rtol * max(|E_k-window|, |E_k|)`` relative (``window = 1``: one step
         decreased it by less than ``rtol``).
-    gtol : stop when ``|grad|_2 <= gtol * |grad at x0|_2``.
-    max_steps : iteration limit.
-    search : :class:`~geomopt.linesearch.InjectiveSearch`; weak Wolfe (``c2 = 0.9``),
+    gtol : 1e-9 (0 turns it off); stop when ``|grad|_2 <= gtol * |grad at x0|_2``.
+    max_steps : 1000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    search : :class:`~geomopt.linesearch.InjectiveSearch`, default
+        ``InjectiveSearch(c2=0.9, safety=0.25)``: weak Wolfe (``c2 = 0.9``),
         injective, first trial at most a quarter of the flip bound by default (as
         :class:`~geomopt.AQP`'s: the Laplacian seed does not see the barrier; at the other
         solvers' 0.9, camelhead from its Tutte map took 816 iterations to a 1e-4 gap, 164 at
         0.25).  The untangling solver (:func:`geomopt.untangle.default_solver`) turns
         ``injective`` off: its energy is finite on inverted elements.
-    precondition : the initial inverse Hessian of the two-loop recursion: ``"scalar"``
+    precondition : ``"laplacian"`` (default); the initial inverse Hessian of the two-loop recursion: ``"scalar"``
         (``s.y / y.y`` times the identity), ``"diagonal"`` (the M1QN3 diagonal update), or
         ``"laplacian"``: ``gamma K^-1`` with ``K`` the Hessian of the rest Dirichlet energy
         ``sum vol |J|^2`` on the free DOFs (a cotangent Laplacian per coordinate, assembled by
@@ -240,17 +241,27 @@ class LBFGS(AbstractSolver):
         and bunny_cut; on the saddle at 1.5k/6k/25k triangles the scalar seed took
         125/253/630 iterations to 1e-4, the Laplacian one 13/15/16; on a twisted cube of
         1.3k/6k/16k tets 17/32/51 against 7/7/8 to 1e-6 (``benchmarks/solvers.py``).
-    laplacian : where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
+    laplacian : ``"auto"`` (default); where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
         host through an XLA FFI target, :mod:`geomopt._hostcall`; exact), ``"device"`` (Jacobi-preconditioned CG in
         JAX, warm-started from the previous iteration's solution, relative tolerance 1e-3: no
         host round trip on an accelerator), or ``"auto"`` (host on CPU, device elsewhere).
-    window : number of iterations the energy test looks back over (see ``rtol``).
+    window : 1 (>= 1); number of iterations the energy test looks back over (see ``rtol``).
 
     Notes
     -----
     ``step`` runs one iteration and :meth:`advance` many, both in the same jitted
     ``lax.while_loop`` (a traced limit) whose condition is :attr:`termination`'s rule on the
     traced :class:`~geomopt.solvers.Stats`.
+
+    Examples
+    --------
+    >>> import geomopt
+    >>> V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
+    >>> solver = geomopt.LBFGS(history=5, max_steps=200)
+    >>> result = geomopt.parameterize(V, F, solver=solver, progress=False)
+    >>> result.success, result.certificate.inverted
+    (True, 0)
     """
 
     history: int = 10

@@ -232,7 +232,8 @@ class Newton(AbstractNewton):
     Examples
     --------
     >>> import geomopt
-    >>> V, F = geomopt.data.load("camelhead")
+    >>> V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
     >>> res = geomopt.parameterize(V, F, solver=geomopt.Newton(rtol=1e-8, max_steps=50), progress=False)
     >>> res.outcome.name, res.success
     ('CONVERGED', True)
@@ -247,7 +248,23 @@ class SLIM(AbstractNewton):
     """SLIM (Rabinovich et al. 2017): Newton steps on the reweighted Laplacian proxy whose
     weights come from the density's singular-value derivatives
     (:class:`~geomopt._projection.SLIMProxy`), then the injective search.  Works for any
-    rotation-invariant density; the paper's closed form for symmetric Dirichlet."""
+    rotation-invariant density; the paper's closed form for symmetric Dirichlet.
+
+    Attributes
+    ----------
+    projection : ``SLIMProxy()`` (default): the per-element proxy blocks; another projection
+        makes it another solver (:class:`AbstractNewton`).
+    linear_solver : ``"auto"`` (default: the fastest sparse Cholesky installed) or a backend
+        name (``"pardiso"``, ``"cholmod"``, ``"cholespy"``, ``"superlu"``); ``"cg"`` is refused
+        (CG takes eigenvalue projections only, not proxies).
+    rtol : 1e-10; stop when the decrement or the energy decrease is below ``rtol * |E|``.
+    max_steps : 1000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    regularization : 1e-9; relative diagonal shift of the proxy (raised when a factorization
+        fails).
+    search : ``InjectiveSearch()``: the injective bound (``safety`` 0.9), then Armijo
+        backtracking.
+    cg : unused (the proxies are factored, never solved by CG).
+    """
 
     projection: AbstractProjection = SLIMProxy()
     max_steps: int = 1000
@@ -256,7 +273,22 @@ class SLIM(AbstractNewton):
 @dataclasses.dataclass(frozen=True)
 class CM(AbstractNewton):
     """Composite majorization (Shtengel et al. 2017), 2D: Newton steps on the convex
-    majorizer of :class:`~geomopt._projection.CMProxy`, then the injective search."""
+    majorizer of :class:`~geomopt._projection.CMProxy`, then the injective search.
+
+    Attributes
+    ----------
+    projection : ``CMProxy()`` (default): the per-element convex majorizer blocks (2D only).
+    linear_solver : ``"auto"`` (default: the fastest sparse Cholesky installed) or a backend
+        name (``"pardiso"``, ``"cholmod"``, ``"cholespy"``, ``"superlu"``); ``"cg"`` is refused
+        (CG takes eigenvalue projections only, not proxies).
+    rtol : 1e-10; stop when the decrement or the energy decrease is below ``rtol * |E|``.
+    max_steps : 500; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    regularization : 1e-9; relative diagonal shift of the majorizer (raised when a
+        factorization fails).
+    search : ``InjectiveSearch()``: the injective bound (``safety`` 0.9), then Armijo
+        backtracking.
+    cg : unused (the majorizer is factored, never solved by CG).
+    """
 
     projection: AbstractProjection = CMProxy()
     max_steps: int = 500

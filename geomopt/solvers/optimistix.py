@@ -33,7 +33,17 @@ __all__ = ["Optimistix", "OptxInjectiveSearch", "ObjectiveFunction", "objective_
 
 class ObjectiveFunction(eqx.Module):
     """``fn(y, params) -> E``: an objective as a function of the whole map ``y`` (n, d); fixed
-    vertices are read from ``x_fixed`` whatever ``y`` holds there (their gradient is zero)."""
+    vertices are read from ``x_fixed`` whatever ``y`` holds there (their gradient is zero).
+    Made by :func:`objective_function`.
+
+    Attributes
+    ----------
+    density : the energy density ``psi(J, params)`` (static).
+    geom : the objective's per-element geometry (``Objective.geom``: simplices, inverse rest
+        matrices, rest sizes times the element weights; padded to the size bucket).
+    free : (n, d) 1 on free coordinates, 0 on fixed ones (``Objective.free_mask``).
+    x_fixed : (n, d) the map whose rows the fixed vertices take.
+    """
 
     density: Callable = eqx.field(static=True)
     geom: tuple
@@ -62,7 +72,13 @@ class OptxInjectiveSearch(optx.AbstractSearch):
     """An optimistix search that keeps every positively oriented element positive, then
     backtracks (Armijo): the accept and next-trial rules of a geomopt :class:`InjectiveSearch`
     (:meth:`~InjectiveSearch.admissible`, :meth:`~InjectiveSearch.sufficient`,
-    :meth:`~InjectiveSearch.next_trial`) applied to optimistix's proposed step."""
+    :meth:`~InjectiveSearch.next_trial`) applied to optimistix's proposed step.
+
+    Attributes
+    ----------
+    simplices : (m, d + 1) the elements whose orientation is kept (``Objective.geom[0]``).
+    config : the :class:`~geomopt.linesearch.InjectiveSearch` whose rules apply (static).
+    """
 
     simplices: jax.Array
     config: InjectiveSearch = eqx.field(static=True)
@@ -121,10 +137,24 @@ class Optimistix(AbstractSolver):
         ``optx.GradientDescent(learning_rate=..., ...)`` is *not* one (fixed step size: use a
         custom ``optx.AbstractGradientDescent`` subclass with a search).  Its own tolerances
         decide convergence (``Stats.done``); geomopt's :class:`~geomopt.solvers.Termination`
-        adds the step limit, non-finite values and divergence.
-    max_steps : iteration limit.
-    search : the geomopt :class:`~geomopt.linesearch.InjectiveSearch` whose rules
-        (``injective``, ``safety``, ``c1``, ``shrink``) :class:`OptxInjectiveSearch` applies.
+        adds the step limit, non-finite values and divergence.  Required.
+    rtol : 1e-10; not used by the stopping rule (``solver``'s own ``rtol`` / ``atol`` decide
+        convergence); kept so that every solver has one.
+    max_steps : 1000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
+    search : the geomopt :class:`~geomopt.linesearch.InjectiveSearch` (default
+        ``InjectiveSearch()``) whose rules (``injective``, ``safety``, ``c1``, ``shrink``)
+        :class:`OptxInjectiveSearch` applies in place of ``solver``'s own search.
+
+    Examples
+    --------
+    >>> import optimistix as optx
+    >>> import geomopt
+    >>> from geomopt.solvers.optimistix import Optimistix
+    >>> V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+    >>> F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
+    >>> solver = Optimistix(optx.BFGS(rtol=1e-8, atol=1e-8))
+    >>> geomopt.parameterize(V, F, solver=solver, progress=False).success
+    True
     """
 
     solver: Any = None
