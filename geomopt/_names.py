@@ -1,9 +1,39 @@
-"""Names of the built-in energies and solvers, for the command line's help text, which must
-not import JAX (``geomopt --help`` starts in a few tens of milliseconds).
+"""The built-in energies and solvers: each name with where it is defined, the one table both
+registries (:data:`geomopt.energies.REGISTRY`, :data:`geomopt.solvers.SOLVERS`) are built
+from.  The command line's help text reads the names only, without importing JAX
+(``geomopt --help`` starts in a few tens of milliseconds).
 
-tests/test_startup.py checks them against :data:`geomopt.energies.REGISTRY` and
-:data:`geomopt.solvers.SOLVERS`.
+A new built-in energy is its definition plus one row here; a new solver likewise.
 """
 
-ENERGIES = ("symmetric_dirichlet", "dirichlet", "mips", "winslow", "arap", "garanzha")
-SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm", "optx-bfgs", "optx-lbfgs", "optx-ncg")
+import importlib
+
+#: energy name -> ``module:attribute`` of its :class:`~geomopt.energies.Energy`
+ENERGIES = {
+    "symmetric_dirichlet": "geomopt.energies._energy:symmetric_dirichlet",
+    "dirichlet": "geomopt.energies._energy:dirichlet",
+    "mips": "geomopt.energies._energy:mips",
+    "winslow": "geomopt.energies._energy:winslow",
+    "arap": "geomopt.energies._energy:arap",
+    "garanzha": "geomopt.energies._energy:garanzha",
+}
+#: solver name -> ``module:attribute`` of a factory of the default-configured solver
+SOLVERS = {
+    "newton": "geomopt.solvers.newton:Newton",
+    "lbfgs": "geomopt.solvers.lbfgs:LBFGS",
+    "slim": "geomopt.solvers.newton:SLIM",
+    "aqp": "geomopt.solvers.aqp:AQP",
+    "cm": "geomopt.solvers.newton:CM",
+    "optx-bfgs": "geomopt.solvers._registry:optx_bfgs",
+    "optx-lbfgs": "geomopt.solvers._registry:optx_lbfgs",
+    "optx-ncg": "geomopt.solvers._registry:optx_ncg",
+}
+
+
+def resolve(table: dict) -> dict:
+    """``{name: definition}`` for a table of ``module:attribute`` references."""
+    out = {}
+    for name, ref in table.items():
+        module, attribute = ref.split(":")
+        out[name] = getattr(importlib.import_module(module), attribute)
+    return out

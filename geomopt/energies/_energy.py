@@ -11,7 +11,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _names
 from .._errors import ParameterError
+from .._names import resolve
 from .._tracing import is_traced
 from .._x64 import float64
 from . import _densities as _d
@@ -198,9 +200,8 @@ garanzha = Energy(
     lower_bound=0.0,
 )
 
-REGISTRY: dict[str, Energy] = {
-    e.name: e for e in (dirichlet, symmetric_dirichlet, mips, winslow, arap, garanzha)
-}
+#: name -> built-in energy (the names and definitions: geomopt._names)
+REGISTRY: dict[str, Energy] = resolve(_names.ENERGIES)
 
 
 def get_energy(name_or_energy, **params) -> Energy:

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
+from .. import _names
 from .._errors import ParameterError
+from .._names import resolve
 from ._base import AbstractSolver
-from .aqp import AQP
-from .lbfgs import LBFGS
-from .newton import CM, SLIM, Newton
 
 
 def _optx(kind):
@@ -23,11 +22,10 @@ def _optx(kind):
     return make
 
 
-#: name -> factory of a default-configured solver
-SOLVERS = {
-    "newton": Newton, "lbfgs": LBFGS, "slim": SLIM, "aqp": AQP, "cm": CM,
-    "optx-bfgs": _optx("bfgs"), "optx-lbfgs": _optx("lbfgs"), "optx-ncg": _optx("ncg"),
-}
+optx_bfgs, optx_lbfgs, optx_ncg = _optx("bfgs"), _optx("lbfgs"), _optx("ncg")
+
+#: name -> factory of a default-configured solver (the names and definitions: geomopt._names)
+SOLVERS = resolve(_names.SOLVERS)
 
 
 def get_solver(name_or_solver) -> AbstractSolver:
