@@ -6,6 +6,9 @@ Each picture has a ``*_figure`` function returning a :class:`matplotlib.figure.F
 inline by Jupyter) and a ``save_*`` function that saves it to a path (atomically, in the
 format its extension names: ``.png``, ``.pdf``, ``.svg``) or into an open binary file (then
 ``format`` is required).
+
+:func:`show` draws a map in polyscope or pyvista instead (interactive, or a screenshot taken
+off-screen), when one of them is installed (``pip install "geomopt[view]"``).
 """
 
 from __future__ import annotations
@@ -13,11 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from ._render import camera_rotation, project, rasterize, render_sphere_checker, render_surface, render_uv_checker
+from ._view import show
 
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
-    "atlas_figure", "save_atlas_figure",
+    "atlas_figure", "save_atlas_figure", "show",
     "INVERTED",
 ]
 
@@ -28,14 +32,16 @@ def distortion(problem, x) -> dict:
     """Per element of ``problem`` (:class:`~geomopt.Problem`) under the map ``x`` (n, d), from
     the singular values of its Jacobian ``J``: ``"conformal"`` (m,) ``sigma_max / sigma_min``
     (1 for a similarity, inf for a degenerate element) and ``"area"`` (m,) ``det J``, the
-    signed ratio of mapped to rest area (volume): 1 where area is preserved, <= 0 inverted."""
+    signed ratio of mapped to rest area (volume): 1 where area is preserved, <= 0 inverted
+    (for a map onto the sphere, whose ``J`` is 3 x 2, the chord triangle's unsigned ratio)."""
     S, x = problem.simplices, np.asarray(x, np.float64)
     E = np.stack([x[S[:, k]] - x[S[:, 0]] for k in range(1, S.shape[1])], axis=-1)
     J = E @ problem.rest_inv
     s = np.linalg.svd(J, compute_uv=False)
     with np.errstate(divide="ignore"):
         conformal = np.where(s[:, -1] > 0, s[:, 0] / np.where(s[:, -1] > 0, s[:, -1], 1.0), np.inf)
-    return {"conformal": conformal, "area": np.linalg.det(J)}
+    area = np.linalg.det(J) if J.shape[1] == J.shape[2] else np.prod(s, axis=1)
+    return {"conformal": conformal, "area": area}
 
 
 def _figure(width, height, dpi=100, layout="constrained"):

@@ -11,7 +11,7 @@ from geomopt.generators import tutte_nonconvex
 from geomopt.linesearch import InjectiveSearch
 
 optax = pytest.importorskip("optax")
-from geomopt.optax import energy_fn, injective_linesearch  # noqa: E402
+from geomopt.optax import energy_fn, injective_linesearch, run  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -73,3 +73,47 @@ def test_energy_fn_holds_handles_and_refusals(star):
         injective_linesearch(obj, InjectiveSearch(injective=False))
     with pytest.raises(ParameterError, match="Objective"):
         injective_linesearch(P)
+
+
+def test_run_is_one_compiled_loop_flip_free_and_descending(star):
+    """geomopt.optax.run: every iterate certified flip-free (the run stopped after k steps is the
+    k-th iterate), the energy lower, the handles in place, and one trace for every call with
+    another start or step count."""
+    P, x0 = star
+    obj = Objective(P, "dirichlet")
+    energy = energy_fn(obj)
+    traces = []
+
+    def f(x):
+        traces.append(1)  # runs only while JAX traces f
+        return energy(x)
+
+    opt = optax.lbfgs(linesearch=injective_linesearch(obj))
+    x, state, steps = run(opt, f, x0, max_steps=60)
+    first = len(traces)
+    # the harmonic map folds: the search ends where no flip-free step lowers the energy, and
+    # the loop stops there (an iteration that moved nothing), well before max_steps
+    assert first > 0 and 5 < steps < 60 and float(optax.tree_utils.tree_get(state, "learning_rate")) == 0.0
+    for k in range(1, steps + 1):
+        xk, _, run_k = run(opt, f, x0, max_steps=k)
+        assert run_k == k and P.count_inverted(xk) == 0, k
+    np.testing.assert_array_equal(xk, x)  # the same iterates, deterministically
+    assert len(traces) == first  # no re-trace: max_steps is traced
+    e = float(energy(x))
+    assert e < float(energy(x0))
+    np.testing.assert_array_equal(x[P.fixed], P.fixed_positions)
+    x2, _, _ = run(opt, f, x, max_steps=10)  # another start: still the same program
+    assert len(traces) == first and float(energy(x2)) <= e and P.count_inverted(x2) == 0
+    _, _, steps = run(opt, f, x0, max_steps=10, tol=1e9)  # the gradient is below tol at once
+    assert steps == 1
+
+
+def test_run_refuses_bad_settings(star):
+    P, x0 = star
+    obj = Objective(P, "dirichlet")
+    opt, f = optax.lbfgs(linesearch=injective_linesearch(obj)), energy_fn(obj)
+    for bad in (-1, True, 2.5):
+        with pytest.raises(ParameterError, match="max_steps"):
+            run(opt, f, x0, max_steps=bad)
+    with pytest.raises(ParameterError, match="tol"):
+        run(opt, f, x0, tol=float("nan"))
