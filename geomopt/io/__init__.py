@@ -33,8 +33,9 @@ a command's outputs: :func:`check_outputs`), ``_text`` (tokenizing), ``_surface`
 from .._validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
                       create_output_folder)
-from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_quads, read_obj_uv, read_obj_with_uv,
-                       write_mesh_with_uv, write_obj, write_obj_quads, write_obj_with_uv, write_ply_with_uv)
+from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, write_obj_quads, write_obj_with_uv
+from ._ply import write_ply_with_uv
+from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, write_mesh_with_uv
 from ._text import read_vertex_ids
 from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, write_cells, write_tets
 from ._vtk import read_vtk_tets, write_vtk_tets

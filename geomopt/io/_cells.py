@@ -144,4 +144,4 @@ def select_kind(found, kind, path):
         raise MeshFormatError(f"{path}: Dimension {found.points.shape[1]}; a volume mesh needs Dimension 3")
     first_kind(found, (kind,), path)
     blocks = [c for name, _, c in found.cells if name == kind]
-    return np.concatenate(blocks).astype(np.int64, copy=False)
+    return (blocks[0] if len(blocks) == 1 else np.concatenate(blocks)).astype(np.int64, copy=False)

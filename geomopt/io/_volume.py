@@ -42,8 +42,7 @@ from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import check_not_empty, existing_file, read_bytes
 from ._gmsh import parse_gmsh
 from ._medit import parse_medit
-from ._surface import read_obj_quads, write_obj_quads
-from ._text import gc_paused
+from ._obj import read_obj_quads, write_obj_quads
 from ._vtk import read_vtk_cells, write_vtk_cells
 from ._vtu import parse_vtu
 
@@ -176,8 +175,7 @@ def _read(path, kinds, format=None):
     check_not_empty(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     data = read_bytes(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     dims = (2, 3) if "quad" in kinds else (3,)
-    with gc_paused():
-        found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
+    found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
     kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]
     C = select_kind(found, kind, path)
     size, dim = KINDS[kind]

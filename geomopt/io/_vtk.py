@@ -17,8 +17,7 @@ from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._cells import KINDS, VTK_CELLS, WORDS, code_of
 from ._files import check_not_empty, existing_file, read_bytes
-from ._text import (FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_int_rows,
-                    write_rows)
+from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
 
 __all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
 
@@ -80,8 +79,7 @@ def read_vtk_cells(path, kinds):
     """
     path = existing_file(path, "VTK file")
     check_not_empty(path, "VTK file")
-    with gc_paused():
-        P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
+    P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
     wanted = " or ".join(WORDS[k][1] for k in kinds)
     if len(P) == 0:
         raise MeshFormatError(f"VTK file {path} has no points")
@@ -178,10 +176,14 @@ _VTK_ATTRIBUTES = (b"POINT_DATA", b"CELL_DATA")
 
 
 class _VtkCursor:
-    """Reads a legacy VTK file section by section: keyword lines, then ASCII tokens or binary blocks."""
+    """Reads a legacy VTK file section by section: keyword lines, then ASCII numbers (parsed by
+    NumPy, :class:`~geomopt.io._text.Tokens`) or binary blocks (``np.frombuffer``)."""
 
-    def __init__(self, data, binary, path):
-        self.data, self.pos, self.binary, self.path = data, 0, binary, path
+    def __init__(self, data, binary_start, path):
+        """``data`` from byte ``binary_start`` in a binary file; ``None``: all of ``data``, ASCII text
+        from the file's line 4."""
+        self.data, self.pos, self.binary, self.path = data, binary_start or 0, binary_start is not None, path
+        self.tokens = None if self.binary else Tokens(data, path, line=4)
 
     def line(self):
         """Tokens of the next non-blank line (``[]`` at the end of the file)."""
@@ -206,24 +208,22 @@ class _VtkCursor:
             if self.pos + size > len(self.data):
                 raise MeshFormatError(f"{self.path}: the file ends inside the {section} section (it declares "
                                       f"{count} values, {size} bytes); the file is truncated or a count is wrong")
-            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)
+            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)  # native byte order
             self.pos += size
             return out
-        parts = self.data[self.pos:].split(None, count)
-        tokens = parts[:count]
-        if len(tokens) < count:
+        tokens, dtype = self.tokens, np.float64 if code[0] == "f" else np.int64
+        t = int(np.searchsorted(tokens.start, self.pos))
+        if len(tokens) - t < count:
             raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
-                                  f"ends after {len(tokens)}; the file is truncated or a count is wrong")
-        self.pos = len(self.data) - (len(parts[count]) if len(parts) > count else 0)
-        where = lambda i: f"{self.path}, {section} section, value {i + 1}"  # noqa: E731
-        try:
-            values = floats(tokens, where) if code[0] == "f" else ints(tokens, where)
-        except MeshFormatError:  # name the next section's keyword if that is what came too early
-            bad = first_bad(tokens, FLOAT_RE if code[0] == "f" else INT_RE)
-            if bad is not None and re.fullmatch(rb"[A-Za-z_]{2,}", tokens[bad]):
+                                  f"ends after {len(tokens) - t}; the file is truncated or a count is wrong")
+        values = parse(self.data[tokens.start[t]:tokens.end[t + count - 1]], dtype) if count else np.zeros(0, dtype)
+        if values is None or len(values) != count:
+            bad = tokens.first_bad(np.arange(t, t + count), dtype)
+            if re.fullmatch(rb"[A-Za-z_]{2,}", tokens.text(bad)):  # the next section came too early
                 raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
-                                      f"{show(tokens[bad])} follows after {bad}; fix the count") from None
-            raise
+                                      f"{show(tokens.text(bad))} follows after {bad - t}; fix the count")
+            tokens.refuse(bad, dtype, where=lambda i: f"{self.path}, {section} section, value {i - t + 1}")
+        self.pos = int(tokens.end[t + count - 1]) if count else self.pos
         if code[0] == "f":
             with np.errstate(over="ignore"):
                 return values.astype(code)
@@ -290,18 +290,16 @@ def _vtk_skip_optional(cursor):
 def _parse_vtk(data, path):
     """``(points (n, 3) float64, cell types (c,), cells list-of-arrays or (c, 4) int64)`` of a legacy VTK file."""
     data = data.removeprefix(UTF8_BOM)
-    head = data.split(b"\n", 3)
+    head = data[:4096].split(b"\n", 3)
     if len(head) < 4 or not head[0].strip().lower().startswith(b"# vtk datafile version"):
         raise MeshFormatError(f"{path} does not start with '# vtk DataFile Version ...'; it is not a legacy "
                               f"VTK file")
     mode = head[2].strip().upper()
     if mode not in (b"ASCII", b"BINARY"):
         raise MeshFormatError(f"{path}, line 3: expected ASCII or BINARY, found {show(head[2].strip())}")
-    binary = mode == b"BINARY"
-    body = head[3]
-    if not binary:
-        body = text_data(body, path, "VTK file")
-    cursor = _VtkCursor(body, binary, path)
+    binary, start = mode == b"BINARY", sum(len(line) + 1 for line in head[:3])
+    cursor = _VtkCursor(data, start, path) if binary else _VtkCursor(text_data(data[start:], path, "VTK file"), None,
+                                                                      path)
     tokens = cursor.line()
     if [t.upper() for t in tokens] != [b"DATASET", b"UNSTRUCTURED_GRID"]:
         found = show(b" ".join(tokens)) if tokens else "nothing"
@@ -313,7 +311,7 @@ def _parse_vtk(data, path):
         raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
                               f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     n = _vtk_count(tokens, 1, cursor, "POINTS")
-    points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64)
+    points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64, copy=False)
     cursor.expect_keyword("POINTS")
     _vtk_skip_optional(cursor)
     tokens = cursor.line()
@@ -355,13 +353,13 @@ def _vtk_cells(cursor, a, b, path):
         t = cursor.line()
         if _vtk_keyword(t) != b"CONNECTIVITY" or len(t) != 2:
             raise MeshFormatError(f"{path}: expected 'CONNECTIVITY type' after OFFSETS")
-        conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64)
-        offsets = offsets.astype(np.int64)
+        conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64, copy=False)
+        offsets = offsets.astype(np.int64, copy=False)
         if a == 0 or offsets[0] != 0 or offsets[-1] != b or (np.diff(offsets) < 0).any():
             raise MeshFormatError(f"{path}: the OFFSETS must rise from 0 to the connectivity size {b}")
         sizes = np.diff(offsets)
     else:
-        flat = cursor.values(b, "i4", "CELLS").astype(np.int64)
+        flat = cursor.values(b, "i4", "CELLS").astype(np.int64, copy=False)
         sizes, conn, pos = [], [], 0
         k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
         if k >= 0 and (flat[0::k + 1] == k).all():

@@ -23,7 +23,7 @@ import numpy as np
 
 from .._errors import MeshFormatError
 from ._cells import KINDS, VTK_CELLS, VolumeCells
-from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, ints
+from ._text import UTF8_BOM, Tokens
 
 __all__ = ["parse_vtu"]
 
@@ -195,14 +195,14 @@ def _cells(types, offsets, conn, n, where):
     if conn.size and (conn.min() < 0 or conn.max() >= n):
         v = int(conn[(conn < 0) | (conn >= n)][0])
         raise MeshFormatError(f"{where}: connectivity names point index {v}, outside the piece's points 0..{n - 1}")
+    name, dim, nodes = VTK_CELLS[int(types[0])]
+    if nodes and (types == types[0]).all():  # one type of fixed size: its cells fill the connectivity in order
+        return [(name, dim, conn.reshape(-1, nodes).astype(np.int64, copy=False) if name in KINDS else None)]
     cells, starts = [], offsets - sizes
     codes, first = np.unique(types, return_index=True)
     for t in codes[np.argsort(first)].tolist():  # each type once, in order of first appearance
         name, dim, nodes = VTK_CELLS[t]
-        chosen = types == t
-        block = None
-        if name in KINDS:
-            block = conn[starts[chosen][:, None] + np.arange(nodes)].astype(np.int64)
+        block = conn[starts[types == t][:, None] + np.arange(nodes)].astype(np.int64) if name in KINDS else None
         cells.append((name, dim, block))
     return cells
 
@@ -243,13 +243,9 @@ def _array(element, file, where, expected, real=False, components=1):
 
 
 def _ascii(text, code, where):
-    tokens = text.encode().split()
-    regex = FLOAT_RE if code[0] == "f" else INT_RE
-    bad = first_bad(tokens, regex)
-    if bad is not None:
-        raise MeshFormatError(f"{where}: cannot read {tokens[bad][:40].decode(errors='replace')!r} as "
-                              f"{'a number' if code[0] == 'f' else 'an integer'}")
-    values = floats(tokens, lambda i: where) if code[0] == "f" else ints(tokens, lambda i: where)
+    tokens = Tokens(text.encode(), where)
+    dtype = np.float64 if code[0] == "f" else np.int64
+    values = tokens.numbers(0, len(tokens), dtype, where=lambda t: where)
     if code[0] != "f" and values.size:
         info = np.iinfo(code)
         if values.min() < info.min or values.max() > info.max:
