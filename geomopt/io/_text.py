@@ -2,8 +2,8 @@
 
 Numbers are parsed by NumPy's C parser (``np.fromstring`` with a whitespace separator) over whole
 spans of a file, never token by token; it refuses the same tokens as the plain decimal syntax
-(``1``, ``-2.5``, ``1e-3``, ``nan``/``inf``) except three, checked before or after it: ``+`` on
-an integer, ``nan(...)`` and integers beyond int64 (which it clamps).  Only when a span does not
+(``1``, ``-2.5``, ``1e-3``, ``nan``/``inf``) except four, checked before or after it: ``+`` on
+an integer, a ``-`` alone (an integer), ``nan(...)`` and integers beyond int64 (which it clamps).  Only when a span does not
 parse is the culprit looked for (by halving the span), to name it and its line.  Writers print
 floats in their shortest round-trip form.
 """
@@ -32,6 +32,7 @@ FLOAT_RE = re.compile(rb"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)
 #: A decimal integer: ASCII digits with an optional minus sign (no '+', no '_').
 INT_RE = re.compile(rb"-?[0-9]+")
 _INT64 = np.iinfo(np.int64)
+_LONE_MINUS = re.compile(rb"-(?![0-9])")
 
 
 def write_rows(fh, prefix, A):
@@ -111,8 +112,10 @@ def parse(span, dtype):
     """The whitespace-separated numbers of ``span`` (bytes) as ``dtype`` (float64 or int64), or
     ``None`` unless every token is a plain decimal of that kind (int64: within its range)."""
     integer = np.dtype(dtype).kind == "i"
-    if not span or (b"+" if integer else b"(") in span:
-        return np.zeros(0, dtype) if not span else None
+    if not span:
+        return np.zeros(0, dtype)
+    if (b"+" in span or _LONE_MINUS.search(span)) if integer else b"(" in span:  # NumPy reads '- 1' as -1
+        return None
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)  # "could not be read to its end": a bad token
         try:
