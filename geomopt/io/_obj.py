@@ -117,7 +117,8 @@ def _numbers(rows, at, key, allowed, expected):
                               f"numbers; expected '{key} {expected}'")
     values = rows.tokens.numbers_at(ranges(rows.first[at] + 1, n), np.float64)
     first, width = np.cumsum(n) - n, min(allowed)
-    return values[first[:, None] + np.arange(width)], np.where(n > width, values[np.minimum(first + width, len(values) - 1)], 0.0)
+    after = values[np.minimum(first + width, len(values) - 1)] if len(values) else values
+    return values[first[:, None] + np.arange(width)], np.where(n > width, after, 0.0)
 
 
 def _join_continued(lines):

@@ -90,5 +90,6 @@ def _faces(rows, a, b, V):
     index = tokens.numbers_at(ranges(first + 1, k), np.int64)
     extra = count - 1 - k
     if extra.any():  # colours: checked as numbers, then ignored
-        tokens.numbers_at(ranges(first + 1 + k, extra), np.float64, where=lambda t: f"{rows.path}, line {tokens.lineno(t)} (face colour)")
+        tokens.numbers_at(ranges(first + 1 + k, extra), np.float64,
+                          where=lambda t: f"{rows.path}, line {tokens.lineno(t)} (face colour)")
     return fan(index, k, V, rows.path)

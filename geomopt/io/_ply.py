@@ -34,8 +34,9 @@ def read_ply(data, path):
     """``(V, F)`` of an ASCII or binary PLY file, its body checked against the header; see
     :func:`geomopt.io.read_mesh`."""
     order, elements, offset = _header(data, path)
-    found, body = {}, data[offset:]
+    found = {}
     if order is None:
+        body = data[offset:]
         if b"\x00" in body or UTF8_BOM in body:
             raise MeshFormatError(f"{path}: the header says 'format ascii' but the body holds binary data "
                                   f"(NUL bytes or a byte-order mark)")
@@ -48,11 +49,11 @@ def read_ply(data, path):
             raise MeshFormatError(f"{path}, line {rows.lineno[at]}: the PLY body holds more lines than the header "
                                   f"declares ({sum(e[1] for e in elements)} element lines); fix the counts")
     else:
-        at = 0
+        at = offset
         for name, count, props, _ in elements:
-            found[name], at = _binary_element(body, at, name, count, props, order, path)
-        if at != len(body):
-            raise MeshFormatError(f"{path}: the binary PLY body is {len(body) - at} bytes longer than the "
+            found[name], at = _binary_element(data, at, name, count, props, order, path)
+        if at != len(data):
+            raise MeshFormatError(f"{path}: the binary PLY body is {len(data) - at} bytes longer than the "
                                   f"header's elements; fix the counts (or the file has trailing data)")
     return _mesh(found, elements, path)
 
@@ -198,7 +199,8 @@ def _typed(values, code, lineno, path):
 
 
 def _binary_element(body, at, name, count, props, order, path):
-    """Decode ``count`` binary records of an element starting at byte ``at``; return (columns, end)."""
+    """Decode ``count`` binary records of an element starting at byte ``at`` of ``body``; return
+    ``(columns, end)`` (lists: ``(counts, items)``, items (count, k) when every list has k)."""
     what = f"element {show(name)}"
 
     def short(needed):
@@ -223,7 +225,7 @@ def _binary_element(body, at, name, count, props, order, path):
         rec = np.frombuffer(body, dtype, count, at)
         heads = [rec[f"s{j}"] for j, p in enumerate(props) if len(p) == 3]
         if all((h == h[0]).all() and h[0] >= 0 for h in heads):
-            return ({p[0]: (rec[f"s{j}"].astype(np.int64), rec[f"l{j}"].reshape(-1)) if len(p) == 3 else rec[f"s{j}"]
+            return ({p[0]: (rec[f"s{j}"].astype(np.int64), rec[f"l{j}"]) if len(p) == 3 else rec[f"s{j}"]
                      for j, p in enumerate(props)}, at + count * dtype.itemsize)
     if all(len(p) == 2 for p in props):
         raise short(count * dtype.itemsize)
@@ -284,7 +286,7 @@ def _mesh(found, elements, path):
         i = int(np.flatnonzero(counts < 3)[0])
         raise MeshFormatError(f"{path}: face {i} has {counts[i]} vertices; a face needs at least 3 (in a "
                               f"binary file this is also what element counts that do not match the body give)")
-    return V, fan(flat.astype(np.int64), counts, V, path)
+    return V, fan(flat.astype(np.int64).reshape(-1), counts, V, path)  # one copy of a binary file's (m, k) view
 
 
 def write_ply_with_uv(path, V, F, UV):

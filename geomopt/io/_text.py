@@ -2,10 +2,11 @@
 
 Numbers are parsed by NumPy's C parser (``np.fromstring`` with a whitespace separator) over whole
 spans of a file, never token by token; it refuses the same tokens as the plain decimal syntax
-(``1``, ``-2.5``, ``1e-3``, ``nan``/``inf``) except four, checked before or after it: ``+`` on
-an integer, a ``-`` alone (an integer), ``nan(...)`` and integers beyond int64 (which it clamps).  Only when a span does not
-parse is the culprit looked for (by halving the span), to name it and its line.  Writers print
-floats in their shortest round-trip form.
+(``1``, ``-2.5``, ``1e-3``, ``nan``/``inf``) except four, checked before or after it: ``+`` on an
+integer, a ``-`` alone in an integer (NumPy reads ``-`` as 0 and ``- 1`` as -1), ``nan(...)`` and
+integers beyond int64 (which it clamps).  Only when a span does not parse is the culprit looked for
+(by halving the span), to name it and its line.  Writers print floats in their shortest
+round-trip form.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from .._errors import MeshFormatError
 from .._validate import validate_indices
 from ._files import existing_file, read_bytes
 
-__all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse", "floats", "ints",
-           "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows", "read_vertex_ids"]
+__all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse",
+           "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
+           "read_vertex_ids"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 _OTHER_BOMS = ((b"\xff\xfe\x00\x00", "UTF-32"), (b"\x00\x00\xfe\xff", "UTF-32"),
@@ -133,25 +135,11 @@ def _valid(token, integer):
     return not integer or _INT64.min < int(token) < _INT64.max
 
 
-def floats(tokens, where):
-    """``float64`` array of decimal tokens (a list of bytes); ``where(i)`` locates token ``i`` for a message."""
-    return _numbers(tokens, np.float64, where)
-
-
 def ints(tokens, where):
-    """``int64`` array of decimal integer tokens (a list of bytes); refuses other syntax and int64 overflow."""
-    return _numbers(tokens, np.int64, where)
-
-
-def _numbers(tokens, dtype, where):
-    values = parse(b" ".join(tokens), dtype)
-    if values is not None and len(values) == len(tokens):
-        return values
-    integer = np.dtype(dtype).kind == "i"
-    bad = next((i for i, t in enumerate(tokens) if not _valid(t, integer)), 0)
-    if integer and INT_RE.fullmatch(tokens[bad]):
-        raise MeshFormatError(f"{where(bad)}: the integer {show(tokens[bad])} is too large")
-    raise MeshFormatError(f"{where(bad)}: {number_problem(tokens[bad], 'integer' if integer else 'number')}")
+    """``int64`` array of decimal integer tokens (a list of bytes without whitespace); refuses other
+    syntax and int64 overflow; ``where(i)`` locates token ``i`` for a message."""
+    joined = Tokens(b" ".join(tokens), None)
+    return joined.numbers(0, len(joined), np.int64, where=where)
 
 
 @contextlib.contextmanager
@@ -189,7 +177,8 @@ class Tokens:
         raw = np.frombuffer(data, np.uint8)
         solid = (raw != 32) & ((raw - 9) > 4)  # not space, \t \n \v \f \r (uint8: raw < 9 wraps high)
         edges = np.flatnonzero(solid[1:] != solid[:-1]) + 1
-        edges = np.concatenate([[0] * bool(solid[:1].any()), edges, [len(raw)] * bool(solid[-1:].any())]).astype(np.int64)
+        edges = np.concatenate([[0] * bool(solid[:1].any()), edges, [len(raw)] * bool(solid[-1:].any())])
+        edges = edges.astype(np.int64)
         self.start, self.end = edges[0::2], edges[1::2]
         self.newlines = np.flatnonzero(raw == 10)
 

@@ -1,9 +1,12 @@
 """Legacy VTK unstructured grids (``.vtk``), ASCII or binary, read exactly as declared or refused.
 
-Parsed here, file versions up to 5.1 (``OFFSETS``/``CONNECTIVITY``): the counts of
-``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each other; ``METADATA``
-and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` / ``CELL_DATA`` sections after the
-cells are ignored.  Keywords and type names are case-insensitive, as in VTK's own reader.
+File versions up to 5.1 (``OFFSETS``/``CONNECTIVITY``): the counts of ``POINTS``, ``CELLS``
+and ``CELL_TYPES`` must match their data and each other; ``METADATA`` and dataset ``FIELD``
+blocks are skipped; ``POINT_DATA`` / ``CELL_DATA`` sections after the cells are ignored.
+Keywords and type names are case-insensitive, as in VTK's own reader.  Points declared
+``float`` are float32 (then widened), as VTK reads them.  ASCII numbers are parsed by NumPy
+(:mod:`geomopt.io._text`), binary blocks by ``np.frombuffer``; the cells are checked as VTU's
+(:func:`~geomopt.io._cells.vtk_blocks`).
 """
 
 from __future__ import annotations
@@ -15,93 +18,10 @@ import numpy as np
 from .._errors import MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
-from ._cells import KINDS, VTK_CELLS, WORDS, code_of
-from ._files import check_not_empty, existing_file, read_bytes
+from ._cells import KINDS, VTK_CELLS, WORDS, VolumeCells, code_of, vtk_blocks
 from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
 
-__all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
-
-# ------------------------------------------------------------------------ VTK (public)
-
-
-def read_vtk_tets(path):
-    """Read a tetrahedral mesh from a legacy VTK unstructured-grid file, exactly as declared.
-
-    Parsed here (ASCII or binary, file versions up to 5.1 with ``OFFSETS``/``CONNECTIVITY``):
-    the counts of ``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each
-    other; ``METADATA`` and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` /
-    ``CELL_DATA`` sections after the cells are ignored.  Points declared ``float`` are
-    float32 (then widened), as VTK reads them; files written by :func:`write_vtk_tets`
-    declare ``double`` and round-trip exactly.  Keywords (``POINTS``, ``cells``...) and type
-    names are case-insensitive, as in VTK's own reader.  Text conventions as in the module notes.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        ``.vtk`` file (legacy format).
-
-    Returns
-    -------
-    P : numpy.ndarray, shape (n, 3), float64
-        Point positions.
-    T : numpy.ndarray, shape (m, 4), int64
-        Tetrahedra, 0-based point indices (VTK cell type 10), in file order.
-
-    Raises
-    ------
-    MeshFormatError
-        Missing, not a regular file, empty, malformed, counts that differ from the data, no
-        points, no cells, or cells other than tetrahedra (the message lists the types found).
-    MeshError
-        Non-finite coordinates, indices out of range, repeated vertices in a tet.
-    """
-    return read_vtk_cells(path, ("tetra",))[:2]
-
-
-def read_vtk_cells(path, kinds):
-    """Read a legacy VTK mesh of one of ``kinds`` (:data:`~geomopt.io._cells.KINDS` names, by
-    priority), exactly as declared; as :func:`read_vtk_tets` otherwise.
-
-    Returns
-    -------
-    P : numpy.ndarray, shape (n, 3), float64
-    C : numpy.ndarray, shape (m, k), int64
-        Cells, 0-based, VTK's vertex order.
-    kind : str
-        The kind read: the first of ``kinds`` the file holds.
-
-    Raises
-    ------
-    MeshFormatError
-        As :func:`read_vtk_tets`; cells of any other type, of any dimension, are refused.
-    MeshError
-        As :func:`read_vtk_tets`.
-    """
-    path = existing_file(path, "VTK file")
-    check_not_empty(path, "VTK file")
-    P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
-    wanted = " or ".join(WORDS[k][1] for k in kinds)
-    if len(P) == 0:
-        raise MeshFormatError(f"VTK file {path} has no points")
-    if types.size == 0:
-        need = "tetrahedral mesh" if kinds == ("tetra",) else f"mesh of {wanted}"
-        raise MeshFormatError(f"VTK file {path} has no cells; a {need} is required")
-    codes = {k: code_of(VTK_CELLS, k) for k in kinds}
-    kind = next((k for k in kinds if (types == codes[k]).any()), kinds[0])
-    code, (size, _), (word, words) = codes[kind], KINDS[kind], WORDS[kind]
-    others = sorted({VTK_CELLS.get(int(t), (f"type {int(t)}",))[0] for t in np.unique(types[types != code])})
-    if others:
-        only = ("tetrahedral meshes (VTK cell type 10)" if kinds == ("tetra",) else
-                f"meshes of {wanted} (VTK cell type {' or '.join(str(codes[k]) for k in kinds)})")
-        what = "non-tetrahedral cells" if kind == "tetra" else f"cells other than {words}"
-        raise MeshFormatError(f"VTK file {path} contains {what} ({', '.join(others)}); only {only} are supported")
-    if (np.asarray(sizes) != size).any():
-        i = int(np.flatnonzero(np.asarray(sizes) != size)[0])
-        raise MeshFormatError(f"VTK file {path}: cell {i} is a {word} (type {code}) with {sizes[i]} points")
-    P = validate_vertices(P, f"{path.name}: points", dim=3)
-    C = validate_simplices(conn.reshape(-1, size), P.shape[0], size, f"{path.name}: {words}", words=WORDS[kind])
-    return P, C, kind
-
+__all__ = ["parse_vtk", "write_vtk_tets", "write_vtk_cells"]
 
 def write_vtk_tets(path, P, T):
     """Write a tetrahedral mesh as an ASCII legacy VTK unstructured grid, full precision.
@@ -287,8 +207,13 @@ def _vtk_skip_optional(cursor):
             return
 
 
-def _parse_vtk(data, path):
-    """``(points (n, 3) float64, cell types (c,), cells list-of-arrays or (c, 4) int64)`` of a legacy VTK file."""
+def parse_vtk(data, path):
+    """The points and cells of a legacy VTK unstructured grid (bytes ``data``).
+
+    Returns
+    -------
+    VolumeCells
+    """
     data = data.removeprefix(UTF8_BOM)
     head = data[:4096].split(b"\n", 3)
     if len(head) < 4 or not head[0].strip().lower().startswith(b"# vtk datafile version"):
@@ -320,7 +245,7 @@ def _parse_vtk(data, path):
                               f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
     version5 = _vtk_keyword(cursor.peek()) == b"OFFSETS"
-    sizes, conn = _vtk_cells(cursor, a, b, path)
+    offsets, conn = _vtk_cells(cursor, a, b, path)
     a += 0 if version5 else 1  # as many offsets as cells + 1, like version 5
     cells = a - 1
     cursor.expect_keyword("CELLS")
@@ -339,12 +264,14 @@ def _parse_vtk(data, path):
     if tokens and tokens[0].upper() not in _VTK_ATTRIBUTES:
         raise MeshFormatError(f"{path}: unexpected {show(b' '.join(tokens))} after the cell types; only "
                               f"POINT_DATA / CELL_DATA / FIELD sections may follow")
-    return points.reshape(-1, 3), types, sizes, conn
+    cells = vtk_blocks(types, offsets, conn, n, str(path)) if m else []
+    return VolumeCells(points.reshape(-1, 3), cells)
 
 
 
 def _vtk_cells(cursor, a, b, path):
-    """``(sizes (c,), connectivity)`` of a CELLS section declaring ``a`` cells in ``b`` values:
+    """``(offsets (c,): where each cell ends in the connectivity, connectivity (b,))`` of a CELLS
+    section declaring ``a`` cells in ``b`` values:
     version 5's OFFSETS + CONNECTIVITY, or the classic ``size i0 i1 ...`` rows."""
     if _vtk_keyword(cursor.peek()) == b"OFFSETS":  # version 5: offsets + connectivity
         t = cursor.line()
@@ -355,26 +282,23 @@ def _vtk_cells(cursor, a, b, path):
             raise MeshFormatError(f"{path}: expected 'CONNECTIVITY type' after OFFSETS")
         conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64, copy=False)
         offsets = offsets.astype(np.int64, copy=False)
-        if a == 0 or offsets[0] != 0 or offsets[-1] != b or (np.diff(offsets) < 0).any():
+        if a == 0 or offsets[0] != 0 or offsets[-1] != b:
             raise MeshFormatError(f"{path}: the OFFSETS must rise from 0 to the connectivity size {b}")
-        sizes = np.diff(offsets)
-    else:
-        flat = cursor.values(b, "i4", "CELLS").astype(np.int64, copy=False)
-        sizes, conn, pos = [], [], 0
-        k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
-        if k >= 0 and (flat[0::k + 1] == k).all():
-            sizes, conn = np.full(a, k), flat.reshape(a, k + 1)[:, 1:].ravel()
-        else:
-            for _ in range(a):
-                if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
-                    raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but "
-                                          f"its cell sizes do not add up to that")
-                sizes.append(int(flat[pos]))
-                conn.append(flat[pos + 1:pos + 1 + flat[pos]])
-                pos += 1 + flat[pos]
-            if pos != b:
-                raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but the "
-                                      f"cells use {pos}; fix the counts")
-            sizes = np.array(sizes, dtype=np.int64)
-            conn = np.concatenate(conn) if conn else np.zeros(0, dtype=np.int64)
-    return sizes, conn
+        return offsets[1:], conn  # that they rise is checked with the cell types
+    flat = cursor.values(b, "i4", "CELLS").astype(np.int64, copy=False)
+    k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
+    if k >= 0 and (flat[0::k + 1] == k).all():
+        return np.arange(1, a + 1) * k, flat.reshape(a, k + 1)[:, 1:].ravel()
+    sizes, conn, pos = [], [], 0
+    for _ in range(a):
+        if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
+            raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but "
+                                  f"its cell sizes do not add up to that")
+        sizes.append(int(flat[pos]))
+        conn.append(flat[pos + 1:pos + 1 + flat[pos]])
+        pos += 1 + flat[pos]
+    if pos != b:
+        raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but the "
+                              f"cells use {pos}; fix the counts")
+    conn = np.concatenate(conn) if conn else np.zeros(0, dtype=np.int64)
+    return np.cumsum(np.array(sizes, dtype=np.int64)), conn
