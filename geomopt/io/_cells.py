@@ -160,12 +160,13 @@ def vtk_blocks(types, offsets, conn, n, where):
     """The cells of VTK's ``types`` (c,), ``offsets`` (c,: where each cell's points end in ``conn``)
     and connectivity ``conn`` (indices of ``n`` points) as :class:`VolumeCells` blocks, one per type
     in order of first appearance; refuses an unknown type, offsets that do not rise or do not use
-    the whole connectivity, a cell whose size is not its type's, an index outside ``0..n-1``."""
+    the whole connectivity, a cell whose size is not its type's, an index outside ``0..n-1`` (unless
+    ``n`` is None: then an index out of range is left to the validators, a MeshError)."""
     nodes = int(_FIXED[types[0]]) if 0 <= types[0] < len(_FIXED) else -2
     uniform = (nodes > 0 and len(conn) == nodes * len(types) and (types == types[0]).all()
                and (offsets == np.arange(nodes, len(conn) + 1, nodes)).all())  # one type of fixed size, in order
     sizes = None if uniform else _checked_sizes(types, offsets, conn, where)
-    if conn.size and (conn.min() < 0 or conn.max() >= n):
+    if n is not None and conn.size and (conn.min() < 0 or conn.max() >= n):
         v = int(conn[(conn < 0) | (conn >= n)][0])
         raise MeshFormatError(f"{where}: connectivity names point index {v}, outside the piece's points 0..{n - 1}")
     if uniform:

@@ -264,7 +264,7 @@ def parse_vtk(data, path):
     if tokens and tokens[0].upper() not in _VTK_ATTRIBUTES:
         raise MeshFormatError(f"{path}: unexpected {show(b' '.join(tokens))} after the cell types; only "
                               f"POINT_DATA / CELL_DATA / FIELD sections may follow")
-    cells = vtk_blocks(types, offsets, conn, n, str(path)) if m else []
+    cells = vtk_blocks(types, offsets, conn, None, str(path)) if m else []  # indices: MeshError, as content
     return VolumeCells(points.reshape(-1, 3), cells)
 
 
