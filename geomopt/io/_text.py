@@ -167,7 +167,7 @@ def ranges(starts, lengths):
 class Tokens:
     """The whitespace-separated tokens of a text, located by NumPy in a few passes over its bytes.
 
-    Token ``t`` is ``data[start[t]:end[t]]`` (whitespace as :meth:`bytes.split` sees it); no list
+    Token ``t`` is ``data[start[t]:end[t]]`` (whitespace as ``bytes.split`` sees it); no list
     of tokens is built.  ``newlines`` holds the positions of the line feeds (line numbers; ``data``
     starts on file line ``line``).
     """
