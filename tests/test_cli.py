@@ -181,15 +181,15 @@ def test_param_output_that_cannot_be_written_fails_before_solving(cli, tmp_path,
 
 def test_param_write_failure_after_solving_leaves_nothing(cli, tmp_path, monkeypatch):
     mesh = write_obj(tmp_path / "m.obj", V3, F)
-    from geomopt.io import _surface
+    from geomopt.io import _obj
 
-    real = _surface.write_rows
+    real = _obj.write_rows
 
     def disk_full(fh, prefix, A):
         real(fh, prefix, A)  # part of the file is written...
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(_surface, "write_rows", disk_full)
+    monkeypatch.setattr(_obj, "write_rows", disk_full)
     code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")
     assert code == 2
     one_error_line(err, "could not write", "No space left on device", "nothing was written")

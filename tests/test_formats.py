@@ -240,15 +240,18 @@ def test_obj_accepted_variants_read_exactly(tmp_path):
 
 
 def test_obj_slash_corners_read_as_the_general_corner_parser_reads_them(tmp_path, monkeypatch):
-    """The all-'a/t' fast path gives what the general corner grammar gives, or defers to it."""
-    import geomopt.io._surface as surface
+    """The fast path for corners of one form ('a/t' ...) gives what the general corner grammar
+    gives, or defers to it."""
+    import geomopt.io._obj as obj
     from geomopt.io import read_obj_with_uv
 
     head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\n"
     faces = ["f 1/1 2/2 3/3\nf 2/2 4/4 3/3\n", "f -4/-4 -3/-3 -2/-2\nf 2/2 4/4 3/3\n",
              "f 1/1 2/2/1 3/3\nf 2/2 4/4 3/3\n", "f 1/1 2/2 3/3\nf 2/2 4/4 3//1\n", "f 1/1 2/2 3/\nf 2/2 4/4 3/3\n",
              "f 1/1 2/2 3/3/\nf 2/2 4/4 3/3\n", "f 1/1 2/0 3/3\nf 2/2 4/4 3/3\n", "f 1/1 2/2 3/+3\nf 2/2 4/4 3/3\n",
-             "f 1/1 2/2 3/3\nf 2/2 4/4 3\n", "f 1/1 2/2 3/3\nf 2/2 4/5 3/3\n", "f 1/1 2/2/2 3\nf 2/2 4/4 3/3\n"]
+             "f 1/1 2/2 3/3\nf 2/2 4/4 3\n", "f 1/1 2/2 3/3\nf 2/2 4/5 3/3\n", "f 1/1 2/2/2 3\nf 2/2 4/4 3/3\n",
+             "f 1//1 2//1 3//1\nf 2//1 4//1 3//1\n", "f 1//1 2/0/1 3//1\nf 2//1 4//1 3//1\n",
+             "f 1/1/1 2/2/2 3/3/3\nf 2/2/2 4/4/4 3/3/3\n", "f 1/1/1 2//2 3/3/3\nf 2/2/2 4/4/4 3/3/3\n"]
 
     def outcome(path):
         try:
@@ -260,7 +263,7 @@ def test_obj_slash_corners_read_as_the_general_corner_parser_reads_them(tmp_path
         path = put(tmp_path / f"m{i}.obj", head + text)
         fast = outcome(path)
         with monkeypatch.context() as m:
-            m.setattr(surface, "_slash_pairs", lambda joined, count: None)
+            m.setattr(obj, "_regular_corners", lambda text, count: None)
             assert outcome(path) == fast, text
 
 

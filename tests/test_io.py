@@ -165,6 +165,14 @@ def test_validate_simplices_ok_and_errors():
         validate_simplices(np.array([[0, 1, 2, 3], [0, 1, 2, 1]]), 4, 4, "T")
 
 
+def test_validate_simplices_finds_a_repeat_in_any_block_of_rows():
+    """Repeats are looked for a block of rows at a time: one far down a large array is found too."""
+    T = np.arange(4 * 100000).reshape(-1, 4)
+    T[70001, 3] = T[70001, 1]
+    with pytest.raises(MeshError, match=r"1 tetrahedra that use a vertex more than once.*tetrahedron 70001"):
+        validate_simplices(T, T.size, 4, "T")
+
+
 def test_validate_indices():
     assert validate_indices([], 3).shape == (0,)
     assert validate_indices(np.array([2, 0]), 3).tolist() == [2, 0]

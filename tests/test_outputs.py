@@ -134,7 +134,7 @@ from conftest import grid
 import geomopt.io, geomopt.param, geomopt.cli
 
 V2, F = grid(4)
-real = geomopt.io._surface.write_rows
+real = geomopt.io._obj.write_rows
 
 def slow(fh, prefix, A):
     real(fh, prefix, A)
@@ -142,7 +142,7 @@ def slow(fh, prefix, A):
     print("writing", flush=True)
     time.sleep(60)
 
-geomopt.io._surface.write_rows = slow
+geomopt.io._obj.write_rows = slow
 geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
     energy=1.0, mean_energy=1.0, stats=SimpleNamespace(iterations=1, seconds=0.0, setup_seconds=0.0),
     certificate=SimpleNamespace(inverted=0), details=None, outcome=SimpleNamespace(value="converged"),

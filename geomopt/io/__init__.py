@@ -13,7 +13,9 @@ of a file is skipped (the rest is read exactly); UTF-16/32 text is refused; line
 may be LF or CRLF (a lone CR is refused); numbers must be plain decimal ASCII
 (``1``, ``-2.5``, ``1e-3``, ``nan``/``inf`` are read, then non-finite coordinates are
 refused as content); Python-only spellings such as ``1_0``, ``+1`` (for indices),
-``0x10`` or non-ASCII digits are refused.
+``0x10`` or non-ASCII digits are refused.  NumPy parses the numbers (whole sections at once,
+``np.fromstring`` for text and ``np.frombuffer`` for binary); geomopt checks the rest and, only
+when a section does not parse, looks for the token at fault to name it and its line.
 
 Every writer writes atomically (see :func:`atomic_output`) with full float precision
 (the shortest decimal that round-trips ``float64``, or binary ``float64``).  Output paths
@@ -24,20 +26,23 @@ The validators :func:`validate_vertices`, :func:`validate_simplices` and
 benchmark case layout is :mod:`geomopt.lim`.
 
 One module per job: ``_files`` (what a path is), ``_atomic`` (atomic output, path safety and
-a command's outputs: :func:`check_outputs`), ``_text`` (tokenizing), ``_surface``
-(OBJ/OFF/PLY/STL, OBJ quads and the UV writers), ``_volume`` (tetrahedral meshes: :func:`read_tets`,
-:func:`write_tets`; hexahedra and quads: :func:`read_cells`, :func:`write_cells`) over one parser per volume format (``_vtk``, ``_vtu``, ``_gmsh``,
+a command's outputs: :func:`check_outputs`), ``_text`` (tokenizing: NumPy over whole sections),
+``_surface`` (the table of surface formats: :func:`read_mesh`, :func:`write_mesh_with_uv`) over one
+module per format (``_obj``, ``_off``, ``_ply``, ``_stl``; ``_faces`` holds what they share),
+``_volume`` (the table of volume formats: :func:`read_tets`, :func:`write_tets`,
+:func:`read_cells`, :func:`write_cells`) over one parser per format (``_vtk``, ``_vtu``, ``_gmsh``,
 ``_medit``) and the cell-type tables they share (``_cells``); this package only re-exports.
 """
 
 from .._validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
                       create_output_folder)
-from ._surface import (MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, read_obj_quads, read_obj_uv, read_obj_with_uv,
-                       write_mesh_with_uv, write_obj, write_obj_quads, write_obj_with_uv, write_ply_with_uv)
+from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, write_obj_quads, write_obj_with_uv
+from ._ply import write_ply_with_uv
+from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, write_mesh_with_uv
 from ._text import read_vertex_ids
-from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, write_cells, write_tets
-from ._vtk import read_vtk_tets, write_vtk_tets
+from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, read_vtk_tets, write_cells, write_tets
+from ._vtk import write_vtk_tets
 
 __all__ = [
     "MESH_EXTENSIONS",

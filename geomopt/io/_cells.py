@@ -14,7 +14,7 @@ import numpy as np
 
 from .._errors import MeshFormatError, ParameterError
 
-__all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "select_kind",
+__all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "vtk_blocks", "select_kind",
            "first_kind", "code_of", "check_kinds"]
 
 #: The cells the readers return: name -> (nodes per cell, dimension).
@@ -71,6 +71,11 @@ MEDIT_SECTIONS = {
 }
 
 
+#: Points per cell of each VTK type code: the fixed count, -1 where the cell says, -2 for no such type.
+_FIXED = np.full(max(VTK_CELLS) + 1, -2)
+_FIXED[list(VTK_CELLS)] = [-1 if nodes is None else nodes for _, _, nodes in VTK_CELLS.values()]
+
+
 class VolumeCells:
     """What a volume reader found: points and cells by name, in file order.
 
@@ -109,6 +114,8 @@ def first_kind(found, kinds, path):
         raise MeshFormatError(f"{path} has no points")
     present = {name for name, _, _ in found.cells}
     kind = next((k for k in kinds if k in present), None)
+    if not present:
+        raise MeshFormatError(f"{path} has no cells; a mesh of {' or '.join(WORDS[k][1] for k in kinds)} is required")
     if kind is None:
         names = sorted(present) or ["none"]
         wanted = " or ".join(WORDS[k][1] for k in kinds)
@@ -121,9 +128,10 @@ def code_of(table, kind):
     return next(code for code, (name, _, nodes) in table.items() if name == kind and nodes == KINDS[kind][0])
 
 
-def select_kind(found, kind, path):
+def select_kind(found, kind, path, alone=False):
     """The ``(m, nodes)`` cells of ``kind`` (:data:`KINDS`) in file order; lower-dimensional cells
-    beside them are skipped, other cells of its dimension or higher refused (no mixed meshes).
+    beside them are skipped (refused too with ``alone``), other cells of its dimension or higher
+    refused (no mixed meshes).
 
     Raises
     ------
@@ -134,9 +142,10 @@ def select_kind(found, kind, path):
     if len(found.points) == 0:
         raise MeshFormatError(f"{path} has no points")
     dim = KINDS[kind][1]
-    others = sorted({name for name, d, _ in found.cells if d >= dim and name != kind})
+    others = sorted({name for name, d, _ in found.cells if (d >= dim or alone) and name != kind})
     if others:
-        raise MeshFormatError(f"{path} contains non-tetrahedral volume cells ({', '.join(others)}); only linear "
+        raise MeshFormatError(f"{path} contains non-tetrahedral {'' if alone else 'volume '}cells "
+                              f"({', '.join(others)}); only linear "
                               f"{kind} meshes are supported" if kind == "tetra" else
                               f"{path} contains cells other than {WORDS[kind][1]} ({', '.join(others)}); only "
                               f"meshes of linear {WORDS[kind][1]} are supported (no mixed meshes)")
@@ -144,4 +153,52 @@ def select_kind(found, kind, path):
         raise MeshFormatError(f"{path}: Dimension {found.points.shape[1]}; a volume mesh needs Dimension 3")
     first_kind(found, (kind,), path)
     blocks = [c for name, _, c in found.cells if name == kind]
-    return np.concatenate(blocks).astype(np.int64, copy=False)
+    return (blocks[0] if len(blocks) == 1 else np.concatenate(blocks)).astype(np.int64, copy=False)
+
+
+def vtk_blocks(types, offsets, conn, n, where):
+    """The cells of VTK's ``types`` (c,), ``offsets`` (c,: where each cell's points end in ``conn``)
+    and connectivity ``conn`` (indices of ``n`` points) as :class:`VolumeCells` blocks, one per type
+    in order of first appearance; refuses an unknown type, offsets that do not rise or do not use
+    the whole connectivity, a cell whose size is not its type's, an index outside ``0..n-1`` (unless
+    ``n`` is None: then an index out of range is left to the validators, a MeshError)."""
+    nodes = int(_FIXED[types[0]]) if 0 <= types[0] < len(_FIXED) else -2
+    uniform = (nodes > 0 and len(conn) == nodes * len(types) and (types == types[0]).all()
+               and (offsets == np.arange(nodes, len(conn) + 1, nodes)).all())  # one type of fixed size, in order
+    sizes = None if uniform else _checked_sizes(types, offsets, conn, where)
+    if n is not None and conn.size and (conn.min() < 0 or conn.max() >= n):
+        v = int(conn[(conn < 0) | (conn >= n)][0])
+        raise MeshFormatError(f"{where}: connectivity names point index {v}, outside the piece's points 0..{n - 1}")
+    if uniform:
+        name, dim, _ = VTK_CELLS[int(types[0])]
+        return [(name, dim, conn.reshape(-1, nodes).astype(np.int64, copy=False) if name in KINDS else None)]
+    cells, starts = [], offsets - sizes
+    codes, first = np.unique(types, return_index=True)
+    for t in codes[np.argsort(first)].tolist():  # each type once, in order of first appearance
+        name, dim, nodes = VTK_CELLS[t]
+        block = conn[starts[types == t][:, None] + np.arange(nodes)].astype(np.int64) if name in KINDS else None
+        cells.append((name, dim, block))
+    return cells
+
+
+def _checked_sizes(types, offsets, conn, where):
+    """The points of each cell, refusing an unknown type, offsets that do not rise or do not use the
+    whole connectivity, and a cell whose size is not its type's."""
+    known = (types >= 0) & (types < len(_FIXED))
+    fixed = _FIXED[np.where(known, types, 0)]  # points per cell of the type, -1: the cell says, -2: no type
+    unknown = np.flatnonzero(~known | (fixed == -2))
+    if unknown.size:
+        raise MeshFormatError(f"{where}: cell {unknown[0]} has unknown VTK cell type {types[unknown[0]]}")
+    sizes = np.diff(np.r_[0, offsets])
+    if ((sizes <= 0) & (types != 0)).any() or (sizes < 0).any():  # type 0, an empty cell, has no points
+        i = int(np.flatnonzero(((sizes <= 0) & (types != 0)) | (sizes < 0))[0])
+        raise MeshFormatError(f"{where}: cell {i} has no points (offsets must rise: offset {i} is "
+                              f"{offsets[i]}, the one before {offsets[i - 1] if i else 0})")
+    if offsets[-1] != len(conn):
+        raise MeshFormatError(f"{where}: connectivity holds {len(conn)} values but the offsets use {offsets[-1]}")
+    bad = np.flatnonzero((fixed >= 0) & (sizes != fixed))
+    if bad.size:
+        i = int(bad[0])
+        raise MeshFormatError(f"{where}: cell {i} is a {VTK_CELLS[int(types[i])][0]} with {sizes[i]} points, "
+                              f"expected {fixed[i]}")
+    return sizes

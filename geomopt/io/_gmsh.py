@@ -13,7 +13,7 @@ import numpy as np
 
 from .._errors import MeshFormatError
 from ._cells import GMSH_CELLS, KINDS, VolumeCells
-from ._text import UTF8_BOM, TokenRows
+from ._text import UTF8_BOM, ascii_rows
 
 __all__ = ["parse_gmsh"]
 
@@ -37,7 +37,7 @@ def parse_gmsh(data, path):
     if fmt[1] != b"0":
         raise MeshFormatError(f"{path} is a binary Gmsh file; only ASCII .msh files are read exactly "
                               f"(re-save it from Gmsh as ASCII, e.g. `gmsh in.msh -save -format msh41 -bin 0`)")
-    rows = TokenRows(data, path, "Gmsh")
+    rows = ascii_rows(data, path, "Gmsh")
     sections = _sections(rows)
     for name in ("Nodes", "Elements"):
         if len(sections.get(name, ())) != 1:
@@ -53,17 +53,17 @@ def parse_gmsh(data, path):
 
 def _sections(rows):
     """``{name: [(a, b)]}``: the body rows ``a:b`` of each ``$name`` ... ``$Endname`` section."""
-    marks = [r for r, t in enumerate(rows.first) if t[:1] == b"$"] + [len(rows)]
+    marks = np.flatnonzero(rows.head == ord("$")).tolist() + [len(rows)]
     sections, expect = {}, 0
     for k in range(0, len(marks) - 1, 2):
         r, end = marks[k], marks[k + 1]
-        if r != expect or rows.first[r].startswith(b"$End"):
+        if r != expect or rows.key(r).startswith(b"$End"):
             bad = expect if r != expect else r
             raise MeshFormatError(f"{rows.path}, line {rows.lineno[bad]}: {rows.at(bad)!r} outside a section; "
                                   f"expected a section start such as $Nodes")
-        name = rows.first[r][1:].decode()
-        if end == len(rows) or rows.first[end] != f"$End{name}".encode():
-            found = f"{rows.first[end].decode()!r} on line {rows.lineno[end]}" if end < len(rows) else \
+        name = rows.key(r)[1:].decode()
+        if end == len(rows) or rows.key(end) != f"$End{name}".encode():
+            found = f"{rows.key(end).decode()!r} on line {rows.lineno[end]}" if end < len(rows) else \
                 "the end of the file"
             raise MeshFormatError(f"{rows.path}: section ${name} (line {rows.lineno[r]}) is not closed by "
                                   f"$End{name} (found {found}); the file is truncated or malformed")
@@ -113,7 +113,7 @@ def _gmsh22(rows, nodes, elems):
         raise MeshFormatError(f"{rows.path}, line {rows.lineno[c + 1 + short[0]]}: an element needs at least 3 "
                               f"values (tag, type, number of tags)")
     values = rows.ints(c + 1, d, "element")
-    at = rows.start[c + 1:d] - rows.start[c + 1]
+    at = rows.first[c + 1:d] - rows.first[c + 1]
     types, ntags = values[at + 1], values[at + 2]
     per = _nodes_per_element(types, rows, c + 1)
     width = 3 + ntags + per

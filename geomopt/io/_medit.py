@@ -15,7 +15,7 @@ import numpy as np
 
 from .._errors import MeshFormatError
 from ._cells import KINDS, MEDIT_SECTIONS, VolumeCells
-from ._text import UTF8_BOM, TokenRows
+from ._text import UTF8_BOM, ascii_rows
 
 __all__ = ["parse_medit"]
 
@@ -33,14 +33,18 @@ def parse_medit(data, path, dims=(3,)):
     VolumeCells
         ``points`` of shape (n, Dimension).
     """
-    data = re.sub(rb"(?m)^[ \t]*#[^\n]*", b"", data.removeprefix(UTF8_BOM))  # comment lines, kept as blank
-    rows = TokenRows(data, path, "Medit")
-    keyword = np.array([t[:1].isalpha() and t.lower() not in _NOT_KEYWORDS for t in rows.first], dtype=bool)
-    if not len(rows) or rows.first[0] != b"MeshVersionFormatted":
+    data = data.removeprefix(UTF8_BOM)
+    if b"#" in data:
+        data = re.sub(rb"(?m)^[ \t]*#[^\n]*", b"", data)  # comment lines, kept as blank
+    rows = ascii_rows(data, path, "Medit")
+    keyword = (rows.head | 32 >= ord("a")) & (rows.head | 32 <= ord("z"))
+    for r in np.flatnonzero(keyword & np.isin(rows.head | 32, list(b"ni"))).tolist():
+        keyword[r] = rows.key(r).lower() not in _NOT_KEYWORDS
+    if not len(rows) or rows.key(0) != b"MeshVersionFormatted":
         raise MeshFormatError(f"{path} does not start with MeshVersionFormatted; it is not an ASCII Medit file")
     r, header, points, cells, last, seen = 0, {}, None, [], None, {}
     while r < len(rows):
-        key, line = rows.first[r].decode(), rows.lineno[r]
+        key, line = rows.key(r).decode(), rows.lineno[r]
         if not keyword[r]:
             if last is None:
                 raise MeshFormatError(f"{path}, line {line}: expected a section keyword (such as Vertices), "
@@ -78,7 +82,7 @@ def parse_medit(data, path, dims=(3,)):
 
 def _header(rows, r, keyword, header, dims):
     """Read ``MeshVersionFormatted`` or ``Dimension`` (its value on the same or the next line)."""
-    key, line = rows.first[r].decode(), rows.lineno[r]
+    key, line = rows.key(r).decode(), rows.lineno[r]
     on_next = rows.count[r] == 1 and r + 1 < len(rows) and rows.count[r + 1] == 1 and not keyword[r + 1]
     if rows.count[r] != 2 and not on_next:
         raise MeshFormatError(f"{rows.path}, line {line}: {key} needs one integer")
@@ -95,7 +99,7 @@ def _header(rows, r, keyword, header, dims):
 
 def _section(rows, r, keyword, header):
     """Rows ``a:b`` of the section opened on row ``r``: its count and widths checked."""
-    key, line = rows.first[r].decode(), rows.lineno[r]
+    key, line = rows.key(r).decode(), rows.lineno[r]
     if key not in MEDIT_SECTIONS:
         raise MeshFormatError(f"{rows.path}, line {line}: unsupported Medit section {key!r}; supported: "
                               f"{', '.join(MEDIT_SECTIONS)}, End")

@@ -1,7 +1,7 @@
 """Volume meshes: tetrahedral meshes in four formats, each read exactly as the file says or refused.
 
 =========  ==========================================  ===========================================
-extension  read (parsed here, :mod:`geomopt.io`)       written
+extension  read (:mod:`geomopt.io`)                    written
 =========  ==========================================  ===========================================
 ``.vtk``   legacy VTK, ASCII or binary, up to 5.1      ASCII, ``double`` points
            (:func:`~geomopt.io.read_vtk_tets`)         (:func:`~geomopt.io.write_vtk_tets`)
@@ -11,11 +11,14 @@ extension  read (parsed here, :mod:`geomopt.io`)       written
 ``.mesh``  Medit ASCII (``MeshVersionFormatted`` 1/2)  Medit ASCII, version 2 (meshio)
 =========  ==========================================  ===========================================
 
-Every format is parsed here (``_vtk``, ``_vtu``, ``_gmsh``, ``_medit``), never through a
-third-party reader, so that a file is read exactly as it declares itself or refused with one
+Each format has its own parser (``_vtk``, ``_vtu``, ``_gmsh``, ``_medit``; NumPy tokenizes, see
+:mod:`geomopt.io._text`), so that a file is read exactly as it declares itself or refused with one
 line saying why: every count checked against its data, every cell type known
 (:mod:`~geomopt.io._cells`; lower-dimensional cells beside the tets are skipped, other
-volume cells refused), every index defined.  Coordinates are read as the file writes them
+volume cells refused), every index defined.  meshio's readers are not used: they drop unknown
+VTU cell types, keep only the last VTU piece's cells, map a Gmsh node tag 0 to another node and
+refuse valid files (MSH 2.2 with mixed tag counts, an empty MSH 4.1 block, a byte-order mark).
+Coordinates are read as the file writes them
 (decimal text as float64, binary as its declared type); a Medit ``MeshVersionFormatted 1``
 ASCII file's coordinates are not rounded to float32.  Binary Gmsh/Medit files are refused.
 meshio writes ``.vtu``, ``.msh`` and ``.mesh``; its own messages are never printed.  Any
@@ -42,12 +45,11 @@ from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import check_not_empty, existing_file, read_bytes
 from ._gmsh import parse_gmsh
 from ._medit import parse_medit
-from ._surface import read_obj_quads, write_obj_quads
-from ._text import gc_paused
-from ._vtk import read_vtk_cells, write_vtk_cells
+from ._obj import read_obj_quads, write_obj_quads
+from ._vtk import parse_vtk, write_vtk_cells
 from ._vtu import parse_vtu
 
-__all__ = ["TET_FORMATS", "CELL_KINDS", "read_tets", "write_tets", "read_cells", "write_cells"]
+__all__ = ["TET_FORMATS", "CELL_KINDS", "read_tets", "read_vtk_tets", "write_tets", "read_cells", "write_cells"]
 
 #: The tet-mesh formats geomopt reads and writes: extension -> description.
 TET_FORMATS = {
@@ -61,7 +63,7 @@ TET_FORMATS = {
 #: dimension).  Vertex orders are VTK's (Gmsh and Medit use the same for these).
 CELL_KINDS = dict(KINDS)
 
-_PARSERS = {".vtu": parse_vtu, ".msh": parse_gmsh, ".mesh": parse_medit}
+_PARSERS = {".vtk": parse_vtk, ".vtu": parse_vtu, ".msh": parse_gmsh, ".mesh": parse_medit}
 
 
 def _supported():
@@ -127,6 +129,23 @@ def read_tets(path):
     return _read(Path(path), ("tetra",))[:2]
 
 
+def read_vtk_tets(path):
+    """Read a tetrahedral mesh from a legacy VTK unstructured-grid file (any extension), exactly as
+    declared: :func:`read_tets` of a ``.vtk`` file (tetrahedra only, as in LIM cases).
+
+    Returns
+    -------
+    P : numpy.ndarray, shape (n, 3), float64
+    T : numpy.ndarray, shape (m, 4), int64
+        Tetrahedra, 0-based point indices (VTK cell type 10), in file order.
+
+    Raises
+    ------
+    As :func:`read_tets`.
+    """
+    return _read(Path(path), ("tetra",), ".vtk")[:2]
+
+
 def read_cells(path, kinds=("hexahedron", "quad"), format=None):
     """Read a mesh of one kind of cell -- hexahedra or quads by default -- exactly, or refuse it.
 
@@ -170,16 +189,13 @@ def _read(path, kinds, format=None):
     if ext == ".obj" and "quad" in kinds:
         return read_obj_quads(path) + ("quad",)
     ext = _extension(path.with_suffix(ext), "read")
-    if ext == ".vtk":
-        return read_vtk_cells(path, kinds)
     path = existing_file(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     check_not_empty(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     data = read_bytes(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     dims = (2, 3) if "quad" in kinds else (3,)
-    with gc_paused():
-        found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
+    found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
     kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]
-    C = select_kind(found, kind, path)
+    C = select_kind(found, kind, path, alone=ext == ".vtk")
     size, dim = KINDS[kind]
     P = validate_vertices(found.points, f"{path.name}: points", dim=3 if dim == 3 else None)
     return P, validate_simplices(C, P.shape[0], size, f"{path.name}: {WORDS[kind][1]}", words=WORDS[kind]), kind

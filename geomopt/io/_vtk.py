@@ -1,9 +1,12 @@
 """Legacy VTK unstructured grids (``.vtk``), ASCII or binary, read exactly as declared or refused.
 
-Parsed here, file versions up to 5.1 (``OFFSETS``/``CONNECTIVITY``): the counts of
-``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each other; ``METADATA``
-and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` / ``CELL_DATA`` sections after the
-cells are ignored.  Keywords and type names are case-insensitive, as in VTK's own reader.
+File versions up to 5.1 (``OFFSETS``/``CONNECTIVITY``): the counts of ``POINTS``, ``CELLS``
+and ``CELL_TYPES`` must match their data and each other; ``METADATA`` and dataset ``FIELD``
+blocks are skipped; ``POINT_DATA`` / ``CELL_DATA`` sections after the cells are ignored.
+Keywords and type names are case-insensitive, as in VTK's own reader.  Points declared
+``float`` are float32 (then widened), as VTK reads them.  ASCII numbers are parsed by NumPy
+(:mod:`geomopt.io._text`), binary blocks by ``np.frombuffer``; the cells are checked as VTU's
+(:func:`~geomopt.io._cells.vtk_blocks`).
 """
 
 from __future__ import annotations
@@ -15,95 +18,10 @@ import numpy as np
 from .._errors import MeshFormatError
 from .._validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
-from ._cells import KINDS, VTK_CELLS, WORDS, code_of
-from ._files import check_not_empty, existing_file, read_bytes
-from ._text import (FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, gc_paused, ints, show, text_data, write_int_rows,
-                    write_rows)
+from ._cells import KINDS, VTK_CELLS, WORDS, VolumeCells, code_of, vtk_blocks
+from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
 
-__all__ = ["read_vtk_tets", "write_vtk_tets", "read_vtk_cells", "write_vtk_cells"]
-
-# ------------------------------------------------------------------------ VTK (public)
-
-
-def read_vtk_tets(path):
-    """Read a tetrahedral mesh from a legacy VTK unstructured-grid file, exactly as declared.
-
-    Parsed here (ASCII or binary, file versions up to 5.1 with ``OFFSETS``/``CONNECTIVITY``):
-    the counts of ``POINTS``, ``CELLS`` and ``CELL_TYPES`` must match their data and each
-    other; ``METADATA`` and dataset ``FIELD`` blocks are skipped; ``POINT_DATA`` /
-    ``CELL_DATA`` sections after the cells are ignored.  Points declared ``float`` are
-    float32 (then widened), as VTK reads them; files written by :func:`write_vtk_tets`
-    declare ``double`` and round-trip exactly.  Keywords (``POINTS``, ``cells``...) and type
-    names are case-insensitive, as in VTK's own reader.  Text conventions as in the module notes.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        ``.vtk`` file (legacy format).
-
-    Returns
-    -------
-    P : numpy.ndarray, shape (n, 3), float64
-        Point positions.
-    T : numpy.ndarray, shape (m, 4), int64
-        Tetrahedra, 0-based point indices (VTK cell type 10), in file order.
-
-    Raises
-    ------
-    MeshFormatError
-        Missing, not a regular file, empty, malformed, counts that differ from the data, no
-        points, no cells, or cells other than tetrahedra (the message lists the types found).
-    MeshError
-        Non-finite coordinates, indices out of range, repeated vertices in a tet.
-    """
-    return read_vtk_cells(path, ("tetra",))[:2]
-
-
-def read_vtk_cells(path, kinds):
-    """Read a legacy VTK mesh of one of ``kinds`` (:data:`~geomopt.io._cells.KINDS` names, by
-    priority), exactly as declared; as :func:`read_vtk_tets` otherwise.
-
-    Returns
-    -------
-    P : numpy.ndarray, shape (n, 3), float64
-    C : numpy.ndarray, shape (m, k), int64
-        Cells, 0-based, VTK's vertex order.
-    kind : str
-        The kind read: the first of ``kinds`` the file holds.
-
-    Raises
-    ------
-    MeshFormatError
-        As :func:`read_vtk_tets`; cells of any other type, of any dimension, are refused.
-    MeshError
-        As :func:`read_vtk_tets`.
-    """
-    path = existing_file(path, "VTK file")
-    check_not_empty(path, "VTK file")
-    with gc_paused():
-        P, types, sizes, conn = _parse_vtk(read_bytes(path, "VTK file"), path)
-    wanted = " or ".join(WORDS[k][1] for k in kinds)
-    if len(P) == 0:
-        raise MeshFormatError(f"VTK file {path} has no points")
-    if types.size == 0:
-        need = "tetrahedral mesh" if kinds == ("tetra",) else f"mesh of {wanted}"
-        raise MeshFormatError(f"VTK file {path} has no cells; a {need} is required")
-    codes = {k: code_of(VTK_CELLS, k) for k in kinds}
-    kind = next((k for k in kinds if (types == codes[k]).any()), kinds[0])
-    code, (size, _), (word, words) = codes[kind], KINDS[kind], WORDS[kind]
-    others = sorted({VTK_CELLS.get(int(t), (f"type {int(t)}",))[0] for t in np.unique(types[types != code])})
-    if others:
-        only = ("tetrahedral meshes (VTK cell type 10)" if kinds == ("tetra",) else
-                f"meshes of {wanted} (VTK cell type {' or '.join(str(codes[k]) for k in kinds)})")
-        what = "non-tetrahedral cells" if kind == "tetra" else f"cells other than {words}"
-        raise MeshFormatError(f"VTK file {path} contains {what} ({', '.join(others)}); only {only} are supported")
-    if (np.asarray(sizes) != size).any():
-        i = int(np.flatnonzero(np.asarray(sizes) != size)[0])
-        raise MeshFormatError(f"VTK file {path}: cell {i} is a {word} (type {code}) with {sizes[i]} points")
-    P = validate_vertices(P, f"{path.name}: points", dim=3)
-    C = validate_simplices(conn.reshape(-1, size), P.shape[0], size, f"{path.name}: {words}", words=WORDS[kind])
-    return P, C, kind
-
+__all__ = ["parse_vtk", "write_vtk_tets", "write_vtk_cells"]
 
 def write_vtk_tets(path, P, T):
     """Write a tetrahedral mesh as an ASCII legacy VTK unstructured grid, full precision.
@@ -178,10 +96,14 @@ _VTK_ATTRIBUTES = (b"POINT_DATA", b"CELL_DATA")
 
 
 class _VtkCursor:
-    """Reads a legacy VTK file section by section: keyword lines, then ASCII tokens or binary blocks."""
+    """Reads a legacy VTK file section by section: keyword lines, then ASCII numbers (parsed by
+    NumPy, :class:`~geomopt.io._text.Tokens`) or binary blocks (``np.frombuffer``)."""
 
-    def __init__(self, data, binary, path):
-        self.data, self.pos, self.binary, self.path = data, 0, binary, path
+    def __init__(self, data, binary_start, path):
+        """``data`` from byte ``binary_start`` in a binary file; ``None``: all of ``data``, ASCII text
+        from the file's line 4."""
+        self.data, self.pos, self.binary, self.path = data, binary_start or 0, binary_start is not None, path
+        self.tokens = None if self.binary else Tokens(data, path, line=4)
 
     def line(self):
         """Tokens of the next non-blank line (``[]`` at the end of the file)."""
@@ -206,24 +128,22 @@ class _VtkCursor:
             if self.pos + size > len(self.data):
                 raise MeshFormatError(f"{self.path}: the file ends inside the {section} section (it declares "
                                       f"{count} values, {size} bytes); the file is truncated or a count is wrong")
-            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)
+            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)  # native byte order
             self.pos += size
             return out
-        parts = self.data[self.pos:].split(None, count)
-        tokens = parts[:count]
-        if len(tokens) < count:
+        tokens, dtype = self.tokens, np.float64 if code[0] == "f" else np.int64
+        t = int(np.searchsorted(tokens.start, self.pos))
+        if len(tokens) - t < count:
             raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
-                                  f"ends after {len(tokens)}; the file is truncated or a count is wrong")
-        self.pos = len(self.data) - (len(parts[count]) if len(parts) > count else 0)
-        where = lambda i: f"{self.path}, {section} section, value {i + 1}"  # noqa: E731
-        try:
-            values = floats(tokens, where) if code[0] == "f" else ints(tokens, where)
-        except MeshFormatError:  # name the next section's keyword if that is what came too early
-            bad = first_bad(tokens, FLOAT_RE if code[0] == "f" else INT_RE)
-            if bad is not None and re.fullmatch(rb"[A-Za-z_]{2,}", tokens[bad]):
+                                  f"ends after {len(tokens) - t}; the file is truncated or a count is wrong")
+        values = parse(self.data[tokens.start[t]:tokens.end[t + count - 1]], dtype) if count else np.zeros(0, dtype)
+        if values is None or len(values) != count:
+            bad = tokens.first_bad(np.arange(t, t + count), dtype)
+            if re.fullmatch(rb"[A-Za-z_]{2,}", tokens.text(bad)):  # the next section came too early
                 raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
-                                      f"{show(tokens[bad])} follows after {bad}; fix the count") from None
-            raise
+                                      f"{show(tokens.text(bad))} follows after {bad - t}; fix the count")
+            tokens.refuse(bad, dtype, where=lambda i: f"{self.path}, {section} section, value {i - t + 1}")
+        self.pos = int(tokens.end[t + count - 1]) if count else self.pos
         if code[0] == "f":
             with np.errstate(over="ignore"):
                 return values.astype(code)
@@ -287,21 +207,24 @@ def _vtk_skip_optional(cursor):
             return
 
 
-def _parse_vtk(data, path):
-    """``(points (n, 3) float64, cell types (c,), cells list-of-arrays or (c, 4) int64)`` of a legacy VTK file."""
+def parse_vtk(data, path):
+    """The points and cells of a legacy VTK unstructured grid (bytes ``data``).
+
+    Returns
+    -------
+    VolumeCells
+    """
     data = data.removeprefix(UTF8_BOM)
-    head = data.split(b"\n", 3)
+    head = data[:4096].split(b"\n", 3)
     if len(head) < 4 or not head[0].strip().lower().startswith(b"# vtk datafile version"):
         raise MeshFormatError(f"{path} does not start with '# vtk DataFile Version ...'; it is not a legacy "
                               f"VTK file")
     mode = head[2].strip().upper()
     if mode not in (b"ASCII", b"BINARY"):
         raise MeshFormatError(f"{path}, line 3: expected ASCII or BINARY, found {show(head[2].strip())}")
-    binary = mode == b"BINARY"
-    body = head[3]
-    if not binary:
-        body = text_data(body, path, "VTK file")
-    cursor = _VtkCursor(body, binary, path)
+    binary, start = mode == b"BINARY", sum(len(line) + 1 for line in head[:3])
+    cursor = _VtkCursor(data, start, path) if binary else _VtkCursor(text_data(data[start:], path, "VTK file"), None,
+                                                                      path)
     tokens = cursor.line()
     if [t.upper() for t in tokens] != [b"DATASET", b"UNSTRUCTURED_GRID"]:
         found = show(b" ".join(tokens)) if tokens else "nothing"
@@ -313,7 +236,7 @@ def _parse_vtk(data, path):
         raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
                               f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     n = _vtk_count(tokens, 1, cursor, "POINTS")
-    points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64)
+    points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64, copy=False)
     cursor.expect_keyword("POINTS")
     _vtk_skip_optional(cursor)
     tokens = cursor.line()
@@ -322,7 +245,7 @@ def _parse_vtk(data, path):
                               f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
     a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
     version5 = _vtk_keyword(cursor.peek()) == b"OFFSETS"
-    sizes, conn = _vtk_cells(cursor, a, b, path)
+    offsets, conn = _vtk_cells(cursor, a, b, path)
     a += 0 if version5 else 1  # as many offsets as cells + 1, like version 5
     cells = a - 1
     cursor.expect_keyword("CELLS")
@@ -341,12 +264,14 @@ def _parse_vtk(data, path):
     if tokens and tokens[0].upper() not in _VTK_ATTRIBUTES:
         raise MeshFormatError(f"{path}: unexpected {show(b' '.join(tokens))} after the cell types; only "
                               f"POINT_DATA / CELL_DATA / FIELD sections may follow")
-    return points.reshape(-1, 3), types, sizes, conn
+    cells = vtk_blocks(types, offsets, conn, None, str(path)) if m else []  # indices: MeshError, as content
+    return VolumeCells(points.reshape(-1, 3), cells)
 
 
 
 def _vtk_cells(cursor, a, b, path):
-    """``(sizes (c,), connectivity)`` of a CELLS section declaring ``a`` cells in ``b`` values:
+    """``(offsets (c,): where each cell ends in the connectivity, connectivity (b,))`` of a CELLS
+    section declaring ``a`` cells in ``b`` values:
     version 5's OFFSETS + CONNECTIVITY, or the classic ``size i0 i1 ...`` rows."""
     if _vtk_keyword(cursor.peek()) == b"OFFSETS":  # version 5: offsets + connectivity
         t = cursor.line()
@@ -355,28 +280,25 @@ def _vtk_cells(cursor, a, b, path):
         t = cursor.line()
         if _vtk_keyword(t) != b"CONNECTIVITY" or len(t) != 2:
             raise MeshFormatError(f"{path}: expected 'CONNECTIVITY type' after OFFSETS")
-        conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64)
-        offsets = offsets.astype(np.int64)
-        if a == 0 or offsets[0] != 0 or offsets[-1] != b or (np.diff(offsets) < 0).any():
+        conn = cursor.values(b, _vtk_type(t[1], cursor, "CONNECTIVITY"), "CONNECTIVITY").astype(np.int64, copy=False)
+        offsets = offsets.astype(np.int64, copy=False)
+        if a == 0 or offsets[0] != 0 or offsets[-1] != b:
             raise MeshFormatError(f"{path}: the OFFSETS must rise from 0 to the connectivity size {b}")
-        sizes = np.diff(offsets)
-    else:
-        flat = cursor.values(b, "i4", "CELLS").astype(np.int64)
-        sizes, conn, pos = [], [], 0
-        k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
-        if k >= 0 and (flat[0::k + 1] == k).all():
-            sizes, conn = np.full(a, k), flat.reshape(a, k + 1)[:, 1:].ravel()
-        else:
-            for _ in range(a):
-                if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
-                    raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but "
-                                          f"its cell sizes do not add up to that")
-                sizes.append(int(flat[pos]))
-                conn.append(flat[pos + 1:pos + 1 + flat[pos]])
-                pos += 1 + flat[pos]
-            if pos != b:
-                raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but the "
-                                      f"cells use {pos}; fix the counts")
-            sizes = np.array(sizes, dtype=np.int64)
-            conn = np.concatenate(conn) if conn else np.zeros(0, dtype=np.int64)
-    return sizes, conn
+        return offsets[1:], conn  # that they rise is checked with the cell types
+    flat = cursor.values(b, "i4", "CELLS").astype(np.int64, copy=False)
+    k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
+    if k >= 0 and (flat[0::k + 1] == k).all():
+        return np.arange(1, a + 1) * k, flat.reshape(a, k + 1)[:, 1:].ravel()
+    sizes, conn, pos = [], [], 0
+    for _ in range(a):
+        if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
+            raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but "
+                                  f"its cell sizes do not add up to that")
+        sizes.append(int(flat[pos]))
+        conn.append(flat[pos + 1:pos + 1 + flat[pos]])
+        pos += 1 + flat[pos]
+    if pos != b:
+        raise MeshFormatError(f"{path}: the CELLS section declares {a} cells in {b} values, but the "
+                              f"cells use {pos}; fix the counts")
+    conn = np.concatenate(conn) if conn else np.zeros(0, dtype=np.int64)
+    return np.cumsum(np.array(sizes, dtype=np.int64)), conn

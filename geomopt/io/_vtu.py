@@ -22,8 +22,8 @@ from xml.etree import ElementTree
 import numpy as np
 
 from .._errors import MeshFormatError
-from ._cells import KINDS, VTK_CELLS, VolumeCells
-from ._text import FLOAT_RE, INT_RE, UTF8_BOM, first_bad, floats, ints
+from ._cells import VolumeCells, vtk_blocks
+from ._text import UTF8_BOM, Tokens
 
 __all__ = ["parse_vtu"]
 
@@ -31,9 +31,6 @@ _TYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "
           "Int64": "i8", "UInt64": "u8", "Float32": "f4", "Float64": "f8"}
 _VERSIONS = ("0.1", "1.0", "2.0", "2.1", "2.2")
 _APPENDED = re.compile(rb"<AppendedData\b[^>]*>")
-#: Points per cell of each VTK type code: the fixed count, -1 where the cell says, -2 for no such type.
-_FIXED = np.full(max(VTK_CELLS) + 1, -2)
-_FIXED[list(VTK_CELLS)] = [-1 if nodes is None else nodes for _, _, nodes in VTK_CELLS.values()]
 
 
 class _File:
@@ -163,7 +160,7 @@ def _piece(piece, file, where):
     types = _array(arrays["types"], file, f"{where}, types", m)
     offsets = _array(arrays["offsets"], file, f"{where}, offsets", m)
     conn = _array(arrays["connectivity"], file, f"{where}, connectivity", None)
-    return points.reshape(n, 3), _cells(types, offsets, conn, n, where)
+    return points.reshape(n, 3), vtk_blocks(types, offsets, conn, n, where)
 
 
 def _count(piece, key, where):
@@ -171,40 +168,6 @@ def _count(piece, key, where):
     if not text.strip().isdigit():
         raise MeshFormatError(f"{where}: {key}={text!r}; a whole number >= 0 is required")
     return int(text)
-
-
-def _cells(types, offsets, conn, n, where):
-    """Cell blocks named by :data:`VTK_CELLS`, in file order; refuses what the file does not declare."""
-    known = (types >= 0) & (types < len(_FIXED))
-    fixed = _FIXED[np.where(known, types, 0)]  # points per cell of the type, -1: the cell says, -2: no type
-    unknown = np.flatnonzero(~known | (fixed == -2))
-    if unknown.size:
-        raise MeshFormatError(f"{where}: cell {unknown[0]} has unknown VTK cell type {types[unknown[0]]}")
-    sizes = np.diff(np.r_[0, offsets])
-    if ((sizes <= 0) & (types != 0)).any() or (sizes < 0).any():  # type 0, an empty cell, has no points
-        i = int(np.flatnonzero(((sizes <= 0) & (types != 0)) | (sizes < 0))[0])
-        raise MeshFormatError(f"{where}: cell {i} has no points (offsets must rise: offset {i} is "
-                              f"{offsets[i]}, the one before {offsets[i - 1] if i else 0})")
-    if offsets[-1] != len(conn):
-        raise MeshFormatError(f"{where}: connectivity holds {len(conn)} values but the offsets use {offsets[-1]}")
-    bad = np.flatnonzero((fixed >= 0) & (sizes != fixed))
-    if bad.size:
-        i = int(bad[0])
-        raise MeshFormatError(f"{where}: cell {i} is a {VTK_CELLS[int(types[i])][0]} with {sizes[i]} points, "
-                              f"expected {fixed[i]}")
-    if conn.size and (conn.min() < 0 or conn.max() >= n):
-        v = int(conn[(conn < 0) | (conn >= n)][0])
-        raise MeshFormatError(f"{where}: connectivity names point index {v}, outside the piece's points 0..{n - 1}")
-    cells, starts = [], offsets - sizes
-    codes, first = np.unique(types, return_index=True)
-    for t in codes[np.argsort(first)].tolist():  # each type once, in order of first appearance
-        name, dim, nodes = VTK_CELLS[t]
-        chosen = types == t
-        block = None
-        if name in KINDS:
-            block = conn[starts[chosen][:, None] + np.arange(nodes)].astype(np.int64)
-        cells.append((name, dim, block))
-    return cells
 
 
 def _array(element, file, where, expected, real=False, components=1):
@@ -243,13 +206,9 @@ def _array(element, file, where, expected, real=False, components=1):
 
 
 def _ascii(text, code, where):
-    tokens = text.encode().split()
-    regex = FLOAT_RE if code[0] == "f" else INT_RE
-    bad = first_bad(tokens, regex)
-    if bad is not None:
-        raise MeshFormatError(f"{where}: cannot read {tokens[bad][:40].decode(errors='replace')!r} as "
-                              f"{'a number' if code[0] == 'f' else 'an integer'}")
-    values = floats(tokens, lambda i: where) if code[0] == "f" else ints(tokens, lambda i: where)
+    tokens = Tokens(text.encode(), where)
+    dtype = np.float64 if code[0] == "f" else np.int64
+    values = tokens.numbers(0, len(tokens), dtype, where=lambda t: where)
     if code[0] != "f" and values.size:
         info = np.iinfo(code)
         if values.min() < info.min or values.max() > info.max:
