@@ -292,6 +292,7 @@ def test_off_variants_and_errors(tmp_path):
         ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2 x\n", "line 6 \\(face colour\\): cannot read 'x'"),
         ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1_0\n", "line 6: cannot read '1_0' as an integer"),
         ("OFF\n3 1\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 2\n", "declares 3 vertices and 1 faces, but the file holds more"),
+        ("COFF\n3 1 0\n0 0 0 1 0 x 1\n1 0 0 1 0 0 1\n0 1 0 1 0 0 1\n3 0 1 2\n", "line 3: cannot read 'x'"),
         ("OFF BINARY\n", "binary OFF"),
         ("4OFF\n3 1 0\n", "not supported"),
         ("MESH\n3 1 0\n", "must start with the keyword 'OFF'"),
