@@ -132,32 +132,56 @@ def cpp_binary(path, dim):
     return (p.parent if p.is_file() else p) / f"untangle{dim}d"
 
 
+def cpp_args(binary, folder, dim, out):
+    """The command line of the C++ on the case folder ``folder`` writing ``out``."""
+    folder = Path(folder)
+    return [str(binary), str(folder / "input.obj"), str(out)] if dim == 2 else \
+        [str(binary), str(folder / "init.vtk"), str(folder / "rest.vtk"), str(out)]
+
+
+def cpp_solve_seconds(text):
+    """The C++'s own solve seconds ("running time", its eps loop) from its output, or nan."""
+    m = re.search(r"running time: ([0-9.e+-]+) s", text)
+    return float(m.group(1)) if m else float("nan")
+
+
+def read_map(out, dim):
+    """The map a run wrote to ``out`` (OBJ in 2D, VTK tets in 3D)."""
+    return read_mesh(out)[0][:, :2] if dim == 2 else read_vtk_tets(out)[0]
+
+
 def run_cpp(binary, folder, dim, threads, out):
     """(solve s, whole-process wall s, the output map or None) of the C++ on one case."""
-    args = [str(binary), str(folder / "input.obj"), str(out)] if dim == 2 else \
-        [str(binary), str(folder / "init.vtk"), str(folder / "rest.vtk"), str(out)]
     t = time.perf_counter()
-    p = subprocess.run(args, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS=str(threads)))
+    p = subprocess.run(cpp_args(binary, folder, dim, out), capture_output=True, text=True,
+                       env=dict(os.environ, OMP_NUM_THREADS=str(threads)))
     wall = time.perf_counter() - t
-    m = re.search(r"running time: ([0-9.e+-]+) s", p.stderr + p.stdout)
     if p.returncode != 0 or not out.exists():
         return float("nan"), wall, None
-    x = read_mesh(out)[0][:, :2] if dim == 2 else read_vtk_tets(out)[0]
-    return (float(m.group(1)) if m else float("nan")), wall, x
+    return cpp_solve_seconds(p.stderr + p.stdout), wall, read_map(out, dim)
+
+
+def geomopt_args(cmd, folder, out, pin=None, command="untangle", quiet=True):
+    """The command line of one ``geomopt untangle`` (or ``command``) process with ``--json``
+    (and ``--quiet`` unless ``quiet`` is false: then its progress goes to stderr)."""
+    return (["taskset", "-c", pin] if pin else []) + cmd + [command, str(folder), "-o", str(out), "--json"] + \
+        ["--quiet"] * quiet
+
+
+def json_summary(stdout, stderr):
+    """The ``--json`` summary (the last stdout line) of a geomopt process, or a failure record."""
+    try:
+        return json.loads(stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        return {"success": False, "error": stderr[-300:]}
 
 
 def run_geomopt(cmd, folder, out, pin=None):
     """(whole-process wall s, the --json summary) of one ``geomopt untangle`` process."""
-    args = (["taskset", "-c", pin] if pin else []) + cmd + ["untangle", str(folder), "-o", str(out), "--json",
-                                                           "--quiet"]
     t = time.perf_counter()
-    p = subprocess.run(args, capture_output=True, text=True)
+    p = subprocess.run(geomopt_args(cmd, folder, out, pin), capture_output=True, text=True)
     wall = time.perf_counter() - t
-    try:
-        summary = json.loads(p.stdout.strip().splitlines()[-1])
-    except (IndexError, json.JSONDecodeError):
-        summary = {"success": False, "error": p.stderr[-300:]}
-    return wall, summary
+    return wall, json_summary(p.stdout, p.stderr)
 
 
 def _med(values):

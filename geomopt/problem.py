@@ -327,7 +327,9 @@ class Problem:
             fixed_positions=np.zeros((0, d)),
             elements=elements,
         )
-        unused = np.setdiff1d(np.arange(len(V)), S.ravel())
+        used = np.zeros(len(V), bool)
+        used[S.ravel()] = True  # a mask, not setdiff1d: that sorts every corner (2.2 s at 1e6 tets)
+        unused = np.flatnonzero(~used)
         if unused.size:
             raise MeshError(
                 f"{unused.size} vertices are not used by any element (first: {unused[:5].tolist()}); "

@@ -40,3 +40,14 @@ def test_smooth_checks_fixed_vertices(fixed, match):
     V, E = G.sector_mesh(3, 4, 0, perturb=0.3)
     with pytest.raises(MeshError, match=match):
         smooth(V, E, fixed=fixed)
+
+
+def test_problem_refuses_vertices_no_element_uses():
+    from geomopt import Problem
+
+    V, F = G.square_mesh(3)
+    V = np.vstack([V[:4], [[5.0, 5.0]], V[4:], [[6.0, 6.0]]])  # vertex 4 and the last one unused
+    F = np.where(F >= 4, F + 1, F)
+    with pytest.raises(MeshError, match=r"2 vertices are not used by any element \(first: \[4, 10\]\)"):
+        Problem.planar(V, F)
+    assert Problem.planar(V[[0, 1, 2, 3, 5, 6, 7, 8, 9]], np.where(F > 4, F - 1, F)).n_vertices == 9

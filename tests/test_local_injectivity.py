@@ -642,3 +642,31 @@ def test_boundary_stars_match_a_sampled_direction_oracle():
             assert covered <= 1
         seen[cert.ok] += 1
     assert seen[True] > 10 and seen[False] > 10, seen
+
+
+def test_a_map_certified_again_unchanged_is_not_recomputed_and_a_changed_one_is(monkeypatch):
+    """local_certificate remembers its last answers by the content of its inputs: the same bytes
+    (the untangled map, then the file written from it and read back) are not certified twice,
+    while the same array changed in place, or another orientation, is certified anew."""
+    import collections
+
+    import geomopt.certify as C
+
+    monkeypatch.setattr(C, "_RECENT", collections.OrderedDict())  # nothing remembered from other tests
+    V, T = cylinder()[:2]
+    _, _, X, _ = wrapped_cylinder(2.0)  # positive tets, branch edges on the axis
+    calls = []
+    real = C.star_overlaps_3d
+    monkeypatch.setattr(C, "star_overlaps_3d", lambda *a: calls.append(1) or real(*a))
+    first = local_certificate(X, T)
+    again = local_certificate(X.copy(), T.copy())  # equal bytes, other arrays
+    assert len(calls) == 1 and not again.ok
+    assert np.array_equal(again.branch_edges, first.branch_edges) and again.message == first.message
+    again.branch_edges[:] = -1  # the copy handed out is the caller's own
+    assert (local_certificate(X, T).branch_edges >= 0).all()
+    Y = X.copy()
+    local_certificate(Y, T)
+    Y[:] = V  # the same array object, now the rest mesh: certified, not the remembered answer
+    assert local_certificate(Y, T).ok and len(calls) == 2
+    assert local_certificate(V, T[:, [1, 0, 2, 3]], orientation=-1).ok  # another key
+    assert local_certificate(V, T[:, [1, 0, 2, 3]]).inverted == len(T)
