@@ -31,7 +31,7 @@ def log(msg):
 
 
 def meshes(paths, generated):
-    from geomopt import generators
+    from geomopt.mesh import generators
     from geomopt.io import read_mesh
 
     out = {}

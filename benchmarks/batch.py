@@ -8,7 +8,7 @@ Usage::
 1. Generates ``--cases`` LIM case folders under ``ROOT/cases`` (kept and reused when already
    there with the same count): 2D rotated squares, noisy disks and Tutte maps onto star /
    L / crescent polygons of about 300-3,000 triangles, and 3D twisted or bent rods and rotated
-   cubes of about 300-3,000 tets (one in seven cases), all from :mod:`geomopt.generators`,
+   cubes of about 300-3,000 tets (one in seven cases), all from :mod:`geomopt.mesh.generators`,
    written with :meth:`geomopt.lim.LimCase.write`.
 2. Batch, cold: ``python -m geomopt untangle ROOT/cases -o ROOT/out-cold --workers N`` with an
    empty compilation cache (``GEOMOPT_CACHE_DIR``); the whole process is timed, start-up,
@@ -46,8 +46,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from geomopt import generators as G  # noqa: E402
-from geomopt._padding import bucket_sizes  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
+from geomopt._runtime.padding import bucket_sizes  # noqa: E402
 from geomopt.lim import LimCase  # noqa: E402
 
 

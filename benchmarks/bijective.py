@@ -7,12 +7,12 @@ projected Newton:
 * bijective: :func:`geomopt.scaffold.bijective_parameterize`.
 
 Cases: the shared meshes (``../shared/data/meshes`` from the repository root; Tutte start) and
-generated surfaces whose flattening may overlap (:mod:`geomopt.generators`: spiral strips from
+generated surfaces whose flattening may overlap (:mod:`geomopt.mesh.generators`: spiral strips from
 their ``xy`` projection, a ruffled disk and saddles from Tutte).  Each mode is run once cold (JIT
 compilation) and ``--repeat`` times warm; the warm run with the median total time is reported
 (total = the whole call: start map, scaling, solve, and for bijective the scaffold and the
 certificate).  For each result the exact certificate
-(:func:`geomopt.certify.certify_bijective`) counts inverted triangles and crossing boundary edge
+(:func:`geomopt.exact.certify.certify_bijective`) counts inverted triangles and crossing boundary edge
 pairs; its time is reported for the plain result.
 
 ``--certificate-edges N`` (default 10^6) also times the certificate on a polygon of N edges and
@@ -42,7 +42,7 @@ def log(msg):
 
 
 def generated():
-    from geomopt import generators as g
+    from geomopt.mesh import generators as g
 
     return {
         "spiral": (*g.spiral_strip(), "xy"),
@@ -79,7 +79,7 @@ def timed(fn, repeat):
 
 def run_case(name, gen, repeat, args):
     import geomopt
-    from geomopt.certify import certify_bijective
+    from geomopt.exact.certify import certify_bijective
     from geomopt.scaffold import bijective_parameterize
 
     V, F, x0 = load(name, gen)
@@ -127,9 +127,9 @@ def table(rows):
 def certificate_timing(n_edges, repeat):
     """Median seconds of polygon_crossings on an n-edge spiral band polygon and of
     certify_bijective on a strip mesh with about n boundary edges."""
-    from geomopt.certify import certify_bijective, polygon_crossings
-    from geomopt.generators import spiral_strip
-    from geomopt.topology import check_disk
+    from geomopt.exact.certify import certify_bijective, polygon_crossings
+    from geomopt.mesh.generators import spiral_strip
+    from geomopt.exact.topology import check_disk
 
     half = n_edges // 2
     t = np.linspace(0.0, 40 * np.pi, half)

@@ -1,11 +1,11 @@
 """Held-out untangling families for the benchmarks (not used to tune geomopt's defaults).
 
-Each function returns a :class:`geomopt.generators.Tangle` with the boundary fixed:
+Each function returns a :class:`geomopt.mesh.generators.Tangle` with the boundary fixed:
 
 * :func:`delaunay_ball` / :func:`delaunay_disk` -- irregular meshes: ``scipy.spatial.Delaunay``
   of a random point cloud in the unit ball / disk with points spread evenly over the sphere /
-  circle (a Fibonacci lattice), tangled by :func:`geomopt.generators.rotated_interior` or
-  :func:`~geomopt.generators.noisy_interior`;
+  circle (a Fibonacci lattice), tangled by :func:`geomopt.mesh.generators.rotated_interior` or
+  :func:`~geomopt.mesh.generators.noisy_interior`;
 * :func:`delaunay_annulus` -- a 2D domain with a hole (both circles fixed);
 * :func:`l_box` -- a non-convex tet domain (a box less one quarter column);
 * :func:`torus_box` -- a genus-1 tet domain (a box with a square hole along z);
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import Delaunay
 
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 
 
 def _fibonacci_sphere(k):
@@ -158,7 +158,7 @@ def surfaces(mesh_dir, out_dir):
 
     igea_cut decimated to 44k triangles, armadillo_cut_low to 36k, bunny_cut upsampled then
     decimated to 40k, camelhead Loop-subdivided then decimated to 48k (libigl's edge-collapse
-    ``decimate``), a ruffled disk of 42k and a saddle of 33k (:mod:`geomopt.generators`).
+    ``decimate``), a ruffled disk of 42k and a saddle of 33k (:mod:`geomopt.mesh.generators`).
     A result that is not a disk is skipped."""
     import igl
     from pathlib import Path

@@ -43,8 +43,8 @@ import numpy as np  # noqa: E402
 
 import geomopt  # noqa: E402
 from geomopt import Objective, Problem, implicit  # noqa: E402
-from geomopt import generators as G  # noqa: E402
-from geomopt.topology import boundary_vertices  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
+from geomopt.exact.topology import boundary_vertices  # noqa: E402
 
 
 def _median_time(f, repeat):
@@ -122,7 +122,7 @@ def twisted_box(tets, repeat):
 
 
 def energy(triangles, repeat):
-    from geomopt._objective import value_and_grad_kernel
+    from geomopt.objective.objective import value_and_grad_kernel
 
     n = max(2, round((triangles / 2) ** 0.5)) + 1
     V, F = G.square_mesh(n)

@@ -39,8 +39,8 @@ certificate; the C++ output by the exact orientation predicate), the load averag
 bandwidth (best of 5 streaming copies of a 1 GiB array: 2 GiB moved each) and, warm (after
 compilation), the median of several calls with ``block_until_ready`` of energy + gradient
 (:meth:`geomopt.Objective.value_and_grad`), the assembled projected Hessian
-(:meth:`geomopt.Objective.hessian`), the injective bound (:func:`geomopt.linesearch.max_injective_step`)
-and one injective search (:class:`geomopt.linesearch.InjectiveSearch`), each as a ratio to the
+(:meth:`geomopt.Objective.hessian`), the injective bound (:func:`geomopt.solvers.linesearch.max_injective_step`)
+and one injective search (:class:`geomopt.solvers.linesearch.InjectiveSearch`), each as a ratio to the
 time its bytes take to move once at that bandwidth: the arrays it must read (positions,
 directions, element indices, rest inverse matrices and sizes, the free mask, the Hessian's
 assembly maps) and write (gradient, Hessian values, the new point), each counted once.
@@ -64,8 +64,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import untangle_cpp as U  # noqa: E402
 
-from geomopt import generators as G  # noqa: E402
-from geomopt.predicates import count_inverted  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
+from geomopt.exact.predicates import count_inverted  # noqa: E402
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "meshes"
 
@@ -285,8 +285,8 @@ def kernel_rows(dim, repeat):
     import scale
     from geomopt import Objective, Problem
     from geomopt.energies import garanzha
-    from geomopt.linesearch import InjectiveSearch, max_injective_step
-    from geomopt.linsolve import SparseCholesky, repeated_solves_backend
+    from geomopt.solvers.linesearch import InjectiveSearch, max_injective_step
+    from geomopt.objective.linsolve import SparseCholesky, repeated_solves_backend
     from geomopt.solvers import rest_laplacian
 
     jax.config.update("jax_enable_x64", True)

@@ -2,7 +2,7 @@
 
 For every mesh in ``../shared/data/meshes`` (relative to the repository root) both methods start
 from the SAME map: the uniform Tutte embedding onto the unit circle by arc length
-(:func:`geomopt.tutte.tutte_embedding`), centred and scaled by :func:`geomopt.param.optimal_scale`
+(:func:`geomopt.mesh.tutte.tutte_embedding`), centred and scaled by :func:`geomopt.param.optimal_scale`
 for symmetric Dirichlet.  Both are measured with the same function, geomopt's symmetric
 Dirichlet objective, reported as the area-weighted mean ``sum vol*psi / total area`` (4 at an
 isometry).
@@ -75,7 +75,7 @@ def fmt_s(t, digits=3):
 def start_map(objective, V, F):
     """Uniform Tutte map onto the unit circle by arc length, centred and optimally scaled."""
     from geomopt.param import optimal_scale
-    from geomopt.tutte import tutte_embedding
+    from geomopt.mesh.tutte import tutte_embedding
 
     x0 = tutte_embedding(V, F, "uniform")
     x0 = x0 - x0.mean(axis=0)
@@ -90,7 +90,7 @@ def run_geomopt(V, F, x0, repeat):
     """One cold run (compiles) and ``repeat`` warm runs, each on a fresh Objective."""
     import geomopt
     from geomopt import Newton, Objective, Problem
-    from geomopt.predicates import count_inverted
+    from geomopt.exact.predicates import count_inverted
 
     runs = []
     for k in range(1 + repeat):
@@ -122,7 +122,7 @@ def run_geomopt(V, F, x0, repeat):
 
 def run_slim(V, F, x0, iters, objective, params):
     import igl
-    from geomopt.predicates import count_inverted
+    from geomopt.exact.predicates import count_inverted
 
     area = objective.total_volume
 
@@ -244,7 +244,7 @@ def main(argv=None):
     from geomopt import GeomoptError, Objective, Problem
     from geomopt.io import check_output_path
     from geomopt.io import read_mesh
-    from geomopt.predicates import count_inverted
+    from geomopt.exact.predicates import count_inverted
 
     for out in (args.json, args.plot):
         if out is not None:

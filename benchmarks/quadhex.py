@@ -14,7 +14,7 @@ Usage::
 
 ``families``: every generated tangled quad and hex family (interior rotations, noise, random
 interiors, squashed boundaries; hex twists and bends) at about each size, untangled by
-:func:`geomopt.untangle.untangle` and certified (:func:`geomopt.elements.certify_elements`:
+:func:`geomopt.untangle.untangle` and certified (:func:`geomopt.mesh.elements.certify_elements`:
 quads by their corners, hexahedra inside by Bernstein coefficients), one row each.  ``--start
 given`` starts every case from its tangled map (the eps loop's own test; the default ``auto``
 starts from the harmonic extension of the boundary when that has fewer inverted corners, which for
@@ -50,7 +50,7 @@ after.
 ``energy``: energy + gradient of 10^6 hex corners (125,000 hexahedra) against 10^6 tetrahedra
 (the same jitted kernel sees corner simplices), median of ``--repeat`` warm calls.
 
-``oracle``: the exact hex certificate (:func:`geomopt.hexvalid.hex_validity`) on ``--m`` random
+``oracle``: the exact hex certificate (:func:`geomopt.exact.hexvalid.hex_validity`) on ``--m`` random
 hexahedra (the unit cube, vertices moved by noise of random size) against a dense sampling of
 ``det J`` at ``samples^3`` points: certified valid must be positive at every sample; elements the
 sampling misses must carry an exact witness point.
@@ -80,9 +80,9 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from geomopt import generators as G  # noqa: E402
-from geomopt.elements import boundary_vertices, certify_elements, corner_simplices  # noqa: E402
-from geomopt.problem import Problem  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
+from geomopt.mesh.elements import boundary_vertices, certify_elements, corner_simplices  # noqa: E402
+from geomopt.mesh.problem import Problem  # noqa: E402
 from geomopt.untangle import untangle  # noqa: E402
 
 
@@ -348,7 +348,7 @@ def cmd_smooth(args):
 
 
 def cmd_energy(args):
-    from geomopt._objective import Objective
+    from geomopt.objective.objective import Objective
 
     h = round((args.m / 8) ** (1 / 3))
     Vh, H = G.hex_mesh(h, h, h)
@@ -378,7 +378,7 @@ def cmd_energy(args):
 def cmd_oracle(args):
     from fractions import Fraction
 
-    from geomopt.hexvalid import jacobian_det, hex_validity
+    from geomopt.exact.hexvalid import jacobian_det, hex_validity
 
     cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
     rng = np.random.default_rng(args.seed)
@@ -430,7 +430,7 @@ def cmd_oracle(args):
 
 
 def cmd_agree(args):
-    from geomopt._objective import Objective
+    from geomopt.objective.objective import Objective
 
     V, Q = G.quad_mesh(24, 24)
     rng = np.random.default_rng(0)

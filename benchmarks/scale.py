@@ -19,7 +19,7 @@ is its own, and prints one JSON object per line on stdout with the keys
 * ``newton_iter_s``: one iteration of ``geomopt.solvers.Newton(projection="clamp")`` (its
   ``step``: Hessian, direction, injective line search, stopping test) with the linear solver
   that ``linear_solver="auto"`` picks here (``newton_pick``,
-  :func:`geomopt.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
+  :func:`geomopt.objective.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
   Cholesky, PARDISO; skipped with ``--no-direct``) or ``cg_iter_s`` (``--cg``:
   ``linear_solver="cg"``); the median of 3 iterations after the first, which is what a user
   pays per iteration; when the pick was not measured, the faster of the two;
@@ -56,7 +56,7 @@ import numpy as np
 
 def _mesh(elements: int, dim: int):
     """(V, S): about ``elements`` triangles (2D grid) or tets (3D Kuhn box)."""
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
 
     if dim == 2:
         n = max(2, int(round(np.sqrt(elements / 2.0))) + 1)
@@ -99,7 +99,7 @@ def run_solves(obj, x0):
     """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
     seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
     import geomopt
-    from geomopt.linsolve import available_backends
+    from geomopt.objective.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
@@ -124,10 +124,10 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from geomopt import generators as G
-    from geomopt._objective import Objective, hessian_pattern
-    from geomopt.linsolve import SparseCholesky, available_backends, newton_linear_solver
-    from geomopt.problem import Problem
+    from geomopt.mesh import generators as G
+    from geomopt.objective.objective import Objective, hessian_pattern
+    from geomopt.objective.linsolve import SparseCholesky, available_backends, newton_linear_solver
+    from geomopt.mesh.problem import Problem
     from geomopt.solvers import Newton
 
     out = {"elements": None, "dim": dim, "device": str(jax.devices()[0].platform)}
@@ -186,7 +186,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         out["direct_first_iter_s"], _ = _median(lambda: newton.step(state), 1, "direct_first_iter_s")
         out["direct_iter_s"], _ = _median(lambda: newton.step(state), 3, "direct_iter_s")
     if cg:
-        from geomopt._cg import NewtonCG
+        from geomopt.objective.cg import NewtonCG
 
         newton = Newton(projection="clamp", linear_solver="cg")
         out["cg_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "cg_init_s")
@@ -226,7 +226,7 @@ def _round(out):
 def run_untangle_outer(V, S, fixed):
     """One outer iteration of :func:`geomopt.untangle.untangle` (default solver) on the mesh
     with its interior rotated by 90 degrees (2D) or its boundary twisted (3D)."""
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
     from geomopt.untangle import untangle
 
     tangle = G.rotated_interior(V, S, 90.0) if V.shape[1] == 2 else \

@@ -127,7 +127,7 @@ def midpoint_subdivide(V, F):
 
 def refinement_shapes(args):
     """[(label, V, F)] of one shape at several resolutions."""
-    from geomopt.generators import ruffled_disk, saddle
+    from geomopt.mesh.generators import ruffled_disk, saddle
     from geomopt.io import read_mesh
 
     amp = {} if args.refine_amplitude is None else {"amplitude": args.refine_amplitude}
@@ -203,7 +203,7 @@ def main(argv=None):
     ap.add_argument("--slim-iters", type=int, default=300, help="libigl SLIM iterations (default 300)")
     ap.add_argument("--json", type=Path, help="write the per-mesh statistics here")
     ap.add_argument("--refine", metavar="SHAPE",
-                    help="iterations under refinement instead: 'ruffled' or 'saddle' (geomopt.generators, at "
+                    help="iterations under refinement instead: 'ruffled' or 'saddle' (geomopt.mesh.generators, at "
                          "--refine-rings) or a mesh name (and --refine-levels midpoint subdivisions); default "
                          "solvers aqp,slim,newton")
     ap.add_argument("--refine-rings", type=int, nargs="+", default=[16, 32, 64],

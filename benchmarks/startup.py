@@ -97,7 +97,7 @@ def sibling(V, F, remove=3):
 
 def same_bucket(A, B):
     from geomopt import Objective, Problem
-    from geomopt._padding import power_bucket
+    from geomopt._runtime.padding import power_bucket
 
     oa, ob = (Objective(Problem.surface(*M), "symmetric_dirichlet", buckets=True) for M in (A, B))
     return (oa.sizes.n_padded, oa.sizes.m_padded, power_bucket(oa.pattern.nnz)) == \
@@ -108,7 +108,7 @@ def start_map(V, F):
     """What parameterize starts from: uniform Tutte, centred, rest area, optimal scale."""
     from geomopt import Objective, Problem
     from geomopt.param import _to_rest_area, optimal_scale
-    from geomopt.tutte import tutte_embedding
+    from geomopt.mesh.tutte import tutte_embedding
 
     problem = Problem.surface(V, F)
     objective = Objective(problem, "symmetric_dirichlet", buckets=True)
@@ -146,7 +146,7 @@ def slim_to(V, F, x0, objective, targets, seconds):
 def backend_iteration_seconds(V, F):
     """Warm Newton seconds per iteration, default linear solver vs CHOLMOD (None if absent)."""
     import geomopt
-    from geomopt import linsolve
+    from geomopt.objective import linsolve
 
     out = {}
     for backend in ("auto", "cholmod"):

@@ -29,10 +29,10 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from geomopt import generators as G  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
 from geomopt import MeshError  # noqa: E402
 from geomopt.lim import LimCase, untangle_case  # noqa: E402
-from geomopt.predicates import count_inverted  # noqa: E402
+from geomopt.exact.predicates import count_inverted  # noqa: E402
 from geomopt.untangle import untangle  # noqa: E402
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"

@@ -31,9 +31,9 @@ medians of the rounds:
   solve, writing; geomopt also loads its compiled programs and certifies the written file);
 * geomopt's split outside the solve (``--json`` ``timing``) and its persistent-cache misses
   in the measured rounds (0 = nothing compiled);
-* quality of the rest mesh and of both results (:mod:`geomopt.quality`): smallest
+* quality of the rest mesh and of both results (:mod:`geomopt.mesh.quality`): smallest
   size / mean size and smallest scaled Jacobian, and whether each output has no inverted
-  element by the exact predicate (:func:`geomopt.predicates.count_inverted`).
+  element by the exact predicate (:func:`geomopt.exact.predicates.count_inverted`).
 
 Ratios are geomopt / C++ with all cores.  The last lines are the summary against issue 22's
 targets, with the load average before and after.
@@ -57,11 +57,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import heldout as H  # noqa: E402
 
-from geomopt import generators as G  # noqa: E402
+from geomopt.mesh import generators as G  # noqa: E402
 from geomopt.io import read_mesh, read_vtk_tets  # noqa: E402
 from geomopt.lim import LimCase  # noqa: E402
-from geomopt.predicates import count_inverted  # noqa: E402
-from geomopt.quality import element_quality  # noqa: E402
+from geomopt.exact.predicates import count_inverted  # noqa: E402
+from geomopt.mesh.quality import element_quality  # noqa: E402
 
 LIM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
 LIM_ARMADILLO = LIM / "3D" / "Deform_Armadillo" / "armadillo-598"

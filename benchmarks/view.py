@@ -27,7 +27,7 @@ import warnings
 
 def _maps():
     import geomopt
-    from geomopt import generators
+    from geomopt.mesh import generators
 
     V, F = geomopt.data.load("camelhead")
     param = geomopt.parameterize(V, F, progress=False)

@@ -1,7 +1,7 @@
 """geomopt: locally injective maps of triangle and tetrahedral meshes in JAX.
 
 geomopt computes in float64 whatever JAX's global ``jax_enable_x64`` says: its functions switch
-JAX's 64-bit mode on for their own duration (:mod:`geomopt._x64`), and importing geomopt leaves
+JAX's 64-bit mode on for their own duration (:mod:`geomopt._runtime.x64`), and importing geomopt leaves
 the global flag alone, so float32 code keeps its dtypes beside it.  Traced use (``jax.grad`` of
 ``Objective.value``, :mod:`geomopt.implicit`) needs the 64-bit mode in the caller's
 transformation (``with jax.enable_x64(True):``).  Importing geomopt turns on JAX's persistent
@@ -13,26 +13,29 @@ first used.
 
 from ._version import __version__  # noqa: E402
 
-from . import _cache  # noqa: E402
+from ._runtime import cache as _cache  # noqa: E402
+from ._runtime import moved as _moved  # noqa: E402
 
 _cache.configure()
+_moved.install()
 
-from ._cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
-from ._errors import (GeomoptError, GeomoptWarning, MaxStepsWarning, MeshError, MeshFormatError,  # noqa: E402
-                      NotPositiveDefinite, ParameterError, SolveError)
+from ._runtime.cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
+from ._runtime.errors import (GeomoptError, GeomoptWarning, MaxStepsWarning, MeshError, MeshFormatError,
+    NotPositiveDefinite, ParameterError, SolveError)
 
 # public name -> module that defines it (imported on first use, PEP 562)
 _LAZY = {
-    "Objective": "._objective", "parameterize": ".param", "Problem": ".problem",
+    "Objective": ".objective.objective", "parameterize": ".param", "Problem": ".mesh.problem",
     "AQP": ".solvers", "CM": ".solvers", "LBFGS": ".solvers", "SLIM": ".solvers", "Newton": ".solvers",
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "smooth": ".smoothing",
-    "tutte_embedding": ".tutte", "compare": "._compare", "Comparison": "._compare", "compare_meshes": "._compare",
-    "ComparisonSet": "._compare", "sphere_map": ".sphere", "make_atlas": ".atlas",
+    "tutte_embedding": ".mesh.tutte", "compare": ".experiments.comparison", "Comparison": ".experiments.comparison",
+    "compare_meshes": ".experiments.comparison", "ComparisonSet": ".experiments.comparison", "sphere_map": ".sphere",
+    "make_atlas": ".atlas",
 }
-# public submodules reachable as attributes without an import of their own (imported on first use)
-_SUBMODULES = ("data", "energies", "io", "lim", "predicates", "solvers", "linsolve", "plot", "untangle",
-               "generators", "topology", "tutte", "problem", "param", "linesearch", "cli", "implicit", "sphere",
-               "atlas", "smoothing")
+# public submodules reachable as attributes without an import of their own (imported on first use):
+# the layers from the bottom up, then the drivers and the outputs on top
+_SUBMODULES = ("exact", "io", "mesh", "energies", "objective", "solvers", "param", "untangle", "smoothing", "sphere",
+               "atlas", "implicit", "lim", "experiments", "plot", "data", "cli")
 
 
 def __getattr__(name):
@@ -42,6 +45,8 @@ def __getattr__(name):
         value = getattr(importlib.import_module(_LAZY[name], __name__), name)
     elif name in _SUBMODULES:
         value = importlib.import_module("." + name, __name__)
+    elif _moved.moved(name):
+        return importlib.import_module("." + name, __name__)  # the old path: warns, not cached here
     else:
         raise AttributeError(f"module 'geomopt' has no attribute {name!r}")
     globals()[name] = value

@@ -62,7 +62,7 @@ def save_result(result, path, png=None, inputs=()):
         (:func:`geomopt.io.check_outputs`); nothing is written then.
     """
     from . import io
-    from ._errors import ParameterError
+    from ._runtime.errors import ParameterError
 
     problem = getattr(result, "problem", None)
     if problem is None:
@@ -140,7 +140,7 @@ def save_param_picture(target, result, V, F, uv, title, format=None):
         values = np.log10(plot.distortion(result.problem, result.x)["conformal"])
         label = "log10 conformal distortion"
     else:
-        from ._objective import element_densities
+        from .objective.objective import element_densities
 
         dens = np.asarray(element_densities(obj, result.x))
         rest = obj.energy.value_at_rest(2)

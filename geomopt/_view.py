@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._errors import ParameterError
+from ._runtime.errors import ParameterError
 from ._render import CHECKER_COLORS, camera_rotation
 
 __all__ = ["show", "scene", "camera", "inverted_rgb", "Scene", "BACKENDS", "VIEW_EXTRA"]
@@ -116,8 +116,8 @@ def _distortion_colors(problem, x):
     from matplotlib import colormaps
 
     from . import plot
-    from .elements import valid_elements
-    from .predicates import cone_orientations, simplex_orientations
+    from .mesh.elements import valid_elements
+    from .exact.predicates import cone_orientations, simplex_orientations
 
     x = np.asarray(x, np.float64)
     k = 1 if problem.elements is None else problem.simplices.shape[0] // problem.elements.shape[0]

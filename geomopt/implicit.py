@@ -26,7 +26,7 @@ derivatives are refused (SolveError).
 **One factorization per optimum.**  The numeric factor of a mesh is shared by every solve of it
 (its symbolic analysis too): a forward's adjoint system keeps its own matrix and refactors it
 when another solve (the next batch element under ``vmap``, a second solve in the same loss)
-refactored the shared factor since (:attr:`geomopt.linsolve.SparseCholesky.generation`), so each
+refactored the shared factor since (:attr:`geomopt.objective.linsolve.SparseCholesky.generation`), so each
 backward solves with the Hessian at its own optimum.
 
 **Conventions.**
@@ -59,9 +59,9 @@ backward solves with the Hessian at its own optimum.
   text ends with the class name and message, e.g. ``SolveError: implicit differentiation: ...``.
 
 **Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
-(:func:`geomopt.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linsolve`,
+(:func:`geomopt.objective.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.objective.linsolve`,
 its symbolic analysis shared with every solve of the mesh, :meth:`~geomopt.Objective.cholesky`)
-or block-Jacobi CG (:mod:`geomopt._cg`, whose positive-definiteness test only sees its Krylov
+or block-Jacobi CG (:mod:`geomopt.objective.cg`, whose positive-definiteness test only sees its Krylov
 space).  The forward's refinement factors the exact Hessian once; the adjoint reuses that
 factorization while the refining step stayed below :data:`REUSE_STEP` times the shortest edge
 (the Hessian at the returned map then agrees with it to about that relative precision), else
@@ -82,14 +82,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._cg import NewtonCG, cg_system, pcg
-from ._errors import ParameterError, SolveError
-from ._gauge import gauge_motions, gauge_pins
-from ._objective import Objective, block_hessian, check_element_weights, jit
-from ._tracing import is_traced
-from ._x64 import float64, pure_callback
-from .linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
-from .problem import check_rest_values
+from .objective.cg import NewtonCG, cg_system, pcg
+from ._runtime.errors import ParameterError, SolveError
+from .objective.gauge import gauge_motions, gauge_pins
+from .objective.objective import Objective, block_hessian, check_element_weights, jit
+from ._runtime.tracing import is_traced
+from ._runtime.x64 import float64, pure_callback
+from .objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
+from .mesh.problem import check_rest_values
 
 __all__ = ["argmin", "minimize", "parameterize", "untangle", "gauge_motions", "DECREMENT_RTOL"]
 
@@ -125,7 +125,7 @@ def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto")
         ``x`` (n, d) the optimum (raise :class:`~geomopt.SolveError` if there is none),
         ``context`` a dict that may hold ``objective`` (a concrete one to assemble Hessians
         with) or None.
-    linear_solver : ``"auto"``, a :data:`~geomopt.linsolve.BACKENDS` name or ``"cg"``.
+    linear_solver : ``"auto"``, a :data:`~geomopt.objective.linsolve.BACKENDS` name or ``"cg"``.
 
     Returns
     -------
@@ -337,7 +337,7 @@ class AdjointSystem:
             self._check_decrement()
 
     def _factor(self):
-        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.linsolve.SparseCholesky`
+        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.objective.linsolve.SparseCholesky`
         (its symbolic analysis shared, its numeric factor refactored by any later solve of the
         mesh: :attr:`generation` is the factorization that holds this map's matrix)."""
         try:
@@ -408,7 +408,7 @@ class AdjointSystem:
         """``lam`` (n, d) for the cotangent ``xbar`` (n, d) of the map."""
         return self._embed(self._solve_free(self._free(self._project(xbar))), xbar.shape)
 
-    # -- CG (geomopt._cg): the exact Hessian's vertex blocks, the pinned DOFs masked out
+    # -- CG (geomopt.objective.cg): the exact Hessian's vertex blocks, the pinned DOFs masked out
     def _cg_setup(self, xp, p):
         obj = self.objective
         op = NewtonCG.prepare(obj)
@@ -440,7 +440,7 @@ class AdjointSystem:
 
 @partial(jit, static_argnums=(0, 1, 2))
 def _exact_blocks(density, chunk, n_blocks, geom, x, params, blocks, swap):
-    from ._objective import total_energy
+    from .objective.objective import total_energy
 
     value, grad = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
     return value, grad, block_hessian(density, "none", chunk, geom, x, params, blocks, swap, n_blocks)
@@ -525,7 +525,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     """
     from .param import mesh_arrays
     from .param import parameterize as run
-    from .problem import Problem
+    from .mesh.problem import Problem
 
     V, F = mesh_arrays(V, F)
     objective = Objective(Problem.surface(V, F), energy, element_weights=element_weights)
@@ -604,7 +604,7 @@ def _untangle_problem(problem, x0, k, bad):
     ``k / s`` (the map scaled by ``k``, the rest by ``s = (map volume / rest volume)^(1/d)``,
     ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
     edge length.  Traceable in the problem's arrays."""
-    from ._geometry import dets
+    from .mesh.geometry import dets
     from .untangle import equilateral_rest
 
     d = problem.dim

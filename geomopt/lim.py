@@ -24,12 +24,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._errors import MeshError, MeshFormatError, SolveError
-from .certify import local_certificate
+from ._runtime.errors import MeshError, MeshFormatError, SolveError
+from .exact.certify import local_certificate
 from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets,
                  write_obj_with_uv, write_vtk_tets)
-from .predicates import differing_rows
-from .problem import Problem, fixed_total_problem
+from .exact.predicates import differing_rows
+from .mesh.problem import Problem, fixed_total_problem
 from .untangle import untangle
 
 __all__ = ["LimCase", "LimProblem", "untangle_case", "read_lim_case", "lim_case_dim", "lim_cases"]
@@ -185,7 +185,7 @@ class LimCase(Mapping):
 
     @classmethod
     def from_tangle(cls, tangle):
-        """The case of a :class:`~geomopt.generators.Tangle` (its ``x0`` is the start map)."""
+        """The case of a :class:`~geomopt.mesh.generators.Tangle` (its ``x0`` is the start map)."""
         return cls(dim=tangle.dim, rest=np.asarray(tangle.rest), init=np.asarray(tangle.x0),
                    simplices=np.asarray(tangle.simplices), handles=np.asarray(tangle.fixed))
 
@@ -264,10 +264,10 @@ class LimCase(Mapping):
         2D: OBJ with the case's ``v`` lines, one ``vt`` per vertex (the map) and
         ``f a/a b/b c/c``; 3D: ASCII VTK with the input connectivity; full precision.  The file
         is written beside ``path`` and read back: the map must be locally injective (exact
-        predicates, :func:`geomopt.certify.local_certificate`: every element in the case's
+        predicates, :func:`geomopt.exact.certify.local_certificate`: every element in the case's
         orientation, :meth:`to_problem`'s ``orientation``, and the elements around every
         vertex and edge covering it once) and every handle at its ``init`` position (equal as
-        numbers, :func:`geomopt.predicates.differing_rows`).  The one exception is what the input itself fixes: vertices and edges whose every
+        numbers, :func:`geomopt.exact.predicates.differing_rows`).  The one exception is what the input itself fixes: vertices and edges whose every
         element has all its vertices fixed and that overlap in the case's own handle positions
         (:meth:`~geomopt.Problem.certify_fixed`; the same in every map with these handles) are
         reported, not refused.  Only a file that certifies is renamed onto ``path``, so one that

@@ -3,7 +3,7 @@
 An optax loop over a mesh map moves the vertices by whatever step its line search accepts; with
 an energy without a barrier (ARAP, Dirichlet) or a first-order method whose trial steps skip
 over the barrier, the map folds.  :func:`injective_linesearch` is geomopt's
-:class:`~geomopt.linesearch.InjectiveSearch` as an ``optax.GradientTransformationExtraArgs``
+:class:`~geomopt.solvers.linesearch.InjectiveSearch` as an ``optax.GradientTransformationExtraArgs``
 closed over the mesh: it caps every step at a fraction of the first root of an element's
 ``det J`` along the direction (Smith & Schaefer 2015), then Armijo / weak Wolfe, so the loop
 stays flip-free.  :func:`run` is the whole loop in one compiled ``lax.while_loop``::
@@ -52,11 +52,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import ParameterError
-from ._objective import Objective
-from ._geometry import dets
-from ._x64 import float64
-from .linesearch import InjectiveSearch
+from ._runtime.errors import ParameterError
+from .objective.objective import Objective
+from .mesh.geometry import dets
+from ._runtime.x64 import float64
+from .solvers.linesearch import InjectiveSearch
 
 __all__ = ["injective_linesearch", "energy_fn", "run", "InjectiveLinesearchState", "DET_FLOOR"]
 
@@ -121,7 +121,7 @@ def injective_linesearch(objective: Objective, search: InjectiveSearch = DEFAULT
     ----------
     objective : :class:`~geomopt.Objective` whose mesh the maps live on (its simplices and
         handles; the energy searched is ``value_fn``).
-    search : :class:`~geomopt.linesearch.InjectiveSearch` (``injective`` must be True).
+    search : :class:`~geomopt.solvers.linesearch.InjectiveSearch` (``injective`` must be True).
     """
     optax = _import("optax")
     if not (isinstance(search, InjectiveSearch) and search.injective):
@@ -183,7 +183,8 @@ def run(optimizer, value_fn: Callable, x0, max_steps: int = 100, tol: float = 0.
     Examples
     --------
     >>> import optax
-    >>> from geomopt import Objective, Problem, generators
+    >>> from geomopt import Objective, Problem
+    >>> from geomopt.mesh import generators
     >>> from geomopt.param import start_map
     >>> V, F = generators.saddle(rings=4)
     >>> obj = Objective(Problem.surface(V, F), "symmetric_dirichlet")

@@ -7,19 +7,19 @@ from functools import partial
 
 import numpy as np
 
-from ._config import Instance, validate
-from ._errors import MeshError, ParameterError, SolveError
-from ._tracing import refuse_traced
-from ._x64 import float64
-from ._objective import Objective, jit
-from .certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
-from .problem import Problem
+from ._runtime.config import Instance, validate
+from ._runtime.errors import MeshError, ParameterError, SolveError
+from ._runtime.tracing import refuse_traced
+from ._runtime.x64 import float64
+from .objective.objective import Objective, jit
+from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
+from .mesh.problem import Problem
 from .scaffold import bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize
 from .solvers._iterate import check_progress
-from .topology import check_disk
+from .exact.topology import check_disk
 from .untangle import untangle
-from .tutte import circle_boundary, optimal_scale, tutte_embedding
+from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
     "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
@@ -41,7 +41,7 @@ def _check_misplaced_settings(energy, solver, energy_params):
     """ParameterError for solver settings (``max_steps``, ``rtol``, ``c1``...) passed to
     :func:`parameterize` as energy parameters, saying where they go."""
     from .energies import get_energy
-    from .linesearch import InjectiveSearch
+    from .solvers.linesearch import InjectiveSearch
 
     known = get_energy(energy).params
     cls = type(solver).__name__
@@ -73,7 +73,7 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False, 
     x0 : ``None`` / ``"tutte"``, ``"projection"`` or an (n, 2) array (see :func:`parameterize`).
     weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
     progress : passed to the repair's untangling.
-    loop : the boundary loop as :func:`~geomopt.topology.check_disk` returns it (found when None).
+    loop : the boundary loop as :func:`~geomopt.exact.topology.check_disk` returns it (found when None).
 
     Returns
     -------
@@ -181,7 +181,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
     weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
     x0 : the start map: ``None`` or ``"tutte"`` (default: Tutte embedding; the mesh must be a
-        topological disk, :func:`~geomopt.topology.check_disk`), ``"projection"`` (the best-fit
+        topological disk, :func:`~geomopt.exact.topology.check_disk`), ``"projection"`` (the best-fit
         plane projection, :func:`projection_map`: folded wherever the surface turns over), or an
         (n, 2) array (e.g. a UV map made elsewhere).  A start with folded triangles is first
         repaired (:func:`repair_map`: Garanzha et al.'s regularised energy, eps driven to 0, the
@@ -192,13 +192,13 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
         :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
         Either way ``certificate`` is the exact global certificate
-        (:func:`geomopt.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
+        (:func:`geomopt.exact.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
     element_weights : (m,) positive per-triangle weights of the energy (see
         :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
-        mesh of the same bucket; the padding changes no result (:mod:`geomopt._padding`).
+        mesh of the same bucket; the padding changes no result (:mod:`geomopt._runtime.padding`).
 
     Returns
     -------

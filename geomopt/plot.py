@@ -68,7 +68,7 @@ def save_figure(fig, target, format=None):
     """Save ``fig`` into the open binary file ``target`` or atomically to the path ``target``."""
     if hasattr(target, "write"):
         if format is None:
-            from ._errors import ParameterError
+            from ._runtime.errors import ParameterError
 
             raise ParameterError("saving a figure into an open file needs format= (e.g. 'png')")
         fig.savefig(target, format=format)

@@ -8,7 +8,7 @@ scaffold's rest shape is reset to its current shape before each solve, and it is
 between solves, so it only resists a step that would close a gap.
 
 How this module builds and maintains the scaffold, without a triangulation library and with
-exact predicates only (:func:`geomopt.predicates.orient2d`):
+exact predicates only (:func:`geomopt.exact.predicates.orient2d`):
 
 * the enclosing polygon is the convex hull of the boundary polygon scaled by ``ring_scale``
   about an interior point; the ring between hull and scaled hull is cut into trapezoids, each
@@ -33,7 +33,7 @@ outer iterations as a *continuation* (:class:`ScaffoldContinuation`).
 
 The enclosing polygon's vertices are free (the scaffold moves and rotates with the mesh); global
 injectivity of the result does not rest on that: it is certified at the end, exactly, by
-:func:`geomopt.certify.certify_bijective`.
+:func:`geomopt.exact.certify.certify_bijective`.
 """
 
 from __future__ import annotations
@@ -44,18 +44,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._config import Instance, Int, Maybe, Real, validate
-from ._errors import MeshError, ParameterError, SolveError
-from ._objective import Objective
-from ._x64 import float64
-from .certify import certify_bijective, polygon_crossings
-from .predicates import orient2d
-from .problem import Problem
+from ._runtime.config import Instance, Int, Maybe, Real, validate
+from ._runtime.errors import MeshError, ParameterError, SolveError
+from .objective.objective import Objective
+from ._runtime.x64 import float64
+from .exact.certify import certify_bijective, polygon_crossings
+from .exact.predicates import orient2d
+from .mesh.problem import Problem
 from .solvers import (AbstractContinuation, AbstractNewton, Decision, Final, Outcome, ParamDetails, Progress,
                       Trace, get_solver, iterate)
 from .solvers._iterate import check_progress
-from .topology import check_disk, unique_edges
-from .tutte import optimal_scale, scale_to_area, tutte_embedding
+from .exact.topology import check_disk, unique_edges
+from .mesh.tutte import optimal_scale, scale_to_area, tutte_embedding
 
 __all__ = ["Scaffold", "build_scaffold", "refine_scaffold", "delaunay_flips", "bijective_parameterize",
            "ScaffoldOptions", "ScaffoldContinuation", "SimpleBoundary"]
@@ -179,7 +179,7 @@ def build_scaffold(P, ring_scale: float = 3.0) -> Scaffold:
     Parameters
     ----------
     P : (k, 2) float array, the boundary polygon (simple, counter-clockwise; see
-        :func:`geomopt.certify.polygon_crossings`).
+        :func:`geomopt.exact.certify.polygon_crossings`).
     ring_scale : float > 1, the enclosing polygon is the convex hull of ``P`` scaled by this
         factor about the mean of the hull vertices.
 
@@ -556,7 +556,7 @@ class ScaffoldContinuation(AbstractContinuation):
     for up to ``inner_steps`` iterations, then re-triangulates the scaffold
     (:func:`delaunay_flips`), until an inner solve converged and the mesh energy fell by less
     than ``outer_rtol`` (relative), or ``max_outer``.  ``finish`` certifies the mesh's map
-    exactly (:func:`~geomopt.certify.certify_bijective`).
+    exactly (:func:`~geomopt.exact.certify.certify_bijective`).
     """
 
     def __init__(self, problem, objective, loop, inner, options, start, scale):
@@ -713,7 +713,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     energy, ``trace.energy`` / ``trace.seconds`` the mesh energy and elapsed seconds at the
     start, after the scaffold-free phase (if ``lazy``) and after each outer iteration;
     ``stats.iterations`` the solver iterations summed, ``stats.outer_iterations`` the scaffold's.
-    ``certificate`` is the exact :class:`~geomopt.certify.Certificate` and ``injectivity`` is
+    ``certificate`` is the exact :class:`~geomopt.exact.certify.Certificate` and ``injectivity`` is
     ``"global"`` when it holds; a result that is not globally injective has outcome
     ``NOT_INJECTIVE`` (never expected: the scaffold forbids it), so ``success`` means converged,
     flip-free and bijective.  ``details`` (:class:`~geomopt.solvers.ParamDetails`) holds the

@@ -12,10 +12,10 @@ invertible maps", 2021).
 :func:`smooth` evaluates it at the elements' corners, starts from the given mesh (which must be
 valid), keeps the boundary vertices fixed (default) and minimises with a solver whose line
 search is injective: no corner can change sign.  The result is certified locally injective
-(:meth:`~geomopt.problem.Problem.certify`: hexahedra inside by
-:mod:`geomopt.hexvalid`, no vertex wound twice, no free boundary overlapping itself; the input
+(:meth:`~geomopt.mesh.problem.Problem.certify`: hexahedra inside by
+:mod:`geomopt.exact.hexvalid`, no vertex wound twice, no free boundary overlapping itself; the input
 is returned otherwise).  The result is compared with the input by the minimum scaled
-Jacobian (:func:`geomopt.elements.scaled_jacobian`): where the minimum makes an element invalid
+Jacobian (:func:`geomopt.mesh.elements.scaled_jacobian`): where the minimum makes an element invalid
 (hexahedra inside) or worse than the input's worst, the vertices of that element are held at
 their input positions and the energy is minimised again from the input with them fixed, until
 no element is worse (an element whose vertices are all held keeps its input shape); elements
@@ -34,9 +34,9 @@ import dataclasses
 
 import numpy as np
 
-from ._errors import MeshError, ParameterError
-from ._validate import validate_indices
-from .elements import ElementCertificate, Quality, scaled_jacobian
+from ._runtime.errors import MeshError, ParameterError
+from ._runtime.validate import validate_indices
+from .mesh.elements import ElementCertificate, Quality, scaled_jacobian
 from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
 
 __all__ = ["SmoothDetails", "smooth", "element_problem", "MAX_ROUNDS", "RISK"]
@@ -63,14 +63,14 @@ class SmoothDetails(Details):
 
     Attributes
     ----------
-    before : :class:`~geomopt.elements.Quality` of the input.
-    after : :class:`~geomopt.elements.Quality` of ``x``.
-    elements : :class:`~geomopt.elements.ElementCertificate` of ``x`` (exact: which test
+    before : :class:`~geomopt.mesh.elements.Quality` of the input.
+    after : :class:`~geomopt.mesh.elements.Quality` of ``x``.
+    elements : :class:`~geomopt.mesh.elements.ElementCertificate` of ``x`` (exact: which test
         decided each element).
     held : (h,) int64, vertices held at their input positions (beside the fixed ones) because
         the energy minimum made an element around them worse than the input's worst.
     scale : the power of two the input was multiplied by before solving
-        (:func:`geomopt.predicates.box_scale`: exact, so that meshes at 1e200 or 1e-150 smooth as
+        (:func:`geomopt.exact.predicates.box_scale`: exact, so that meshes at 1e200 or 1e-150 smooth as
         at size 1).
     improved : ``x`` certified, its minimum scaled Jacobian not lower than the input's, and
         different from the input.
@@ -97,7 +97,7 @@ def element_problem(V, E, fixed=None, rest="reference"):
     """The :class:`~geomopt.Problem` of a quad (``V`` (n, 2)) or hex (``V`` (n, 3)) mesh ``E``
     with ``fixed`` vertices held where ``V`` has them (default: the boundary; an empty array
     frees every vertex)."""
-    from .problem import Problem
+    from .mesh.problem import Problem
 
     V = np.asarray(V, dtype=np.float64)
     E = np.asarray(E)
@@ -148,14 +148,14 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     --------
     A perturbed quad mesh of an annulus sector, smoothed with its boundary fixed:
 
-    >>> from geomopt import generators
+    >>> from geomopt.mesh import generators
     >>> from geomopt import smooth
     >>> V, Q = generators.sector_mesh(2, 4, perturb=0.4, seed=1)
     >>> result = smooth(V, Q)
     >>> result.details.improved, result.details.after.min > result.details.before.min
     (True, True)
     """
-    from .predicates import box_scale
+    from .exact.predicates import box_scale
     from .solvers import get_solver
 
     V = np.asarray(V, dtype=np.float64)
@@ -188,7 +188,7 @@ def _rounds(problem, V, start, energy, solver, progress, max_rounds, params):
     a :class:`~geomopt.solvers.Result`), holding the vertices of the elements the last one made
     worse than the input's worst (``start``: the input's certificate) until none is; after
     ``max_rounds`` solves, the input ``V``, nothing held, MAX_STEPS."""
-    from ._objective import Objective
+    from .objective.objective import Objective
     from .solvers import minimize
 
     E, held, current, solves = problem.elements, np.zeros(0, np.int64), problem, []
@@ -209,8 +209,8 @@ def _rounds(problem, V, start, energy, solver, progress, max_rounds, params):
 
 def _certificate(local, problem, x) -> LocalCertificate:
     """The :class:`~geomopt.solvers.LocalCertificate` of ``x`` from its exact ``local`` one and
-    the handles of ``problem`` (exact: :func:`geomopt.predicates.differing_rows`)."""
-    from .predicates import differing_rows
+    the handles of ``problem`` (exact: :func:`geomopt.exact.predicates.differing_rows`)."""
+    from .exact.predicates import differing_rows
 
     return LocalCertificate.of(local, np.count_nonzero(differing_rows(x[problem.fixed], problem.fixed_positions)))
 
@@ -226,8 +226,8 @@ def _totals(solves, x) -> RunStats:
 
 
 def _certified_input(problem, V):
-    """The exact :class:`~geomopt.elements.ElementLocalCertificate` of the input ``V`` (n, d)
-    (:meth:`~geomopt.problem.Problem.certify`); MeshError unless ``V`` is locally injective."""
+    """The exact :class:`~geomopt.mesh.elements.ElementLocalCertificate` of the input ``V`` (n, d)
+    (:meth:`~geomopt.mesh.problem.Problem.certify`); MeshError unless ``V`` is locally injective."""
     local = problem.certify(V)
     start = local.elements
     if not start.certified:
@@ -244,7 +244,7 @@ def _worse(X, E, floor, sj_input):
     """``(worse, at_risk)``, each (m,) bool: elements invalid under ``X`` (exact) or with a scaled
     Jacobian below ``floor``; and elements worse than their input shape ``sj_input`` (m,) and
     within :data:`RISK` of the floor (held with the worse ones: the next to fall below)."""
-    from .elements import valid_elements
+    from .mesh.elements import valid_elements
 
     if not np.isfinite(X).all():
         return np.ones(len(E), bool), np.zeros(len(E), bool)

@@ -17,11 +17,11 @@ Jacobians: :meth:`geomopt.Problem.sphere`):
 2. **Search**: the map ``x`` (n, 3) stands for the directions ``x / |x|``.  A triangle stays
    positive along ``x + t d`` until ``det[x_a + t d_a, x_b + t d_b, x_c + t d_c]``, a cubic in
    ``t``, vanishes; radial rescaling never changes its sign, so this is the tet bound of
-   :mod:`geomopt.linesearch` with the apex at the centre (:mod:`geomopt._geometry`), used by
+   :mod:`geomopt.solvers.linesearch` with the apex at the centre (:mod:`geomopt.mesh.geometry`), used by
    L-BFGS through the one loop (:func:`geomopt.solvers.iterate`).  The energy is invariant to
    each vertex's length, so the gradient is tangent; the map is projected onto the sphere at
    the end.  The rotation gauge is fixed by the objective's pinned vertex.
-3. **Certificate** (:func:`geomopt.certify.certify_sphere`): every triangle positively
+3. **Certificate** (:func:`geomopt.exact.certify.certify_sphere`): every triangle positively
    oriented about the centre (exact) and the spherical areas summing to ``4 pi``: degree 1, a
    bijection.  A map that fails it is never a success.
 
@@ -37,18 +37,18 @@ import time
 
 import numpy as np
 
-from ._errors import MeshError, ParameterError
-from ._objective import Objective, element_densities
-from ._tracing import refuse_traced
-from ._validate import validate_vertices
-from ._x64 import float64
-from .certify import SphereCertificate, certify_sphere, spherical_areas
+from ._runtime.errors import MeshError, ParameterError
+from .objective.objective import Objective, element_densities
+from ._runtime.tracing import refuse_traced
+from ._runtime.validate import validate_vertices
+from ._runtime.x64 import float64
+from .exact.certify import SphereCertificate, certify_sphere, spherical_areas
 from .param import check_scale_aware, mesh_arrays
-from .problem import Problem
+from .mesh.problem import Problem
 from .solvers import LBFGS, AbstractContinuation, Decision, Details, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
-from .topology import as_faces, boundary_loops, check_sphere
-from .tutte import tutte_embedding
+from .exact.topology import as_faces, boundary_loops, check_sphere
+from .mesh.tutte import tutte_embedding
 
 __all__ = ["sphere_map", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
 
@@ -61,7 +61,7 @@ class SphereDetails(Details):
     """What :func:`sphere_map` adds to its :class:`~geomopt.solvers.Result`: the certified
     ``start`` map (n, 3), its ``pole`` vertex and stereographic ``scale`` (-1 and nan for a
     given start), the halvings of the scale its exact check needed, and the start's
-    :class:`~geomopt.certify.SphereCertificate`."""
+    :class:`~geomopt.exact.certify.SphereCertificate`."""
 
     start: np.ndarray
     pole: int
@@ -115,7 +115,7 @@ def sphere_start(V, F, pole=None, weights="uniform"):
     Parameters
     ----------
     V : (n, 3) rest vertices;  F : (m, 3) triangles, consistently oriented (checked by
-        :func:`geomopt.topology.check_sphere`).
+        :func:`geomopt.exact.topology.check_sphere`).
     pole : the vertex put at the south pole (default: one of highest degree).
     weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
 
@@ -158,7 +158,7 @@ def sphere_start(V, F, pole=None, weights="uniform"):
 
 def given_start(problem, x0):
     """``(x, details)`` for a start map ``x0`` (n, 3) of :func:`sphere_map`'s ``problem``: its
-    directions, once the mesh is checked (:func:`geomopt.topology.check_sphere`) and ``x0``
+    directions, once the mesh is checked (:func:`geomopt.exact.topology.check_sphere`) and ``x0``
     certified a bijection onto the sphere; MeshError otherwise."""
     check_sphere(problem.input_simplices, problem.n_vertices)
     x = problem.check_map(x0, "start map x0")
@@ -184,7 +184,7 @@ def default_solver() -> LBFGS:
 
 class _OnTheSphere(AbstractContinuation):
     """Ends the one phase of :func:`sphere_map`: the map projected onto the sphere and
-    certified (:func:`geomopt.certify.certify_sphere`); CONVERGED demoted to NOT_INJECTIVE when
+    certified (:func:`geomopt.exact.certify.certify_sphere`); CONVERGED demoted to NOT_INJECTIVE when
     the certificate fails."""
 
     def __init__(self, objective, details, start):
@@ -224,14 +224,14 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
     progress, throw : see :func:`~geomopt.solvers.minimize`.
     x0 : None (the certified stereographic start, :func:`sphere_start`) or an (n, 3) start map
         (directions: e.g. another method's sphere map), which must itself certify
-        (:func:`geomopt.certify.certify_sphere`).
+        (:func:`geomopt.exact.certify.certify_sphere`).
     pole, weights : the start's pole vertex and Tutte weights (:func:`sphere_start`).
     buckets : pad to size buckets (shared compiled kernels), see :func:`~geomopt.parameterize`.
 
     Returns
     -------
     :class:`~geomopt.solvers.Result` whose ``x`` (n, 3) are unit vectors (same vertex order;
-    the faces are ``F``), ``certificate`` a :class:`~geomopt.certify.SphereCertificate` (exact:
+    the faces are ``F``), ``certificate`` a :class:`~geomopt.exact.certify.SphereCertificate` (exact:
     ``success`` only when converged with every triangle positive about the centre and the sphere
     covered once; ``injectivity`` is then ``"global"``), ``details`` a :class:`SphereDetails`.
 

@@ -32,12 +32,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._errors import ParameterError
-from .linsolve import NotPositiveDefinite, SparseCholesky
-from .predicates import box_scale
-from .problem import Problem
+from ._runtime.errors import ParameterError
+from .objective.linsolve import NotPositiveDefinite, SparseCholesky
+from .exact.predicates import box_scale
+from .mesh.problem import Problem
 from .solvers import rest_laplacian
-from .topology import connected_components
+from .exact.topology import connected_components
 
 __all__ = ["STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "HeldParts"]
 

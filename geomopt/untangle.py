@@ -52,7 +52,7 @@ does.  Elements whose vertices are all fixed are left out of the inner energy (b
 ``D-`` and the stopping test), and so are the connected parts without a handle, held at a
 certified map (:mod:`geomopt.starts`: at the first eps their energy is lowest collapsed to a point).  The handles are written back from ``problem.fixed_positions``
 at the end (bit-exact), and the result is certified with the exact orientation predicate
-(:mod:`geomopt.predicates`) and around every vertex and edge (:func:`geomopt.certify.local_certificate`):
+(:mod:`geomopt.exact.predicates`) and around every vertex and edge (:func:`geomopt.exact.certify.local_certificate`):
 a map with every element positive can still wind twice around an interior vertex (2D) or edge
 (3D), or overlap itself around a boundary vertex or edge; such a map is ``NOT_INJECTIVE``
 (the failures listed in ``certificate``: ``branch_vertices``, ``branch_edges``,
@@ -81,17 +81,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._config import Instance, Int, Maybe, OneOf, Real, validate
-from ._errors import MeshError, ParameterError, SolveError
-from ._tracing import refuse_traced
-from ._x64 import float64
-from ._programs import jit as programs_jit
-from ._geometry import det, edge_rows
-from ._objective import Objective, jacobians, total_energy
+from ._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
+from ._runtime.errors import MeshError, ParameterError, SolveError
+from ._runtime.tracing import refuse_traced
+from ._runtime.x64 import float64
+from ._runtime.programs import jit as programs_jit
+from .mesh.geometry import det, edge_rows
+from .objective.objective import Objective, jacobians, total_energy
 from .energies import garanzha
-from .linesearch import InjectiveSearch
-from .predicates import box_scale, differing_rows
-from .problem import Problem, fixed_total_problem
+from .solvers.linesearch import InjectiveSearch
+from .exact.predicates import box_scale, differing_rows
+from .mesh.problem import Problem, fixed_total_problem
 from .starts import BOX, STARTS, choose_start, harmonic_start, hold_free_parts
 from .solvers import (LBFGS, AbstractContinuation, AbstractSolver, Decision, Final, LocalCertificate, Newton,
                       Outcome, Progress, Result, RunStats, UntangleDetails, iterate, local_certificate)
@@ -222,7 +222,7 @@ class UntangleOptions:
         cap; the default halves it every outer iteration while elements are inverted and
         applies no cap once none is (see the module notes).
     bucket : pad the problem to its size bucket (``Objective(buckets=True)``,
-        :mod:`geomopt._padding`), so that meshes of similar sizes share compiled kernels; same
+        :mod:`geomopt._runtime.padding`), so that meshes of similar sizes share compiled kernels; same
         certificate, same map up to the rounding of sums over elements.
     start : where the eps loop starts (:data:`STARTS`): ``"given"`` ``x0``; ``"harmonic"`` ``x0``
         with its free vertices replaced by the harmonic extension of the handles
@@ -576,7 +576,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
 
     Parameters
     ----------
-    problem : :class:`~geomopt.problem.Problem`, with fixed vertices (``with_fixed``) or not.
+    problem : :class:`~geomopt.mesh.problem.Problem`, with fixed vertices (``with_fixed``) or not.
     x0 : (n, d) start map; its handle rows are replaced by ``problem.fixed_positions``.
     solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object.
         Its line search should not be injective: the start is tangled.
@@ -610,7 +610,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     --------
     A 4 x 4 grid whose interior is rotated by 180 degrees (folded), its boundary fixed:
 
-    >>> from geomopt import generators
+    >>> from geomopt.mesh import generators
     >>> from geomopt.untangle import untangle
     >>> tangle = generators.rotated_interior(*generators.square_mesh(4), 180.0)
     >>> result = untangle(tangle.problem(), tangle.x0, progress=False)
@@ -755,7 +755,7 @@ def _normalised(problem, x0, active, opts):
 
 
 def _orient_bad(x, S):
-    from .predicates import simplex_orientations
+    from .exact.predicates import simplex_orientations
 
     return simplex_orientations(x, S) != 1
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from geomopt import MeshError, ParameterError, io, smooth
-from geomopt import generators as G
-from geomopt.predicates import branch_vertices, vertex_windings
+from geomopt.mesh import generators as G
+from geomopt.exact.predicates import branch_vertices, vertex_windings
 
 
 @pytest.mark.parametrize("kind", ["hex", "hexahedra", 12, ("hexahedron", "hex")])

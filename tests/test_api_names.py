@@ -32,7 +32,8 @@ def test_all_is_exactly_the_public_namespace_of_a_fresh_import():
     assert len(names) == len(set(names)), "a name is listed twice in geomopt.__all__"
     assert sorted(set(names) - {"__version__"}) == public
     assert "__version__" in names
-    assert loaded == ["geomopt._cache", "geomopt._errors", "geomopt._version"]  # the import stays cheap
+    assert loaded == ["geomopt._runtime", "geomopt._runtime.cache", "geomopt._runtime.errors", "geomopt._runtime.moved",
+                      "geomopt._version"]  # the import stays cheap
 
 
 @pytest.mark.parametrize("name", geomopt.__all__)
@@ -60,7 +61,7 @@ def test_smooth_is_a_top_level_driver_returning_the_common_result():
 
     assert inspect.isfunction(geomopt.smooth) and geomopt.smooth is geomopt.smoothing.smooth
     assert "smooth" in geomopt.__all__ and "smoothing" in geomopt.__all__
-    V, E = geomopt.generators.sector_mesh(2, 4, perturb=0.3, seed=3)
+    V, E = geomopt.mesh.generators.sector_mesh(2, 4, perturb=0.3, seed=3)
     res = geomopt.smooth(V, E)
     assert type(res) is geomopt.Result and isinstance(res.details, geomopt.smoothing.SmoothDetails)
     assert isinstance(res.details, geomopt.solvers.Details)

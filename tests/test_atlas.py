@@ -12,8 +12,8 @@ import trimesh
 
 from geomopt import MeshError
 from geomopt.atlas import AtlasOptions, make_atlas
-from geomopt.generators import disk_mesh, holed_plate
-from geomopt.topology import boundary_half_edges, check_disk, unique_edges
+from geomopt.mesh.generators import disk_mesh, holed_plate
+from geomopt.exact.topology import boundary_half_edges, check_disk, unique_edges
 
 
 def torus():

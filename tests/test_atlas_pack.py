@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from geomopt import generators as g
-from geomopt._errors import MeshError, ParameterError
+from geomopt.mesh import generators as g
+from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.atlas import AtlasCertificate, certify_atlas, chart_boundary_loops, pack_charts
-from geomopt.certify import loop_crossings
-from geomopt.predicates import orient2d
+from geomopt.exact.certify import loop_crossings
+from geomopt.exact.predicates import orient2d
 
 # ------------------------------------------------------------------ chart zoo
 

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 import geomopt.cli
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 from geomopt import ParameterError, io
-from geomopt._padding import MAXIMUM_ELEMENTS, bucket_sizes
-from geomopt.batch import SUMMARY_COLUMNS, batch_cases, run_batch
+from geomopt._runtime.padding import MAXIMUM_ELEMENTS, bucket_sizes
+from geomopt.experiments.batch import SUMMARY_COLUMNS, batch_cases, run_batch
 from geomopt.lim import LimCase
-from geomopt.predicates import count_inverted
+from geomopt.exact.predicates import count_inverted
 from geomopt.untangle import _outer_stats, untangle
 
 
@@ -194,7 +194,7 @@ def test_a_batch_reports_bad_cases_and_certifies_the_rest(tmp_path):
 @pytest.fixture
 def own_cache(tmp_path):
     """A fresh persistent compilation cache folder for this test (the previous one restored)."""
-    from geomopt import _cache
+    from geomopt._runtime import cache as _cache
 
     before = _cache.cache_dir()
     yield _cache.set_cache_dir(tmp_path / "jax-cache")
@@ -283,7 +283,7 @@ def test_a_batch_takes_quad_and_hex_case_folders(cli, tmp_path):
 
 
 def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
-    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.experiments.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     ts = tangles()
     LimCase.from_tangle(ts["square"]).write(tmp_path / "a" / "square")
     LimCase.from_tangle(ts["star"]).write(tmp_path / "b" / "square")
@@ -308,7 +308,7 @@ def test_cli_batch_bad_usage_exits_2_before_solving(cli, tmp_path, monkeypatch):
 def test_a_batch_never_writes_over_a_case_input(cli, tmp_path, monkeypatch):
     """A case folder named ``input`` inside case ``R``, output folder ``R/``: ``R/input.obj``
     would be written over case R's own input.  Refused before anything is solved or written."""
-    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.experiments.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     ts = tangles()
     LimCase.from_tangle(ts["square"]).write(tmp_path / "R")
     LimCase.from_tangle(ts["star"]).write(tmp_path / "R" / "input")
@@ -330,9 +330,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 SLOW_BATCH = """
 import sys, time
-import geomopt.batch, geomopt.cli
+import geomopt.experiments.batch, geomopt.cli
 
-real = geomopt.batch.solve_case
+real = geomopt.experiments.batch.solve_case
 
 def slow(folder, outdir, *a, **k):
     if not str(folder).endswith("a"):
@@ -342,7 +342,7 @@ def slow(folder, outdir, *a, **k):
     print("finished", row["case"], flush=True)
     return row
 
-geomopt.batch.solve_case = slow
+geomopt.experiments.batch.solve_case = slow
 sys.exit(geomopt.cli.main(["untangle", sys.argv[1], "-o", sys.argv[2], "--workers", "1", "--quiet"]))
 """
 
@@ -371,9 +371,9 @@ def test_a_batch_stopped_by_sigterm_writes_the_summary_of_what_finished(tmp_path
 
 WRITTEN_THEN_SLOW = """
 import sys, time
-import geomopt.batch, geomopt.cli
+import geomopt.experiments.batch, geomopt.cli
 
-real = geomopt.batch.solve_case
+real = geomopt.experiments.batch.solve_case
 
 def written_then_slow(folder, outdir, *a, **k):
     row = real(folder, outdir, *a, **k)
@@ -382,7 +382,7 @@ def written_then_slow(folder, outdir, *a, **k):
         time.sleep(120)
     return row
 
-geomopt.batch.solve_case = written_then_slow
+geomopt.experiments.batch.solve_case = written_then_slow
 sys.exit(geomopt.cli.main(["untangle", sys.argv[1], "-o", sys.argv[2], "--workers", "1", "--quiet"]))
 """
 
@@ -412,7 +412,7 @@ def test_an_interrupted_batch_says_which_outputs_it_wrote_before_their_rows_arri
 
 
 def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli, tmp_path, monkeypatch):
-    monkeypatch.setattr("geomopt.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.experiments.batch.solve_case", lambda *a, **k: pytest.fail("solved anyway"))
     LimCase.from_tangle(tangles()["square"]).write(tmp_path / "cases" / "sq")
     code, _, err = cli("untangle", tmp_path / "cases", "-o", tmp_path / "out", "--scheduler", "not a url",
                        "--quiet")
@@ -425,9 +425,9 @@ def test_without_dask_a_batch_runs_in_this_process_or_names_the_extra(cli, tmp_p
     """Dask distributed is the [batch] extra: without it the command's default batch solves the
     cases in its own process (one line on stderr says so), while asking for workers or a
     scheduler is refused with one line naming the extra, before anything is created."""
-    import geomopt.batch
+    import geomopt.experiments.batch
 
-    monkeypatch.setattr(geomopt.batch, "dask_available", lambda: False)
+    monkeypatch.setattr(geomopt.experiments.batch, "dask_available", lambda: False)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     good = tmp_path / "good"
     for name in ("square", "cube"):

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import generators as g
-from geomopt._errors import MeshError, ParameterError
-from geomopt.certify import certify_bijective, polygon_crossings, polygon_orientation
-from geomopt.predicates import count_inverted, orient2d
+from geomopt.mesh import generators as g
+from geomopt._runtime.errors import MeshError, ParameterError
+from geomopt.exact.certify import certify_bijective, polygon_crossings, polygon_orientation
+from geomopt.exact.predicates import count_inverted, orient2d
 from geomopt.scaffold import (SimpleBoundary, _ear_clip, bijective_parameterize, build_scaffold,
                                delaunay_flips, refine_scaffold)
-from geomopt.topology import check_disk, unique_edges
-from geomopt.tutte import tutte_embedding
+from geomopt.exact.topology import check_disk, unique_edges
+from geomopt.mesh.tutte import tutte_embedding
 
 # ------------------------------------------------------------------ brute-force reference
 

@@ -9,9 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from geomopt import MeshError, MeshFormatError, generators as G, io
-from geomopt.elements import certify_elements, quality
-from geomopt.problem import Problem
+from geomopt import MeshError, MeshFormatError, io
+from geomopt.mesh import generators as G
+from geomopt.mesh.elements import certify_elements, quality
+from geomopt.mesh.problem import Problem
 
 from test_cli import one_error_line
 
@@ -71,7 +72,7 @@ def test_mixed_and_wrong_cells_are_refused(tmp_path):
 
 
 def test_a_tet_mesh_needs_its_rest_mesh_and_smooth_refuses_it(tmp_path):
-    from geomopt.cells import SMOOTH_KINDS, read_cell_case
+    from geomopt.mesh.cells import SMOOTH_KINDS, read_cell_case
     from geomopt.io import write_vtk_tets
 
     V, T = G.box_mesh(2, 2, 2)
@@ -104,7 +105,7 @@ def _tangled_tets(tmp_path, flip=False):
 
 @pytest.mark.parametrize("flip", [False, True])
 def test_untangle_command_on_a_tet_mesh_file_with_its_rest_mesh(cli, tmp_path, flip):
-    from geomopt.certify import local_certificate
+    from geomopt.exact.certify import local_certificate
 
     rest, tangled, t, T = _tangled_tets(tmp_path, flip)
     assert t.inverted() > 0

@@ -1,15 +1,15 @@
-"""The JAX-native CG Newton direction (geomopt._cg) against the direct (Cholesky) step."""
+"""The JAX-native CG Newton direction (geomopt.objective.cg) against the direct (Cholesky) step."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from geomopt._cg import NewtonCG, cg_system, pcg
-from geomopt._objective import Objective
-from geomopt.generators import boundary_vertices
-from geomopt.linsolve import SparseCholesky
-from geomopt.problem import Problem
+from geomopt.objective.cg import NewtonCG, cg_system, pcg
+from geomopt.objective.objective import Objective
+from geomopt.mesh.generators import boundary_vertices
+from geomopt.objective.linsolve import SparseCholesky
+from geomopt.mesh.problem import Problem
 
 from conftest import cube_tets, grid
 
@@ -65,7 +65,7 @@ def test_cg_direction_equals_direct_step(kind, shift):
 def test_cg_operator_and_preconditioner_are_the_assembled_ones():
     """matvec is the assembled free-DOF Hessian plus the shift; the preconditioner inverts its
     diagonal vertex blocks (the free-boundary case has a fully pinned vertex)."""
-    from geomopt._objective import block_hessian
+    from geomopt.objective.objective import block_hessian
 
     obj, x = _case("free")
     p = obj.params()
@@ -193,7 +193,8 @@ def test_newton_with_cg_solves_like_the_direct_newton(kind):
 
 def test_auto_linear_solver_rule(monkeypatch):
     """``newton_linear_solver`` picks what its docstring says, and ``Newton`` follows it."""
-    from geomopt import ParameterError, linsolve
+    from geomopt import ParameterError
+    from geomopt.objective import linsolve
     from geomopt.solvers import SLIM, Newton
 
     rule = linsolve.newton_linear_solver

@@ -20,7 +20,7 @@ import pytest
 
 import geomopt.cli
 from geomopt import MeshFormatError, io
-from geomopt.predicates import count_inverted
+from geomopt.exact.predicates import count_inverted
 
 from conftest import cube_tets, grid
 
@@ -614,7 +614,7 @@ def test_numpy_warnings_never_reach_stderr(tmp_path):
 def test_bijective_with_a_start_it_cannot_take_is_one_line_in_command_line_words(cli, tmp_path):
     """--bijective needs a globally injective start: --init projection is refused before the mesh
     is read, and a folded --init uv map with the options to use (not the API's "x0")."""
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
 
     t = G.rotated_interior(*G.disk_mesh(4), 150.0)
     src = tmp_path / "folded.obj"

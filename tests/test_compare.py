@@ -16,19 +16,19 @@ import pytest
 import geomopt
 import geomopt.cli
 from geomopt import MeshError, ParameterError, Problem, io
-from geomopt._compare import HISTORY_COLUMNS, TOLERANCES, Comparison, summary_columns
-from geomopt._compare_report import STYLES, latex_table
-from geomopt._manifest import array_hash
-from geomopt.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
-from geomopt.linesearch import InjectiveSearch
-from geomopt.predicates import count_inverted
+from geomopt.experiments.comparison import HISTORY_COLUMNS, TOLERANCES, Comparison, summary_columns
+from geomopt.experiments.report import STYLES, latex_table
+from geomopt.experiments.manifest import array_hash
+from geomopt.mesh.generators import boundary_vertices, box_mesh, rotated_interior, square_mesh
+from geomopt.solvers.linesearch import InjectiveSearch
+from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import LBFGS
 
 from conftest import grid
 from test_cli import one_error_line, read_uv_obj, write_obj
 
 # geomopt.compare is the function (re-exported by geomopt); the module is this:
-compare_module = importlib.import_module("geomopt._compare")
+compare_module = importlib.import_module("geomopt.experiments.comparison")
 V2, F = grid(4)  # test_cli's mesh (16 vertices, 18 triangles): kernels compiled once per session
 V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # a curved disk
 FAST = "newton,aqp,lbfgs"  # quick to compile; newton's kernels are test_cli's
@@ -214,11 +214,11 @@ def test_several_meshes_formats_log_x_and_json(cli, tmp_path):
     assert head[0] == "mesh" and [r[0] for r in rows] == ["a", "a", "b", "b"]
     table = (out / "table.tex").read_text()
     assert "a.obj" in table and "b.obj" in table
-    res = geomopt._compare.compare_meshes({"a": a, "b": b}, solvers=["newton"])
+    res = geomopt.experiments.comparison.compare_meshes({"a": a, "b": b}, solvers=["newton"])
     fig = res.figure(log_x=True)
     assert len(fig.axes) == 6 and fig.axes[1].get_xscale() == "log"
     with pytest.raises(ParameterError, match="same file name"):
-        geomopt._compare.compare_meshes([a, tmp_path / "x" / "a.obj"], solvers=["newton"])
+        geomopt.experiments.comparison.compare_meshes([a, tmp_path / "x" / "a.obj"], solvers=["newton"])
 
 
 def test_optimistix_progress_lines_show_no_nan(tmp_path, capsys):
@@ -445,7 +445,7 @@ def test_one_untimed_warmup_keeps_lazy_compilation_out_of_the_solve_time(warmup)
 
 
 def test_column_figure_has_one_panel_per_mesh_and_the_font_size_asked(tmp_path):
-    res = geomopt._compare.compare_meshes({"a": write_obj(tmp_path / "a.obj", V3, F),
+    res = geomopt.experiments.comparison.compare_meshes({"a": write_obj(tmp_path / "a.obj", V3, F),
                                            "b": write_obj(tmp_path / "b.obj", 2 * V3, F)},
                                           solvers=["newton"], warmup=False)
     fig = res.figure(layout="column", font_size=6.5)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from geomopt import MeshError, Objective, ParameterError, Problem
-from geomopt.problem import check_rest_values
+from geomopt.mesh.problem import check_rest_values
 
 from conftest import cube_tets, grid
 
@@ -124,7 +124,7 @@ def test_handle_positions_and_element_weights_are_differentiable():
     w = 1.0 + rng.uniform(size=len(F))
     # dE/dw_e = vol_e psi(J_e): the per-element energies
     gw = jax.grad(lambda w: Objective(P, "arap", element_weights=w).value(x))(jnp.asarray(w))
-    from geomopt._objective import element_densities
+    from geomopt.objective.objective import element_densities
 
     obj = Objective(P, "arap")
     np.testing.assert_allclose(gw, P.volumes * np.asarray(element_densities(obj, x)), rtol=1e-12)

@@ -9,14 +9,15 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from geomopt import generators as G
-from geomopt import Outcome, hexvalid, smooth
-from geomopt._errors import MeshError, ParameterError
-from geomopt._objective import Objective
-from geomopt.elements import (certify_elements, corner_edges, count_invalid,
-                              quality, scaled_jacobian, valid_elements)
-from geomopt.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
-from geomopt.problem import Problem
+from geomopt.mesh import generators as G
+from geomopt import Outcome, smooth
+from geomopt.exact import hexvalid
+from geomopt._runtime.errors import MeshError, ParameterError
+from geomopt.objective.objective import Objective
+from geomopt.mesh.elements import (certify_elements, corner_edges, count_invalid, quality, scaled_jacobian,
+    valid_elements)
+from geomopt.exact.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
+from geomopt.mesh.problem import Problem
 from geomopt.untangle import STIFF_AFTER_NEWTON, choose_start, harmonic_start, untangle
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
@@ -475,7 +476,7 @@ def test_quad_surface_is_the_surface_path_of_its_corner_triangles():
 def test_untangling_stops_when_only_hexahedra_interiors_fold(monkeypatch):
     """The energy sees corners only: when every corner is positive but the exact test finds
     hexahedra folded inside, more eps iterations cannot help; untangle says so and stops."""
-    import geomopt.elements as elements_module
+    import geomopt.mesh.elements as elements_module
 
     t = G.noisy_interior(*G.hex_mesh(3, 3, 3), 0.5)
     monkeypatch.setattr(elements_module, "count_invalid", lambda X, E: 1)
@@ -505,8 +506,8 @@ def test_element_certificate_finds_branch_points_the_corners_cannot_see():
     locally injective: the certificate names the branch vertex; extruded to hexahedra, the
     axis edge and its ends.  The same certificate passes the once-wound fan, which the
     overlapping corner simplices taken as one mesh would fail."""
-    from geomopt.certify import local_certificate
-    from geomopt.elements import corner_simplices, element_local_certificate
+    from geomopt.exact.certify import local_certificate
+    from geomopt.mesh.elements import corner_simplices, element_local_certificate
 
     V, Q = _fan(8, 2 * np.pi)
     X, _ = _fan(8, 4 * np.pi)
@@ -526,7 +527,7 @@ def test_element_certificate_finds_branch_points_the_corners_cannot_see():
 def test_element_certificate_finds_a_free_boundary_overlapping_itself():
     """Six quads of an open fan (a boundary vertex) turned by 1.4 full turns: every quad valid,
     the boundary overlaps at the centre."""
-    from geomopt.elements import element_local_certificate
+    from geomopt.mesh.elements import element_local_certificate
 
     k, turn = 6, 1.4 * 2 * np.pi
     a = np.arange(k + 1) * turn / k
@@ -560,7 +561,7 @@ def test_hex_certificate_finds_a_boundary_edge_overlapping_itself(turns):
     and the axis edge's wedges do too; turned 0.7 turns it is locally injective.  The
     certificate skips the boundary tests at the link copies of its stars (they cannot fail),
     never at the apexes."""
-    from geomopt.elements import element_local_certificate
+    from geomopt.mesh.elements import element_local_certificate
 
     V, Q = _open_fan(6, turns * 2 * np.pi)
     P, H = _extrude(V, Q)
@@ -577,8 +578,8 @@ def test_fixed_stars_are_judged_on_the_elements_tangent_cones():
     the plain fixed-star check on the overlapping corner tetrahedra would refuse it; judged on
     the tangent cones it passes.  A fixed quad fan winding twice is
     solved and reported as forced by the handles."""
-    from geomopt.certify import fixed_star_certificate
-    from geomopt.elements import corner_simplices
+    from geomopt.exact.certify import fixed_star_certificate
+    from geomopt.mesh.elements import corner_simplices
 
     V, H = G.hex_mesh(3, 3, 1)
     p = Problem.hexes(V, H)

@@ -16,8 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geomopt.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
-from geomopt.predicates import normal_signs, orient2d, orient3d
+from geomopt.exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
+from geomopt.exact.predicates import normal_signs, orient2d, orient3d
 
 # powers of two: exact scalings of small-integer data, from the deepest subnormals to near overflow
 EXPONENTS = [-1074, -1070, -1060, -1040, -1030, -1022, -1000, -600, 0, 600, 1000, 1012]
@@ -159,7 +159,7 @@ def test_polygon_mixing_magnitudes():
 
 def test_certify_bijective_at_subnormal_scale_finds_the_crossing():
     """Issue 19 item 3: an overlapping disk map scaled to 1e-310 was certified global."""
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
 
     V, F = G.disk_mesh(3)
     loop = None
@@ -190,7 +190,7 @@ def test_local_certificate_scale_invariant():
     same after any exact scaling."""
     from test_local_injectivity import exact_fan, wrapped_cylinder
 
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
 
     cases = [exact_fan(1.5, 12), exact_fan(0.75, 12), G.square_mesh(4), G.box_mesh(2, 2, 2)]
     V, T, X, _ = wrapped_cylinder(2.0, sectors=8, levels=2)
@@ -209,10 +209,10 @@ def test_bijective_start_at_extreme_scales(scale, tmp_path):
     signed area is nan / 0') where the plain run succeeded: the start's area overflowed or
     underflowed before it was scaled to the rest area."""
     from geomopt import cli
-    from geomopt import generators as G
+    from geomopt.mesh import generators as G
     from geomopt.io import read_obj_with_uv, write_obj_with_uv
     from geomopt.param import parameterize
-    from geomopt.tutte import tutte_embedding
+    from geomopt.mesh.tutte import tutte_embedding
 
     V, F = G.ruffled_disk(6)
     x0 = tutte_embedding(V, F) * scale
@@ -232,8 +232,8 @@ def test_untangle_a_start_map_at_extreme_scales(scale, dim):
     sizes in float: at 1e200 they overflowed (``ValueError: -inf + inf in fsum``), and a tet
     map at 1e-150 underflowed to a "collapsed" map and was refused.  Signs and ratios are
     scale-free, so these solve as at scale 1, with the handles bit-identical."""
-    from geomopt import generators as G
-    from geomopt.problem import check_initial_orientation
+    from geomopt.mesh import generators as G
+    from geomopt.mesh.problem import check_initial_orientation
     from geomopt.untangle import untangle
 
     tg = (G.rotated_interior(*G.square_mesh(6), 120.0) if dim == 2

@@ -19,10 +19,10 @@ import json
 from geomopt import Problem, SolveError
 from geomopt import cli
 from geomopt.solvers import Outcome
-from geomopt.certify import fixed_star_certificate, local_certificate
+from geomopt.exact.certify import fixed_star_certificate, local_certificate
 from geomopt.io import read_vtk_tets
-from geomopt.predicates import count_inverted
-from geomopt.generators import Tangle
+from geomopt.exact.predicates import count_inverted
+from geomopt.mesh.generators import Tangle
 from geomopt.lim import LimCase
 from geomopt.untangle import untangle
 from test_local_injectivity import edge_star, fan_2d, orient_tets

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from geomopt._errors import MeshError, MeshFormatError
+from geomopt._runtime.errors import MeshError, MeshFormatError
 from geomopt.io import read_mesh, read_vtk_tets, write_ply_with_uv
 from geomopt.lim import LimCase
 

@@ -8,11 +8,11 @@ import pytest
 
 import geomopt.cli
 from geomopt import MeshFormatError, Problem, parameterize
-from geomopt.generators import disk_mesh
+from geomopt.mesh.generators import disk_mesh
 from geomopt.io import read_obj_uv, write_obj_with_uv
 from geomopt.param import projection_map, repair_map
-from geomopt.predicates import count_inverted
-from geomopt.tutte import tutte_embedding
+from geomopt.exact.predicates import count_inverted
+from geomopt.mesh.tutte import tutte_embedding
 
 from conftest import grid
 

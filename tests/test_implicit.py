@@ -10,7 +10,7 @@ import geomopt
 from geomopt import Objective, ParameterError, Problem, SolveError, implicit
 from geomopt.energies import Energy
 from geomopt.solvers import LBFGS, Newton
-from geomopt.topology import boundary_vertices
+from geomopt.exact.topology import boundary_vertices
 
 from conftest import cube_tets, grid
 

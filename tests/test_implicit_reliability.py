@@ -8,7 +8,7 @@ import pytest
 
 from geomopt import GeomoptError, MeshError, Objective, Problem, SolveError, implicit
 from geomopt.solvers import Newton
-from geomopt.topology import boundary_vertices
+from geomopt.exact.topology import boundary_vertices
 
 from conftest import cube_tets, grid
 

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geomopt import _objective, _programs, linsolve
+from geomopt.objective import objective as _objective, linsolve
+from geomopt._runtime import programs as _programs
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,8 +62,8 @@ def test_every_kept_program_compiles_with_the_xla_options(fresh_options):
     vectors passed 16,384 entries."""
     import importlib
 
-    names = ("geomopt.solvers.lbfgs", "geomopt.linesearch", "geomopt.untangle", "geomopt._objective",
-             "geomopt.param", "geomopt._cg", "geomopt.implicit")
+    names = ("geomopt.solvers.lbfgs", "geomopt.solvers.linesearch", "geomopt.untangle", "geomopt.objective.objective",
+             "geomopt.param", "geomopt.objective.cg", "geomopt.implicit")
     kinds = (_programs.Program, type(_objective.energy_kernel))  # a Program, or one made at first call
     programs = [p for n in names for p in vars(importlib.import_module(n)).values() if isinstance(p, kinds)]
     assert len(programs) >= 10

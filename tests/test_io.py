@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from geomopt._errors import MeshError, MeshFormatError, ParameterError
+from geomopt._runtime.errors import MeshError, MeshFormatError, ParameterError
 from geomopt.io import (
     atomic_output,
     atomic_write,
@@ -498,7 +498,7 @@ def test_read_lim_case_dispatch_and_lim_cases(tmp_path):
 
 def test_lim_case_write_reads_back_bit_for_bit(tmp_path):
     """LimCase.write then LimCase.read gives the same typed fields (2D with a planar rest, 3D)."""
-    from geomopt import generators
+    from geomopt.mesh import generators
 
     for tangle in (generators.rotated_interior(*generators.square_mesh(5), 90.0),
                    generators.twisted_box(2, 3)):

@@ -15,7 +15,7 @@ import pytest
 
 import geomopt
 from geomopt import Objective, Outcome, ParameterError, Problem, minimize
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 from geomopt.solvers import (LBFGS, AbstractContinuation, Decision, Final, Newton, Progress, Result, Stats,
                              Termination, iterate, local_certificate)
 from geomopt.solvers._termination import RUNNING

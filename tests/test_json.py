@@ -11,8 +11,8 @@ import pytest
 
 import geomopt
 from geomopt import Problem
-from geomopt._manifest import SCHEMA_VERSION
-from geomopt.generators import rotated_interior, square_mesh
+from geomopt.experiments.manifest import SCHEMA_VERSION
+from geomopt.mesh.generators import rotated_interior, square_mesh
 
 from test_cli import write_obj
 from test_compare import V3, F, lim_case

@@ -1,4 +1,4 @@
-"""Kept programs (geomopt._programs) loaded into a fresh process that has lowered nothing."""
+"""Kept programs (geomopt._runtime.programs) loaded into a fresh process that has lowered nothing."""
 
 import os
 import subprocess
@@ -41,8 +41,8 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import _cache, _programs
-from geomopt import generators as G
+from geomopt._runtime import cache as _cache, programs as _programs
+from geomopt.mesh import generators as G
 
 
 @pytest.fixture

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from geomopt._objective import Objective
+from geomopt.objective.objective import Objective
 from geomopt.energies import Energy
-from geomopt.linesearch import InjectiveSearch, max_injective_step
-from geomopt.predicates import simplex_orientations
-from geomopt.problem import Problem
+from geomopt.solvers.linesearch import InjectiveSearch, max_injective_step
+from geomopt.exact.predicates import simplex_orientations
+from geomopt.mesh.problem import Problem
 
 from conftest import cube_tets, grid
 

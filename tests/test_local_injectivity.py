@@ -1,4 +1,4 @@
-"""Exact local injectivity around vertices and edges (geomopt.stars, certify.local_certificate).
+"""Exact local injectivity around vertices and edges (geomopt.exact.stars, certify.local_certificate).
 
 Positive elements are not local injectivity: a fan can wind twice around an interior vertex
 (2D) or edge (3D), and a fan around a boundary vertex or edge can turn a full turn or more.
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from geomopt import Outcome, Problem
-from geomopt.certify import LocalCertificate, certify_bijective, local_certificate
-from geomopt.predicates import count_inverted
-from geomopt.stars import fan_overlaps_2d, star_overlaps_3d
+from geomopt.exact.certify import LocalCertificate, certify_bijective, local_certificate
+from geomopt.exact.predicates import count_inverted
+from geomopt.exact.stars import fan_overlaps_2d, star_overlaps_3d
 
 # ------------------------------------------------------------------------------ builders
 
@@ -435,7 +435,8 @@ def test_minimize_refuses_a_positive_but_overlapping_result():
 def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
     """Issue 19 item 1: a ball whose fixed boundary wraps twice around its axis, every tet
     positive, was certified by untangle and by the CLI (exit 0, file written)."""
-    from geomopt import cli, generators
+    from geomopt import cli
+    from geomopt.mesh import generators
     from geomopt.lim import LimCase
     from geomopt.solvers import Outcome
     from geomopt.untangle import untangle
@@ -455,7 +456,7 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
 def test_written_file_certificate_names_the_overlap(tmp_path):
     """LimCase.write_certified certifies the file read back with the local certificate, and
     leaves nothing when it fails."""
-    from geomopt._errors import SolveError
+    from geomopt._runtime.errors import SolveError
     from geomopt.lim import LimCase
 
     V, T, X, axis = wrapped_cylinder(2.0)
@@ -589,7 +590,7 @@ def test_parameterize_repairs_a_start_whose_boundary_fan_overlaps():
 def test_compare_refuses_positive_but_overlapping_results():
     """geomopt.compare certified with the orientation test alone: every vertex fixed on a fan
     turning 1.5 times, each solver 'converged' on it."""
-    from geomopt._compare import compare
+    from geomopt.experiments.comparison import compare
 
     X, F = exact_fan(1.5, 12)
     rest, _ = exact_fan(0.75, 12)
@@ -650,7 +651,7 @@ def test_a_map_certified_again_unchanged_is_not_recomputed_and_a_changed_one_is(
     while the same array changed in place, or another orientation, is certified anew."""
     import collections
 
-    import geomopt.certify as C
+    import geomopt.exact.certify as C
 
     monkeypatch.setattr(C, "_RECENT", collections.OrderedDict())  # nothing remembered from other tests
     V, T = cylinder()[:2]

@@ -7,7 +7,7 @@ import scipy.sparse.linalg as spla
 
 import geomopt
 from geomopt import Newton, Objective, Outcome, Problem, minimize, parameterize
-from geomopt.predicates import count_inverted
+from geomopt.exact.predicates import count_inverted
 
 from conftest import grid, shared_path
 from test_objective import cot_laplacian
@@ -71,7 +71,7 @@ def test_every_energy_runs_with_newton_and_a_user_density():
 def test_linear_solver_backends_agree():
     V, F = developable_patch(8)
     out = {}
-    for backend in geomopt.linsolve.available_backends():
+    for backend in geomopt.objective.linsolve.available_backends():
         out[backend] = parameterize(V, F, solver=Newton(linear_solver=backend), progress=False).energy
     vals = np.array(list(out.values()))
     assert np.allclose(vals, vals[0], rtol=1e-9), out

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from geomopt._objective import Objective, hessian_pattern, project_psd
-from geomopt.problem import Problem
+from geomopt.objective.objective import Objective, hessian_pattern, project_psd
+from geomopt.mesh.problem import Problem
 
 from conftest import cube_tets, grid
 
@@ -31,7 +31,7 @@ def test_dirichlet_hessian_is_cotangent_laplacian():
     obj = Objective(P, "dirichlet")
     # no gauge pin: compare the full matrix, so fix nothing and build the full pattern
     pat = hessian_pattern(P, np.ones((len(V), 2), bool))
-    from geomopt._objective import hessian_kernel
+    from geomopt.objective.objective import hessian_kernel
 
     _, _, data = hessian_kernel(obj.energy.density, "none", 0, pat.n_blocks, obj.geom, jnp.ones_like(V),
                                 jnp.asarray(V), obj.params(), 0, pat.blocks, pat.swap, pat.gather)
@@ -105,7 +105,7 @@ def test_the_traced_eigenvalue_filter_is_each_projection(k):
     returns the blocks untouched."""
     import jax
 
-    from geomopt._projection import FILTER_CODES, filter_eigenvalues
+    from geomopt.objective.projection import FILTER_CODES, filter_eigenvalues
 
     traced = jax.jit(filter_eigenvalues)
     A = np.random.default_rng(k).standard_normal((50, k, k))
@@ -121,7 +121,7 @@ def test_clamp_abs_and_exact_hessians_share_one_compiled_kernel():
     exact one equal to JAX's dense Hessian)."""
     import jax
 
-    from geomopt._objective import hessian_kernel
+    from geomopt.objective.objective import hessian_kernel
 
     V, F = grid(7, jitter=0.4)
     obj = Objective(Problem.planar(V, F).with_fixed([0, 5], V[[0, 5]]), "symmetric_dirichlet")
@@ -151,7 +151,7 @@ def test_translation_pinned_only_for_free_problems():
 def _reference_pattern(problem, free_dofs):
     """The first pattern builder (a global np.unique over all element DOF pairs): the
     reference for the vertex-graph builder.  Returns (n, indptr, indices, slots, diag)."""
-    from geomopt._objective import local_pairs
+    from geomopt.objective.objective import local_pairs
 
     d = problem.dim
     free = np.asarray(free_dofs, bool).reshape(-1)
@@ -176,7 +176,7 @@ def _reference_pattern(problem, free_dofs):
 
 
 def _pattern_cases():
-    from geomopt.generators import boundary_vertices
+    from geomopt.mesh.generators import boundary_vertices
 
     V, F = grid(7, jitter=0.3)
     P = Problem.planar(V, F)

@@ -7,8 +7,8 @@ import pytest
 
 import geomopt
 from geomopt import Objective, ParameterError, Problem
-from geomopt.generators import tutte_nonconvex
-from geomopt.linesearch import InjectiveSearch
+from geomopt.mesh.generators import tutte_nonconvex
+from geomopt.solvers.linesearch import InjectiveSearch
 
 optax = pytest.importorskip("optax")
 from geomopt.optax import energy_fn, injective_linesearch, run  # noqa: E402

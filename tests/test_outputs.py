@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from conftest import grid
-from geomopt._errors import GeomoptError
+from geomopt._runtime.errors import GeomoptError
 from geomopt.io import atomic_output, atomic_path, atomic_write, check_output_path, write_mesh_with_uv
 
 REPO = Path(__file__).resolve().parents[1]
@@ -202,7 +202,7 @@ def flat_obj(path):
 def lim2d(folder):
     """A small flip-free 2D LIM case (identity map, boundary fixed)."""
     from geomopt.lim import LimCase
-    from geomopt.topology import boundary_vertices
+    from geomopt.exact.topology import boundary_vertices
 
     V, F = grid(4)
     return LimCase(dim=2, rest=np.c_[V, np.zeros(len(V))], init=V, simplices=F,
@@ -261,7 +261,7 @@ def test_compare_never_replaces_its_input_nor_writes_into_a_case(cli, tmp_path, 
     got the outputs; --out a/b/c created a and b.  All refused before solving, nothing created."""
     import geomopt
 
-    monkeypatch.setattr("geomopt._compare._run", lambda *a, **k: pytest.fail("solved anyway"))
+    monkeypatch.setattr("geomopt.experiments.comparison._run", lambda *a, **k: pytest.fail("solved anyway"))
     mesh = flat_obj(tmp_path / "newton.obj")
     case = lim2d(tmp_path / "case")
     before = tree(tmp_path)
@@ -281,7 +281,7 @@ def test_compare_never_replaces_its_input_nor_writes_into_a_case(cli, tmp_path, 
 
 def test_every_command_refuses_a_missing_parent_and_creates_nothing(cli, tmp_path, monkeypatch):
     """One rule: an output file's folder, or an output folder's parent, must exist."""
-    for target in ("geomopt.param.parameterize", "geomopt.lim.untangle_case", "geomopt.batch.solve_case"):
+    for target in ("geomopt.param.parameterize", "geomopt.lim.untangle_case", "geomopt.experiments.batch.solve_case"):
         monkeypatch.setattr(target, lambda *a, **k: pytest.fail("solved anyway"))
     mesh = flat_obj(tmp_path / "m.obj")
     case = lim2d(tmp_path / "cases" / "sq")

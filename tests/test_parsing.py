@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from geomopt._errors import MeshFormatError
+from geomopt._runtime.errors import MeshFormatError
 from geomopt.io import _stl, _text
 from geomopt.io._text import FLOAT_RE, INT_RE, Tokens, parse
 

@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import SolveError, generators as G, io
-from geomopt.cells import read_cell_case, write_certified
+from geomopt import SolveError, io
+from geomopt.mesh import generators as G
+from geomopt.mesh.cells import read_cell_case, write_certified
 from geomopt.lim import LimCase
 from geomopt.smoothing import element_problem
 from geomopt.solvers import Outcome, Stats, Termination
@@ -28,7 +29,7 @@ from geomopt.untangle import EpsContinuation, untangle
 from conftest import grid
 from test_cli import one_error_line
 
-compare_module = importlib.import_module("geomopt._compare")
+compare_module = importlib.import_module("geomopt.experiments.comparison")
 V2, F = grid(4)
 V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # test_compare's curved disk
 

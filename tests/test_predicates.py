@@ -1,4 +1,4 @@
-"""Tests for geomopt.predicates: exact orientation signs, checked against Fractions."""
+"""Tests for geomopt.exact.predicates: exact orientation signs, checked against Fractions."""
 
 from fractions import Fraction
 
@@ -8,12 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geomopt import MeshError, ParameterError
-from geomopt.predicates import (
-    count_inverted,
-    orient2d,
-    orient3d,
-    simplex_orientations,
-)
+from geomopt.exact.predicates import count_inverted, orient2d, orient3d, simplex_orientations
 
 ULP = 2.0**-53  # ulp of numbers in [0.5, 1)
 

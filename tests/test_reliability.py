@@ -19,7 +19,7 @@ from hypothesis.extra import numpy as hnp
 from geomopt import GeomoptError, MeshError, Objective, Outcome, ParameterError, Problem, SolveError
 from geomopt import minimize, parameterize
 from geomopt.energies import REGISTRY, Energy, get_energy
-from geomopt.problem import check_initial_orientation
+from geomopt.mesh.problem import check_initial_orientation
 from geomopt.solvers import Newton
 
 from conftest import cube_tets, grid
@@ -284,7 +284,8 @@ def test_nonfinite_solve_ends_nonfinite_without_a_nan_map(density):
 def test_a_failed_solve_is_a_runtime_error_not_a_value_error():
     """`except ValueError` around a call (for its input checks) must not swallow a solve that
     failed: SolveError is a GeomoptError and a RuntimeError; bad input stays a ValueError."""
-    from geomopt import _errors, linsolve
+    from geomopt._runtime import errors as _errors
+    from geomopt.objective import linsolve
 
     assert issubclass(SolveError, GeomoptError) and issubclass(SolveError, RuntimeError)
     assert not issubclass(SolveError, ValueError) and not issubclass(GeomoptError, ValueError)

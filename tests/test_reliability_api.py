@@ -22,14 +22,14 @@ import numpy as np
 import pytest
 
 from geomopt import MeshError, Objective, Outcome, ParameterError, Problem, SolveError
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 from geomopt import minimize, parameterize
 from geomopt import param as param_module
 from geomopt.energies import REGISTRY, Energy, garanzha
-from geomopt.linesearch import InjectiveSearch
-from geomopt.predicates import count_inverted
+from geomopt.solvers.linesearch import InjectiveSearch
+from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import LBFGS, Adaptive, Newton
-from geomopt.topology import same_side_facets
+from geomopt.exact.topology import same_side_facets
 from geomopt.lim import LimCase, untangle_case
 from geomopt.untangle import untangle
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import GeomoptError, ParameterError, Problem, generators as G, io
+from geomopt import GeomoptError, ParameterError, Problem, io
+from geomopt.mesh import generators as G
 from geomopt.untangle import untangle
 
 

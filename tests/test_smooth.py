@@ -10,9 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from geomopt import MeshError, generators as G, io
-from geomopt.elements import certify_elements, quality
-from geomopt.problem import Problem
+from geomopt import MeshError, io
+from geomopt.mesh import generators as G
+from geomopt.mesh.elements import certify_elements, quality
+from geomopt.mesh.problem import Problem
 from geomopt import smooth
 
 from test_cli import one_error_line

@@ -10,15 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import geomopt.linesearch as linesearch_module
+import geomopt.solvers.linesearch as linesearch_module
 from geomopt import Objective, Outcome, Problem, minimize, parameterize
 from geomopt.energies import get_energy
-from geomopt.generators import boundary_vertices, box_mesh, disk_mesh
-from geomopt.linesearch import InjectiveSearch, still_positive
-from geomopt.predicates import count_inverted
+from geomopt.mesh.generators import boundary_vertices, box_mesh, disk_mesh
+from geomopt.solvers.linesearch import InjectiveSearch, still_positive
+from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import AQP, CM, LBFGS, SLIM, SOLVERS, Newton, get_solver
 from geomopt.solvers.lbfgs import _two_loop
-from geomopt._projection import CMProxy, SLIMProxy, slim_weights, svd2, true_hessian_block
+from geomopt.objective.projection import CMProxy, SLIMProxy, slim_weights, svd2, true_hessian_block
 
 from conftest import grid
 from test_newton import developable_patch
@@ -190,7 +190,7 @@ def test_aqp_search_keeps_the_blocking_element_away_from_collapse():
     proxy ignores the barrier, and at the other solvers' 0.9 the element that blocks a step
     loses most of its area, so the next steps alternate tiny and short (16 iterations to 1e-4
     of the minimum here, 8 with the cap)."""
-    from geomopt.generators import saddle
+    from geomopt.mesh.generators import saddle
     from geomopt.param import start_map
 
     assert AQP().search.safety == 0.25
@@ -355,7 +355,7 @@ def test_search_keeps_orientation_without_the_closed_form_bound(monkeypatch):
     trial flip-free, on an energy that rewards folding (its line minimum is folded)."""
     monkeypatch.setattr(linesearch_module, "injective_step_bound", lambda S, x, d: jnp.inf)
     from geomopt.energies import Energy
-    from geomopt._geometry import det
+    from geomopt.mesh.geometry import det
 
     V, F = grid(3)
     b = np.setdiff1d(np.arange(len(V)), [4])

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import _cache, _hostcall, _programs
+from geomopt._runtime import cache as _cache, hostcall as _hostcall, programs as _programs
 from geomopt.lim import LimCase
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,7 +85,7 @@ def test_untangle_json_has_the_timing_split_from_process_start(tmp_path):
 
 
 def test_scaled_jacobian_is_one_for_regular_simplices_and_negative_when_inverted():
-    from geomopt.quality import element_quality, scaled_jacobians, size_ratios
+    from geomopt.mesh.quality import element_quality, scaled_jacobians, size_ratios
 
     tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
     tet = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])

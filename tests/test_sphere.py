@@ -11,9 +11,9 @@ import pytest
 
 import geomopt
 from geomopt import MeshError, ParameterError
-from geomopt.certify import certify_sphere
+from geomopt.exact.certify import certify_sphere
 from geomopt.io import read_mesh
-from geomopt.problem import Problem
+from geomopt.mesh.problem import Problem
 from geomopt.sphere import sphere_distortion, sphere_start, stereographic
 from geomopt.solvers import Outcome
 
@@ -135,7 +135,7 @@ def test_certificate_rejects_a_double_cover():
 
 def test_stereographic_orientation():
     """Counter-clockwise planar triangles turn counter-clockwise seen from outside."""
-    from geomopt.predicates import cone_orientations
+    from geomopt.exact.predicates import cone_orientations
 
     p = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])
     assert cone_orientations(stereographic(p), np.array([[0, 1, 2]]))[0] == 1

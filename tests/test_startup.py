@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from geomopt import linsolve
+from geomopt.objective import linsolve
 
 
 def _spd_lower(n=60, seed=0, shift=1.0):
@@ -101,9 +101,9 @@ from pathlib import Path  # noqa: E402
 import jax  # noqa: E402
 
 import geomopt  # noqa: E402
-from geomopt import _cache, _padding, _programs  # noqa: E402
-from geomopt._objective import Objective  # noqa: E402
-from geomopt.problem import Problem  # noqa: E402
+from geomopt._runtime import cache as _cache, padding as _padding, programs as _programs  # noqa: E402
+from geomopt.objective.objective import Objective  # noqa: E402
+from geomopt.mesh.problem import Problem  # noqa: E402
 
 from conftest import grid  # noqa: E402
 
@@ -320,7 +320,7 @@ def test_help_and_version_do_not_import_jax(argv):
 
 
 def test_import_geomopt_does_not_import_jax_nor_switch_its_global_float64():
-    # geomopt's own calls run in float64 (geomopt._x64, tests/test_x64.py); the user's code keeps
+    # geomopt's own calls run in float64 (geomopt._runtime.x64, tests/test_x64.py); the user's code keeps
     # JAX's default dtypes
     proc = _run(["-c", "import sys, geomopt; assert 'jax' not in sys.modules\n"
                        "import jax.numpy as jnp; print(jnp.zeros(1).dtype)"], env={"GEOMOPT_CACHE_DIR": "off"})
@@ -329,7 +329,7 @@ def test_import_geomopt_does_not_import_jax_nor_switch_its_global_float64():
 
 
 def test_help_lists_exactly_the_registered_energies_and_solvers():
-    from geomopt import _names
+    from geomopt._runtime import names as _names
     from geomopt.energies import REGISTRY
     from geomopt.solvers import SOLVERS
 
@@ -407,7 +407,7 @@ def test_untangle_png_marks_the_inverted_elements_of_the_start_only(tmp_path, ca
     from conftest import shared_path
 
     if case == "twisted_box":  # (the LIM armadillo has no locally injective map: tests/test_untangle.py)
-        from geomopt import generators
+        from geomopt.mesh import generators
         from geomopt.lim import LimCase
 
         folder = LimCase.from_tangle(generators.twisted_box(4, 12, turns=0.5)).write(tmp_path / "twisted")

@@ -1,4 +1,4 @@
-"""Tests for geomopt.topology: edges, boundary loops, components and the disk check."""
+"""Tests for geomopt.exact.topology: edges, boundary loops, components and the disk check."""
 
 from pathlib import Path
 
@@ -8,14 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geomopt import MeshError
-from geomopt.topology import (
-    boundary_half_edges,
-    boundary_loops,
-    check_disk,
-    connected_components,
-    half_edges,
-    unique_edges,
-)
+from geomopt.exact.topology import (boundary_half_edges, boundary_loops, check_disk, connected_components,
+    half_edges, unique_edges)
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared/data/meshes"
 

@@ -1,4 +1,4 @@
-"""Tests for geomopt.tutte: flip-free Tutte embeddings onto the unit circle."""
+"""Tests for geomopt.mesh.tutte: flip-free Tutte embeddings onto the unit circle."""
 
 from pathlib import Path
 
@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geomopt import MeshError, ParameterError
-from geomopt.predicates import count_inverted, simplex_orientations
-from geomopt.topology import boundary_loops, check_disk
-from geomopt.tutte import WEIGHTS, scale_to_area, tutte_embedding, tutte_weights
+from geomopt.exact.predicates import count_inverted, simplex_orientations
+from geomopt.exact.topology import boundary_loops, check_disk
+from geomopt.mesh.tutte import WEIGHTS, scale_to_area, tutte_embedding, tutte_weights
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared/data/meshes"
 

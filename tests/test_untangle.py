@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from geomopt import generators as G
-from geomopt._errors import MeshError, ParameterError, SolveError
-from geomopt._objective import Objective
+from geomopt.mesh import generators as G
+from geomopt._runtime.errors import MeshError, ParameterError, SolveError
+from geomopt.objective.objective import Objective
 from geomopt.lim import LimCase, untangle_case
-from geomopt.linesearch import InjectiveSearch
-from geomopt.predicates import count_inverted
-from geomopt.problem import Problem
+from geomopt.solvers.linesearch import InjectiveSearch
+from geomopt.exact.predicates import count_inverted
+from geomopt.mesh.problem import Problem
 from geomopt.solvers import Newton, Outcome, minimize
 from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
@@ -250,7 +250,7 @@ def test_mirrored_fixed_boundary_refused_at_once(dim):
 def test_boundary_winding_twice_is_not_success():
     """A fixed boundary that winds twice has no locally injective map; untangling reaches every
     triangle positive around a branch vertex (angle sum 4 pi), which was reported as success."""
-    from geomopt.predicates import vertex_windings
+    from geomopt.exact.predicates import vertex_windings
 
     V, F = G.disk_mesh(10)
     t = G.random_interior(V, F, seed=5)
@@ -271,7 +271,7 @@ def test_boundary_winding_twice_is_not_success():
     assert "branch" in result.message and len(result.certificate.branch_vertices) >= 1
     # given as a start map, that flip-free but branched map is repaired, not optimised as it is
     from geomopt.param import parameterize
-    from geomopt.predicates import branch_vertices
+    from geomopt.exact.predicates import branch_vertices
 
     res = parameterize(np.c_[V, np.zeros(len(V))], F, x0=result.x, progress=False)
     assert res.details.repair is not None and res.success
@@ -522,7 +522,7 @@ def test_device_laplacian_lbfgs_makes_no_host_round_trip():
         density, geom, free = obj.energy.density, obj.geom, obj.free_mask
         jaxpr = jax.make_jaxpr(lambda c: _iteration(solver, density, geom, free, state.params, c))(
             state.memory.carry)
-        host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._hostcall
+        host_calls = sum(str(jaxpr).count(k) for k in ("pure_callback", "ffi_call"))  # geomopt._runtime.hostcall
         assert (host_calls > 0) == bool(callbacks), backend
     with pytest.raises(ParameterError, match="laplacian"):
         LBFGS(laplacian="gpu")

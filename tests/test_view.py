@@ -10,7 +10,8 @@ import types
 import numpy as np
 import pytest
 
-from geomopt import ParameterError, Problem, generators, plot
+from geomopt import ParameterError, Problem, plot
+from geomopt.mesh import generators
 from geomopt._view import BACKENDS, camera, inverted_rgb, scene
 from geomopt.solvers import Outcome, Result
 

@@ -14,8 +14,8 @@ import pytest
 
 import geomopt
 from geomopt import Objective, ParameterError, Problem
-from geomopt.generators import square_mesh
-from geomopt.topology import boundary_vertices
+from geomopt.mesh.generators import square_mesh
+from geomopt.exact.topology import boundary_vertices
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,9 +25,9 @@ import numpy as np
 import jax, jax.numpy as jnp
 import geomopt
 from geomopt import Objective, ParameterError, Problem, implicit
-from geomopt.generators import square_mesh
+from geomopt.mesh.generators import square_mesh
 from geomopt.solvers import LBFGS
-from geomopt.topology import boundary_vertices
+from geomopt.exact.topology import boundary_vertices
 
 out = {"x64_after_import": bool(jax.config.jax_enable_x64)}
 V, F = square_mesh(6)
@@ -116,8 +116,8 @@ def _refusals():
         "geomopt.implicit.minimize": lambda x: geomopt.minimize(obj, x, progress=False).energy,
         "geomopt.implicit.untangle": lambda x: geomopt.untangle.untangle(P, x, progress=False).x,
         "Objective.dets": lambda x: P.count_inverted(x),
-        "Objective.dets(x)": lambda x: geomopt.predicates.count_inverted(x, F),
-        "Objective.dets(x) ": lambda x: geomopt.certify.certify_bijective(x, F),
+        "Objective.dets(x)": lambda x: geomopt.exact.predicates.count_inverted(x, F),
+        "Objective.dets(x) ": lambda x: geomopt.exact.certify.certify_bijective(x, F),
         "Objective.dets(x)  ": lambda x: P.signed_volumes(x),
         "jax.hessian": lambda x: obj.hessian(x, obj.params()),
         "Problem.planar/surface/tets": lambda V: geomopt.tutte_embedding(V, F),

@@ -5,10 +5,10 @@ An atlas is a map ``uv`` (n, 2) of triangles ``uv_faces`` (m, 3), each face carr
 Chart ``c``'s *region* is the union of its triangles.  With every triangle positively oriented
 (checked exactly), the number of triangles of chart ``c`` covering a point ``p`` off the boundary
 equals the winding number about ``p`` of the chart's boundary loops, summed (the degree argument of
-:mod:`geomopt.certify`).  The certificate checks, exactly:
+:mod:`geomopt.exact.certify`).  The certificate checks, exactly:
 
-1. **inverted**: faces whose orientation (:func:`geomopt.predicates.orient2d`) is not ``+1``.
-2. **boundary crossings** (:func:`geomopt.certify.loop_crossings` on all loops of all charts at
+1. **inverted**: faces whose orientation (:func:`geomopt.exact.predicates.orient2d`) is not ``+1``.
+2. **boundary crossings** (:func:`geomopt.exact.certify.loop_crossings` on all loops of all charts at
    once, one grid broad phase): two boundary edges that are not consecutive on one loop must not
    share any point (a crossing, a T-touch, a collinear overlap, two equal vertices); two
    consecutive ones must meet only at their common vertex.  A pair within one chart makes that
@@ -37,12 +37,12 @@ import time
 
 import numpy as np
 
-from .._errors import MeshError
-from .._tracing import refuse_traced
-from .._validate import validate_simplices
-from ..certify import loop_crossings
-from ..predicates import orient2d
-from ..topology import boundary_loops
+from .._runtime.errors import MeshError
+from .._runtime.tracing import refuse_traced
+from .._runtime.validate import validate_simplices
+from ..exact.certify import loop_crossings
+from ..exact.predicates import orient2d
+from ..exact.topology import boundary_loops
 
 __all__ = ["AtlasCertificate", "certify_atlas", "chart_boundary_loops"]
 
@@ -91,7 +91,7 @@ def chart_boundary_loops(uv_faces, chart):
     Returns
     -------
     loops : list of (k_i,) int64 arrays, UV row ids of each loop, faces to its left
-        (:func:`geomopt.topology.boundary_loops`); loops of one chart are consecutive.
+        (:func:`geomopt.exact.topology.boundary_loops`); loops of one chart are consecutive.
     loop_chart : (len(loops),) int64, the chart of each loop, ascending.
     """
     F = np.asarray(uv_faces, dtype=np.int64)

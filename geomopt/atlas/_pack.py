@@ -32,10 +32,10 @@ import numpy as np
 import scipy.fft
 from scipy.spatial import ConvexHull
 
-from .._errors import MeshError, ParameterError, SolveError
-from .._validate import validate_simplices, validate_vertices
-from ..predicates import orient2d
-from ..topology import boundary_half_edges
+from .._runtime.errors import MeshError, ParameterError, SolveError
+from .._runtime.validate import validate_simplices, validate_vertices
+from ..exact.predicates import orient2d
+from ..exact.topology import boundary_half_edges
 from ._certify import certify_atlas
 from ._raster import dilate, rasterize
 

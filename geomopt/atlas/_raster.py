@@ -79,7 +79,7 @@ def rasterize(q, boundary) -> tuple[np.ndarray, np.ndarray]:
     ----------
     q : (n, 2) float array, the chart's vertices in pixel units.
     boundary : (s, 2) int array, the chart's boundary edges, directed with the chart to their
-        left (:func:`geomopt.topology.boundary_half_edges` of positively oriented triangles).
+        left (:func:`geomopt.exact.topology.boundary_half_edges` of positively oriented triangles).
 
     Returns
     -------

@@ -13,11 +13,11 @@ import time
 
 import numpy as np
 
-from .._config import Instance, Int, Real, validate
-from .._errors import MeshError, ParameterError, SolveError
-from .._validate import validate_vertices
-from .._x64 import float64
-from ..topology import as_faces, same_side_facets, unique_edges
+from .._runtime.config import Instance, Int, Real, validate
+from .._runtime.errors import MeshError, ParameterError, SolveError
+from .._runtime.validate import validate_vertices
+from .._runtime.x64 import float64
+from ..exact.topology import as_faces, same_side_facets, unique_edges
 from .charts import split_charts
 from .cones import angle_defects
 from .cutting import cut_surface

@@ -14,8 +14,8 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from .._errors import MeshError
-from ..topology import check_disk
+from .._runtime.errors import MeshError
+from ..exact.topology import check_disk
 
 __all__ = ["ChartSplit", "ChartMesh", "split_charts"]
 

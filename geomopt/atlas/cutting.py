@@ -25,7 +25,7 @@ __all__ = ["cut_surface", "chart_estimate", "relieve"]
 def _component_roots(g: EdgeGraph):
     """``(labels, closed_roots)``: the component of each vertex and one vertex of every
     component without boundary."""
-    from ..topology import connected_components
+    from ..exact.topology import connected_components
 
     _, labels = connected_components(g.F, len(g.V))
     open_ = np.zeros(labels.max() + 1, dtype=bool)

@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from ..topology import unique_edges
+from ..exact.topology import unique_edges
 
 __all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet"]
 

@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 import scipy.sparse as sp
 
-from ..topology import unique_edges
+from ..exact.topology import unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "cut_path_to_seams"]
 

@@ -21,7 +21,7 @@ __all__ = ["split_flat_chart", "split_to_pack"]
 
 def _face_pairs(F):
     """``(a, b)``: the pairs of faces of ``F`` (m, 3) that share an edge."""
-    from ..topology import unique_edges
+    from ..exact.topology import unique_edges
 
     _, _, edge_of = unique_edges(F)
     e = edge_of.ravel()

@@ -24,7 +24,7 @@ MESHES = {"camelhead": "camelhead.off", "3holes": "3holes.off"}
 
 def path(name: str = "camelhead") -> Path:
     """The file of the bundled mesh ``name`` (one of :data:`MESHES`)."""
-    from .._errors import ParameterError
+    from .._runtime.errors import ParameterError
 
     if name not in MESHES:
         raise ParameterError(f"no bundled mesh {name!r}; bundled meshes: {', '.join(MESHES)}")

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from .._geometry import det
+from ..mesh.geometry import det
 
 
 def _cofactor(J):
@@ -29,7 +29,7 @@ def _cofactor(J):
 
 @jax.custom_jvp
 def _det(J):
-    """``det J`` (the library's one determinant, :func:`geomopt._geometry.det`) with its
+    """``det J`` (the library's one determinant, :func:`geomopt.mesh.geometry.det`) with its
     derivative stated as ``d det = <cof J, dJ>``.
 
     Same values and derivatives (of every order) as differentiating ``det`` itself, but

@@ -11,11 +11,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _names
-from .._errors import ParameterError
-from .._names import resolve
-from .._tracing import is_traced
-from .._x64 import float64
+from .._runtime import names as _names
+from .._runtime.errors import ParameterError
+from .._runtime.names import resolve
+from .._runtime.tracing import is_traced
+from .._runtime.x64 import float64
 from . import _densities as _d
 
 
@@ -200,7 +200,7 @@ garanzha = Energy(
     lower_bound=0.0,
 )
 
-#: name -> built-in energy (the names and definitions: geomopt._names)
+#: name -> built-in energy (the names and definitions: geomopt._runtime.names)
 REGISTRY: dict[str, Energy] = resolve(_names.ENERGIES)
 
 

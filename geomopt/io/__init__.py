@@ -4,9 +4,9 @@ Every reader returns plain numpy arrays (coordinates ``float64``, indices ``int6
 0-based) holding exactly what the file says: vertices in file order, never reordered
 or merged (except the documented welding of STL corners), and every count, number and
 index checked against the file's own header.  Unreadable or malformed files raise
-:class:`~geomopt._errors.MeshFormatError` naming the problem (and the line, where there
+:class:`~geomopt._runtime.errors.MeshFormatError` naming the problem (and the line, where there
 is one); readable files with bad content (non-finite coordinates, indices out of range,
-repeated vertices in an element) raise :class:`~geomopt._errors.MeshError`.
+repeated vertices in an element) raise :class:`~geomopt._runtime.errors.MeshError`.
 
 Text conventions shared by every text reader: a UTF-8 byte-order mark at the very start
 of a file is skipped (the rest is read exactly); UTF-16/32 text is refused; line ends
@@ -22,7 +22,7 @@ Every writer writes atomically (see :func:`atomic_output`) with full float preci
 must be regular files or not exist (:func:`check_output_path`).
 
 The validators :func:`validate_vertices`, :func:`validate_simplices` and
-:func:`validate_indices` (defined in :mod:`geomopt._validate`) are re-exported here.  The LIM
+:func:`validate_indices` (defined in :mod:`geomopt._runtime.validate`) are re-exported here.  The LIM
 benchmark case layout is :mod:`geomopt.lim`.
 
 One module per job: ``_files`` (what a path is), ``_atomic`` (atomic output, path safety and
@@ -34,7 +34,7 @@ module per format (``_obj``, ``_off``, ``_ply``, ``_stl``; ``_faces`` holds what
 ``_medit``) and the cell-type tables they share (``_cells``); this package only re-exports.
 """
 
-from .._validate import validate_indices, validate_simplices, validate_vertices
+from .._runtime.validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
                       create_output_folder)
 from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, write_obj_quads, write_obj_with_uv

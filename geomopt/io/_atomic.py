@@ -22,7 +22,7 @@ try:
 except ImportError:  # Windows: temporaries are not locked, stale ones not removed
     fcntl = None
 
-from .._errors import GeomoptError, ParameterError
+from .._runtime.errors import GeomoptError, ParameterError
 from ._files import file_kind, one_line
 
 __all__ = ["check_output_path", "atomic_path", "atomic_output", "atomic_write", "check_outputs", "create_output_folder",
@@ -383,7 +383,7 @@ def check_outputs(files, inputs=(), folder=None):
     """Check a command's outputs before any work: writable, distinct, none of them an input.
 
     The one check every writing command makes (``param``, ``untangle``, ``compare``,
-    ``demo``, ``smooth``, and :func:`geomopt.compare` / :func:`geomopt.batch.run_batch`).
+    ``demo``, ``smooth``, and :func:`geomopt.compare` / :func:`geomopt.experiments.batch.run_batch`).
     Nothing is created, changed or removed.  The rules:
 
     * each output file passes :func:`check_output_path` (a regular file or absent, in an

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import MeshFormatError, ParameterError
+from .._runtime.errors import MeshFormatError, ParameterError
 
 __all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "vtk_blocks", "select_kind",
            "first_kind", "code_of", "check_kinds"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import MeshError, MeshFormatError
-from .._validate import validate_simplices, validate_vertices
+from .._runtime.errors import MeshError, MeshFormatError
+from .._runtime.validate import validate_simplices, validate_vertices
 
 __all__ = ["fan", "mesh_with_uv"]
 

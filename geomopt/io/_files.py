@@ -6,7 +6,7 @@ import os
 import stat
 from pathlib import Path
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 
 __all__ = ["file_kind", "existing_file", "check_not_empty", "read_bytes", "one_line"]
 

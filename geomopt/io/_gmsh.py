@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 from ._cells import GMSH_CELLS, KINDS, VolumeCells
 from ._text import UTF8_BOM, ascii_rows
 

@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 from ._cells import KINDS, MEDIT_SECTIONS, VolumeCells
 from ._text import UTF8_BOM, ascii_rows
 

@@ -16,8 +16,8 @@ import re
 
 import numpy as np
 
-from .._errors import MeshError, MeshFormatError
-from .._validate import validate_simplices, validate_vertices
+from .._runtime.errors import MeshError, MeshFormatError
+from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._faces import fan, mesh_with_uv
 from ._files import check_not_empty, existing_file, read_bytes

@@ -12,7 +12,7 @@ import re
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 from ._faces import fan
 from ._text import Tokens, ranges, show, text_data, uncomment
 

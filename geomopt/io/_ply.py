@@ -17,7 +17,7 @@ import re
 
 import numpy as np
 
-from .._errors import MeshError, MeshFormatError
+from .._runtime.errors import MeshError, MeshFormatError
 from ._atomic import atomic_write
 from ._faces import fan, mesh_with_uv
 from ._text import UTF8_BOM, Tokens, ranges, show, text_data

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 from ._text import UTF8_BOM, Tokens, ranges, show, text_data
 
 __all__ = ["read_stl"]

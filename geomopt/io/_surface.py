@@ -3,8 +3,8 @@ one for writing a mesh with its map (OBJ, PLY)."""
 
 from __future__ import annotations
 
-from .._errors import GeomoptError, MeshFormatError
-from .._validate import validate_simplices, validate_vertices
+from .._runtime.errors import GeomoptError, MeshFormatError
+from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import check_output_path
 from ._files import check_not_empty, existing_file, read_bytes
 from ._obj import read_obj, write_obj_with_uv

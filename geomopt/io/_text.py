@@ -18,8 +18,8 @@ import warnings
 
 import numpy as np
 
-from .._errors import MeshFormatError
-from .._validate import validate_indices
+from .._runtime.errors import MeshFormatError
+from .._runtime.validate import validate_indices
 from ._files import existing_file, read_bytes
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse",
@@ -352,7 +352,7 @@ def read_vertex_ids(path, n_vertices, what="handles"):
     MeshFormatError
         Missing or unreadable file, or a token that is not a plain decimal integer (with its line).
     MeshError
-        Ids out of range or repeated (:func:`~geomopt._validate.validate_indices`).
+        Ids out of range or repeated (:func:`~geomopt._runtime.validate.validate_indices`).
     """
     path = existing_file(path, f"{what} file")
     tokens = Tokens(text_data(read_bytes(path, f"{what} file"), path, f"{what} file"), path)

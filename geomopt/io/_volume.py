@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import GeomoptError, MeshFormatError
-from .._validate import validate_simplices, validate_vertices
+from .._runtime.errors import GeomoptError, MeshFormatError
+from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_path, check_output_path
 from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import check_not_empty, existing_file, read_bytes

@@ -15,8 +15,8 @@ import re
 
 import numpy as np
 
-from .._errors import MeshFormatError
-from .._validate import validate_simplices, validate_vertices
+from .._runtime.errors import MeshFormatError
+from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._cells import KINDS, VTK_CELLS, WORDS, VolumeCells, code_of, vtk_blocks
 from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows

@@ -21,7 +21,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from .._errors import MeshFormatError
+from .._runtime.errors import MeshFormatError
 from ._cells import VolumeCells, vtk_blocks
 from ._text import UTF8_BOM, Tokens
 

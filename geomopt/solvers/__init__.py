@@ -1,5 +1,5 @@
 """Solvers over one interface (``init / step / termination / reparam / restart``), each a
-descent plus the shared :class:`~geomopt.linesearch.InjectiveSearch`, driven by the one loop
+descent plus the shared :class:`~geomopt.solvers.linesearch.InjectiveSearch`, driven by the one loop
 :func:`iterate` (and :func:`minimize` on top of it).
 
 ``SOLVERS`` maps names to factories: ``newton`` (projected Newton), ``lbfgs``, ``slim``
@@ -10,7 +10,7 @@ Newton-type solvers are objects: :class:`Adaptive`, :class:`Clamp`, :class:`Abs`
 :class:`Exact`, :class:`SLIMProxy`, :class:`CMProxy`.
 """
 
-from .._projection import Abs, AbstractProjection, Adaptive, Clamp, CMProxy, Exact, SLIMProxy
+from ..objective.projection import Abs, AbstractProjection, Adaptive, Clamp, CMProxy, Exact, SLIMProxy
 from ._base import AbstractSolver, State
 from ._iterate import AbstractContinuation, Decision, Final, Progress, iterate, minimize
 from ._laplacian import rest_laplacian

@@ -2,7 +2,7 @@
 
 A solver is an immutable configuration object (DESIGN.md §1, in the style of optimistix): a
 *descent* (how it makes a direction: projected Newton, L-BFGS, SLIM, AQP, CM, an optimistix
-descent) plus the shared :class:`~geomopt.linesearch.InjectiveSearch` in its ``search``
+descent) plus the shared :class:`~geomopt.solvers.linesearch.InjectiveSearch` in its ``search``
 field (how far it goes).  Every solver has
 
 * ``init(objective, x0, params) -> State``: evaluate the start, build what the descent keeps
@@ -33,9 +33,9 @@ from typing import Any, Mapping
 import jax
 import numpy as np
 
-from .._x64 import float64_methods
-from .._config import Instance, Int, Real, validate
-from ..linesearch import InjectiveSearch
+from .._runtime.x64 import float64_methods
+from .._runtime.config import Instance, Int, Real, validate
+from .linesearch import InjectiveSearch
 from ._termination import Stats, Termination
 
 _STATS_FIELDS = frozenset(Stats._fields)
@@ -104,7 +104,7 @@ def start_stats(objective, x0, value: float, **fields) -> Stats:
 
 
 class AbstractSolver(abc.ABC):
-    """A minimiser of an :class:`~geomopt._objective.Objective`: a descent plus ``search``."""
+    """A minimiser of an :class:`~geomopt.objective.objective.Objective`: a descent plus ``search``."""
 
     max_steps: int
     rtol: float
@@ -114,7 +114,7 @@ class AbstractSolver(abc.ABC):
     advance = None
 
     def __init_subclass__(cls, **kwargs):
-        # solvers driven by hand (init / step...) run in float64 like minimize (geomopt._x64)
+        # solvers driven by hand (init / step...) run in float64 like minimize (geomopt._runtime.x64)
         super().__init_subclass__(**kwargs)
         float64_methods("init", "step", "advance", "reparam", "restart")(cls)
 

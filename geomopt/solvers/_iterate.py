@@ -36,9 +36,9 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from .._errors import MaxStepsWarning, ParameterError, SolveError
-from .._tracing import refuse_traced
-from .._x64 import float64
+from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
+from .._runtime.tracing import refuse_traced
+from .._runtime.x64 import float64
 from ._registry import get_solver
 from ._result import Result, RunStats, Trace, local_certificate
 from ._termination import RUNNING, Outcome, Termination
@@ -443,7 +443,7 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     Dirichlet minimum puts it back.
 
     >>> import geomopt
-    >>> from geomopt import generators
+    >>> from geomopt.mesh import generators
     >>> V, F = generators.square_mesh(3)
     >>> boundary = [0, 1, 2, 3, 5, 6, 7, 8]
     >>> problem = geomopt.Problem.planar(V, F, fixed=boundary, fixed_positions=V[boundary])
@@ -460,7 +460,7 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     if params is not None and not isinstance(params, Mapping):
         raise ParameterError(f"minimize: params must be a mapping of energy parameter names to values "
                              f"(e.g. {{'lam': 1.0}}) or None, got {type(params).__name__}")
-    x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._padding
+    x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._runtime.padding
     params = objective.params(**(params or {}))
     return iterate(solver, objective, x0, params, progress=progress, trace=True, throw=throw)
 

@@ -3,8 +3,8 @@
 
 Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
-* ``"host"``: ``K`` factored once by :class:`~geomopt.linsolve.SparseCholesky` and applied on
-  the host through an XLA FFI target (:mod:`geomopt._hostcall`, by an integer handle; unlike
+* ``"host"``: ``K`` factored once by :class:`~geomopt.objective.linsolve.SparseCholesky` and applied on
+  the host through an XLA FFI target (:mod:`geomopt._runtime.hostcall`, by an integer handle; unlike
   ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact; the CPU default.
 * ``"device"``: ``K`` kept as a sparse operator in JAX (:class:`LaplacianOperator`) and applied
   by Jacobi-preconditioned conjugate gradients warm-started from the previous solution, so a
@@ -24,10 +24,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
-from .. import _hostcall
-from .._errors import ParameterError
-from ..linsolve import SparseCholesky, repeated_solves_backend
-from .._x64 import pure_callback
+from .._runtime import hostcall as _hostcall
+from .._runtime.errors import ParameterError
+from ..objective.linsolve import SparseCholesky, repeated_solves_backend
+from .._runtime.x64 import pure_callback
 
 #: where K^-1 is applied: see the module docstring
 LAPLACIAN_BACKENDS = ("auto", "host", "device")
@@ -59,7 +59,7 @@ def _solve_into(handle, q, out):
     out[0][...] = laplacian_solve_host(handle, q)
 
 
-#: the XLA FFI target of the host solve (:mod:`geomopt._hostcall`: cacheable programs)
+#: the XLA FFI target of the host solve (:mod:`geomopt._runtime.hostcall`: cacheable programs)
 _TARGET = "geomopt_rest_laplacian_solve"
 _hostcall.register(_TARGET, _solve_into)
 
@@ -124,7 +124,7 @@ def resolve_backend(backend: str) -> str:
 
 class RestLaplacian:
     """``K^-1`` for the rest Dirichlet Hessian ``K`` of an objective's problem on its free DOFs,
-    factored by :class:`~geomopt.linsolve.SparseCholesky`.
+    factored by :class:`~geomopt.objective.linsolve.SparseCholesky`.
 
     The Dirichlet energy ``sum vol |J|^2`` with ``J = X^T G`` (``G`` the element's (d+1, d)
     matrix of barycentric gradients, from the rest inverse) has the Hessian ``K (x) I_d`` with

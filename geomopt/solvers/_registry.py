@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from .. import _names
-from .._errors import ParameterError
-from .._names import resolve
+from .._runtime import names as _names
+from .._runtime.errors import ParameterError
+from .._runtime.names import resolve
 from ._base import AbstractSolver
 
 
@@ -24,7 +24,7 @@ def _optx(kind):
 
 optx_bfgs, optx_lbfgs, optx_ncg = _optx("bfgs"), _optx("lbfgs"), _optx("ncg")
 
-#: name -> factory of a default-configured solver (the names and definitions: geomopt._names)
+#: name -> factory of a default-configured solver (the names and definitions: geomopt._runtime.names)
 SOLVERS = resolve(_names.SOLVERS)
 
 

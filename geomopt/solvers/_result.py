@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import certify
+from ..exact import certify
 from ._termination import Outcome
 
 __all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details", "UntangleDetails",
@@ -31,14 +31,14 @@ __all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate
 
 @dataclasses.dataclass(frozen=True)
 class LocalCertificate(certify.LocalCertificate):
-    """Exact checks that a map is locally injective (:class:`geomopt.certify.LocalCertificate`:
+    """Exact checks that a map is locally injective (:class:`geomopt.exact.certify.LocalCertificate`:
     every element positively oriented, and the elements around every vertex and edge covering
     its neighbourhood once), and that its handles are in place.
 
     Attributes
     ----------
     handles_moved : int, fixed vertices whose position differs from the prescribed one as a
-        number (:func:`geomopt.predicates.differing_rows`); the other attributes are :class:`geomopt.certify.LocalCertificate`'s (``inverted``,
+        number (:func:`geomopt.exact.predicates.differing_rows`); the other attributes are :class:`geomopt.exact.certify.LocalCertificate`'s (``inverted``,
         ``branch_vertices``, ``branch_edges``, ``boundary_overlaps``...).
     forced : the failures the handles alone make certain, or None: the input's
         :meth:`~geomopt.Problem.certify_fixed` (stars whose every vertex is fixed that overlap).
@@ -51,8 +51,8 @@ class LocalCertificate(certify.LocalCertificate):
 
     @classmethod
     def of(cls, exact: certify.LocalCertificate, handles_moved: int = 0) -> LocalCertificate:
-        """``exact`` (a :class:`geomopt.certify.LocalCertificate`, e.g. a quad / hex map's
-        :class:`~geomopt.elements.ElementLocalCertificate`) with ``handles_moved``."""
+        """``exact`` (a :class:`geomopt.exact.certify.LocalCertificate`, e.g. a quad / hex map's
+        :class:`~geomopt.mesh.elements.ElementLocalCertificate`) with ``handles_moved``."""
         return cls(**{f.name: getattr(exact, f.name) for f in dataclasses.fields(certify.LocalCertificate)},
                    handles_moved=int(handles_moved))
 
@@ -62,7 +62,7 @@ class LocalCertificate(certify.LocalCertificate):
 
     @property
     def globally_injective(self) -> bool:
-        """Not certified by local checks (see :func:`geomopt.certify.certify_bijective`)."""
+        """Not certified by local checks (see :func:`geomopt.exact.certify.certify_bijective`)."""
         return False
 
     @property
@@ -85,8 +85,8 @@ class LocalCertificate(certify.LocalCertificate):
 
 def local_certificate(problem, x, handles_moved: int = 0, orientation: int = 1) -> LocalCertificate:
     """The :class:`LocalCertificate` of the map ``x`` (n, d) of ``problem`` (its simplices,
-    positive when ``orientation`` is +1): :func:`geomopt.certify.local_certificate` plus
-    ``handles_moved``.  Quads / hexahedra: :meth:`~geomopt.problem.Problem.certify` (each element
+    positive when ``orientation`` is +1): :func:`geomopt.exact.certify.local_certificate` plus
+    ``handles_moved``.  Quads / hexahedra: :meth:`~geomopt.mesh.problem.Problem.certify` (each element
     valid everywhere, then the stars of their tangent cones, never the overlapping corner
     simplices as one mesh)."""
     exact = (problem.certify(x) if getattr(problem, "elements", None) is not None and orientation == 1 else
@@ -211,9 +211,9 @@ class Result:
     outcome : :class:`~geomopt.solvers.Outcome`.
     certificate : the exact certificate of ``x`` (:data:`ResultCertificate`):
         :class:`LocalCertificate` (``inverted``, ``branch_vertices``, ``boundary_overlaps``...,
-        ``handles_moved``), for free-boundary parameterization :class:`geomopt.certify.Certificate`
+        ``handles_moved``), for free-boundary parameterization :class:`geomopt.exact.certify.Certificate`
         (global: boundary crossings too), for :func:`~geomopt.sphere_map`
-        :class:`geomopt.certify.SphereCertificate`.  Every certificate has ``inverted``,
+        :class:`geomopt.exact.certify.SphereCertificate`.  Every certificate has ``inverted``,
         ``locally_injective`` and ``injectivity``.
     stats : :class:`RunStats`;  trace : :class:`Trace`.
     problem : the :class:`~geomopt.Problem` ``x`` maps;  objective : the

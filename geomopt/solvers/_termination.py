@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from .._config import Int, Real, validate
+from .._runtime.config import Int, Real, validate
 
 #: a map whose extent grows by more than this factor over its start (and rest) extent diverged
 DIVERGENCE_FACTOR = 1e6

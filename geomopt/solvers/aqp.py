@@ -36,8 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._config import Real
-from ..linesearch import InjectiveSearch
+from .._runtime.config import Real
+from .linesearch import InjectiveSearch
 from ._base import AbstractSolver, State, map_extent
 from ._laplacian import RestLaplacian
 
@@ -74,10 +74,10 @@ class AQP(AbstractSolver):
     rtol : 1e-10; stop when the decrement of the step taken or the energy decrease is below
         ``rtol * |E|`` (:attr:`termination`).
     max_steps : 2000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
-    search : the :class:`~geomopt.linesearch.InjectiveSearch`, default ``InjectiveSearch(safety=0.25)``:
+    search : the :class:`~geomopt.solvers.linesearch.InjectiveSearch`, default ``InjectiveSearch(safety=0.25)``:
         first trial at most a quarter of the flip bound (see the module notes); the momentum move is capped and
-        checked by the same search (:meth:`~geomopt.linesearch.InjectiveSearch.cap`,
-        :meth:`~geomopt.linesearch.InjectiveSearch.admissible`).
+        checked by the same search (:meth:`~geomopt.solvers.linesearch.InjectiveSearch.cap`,
+        :meth:`~geomopt.solvers.linesearch.InjectiveSearch.admissible`).
     """
 
     condition: float = 100.0

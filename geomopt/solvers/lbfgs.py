@@ -2,7 +2,7 @@
 
 One iteration (Nocedal & Wright 2006, Algorithms 7.4 and 7.5) is the two-loop recursion
 over a fixed-size ring buffer of correction pairs (``lax.fori_loop``), the shared
-:class:`~geomopt.linesearch.InjectiveSearch` (weak Wolfe by default: it brackets by bisection /
+:class:`~geomopt.solvers.linesearch.InjectiveSearch` (weak Wolfe by default: it brackets by bisection /
 doubling, Lewis & Overton 2013), and the memory update.  Two jitted programs per mesh shape
 do everything: the iteration loop (``lax.while_loop`` up to a traced limit, stopped by the
 solver's :class:`~geomopt.solvers.Termination` on traced statistics: :meth:`LBFGS.advance`
@@ -33,11 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .._config import Int, OneOf, Real
-from .._programs import jit as programs_jit
-from .._errors import ParameterError
-from .._objective import free_value_and_grad
-from ..linesearch import InjectiveSearch
+from .._runtime.config import Int, OneOf, Real
+from .._runtime.programs import jit as programs_jit
+from .._runtime.errors import ParameterError
+from ..objective.objective import free_value_and_grad
+from .linesearch import InjectiveSearch
 from ._base import AbstractSolver, State, start_stats
 from ._laplacian import LAPLACIAN_BACKENDS, LaplacianOperator, RestLaplacian, laplacian_solve
 from ._termination import RUNNING, Stats, Termination
@@ -221,7 +221,7 @@ class LBFGS(AbstractSolver):
         decreased it by less than ``rtol``).
     gtol : 1e-9 (0 turns it off); stop when ``|grad|_2 <= gtol * |grad at x0|_2``.
     max_steps : 1000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
-    search : :class:`~geomopt.linesearch.InjectiveSearch`, default
+    search : :class:`~geomopt.solvers.linesearch.InjectiveSearch`, default
         ``InjectiveSearch(c2=0.9, safety=0.25)``: weak Wolfe (``c2 = 0.9``),
         injective, first trial at most a quarter of the flip bound by default (as
         :class:`~geomopt.AQP`'s: the Laplacian seed does not see the barrier; at the other
@@ -242,7 +242,7 @@ class LBFGS(AbstractSolver):
         125/253/630 iterations to 1e-4, the Laplacian one 13/15/16; on a twisted cube of
         1.3k/6k/16k tets 17/32/51 against 7/7/8 to 1e-6 (``benchmarks/solvers.py``).
     laplacian : ``"auto"`` (default); where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
-        host through an XLA FFI target, :mod:`geomopt._hostcall`; exact), ``"device"`` (Jacobi-preconditioned CG in
+        host through an XLA FFI target, :mod:`geomopt._runtime.hostcall`; exact), ``"device"`` (Jacobi-preconditioned CG in
         JAX, warm-started from the previous iteration's solution, relative tolerance 1e-3: no
         host round trip on an accelerator), or ``"auto"`` (host on CPU, device elsewhere).
     window : 1 (>= 1); number of iterations the energy test looks back over (see ``rtol``).

@@ -1,7 +1,7 @@
 """Projected Newton and the proxy-Newton solvers SLIM and CM, with a sparse Cholesky or CG.
 
 Per iteration: per-element J-space blocks (the density's Hessian made PSD, or a convex proxy:
-:mod:`geomopt._projection`), assembled into a fixed CSC pattern, factored (symbolic analysis
+:mod:`geomopt.objective.projection`), assembled into a fixed CSC pattern, factored (symbolic analysis
 reused), then the shared injective search (Teran et al. 2005; Smith & Schaefer 2015).
 :class:`AbstractNewton` is that algorithm; :class:`Newton`, :class:`SLIM` and :class:`CM` are
 its three configurations (a projection and defaults), not subclasses of one another.
@@ -16,12 +16,12 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from .._cg import NewtonCG
-from .._config import OneOf, Real
-from .._errors import ParameterError
-from .._projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
-from ..linesearch import InjectiveSearch
-from ..linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
+from ..objective.cg import NewtonCG
+from .._runtime.config import OneOf, Real
+from .._runtime.errors import ParameterError
+from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
+from .linesearch import InjectiveSearch
+from ..objective.linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
@@ -31,7 +31,7 @@ __all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory"]
 class NewtonMemory(NamedTuple):
     """What a Newton-type solver keeps between steps.
 
-    factor : the :class:`~geomopt.linsolve.SparseCholesky` (symbolic analysis done), or None
+    factor : the :class:`~geomopt.objective.linsolve.SparseCholesky` (symbolic analysis done), or None
         on the CG path;  cg_op : the CG operator (:meth:`NewtonCG.prepare`), or None;
     grad_ref : the first gradient norm (CG's scale-free forcing term);
     cooldown : iterations left during which ``Adaptive`` clamps after an exact Hessian failed
@@ -52,24 +52,24 @@ class AbstractNewton(AbstractSolver):
 
     Attributes
     ----------
-    projection : a :mod:`geomopt._projection` object (or its name): ``Adaptive()``,
+    projection : a :mod:`geomopt.objective.projection` object (or its name): ``Adaptive()``,
         ``Clamp()``, ``Abs()``, ``Exact()``, ``SLIMProxy()``, ``CMProxy()``.  With an
         indefinite one (``Exact``, chosen by ``Adaptive`` near the minimum) the Hessian gets a
         Levenberg-Marquardt shift, relaxed after full steps and stiffened after cut ones; if
         it does not factor, clamping resumes for two iterations.
-    linear_solver : a :data:`~geomopt.linsolve.BACKENDS` name (a sparse Cholesky), or
+    linear_solver : a :data:`~geomopt.objective.linsolve.BACKENDS` name (a sparse Cholesky), or
         ``"cg"``: the direction by block-Jacobi preconditioned CG in JAX
-        (:class:`geomopt._cg.NewtonCG`, inexact Newton; eigenvalue projections only, not
+        (:class:`geomopt.objective.cg.NewtonCG`, inexact Newton; eigenvalue projections only, not
         proxies).  ``"auto"`` picks by device, dimension and size
-        (:func:`geomopt.linsolve.newton_linear_solver`: CG off the CPU and for large tet
+        (:func:`geomopt.objective.linsolve.newton_linear_solver`: CG off the CPU and for large tet
         meshes, else the fastest Cholesky installed).
     rtol : stop when the Newton decrement ``-g.d/2`` or the energy decrease is below
         ``rtol * |E|`` (:attr:`termination`).
     max_steps : iteration limit.
     regularization : relative diagonal shift added to the Hessian (it is singular for a free
         boundary: rotations); increased automatically when a factorization fails.
-    search : the :class:`~geomopt.linesearch.InjectiveSearch`.
-    cg : the :class:`geomopt._cg.NewtonCG` configuration (iteration limit, forcing term) of
+    search : the :class:`~geomopt.solvers.linesearch.InjectiveSearch`.
+    cg : the :class:`geomopt.objective.cg.NewtonCG` configuration (iteration limit, forcing term) of
         the CG direction.
     """
 
@@ -102,7 +102,7 @@ class AbstractNewton(AbstractSolver):
 
     def uses_cg(self, objective) -> bool:
         """Whether the direction comes from CG (``linear_solver="cg"``, or ``"auto"`` and
-        :func:`~geomopt.linsolve.newton_linear_solver` says so) rather than a Cholesky."""
+        :func:`~geomopt.objective.linsolve.newton_linear_solver` says so) rather than a Cholesky."""
         if self.projection.proxy:  # the proxies assemble for a factorization
             if self.linear_solver == "cg":
                 raise ParameterError(f"{type(self).__name__}: linear_solver='cg' needs an eigenvalue "
@@ -213,13 +213,13 @@ class Newton(AbstractNewton):
     Projected Newton converges only linearly near a minimum because the projection changes
     the Hessian of elements that are indefinite there (symmetric Dirichlet has many), so the
     default ``Adaptive()`` clamps while far from the minimum and switches to the exact Hessian
-    near it (see :class:`~geomopt._projection.Adaptive`).
+    near it (see :class:`~geomopt.objective.projection.Adaptive`).
 
     Attributes
     ----------
     projection : ``Adaptive()`` (default), ``Clamp()``, ``Abs()`` or ``Exact()``: how each
         element Hessian is made positive semi-definite (:class:`AbstractNewton`).
-    linear_solver : ``"auto"`` (default; :func:`geomopt.linsolve.newton_linear_solver`), a
+    linear_solver : ``"auto"`` (default; :func:`geomopt.objective.linsolve.newton_linear_solver`), a
         sparse Cholesky backend (``"pardiso"``, ``"cholmod"``, ``"cholespy"``, ``"superlu"``) or
         ``"cg"`` (inexact Newton by block-Jacobi CG in JAX).
     rtol : 1e-10; stop when the Newton decrement or the energy decrease is below ``rtol * |E|``.
@@ -227,7 +227,7 @@ class Newton(AbstractNewton):
     regularization : 1e-9; relative diagonal shift (raised when a factorization fails).
     search : ``InjectiveSearch(expand=3)``: the injective bound, Armijo backtracking, and up to
         three step doublings.
-    cg : the CG direction's settings (:class:`geomopt._cg.NewtonCG`).
+    cg : the CG direction's settings (:class:`geomopt.objective.cg.NewtonCG`).
 
     Examples
     --------
@@ -247,7 +247,7 @@ class Newton(AbstractNewton):
 class SLIM(AbstractNewton):
     """SLIM (Rabinovich et al. 2017): Newton steps on the reweighted Laplacian proxy whose
     weights come from the density's singular-value derivatives
-    (:class:`~geomopt._projection.SLIMProxy`), then the injective search.  Works for any
+    (:class:`~geomopt.objective.projection.SLIMProxy`), then the injective search.  Works for any
     rotation-invariant density; the paper's closed form for symmetric Dirichlet.
 
     Attributes
@@ -273,7 +273,7 @@ class SLIM(AbstractNewton):
 @dataclasses.dataclass(frozen=True)
 class CM(AbstractNewton):
     """Composite majorization (Shtengel et al. 2017), 2D: Newton steps on the convex
-    majorizer of :class:`~geomopt._projection.CMProxy`, then the injective search.
+    majorizer of :class:`~geomopt.objective.projection.CMProxy`, then the injective search.
 
     Attributes
     ----------

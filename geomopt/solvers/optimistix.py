@@ -23,9 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._errors import ParameterError
-from .._objective import total_energy
-from ..linesearch import InjectiveSearch
+from .._runtime.errors import ParameterError
+from ..objective.objective import total_energy
+from .linesearch import InjectiveSearch
 from ._base import AbstractSolver, State, map_extent, start_stats
 
 __all__ = ["Optimistix", "OptxInjectiveSearch", "ObjectiveFunction", "objective_function"]
@@ -77,7 +77,7 @@ class OptxInjectiveSearch(optx.AbstractSearch):
     Attributes
     ----------
     simplices : (m, d + 1) the elements whose orientation is kept (``Objective.geom[0]``).
-    config : the :class:`~geomopt.linesearch.InjectiveSearch` whose rules apply (static).
+    config : the :class:`~geomopt.solvers.linesearch.InjectiveSearch` whose rules apply (static).
     """
 
     simplices: jax.Array
@@ -141,7 +141,7 @@ class Optimistix(AbstractSolver):
     rtol : 1e-10; not used by the stopping rule (``solver``'s own ``rtol`` / ``atol`` decide
         convergence); kept so that every solver has one.
     max_steps : 1000; the iteration limit (a solve that reaches it ends ``MAX_STEPS``).
-    search : the geomopt :class:`~geomopt.linesearch.InjectiveSearch` (default
+    search : the geomopt :class:`~geomopt.solvers.linesearch.InjectiveSearch` (default
         ``InjectiveSearch()``) whose rules (``injective``, ``safety``, ``c1``, ``shrink``)
         :class:`OptxInjectiveSearch` applies in place of ``solver``'s own search.
 

@@ -1,0 +1,79 @@
+"""``geomopt param`` on a surface that is not a disk (or with ``--atlas``): make a certified
+atlas, write it as OBJ (the input's ``v`` lines and face order, one ``vt`` per chart corner,
+``f v/vt ...``) and, with ``--png``, its picture.  The command line parses and prints; this
+module runs the atlas branch."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+from .._runtime.errors import MeshError, ParameterError
+from ..exact.topology import check_disk
+
+__all__ = ["is_disk", "param_atlas"]
+
+
+def is_disk(F, n_vertices) -> bool:
+    """Whether the mesh is a topological disk (:func:`geomopt.exact.topology.check_disk` passes)."""
+    try:
+        check_disk(F, n_vertices)
+    except MeshError:
+        return False
+    return True
+
+
+def param_atlas(args, V, F, energy, solver, log, report, fail) -> int:
+    """The atlas branch of ``geomopt param`` (``args`` as the command parsed them; ``log``,
+    ``report`` and ``fail`` the command's printers).  Returns the exit status."""
+    from .. import io
+    from ..atlas.build import AtlasOptions, make_atlas
+
+    if Path(args.output).suffix.lower() != ".obj":
+        raise ParameterError(f"an atlas (UVs per chart corner) is written as .obj, got {args.output}; "
+                             f"name an .obj output")
+    if args.init != "tutte":
+        raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
+    log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
+    atlas = make_atlas(V, F, energy=energy, solver=solver, progress=not args.quiet and _progress(args, log),
+                       options=AtlasOptions(margin=args.margin))
+    m = atlas.metrics
+    log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
+              f"{m.mean_symmetric_dirichlet:.6g}  worst {m.worst_symmetric_dirichlet:.6g}  efficiency "
+              f"{m.efficiency:.4f}  mirrored {m.mirrored_charts}  seconds {atlas.seconds:.2f}  "
+              f"{'certified' if atlas.success else 'not certified'}")
+    report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
+           energy_name=energy.name, solver=args.solver, atlas=True, charts=m.charts, seam_length=m.seam_length,
+           mean_symmetric_dirichlet=m.mean_symmetric_dirichlet, worst_symmetric_dirichlet=m.worst_symmetric_dirichlet,
+           efficiency=m.efficiency, mirrored_charts=m.mirrored_charts, certified=atlas.success,
+           seconds=round(atlas.seconds, 4), message=atlas.message)
+    if not atlas.success:
+        return fail(f"atlas not certified: {atlas.message}")
+    folder = getattr(args, "folder", None)
+    if folder is not None:
+        io.create_output_folder(folder)
+    with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
+        if args.png:
+            _save_picture(atlas, V, F, args, outputs)
+        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, atlas.uv,
+                              format="obj", uv_faces=atlas.uv_faces)
+    return 0
+
+
+def _progress(args, log):
+    """The atlas's progress lines, through the command's logger."""
+    def say(stage, info):
+        log(args, f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
+                                                 for k, v in info.items()))
+    return say
+
+
+def _save_picture(atlas, V, F, args, outputs):
+    from .. import io, plot
+
+    base = Path(args.png)
+    m = atlas.metrics
+    title = (f"{Path(args.input).name}: {len(F)} triangles, {m.charts} charts, seam length {m.seam_length:.4g}, "
+             f"mean symmetric Dirichlet {m.mean_symmetric_dirichlet:.4g}, efficiency {m.efficiency:.3f}, certified")
+    plot.save_atlas_figure(outputs.enter_context(io.atomic_output(base, "wb")), V, F, atlas.uv, atlas.uv_faces,
+                           atlas.chart, atlas.seams, title=title, format=base.suffix[1:].lower())

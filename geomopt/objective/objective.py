@@ -1,0 +1,661 @@
+"""Energy, gradient and projected sparse Hessian of ``sum_e vol_e psi(J_e(x))``.
+
+Everything is derived from the density by JAX: ``vmap`` over elements, ``grad`` for the
+gradient, ``hessian`` for the element Hessian in J-space (``d^2 x d^2``), which is projected
+to PSD there (cheaper than projecting the ``(d+1)d``-square element block, and valid since
+the map from vertex positions to ``vec J`` is linear) and then lifted with the constant
+matrix ``G`` such that ``J = X^T G`` for the element's vertex positions ``X`` ((d+1), d).
+The lifted blocks are summed into *vertex blocks* (one d x d block per pair of vertices
+sharing an element, :class:`HessianPattern`), from which the CSC data of the free-DOF lower
+triangle are gathered (direct solvers) or which :mod:`geomopt.objective.cg` applies as an operator.
+The pattern is computed once per mesh from the vertex graph.
+
+The hot functions are module-level ``jax.jit`` functions keyed on the density (static) and
+array shapes; parameters (eps, lambda...) are traced, so a solve never recompiles.  Each is
+made by :func:`jit`, which calls the plain function instead when an argument is traced (a
+user's ``jax.jit`` / ``grad`` / ``vmap``: XLA options can only be given to a top-level jit):
+the energy composes with every JAX transform, and runs the tuned kernel when called on
+concrete arrays.  :class:`Objective` is a pytree (leaves: the problem's arrays, the element
+weights and the padded rest geometry).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import types
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+
+from .._runtime import padding as _padding
+from .._runtime import programs as _programs
+from .._runtime import x64 as _x64
+from ..mesh.geometry import chord_jacobians, dets
+from .._runtime.errors import ParameterError
+from .._runtime.tracing import StaticKey, is_traced, refuse_traced
+from ..energies import Energy, get_energy
+from .projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
+from .linsolve import SparseCholesky
+from ..mesh.problem import Problem
+
+__all__ = ["Objective", "HessianPattern", "hessian_pattern", "element_densities", "check_element_weights", "jit"]
+
+class _Kernel:
+    """``jax.jit(fun, compiler_options=_programs.xla_options(), **options)`` (a kept
+    :class:`~geomopt._runtime.programs.Program`), made at the first call (so
+    that importing geomopt compiles nothing); attributes (``lower``, ``_cache_size``...) are
+    the jitted function's.  Called with a tracer among its non-static arguments it calls
+    ``fun`` itself (XLA options exist only for a top-level jit), so that the kernel can be used
+    under a user's transforms; never in float32 (:mod:`geomopt._runtime.x64`)."""
+
+    def __init__(self, fun, options):
+        self._fun, self._options, self._jitted = fun, options, None
+        static = options.get("static_argnums", ())
+        self._static = {static} if isinstance(static, int) else set(static)
+        functools.update_wrapper(self, fun)
+
+    def _kernel(self):
+        if self._jitted is None:
+            self._jitted = _programs.jit(self._fun, **self._options)  # with _programs.xla_options()
+        return self._jitted
+
+    def __call__(self, *args, **kwargs):
+        _x64.require()
+        dynamic = [a for i, a in enumerate(args) if i not in self._static] + list(kwargs.values())
+        if is_traced(dynamic):
+            return self._fun(*args, **kwargs)
+        if kwargs:
+            return self._kernel().plain(*args, **kwargs)
+        return self._kernel()(*args)
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self._kernel(), name)
+
+
+def jit(fun=None, **options):
+    """``jax.jit`` with :func:`geomopt._runtime.programs.xla_options`, its programs kept on disk
+    (usable as ``@jit`` or ``partial(jit, ...)``)."""
+    if fun is None:
+        return partial(jit, **options)
+    return _Kernel(fun, options)
+
+#: Elements per chunk of the per-element Hessian work on CPU (see :func:`block_hessian`).
+CPU_CHUNK = 1024
+
+
+# ---------------------------------------------------------------- jitted kernels
+
+
+def jacobians(geom, x):
+    S, Minv, _ = geom
+    X = x[S]  # (m, d+1, d)
+    if S.shape[1] == x.shape[-1]:  # triangles mapped onto the sphere (cones over the origin)
+        return chord_jacobians(X, Minv)
+    Ds = jnp.swapaxes(X[:, 1:] - X[:, :1], 1, 2)  # columns = edges
+    return Ds @ Minv
+
+
+def _dets(geom, x):
+    return dets(geom[0], x)
+
+
+def total_energy(density, geom, x, params):
+    vol = geom[2]
+    psi = jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
+    return jnp.sum(vol * psi)
+
+
+@partial(jit, static_argnums=0)
+def energy_kernel(density, geom, x, params):
+    return total_energy(density, geom, x, params)
+
+
+def free_value_and_grad(density, geom, free, x, params):
+    """``(E(x), grad E(x) * free)``: the energy and its gradient on the free DOFs (``free``
+    (n, d) is 1 on free DOFs, 0 on fixed and padded ones).  Traceable."""
+    v, g = jax.value_and_grad(total_energy, argnums=2)(density, geom, x, params)
+    return v, g * free
+
+
+@partial(jit, static_argnums=0)
+def value_and_grad_kernel(density, geom, free, x, params):
+    return free_value_and_grad(density, geom, free, x, params)
+
+
+@jit
+def dets_kernel(geom, x):
+    return _dets(geom, x)
+
+
+def element_block(density, projection, J, params, vol, code=0):
+    """(d*d, d*d) J-space block ``vol * H`` of one element under ``projection`` (a
+    :mod:`geomopt.objective.projection` object or name: clamp, abs, exact, SLIM's or CM's proxy; or
+    ``EigenFilter`` with the traced filter ``code``)."""
+    return as_projection(projection).block(density, J, params, vol, code)
+
+
+def local_pairs(d):
+    """The element-local DOF pairs ``p <= q`` (DOF p = vertex a, coordinate c: p = a*d + c):
+    the element Hessian is symmetric, so only these are lifted and assembled."""
+    k = (d + 1) * d
+    p, q = np.triu_indices(k)
+    return p, q
+
+
+def _element_blocks(density, projection, params, code, x, s, Minv, vol, swap):
+    """The projected Hessian blocks of one element: (nb, d, d), block ``i`` of
+    :func:`block_pairs` ``(a, b)`` oriented as stored, ``H[v-dofs, w-dofs]`` with ``v >= w``
+    (the element block ``(b, a)`` where ``swap[i]``, else ``(a, b)``).
+
+    ``x`` (n, d) map, ``s`` (d+1,) vertex ids, ``Minv`` (d, d), ``vol`` scalar, ``swap`` (nb,).
+    The J-space Hessian (d^2 x d^2) is projected, then lifted by ``Hx[a, c, b, e] =
+    sum_jl G[a, j] HJ[c, j, e, l] G[b, l]`` with ``J = X^T G`` (broadcast products over the
+    tiny axes: XLA fuses them into loops, faster on CPU than batched small ``dot_general``).
+    """
+    d = Minv.shape[0]
+    X = x[s]
+    J = (X[1:] - X[:1]).T @ Minv
+    HJ = element_block(density, projection, J, params, vol, code).reshape(d, d, d, d)
+    G = jnp.concatenate([-jnp.sum(Minv, axis=0, keepdims=True), Minv], axis=0)  # (d+1, d)
+    T = sum(G[:, None, None, j, None] * HJ[None, :, j, :, :] for j in range(d))  # a c e l
+    bi, bj = block_pairs(d)
+    out = []
+    for i, (a, b) in enumerate(zip(bi, bj)):
+        B = sum(T[a, :, :, l] * G[b, l] for l in range(d))  # c e: element block (a, b)
+        out.append(B if a == b else jnp.where(swap[i], B.T, B))
+    return jnp.stack(out)
+
+
+def block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code=0):
+    """Vertex-block data (n_blocks, d, d) of the projected Hessian (all DOFs; the pattern's
+    ``gather`` picks the free lower-triangle entries).  Traceable.  ``code``: the traced filter
+    of ``EigenFilter`` (a projection's ``kernel()`` form, :mod:`geomopt.objective.projection`).
+
+    ``chunk`` > 0 (CPU) loops over chunks of that many elements, each computed and added to
+    the blocks in the loop: the per-element intermediates stay in cache (measured 2x on the
+    4x4 Jacobi projection) and the (m, nb, d, d) element blocks are never stored.  The last
+    chunk is shifted back to end at element m, its elements already done masked out, so one
+    loop body is compiled.  ``chunk`` = 0 vmaps over all elements at once (an accelerator)."""
+    S, Minv, vol = geom
+    m, d = S.shape[0], Minv.shape[-1]
+    f = jax.vmap(partial(_element_blocks, density, projection, params, code, x))
+    VB = jnp.zeros((n_blocks, d, d), x.dtype)
+    if not chunk or m <= chunk:
+        return VB.at[blocks].add(f(S, Minv, vol, swap))
+
+    def body(i, VB):
+        start = jnp.minimum(i * chunk, m - chunk)
+        part = [jax.lax.dynamic_slice_in_dim(a, start, chunk) for a in (S, Minv, vol, swap, blocks)]
+        new = (start + jnp.arange(chunk)) >= i * chunk  # not done by the previous chunk
+        B = jnp.where(new[:, None, None, None], f(*part[:4]), 0.0)
+        return VB.at[part[4]].add(B)
+
+    return jax.lax.fori_loop(0, -(-m // chunk), body, VB)
+
+
+@partial(jit, static_argnums=(0, 1, 2, 3))
+def hessian_kernel(density, projection, chunk, n_blocks, geom, free, x, params, code, blocks, swap, gather):
+    """Energy, gradient (times the free mask) and the assembled lower-triangle CSC data (nnz,)
+    of the projected Hessian: vertex blocks (:func:`block_hessian`) gathered by the pattern's
+    ``gather``.  ``projection, code``: a projection's ``kernel()`` form."""
+    value, grad = free_value_and_grad(density, geom, free, x, params)
+    VB = block_hessian(density, projection, chunk, geom, x, params, blocks, swap, n_blocks, code)
+    return value, grad, VB.reshape(-1)[gather]
+
+
+# ---------------------------------------------------------------- sparsity pattern
+
+
+def block_pairs(d):
+    """The element-local vertex pairs ``a <= b`` ((d+1)(d+2)/2 of them, row-major upper
+    triangle): the d x d blocks of the element Hessian that are assembled."""
+    return np.triu_indices(d + 1)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HessianPattern:
+    """CSC pattern of the lower triangle of the Hessian restricted to free DOFs
+    (vertex-major numbering: dof = v*d + c).  Sparse Cholesky backends read only the lower
+    triangle; :meth:`matrix` gives the full symmetric matrix.
+
+    The Hessian is assembled per *vertex block*: for every pair of vertices ``w <= v`` that
+    share an element (the vertex graph, diagonal included), the d x d block ``H[v-dofs,
+    w-dofs]``; the CSC data are then gathered from the blocks.
+
+    Attributes
+    ----------
+    n : number of free DOFs.
+    indptr : (n+1,) int64;  indices : (nnz,) int64, row indices sorted per column.
+    free_dofs : (n,) global dof ids of the free DOFs.
+    diag : (n,) data positions of the diagonal (one per free DOF used by an element).
+    dim : d.
+    vertex_ptr, vertex_idx : (n_vertices+1,), (n_blocks,) int64: the vertex graph in CSC
+        lower-triangle form (column vertex w: sorted row vertices v >= w, w itself first).
+    blocks : (m, (d+1)(d+2)/2) int32, the vertex block of each element block pair
+        ``a <= b`` (:func:`block_pairs`).
+    swap : (m, (d+1)(d+2)/2) bool, True where the stored block ``H[v-dofs, w-dofs]`` is the
+        element block ``(b, a)`` (``S[a] < S[b]``), False where it is ``(a, b)``.
+    gather : (nnz,) int64, position in the block data (n_blocks, d, d) flattened of each CSC
+        entry.
+    """
+
+    n: int
+    indptr: np.ndarray
+    indices: np.ndarray
+    free_dofs: np.ndarray
+    diag: np.ndarray
+    dim: int
+    vertex_ptr: np.ndarray
+    vertex_idx: np.ndarray
+    blocks: np.ndarray
+    swap: np.ndarray
+    gather: np.ndarray
+
+    @property
+    def nnz(self) -> int:
+        return len(self.indices)
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.vertex_idx)
+
+    @functools.cached_property
+    def slots(self) -> np.ndarray:
+        """(m*P,) data position of each element DOF pair ``p <= q`` (:func:`local_pairs`),
+        ``nnz`` where a DOF is fixed: the scalar form of :attr:`blocks` (computed on first use)."""
+        d = self.dim
+        p, q = local_pairs(d)
+        a, c, b, e = p // d, p % d, q // d, q % d
+        bi, bj = block_pairs(d)
+        which = np.zeros((d + 1, d + 1), np.int64)
+        which[bi, bj] = np.arange(len(bi))
+        k = self.blocks[:, which[a, b]].astype(np.int64)  # (m, P); a <= b
+        # the stored block is H[v-dofs, w-dofs], v > w: its row coordinate is the one on v
+        swap = self.swap[:, which[a, b]]
+        rc = np.where(a == b, np.maximum(c, e), np.where(swap, e, c))
+        cc = np.where(a == b, np.minimum(c, e), np.where(swap, c, e))
+        inverse = np.full(self.n_blocks * d * d, self.nnz, np.int64)
+        inverse[self.gather] = np.arange(self.nnz)
+        return inverse[(k * d + rc) * d + cc].reshape(-1)
+
+    def lower(self, data) -> sp.csc_matrix:
+        return sp.csc_matrix((np.asarray(data), self.indices, self.indptr), shape=(self.n, self.n))
+
+    def matrix(self, data) -> sp.csc_matrix:
+        L = self.lower(data)
+        return (L + L.T - sp.diags(L.diagonal())).tocsc()
+
+
+def vertex_graph(simplices, n_vertices):
+    """The vertex graph of a mesh in CSC lower-triangle form, diagonal included.
+
+    Parameters
+    ----------
+    simplices : (m, d+1) int vertex ids.
+    n_vertices : int.
+
+    Returns
+    -------
+    ptr : (n_vertices+1,) int64;  idx : (n_blocks,) int64, for each vertex w the sorted
+        vertices v >= w sharing an element with it (w itself first when it is used).
+
+    Built by SciPy's COO to CSR conversion (a counting sort by row, then a sort within the
+    short rows): O(m), no global sort.
+    """
+    S = np.asarray(simplices)
+    a, b = np.triu_indices(S.shape[1], 1)
+    u, v = S[:, a].ravel(), S[:, b].ravel()
+    used = np.flatnonzero(np.bincount(S.ravel(), minlength=n_vertices))
+    rows = np.concatenate([np.minimum(u, v), used])
+    cols = np.concatenate([np.maximum(u, v), used])
+    A = sp.csr_matrix((np.ones(len(rows), np.int32), (rows, cols)), shape=(n_vertices, n_vertices))
+    A.sum_duplicates()  # canonical: sorted column indices, no duplicates
+    return A.indptr.astype(np.int64), A.indices.astype(np.int64)
+
+
+def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
+    """The pattern for ``free_dofs`` (n_vertices, d) bool, from the vertex graph.
+
+    Each vertex block of the graph is expanded to its d x d DOF entries in CSC order by
+    arithmetic (no sort), the entries of fixed DOFs and the upper half of diagonal blocks are
+    dropped, and each off-diagonal element block is located in its row of the graph (SciPy's
+    CSR lookup).  O(m) memory and time beyond SciPy's conversions."""
+    d = problem.dim
+    S = problem.simplices
+    nv = problem.n_vertices
+    free = np.asarray(free_dofs, bool).reshape(-1)
+    red = np.full(nv * d, -1, np.int64)
+    red[free] = np.arange(free.sum())
+    n = int(free.sum())
+    ptr, idx = vertex_graph(S, nv)
+    deg = np.diff(ptr)
+    # candidate entries in CSC order, generated sequentially: DOF column (w, e) holds, for
+    # each block k of vertex column w (rows idx[k] >= w) and each coordinate c, the row
+    # (idx[k], c); drop the fixed DOFs and the upper half of the diagonal blocks
+    seglen = np.repeat(deg * d, d)  # candidates per DOF column w*d+e
+    col = np.repeat(np.arange(nv * d), seglen)
+    j = np.arange(len(col)) - np.repeat(np.cumsum(seglen) - seglen, seglen)
+    w, e = np.divmod(col, d)
+    k, c = np.divmod(j, d)
+    k += ptr[w]
+    v = idx[k]
+    row = v * d + c
+    keep = ((v > w) | (c >= e)) & free[row] & free[col]
+    indices = red[row[keep]]
+    cols = red[col[keep]]
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
+    diag = np.flatnonzero(indices == cols)
+    gather = ((k * d + c) * d + e)[keep]  # position (k, c, e) in the block data
+    # element blocks: the diagonal ones lead their vertex's row; locate the others
+    bi, bj = block_pairs(d)
+    sa, sb = S[:, bi], S[:, bj]
+    blocks = ptr[sa]
+    off = bi != bj
+    lookup = sp.csr_matrix((np.arange(len(idx)), idx, ptr), shape=(nv, nv))
+    lo, hi = np.minimum(sa[:, off], sb[:, off]), np.maximum(sa[:, off], sb[:, off])
+    blocks[:, off] = np.asarray(lookup[lo.ravel(), hi.ravel()]).reshape(lo.shape)
+    return HessianPattern(n, indptr, indices, np.flatnonzero(free), diag, d, ptr, idx,
+                          blocks.astype(np.int32), sa < sb, gather)
+
+
+# ---------------------------------------------------------------- the objective
+
+
+class Objective:
+    """A problem, an energy and its parameters, with jitted evaluation.
+
+    ``E(x) = sum_e w_e vol_e psi(J_e(x), params)``: ``vol_e`` the rest sizes, ``w_e`` the
+    optional per-element weights (``element_weights``, default 1).  Maps ``x`` are (n, dim)
+    arrays; gradients are returned with fixed DOFs zeroed.
+
+    With no fixed vertex the energy is invariant to translations (always: J only sees edge
+    vectors), which leaves the Hessian singular; then the first vertex of the first element is
+    pinned, which changes no minimum.  Rotations (a null or negative-curvature direction of
+    rotation-invariant energies) are left to the solvers' diagonal shift: pinning a vertex
+    coordinate against them creates a soft, badly conditioned mode instead (measured: 72 vs
+    19 Newton iterations on camelhead).
+
+    With ``buckets=True`` (what :func:`~geomopt.parameterize` uses) the arrays are padded to
+    size buckets (:mod:`geomopt._runtime.padding`, the one padding rule) so that meshes of similar size
+    share compiled kernels and persistent-cache entries; ``buckets`` may also be another
+    objective's ``sizes`` (a sub-problem on the same vertices padded like its whole).  Every
+    method then takes maps with ``n`` rows (and returns ``n`` rows, ``m`` elements) or
+    ``n_padded`` rows, as solver states hold them.
+
+    **Composable.**  :meth:`value`, :meth:`value_and_grad` and :meth:`dets` work under
+    ``jax.jit``, ``grad``, ``hessian``, ``jvp`` / ``vjp`` and ``vmap`` (over maps and over
+    parameters: ``params`` is a dict of scalars, traced or not), calling the pure function
+    there and the tuned jitted kernel on concrete arrays.  An Objective is a JAX pytree
+    whose leaves are its problem's arrays (rest geometry, handle positions), the element
+    weights, the energy parameters given as traced values, and the padded rest geometry: build it from a :class:`~geomopt.Problem` with
+    traced rest vertices to differentiate with respect to the rest shape (e.g.
+    ``jax.grad(lambda V: Objective(Problem.surface(V, F), e).value(x))(V)``), or
+    ``jax.vmap`` over a batch of rest shapes of one connectivity.  The host-side methods
+    (:meth:`hessian`, :meth:`prepare_map`) need concrete values.
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.Problem`.
+    energy : name or :class:`~geomopt.energies.Energy`.
+    buckets : pad to size buckets (see above): True, False, or another objective's ``sizes``.
+    element_weights : (m,) positive weights ``w_e`` (traceable), or None.
+    params : energy parameters overriding the energy's defaults.
+    """
+
+    def __init__(self, problem: Problem, energy: Energy | str, *, buckets=False, element_weights=None,
+                 **params):
+        if not isinstance(problem, Problem):
+            raise ParameterError(f"Objective needs a geomopt.Problem (Problem.planar, Problem.surface or "
+                                 f"Problem.tets), got {type(problem).__name__}")
+        # traced parameters are leaves of the objective, concrete ones part of its energy
+        traced = {k: v for k, v in params.items() if is_traced(v)}
+        energy = get_energy(energy, **{k: v for k, v in params.items() if k not in traced})
+        energy.resolve_params(**traced)  # known names
+        energy.check_dim(np.shape(problem.rest_inv)[-1])  # the Jacobians' size (2 for the sphere)
+        mesh = _Mesh(problem, _padding.Sizes.of(problem, buckets))
+        w = check_element_weights(element_weights, problem.n_elements)
+        vol = problem.volumes if w is None else problem.volumes * w
+        _, Minv, vol = _padding.pad_geometry(problem, mesh.sizes, vol)
+        # device_put, not jnp.asarray: no copy program compiled per array shape
+        Minv, vol = (a if is_traced(a) else jax.device_put(a) for a in (Minv, vol))
+        self._set(problem, w, traced, Minv, vol, StaticKey((_energy_key(energy), mesh.key), (energy, mesh)))
+
+    def _set(self, problem, weights, overrides, Minv, vol, static):
+        self.problem, self.element_weights, self._overrides, self._static = problem, weights, overrides, static
+        self.energy, self._mesh = static.payload
+        self.geom = (self._mesh.simplices, Minv, vol)
+        #: elements per chunk of the Hessian work (:func:`block_hessian`; 0: all at once)
+        self.chunk = CPU_CHUNK if jax.default_backend() == "cpu" else 0
+
+    def tree_flatten(self):
+        return (self.problem, self.element_weights, self._overrides, self.geom[1], self.geom[2]), self._static
+
+    @classmethod
+    def tree_unflatten(cls, static, leaves):
+        obj = object.__new__(cls)
+        obj._set(*leaves, static)
+        return obj
+
+    @functools.cached_property
+    def total_volume(self):
+        """``sum_e w_e vol_e``: a float, or a traced scalar when the rest geometry is traced."""
+        vol = self.geom[2]
+        return jnp.sum(vol) if is_traced(vol) else float(np.sum(np.asarray(vol)))
+
+    @property
+    def sizes(self) -> _padding.Sizes:
+        return self._mesh.sizes
+
+    @property
+    def free_dofs(self) -> np.ndarray:
+        """(n, d) bool: the DOFs a solver moves (not handles, not the gauge pin)."""
+        return self._mesh.free_dofs
+
+    @property
+    def free_mask(self) -> jax.Array:
+        """(n_padded, d) float64 device array: 1 on free DOFs, 0 on fixed and padded ones."""
+        return self._mesh.free
+
+    _free = free_mask
+
+    def params(self, **override):
+        """The energy's parameters with ``override`` applied, validated by the energy
+        (:meth:`~geomopt.energies.Energy.resolve_params`; traced values pass unchecked), as
+        float64 scalars for the kernels."""
+        p = self.energy.resolve_params(**{**self._overrides, **override})
+        return {k: jnp.asarray(v, jnp.float64) for k, v in p.items()}
+
+    @property
+    def pattern(self) -> HessianPattern:
+        return self._mesh.pattern
+
+    @property
+    def block_assembly(self):
+        """``(blocks, swap, n_blocks)``: the element-to-vertex-block map with which the kernels
+        assemble the Hessian (:func:`block_hessian`), padded like :attr:`geom`: ``blocks``
+        (m_padded, (d+1)(d+2)/2) int32 and ``swap`` (same shape) bool device arrays (padded
+        elements add zero blocks to their originals' blocks), ``n_blocks`` the padded block count."""
+        m = self._mesh
+        m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        return m.assembly[0], m.assembly[1], m.n_blocks_padded
+
+    def cholesky(self, backend: str = "auto"):
+        """A :class:`~geomopt.objective.linsolve.SparseCholesky` on :attr:`pattern`, its symbolic analysis
+        done once per mesh and backend and shared by every copy of this objective."""
+        return self._mesh.cholesky(backend)
+
+    # -- padded maps (see geomopt._runtime.padding) ------------------------------------------
+    def prepare_map(self, x) -> np.ndarray:
+        """A start map ``x`` ((n, d), or (n_padded, d) as a solver state holds it) checked by
+        :meth:`Problem.check_map` (float64 copy, handles in place), then padded."""
+        refuse_traced("Objective.prepare_map", "give the start map as a NumPy array", x)
+        x = np.asarray(x)
+        if x.ndim == 2 and x.shape[0] == self.sizes.n_padded != self.sizes.n:
+            x = x[: self.sizes.n]
+        return _padding.pad_rows(self.problem.check_map(x), self.sizes.n_padded)
+
+    def _pad(self, x):
+        """``x`` with n_padded rows (host-side pad for concrete ``x``: no kernel per mesh
+        size), and whether it had n rows to begin with."""
+        sz = self.sizes
+        if not sz.padded or x.shape[0] == sz.n_padded:
+            return x, False
+        return _padding.pad_rows(x if is_traced(x) else np.asarray(x), sz.n_padded), True
+
+    def pad_map(self, x):
+        """``x`` (n, d) with n_padded rows (padded rows on vertex 0); unchanged when it has
+        them already or the objective is not padded."""
+        return self._pad(x)[0]
+
+    def unpad_map(self, x):
+        """The first n rows of a map (or per-vertex array) held with n_padded rows."""
+        if not self.sizes.padded:
+            return x
+        return x[: self.sizes.n] if is_traced(x) else np.asarray(x)[: self.sizes.n]
+
+    def _params(self, params):
+        return self.params() if params is None else params
+
+    def value(self, x, params=None) -> jax.Array:
+        """The energy at ``x`` (n or n_padded, d); ``params`` default: :meth:`params`."""
+        return energy_kernel(self.energy.density, self.geom, self._pad(x)[0], self._params(params))
+
+    def value_and_grad(self, x, params=None):
+        """(value, grad with fixed rows zeroed); grad has as many rows as ``x``."""
+        xp, cut = self._pad(x)
+        v, g = value_and_grad_kernel(self.energy.density, self.geom, self._free, xp, self._params(params))
+        return v, (self.unpad_map(g) if cut else g)
+
+    def hessian(self, x, params, projection="clamp"):
+        """(value, grad with fixed rows zeroed (as many rows as ``x``), CSC data (nnz,) of the
+        free-DOF Hessian in :attr:`pattern`), each element's block made by ``projection`` (a
+        :mod:`geomopt.objective.projection` object or name: ``"clamp"``, ``"abs"``, ``"none"`` for the
+        exact Hessian...).  Concrete values only (a host assembly)."""
+        refuse_traced("Objective.hessian (a sparse assembly on the host)",
+                      "use jax.hessian(lambda x: objective.value(x, params)) for a dense Hessian",
+                      x, params, self.geom)
+        pat, m = self.pattern, self._mesh
+        xp, cut = self._pad(x)
+        kernel, code = as_projection(projection).kernel()
+        v, g, data = hessian_kernel(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                                    self.geom, self._free, xp, params, np.int32(code), *m.assembly)
+        if m.nnz_padded != pat.nnz:
+            data = np.asarray(data)[: pat.nnz]
+        return v, (self.unpad_map(g) if cut else g), data
+
+    def compile_hessian(self, x, params, projection="clamp"):
+        """Compile (or load from the persistent cache) the kernel of :meth:`hessian` for maps
+        shaped like ``x``, without running it: a solver's set-up then holds the compilation
+        but no throw-away evaluation."""
+        m = self._mesh
+        m.pattern  # noqa: B018 - builds the pattern, its assembly and the padded sizes
+        kernel, code = as_projection(projection).kernel()
+        hessian_kernel.prepare(self.energy.density, kernel, self.chunk, m.n_blocks_padded,
+                               self.geom, self._free, self._pad(x)[0], params, np.int32(code), *m.assembly)
+
+    def dets(self, x) -> jax.Array:
+        """(m,) determinant of each element's edge matrix (sign = orientation)."""
+        out = dets_kernel(self.geom, self._pad(x)[0])
+        if not self.sizes.padded:
+            return out
+        return out[: self.sizes.m] if is_traced(out) else np.asarray(out)[: self.sizes.m]
+
+
+_x64.float64_methods("__init__", "params", "value", "value_and_grad", "hessian", "compile_hessian", "dets")(Objective)
+jax.tree_util.register_pytree_node(Objective, Objective.tree_flatten, Objective.tree_unflatten)
+
+
+def _energy_key(energy: Energy) -> tuple:
+    """What a traced Objective's code depends on in its energy (its values by content)."""
+    rest = energy.rest_value
+    return (energy.density, energy.name, energy.barrier, energy.lower_bound,
+            rest if rest is None or callable(rest) else float(rest), tuple(sorted(energy.params.items())))
+
+
+def check_element_weights(w, m):
+    """Per-element weights as (m,) float64 (positive and finite when concrete; ParameterError
+    otherwise), or None."""
+    if w is None:
+        return None
+    if not is_traced(w):
+        w = np.asarray(w, dtype=np.float64) if np.ndim(w) else w
+    if np.shape(w) != (m,):
+        raise ParameterError(f"element_weights must have shape ({m},) (one weight per element), "
+                             f"got shape {np.shape(w)}")
+    if not is_traced(w) and not (np.isfinite(w).all() and (w > 0).all()):
+        bad = np.flatnonzero(~(np.isfinite(w) & (w > 0)))
+        raise ParameterError(f"element_weights must be finite and > 0; {bad.size} are not (first: "
+                             f"element {bad[0]}, weight {w[bad[0]]!r})")
+    return w
+
+
+class _Mesh:
+    """What an Objective derives from its problem's static data (connectivity, handles,
+    sizes), shared by every copy of the objective (pytree unflattening): device simplices,
+    the free DOFs and, built on first use, the Hessian pattern and its assembly arrays."""
+
+    def __init__(self, problem: Problem, sizes: _padding.Sizes):
+        self.key = (problem.static_key, sizes)
+        self.sizes = sizes
+        d = problem.dim
+        free = np.repeat(problem.free_mask[:, None], d, axis=1)
+        if problem.fixed.size == 0:
+            free[problem.simplices[0, 0]] = False
+        self.free_dofs = free
+        with jax.ensure_compile_time_eval():  # concrete device arrays, also when built under a trace
+            self.simplices = jax.device_put(_padding.pad_rows(problem.simplices, sizes.m_padded, cycle=True))
+            self.free = jax.device_put(_padding.pad_rows(free.astype(np.float64), sizes.n_padded, fill=0.0))
+        # the pattern needs the connectivity only (never the problem's possibly traced arrays)
+        self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
+                                                   n_vertices=problem.n_vertices)
+        self._pattern = None
+        self._cholesky = {}
+
+    def cholesky(self, backend):
+        if backend not in self._cholesky:
+            pat = self.pattern
+            chol = SparseCholesky(pat.indptr, pat.indices, backend)
+            chol.analyze()
+            self._cholesky[backend] = chol
+        return self._cholesky[backend]
+
+    @property
+    def pattern(self) -> HessianPattern:
+        if self._pattern is None:
+            if self._connectivity.simplices.shape[1] == self._connectivity.dim:  # cones over the origin
+                raise ParameterError("a map onto the sphere has no assembled Hessian (its Jacobians are not "
+                                     "linear in x): minimise it with L-BFGS (geomopt.sphere_map)")
+            pat = hessian_pattern(self._connectivity, self.free_dofs)
+            sz = self.sizes
+            # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)
+            # add zero blocks to their originals' blocks, padded CSC entries gather block entry 0
+            # and are cut off on the host
+            self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
+            self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
+            blocks = _padding.pad_rows(pat.blocks, sz.m_padded, cycle=True)
+            swap = _padding.pad_rows(pat.swap, sz.m_padded, cycle=True)
+            gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
+            with jax.ensure_compile_time_eval():
+                self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
+            self._pattern = pat
+        return self._pattern
+
+
+@partial(jit, static_argnums=0)
+def _densities_kernel(density, geom, x, params):
+    return jax.vmap(density, in_axes=(0, None))(jacobians(geom, x), params)
+
+
+@_x64.float64
+def element_densities(objective: Objective, x, params=None) -> jax.Array:
+    """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring."""
+    out = _densities_kernel(objective.energy.density, objective.geom, objective._pad(jnp.asarray(x))[0],
+                            objective.params(**(params or {})))
+    return out[: objective.sizes.m] if objective.sizes.padded else out
