@@ -14,7 +14,7 @@ Usage::
 
 ``families``: every generated tangled quad and hex family (interior rotations, noise, random
 interiors, squashed boundaries; hex twists and bends) at about each size, untangled by
-:func:`geomopt.untangle.untangle` and certified (:func:`geomopt.mesh.elements.certify_elements`:
+:func:`geomopt.untangling.untangle` and certified (:func:`geomopt.mesh.elements.certify_elements`:
 quads by their corners, hexahedra inside by Bernstein coefficients), one row each.  ``--start
 given`` starts every case from its tangled map (the eps loop's own test; the default ``auto``
 starts from the harmonic extension of the boundary when that has fewer inverted corners, which for
@@ -83,7 +83,7 @@ jax.config.update("jax_enable_x64", True)
 from geomopt.mesh import generators as G  # noqa: E402
 from geomopt.mesh.elements import boundary_vertices, certify_elements, corner_simplices  # noqa: E402
 from geomopt.mesh.problem import Problem  # noqa: E402
-from geomopt.untangle import untangle  # noqa: E402
+from geomopt.untangling import untangle  # noqa: E402
 
 
 def _families(size):

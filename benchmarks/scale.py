@@ -37,7 +37,7 @@ on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton
 energy, outcome`` (projected Newton to convergence, second run).  ``--untangle`` measures
 instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
 untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
-outer iteration of :func:`geomopt.untangle.untangle` (its default solver) on the mesh with
+outer iteration of :func:`geomopt.untangling.untangle` (its default solver) on the mesh with
 its interior rotated by 90 degrees in 2D, the box's boundary twisted by a quarter turn in 3D.
 """
 
@@ -224,10 +224,10 @@ def _round(out):
 
 
 def run_untangle_outer(V, S, fixed):
-    """One outer iteration of :func:`geomopt.untangle.untangle` (default solver) on the mesh
+    """One outer iteration of :func:`geomopt.untangling.untangle` (default solver) on the mesh
     with its interior rotated by 90 degrees (2D) or its boundary twisted (3D)."""
     from geomopt.mesh import generators as G
-    from geomopt.untangle import untangle
+    from geomopt.untangling import untangle
 
     tangle = G.rotated_interior(V, S, 90.0) if V.shape[1] == 2 else \
         G.Tangle("twist", V, S, _twist(V, fixed), fixed)

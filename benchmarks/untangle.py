@@ -5,7 +5,7 @@ Usage::
     python benchmarks/untangle.py [--repeat 3] [--sizes 1000,10000,100000] [--only PATTERN]
                                   [--solver lbfgs|newton] [--no-families] [--no-lim]
 
-For each case it runs :func:`geomopt.untangle.untangle` once cold (compilation included) and
+For each case it runs :func:`geomopt.untangling.untangle` once cold (compilation included) and
 ``--repeat`` times warm, and prints one row: elements, initially inverted elements, outer
 iterations, inner iterations, energy (and gradient) evaluations, median warm seconds (the
 whole untangling call: problem set-up, normalisation, outer loop, certification; file
@@ -33,7 +33,7 @@ from geomopt.mesh import generators as G  # noqa: E402
 from geomopt import MeshError  # noqa: E402
 from geomopt.lim import LimCase, untangle_case  # noqa: E402
 from geomopt.exact.predicates import count_inverted  # noqa: E402
-from geomopt.untangle import untangle  # noqa: E402
+from geomopt.untangling import untangle  # noqa: E402
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
 

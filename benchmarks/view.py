@@ -32,7 +32,7 @@ def _maps():
     V, F = geomopt.data.load("camelhead")
     param = geomopt.parameterize(V, F, progress=False)
     tangle = generators.bent_box(8, 16, 120.0)
-    tets = geomopt.untangle.untangle(tangle.problem(), tangle.x0, progress=False)
+    tets = geomopt.untangling.untangle(tangle.problem(), tangle.x0, progress=False)
     return param, tets
 
 

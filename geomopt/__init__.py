@@ -30,11 +30,11 @@ _LAZY = {
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "smooth": ".smoothing",
     "tutte_embedding": ".mesh.tutte", "compare": ".experiments.comparison", "Comparison": ".experiments.comparison",
     "compare_meshes": ".experiments.comparison", "ComparisonSet": ".experiments.comparison", "sphere_map": ".sphere",
-    "make_atlas": ".atlas",
+    "make_atlas": ".atlas", "untangle": ".untangling",
 }
 # public submodules reachable as attributes without an import of their own (imported on first use):
 # the layers from the bottom up, then the drivers and the outputs on top
-_SUBMODULES = ("exact", "io", "mesh", "energies", "objective", "solvers", "param", "untangle", "smoothing", "sphere",
+_SUBMODULES = ("exact", "io", "mesh", "energies", "objective", "solvers", "param", "untangling", "smoothing", "sphere",
                "atlas", "implicit", "lim", "experiments", "plot", "data", "cli")
 
 

@@ -543,7 +543,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
 
 
 def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "auto", **options):
-    """:func:`geomopt.untangle.untangle`'s final map as a differentiable function of the
+    """:func:`geomopt.untangling.untangle`'s final map as a differentiable function of the
     problem (its rest vertices and handle positions, traced or not) and ``theta``.
 
     The untangled map minimises Garanzha et al.'s energy at the last ``eps`` of the outer loop,
@@ -561,11 +561,11 @@ def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "a
     x0 : (n, d) the tangled start.
     theta : shape/area balance in (0, 1) (``lam = theta / (1 - theta)``), may be traced;
         default 1/128 in 2D, 1/2 in 3D.
-    solver, options : passed to :func:`geomopt.untangle.untangle`.
+    solver, options : passed to :func:`geomopt.untangling.untangle`.
     """
     from .energies import garanzha
-    from .untangle import badly_shaped
-    from .untangle import untangle as run
+    from .untangling import badly_shaped
+    from .untangling import untangle as run
 
     d = problem.dim
     theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
@@ -605,7 +605,7 @@ def _untangle_problem(problem, x0, k, bad):
     ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
     edge length.  Traceable in the problem's arrays."""
     from .mesh.geometry import dets
-    from .untangle import equilateral_rest
+    from .untangling import equilateral_rest
 
     d = problem.dim
     P = problem

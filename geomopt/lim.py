@@ -30,7 +30,7 @@ from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_v
                  write_obj_with_uv, write_vtk_tets)
 from .exact.predicates import differing_rows
 from .mesh.problem import Problem, fixed_total_problem
-from .untangle import untangle
+from .untangling import untangle
 
 __all__ = ["LimCase", "LimProblem", "untangle_case", "read_lim_case", "lim_case_dim", "lim_cases"]
 
@@ -387,12 +387,12 @@ def _problem_3d(case) -> LimProblem:
 
 
 def untangle_case(case, solver="lbfgs", progress=True, **options):
-    """Untangle a LIM case (:meth:`LimCase.to_problem`, :func:`~geomopt.untangle.untangle`).
+    """Untangle a LIM case (:meth:`LimCase.to_problem`, :func:`~geomopt.untangling.untangle`).
 
     Parameters
     ----------
     case : a :class:`LimCase`, or a case folder (read with :meth:`LimCase.read`).
-    solver, progress, options : passed to :func:`~geomopt.untangle.untangle`.
+    solver, progress, options : passed to :func:`~geomopt.untangling.untangle`.
 
     Returns
     -------

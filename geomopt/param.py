@@ -18,7 +18,7 @@ from .scaffold import bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
-from .untangle import untangle
+from .untangling import untangle
 from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
@@ -187,7 +187,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         repaired (:func:`repair_map`: Garanzha et al.'s regularised energy, eps driven to 0, the
         boundary held on a simple polygon), then the chosen energy is minimised from there.
     progress, throw : see :func:`~geomopt.solvers.minimize`.  A callable sees the minimisation
-        only: the repair of a folded start reports (as :func:`~geomopt.untangle.untangle` does)
+        only: the repair of a folded start reports (as :func:`~geomopt.untangling.untangle` does)
         only with ``progress=True``.
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
         :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
@@ -309,7 +309,7 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
     problem : :class:`~geomopt.Problem` (surface or planar) without fixed vertices, or ``(V, F)``.
     x0 : (n, 2) start map with folds.  A map mirrored as a whole (negative total signed area)
         is mirrored back first (``u -> -u``): a UV map's handedness is free.
-    theta : shape/area balance (see :func:`~geomopt.untangle.untangle`).
+    theta : shape/area balance (see :func:`~geomopt.untangling.untangle`).
 
     Returns
     -------

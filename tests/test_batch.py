@@ -20,7 +20,8 @@ from geomopt._runtime.padding import MAXIMUM_ELEMENTS, bucket_sizes
 from geomopt.experiments.batch import SUMMARY_COLUMNS, batch_cases, run_batch
 from geomopt.lim import LimCase
 from geomopt.exact.predicates import count_inverted
-from geomopt.untangle import _outer_stats, untangle
+from geomopt.untangling import untangle
+from geomopt.untangling.continuation import _outer_stats
 
 
 def tangles():

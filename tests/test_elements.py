@@ -18,7 +18,7 @@ from geomopt.mesh.elements import (certify_elements, corner_edges, count_invalid
     valid_elements)
 from geomopt.exact.hexvalid import HEX_CORNERS, hex_validity, hex_volumes, jacobian_bernstein, jacobian_det
 from geomopt.mesh.problem import Problem
-from geomopt.untangle import STIFF_AFTER_NEWTON, choose_start, harmonic_start, untangle
+from geomopt.untangling import STIFF_AFTER_NEWTON, choose_start, harmonic_start, untangle
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
 
@@ -359,7 +359,7 @@ def test_auto_start_untangles_a_bent_hex_rod_from_the_harmonic_extension():
 
 
 def test_auto_start_keeps_the_given_map(monkeypatch):
-    import geomopt.starts as S
+    import geomopt.untangling.start as S
 
     V, Q = G.quad_mesh(6, 6)
     t = G.rotated_interior(V, Q, 120)

@@ -234,7 +234,7 @@ def test_untangle_a_start_map_at_extreme_scales(scale, dim):
     scale-free, so these solve as at scale 1, with the handles bit-identical."""
     from geomopt.mesh import generators as G
     from geomopt.mesh.problem import check_initial_orientation
-    from geomopt.untangle import untangle
+    from geomopt.untangling import untangle
 
     tg = (G.rotated_interior(*G.square_mesh(6), 120.0) if dim == 2
           else G.rotated_interior(*G.box_mesh(2, 3, 2), 100.0))

@@ -24,7 +24,7 @@ from geomopt.io import read_vtk_tets
 from geomopt.exact.predicates import count_inverted
 from geomopt.mesh.generators import Tangle
 from geomopt.lim import LimCase
-from geomopt.untangle import untangle
+from geomopt.untangling import untangle
 from test_local_injectivity import edge_star, fan_2d, orient_tets
 
 

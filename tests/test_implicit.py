@@ -128,9 +128,9 @@ def test_untangled_map_derivative_matches_re_solves():
 
 def test_untangled_map_derivative_through_equilateral_rest_triangles():
     """Rest triangles above max_aspect are replaced by equilateral ones of their mean edge
-    length (geomopt.untangle.equilateral_rest): the derivative with respect to the rest
+    length (geomopt.untangling.equilateral_rest): the derivative with respect to the rest
     vertices flows through those edge lengths, against re-solves."""
-    from geomopt.untangle import badly_shaped
+    from geomopt.untangling import badly_shaped
 
     V, F = grid(5, jitter=0.3)
     B = boundary_vertices(F, len(V))

@@ -19,7 +19,7 @@ from geomopt.mesh import generators as G
 from geomopt.solvers import (LBFGS, AbstractContinuation, Decision, Final, Newton, Progress, Result, Stats,
                              Termination, iterate, local_certificate)
 from geomopt.solvers._termination import RUNNING
-from geomopt.untangle import UntangleOptions, untangle
+from geomopt.untangling import UntangleOptions, untangle
 
 from conftest import grid
 
@@ -177,7 +177,7 @@ def test_result_energies_typed_fields_and_no_aliases():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         u = untangle(t.problem(), t.x0, progress=False)
-        assert u.success and isinstance(u, geomopt.untangle.UntangleResult)
+        assert u.success and isinstance(u, geomopt.untangling.UntangleResult)
         assert isinstance(u.details, geomopt.solvers.UntangleDetails)
         assert isinstance(u.details, geomopt.solvers.Details)
         assert len(u.trace.column("eps")) == u.stats.outer_iterations > 0

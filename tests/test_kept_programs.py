@@ -12,7 +12,7 @@ SCRIPT = """
 import jax
 jax.config.update("jax_enable_x64", True)
 from geomopt import generators as G
-from geomopt.untangle import untangle
+from geomopt.untangling import untangle
 V, H = G.hex_mesh(3, 3, 3)
 t = G.rotated_interior(V, H, 90)
 r = untangle(t.problem(), t.x0, "newton", progress=False)

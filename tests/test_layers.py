@@ -9,6 +9,7 @@ objective, the solvers, the drivers, and the outputs and tools on top."""
 from __future__ import annotations
 
 import ast
+import types
 import warnings
 from pathlib import Path
 
@@ -22,8 +23,8 @@ LAYERS = [
     ("mesh", ("geomopt.mesh",)),
     ("objective", ("geomopt.energies", "geomopt.objective")),
     ("solvers", ("geomopt.solvers",)),
-    ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangle",
-                 "geomopt.starts", "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas")),
+    ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
+                 "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas")),
     ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt._render", "geomopt._view",
                            "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__", "geomopt")),
 ]
@@ -111,3 +112,29 @@ def test_old_paths_still_import_with_a_deprecation_warning(old, new):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         importlib.import_module(new)  # the new path is silent
+
+
+def test_the_old_untangle_module_path_stays_callable_as_the_function():
+    """``geomopt.untangle`` is the driver function; an old ``import geomopt.untangle`` (the
+    module, now :mod:`geomopt.untangling`) binds that attribute to the module, which then still
+    calls the function, and its names still resolve."""
+    import importlib
+    import sys
+
+    import geomopt
+    from geomopt.mesh import generators
+
+    assert callable(geomopt.untangle) and geomopt.untangle.__module__ == "geomopt.untangling.driver"
+    function = geomopt.untangle
+    sys.modules.pop("geomopt.untangle", None)
+    try:
+        with pytest.warns(DeprecationWarning, match="geomopt.untangle moved to geomopt.untangling"):
+            old = importlib.import_module("geomopt.untangle")
+        assert old is geomopt.untangling and old.UntangleOptions is geomopt.untangling.options.UntangleOptions
+        assert geomopt.untangle is old  # what the import bound
+        tangle = generators.rotated_interior(*generators.square_mesh(3), 180.0)
+        assert old(tangle.problem(), tangle.x0, progress=False).success
+    finally:  # the rest of this process sees the function again
+        sys.modules.pop("geomopt.untangle", None)
+        geomopt.untangling.__class__ = types.ModuleType
+        geomopt.untangle = function

@@ -439,7 +439,7 @@ def test_untangle_refuses_a_ball_wound_twice_and_writes_nothing(tmp_path):
     from geomopt.mesh import generators
     from geomopt.lim import LimCase
     from geomopt.solvers import Outcome
-    from geomopt.untangle import untangle
+    from geomopt.untangling import untangle
 
     V, T, X, axis = wrapped_cylinder(2.0, levels=3)
     bnd = np.setdiff1d(np.arange(len(V)), axis[1:-1])

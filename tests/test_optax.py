@@ -20,7 +20,7 @@ def star():
     reflex corners, and a flip-free start (the untangled Tutte map)."""
     tg = tutte_nonconvex(4, "star")
     P = Problem.planar(tg.rest, tg.simplices, tg.fixed, tg.x0[tg.fixed])
-    x0 = geomopt.untangle.untangle(P, tg.x0, progress=False).x
+    x0 = geomopt.untangling.untangle(P, tg.x0, progress=False).x
     assert P.count_inverted(x0) == 0
     return P, x0
 

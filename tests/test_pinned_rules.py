@@ -24,7 +24,7 @@ from geomopt.lim import LimCase
 from geomopt.smoothing import element_problem
 from geomopt.solvers import Outcome, Stats, Termination
 from geomopt.solvers._termination import RUNNING
-from geomopt.untangle import EpsContinuation, untangle
+from geomopt.untangling import EpsContinuation, untangle
 
 from conftest import grid
 from test_cli import one_error_line

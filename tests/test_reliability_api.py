@@ -31,7 +31,7 @@ from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import LBFGS, Adaptive, Newton
 from geomopt.exact.topology import same_side_facets
 from geomopt.lim import LimCase, untangle_case
-from geomopt.untangle import untangle
+from geomopt.untangling import untangle
 
 from conftest import cube_tets, grid
 

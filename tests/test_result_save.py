@@ -11,7 +11,7 @@ import pytest
 import geomopt
 from geomopt import GeomoptError, ParameterError, Problem, io
 from geomopt.mesh import generators as G
-from geomopt.untangle import untangle
+from geomopt.untangling import untangle
 
 
 @pytest.fixture(scope="module")

@@ -110,7 +110,7 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
     Laplacian seed when an inner solve has not converged after STIFF_AFTER iterations: a disk
     rotated by 180 degrees then takes a fraction of the inner iterations; a noisy one never
     switches (same iterations as the diagonal seed alone)."""
-    from geomopt.untangle import STIFF_AFTER, default_solver, untangle
+    from geomopt.untangling import STIFF_AFTER, default_solver, untangle
 
     rot = G.rotated_interior(*G.disk_mesh(24), 180)
     diag = untangle(rot.problem(), rot.x0, solver=default_solver("lbfgs", 2), progress=False)
@@ -167,7 +167,7 @@ def test_a_probe_that_untangles_fast_keeps_the_diagonal_seed():
     but each probe removes folds and energy fast (PROBE_PROGRESS): it goes on with the diagonal
     seed; the same disk rotated by 180 degrees gains folds in its probe and switches, and so
     does a Tutte map onto a star, which loses folds but its energy only slowly."""
-    from geomopt.untangle import STIFF_AFTER, untangle
+    from geomopt.untangling import STIFF_AFTER, untangle
 
     V, F = _delaunay_disk(800, seed=1)
     noise = G.noisy_interior(V, F, 3.0, seed=0)

@@ -27,9 +27,9 @@ from geomopt.mesh.problem import Problem
 from geomopt.solvers import Newton, Outcome, minimize
 from geomopt.solvers import lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import LBFGS
-from geomopt import untangle as untangle_module
+from geomopt.untangling import continuation, driver, schedule
 from geomopt.energies import chi
-from geomopt.untangle import default_solver, next_eps, untangle
+from geomopt.untangling import default_solver, next_eps, untangle
 from test_objective import cot_laplacian
 
 LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
@@ -297,7 +297,7 @@ def test_outer_loop_compiles_once():
     and one untangling compiles each kernel once however many outer iterations it runs."""
     t = G.tutte_nonconvex(7, "L")
     kernels = [lbfgs_module._run_kernel, lbfgs_module._reparam_kernel,
-               untangle_module._outer_stats]
+               continuation._outer_stats]
     before = [k._cache_size() for k in kernels]
     with lowered_programs() as lowered:
         r1 = untangle(t.problem(), t.x0, progress=False)
@@ -333,7 +333,7 @@ def test_eps_reaches_the_floor_in_one_step_once_nothing_is_inverted():
     result = untangle(t.problem(), t.x0, progress=False)
     assert result.success, result.message
     assert result.trace.column("inverted", int)[0] == 0
-    assert result.trace.column("eps")[1] == untangle_module.EPS_FLOOR[3]
+    assert result.trace.column("eps")[1] == schedule.EPS_FLOOR[3]
     assert result.stats.outer_iterations == 3
 
 
@@ -643,7 +643,7 @@ def test_a_tangled_part_without_handles_is_held_at_its_rest_shape():
     """Two tangled blocks, one without any handle, ran for minutes in the eps loop (the free
     block collapses at the first eps); it is replaced by its rest shape moved by the best
     similarity onto its given map, and certifies with the other block's few iterations."""
-    from geomopt.starts import hold_free_parts
+    from geomopt.untangling.start import hold_free_parts
 
     problem, x0, a, n = _two_blocks(True)
     assert problem.count_inverted(x0) > a.inverted() > 0
@@ -669,7 +669,7 @@ def test_a_tangled_part_without_handles_is_held_at_its_rest_shape():
 
 
 def test_harmonic_start_is_taken_per_part():
-    from geomopt.starts import choose_start, harmonic_start
+    from geomopt.untangling.start import choose_start, harmonic_start
 
     problem, x0, a, n = _two_blocks(True)
     xh = harmonic_start(problem, x0)
@@ -698,7 +698,7 @@ def test_a_rest_mesh_that_is_not_locally_injective_is_refused_at_setup(monkeypat
     """It was blamed on 'the fixed boundary ... check the handle positions' after a solve."""
     rest, T, ring, x0 = _doubled_rest()
     problem = Problem.tets(rest, T, ring, x0[ring])
-    monkeypatch.setattr(untangle_module, "iterate", lambda *a, **k: pytest.fail("solved"))
+    monkeypatch.setattr(driver, "iterate", lambda *a, **k: pytest.fail("solved"))
     with pytest.raises(MeshError, match=r"^the rest mesh itself is not locally injective: .*edge \(0, 1\)"):
         untangle(problem, x0, progress=False)
 
@@ -718,7 +718,7 @@ def test_cli_refuses_a_rest_mesh_that_is_not_locally_injective_in_one_line(tmp_p
 def test_a_mirrored_part_without_handles_gets_a_proper_rotation_of_its_rest_shape():
     """The best orthogonal fit of the rest shape onto a mirrored map is a reflection, which
     would invert every element: the rotation is taken without it (Kabsch's sign fix)."""
-    from geomopt.starts import hold_free_parts
+    from geomopt.untangling.start import hold_free_parts
 
     V, F = G.square_mesh(4)
     p = Problem.planar(V, F)

@@ -37,7 +37,7 @@ out["param_energy"], out["param_dtype"] = r.energy, str(r.x.dtype)
 out["user_dtype_after"] = str(jnp.ones(2).dtype)  # float32 code beside geomopt
 B = boundary_vertices(F, len(V))
 x0 = V.copy(); x0[14] = [0.95, 0.9]
-res = geomopt.untangle.untangle(Problem.planar(V, F, B, V[B]), x0, progress=False,
+res = geomopt.untangling.untangle(Problem.planar(V, F, B, V[B]), x0, progress=False,
                                 solver=LBFGS(rtol=1e-6, precondition="laplacian"))  # a host callback
 out["untangle_success"] = bool(res.success)
 obj = Objective(Problem.planar(V, F), "symmetric_dirichlet")
@@ -114,7 +114,7 @@ def _refusals():
     return V, V3, {
         "geomopt.implicit.parameterize": lambda V: geomopt.parameterize(V, F, progress=False).x,
         "geomopt.implicit.minimize": lambda x: geomopt.minimize(obj, x, progress=False).energy,
-        "geomopt.implicit.untangle": lambda x: geomopt.untangle.untangle(P, x, progress=False).x,
+        "geomopt.implicit.untangle": lambda x: geomopt.untangling.untangle(P, x, progress=False).x,
         "Objective.dets": lambda x: P.count_inverted(x),
         "Objective.dets(x)": lambda x: geomopt.exact.predicates.count_inverted(x, F),
         "Objective.dets(x) ": lambda x: geomopt.exact.certify.certify_bijective(x, F),

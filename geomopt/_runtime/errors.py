@@ -37,7 +37,7 @@ class SolveError(GeomoptError, RuntimeError):
 
     Raised
 
-    * by a driver (:func:`~geomopt.minimize`, :func:`~geomopt.untangle.untangle`,
+    * by a driver (:func:`~geomopt.minimize`, :func:`~geomopt.untangling.untangle`,
       :func:`~geomopt.parameterize` and its bijective mode, :func:`~geomopt.sphere_map`,
       :func:`~geomopt.make_atlas`) called with ``throw=True``, when its result is not
       ``success`` (converged and certified); without ``throw`` the result is returned instead;

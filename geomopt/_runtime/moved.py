@@ -9,6 +9,7 @@ import importlib
 import importlib.abc
 import importlib.util
 import sys
+import types
 import warnings
 
 #: old dotted path -> new dotted path
@@ -32,8 +33,20 @@ MOVED = {
     "geomopt.linesearch": "geomopt.solvers.linesearch",
     "geomopt._compare": "geomopt.experiments.comparison", "geomopt._compare_report": "geomopt.experiments.report",
     "geomopt._manifest": "geomopt.experiments.manifest", "geomopt.batch": "geomopt.experiments.batch",
-    "geomopt.atlas.command": "geomopt.cli.atlas",
+    "geomopt.atlas.command": "geomopt.cli.atlas", "geomopt.starts": "geomopt.untangling.start",
+    "geomopt.untangle": "geomopt.untangling",
 }
+#: old module paths that are now also the name of a top-level function (``geomopt.untangle``):
+#: importing the old path binds ``geomopt.<name>`` to the module, so the module is made callable
+#: as that function and ``geomopt.untangle(problem, x0)`` keeps working after such an import
+CALLABLE = {"geomopt.untangle": "untangle"}
+
+
+class _CallableModule(types.ModuleType):
+    """A module that calls its function named in :data:`CALLABLE` when called."""
+
+    def __call__(self, *args, **kwargs):
+        return getattr(self, self.__dict__["_called_as_function"])(*args, **kwargs)
 
 
 class _Redirect(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -48,6 +61,9 @@ class _Redirect(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         warnings.warn(f"{spec.name} moved to {MOVED[spec.name]}; the old path will be removed in the next "
                       f"release", DeprecationWarning, stacklevel=2)
         module = importlib.import_module(MOVED[spec.name])
+        if spec.name in CALLABLE:
+            module._called_as_function = CALLABLE[spec.name]
+            module.__class__ = _CallableModule
         spec.loader_state = module.__spec__  # the import system overwrites it: exec_module restores it
         return module
 

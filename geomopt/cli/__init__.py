@@ -438,7 +438,7 @@ def _untangle_mesh(args) -> int:
     from .._runtime.timing import compile_seconds
     from ..mesh.cells import cell_problem, read_cell_case, write_certified
     from ..mesh.quality import quality_summary
-    from ..untangle import untangle
+    from ..untangling import untangle
 
     path = Path(args.case[0])
     inputs = [str(p) for p in path.iterdir()] if path.is_dir() else [str(path)]

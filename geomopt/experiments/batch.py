@@ -1,6 +1,6 @@
 """Batches of untangling cases: Dask sweeps and ``summary.csv``.
 
-:func:`~geomopt.untangle.untangle` compiles its kernels for the array shapes of each mesh
+:func:`~geomopt.untangling.untangle` compiles its kernels for the array shapes of each mesh
 (seconds per shape, while a small case then solves in hundredths of a second).  Batches solve
 with ``bucket=True``: each case is padded to its size bucket (``Objective(buckets=True)``,
 :mod:`geomopt._runtime.padding`) so that every case of the same bucket runs the same compiled program,
@@ -72,7 +72,7 @@ def solve_case(folder, outdir, solver="lbfgs", bucket=True, start="auto"):
     ----------
     folder : a case folder (:meth:`geomopt.lim.LimCase.read`).
     outdir : the output folder (must exist).
-    solver : inner solver name for :func:`geomopt.untangle.untangle`.
+    solver : inner solver name for :func:`geomopt.untangling.untangle`.
     bucket : pad to a size bucket (:mod:`geomopt._runtime.padding`), so that cases of similar sizes
         share compiled kernels.
     start : where untangling starts (``UntangleOptions.start``: ``"auto"``, ``"given"``,
@@ -113,7 +113,7 @@ def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
 def _solve_cell_case(folder, outdir, solver, bucket, row, start="auto"):
     """A quad / hex case folder (:mod:`geomopt.mesh.cells`) into ``row``, solved and written as
     ``geomopt untangle FOLDER -o <name>.vtk`` does (``bucket`` does not apply)."""
-    from ..untangle import untangle
+    from ..untangling import untangle
 
     case = read_cell_case(folder)
     problem = cell_problem(case)
@@ -196,7 +196,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     cases : sequence of case folders (see :func:`batch_cases`).
     outdir : output folder, created if missing (not its parents) once the run can start; it
         must not be a case folder (:func:`geomopt.io.check_outputs`).
-    solver : inner solver name (:func:`geomopt.untangle.untangle`).
+    solver : inner solver name (:func:`geomopt.untangling.untangle`).
     workers : 1: solve in this process, one case after another; N > 1: on a local Dask
         cluster of N single-threaded worker processes.
     scheduler : address of an existing Dask scheduler (``workers`` is then ignored); its

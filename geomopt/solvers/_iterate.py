@@ -11,7 +11,7 @@ Outer schemes are handed to it, never loops of their own:
   :class:`Decision`: stop (with an outcome), or go on with new energy parameters, the
   solver's memory dropped, a new objective (a new problem of the same shapes), or another
   solver; its record goes to the trace and the progress lines.  Untangling's eps schedule
-  (:class:`geomopt.untangle.EpsContinuation`) and the scaffold's rebuilds
+  (:class:`geomopt.untangling.EpsContinuation`) and the scaffold's rebuilds
   (:class:`geomopt.scaffold.ScaffoldContinuation`) are continuations.  Its ``finish`` maps the
   last state to the :class:`Final` map and certificate (back to the input frame);
 * a **guard** is called after every step with ``(solver, old, new)`` and returns the state to

@@ -1,4 +1,4 @@
-"""The one result type of every solve: :func:`minimize`, :func:`~geomopt.untangle.untangle`,
+"""The one result type of every solve: :func:`minimize`, :func:`~geomopt.untangling.untangle`,
 :func:`~geomopt.parameterize` and the bijective mode, :func:`~geomopt.sphere_map` and
 :func:`~geomopt.smooth`.
 
@@ -139,7 +139,7 @@ class Trace:
     flips : (k,) int, inverted elements of each recorded iterate where counted (``compare``),
         else None.
     phases : one record per outer iteration (a NamedTuple of the continuation, e.g.
-        :class:`geomopt.untangle.UntangleRecord`); :meth:`column` reads one field of them.
+        :class:`geomopt.untangling.UntangleRecord`); :meth:`column` reads one field of them.
     cpu_seconds : (k,) the process-CPU seconds of the solve at each recorded point.
     """
 
@@ -169,12 +169,12 @@ class Details:
 
 @dataclasses.dataclass(frozen=True)
 class UntangleDetails(Details):
-    """What :func:`~geomopt.untangle.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
+    """What :func:`~geomopt.untangling.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
     the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, the
     elements that have a free vertex (``active_elements``), and the map the eps loop started
-    from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.starts.choose_start`);
+    from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.untangling.start.choose_start`);
     the connected parts without a handle (``free_parts``), held at a certified map, ``rest_parts`` of
-    them at their rest shape (see :func:`geomopt.starts.hold_free_parts`)."""
+    them at their rest shape (see :func:`geomopt.untangling.start.hold_free_parts`)."""
 
     theta: float
     lam: float

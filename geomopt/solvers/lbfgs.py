@@ -226,7 +226,7 @@ class LBFGS(AbstractSolver):
         injective, first trial at most a quarter of the flip bound by default (as
         :class:`~geomopt.AQP`'s: the Laplacian seed does not see the barrier; at the other
         solvers' 0.9, camelhead from its Tutte map took 816 iterations to a 1e-4 gap, 164 at
-        0.25).  The untangling solver (:func:`geomopt.untangle.default_solver`) turns
+        0.25).  The untangling solver (:func:`geomopt.untangling.default_solver`) turns
         ``injective`` off: its energy is finite on inverted elements.
     precondition : ``"laplacian"`` (default); the initial inverse Hessian of the two-loop recursion: ``"scalar"``
         (``s.y / y.y`` times the identity), ``"diagonal"`` (the M1QN3 diagonal update), or

@@ -1,4 +1,4 @@
-"""Where :func:`geomopt.untangle.untangle` starts, connected part by connected part.
+"""Where :func:`geomopt.untangling.untangle` starts, connected part by connected part.
 
 A mesh may hold several connected parts (no vertex shared): each is its own untangling
 problem, and what is right for one is not for another.
@@ -32,12 +32,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._runtime.errors import ParameterError
-from .objective.linsolve import NotPositiveDefinite, SparseCholesky
-from .exact.predicates import box_scale
-from .mesh.problem import Problem
-from .solvers import rest_laplacian
-from .exact.topology import connected_components
+from .._runtime.errors import ParameterError
+from ..objective.linsolve import NotPositiveDefinite, SparseCholesky
+from ..exact.predicates import box_scale
+from ..mesh.problem import Problem
+from ..solvers import rest_laplacian
+from ..exact.topology import connected_components
 
 __all__ = ["STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "HeldParts"]
 
@@ -97,7 +97,7 @@ def _inverted_corners(problem: Problem, x, labels, count) -> np.ndarray:
 
 
 def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray, str]:
-    """``(x, which)``: the map :func:`~geomopt.untangle.untangle`'s eps loop starts from, and
+    """``(x, which)``: the map :func:`~geomopt.untangling.untangle`'s eps loop starts from, and
     ``"given"`` (``x0``), ``"harmonic"`` (:func:`harmonic_start` in every part it was taken
     for) or ``"mixed"`` (some parts with inverted corners kept ``x0``), for
     ``UntangleOptions.start`` (:data:`STARTS`).
@@ -106,7 +106,7 @@ def choose_start(problem: Problem, x0, start: str = "auto") -> tuple[np.ndarray,
     quads and hexahedra, in each part with a handle where ``x0`` has an inverted corner and the
     extension has fewer.  On their corner simplices no L-BFGS seed solves the first eps of a
     global tangle and the stiff phase is projected Newton on every corner
-    (:func:`~geomopt.untangle.stiff_solver`): the hex rod of 20 x 20 x 240 bent by 180 degrees
+    (:func:`~geomopt.untangling.stiff_solver`): the hex rod of 20 x 20 x 240 bent by 180 degrees
     (96,000 hexahedra) ran 24 minutes without finishing from ``x0``; its harmonic extension has
     no inverted corner and certifies after 8 inner iterations.  Simplices keep ``x0`` under
     ``"auto"``: L-BFGS with the Laplacian seed untangles their global tangles at the authors'

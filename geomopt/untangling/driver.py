@@ -1,0 +1,224 @@
+"""The untangling driver: :func:`untangle` checks the input, picks the start and the
+inner solver, normalises the problem and runs the eps continuation in the one loop."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import jax
+import numpy as np
+
+from .._runtime.errors import ParameterError, SolveError
+from .._runtime.tracing import refuse_traced
+from .._runtime.x64 import float64
+from ..energies import garanzha
+from ..exact.predicates import box_scale
+from ..mesh.problem import Problem, fixed_total_problem
+from ..objective.objective import Objective
+from ..solvers import AbstractSolver, LocalCertificate, Outcome, Progress, Result, RunStats, UntangleDetails, iterate
+from ..solvers._iterate import check_progress
+from .continuation import EpsContinuation, judged
+from .inner import default_solver, stiff_solver
+from .options import UntangleOptions, options_from
+from .rest import check_rest, equilateral_problem
+from .schedule import start_eps
+from .start import BOX, choose_start, hold_free_parts
+
+__all__ = ["UntangleResult", "untangle"]
+
+
+#: what :func:`untangle` returns (one result type for every solve; kept as a name)
+UntangleResult = Result
+
+
+@float64
+def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True,
+             throw: bool = False, **overrides) -> Result:
+    """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
+
+    With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
+    by the objective's gauge and rotation and scale are free; the map must not be mirrored as
+    a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.mesh.problem.Problem`, with fixed vertices (``with_fixed``) or not.
+    x0 : (n, d) start map; its handle rows are replaced by ``problem.fixed_positions``.
+    solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object.
+        Its line search should not be injective: the start is tangled.
+    options : :class:`UntangleOptions` (theta, max_outer, energy_tol, eps0, max_aspect,
+        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket); ``overrides``
+        (those names as keywords) replace its fields.
+    progress : True (one line per outer iteration on stderr), False, or a callable
+        ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
+    throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
+
+    Returns
+    -------
+    :class:`~geomopt.solvers.Result`: ``x`` in the input frame, handles bit-identical to
+    ``problem.fixed_positions``; ``certificate`` the exact :class:`~geomopt.solvers.LocalCertificate`
+    (inverted elements, 2D branch points, moved handles); ``stats.iterations`` the inner
+    iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
+    :class:`UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
+    ``energy`` and ``mean_energy`` are measured in the normalised frame.
+
+    Stars whose every element has all its vertices fixed and that overlap in ``x0``
+    (:meth:`~geomopt.Problem.certify_fixed`) are the same in every map with these handles: the
+    rest is solved, and a map locally injective everywhere else ends
+    ``Outcome.CERTIFIED_EXCEPT_FIXED`` (not ``success``; ``certificate.forced`` lists them).
+
+    Raises
+    ------
+    MeshError
+        The rest mesh of a triangle or tet problem is not locally injective (exact, at set-up).
+
+    Examples
+    --------
+    A 4 x 4 grid whose interior is rotated by 180 degrees (folded), its boundary fixed:
+
+    >>> from geomopt.mesh import generators
+    >>> from geomopt.untangling import untangle
+    >>> tangle = generators.rotated_interior(*generators.square_mesh(4), 180.0)
+    >>> result = untangle(tangle.problem(), tangle.x0, progress=False)
+    >>> tangle.inverted(), result.certificate.inverted, result.success
+    (4, 0, True)
+    """
+    refuse_traced("geomopt.untangling.untangle", "for the untangled map as a differentiable function of the problem "
+                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)
+    opts = options_from(UntangleOptions, options, overrides, "untangle")
+    if not isinstance(solver, (str, AbstractSolver)):
+        raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
+    check_progress(progress, "untangle")
+    t_setup = time.perf_counter()
+    check_rest(problem)  # exact, before anything is compiled
+    x0 = problem.check_map(x0)
+    initially = problem.count_inverted(x0)
+    why = _refusal(problem, x0, initially, problem.free_mask[problem.simplices].any(axis=1))
+    if why:
+        return _early_result(problem, x0, initially, t_setup, throw, why)
+    forced = problem.certify_fixed(x0)  # stars no free vertex changes (quads/hexahedra: their tangent cones)
+    x_start, which = choose_start(problem, x0, opts.start)
+    parts = hold_free_parts(problem, x_start)  # parts without a handle: held at a certified map
+    held = np.union1d(problem.fixed, parts.held)
+    solving = problem.with_fixed(held, parts.x[held]) if len(parts.held) else problem
+    active = solving.free_mask[solving.simplices].any(axis=1)
+    theta = opts.resolved_theta(problem.dim)
+    details = UntangleDetails(theta, theta / (1.0 - theta), 1.0, 1.0, int(active.sum()), which,
+                              parts.given + parts.rest + parts.pinned, parts.rest)
+    if not active.any():  # nothing left to move: the map is certified as it is
+        result = _held_result(problem, parts.x, initially, forced, t_setup, details)
+    else:
+        before = time.perf_counter() - t_setup
+        result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress, throw)
+        result = dataclasses.replace(result, problem=problem, stats=dataclasses.replace(
+            result.stats, setup_seconds=result.stats.setup_seconds + before))
+    if throw and not result.success:
+        raise SolveError(f"untangling failed: {result.message}", result)
+    return result
+
+
+def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress, throw) -> Result:
+    """The eps loop on ``solving`` (``problem`` with its handle-free parts held) from ``x_start``."""
+    t_setup = time.perf_counter()
+    stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
+    if isinstance(solver, str):
+        corners = problem.elements is not None
+        stiff = stiff_solver(solver, problem.dim, corners)
+        solver = default_solver(solver, problem.dim, int(active.sum()), corners, initially)
+    scaled, sub, xs, k, s = _normalised(solving, x_start, active, opts)
+    energy = garanzha.with_params(eps=1.0, lam=details.lam)
+    full = Objective(scaled, energy, buckets=opts.bucket)
+    obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
+    if opts.eps0 is None:
+        opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
+    details = dataclasses.replace(details, map_scale=k, rest_scale=s)
+    eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced)
+    setup = time.perf_counter() - t_setup
+    result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
+                     progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
+                     warn=not throw)  # raised by untangle with the whole set-up time
+    return dataclasses.replace(result, stats=dataclasses.replace(
+        result.stats, setup_seconds=result.stats.setup_seconds + setup))
+
+
+def _held_result(problem, x, initially, forced, t_setup, details) -> Result:
+    """The result when no vertex is left to move (every part held or fixed): ``x`` certified."""
+    t = time.perf_counter()
+    outcome, cert, reason = judged(problem, x, Outcome.CONVERGED, "", forced)
+    stats = RunStats(setup_seconds=t - t_setup, inverted_at_start=initially, certify_seconds=time.perf_counter() - t)
+    return Result(x, outcome, cert, stats, problem=problem, reason=reason, details=details)
+
+
+def _phase_progress(progress):
+    """untangle's ``progress`` as an :func:`~geomopt.solvers.iterate` progress: lines per
+    outer iteration, or the user's callable per outer iteration."""
+    if progress is True:
+        return Progress(iterations=False)
+    if callable(progress):
+        return _PhaseCallback(progress)
+    return None
+
+
+class _PhaseCallback:
+    """A callable ``(outer, eps, energy, min_det, n_inverted, inner, seconds)`` called per
+    outer iteration (and never per inner iteration)."""
+
+    iterations = False
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __call__(self, state, elapsed, mean_energy):
+        return None
+
+    def phase(self, index, r, elapsed):
+        self.fn(index, r.eps, r.mean_energy, r.min_det, r.inverted, r.inner, elapsed)
+
+
+def _refusal(problem, x0, initially, active) -> str | None:
+    """Why no map with these handles can be injective (checked before solving), or None."""
+    why = fixed_total_problem(problem, x0) if initially else None
+    if why:
+        return f"{why}; mirror the handle positions or free part of the boundary"
+    if initially and not active.all():  # elements that cannot move: one inverted = infeasible
+        dead = int(np.count_nonzero(_orient_bad(x0, problem.simplices[~active])))
+        if dead:
+            return (f"{dead} inverted element(s) have every vertex fixed: no map with these handles "
+                    f"is injective")
+    return None
+
+
+def _normalised(problem, x0, active, opts):
+    """``(scaled, sub, xs, k, s)``: the map scaled by a power of two ``k`` into a box of size
+    ~BOX (``xs``), the rest mesh by ``s`` to the map's volume (equilateral rest triangles above
+    ``max_aspect`` in 2D), ``sub`` its active elements."""
+    d = problem.dim
+    k = box_scale(x0, BOX)
+    xs = x0 * k
+    map_vol = float(problem.signed_volumes(xs).sum())
+    rest_vol = float(problem.volumes.sum())
+    s = (map_vol / rest_vol) ** (1.0 / d) if map_vol > 0 else k
+    scaled = dataclasses.replace(
+        problem, rest_inv=problem.rest_inv / s, volumes=problem.volumes * s**d,
+        rest_vertices=problem.rest_vertices * s, fixed_positions=problem.fixed_positions * k)
+    scaled = equilateral_problem(scaled, opts.max_aspect)
+    sub = dataclasses.replace(scaled, simplices=scaled.simplices[active],
+                              input_simplices=scaled.input_simplices[active],
+                              rest_inv=scaled.rest_inv[active], volumes=scaled.volumes[active])
+    return scaled, sub, xs, k, s
+
+
+def _orient_bad(x, S):
+    from ..exact.predicates import simplex_orientations
+
+    return simplex_orientations(x, S) != 1
+
+
+def _early_result(problem, x0, initially, t_setup, throw, reason):
+    result = Result(x0, Outcome.NOT_INJECTIVE, LocalCertificate(initially),
+                    RunStats(setup_seconds=time.perf_counter() - t_setup, inverted_at_start=initially),
+                    problem=problem, reason=reason)
+    if throw:
+        raise SolveError(f"untangling failed: {reason}", result)
+    return result
