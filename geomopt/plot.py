@@ -21,7 +21,7 @@ from ._view import show
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
-    "atlas_figure", "save_atlas_figure", "show",
+    "atlas_figure", "save_atlas_figure", "show", "flat_tripcolor",
     "INVERTED",
 ]
 
@@ -81,12 +81,22 @@ def save_figure(fig, target, format=None):
         fig.savefig(fh, format=format or Path(target).suffix[1:].lower())
 
 
+def flat_tripcolor(ax, x, F, face_values, **kwargs):
+    """``ax.tripcolor`` of the per-face ``face_values`` (m,) on the triangles ``F`` (m, 3) of
+    the 2D points ``x`` (n, 2), drawn as Gouraud triangles whose three corners have their
+    face's value: the same flat colours as ``facecolors=`` in one vectorised Agg call, where a
+    polygon collection builds a path per triangle (0.1 s per 20k triangles)."""
+    F = np.asarray(F)
+    corners = x[F].reshape(-1, 2)  # (3m, 2): no corner shared, so no colour interpolated
+    return ax.tripcolor(corners[:, 0], corners[:, 1], np.arange(corners.shape[0]).reshape(-1, 3),
+                        np.repeat(np.asarray(face_values, np.float64), 3), shading="gouraud", **kwargs)
+
+
 def _layout(fig, ax, x, F, face_values, title, label, vmin=None, vmax=None):
     if face_values is None:
         ax.triplot(x[:, 0], x[:, 1], F, lw=0.2, color="k")
     else:
-        tp = ax.tripcolor(x[:, 0], x[:, 1], F, facecolors=np.asarray(face_values), cmap="viridis",
-                          vmin=vmin, vmax=vmax, edgecolors="none")
+        tp = flat_tripcolor(ax, x, F, face_values, cmap="viridis", vmin=vmin, vmax=vmax)
         fig.colorbar(tp, ax=ax, shrink=0.8, label=label)
     ax.set_aspect("equal")
     ax.set_axis_off()
