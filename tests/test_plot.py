@@ -214,3 +214,18 @@ def test_checker_borders_are_anti_aliased_without_supersampling():
     row = ~(white | orange)[100, 5:-5]  # blended pixels in a row through the middle
     assert 6 <= np.count_nonzero(row) <= 18
     assert np.count_nonzero(white[100, 5:-5]) > 70 and np.count_nonzero(orange[100, 5:-5]) > 70
+
+
+def test_log_ticks_are_powers_of_ten_in_superscripts_not_mathtext():
+    """The convergence plot's log-axis labels are plain text (no mathtext to parse): 10⁻² for
+    a power of ten, 2×10⁻³ between them, as matplotlib's own labels read."""
+    assert plot.superscript_powers(r"$\mathdefault{10^{-12}}$") == "10\u207b\u00b9\u00b2"
+    assert plot.superscript_powers(r"$\mathdefault{2\times10^{3}}$") == "2\u00d710\u00b3"
+    assert plot.superscript_powers("0.5") == "0.5"
+    e = 1.0 + np.logspace(0.0, -6.0, 8)
+    fig = plot.convergence_figure({"a": (np.arange(8), e, np.logspace(1.0, -3.0, 8))})
+    fig.canvas.draw()
+    for ax in fig.axes:
+        labels = [t.get_text() for t in ax.yaxis.get_ticklabels(which="both") if t.get_text()]
+        assert labels and not any("$" in t for t in labels)
+    assert "10\u207b\u00b2" in [t.get_text() for t in fig.axes[1].yaxis.get_ticklabels()]
