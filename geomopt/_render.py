@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["camera_rotation", "project", "rasterize", "render_surface", "render_uv_checker", "render_sphere_checker",
-           "vertex_normals", "visible_pixels", "barycentric_planes", "CHECKER_COLORS"]
+           "vertex_normals", "visible_pixels", "nearest_faces", "plane_values", "barycentric_planes",
+           "CHECKER_COLORS"]
 
 #: the two squares of the checkerboard (RGB in [0, 1]): white and orange
 CHECKER_COLORS = ((0.97, 0.97, 0.95), (0.95, 0.55, 0.10))
@@ -73,7 +74,22 @@ def rasterize(xy, depth, F, size):
 
 def visible_pixels(xy, depth, F, size):
     """The covered pixels, the nearest triangle at each and the barycentric coordinates of
-    its centre there.
+    its centre there (:func:`nearest_faces`, :func:`plane_values`).
+
+    Returns
+    -------
+    pixels : (k,) int, row-major indices of the covered pixels, ascending.
+    face : (k,) int, the nearest triangle at each.
+    bary : (k, 3) float, the barycentric coordinates of the pixel centre in it (clipped to it).
+    """
+    pixels, face, planes = nearest_faces(xy, depth, F, size)
+    lam = np.clip(plane_values(planes, pixels, face, size[0]), 0.0, None)  # a centre on an edge may round outside
+    lam /= np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
+    return pixels, face, lam
+
+
+def nearest_faces(xy, depth, F, size):
+    """The covered pixels and the nearest triangle at each.
 
     Scan conversion in vectorised NumPy: a triangle covers the pixels whose centres lie in it,
     found as runs (:func:`_spans`: one per triangle and row, between its edges, so no pixel of
@@ -90,13 +106,12 @@ def visible_pixels(xy, depth, F, size):
     -------
     pixels : (k,) int, row-major indices of the covered pixels, ascending.
     face : (k,) int, the nearest triangle at each.
-    bary : (k, 3) float, the barycentric coordinates of the pixel centre in it (clipped to it).
+    planes : (m, 3, 3) the triangles' :func:`barycentric_planes` (zero for one of no area).
     """
     width, height = size
     xy, F, depth = np.asarray(xy, np.float64), np.asarray(F, np.int64), np.asarray(depth, np.float64)
-    planes = barycentric_planes(xy[F])  # (m, 3, 3)
-    drawn = np.flatnonzero(np.isfinite(planes).all(axis=(1, 2)))  # one of no area covers no pixel centre
-    face, row, c0, count = _spans(xy, F, drawn, size)
+    planes, ok = barycentric_planes(xy[F])
+    face, row, c0, count = _spans(xy, F, np.flatnonzero(ok), size)  # one of no area covers no centre
     dz = np.einsum("fij,fj->fi", planes, depth[F])[face]  # per run: the depth plane, z = (x, y, 1) @ dz
     start = np.cumsum(count) - count
     first = row * width + c0
@@ -109,29 +124,33 @@ def visible_pixels(xy, depth, F, size):
     best = np.full(height * width, -1, np.int64)
     np.maximum.at(best, np.repeat(first - start, count) + np.arange(len(z)), z)
     pixels = np.flatnonzero(best >= 0)
-    f = face[best[pixels] & 0xFFFFFFFF]
-    B = planes.reshape(-1, 9)[f]
+    return pixels, face[best[pixels] & 0xFFFFFFFF], planes
+
+
+def plane_values(P, pixels, face, width):
+    """(k, a) the affine functions ``P`` (m, 3, a) of the pixel (``(x, y, 1) @ P[f]``) of the
+    triangles ``face`` (k,) at the centres of the ``pixels`` (k,) (row-major, ``width`` wide)."""
+    a = P.shape[2]
+    Q = P.reshape(len(P), 3 * a)[face]
     x, y = (pixels % width + 0.5)[:, None], (pixels // width + 0.5)[:, None]
-    lam = np.clip(x * B[:, 0:3] + y * B[:, 3:6] + B[:, 6:9], 0.0, None)  # an edge's centre may round outside
-    lam /= np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
-    return pixels, f, lam
+    return x * Q[:, :a] + y * Q[:, a:2 * a] + Q[:, 2 * a:]
 
 
 def barycentric_planes(T):
     """(m, 3, 3) ``B`` with ``(x, y, 1) @ B[f]`` the barycentric coordinates of the point (x, y)
-    in the triangle ``T[f]`` (m, 3, 2); inf for a triangle of no area (twice its area under 1e-12)."""
+    in the triangle ``T[f]`` (m, 3, 2), and (m,) bool: the triangles of some area (twice it at
+    least 1e-12; ``B`` is 0 for the others)."""
     e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
     area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     ok = np.abs(area) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), np.inf)
+    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), 0.0)
     B = np.empty((len(T), 3, 3))
     B[:, 0, 1], B[:, 1, 1] = e2[:, 1] * inv, -e2[:, 0] * inv  # l1 = ((x - x0) e2y - (y - y0) e2x) / area
     B[:, 0, 2], B[:, 1, 2] = -e1[:, 1] * inv, e1[:, 0] * inv  # l2 = ((y - y0) e1x - (x - x0) e1y) / area
     B[:, 2, 1:] = -(T[:, 0, 0, None] * B[:, 0, 1:] + T[:, 0, 1, None] * B[:, 1, 1:])
     B[:, :2, 0] = -(B[:, :2, 1] + B[:, :2, 2])  # l0 = 1 - l1 - l2
-    B[:, 2, 0] = 1.0 - B[:, 2, 1] - B[:, 2, 2]
-    B[~ok] = np.inf
-    return B
+    B[:, 2, 0] = np.where(ok, 1.0 - B[:, 2, 1] - B[:, 2, 2], 0.0)
+    return B, ok
 
 
 def _spans(xy, F, drawn, size):
@@ -174,11 +193,13 @@ def _view(V, size, elev, azim, up, supersample):
 
 
 def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", light=(0.35, 0.5, 1.0),
-                   supersample=2):
+                   supersample=2, attributes=None):
     """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3), each
-    pixel coloured by ``colour(face, bary, hit)`` -> (k, 3) RGB: ``face`` (k,) and ``bary``
-    (k, 3) the face and barycentric coordinates of the k covered pixels, ``hit`` (h, w) bool
-    which pixels they are (row-major).
+    pixel coloured by ``colour(face, values, hit)`` -> (k, 3) RGB: ``face`` (k,) the faces of
+    the k covered pixels, ``hit`` (h, w) bool which pixels they are (row-major), ``values`` the
+    per-vertex ``attributes`` (n, a) interpolated at their centres, (k, a) (one gather and
+    three products per pixel: each face's attributes as an affine function of the pixel), or
+    when ``attributes`` is None their barycentric coordinates (k, 3).
 
     The view: orthographic, from elevation ``elev`` and azimuth ``azim`` (degrees) about the
     world axis ``up`` (:func:`camera_rotation`; the default is a three-quarter view from +z, y
@@ -190,15 +211,22 @@ def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", 
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
     R, xy, depth, big = _view(V, size, elev, azim, up, supersample)
-    pixels, f, b = visible_pixels(xy, depth, F, big)
+    pixels, f, planes = nearest_faces(xy, depth, F, big)
+    lit = vertex_normals(V, F) @ (R.T @ (np.asarray(light, np.float64) / np.linalg.norm(light)))
+    corner = np.broadcast_to(np.eye(3), (len(F), 3, 3)) if attributes is None else np.asarray(attributes, np.float64)[F]
+    values = plane_values(planes @ np.concatenate([corner, lit[F][..., None]], axis=2), pixels, f, big[0])
+    lam = np.abs(values[:, -1])  # Gouraud: shaded per vertex, interpolated
+    values = values[:, :-1]
+    if attributes is None:  # a centre on an edge may round to just outside
+        values = np.clip(values, 0.0, None)
+        values /= np.maximum(values.sum(axis=1, keepdims=True), 1e-300)
     hit = np.zeros(big[1] * big[0], bool)
     hit[pixels] = True
-    rgb = colour(f, b, hit.reshape(big[1], big[0]))
-    lit = vertex_normals(V, F) @ (R.T @ (np.asarray(light, np.float64) / np.linalg.norm(light)))
-    lam = np.abs((b * lit[F[f]]).sum(axis=1))  # Gouraud: shaded per vertex, interpolated
+    rgb = colour(f, values, hit.reshape(big[1], big[0]))
+    rgba = np.ones((len(pixels), 4))
+    np.clip(rgb * (0.3 + 0.7 * lam[:, None]), 0.0, 1.0, out=rgba[:, :3])
     image = np.zeros((big[1] * big[0], 4))
-    image[pixels, :3] = np.clip(rgb * (0.3 + 0.7 * lam[:, None]), 0.0, 1.0)
-    image[pixels, 3] = 1.0
+    image[pixels] = rgba  # whole rows: one scatter
     s = supersample
     if s == 1:
         return image.reshape(size[1], size[0], 4)
@@ -230,12 +258,10 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     xy = _view(V, size, elev, azim, up, supersample)[1]
     foot = _footprints(xy[F], t[F])
 
-    def colour(f, b, hit):
-        tf = t[F[f]]  # (k, 3, 2)
-        return _checker_rgb(_filtered_checker(b[:, 0, None] * tf[:, 0] + b[:, 1, None] * tf[:, 1]
-                                              + b[:, 2, None] * tf[:, 2], foot[f]))
+    def colour(f, tt, hit):
+        return _checker_rgb(_filtered_checker(tt, foot[f]))
 
-    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample, attributes=t)
 
 
 def _footprints(T, tex):
@@ -262,14 +288,13 @@ def render_sphere_checker(V, F, x, size=(900, 900), elev=15.0, azim=30.0, up="y"
     poles)."""
     x, F = np.asarray(x, np.float64), np.asarray(F, np.int64)
 
-    def colour(f, b, hit):
-        p = np.einsum("ij,ijk->ik", b, x[F[f]])
+    def colour(f, p, hit):
         p /= np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-300)
         lat = np.floor(np.arccos(np.clip(p[:, 2], -1.0, 1.0)) / np.pi * checks)
         lon = np.floor((np.arctan2(p[:, 1], p[:, 0]) / np.pi + 1.0) * checks)
         return _checker_rgb(np.mod(lat + lon, 2.0))
 
-    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample, attributes=x)
 
 
 def _filtered_checker(t, foot):
@@ -283,9 +308,8 @@ def _filtered_checker(t, foot):
     def ramp(x):  # the integral of the square wave +1 on [0, 1), -1 on [1, 2)
         return 1.0 - np.abs(np.mod(x, 2.0) - 1.0)
 
-    sharp = np.where(np.mod(np.floor(t), 2.0) == 0.0, 1.0, -1.0)
-    safe = np.maximum(w, 1e-9)
-    wave = np.where(w > 1e-9, (ramp(t + safe / 2) - ramp(t - safe / 2)) / safe, sharp)
+    w = np.maximum(w, 1e-9)  # no narrower than 1e-9: the sharp wave to 1e-7
+    wave = (ramp(t + w / 2) - ramp(t - w / 2)) / w
     return 0.5 - 0.5 * wave[:, 0] * wave[:, 1]
 
 

@@ -56,6 +56,29 @@ def _figure(width, height, dpi=100, layout="constrained"):
     return fig
 
 
+def _matplotlib_loading():
+    """A started thread importing matplotlib's figure and Agg modules, or None when they are
+    imported already: a caller renders its images in NumPy meanwhile (which releases the GIL in
+    its array loops) and joins the thread before making the figure, so that the import (0.4-1 s,
+    most of a first picture's cost) overlaps the rendering on a second core."""
+    import sys
+    import threading
+
+    if "matplotlib.backends.backend_agg" in sys.modules and "matplotlib.figure" in sys.modules:
+        return None
+    thread = threading.Thread(target=_import_matplotlib, name="geomopt-import-matplotlib", daemon=True)
+    thread.start()
+    return thread
+
+
+def _import_matplotlib():
+    try:
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import matplotlib.figure  # noqa: F401
+    except ImportError:  # the caller's own import says so, in its thread
+        pass
+
+
 def _margins(fig, left, right, bottom, top, wspace=0.0):
     """Place the subplots of a ``layout=None`` figure: margins in inches, ``wspace`` as
     matplotlib's (a fraction of the mean panel width)."""
@@ -71,14 +94,21 @@ def save_figure(fig, target, format=None):
             from ._errors import ParameterError
 
             raise ParameterError("saving a figure into an open file needs format= (e.g. 'png')")
-        fig.savefig(target, format=format)
+        fig.savefig(target, format=format, **_encoder_options(format))
         return
     from pathlib import Path
 
     from .io import atomic_output
 
+    format = format or Path(target).suffix[1:].lower()
     with atomic_output(target, "wb") as fh:
-        fig.savefig(fh, format=format or Path(target).suffix[1:].lower())
+        fig.savefig(fh, format=format, **_encoder_options(format))
+
+
+def _encoder_options(format):
+    """PNG at zlib level 1: the same pixels, encoded 2.5-3x faster (0.07 s instead of 0.2 s for
+    a 1760 x 825 figure) in a file about a quarter larger."""
+    return {"pil_kwargs": {"compress_level": 1}} if format.lower() == "png" else {}
 
 
 def flat_tripcolor(ax, x, F, face_values, **kwargs):
@@ -100,7 +130,7 @@ def _layout(fig, ax, x, F, face_values, title, label, vmin=None, vmax=None):
         fig.colorbar(tp, ax=ax, shrink=0.8, label=label)
     ax.set_aspect("equal")
     ax.set_axis_off()
-    ax.set_title(title, fontsize=11)
+    ax.set_title(title, fontsize=11, y=1.0)  # y given: no search for tick labels above (0.1 s)
 
 
 def layout_figure(x, F, face_values=None, title="", label="distortion", vmin=None, vmax=None, dpi=100):
@@ -123,14 +153,18 @@ def _surface_panels(render, caption, view, dpi, title):
     figure, the third (empty) axes and the large panel's pixel size.  The renders have about
     1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
     downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels."""
+    loading = _matplotlib_loading()
+    size = int(round(9.0 * dpi))
+    images = render(size, view[1]), render(size // 2, view[1] + 180.0)
+    if loading is not None:
+        loading.join()
     fig = _figure(16, 7.5, dpi, layout=None)
     front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
     _margins(fig, 0.1, 0.1, 0.1, 0.75 if title else 0.4, wspace=0.05)
-    size = int(round(9.0 * dpi))
-    for ax, azim, px, name in ((front, view[1], size, caption), (back, view[1] + 180.0, size // 2, "other side")):
-        ax.imshow(render(px, azim), interpolation="antialiased")
+    for ax, image, name in ((front, images[0], caption), (back, images[1], "other side")):
+        ax.imshow(image, interpolation="antialiased")
         ax.set_axis_off()
-        ax.set_title(name, fontsize=11)
+        ax.set_title(name, fontsize=11, y=1.0)
     if title:
         fig.suptitle(title, fontsize=12)
     return fig, right, size
@@ -427,10 +461,10 @@ def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=10
         ax.yaxis.set_major_formatter(_superscript_log_formatter())
         ax.yaxis.set_minor_formatter(_superscript_log_formatter(labelOnlyBase=False))
     axes[0].set_ylabel("(E - E_ref) / |E_ref|")
-    axes[0].set_title(f"relative gap in {ylabel}, E_ref = {ref:.10g}", fontsize=10)
+    axes[0].set_title(f"relative gap in {ylabel}, E_ref = {ref:.10g}", fontsize=10, y=1.0)
     if grads:
         axes[1].set_ylabel("gradient norm")
-        axes[1].set_title(f"gradient norm of {ylabel}", fontsize=10)
+        axes[1].set_title(f"gradient norm of {ylabel}", fontsize=10, y=1.0)
     for ax in axes:
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
