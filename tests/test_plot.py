@@ -43,6 +43,17 @@ def test_checkerboard_is_per_pixel_inside_a_triangle():
     assert np.mean(orange[inner] == expected[inner]) > 0.99  # all but pixels on a border
 
 
+def test_checkerboard_follows_u_across_and_v_up():
+    """UV (u, v / 2) on the square seen from above: u spans the 8 checks of the bounding square
+    across the image, v half of them (4) up it."""
+    img = render_uv_checker(SQUARE_V, SQUARE_F, SQUARE_V[:, :2] * [1.0, 0.5], size=(200, 200), elev=90.0,
+                            azim=-90.0, up="z", checks=8, light=(0.0, 0.0, 1.0), supersample=1)
+    orange = np.abs(img[..., :3] - CHECKER_COLORS[1]).sum(axis=-1) < 0.05
+    row, col = orange[100, 5:-5], orange[5:-5, 101]
+    assert np.count_nonzero(row[1:] != row[:-1]) == 7 and np.count_nonzero(col[1:] != col[:-1]) == 3
+    assert not orange[190, 8] and orange[190, 30] and not orange[190, 60]  # bottom left: u in checks 0, 1, 2
+
+
 def test_nearest_surface_wins_each_pixel():
     V = np.r_[SQUARE_V, SQUARE_V * [0.5, 0.5, 1] + [0.25, 0.25, 1.0]]  # a smaller square above
     F = np.r_[SQUARE_F, SQUARE_F + 4]
