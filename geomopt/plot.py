@@ -56,29 +56,6 @@ def _figure(width, height, dpi=100, layout="constrained"):
     return fig
 
 
-def _matplotlib_loading():
-    """A started thread importing matplotlib's figure and Agg modules, or None when they are
-    imported already: a caller renders its images in NumPy meanwhile (which releases the GIL in
-    its array loops) and joins the thread before making the figure, so that the import (0.4-1 s,
-    most of a first picture's cost) overlaps the rendering on a second core."""
-    import sys
-    import threading
-
-    if "matplotlib.backends.backend_agg" in sys.modules and "matplotlib.figure" in sys.modules:
-        return None
-    thread = threading.Thread(target=_import_matplotlib, name="geomopt-import-matplotlib", daemon=True)
-    thread.start()
-    return thread
-
-
-def _import_matplotlib():
-    try:
-        import matplotlib.backends.backend_agg  # noqa: F401
-        import matplotlib.figure  # noqa: F401
-    except ImportError:  # the caller's own import says so, in its thread
-        pass
-
-
 def _margins(fig, left, right, bottom, top, wspace=0.0):
     """Place the subplots of a ``layout=None`` figure: margins in inches, ``wspace`` as
     matplotlib's (a fraction of the mean panel width)."""
@@ -153,11 +130,8 @@ def _surface_panels(render, caption, view, dpi, title):
     figure, the third (empty) axes and the large panel's pixel size.  The renders have about
     1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
     downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels."""
-    loading = _matplotlib_loading()
     size = int(round(9.0 * dpi))
     images = render(size, view[1]), render(size // 2, view[1] + 180.0)
-    if loading is not None:
-        loading.join()
     fig = _figure(16, 7.5, dpi, layout=None)
     front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
     _margins(fig, 0.1, 0.1, 0.1, 0.75 if title else 0.4, wspace=0.05)
