@@ -84,7 +84,7 @@ def save_figure(fig, target, format=None):
 
 def _encoder_options(format):
     """PNG at zlib level 1: the same pixels, encoded 2.5-3x faster (0.07 s instead of 0.2 s for
-    a 1760 x 825 figure) in a file about a quarter larger."""
+    the demo's 1760 x 825 figure) in a file about 40% larger (625 kB instead of 444 kB)."""
     return {"pil_kwargs": {"compress_level": 1}} if format.lower() == "png" else {}
 
 
