@@ -4,9 +4,10 @@ matplotlib's 3D axes colour whole polygons, so a checkerboard drawn through a UV
 out one colour per triangle: jagged and stripy wherever a check is smaller than a triangle,
 and useless for judging conformality.  :func:`render_uv_checker` rasterises the surface
 instead: an orthographic camera, a z-buffer, and per pixel the UV coordinates interpolated
-barycentrically, the checkerboard evaluated there, and Lambert shading from the face normal.
-Triangles are scan-converted by matplotlib's Agg (:func:`rasterize`); the per-pixel work
-is vectorised NumPy.
+barycentrically, the checkerboard evaluated there (box-filtered over the pixel), and Lambert
+shading interpolated from the vertex normals.  Everything is vectorised NumPy, the scan
+conversion too (:func:`visible_pixels`: runs of pixels per triangle and row, a z-buffer by
+``np.maximum.at``); no matplotlib.
 """
 
 from __future__ import annotations
@@ -14,13 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["camera_rotation", "project", "rasterize", "render_surface", "render_uv_checker", "render_sphere_checker",
-           "vertex_normals", "CHECKER_COLORS"]
+           "vertex_normals", "visible_pixels", "nearest_faces", "plane_values", "barycentric_planes",
+           "CHECKER_COLORS"]
 
 #: the two squares of the checkerboard (RGB in [0, 1]): white and orange
 CHECKER_COLORS = ((0.97, 0.97, 0.95), (0.95, 0.55, 0.10))
-#: bits of a triangle's number drawn at once (three 8-bit colour channels); more triangles
-#: than 2**CODE_BITS - 1 are drawn again for the higher bits
-CODE_BITS = 24
 
 
 def camera_rotation(elev: float, azim: float, up: str = "y") -> np.ndarray:
@@ -52,16 +51,7 @@ def project(V, rotation, size):
 
 
 def rasterize(xy, depth, F, size):
-    """Visible triangle and barycentric coordinates per pixel.
-
-    The triangles are drawn far to near (by the depth of their centroids: the painter's
-    algorithm) by matplotlib's Agg rasteriser, each in a flat colour that encodes its index,
-    and read back; per covered pixel the barycentric coordinates of its centre in that
-    triangle follow from the triangle's two edge functions.  A C++ scanline fill of each
-    triangle once, then O(pixels) NumPy: about 6x cheaper than testing every (triangle, pixel
-    of its bounding box) pair against a z-buffer.  Agg fills every pixel a triangle touches,
-    so a pixel on an edge goes to the nearer of the two triangles and its coordinates may lie
-    just outside it; they are clipped to the triangle.
+    """Visible triangle and barycentric coordinates per pixel (:func:`visible_pixels` as images).
 
     Parameters
     ----------
@@ -74,61 +64,142 @@ def rasterize(xy, depth, F, size):
     bary : (height, width, 3) float, its barycentric coordinates there (0 where ``face`` is -1).
     """
     width, height = size
-    xy, F = np.asarray(xy, np.float64), np.asarray(F, np.int64)
-    T = xy[F]  # (m, 3, 2)
-    e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
-    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    drawn = np.flatnonzero(np.abs(area) > 1e-12)  # a triangle of no area covers no pixel centre
-    drawn = drawn[np.argsort(np.asarray(depth, np.float64)[F[drawn]].mean(axis=1), kind="stable")]
+    pixels, f, lam = visible_pixels(xy, depth, F, size)
     face = np.full(height * width, -1, np.int64)
-    shift = 0
-    while (len(F) + 1) >> shift:  # CODE_BITS bits of the face number per drawing
-        code = _draw_codes(T[drawn], ((drawn + 1) >> shift) & ((1 << CODE_BITS) - 1), size).ravel()
-        face = np.where(code >= 0, np.maximum(face, 0) + (code << shift), face)
-        shift += CODE_BITS
-    face -= face >= 0  # codes are face + 1: 0 is a pixel no triangle covers
-    hit = np.flatnonzero(face >= 0)
-    f = face[hit]
-    px, py = hit % width + 0.5, hit // width + 0.5
-    l1 = ((px - T[f, 0, 0]) * e2[f, 1] - (py - T[f, 0, 1]) * e2[f, 0]) / area[f]
-    l2 = ((py - T[f, 0, 1]) * e1[f, 0] - (px - T[f, 0, 0]) * e1[f, 1]) / area[f]
-    lam = np.clip(np.stack([1.0 - l1 - l2, l1, l2], axis=1), 0.0, None)
+    face[pixels] = f
     bary = np.zeros((height * width, 3))
-    bary[hit] = lam / lam.sum(axis=1, keepdims=True)
+    bary[pixels] = lam
     return face.reshape(height, width), bary.reshape(height, width, 3)
 
 
-def _draw_codes(T, codes, size):
-    """(height, width) int: the 24-bit ``codes`` (k,) of the triangles ``T`` (k, 3, 2), drawn
-    in order (later ones on top) without anti-aliasing, or -1 where none is drawn."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import PolyCollection
-    from matplotlib.figure import Figure
+def visible_pixels(xy, depth, F, size):
+    """The covered pixels, the nearest triangle at each and the barycentric coordinates of
+    its centre there (:func:`nearest_faces`, :func:`plane_values`).
 
+    Returns
+    -------
+    pixels : (k,) int, row-major indices of the covered pixels, ascending.
+    face : (k,) int, the nearest triangle at each.
+    bary : (k, 3) float, the barycentric coordinates of the pixel centre in it (clipped to it).
+    """
+    pixels, face, planes = nearest_faces(xy, depth, F, size)
+    lam = np.clip(plane_values(planes, pixels, face, size[0]), 0.0, None)  # a centre on an edge may round outside
+    lam /= np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
+    return pixels, face, lam
+
+
+def nearest_faces(xy, depth, F, size):
+    """The covered pixels and the nearest triangle at each.
+
+    Scan conversion in vectorised NumPy: a triangle covers the pixels whose centres lie in it,
+    found as runs (:func:`_spans`: one per triangle and row, between its edges, so no pixel of
+    a bounding box is tested in vain); of the triangles covering a pixel the nearest there
+    wins: a z-buffer, the depth interpolated at the pixel centre, resolved by one
+    ``np.maximum.at`` over keys holding the quantised depth (30 bits) above the run's number.
+
+    Parameters
+    ----------
+    xy : (n, 2) pixel coordinates (column, row) of the vertices;  depth : (n,), larger nearer.
+    F : (m, 3) triangles;  size : (width, height) in pixels.
+
+    Returns
+    -------
+    pixels : (k,) int, row-major indices of the covered pixels, ascending.
+    face : (k,) int, the nearest triangle at each.
+    planes : (m, 3, 3) the triangles' :func:`barycentric_planes` (zero for one of no area).
+    """
     width, height = size
-    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
-    fig.patch.set_alpha(0.0)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    ax.set_axis_off()
-    ax.set_xlim(0, width)
-    ax.set_ylim(height, 0)  # row 0 at the top
-    rgba = np.ones((len(codes), 4))
-    rgba[:, :3] = np.stack([codes >> 16, (codes >> 8) & 255, codes & 255], axis=1) / 255.0
-    ax.add_collection(PolyCollection(T, facecolors=rgba, edgecolors="none", linewidths=0.0,
-                                     antialiaseds=False, snap=False))
-    canvas.draw()
-    buf = np.asarray(canvas.buffer_rgba()).astype(np.int64)
-    code = (buf[..., 0] << 16) | (buf[..., 1] << 8) | buf[..., 2]
-    return np.where(buf[..., 3] == 255, code, -1)
+    xy, F, depth = np.asarray(xy, np.float64), np.asarray(F, np.int64), np.asarray(depth, np.float64)
+    planes, ok = barycentric_planes(xy[F])
+    face, row, c0, count = _spans(xy, F, np.flatnonzero(ok), size)  # one of no area covers no centre
+    dz = np.einsum("fij,fj->fi", planes, depth[F])[face]  # per run: the depth plane, z = (x, y, 1) @ dz
+    start = np.cumsum(count) - count
+    first = row * width + c0
+    z = np.repeat(dz @ np.array([0.5, 0.5, 1.0]) + dz[:, 0] * (c0 - start) + dz[:, 1] * row, count)
+    z += np.repeat(dz[:, 0], count) * np.arange(len(z))  # the depth at each candidate pixel's centre
+    lo, hi = float(depth.min(initial=0.0)), float(depth.max(initial=0.0))
+    z = np.clip((z - lo) * ((2.0**30 - 1) / (hi - lo) if hi > lo else 0.0), 0, 2**30 - 1).astype(np.int64)
+    z <<= 32
+    z |= np.repeat(np.arange(len(face), dtype=np.int64), count)
+    best = np.full(height * width, -1, np.int64)
+    np.maximum.at(best, np.repeat(first - start, count) + np.arange(len(z)), z)
+    pixels = np.flatnonzero(best >= 0)
+    return pixels, face[best[pixels] & 0xFFFFFFFF], planes
+
+
+def plane_values(P, pixels, face, width):
+    """(k, a) the affine functions ``P`` (m, 3, a) of the pixel (``(x, y, 1) @ P[f]``) of the
+    triangles ``face`` (k,) at the centres of the ``pixels`` (k,) (row-major, ``width`` wide)."""
+    a = P.shape[2]
+    Q = P.reshape(len(P), 3 * a)[face]
+    x, y = (pixels % width + 0.5)[:, None], (pixels // width + 0.5)[:, None]
+    return x * Q[:, :a] + y * Q[:, a:2 * a] + Q[:, 2 * a:]
+
+
+def barycentric_planes(T):
+    """(m, 3, 3) ``B`` with ``(x, y, 1) @ B[f]`` the barycentric coordinates of the point (x, y)
+    in the triangle ``T[f]`` (m, 3, 2), and (m,) bool: the triangles of some area (twice it at
+    least 1e-12; ``B`` is 0 for the others)."""
+    e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ok = np.abs(area) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), 0.0)
+    B = np.empty((len(T), 3, 3))
+    B[:, 0, 1], B[:, 1, 1] = e2[:, 1] * inv, -e2[:, 0] * inv  # l1 = ((x - x0) e2y - (y - y0) e2x) / area
+    B[:, 0, 2], B[:, 1, 2] = -e1[:, 1] * inv, e1[:, 0] * inv  # l2 = ((y - y0) e1x - (x - x0) e1y) / area
+    B[:, 2, 1:] = -(T[:, 0, 0, None] * B[:, 0, 1:] + T[:, 0, 1, None] * B[:, 1, 1:])
+    B[:, :2, 0] = -(B[:, :2, 1] + B[:, :2, 2])  # l0 = 1 - l1 - l2
+    B[:, 2, 0] = np.where(ok, 1.0 - B[:, 2, 1] - B[:, 2, 2], 0.0)
+    return B, ok
+
+
+def _spans(xy, F, drawn, size):
+    """The runs of pixels whose centres lie in the triangles ``drawn`` (rows of ``F``), inside
+    the image ``size`` = (width, height): (face, row, first column, count), one run per
+    (triangle, row).  Each edge is evaluated from its end with the lower vertex number, so the
+    two triangles of a shared edge find the same crossing: a centre on it is in one of them
+    at least (no cracks)."""
+    width, height = size
+    E = np.stack([F[drawn][:, [a, b]] for a, b in ((0, 1), (1, 2), (2, 0))], axis=1)  # (t, 3, 2) edges
+    E.sort(axis=2)
+    P, Q = xy[E[..., 0]], xy[E[..., 1]]  # (t, 3, 2)
+    dy = Q[..., 1] - P[..., 1]
+    slope = (Q[..., 0] - P[..., 0]) / np.where(dy != 0.0, dy, 1.0)
+    ylo, yhi = np.minimum(P[..., 1], Q[..., 1]), np.maximum(P[..., 1], Q[..., 1])
+    ylo[dy == 0.0], yhi[dy == 0.0] = np.inf, -np.inf  # a level edge is crossed by no row line
+    r0 = np.clip(np.ceil(ylo.min(axis=1) - 0.5), 0, height).astype(np.int64)  # rows whose centres it spans
+    r1 = np.clip(np.floor(yhi.max(axis=1) - 0.5), -1, height - 1).astype(np.int64)
+    n = np.maximum(r1 - r0 + 1, 0)
+    owner = np.repeat(np.arange(len(drawn)), n)
+    rows = np.arange(len(owner)) + np.repeat(r0 - (np.cumsum(n) - n), n)
+    yc = rows + 0.5
+    left, right = np.full(len(rows), np.inf), np.full(len(rows), -np.inf)
+    for e in range(3):  # where the row's centre line crosses each edge
+        on = (ylo[owner, e] <= yc) & (yc <= yhi[owner, e])
+        x = P[owner, e, 0] + (yc - P[owner, e, 1]) * slope[owner, e]
+        np.minimum(left, np.where(on, x, np.inf), out=left)
+        np.maximum(right, np.where(on, x, -np.inf), out=right)
+    c0 = np.clip(np.ceil(left - 0.5), 0, width).astype(np.int64)
+    c1 = np.clip(np.floor(right - 0.5), -1, width - 1).astype(np.int64)
+    return drawn[owner], rows, c0, np.maximum(c1 - c0 + 1, 0)
+
+
+def _view(V, size, elev, azim, up, supersample):
+    """The camera rotation, the vertices' pixel coordinates and depths in the image rendered
+    ``supersample`` times larger than ``size``, and that image's size."""
+    R = camera_rotation(elev, azim, up)
+    big = (size[0] * supersample, size[1] * supersample)
+    return R, *project(V, R, big), big
 
 
 def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", light=(0.35, 0.5, 1.0),
-                   supersample=2):
+                   supersample=2, attributes=None):
     """RGBA image (height, width, 4) in [0, 1] of the surface ``V`` (n, 3), ``F`` (m, 3), each
-    pixel coloured by ``colour(face, bary, hit)`` -> (k, 3) RGB: ``face`` (k,) and ``bary``
-    (k, 3) the face and barycentric coordinates of the k covered pixels, ``hit`` (h, w) bool
-    which pixels they are (row-major).
+    pixel coloured by ``colour(face, values, hit)`` -> (k, 3) RGB: ``face`` (k,) the faces of
+    the k covered pixels, ``hit`` (h, w) bool which pixels they are (row-major), ``values`` the
+    per-vertex ``attributes`` (n, a) interpolated at their centres, (k, a) (one gather and
+    three products per pixel: each face's attributes as an affine function of the pixel), or
+    when ``attributes`` is None their barycentric coordinates (k, 3).
 
     The view: orthographic, from elevation ``elev`` and azimuth ``azim`` (degrees) about the
     world axis ``up`` (:func:`camera_rotation`; the default is a three-quarter view from +z, y
@@ -139,18 +210,26 @@ def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", 
     """
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
-    R = camera_rotation(elev, azim, up)
-    big = (size[0] * supersample, size[1] * supersample)
-    face, bary = rasterize(*project(V, R, big), F, big)
-    hit = face >= 0
-    f, b = face[hit], bary[hit]
-    rgb = colour(f, b, hit)
+    R, xy, depth, big = _view(V, size, elev, azim, up, supersample)
+    pixels, f, planes = nearest_faces(xy, depth, F, big)
     lit = vertex_normals(V, F) @ (R.T @ (np.asarray(light, np.float64) / np.linalg.norm(light)))
-    lam = np.abs(np.einsum("ij,ij->i", b, lit[F[f]]))  # Gouraud: shaded per vertex, interpolated
-    image = np.zeros(face.shape + (4,))
-    image[hit, :3] = np.clip(rgb * (0.3 + 0.7 * lam[:, None]), 0.0, 1.0)
-    image[hit, 3] = 1.0
+    corner = np.broadcast_to(np.eye(3), (len(F), 3, 3)) if attributes is None else np.asarray(attributes, np.float64)[F]
+    values = plane_values(planes @ np.concatenate([corner, lit[F][..., None]], axis=2), pixels, f, big[0])
+    lam = np.abs(values[:, -1])  # Gouraud: shaded per vertex, interpolated
+    values = values[:, :-1]
+    if attributes is None:  # a centre on an edge may round to just outside
+        values = np.clip(values, 0.0, None)
+        values /= np.maximum(values.sum(axis=1, keepdims=True), 1e-300)
+    hit = np.zeros(big[1] * big[0], bool)
+    hit[pixels] = True
+    rgb = colour(f, values, hit.reshape(big[1], big[0]))
+    rgba = np.ones((len(pixels), 4))
+    np.clip(rgb * (0.3 + 0.7 * lam[:, None]), 0.0, 1.0, out=rgba[:, :3])
+    image = np.zeros((big[1] * big[0], 4))
+    image[pixels] = rgba  # whole rows: one scatter
     s = supersample
+    if s == 1:
+        return image.reshape(size[1], size[0], 4)
     image = image.reshape(size[1], s, size[0], s, 4)
     alpha = image[..., 3].mean(axis=(1, 3))
     rgb = (image[..., :3] * image[..., 3:]).mean(axis=(1, 3)) / np.maximum(alpha, 1e-300)[..., None]
@@ -173,13 +252,30 @@ def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", c
     The checkerboard spans the UV map's bounding square: its squares come out as squares on
     the surface where the map is conformal, all of one size where it preserves area.
     """
-    uv, F = np.asarray(uv, np.float64), np.asarray(F, np.int64)
+    V, uv, F = np.asarray(V, np.float64), np.asarray(uv, np.float64), np.asarray(F, np.int64)
     lo, span = uv.min(axis=0), max(float(np.ptp(uv, axis=0).max()), 1e-300)
+    t = (uv - lo) / span * checks  # (n, 2) UV in checks
+    xy = _view(V, size, elev, azim, up, supersample)[1]
+    foot = _footprints(xy[F], t[F])
 
-    def colour(f, b, hit):
-        return _checker_rgb(_filtered_checker(np.einsum("ij,ijk->ik", b, (uv[F[f]] - lo) / span * checks), hit))
+    def colour(f, tt, hit):
+        return _checker_rgb(_filtered_checker(tt, foot[f]))
 
-    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample, attributes=t)
+
+
+def _footprints(T, tex):
+    """(m, 2) the texture coordinates ``tex`` (m, 3, 2) of the triangles ``T`` (m, 3, 2, pixels)
+    change over a pixel of each, per coordinate: ``|d tex / d column| + |d tex / d row|``, as
+    the differences to the neighbouring pixels inside the triangle (the texture is affine on it);
+    0 for a triangle of no area (it covers no pixel)."""
+    E = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=1)  # (m, 2, 2): rows the edges in pixels
+    D = np.stack([tex[:, 1] - tex[:, 0], tex[:, 2] - tex[:, 0]], axis=1)  # their texture changes
+    det = E[:, 0, 0] * E[:, 1, 1] - E[:, 0, 1] * E[:, 1, 0]
+    ok = np.abs(det) > 1e-12
+    inv = np.stack([np.stack([E[:, 1, 1], -E[:, 0, 1]], 1), np.stack([-E[:, 1, 0], E[:, 0, 0]], 1)], 1)
+    G = inv / np.where(ok, det, 1.0)[:, None, None] @ D  # (m, 2, 2): d tex_c / d pixel axis i = G[:, i, c]
+    return np.where(ok[:, None], np.abs(G).sum(axis=1), 0.0)
 
 
 def render_sphere_checker(V, F, x, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=12,
@@ -192,39 +288,28 @@ def render_sphere_checker(V, F, x, size=(900, 900), elev=15.0, azim=30.0, up="y"
     poles)."""
     x, F = np.asarray(x, np.float64), np.asarray(F, np.int64)
 
-    def colour(f, b, hit):
-        p = np.einsum("ij,ijk->ik", b, x[F[f]])
+    def colour(f, p, hit):
         p /= np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-300)
         lat = np.floor(np.arccos(np.clip(p[:, 2], -1.0, 1.0)) / np.pi * checks)
         lon = np.floor((np.arctan2(p[:, 1], p[:, 0]) / np.pi + 1.0) * checks)
         return _checker_rgb(np.mod(lat + lon, 2.0))
 
-    return render_surface(V, F, colour, size, elev, azim, up, light, supersample)
+    return render_surface(V, F, colour, size, elev, azim, up, light, supersample, attributes=x)
 
 
-def _filtered_checker(t, hit):
+def _filtered_checker(t, foot):
     """(k,) share of the second colour in each pixel: the checkerboard ``t`` (k, 2) (UV in
     checks; squares with an odd sum of floors are the second colour) box-filtered over the
-    pixel's footprint, its UV change to the neighbouring pixels (``hit`` (h, w): the pixels
-    ``t`` belongs to, in row-major order).  Anti-aliased borders without supersampling: a
-    pixel whose centre lies on one side of a border is mostly of that side's colour."""
-    grid = np.full(hit.shape + (2,), np.nan)
-    grid[hit] = t
-    foot = np.zeros_like(grid)
-    for a in (0, 1):  # per direction, the larger of the steps to the pixels on either side
-        step = np.abs(np.diff(grid, axis=a))
-        before, after = ([(0, 0)] * 3 for _ in range(2))
-        before[a], after[a] = (1, 0), (0, 1)
-        foot += np.nan_to_num(np.fmax(np.pad(step, before, constant_values=np.nan),
-                                      np.pad(step, after, constant_values=np.nan)))
-    w = np.minimum(foot[hit], 2.0)  # at two checks per pixel the average is the mean colour
+    pixel's footprint ``foot`` (k, 2), how far the UV move to the neighbouring pixels
+    (:func:`_footprints`).  Anti-aliased borders without supersampling: a pixel whose centre
+    lies on one side of a border is mostly of that side's colour."""
+    w = np.minimum(foot, 2.0)  # at two checks per pixel the average is the mean colour
 
     def ramp(x):  # the integral of the square wave +1 on [0, 1), -1 on [1, 2)
         return 1.0 - np.abs(np.mod(x, 2.0) - 1.0)
 
-    sharp = np.where(np.mod(np.floor(t), 2.0) == 0.0, 1.0, -1.0)
-    safe = np.maximum(w, 1e-9)
-    wave = np.where(w > 1e-9, (ramp(t + safe / 2) - ramp(t - safe / 2)) / safe, sharp)
+    w = np.maximum(w, 1e-9)  # no narrower than 1e-9: the sharp wave to 1e-7
+    wave = (ramp(t + w / 2) - ramp(t - w / 2)) / w
     return 0.5 - 0.5 * wave[:, 0] * wave[:, 1]
 
 

@@ -21,7 +21,7 @@ from ._view import show
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
-    "atlas_figure", "save_atlas_figure", "show",
+    "atlas_figure", "save_atlas_figure", "show", "flat_tripcolor",
     "INVERTED",
 ]
 
@@ -71,26 +71,43 @@ def save_figure(fig, target, format=None):
             from ._runtime.errors import ParameterError
 
             raise ParameterError("saving a figure into an open file needs format= (e.g. 'png')")
-        fig.savefig(target, format=format)
+        fig.savefig(target, format=format, **_encoder_options(format))
         return
     from pathlib import Path
 
     from .io import atomic_output
 
+    format = format or Path(target).suffix[1:].lower()
     with atomic_output(target, "wb") as fh:
-        fig.savefig(fh, format=format or Path(target).suffix[1:].lower())
+        fig.savefig(fh, format=format, **_encoder_options(format))
+
+
+def _encoder_options(format):
+    """PNG at zlib level 1: the same pixels, encoded 2.5-3x faster (0.07 s instead of 0.2 s for
+    the demo's 1760 x 825 figure) in a file about 40% larger (625 kB instead of 444 kB)."""
+    return {"pil_kwargs": {"compress_level": 1}} if format.lower() == "png" else {}
+
+
+def flat_tripcolor(ax, x, F, face_values, **kwargs):
+    """``ax.tripcolor`` of the per-face ``face_values`` (m,) on the triangles ``F`` (m, 3) of
+    the 2D points ``x`` (n, 2), drawn as Gouraud triangles whose three corners have their
+    face's value: the same flat colours as ``facecolors=`` in one vectorised Agg call, where a
+    polygon collection builds a path per triangle (0.1 s per 20k triangles)."""
+    F = np.asarray(F)
+    corners = x[F].reshape(-1, 2)  # (3m, 2): no corner shared, so no colour interpolated
+    return ax.tripcolor(corners[:, 0], corners[:, 1], np.arange(corners.shape[0]).reshape(-1, 3),
+                        np.repeat(np.asarray(face_values, np.float64), 3), shading="gouraud", **kwargs)
 
 
 def _layout(fig, ax, x, F, face_values, title, label, vmin=None, vmax=None):
     if face_values is None:
         ax.triplot(x[:, 0], x[:, 1], F, lw=0.2, color="k")
     else:
-        tp = ax.tripcolor(x[:, 0], x[:, 1], F, facecolors=np.asarray(face_values), cmap="viridis",
-                          vmin=vmin, vmax=vmax, edgecolors="none")
+        tp = flat_tripcolor(ax, x, F, face_values, cmap="viridis", vmin=vmin, vmax=vmax)
         fig.colorbar(tp, ax=ax, shrink=0.8, label=label)
     ax.set_aspect("equal")
     ax.set_axis_off()
-    ax.set_title(title, fontsize=11)
+    ax.set_title(title, fontsize=11, y=1.0)  # y given: no search for tick labels above (0.1 s)
 
 
 def layout_figure(x, F, face_values=None, title="", label="distortion", vmin=None, vmax=None, dpi=100):
@@ -113,14 +130,15 @@ def _surface_panels(render, caption, view, dpi, title):
     figure, the third (empty) axes and the large panel's pixel size.  The renders have about
     1.5x the pixels the panel is shown at (6 inches), smoothed by imshow's anti-aliased
     downsampling: as smooth as rendering 2 x 2 times larger, at a third of the pixels."""
+    size = int(round(9.0 * dpi))
+    images = render(size, view[1]), render(size // 2, view[1] + 180.0)
     fig = _figure(16, 7.5, dpi, layout=None)
     front, back, right = fig.subplots(1, 3, width_ratios=[1.0, 0.42, 1.0])
     _margins(fig, 0.1, 0.1, 0.1, 0.75 if title else 0.4, wspace=0.05)
-    size = int(round(9.0 * dpi))
-    for ax, azim, px, name in ((front, view[1], size, caption), (back, view[1] + 180.0, size // 2, "other side")):
-        ax.imshow(render(px, azim), interpolation="antialiased")
+    for ax, image, name in ((front, images[0], caption), (back, images[1], "other side")):
+        ax.imshow(image, interpolation="antialiased")
         ax.set_axis_off()
-        ax.set_title(name, fontsize=11)
+        ax.set_title(name, fontsize=11, y=1.0)
     if title:
         fig.suptitle(title, fontsize=12)
     return fig, right, size
@@ -353,6 +371,32 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
     save_figure(untangle_figure(start, result, S, inverted_start, inverted_result, title, dpi=110), path, format)
 
 
+_SUPERSCRIPT = str.maketrans("0123456789-+", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b\u207a")
+
+
+def superscript_powers(label):
+    """A log axis's mathtext tick label (``$\\mathdefault{10^{-3}}$``,
+    ``$\\mathdefault{2\\times10^{-3}}$``) as plain text with Unicode superscripts (``10⁻³``,
+    ``2×10⁻³``), which matplotlib draws without its mathtext parser; other labels unchanged."""
+    import re
+
+    m = re.fullmatch(r"\$\\mathdefault\{(?:([0-9.]+)\\times\s*)?([0-9.]+)\^\{([-+]?[0-9]+)\}\}\$", label)
+    if m is None:
+        return label
+    coeff, base, exponent = m.groups()
+    return (f"{coeff}\u00d7" if coeff else "") + base + exponent.translate(_SUPERSCRIPT)
+
+
+def _superscript_log_formatter(**kwargs):
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    class SuperscriptLogFormatter(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            return superscript_powers(super().__call__(x, pos))
+
+    return SuperscriptLogFormatter(**kwargs)
+
+
 def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=100):
     """Convergence of one or more solves against the iteration.
 
@@ -387,11 +431,14 @@ def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=10
             axes[1].semilogy(it, np.asarray(s[2], np.float64), marker=".", ms=3, label=label)
     from matplotlib.ticker import MaxNLocator
 
+    for ax in axes:  # powers of ten as text with superscripts, not mathtext (0.1-0.3 s of parsing)
+        ax.yaxis.set_major_formatter(_superscript_log_formatter())
+        ax.yaxis.set_minor_formatter(_superscript_log_formatter(labelOnlyBase=False))
     axes[0].set_ylabel("(E - E_ref) / |E_ref|")
-    axes[0].set_title(f"relative gap in {ylabel}, E_ref = {ref:.10g}", fontsize=10)
+    axes[0].set_title(f"relative gap in {ylabel}, E_ref = {ref:.10g}", fontsize=10, y=1.0)
     if grads:
         axes[1].set_ylabel("gradient norm")
-        axes[1].set_title(f"gradient norm of {ylabel}", fontsize=10)
+        axes[1].set_title(f"gradient norm of {ylabel}", fontsize=10, y=1.0)
     for ax in axes:
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
