@@ -286,8 +286,11 @@ def read_ply_uv(path):
 
 def test_param_writes_the_format_the_extension_names_and_pictures_atomically(cli, tmp_path, monkeypatch):
     mesh = write_obj(tmp_path / "m.obj", V3, F)
-    code, _, err = cli("param", mesh, "-o", tmp_path / "uv.PLY", "--png", tmp_path / "pic.png", "--quiet")
+    code, out, err = cli("param", mesh, "-o", tmp_path / "uv.PLY", "--png", tmp_path / "pic.png", "--quiet",
+                         "--json")
     assert (code, err) == (0, "")
+    timing = json.loads(out)["timing"]  # the pictures are a phase of their own, apart from writing the map
+    assert timing["figures"] > 0 and timing["write"] > 0 and timing["figures"] + timing["write"] <= timing["total"]
     v, uv, f = read_ply_uv(tmp_path / "uv.PLY")
     assert np.array_equal(v, V3) and np.array_equal(f, F) and count_inverted(uv, F) == 0
     assert cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")[0] == 0

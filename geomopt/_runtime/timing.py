@@ -13,6 +13,7 @@ to what a user waits for:
 * ``solve``: the solve loop;
 * ``certify``: the exact checks of the result (orientation predicates, branch points);
 * ``write``: writing the output, reading it back and certifying the file;
+* ``figures``: drawing, encoding and writing the pictures (``--png``);
 * ``total``: process start until the summary is made; ``other``: what the phases leave.
 """
 

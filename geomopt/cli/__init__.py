@@ -190,7 +190,8 @@ def cmd_param(args) -> int:
     uv = _unit_square(res.x) if args.uv_range == "unit" else res.x
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_param_figures(res, V, F, uv, args.png, outputs, args)
+            with split.phase("figures"):
+                _save_param_figures(res, V, F, uv, args.png, outputs, args)
         with split.phase("write"):
             io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, uv,
                                   format=Path(args.output).suffix[1:])
