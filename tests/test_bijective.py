@@ -10,8 +10,8 @@ from geomopt.mesh import generators as g
 from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.exact.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.exact.predicates import count_inverted, orient2d
-from geomopt.scaffold import (SimpleBoundary, _ear_clip, bijective_parameterize, build_scaffold,
-                               delaunay_flips, refine_scaffold)
+from geomopt.mesh.scaffold import build_scaffold, delaunay_flips, ear_clip, refine_scaffold
+from geomopt.scaffold import SimpleBoundary, bijective_parameterize
 from geomopt.exact.topology import check_disk, unique_edges
 from geomopt.mesh.tutte import tutte_embedding
 
@@ -170,7 +170,7 @@ def test_scaffold_closes_a_bijective_disk(shape):
     assert len(sc.triangles) == k + h
     assert count_inverted(X, sc.triangles) == 0
     # scaffold + the polygon's own ear-clipped inside = a disk bounded by the enclosing polygon
-    inside = np.asarray(_ear_clip(P), dtype=np.int64)
+    inside = np.asarray(ear_clip(P), dtype=np.int64)
     cert = certify_bijective(X, np.concatenate([inside, sc.triangles]))
     assert cert.globally_injective
     assert set(cert.loop.tolist()) == set(range(k, k + h))
@@ -199,7 +199,7 @@ def test_refined_scaffold_is_a_graded_conforming_triangulation(shape):
     assert count_inverted(X, T) == 0
     # still a disk around the polygon: no hanging vertex, the mesh boundary edges unsplit, and the
     # outer loop is the enclosing polygon with (only) midpoints added
-    inside = np.asarray(_ear_clip(P), dtype=np.int64)
+    inside = np.asarray(ear_clip(P), dtype=np.int64)
     cert = certify_bijective(X, np.concatenate([inside, T]))
     assert cert.globally_injective
     assert set(range(k, len(X0))) <= set(cert.loop.tolist()) and min(cert.loop) >= k
