@@ -42,7 +42,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import geomopt  # noqa: E402
-from geomopt import Objective, Problem, implicit  # noqa: E402
+from geomopt import Objective, Problem  # noqa: E402
+from geomopt.objective.adjoint import AdjointSystem  # noqa: E402
+from geomopt.param import parameterize_map  # noqa: E402
+from geomopt.solvers import minimize_map  # noqa: E402
 from geomopt.mesh import generators as G  # noqa: E402
 from geomopt.exact.topology import boundary_vertices  # noqa: E402
 
@@ -86,7 +89,7 @@ def _vjp_row(name, plain, differentiable, args, repeat):
         jax.block_until_ready(pull(1.0))
         vjp3.append(time.perf_counter() - t)
         t = time.perf_counter()
-        implicit.AdjointSystem(res.objective, {}, np.asarray(res.x), check=False)
+        AdjointSystem(res.objective, {}, np.asarray(res.x), check=False)
         vjp2.append(time.perf_counter() - t + vjp[-1])
     solve = _median_time(plain, repeat)
     m = statistics.median
@@ -100,7 +103,7 @@ def _vjp_row(name, plain, differentiable, args, repeat):
 def camelhead(repeat):
     V, F = geomopt.io.read_mesh(os.path.join(os.path.dirname(geomopt.__file__), "data", "camelhead.off"))
     return _vjp_row("camelhead", lambda: geomopt.parameterize(V, F, progress=False),
-                    lambda V: implicit.parameterize(V, F), (jnp.asarray(V),), repeat)
+                    lambda V: parameterize_map(V, F), (jnp.asarray(V),), repeat)
 
 
 def twisted_box(tets, repeat):
@@ -117,7 +120,7 @@ def twisted_box(tets, repeat):
         return geomopt.minimize(obj, X, progress=False)
 
     return _vjp_row(f"twisted box {len(T)} tets", plain,
-                    lambda h: implicit.minimize(Objective(Problem.tets(V, T, B, h), "symmetric_dirichlet"), X),
+                    lambda h: minimize_map(Objective(Problem.tets(V, T, B, h), "symmetric_dirichlet"), X),
                     (jnp.asarray(X[B]),), repeat)
 
 

@@ -76,7 +76,7 @@ def _page(name: str) -> str:
 def on_config(config):
     api = [{name: _page(name)} for name in public_modules()]
     config["nav"] = [{"Home": "index.md"}, {"API reference": api}, {"References": "references.md"},
-                     {"Changelog": "changelog.md"}]
+                     {"Untangling: design notes": "untangling.md"}, {"Changelog": "changelog.md"}]
     return config
 
 

@@ -3,7 +3,7 @@
 geomopt computes in float64 whatever JAX's global ``jax_enable_x64`` says: its functions switch
 JAX's 64-bit mode on for their own duration (:mod:`geomopt._runtime.x64`), and importing geomopt leaves
 the global flag alone, so float32 code keeps its dtypes beside it.  Traced use (``jax.grad`` of
-``Objective.value``, :mod:`geomopt.implicit`) needs the 64-bit mode in the caller's
+``Objective.value``, a driver on traced inputs) needs the 64-bit mode in the caller's
 transformation (``with jax.enable_x64(True):``).  Importing geomopt turns on JAX's persistent
 compilation cache, shared with the ``geomopt`` command: see
 :func:`set_cache_dir` to move or disable it (or the ``GEOMOPT_CACHE_DIR`` environment

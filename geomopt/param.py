@@ -9,20 +9,20 @@ import numpy as np
 
 from ._runtime.config import Instance, validate
 from ._runtime.errors import MeshError, ParameterError, SolveError
-from ._runtime.tracing import refuse_traced
+from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
 from .objective.objective import Objective, jit
 from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from .mesh.problem import Problem
 from .scaffold import bijective_parameterize
-from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize
+from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
 from .untangling import untangle
 from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
-    "parameterize", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
+    "parameterize", "parameterize_map", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
     "check_scale_aware", "ParamOptions",
 ]
 
@@ -169,8 +169,15 @@ def _density_at_scales(density, params, scales):
 @float64
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
                  x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
-                 **energy_params):
+                 adjoint="auto", **energy_params):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
+
+    Differentiable: given traced ``V``, ``element_weights`` or energy parameters (under
+    ``jax.grad``, ``jvp``, ``jacrev``, ``vmap``, ``jit``) ``result.x`` is the UV map as a function
+    of them by the implicit function theorem at the optimum (:func:`geomopt.minimize`); the
+    start has zero derivative and the map's gauge (translation, rotation, and scale for a
+    scale-invariant energy) is handled as :mod:`geomopt.objective.adjoint` says: use a loss
+    invariant under it (areas, angles, distortion).  Not with ``bijective``.
 
     Parameters
     ----------
@@ -196,6 +203,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
         ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
     element_weights : (m,) positive per-triangle weights of the energy (see
         :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
+    adjoint : the linear solver of the adjoint on traced inputs (see :func:`geomopt.minimize`).
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
         mesh of the same bucket; the padding changes no result (:mod:`geomopt._runtime.padding`).
@@ -224,8 +232,12 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     >>> result.outcome.name, result.success, result.injectivity, result.x.shape
     ('CONVERGED', True, 'global', (5, 2))
     """
-    refuse_traced("geomopt.parameterize", "for a map differentiable in V, element_weights and the energy's "
-                  "parameters use geomopt.implicit.parameterize", V, element_weights, energy_params)
+    if is_traced(V, element_weights, energy_params):
+        if bijective:
+            raise ParameterError("parameterize: bijective=True is not differentiable (the scaffold is remeshed "
+                                 "as the map moves); differentiate the free-boundary map (bijective=False)")
+        x = parameterize_map(V, F, energy, solver, weights, x0, element_weights, adjoint, energy_params)
+        return traced_result(x, solver=solver)
     V, F = mesh_arrays(V, F)
     ParamOptions(buckets, bijective)
     check_scale_aware(energy, energy_params)
@@ -254,6 +266,29 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     return dataclasses.replace(result, certificate=cert, reason=reason,
                                details=ParamDetails(start=x0, scale=s, repair=repaired))
 
+
+
+def parameterize_map(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform", x0=None,
+                     element_weights=None, adjoint="auto", energy_params=None):
+    """:func:`parameterize`'s map (n, 2) as a differentiable function of ``V``,
+    ``element_weights`` and ``energy_params`` (:func:`geomopt.objective.adjoint.argmin`)."""
+    import jax.numpy as jnp
+
+    from .objective.adjoint import argmin, require_success
+
+    V, F = mesh_arrays(V, F)
+    objective = Objective(Problem.surface(V, F), energy, element_weights=element_weights)
+    start = None if x0 is None or isinstance(x0, str) else jnp.asarray(x0, jnp.float64)
+
+    def solve(obj, p, start):
+        w = obj.element_weights
+        result = parameterize(np.asarray(obj.problem.rest_vertices), F, energy, solver, weights,
+                              x0 if start is None else np.asarray(start), progress=False,
+                              element_weights=None if w is None else np.asarray(w), **p)
+        require_success(result, "geomopt.parameterize")
+        return result.x, {"objective": result.objective}
+
+    return argmin(objective, dict(energy_params or {}), start, solve, adjoint)
 
 @dataclasses.dataclass(frozen=True)
 class ParamOptions:

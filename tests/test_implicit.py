@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import Objective, ParameterError, Problem, SolveError, implicit
+from geomopt import Objective, ParameterError, Problem, SolveError
+from geomopt.param import parameterize_map
+from geomopt.solvers import minimize_map
+from geomopt.untangling import UntangleOptions
+from geomopt.untangling.implicit import untangle_map
 from geomopt.energies import Energy
 from geomopt.solvers import LBFGS, Newton
 from geomopt.exact.topology import boundary_vertices
@@ -59,7 +63,7 @@ def test_minimize_with_handles_matches_re_solves(kind):
 
     def loss(V, h, lam):
         P = make(V, S, H, h)
-        return jnp.dot(implicit.minimize(Objective(P, "garanzha", eps=1e-2, lam=lam), x0)[v], w)
+        return jnp.dot(minimize_map(Objective(P, "garanzha", eps=1e-2, lam=lam), x0)[v], w)
 
     args = (V, h0, 0.7)
     g = jax.grad(loss, argnums=(0, 1, 2))(*args)
@@ -94,7 +98,7 @@ def test_parameterize_free_boundary_gauge_invariant_loss_matches_re_solves(energ
     area = _area_loss(F, normalise=energy == "mips")
 
     def loss(V, w):
-        return area(implicit.parameterize(V, F, energy=energy, element_weights=w), V)
+        return area(parameterize_map(V, F, energy=energy, element_weights=w), V)
 
     g = jax.grad(loss, argnums=(0, 1))(V, w)
     if energy == "symmetric_dirichlet":
@@ -116,13 +120,13 @@ def test_untangled_map_derivative_matches_re_solves():
     assert Problem.planar(V, F, B, h0).count_inverted(x0) > 0
 
     def loss(h, theta):
-        x = implicit.untangle(Problem.planar(V, F, B, h), x0, theta)
+        x = untangle_map(Problem.planar(V, F, B, h), x0, theta)
         return x[inner[3], 0] + 2 * x[inner[7], 1]
 
     args = (h0, 0.1)
     g = jax.grad(loss, argnums=(0, 1))(*args)
     _directional_check(loss, args, g, rng, step=1e-6)
-    x = implicit.untangle(Problem.planar(V, F, B, h0), x0, 0.1)
+    x = untangle_map(Problem.planar(V, F, B, h0), x0, 0.1)
     assert Problem.planar(V, F, B, h0).count_inverted(np.asarray(x)) == 0
 
 
@@ -143,7 +147,7 @@ def test_untangled_map_derivative_through_equilateral_rest_triangles():
     rng = np.random.default_rng(4)
 
     def loss(V):
-        x = implicit.untangle(Problem.planar(V, F, B, x0[B]), x0, 0.1, max_aspect=2.0)
+        x = untangle_map(Problem.planar(V, F, B, x0[B]), x0, 0.1, options=UntangleOptions(max_aspect=2.0))
         return x[inner[2], 0] + 2 * x[inner[5], 1]
 
     _directional_check(loss, (V,), (jax.grad(loss)(V),), rng, step=1e-6)
@@ -156,8 +160,8 @@ def test_min_norm_gauge_convention_against_a_dense_pseudo_inverse():
     V = np.c_[V2, 0.3 * V2[:, 0] * V2[:, 1]]
     rng = np.random.default_rng(5)
     dV = rng.standard_normal(V.shape)
-    x = np.asarray(implicit.parameterize(V, F))
-    Jx = np.asarray(jax.jacrev(lambda t: implicit.parameterize(V + t * dV, F))(0.0)).reshape(-1)
+    x = np.asarray(parameterize_map(V, F))
+    Jx = np.asarray(jax.jacrev(lambda t: parameterize_map(V + t * dV, F))(0.0)).reshape(-1)
     obj = Objective(Problem.surface(V, F), "symmetric_dirichlet")
     grad = lambda x, t: jax.grad(lambda x: Objective(Problem.surface(V + t * dV, F),  # noqa: E731
                                                      "symmetric_dirichlet").value(x))(x).reshape(-1)
@@ -176,7 +180,7 @@ def test_cg_adjoint_equals_the_direct_one():
 
     def pos(h, linear_solver):
         P = make(V, S, H, h)
-        return implicit.minimize(Objective(P, "symmetric_dirichlet"), x0, linear_solver=linear_solver)[v]
+        return minimize_map(Objective(P, "symmetric_dirichlet"), x0, adjoint=linear_solver)[v]
 
     a = jax.jacrev(pos)(h0, "auto")
     b = jax.jacrev(pos)(h0, "cg")
@@ -200,14 +204,14 @@ def test_refuses_unconverged_indefinite_and_loose_optima():
     h = V[B] + 0.05 * rng.standard_normal((len(B), 2))
     obj = Objective(Problem.planar(V, F, B, h), "symmetric_dirichlet")
     with pytest.raises(SolveError, match="did not succeed"):
-        implicit.minimize(obj, V, Newton(max_steps=1))
+        minimize_map(obj, V, Newton(max_steps=1))
     saddle = Objective(Problem.planar(V, F, B, V[B]), _rest_saddle())
     assert geomopt.minimize(saddle, V, progress=False).success  # a plain solve accepts the rest map
     with pytest.raises(SolveError, match="not positive definite"):  # its derivative is refused
-        jax.grad(lambda h: jnp.sum(implicit.minimize(Objective(Problem.planar(V, F, B, h), _rest_saddle()), V)))(V[B])
+        jax.grad(lambda h: jnp.sum(minimize_map(Objective(Problem.planar(V, F, B, h), _rest_saddle()), V)))(V[B])
     loose = LBFGS(rtol=1e-4, gtol=1e-3)
     assert geomopt.minimize(obj, V, loose, progress=False).success
     with pytest.raises(SolveError, match="tight enough"):
-        implicit.minimize(obj, V, loose)
+        minimize_map(obj, V, loose)
     with pytest.raises(ParameterError, match="linear_solver"):
-        implicit.minimize(obj, V, linear_solver="qr")
+        minimize_map(obj, V, adjoint="qr")

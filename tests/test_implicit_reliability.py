@@ -6,7 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from geomopt import GeomoptError, MeshError, Objective, Problem, SolveError, implicit
+from geomopt import GeomoptError, MeshError, Objective, Problem, SolveError
+from geomopt.param import parameterize_map
+from geomopt.solvers import minimize_map
+from geomopt.untangling.implicit import untangle_map
 from geomopt.solvers import Newton
 from geomopt.exact.topology import boundary_vertices
 
@@ -35,7 +38,7 @@ def _handle_loss(kind, linear_solver):
 
     def loss(h, lam):
         obj = Objective(make(V, S, H, h), "garanzha", eps=1e-2, lam=lam)
-        return jnp.dot(implicit.minimize(obj, x0, linear_solver=linear_solver)[v], w)
+        return jnp.dot(minimize_map(obj, x0, adjoint=linear_solver)[v], w)
 
     rng = np.random.default_rng(7)
     hs = h0 + 0.01 * rng.standard_normal((3,) + h0.shape)
@@ -50,7 +53,7 @@ def _param_loss(kind, linear_solver):
 
     def loss(w, t):
         V = jnp.concatenate([jnp.asarray(V2), t * bump[:, None]], axis=1)
-        x = implicit.parameterize(V, F, element_weights=w, linear_solver=linear_solver)
+        x = parameterize_map(V, F, element_weights=w, adjoint=linear_solver)
         e1, e2 = x[F[:, 1]] - x[F[:, 0]], x[F[:, 2]] - x[F[:, 0]]
         a = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
         return jnp.sum((a / Problem.surface(V, F).volumes - 1.0) ** 2)
@@ -106,8 +109,8 @@ def test_two_solves_on_one_objective_in_one_loss_match_re_solves(jit, linear_sol
     obj = Objective(make(V, S, H, h0), "garanzha", eps=1e-2)
 
     def loss(lam):
-        a = implicit.minimize(obj, x0, params={"lam": lam}, linear_solver=linear_solver)
-        b = implicit.minimize(obj, x0, params={"lam": 3.0 * lam}, linear_solver=linear_solver)
+        a = minimize_map(obj, x0, params={"lam": lam}, adjoint=linear_solver)
+        b = minimize_map(obj, x0, params={"lam": 3.0 * lam}, adjoint=linear_solver)
         return a[v, 0] - 2.0 * b[v, 1] + a[v, 1] * b[v, 0]
 
     lam, step = 0.6, 1e-5
@@ -200,7 +203,7 @@ def test_a_refused_solve_keeps_geomopt_s_class_and_message_eagerly_and_under_jit
     loose = LBFGS(rtol=1e-4, gtol=1e-3)
 
     def loss(h):
-        return jnp.sum(implicit.minimize(Objective(make(V, S, H, h), "symmetric_dirichlet"), x0, loose)[v])
+        return jnp.sum(minimize_map(Objective(make(V, S, H, h), "symmetric_dirichlet"), x0, loose)[v])
 
     with pytest.raises(SolveError, match="tight enough"):
         jax.grad(loss)(h0)
@@ -222,7 +225,7 @@ def test_forward_mode_through_untangling_equals_reverse_mode():
     h0 = V[B] + 0.02 * np.random.default_rng(11).standard_normal((len(B), 2))
 
     def loss(h):
-        return implicit.untangle(Problem.planar(V, F, B, h), x0, 0.1)[inner[2], 0]
+        return untangle_map(Problem.planar(V, F, B, h), x0, 0.1)[inner[2], 0]
 
     dh = np.random.default_rng(12).standard_normal(h0.shape)
     t = float(jax.jvp(loss, (h0,), (dh,))[1])

@@ -24,7 +24,9 @@ import json, warnings
 import numpy as np
 import jax, jax.numpy as jnp
 import geomopt
-from geomopt import Objective, ParameterError, Problem, implicit
+from geomopt import Objective, ParameterError, Problem
+from geomopt.param import parameterize_map
+from geomopt.solvers import minimize_map
 from geomopt.mesh.generators import square_mesh
 from geomopt.solvers import LBFGS
 from geomopt.exact.topology import boundary_vertices
@@ -57,11 +59,11 @@ if x64 is None:
 with x64(True):
     g = jax.grad(lambda x: obj.value(x))(x)
     out["grad_on_dtype"] = str(g.dtype)
-    f = lambda h: jnp.sum(implicit.minimize(
+    f = lambda h: jnp.sum(minimize_map(
         Objective(Problem.planar(V, F, B, jnp.asarray(V[B]).at[:4].set(h)), "symmetric_dirichlet"), x))
     gi = jax.jit(jax.grad(f))(jnp.asarray(V[B][:4]) + 0.01)
     out["implicit_jit_dtype"] = str(gi.dtype)
-out["implicit_plain_dtype"] = str(implicit.parameterize(V3, F).dtype)
+out["implicit_plain_dtype"] = str(parameterize_map(V3, F).dtype)
 print(json.dumps(out))
 '''
 
@@ -112,9 +114,6 @@ def _refusals():
     P = Problem.planar(V, F, B, V[B])
     obj = Objective(P, "arap")
     return V, V3, {
-        "geomopt.implicit.parameterize": lambda V: geomopt.parameterize(V, F, progress=False).x,
-        "geomopt.implicit.minimize": lambda x: geomopt.minimize(obj, x, progress=False).energy,
-        "geomopt.implicit.untangle": lambda x: geomopt.untangling.untangle(P, x, progress=False).x,
         "Objective.dets": lambda x: P.count_inverted(x),
         "Objective.dets(x)": lambda x: geomopt.exact.predicates.count_inverted(x, F),
         "Objective.dets(x) ": lambda x: geomopt.exact.certify.certify_bijective(x, F),

@@ -45,7 +45,7 @@ class SolveError(GeomoptError, RuntimeError):
       (:func:`geomopt.mesh.cells.write_certified`, :meth:`geomopt.lim.LimCase.write_certified`) when the
       file written does not read back certified (nothing is left at the path), by
       :func:`geomopt.atlas.pack_charts` when no packing certifies, and by the implicit adjoint
-      (:mod:`geomopt.implicit`) when the solve it differentiates did not succeed or its
+      (:mod:`geomopt.objective.adjoint`) when the solve it differentiates did not succeed or its
       derivative is not defined (a saddle, a loose optimum, a gauge under second derivatives;
       under ``jax.jit`` it reaches the caller as JAX's runtime error naming ``SolveError``).
 

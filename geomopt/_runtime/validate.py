@@ -25,7 +25,7 @@ def _as_array(A, name):
     """``np.asarray`` that turns ragged/odd input into a MeshError (a traced JAX value into a
     ParameterError saying what can be traced)."""
     refuse_traced(f"the check of {name}", "connectivity and indices must be concrete (close over them); traceable: "
-                  "rest vertices and handles in Problem.planar/surface/tets, Objective.value, geomopt.implicit", A)
+                  "rest vertices and handles in Problem.planar/surface/tets, Objective.value and the drivers on traced input", A)
     try:
         return np.asarray(A)
     except (ValueError, TypeError) as exc:

@@ -9,7 +9,7 @@ library, float64 JAX arrays otherwise (arithmetic on those outside the 64-bit mo
 JAX's rules, i.e. float32).
 
 Inside a user's transformation (``jax.jit`` / ``grad`` / ``vmap`` of a function calling
-``Objective.value`` or :mod:`geomopt.implicit`), the mode cannot be switched: the user's trace
+``Objective.value`` or :mod:`geomopt.objective.adjoint`), the mode cannot be switched: the user's trace
 must run in 64-bit mode (``with jax.enable_x64(True): jax.grad(f)(x)``, or
 ``jax.config.update("jax_enable_x64", True)`` at start-up); otherwise a ParameterError says so
 (:data:`MESSAGE`) instead of computing in float32.  The compiled kernels refuse to run with the
@@ -17,7 +17,7 @@ mode off (:func:`require`): a path that escaped the wrapping fails loudly, never
 
 The outermost wrapped call on a thread first waits for the host callbacks already dispatched
 (``jax.effects_barrier()``): geomopt's callbacks (:func:`pure_callback`, the host solves of
-:mod:`geomopt.implicit` under ``jax.jit``) run JAX computations themselves, and with JAX 0.4.x's
+:mod:`geomopt.objective.adjoint` under ``jax.jit``) run JAX computations themselves, and with JAX 0.4.x's
 CPU client those, queued behind the caller's still-running jitted computation, deadlock against
 computations the caller's thread dispatches meanwhile (an un-awaited ``jax.jit`` result followed
 by an eager geomopt call).  Calls made inside a callback skip the wait (it would wait on itself).

@@ -1,6 +1,6 @@
 """The gauge of a map: the motions (translations, rotations, scaling) that leave an energy
 unchanged and every handle in place, and the DOFs to pin against them (the null space of the
-exact Hessian at an optimum, for :mod:`geomopt.implicit`)."""
+exact Hessian at an optimum, for :mod:`geomopt.objective.adjoint`)."""
 
 from __future__ import annotations
 

@@ -12,11 +12,11 @@ Newton-type solvers are objects: :class:`Adaptive`, :class:`Clamp`, :class:`Abs`
 
 from ..objective.projection import Abs, AbstractProjection, Adaptive, Clamp, CMProxy, Exact, SLIMProxy
 from ._base import AbstractSolver, State
-from ._iterate import AbstractContinuation, Decision, Final, Progress, iterate, minimize
+from ._iterate import AbstractContinuation, Decision, Final, Progress, iterate, minimize, minimize_map
 from ._laplacian import rest_laplacian
 from ._registry import SOLVERS, get_solver
-from ._result import (Details, LocalCertificate, ParamDetails, Result, ResultCertificate, RunStats, Trace,
-                      UntangleDetails, local_certificate)
+from ._result import (Details, ForwardCertificate, LocalCertificate, ParamDetails, Result, ResultCertificate,
+                      RunStats, Trace, UntangleDetails, local_certificate, traced_result)
 from ._termination import DIVERGENCE_FACTOR, Outcome, Stats, Termination
 from .aqp import AQP
 from .lbfgs import LBFGS
@@ -24,6 +24,7 @@ from .newton import CM, SLIM, AbstractNewton, Newton
 
 __all__ = ["SOLVERS", "get_solver", "AbstractSolver", "AbstractNewton", "State", "Stats", "Termination", "Outcome",
            "DIVERGENCE_FACTOR", "Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details",
-           "UntangleDetails", "ParamDetails", "local_certificate", "iterate", "minimize", "Decision", "Final",
+           "UntangleDetails", "ParamDetails", "local_certificate", "iterate", "minimize", "minimize_map", "Decision", "Final",
            "AbstractContinuation", "Progress", "Newton", "LBFGS", "SLIM", "AQP", "CM", "AbstractProjection",
-           "Adaptive", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "rest_laplacian"]
+           "Adaptive", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "rest_laplacian", "ForwardCertificate",
+           "traced_result"]

@@ -37,13 +37,13 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
-from .._runtime.tracing import refuse_traced
+from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ._registry import get_solver
-from ._result import Result, RunStats, Trace, local_certificate
+from ._result import Result, RunStats, Trace, local_certificate, traced_result
 from ._termination import RUNNING, Outcome, Termination
 
-__all__ = ["iterate", "minimize", "Decision", "Final", "AbstractContinuation", "Progress", "check_progress"]
+__all__ = ["iterate", "minimize", "minimize_map", "Decision", "Final", "AbstractContinuation", "Progress", "check_progress"]
 
 
 class Decision(NamedTuple):
@@ -416,8 +416,15 @@ def _result(final: Final, solver, objective, state, run, setup, throw, label) ->
 
 @float64
 def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
-             throw: bool = False) -> Result:
+             throw: bool = False, *, adjoint: str = "auto") -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
+
+    Differentiable: given traced values (an ``objective`` built from traced rest vertices,
+    handle positions or element weights, traced ``params``; under ``jax.grad``, ``jvp``,
+    ``jacrev``, ``vmap``, ``jit``) the map ``result.x`` is the optimum as a function of them, its
+    derivative from the implicit function theorem at the optimum (one sparse solve with the
+    exact Hessian; :mod:`geomopt.objective.adjoint`), the result's other fields those of
+    :func:`~geomopt.solvers.traced_result`.  ``x0`` has zero derivative.
 
     Parameters
     ----------
@@ -428,6 +435,9 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     progress : True (a bar on a terminal, lines otherwise, on stderr), False, or a callable
         ``(state, elapsed, mean_energy)``.
     throw : raise :class:`~geomopt.SolveError` unless the result is converged and injective.
+        Traced inputs always raise then (no map is differentiated that is not certified).
+    adjoint : the linear solver of the adjoint on traced inputs: ``"auto"`` (as the forward
+        Newton solves), a sparse Cholesky backend name or ``"cg"``.
 
     Returns
     -------
@@ -453,8 +463,9 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     >>> result.success, bool(abs(result.x[4] - [0.5, 0.5]).max() < 1e-6)
     (True, True)
     """
-    refuse_traced("geomopt.minimize", "for a map differentiable in the objective (rest shape, handles, weights) "
-                  "and params use geomopt.implicit.minimize", objective, x0, params)
+    if is_traced(objective, x0, params):  # differentiable: the implicit adjoint at the optimum
+        return traced_result(minimize_map(objective, x0, solver, params, adjoint), objective=objective,
+                             solver=solver)
     solver = get_solver("newton" if solver is None else solver)
     check_progress(progress)
     if params is not None and not isinstance(params, Mapping):
@@ -463,4 +474,21 @@ def minimize(objective, x0, solver=None, params=None, progress: bool | Callable 
     x0 = objective.prepare_map(x0)  # (n_padded, d): see geomopt._runtime.padding
     params = objective.params(**(params or {}))
     return iterate(solver, objective, x0, params, progress=progress, trace=True, throw=throw)
+
+
+def minimize_map(objective, x0, solver=None, params=None, adjoint: str = "auto"):
+    """:func:`minimize`'s map as a differentiable function of ``objective`` (traced rest
+    vertices, handle positions, element weights) and ``params``, by the implicit function
+    theorem at the optimum (:func:`geomopt.objective.adjoint.argmin`); ``x0`` has zero
+    derivative."""
+    import jax.numpy as jnp
+
+    from ..objective.adjoint import argmin, require_success
+
+    def solve(obj, p, start):
+        result = minimize(obj, np.asarray(start), solver, p, progress=False)
+        require_success(result, "geomopt.minimize")
+        return result.x, {"objective": obj}
+
+    return argmin(objective, dict(params or {}), jnp.asarray(x0, jnp.float64), solve, adjoint)
 

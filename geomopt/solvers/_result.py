@@ -26,7 +26,7 @@ from ..exact import certify
 from ._termination import Outcome
 
 __all__ = ["Result", "RunStats", "Trace", "LocalCertificate", "ResultCertificate", "Details", "UntangleDetails",
-           "ParamDetails", "local_certificate"]
+           "ParamDetails", "local_certificate", "ForwardCertificate", "traced_result"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,9 +155,24 @@ class Trace:
         return np.asarray([getattr(r, name) for r in self.phases], dtype=dtype)
 
 
+@dataclasses.dataclass(frozen=True)
+class ForwardCertificate:
+    """The certificate of a :class:`Result` returned for traced inputs (a driver under
+    ``jax.grad``, ``jit``, ``vmap``): its map is a JAX value that no predicate can read here.
+    The solve that computes it runs on the host and raises (:class:`~geomopt.SolveError`; inside
+    ``jax.jit`` JAX's runtime error, whose text names it) unless it converged and its exact
+    certificate passed, so a map that is returned at all was certified."""
+
+    inverted: int = 0
+    locally_injective: bool = True
+    injectivity: str = "local"
+    handles_moved: int = 0
+    message: str = "certified by the solve on the host (it raises instead of returning a map that is not)"
+
+
 #: what :attr:`Result.certificate` is: every one has ``inverted``, ``locally_injective`` and
 #: ``injectivity``
-ResultCertificate = LocalCertificate | certify.Certificate | certify.SphereCertificate
+ResultCertificate = LocalCertificate | certify.Certificate | certify.SphereCertificate | ForwardCertificate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -330,3 +345,13 @@ class Result:
         from .._save import save_result
 
         return save_result(self, path, png, inputs)
+
+
+def traced_result(x, *, problem=None, objective=None, solver=None) -> Result:
+    """The :class:`Result` of a driver called on traced inputs: ``x`` the differentiable map (a
+    JAX value), the outcome CONVERGED and a :class:`ForwardCertificate` (the host solve raises
+    otherwise), no statistics or trace (they are the host solve's, not values of the
+    transformation).  Read ``.x`` inside the transformed function."""
+    return Result(x, Outcome.CONVERGED, ForwardCertificate(), problem=problem, objective=objective, solver=solver,
+                  reason="traced inputs: the map is differentiable (implicit function theorem at the optimum)")
+

@@ -25,7 +25,7 @@ __all__ = ["UntangleRecord", "EpsContinuation", "judged"]
 
 
 class UntangleRecord(NamedTuple):
-    """One outer iteration of :func:`untangle` (``trace.phases``): the eps used, the energy
+    """One outer iteration of :func:`~geomopt.untangling.untangle` (``trace.phases``): the eps used, the energy
     (total, and over the rest volume) of the whole problem after the inner solve, its worst
     ``det J`` and float-inverted count, and the inner iterations."""
 
@@ -51,7 +51,7 @@ def _outer_stats(density, geom, x, params):
 
 
 class EpsContinuation(AbstractContinuation):
-    """The eps schedule of :func:`untangle` as a continuation of
+    """The eps schedule of :func:`~geomopt.untangling.untangle` as a continuation of
     :func:`~geomopt.solvers.iterate`: after each inner solve, measure the energy and worst
     ``det J`` over the whole (normalised) problem; stop when nothing is inverted and the
     energy settled, else shrink eps (:func:`next_eps`) and go on.  ``finish`` maps the last
@@ -63,10 +63,10 @@ class EpsContinuation(AbstractContinuation):
         objective of ``scaled`` (the outer statistics); objective : the inner one (the active
         elements, padded like ``full``), whose parameters change;  map_scale : the power of two
         the map was scaled by;  xs : the scaled start.
-    options : :class:`UntangleOptions`;  details : :class:`UntangleDetails` of the result;
+    options : :class:`~geomopt.untangling.UntangleOptions`;  details : :class:`~geomopt.solvers.UntangleDetails` of the result;
     initially : inverted elements of the start map;  solver : the inner solver (its search is
         made injective once nothing is inverted with ``injective_when_untangled``).
-    stiff : the solver a stalled inner solve continues with (:func:`stiff_solver`), or None.
+    stiff : the solver a stalled inner solve continues with (:func:`~geomopt.untangling.stiff_solver`), or None.
 
     Notes
     -----

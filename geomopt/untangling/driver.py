@@ -10,15 +10,17 @@ import jax
 import numpy as np
 
 from .._runtime.errors import ParameterError, SolveError
-from .._runtime.tracing import refuse_traced
+from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ..energies import garanzha
 from ..exact.predicates import box_scale
 from ..mesh.problem import Problem, fixed_total_problem
 from ..objective.objective import Objective
-from ..solvers import AbstractSolver, LocalCertificate, Outcome, Progress, Result, RunStats, UntangleDetails, iterate
+from ..solvers import (AbstractSolver, LocalCertificate, Outcome, Progress, Result, RunStats, UntangleDetails, iterate,
+                       traced_result)
 from ..solvers._iterate import check_progress
 from .continuation import EpsContinuation, judged
+from .implicit import untangle_map
 from .inner import default_solver, stiff_solver
 from .options import UntangleOptions, options_from
 from .rest import check_rest, equilateral_problem
@@ -34,12 +36,18 @@ UntangleResult = Result
 
 @float64
 def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True,
-             throw: bool = False, **overrides) -> Result:
+             throw: bool = False, adjoint: str = "auto", **overrides) -> Result:
     """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
     by the objective's gauge and rotation and scale are free; the map must not be mirrored as
     a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
+
+    Differentiable: given a traced ``problem`` (rest vertices, handle positions) or a traced
+    ``theta=`` keyword, ``result.x`` is the untangled map as a function of them (the optimum of
+    the last eps, polished by Newton, differentiated by the implicit function theorem:
+    :func:`geomopt.untangling.implicit.untangle_map`); the start, the last eps and the map's
+    normalisation are constants of the solve.
 
     Parameters
     ----------
@@ -53,6 +61,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     progress : True (one line per outer iteration on stderr), False, or a callable
         ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
+    adjoint : the linear solver of the adjoint on traced inputs (see :func:`geomopt.minimize`).
 
     Returns
     -------
@@ -60,7 +69,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     ``problem.fixed_positions``; ``certificate`` the exact :class:`~geomopt.solvers.LocalCertificate`
     (inverted elements, 2D branch points, moved handles); ``stats.iterations`` the inner
     iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
-    :class:`UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
+    :class:`~geomopt.untangling.UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
     ``energy`` and ``mean_energy`` are measured in the normalised frame.
 
     Stars whose every element has all its vertices fixed and that overlap in ``x0``
@@ -84,8 +93,11 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     >>> tangle.inverted(), result.certificate.inverted, result.success
     (4, 0, True)
     """
-    refuse_traced("geomopt.untangling.untangle", "for the untangled map as a differentiable function of the problem "
-                  "(rest shape, handles) and theta use geomopt.implicit.untangle", problem, x0, options, overrides)
+    if is_traced(problem, x0, overrides):  # differentiable: the implicit adjoint at the last eps's optimum
+        theta = overrides.pop("theta", None if options is None else options.theta)
+        opts = options_from(UntangleOptions, options, overrides, "untangle")
+        return traced_result(untangle_map(problem, x0, theta, solver=solver, adjoint=adjoint, options=opts),
+                             problem=problem, solver=solver)
     opts = options_from(UntangleOptions, options, overrides, "untangle")
     if not isinstance(solver, (str, AbstractSolver)):
         raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")

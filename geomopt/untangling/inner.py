@@ -26,7 +26,7 @@ STIFF_AFTER = 100
 
 #: a probe of :data:`STIFF_AFTER` iterations that leaves fewer than these fractions of the
 #: inverted elements and of the energy it started with is followed by another probe instead of
-#: the switch (see :class:`EpsContinuation`)
+#: the switch (see :class:`~geomopt.untangling.EpsContinuation`)
 PROBE_PROGRESS = (0.9, 0.5)
 
 
@@ -66,7 +66,7 @@ def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver |
 
 def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = False,
                    inverted: int = 0) -> AbstractSolver:
-    """The inner solver :func:`untangle` uses for ``"lbfgs"`` or ``"newton"``.
+    """The inner solver :func:`~geomopt.untangling.untangle` uses for ``"lbfgs"`` or ``"newton"``.
 
     ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
     (:class:`~geomopt.solvers.LBFGS` ``precondition="laplacian"``) from there on.  Measured

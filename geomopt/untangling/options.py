@@ -13,7 +13,7 @@ __all__ = ["UntangleOptions", "options_from"]
 
 @dataclasses.dataclass(frozen=True)
 class UntangleOptions:
-    """The settings of :func:`untangle` (validated: a wrong type or range is a one-line
+    """The settings of :func:`~geomopt.untangling.untangle` (validated: a wrong type or range is a one-line
     :class:`~geomopt.ParameterError`).
 
     Attributes
@@ -23,8 +23,8 @@ class UntangleOptions:
     max_outer : outer (eps) iteration limit.
     energy_tol : stop once untangled and ``|E_prev - E| / E`` of an inner solve is below this.
     eps0 : initial eps (the map is normalised so the mean det J is 1).  None: the median
-        ``|det J|`` of the start's active elements over :data:`START_RATIO`, at least 1
-        (:func:`start_eps`).
+        ``|det J|`` of the start's active elements over :data:`~geomopt.untangling.START_RATIO`, at least 1
+        (:func:`~geomopt.untangling.start_eps`).
     max_aspect : 2D only: rest triangles with an aspect ratio above this are replaced by
         equilateral ones (Garanzha et al.'s code uses 10); None keeps the rest mesh.
     keep_memory : keep the L-BFGS curvature pairs across outer iterations, except after one
@@ -34,7 +34,7 @@ class UntangleOptions:
     injective_when_untangled : once every element is positive, switch the inner line search
         to the injective one (no element can flip back; compiles a second kernel).
     min_sigma, max_sigma : bounds of ``sigma = 1 - E/E_prev``, the fraction by which each outer
-        iteration shrinks ``chi(D-, eps)`` (:func:`next_eps`).  The paper uses ``0.1`` and no
+        iteration shrinks ``chi(D-, eps)`` (:func:`~geomopt.untangling.next_eps`).  The paper uses ``0.1`` and no
         cap; the default halves it every outer iteration while elements are inverted and
         applies no cap once none is (see the module notes).
     bucket : pad the problem to its size bucket (``Objective(buckets=True)``,
@@ -42,9 +42,9 @@ class UntangleOptions:
         certificate, same map up to the rounding of sums over elements.
     start : where the eps loop starts (:data:`STARTS`): ``"given"`` ``x0``; ``"harmonic"`` ``x0``
         with its free vertices replaced by the harmonic extension of the handles
-        (:func:`harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
+        (:func:`~geomopt.untangling.harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
         hexahedra when it has fewer inverted corners than ``x0``, else ``x0`` (see
-        :func:`choose_start`), decided per connected part.  Whatever ``start``, a connected
+        :func:`~geomopt.untangling.choose_start`), decided per connected part.  Whatever ``start``, a connected
         part without a handle is held at a certified map, not solved
         (:func:`geomopt.untangling.start.hold_free_parts`).
     """

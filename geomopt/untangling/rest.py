@@ -39,7 +39,7 @@ def badly_shaped(problem: Problem, max_aspect: float | None) -> np.ndarray:
 def equilateral_rest(problem: Problem, bad: np.ndarray):
     """``(rest_inv, volumes)`` of ``problem`` with the ``bad`` rest triangles replaced by
     equilateral ones of their mean edge length (as Garanzha et al.'s 2D code does).  NumPy for
-    NumPy arrays, else JAX: traceable in the problem's arrays (:func:`geomopt.implicit.untangle`)."""
+    NumPy arrays, else JAX: traceable in the problem's arrays (:func:`geomopt.untangling.implicit.untangle_map`)."""
     arrays = (problem.rest_vertices, problem.rest_inv, problem.volumes)
     xp = np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
     E = problem.rest_vertices[problem.simplices]

@@ -49,7 +49,7 @@ def next_eps(eps: float, E: float, E_prev: float, detmin: float, min_sigma: floa
 
 
 def start_eps(problem: Problem, x) -> float:
-    """The initial eps of :func:`untangle` when ``eps0`` is None: ``max(1, median |det J| /``
+    """The initial eps of :func:`~geomopt.untangling.untangle` when ``eps0`` is None: ``max(1, median |det J| /``
     :data:`START_RATIO` ``)`` over ``problem``'s elements (the active ones of the normalised
     problem) at the normalised start ``x`` (n, d); on the host, once.
 

@@ -1,0 +1,96 @@
+"""Untangling as a differentiable function: the final map of :func:`~geomopt.untangling.untangle`
+as a function of the problem (rest vertices, handle positions) and ``theta``, by the implicit
+function theorem at the optimum of the last eps (:func:`geomopt.objective.adjoint.argmin`).
+:func:`~geomopt.untangling.untangle` calls it for traced inputs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._runtime.x64 import float64
+from ..energies import garanzha
+from ..mesh.geometry import dets
+from ..mesh.problem import check_rest_values
+from ..objective.adjoint import argmin, host_constant, require_success
+from ..objective.objective import Objective
+from ..solvers import Newton, minimize as run_min
+from .options import UntangleOptions
+from .rest import badly_shaped, equilateral_rest
+
+__all__ = ["untangle_map"]
+
+
+def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "auto", options=None):
+    """:func:`~geomopt.untangling.untangle`'s final map as a differentiable function of the
+    problem (its rest vertices and handle positions, traced or not) and ``theta``.
+
+    The untangled map minimises Garanzha et al.'s energy at the last ``eps`` of the outer loop,
+    on the rest mesh as untangling normalises it (scaled to the map's volume; in 2D, rest
+    triangles above ``max_aspect`` replaced by equilateral ones).  That energy, written in the
+    problem's units and made a function of the rest vertices (the normalisation included), is
+    minimised tightly by Newton from the untangled map (the *polished* map returned here,
+    flip-free, certified), and differentiated at it.  The last ``eps``, the power-of-two map
+    scale and which triangles were replaced are constants of the solve (zero derivative);
+    so is the start map.
+
+    Parameters
+    ----------
+    problem : :class:`~geomopt.Problem` with handles (possibly built from traced arrays).
+    x0 : (n, d) the tangled start.
+    theta : shape/area balance in (0, 1) (``lam = theta / (1 - theta)``), may be traced;
+        default 1/128 in 2D, 1/2 in 3D.
+    solver, options : passed to :func:`geomopt.untangling.untangle` (``options`` an
+        :class:`~geomopt.untangling.UntangleOptions` or None; its ``theta`` is replaced).
+    adjoint : the linear solver of the adjoint (see :func:`geomopt.minimize`).
+    """
+    from .driver import untangle as run
+
+    d = problem.dim
+    theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
+    x0 = jnp.asarray(x0, jnp.float64)
+    options = options or UntangleOptions()
+    max_aspect = options.max_aspect
+    m = problem.n_elements
+    shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((2,), jnp.float64),
+              jax.ShapeDtypeStruct((m,), jnp.bool_))
+
+    @float64
+    def untangled(problem, theta, x0):
+        problem = check_rest_values(jax.tree_util.tree_map(np.asarray, problem))
+        result = run(problem, np.asarray(x0), solver=solver, options=dataclasses.replace(options, theta=float(theta)),
+                     progress=False)
+        require_success(result, "geomopt.untangle")
+        bad = badly_shaped(problem, max_aspect)
+        return result.x, np.array([result.details.map_scale, result.trace.column("eps")[-1]]), bad
+
+    x1, (k, eps), bad = host_constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
+    final = _untangle_problem(problem, x0, k, bad)
+    lam = theta / (1.0 - theta)
+    objective = Objective(final, garanzha)
+
+    def polish(obj, p, start):
+        result = run_min(obj, np.asarray(start), Newton(rtol=1e-12), p, progress=False)
+        require_success(result, "geomopt.untangle (polishing the untangled map)")
+        return result.x, {"objective": obj}
+
+    return argmin(objective, {"eps": eps, "lam": lam}, x1, polish, adjoint)
+
+
+def _untangle_problem(problem, x0, k, bad):
+    """The rest geometry of untangling's energy in the problem's units: ``J`` multiplied by
+    ``k / s`` (the map scaled by ``k``, the rest by ``s = (map volume / rest volume)^(1/d)``,
+    ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
+    edge length.  Traceable in the problem's arrays."""
+
+    d = problem.dim
+    P = problem
+    x = x0.at[P.fixed].set(P.fixed_positions) if P.fixed.size else x0
+    map_vol = jnp.sum(dets(P.simplices, k * x)) / (2.0 if d == 2 else 6.0)
+    rest_vol = jnp.sum(P.volumes)
+    s = jnp.where(map_vol > 0, (jnp.abs(map_vol) / rest_vol) ** (1.0 / d), k)
+    rest_inv, vol = equilateral_rest(P, bad) if np.any(bad) else (P.rest_inv, P.volumes)
+    return dataclasses.replace(P, rest_inv=rest_inv * (k / s), volumes=vol)
