@@ -29,6 +29,7 @@ from test_cli import one_error_line, read_uv_obj, write_obj
 
 # geomopt.compare is the function (re-exported by geomopt); the module is this:
 compare_module = importlib.import_module("geomopt.experiments.comparison")
+inputs_module = importlib.import_module("geomopt.experiments.inputs")
 V2, F = grid(4)  # test_cli's mesh (16 vertices, 18 triangles): kernels compiled once per session
 V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # a curved disk
 FAST = "newton,aqp,lbfgs"  # quick to compile; newton's kernels are test_cli's
@@ -276,8 +277,8 @@ def test_flips_of_every_iterate_are_recorded_and_exit_1(cli, tmp_path, monkeypat
     b = boundary_vertices(S, len(V))
     case = lim_case(tmp_path / "notch", V, S, x, b)
     folding = LBFGS(search=InjectiveSearch(injective=False, c2=0.9))
-    real = compare_module.get_solver
-    monkeypatch.setattr(compare_module, "get_solver", lambda s: folding if s == "lbfgs" else real(s))
+    real = inputs_module.get_solver
+    monkeypatch.setattr(inputs_module, "get_solver", lambda s: folding if s == "lbfgs" else real(s))
     code, _, err = cli("compare", case, "--out", tmp_path / "o", "--solvers", "lbfgs,aqp",
                        "--energy", "dirichlet", "--quiet")
     assert code == 1
@@ -334,7 +335,7 @@ def test_bad_arguments_and_outputs_fail_before_solving(cli, tmp_path, monkeypatc
     one_error_line(err, "newton.obj is a directory")
     with pytest.raises(ParameterError, match="cannot be a file name"):
         geomopt.compare(V3, F, solvers={"../up": "newton"})
-    monkeypatch.setattr(compare_module, "_DENSE_LIMIT_BYTES", 1000)
+    monkeypatch.setattr(inputs_module, "DENSE_LIMIT_BYTES", 1000)
     with pytest.raises(ParameterError, match="dense inverse Hessian"):
         geomopt.compare(V3, F, solvers=["optx-bfgs"])
     assert sorted(os.listdir(tmp_path / "o")) == ["newton.obj"]

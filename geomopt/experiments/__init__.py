@@ -5,5 +5,5 @@ machine (:mod:`~geomopt.experiments.manifest`), and batches of untangling cases
 
 from .._runtime.lazy import submodules
 
-__all__ = ["batch", "comparison", "manifest", "report"]
+__all__ = ["batch", "comparison", "manifest", "inputs", "report", "writers"]
 __getattr__, __dir__ = submodules(__name__, tuple(__all__))

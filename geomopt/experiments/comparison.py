@@ -42,28 +42,17 @@ solver and the convergence figure; :class:`ComparisonSet` does the same for seve
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io as _io
-import json
-import math
-import os
-import re
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from . import manifest as _manifest
-from .. import io
-from .._runtime.errors import MeshError, ParameterError
-from ..objective.objective import Objective
+from .._runtime.errors import ParameterError
 from .._runtime.x64 import float64
-from ..mesh.elements import element_type
-from ..mesh.problem import Problem
-from ..solvers import CM, Newton, Outcome, Progress, get_solver, iterate
+from ..objective.objective import Objective
+from ..solvers import Newton, Outcome, Progress, iterate
 
 __all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
@@ -87,10 +76,6 @@ _BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_
 TIME_LIMIT = "stopped at the time limit (max_seconds)"
 #: the reference solve of ``reference="auto"``
 REFERENCE_RTOL, REFERENCE_MAX_STEPS = 1e-14, 500
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
-# optimistix's BFGS keeps a dense (n d) x (n d) inverse Hessian; refuse what cannot fit
-_DENSE_SOLVERS = ("optx-bfgs",)
-_DENSE_LIMIT_BYTES = 2 << 30
 
 
 def summary_columns(tolerances=TOLERANCES) -> tuple:
@@ -363,7 +348,9 @@ class Comparison:
 
     def output_names(self, formats=("png",)):
         """The file names :meth:`write` writes."""
-        return _output_names(list(self.runs), self.objective.problem.dim, formats)
+        from .writers import output_names
+
+        return output_names(list(self.runs), self.objective.problem.dim, formats)
 
     def write(self, out, formats=("png",), log_x=False, extra=None, *, layout="wide", font_size=None) -> dict:
         """Write ``history.csv``, ``summary.csv``, ``table.tex``, ``manifest.json``, a map per
@@ -375,31 +362,9 @@ class Comparison:
         -------
         dict file kind -> pathlib.Path.
         """
-        out = _prepare_folder(out, self.output_names(formats))
-        paths = {"history": out / "history.csv", "summary": out / "summary.csv"}
-        _write_csv(paths["history"], HISTORY_COLUMNS, self.history_rows())
-        columns = summary_columns(self.tolerances)
-        _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
-        paths.update(self._write_maps(out))
-        paths.update(_write_common(out, {self.label: self}, formats, extra, dict(log_x=log_x, layout=layout,
-                                                                                 font_size=font_size)))
-        return paths
+        from .writers import write_comparison
 
-    def _write_maps(self, out) -> dict:
-        problem, paths = self.objective.problem, {}
-        V = np.asarray(problem.rest_vertices, np.float64)
-        for name, r in self.results.items():
-            x = np.asarray(r.x) * self.mirror  # negation is exact
-            if problem.elements is not None:  # quads (.obj) / hexahedra (.vtk): the cells themselves
-                kind = "quad" if problem.elements.shape[1] == 4 else "hexahedron"
-                paths[name] = io.write_cells(out / f"{name}{'.obj' if kind == 'quad' else '.vtk'}", x,
-                                             problem.elements, kind)
-            elif problem.dim == 2:
-                V3 = V if V.shape[1] == 3 else np.c_[V, np.zeros(len(V))]
-                paths[name] = io.write_obj_with_uv(out / f"{name}.obj", V3, problem.input_simplices, x)
-            else:
-                paths[name] = io.write_vtk_tets(out / f"{name}.vtk", x, problem.input_simplices)
-        return paths
+        return write_comparison(self, out, formats, log_x, extra, layout=layout, font_size=font_size)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -428,31 +393,25 @@ class ComparisonSet:
                                  layout=layout, font_size=font_size)
 
     def output_names(self, formats=("png",)):
-        names = _common_names(formats)
-        for key, c in self.comparisons.items():
-            names += [f"{key}/{n}" for n in c.output_names(formats)]
-        return names
+        """The file names :meth:`write` writes."""
+        from .writers import set_output_names
+
+        return set_output_names(self, formats)
 
     def write(self, out, formats=("png",), log_x=False, extra=None, **figure) -> dict:
         """Each comparison into ``out/<mesh name>/`` (:meth:`Comparison.write`), then
         :meth:`write_combined`; ``figure``: ``layout``, ``font_size``."""
-        out = _prepare_folder(out, _common_names(formats))
-        paths = {key: c.write(out / key, formats, log_x, **figure) for key, c in self.comparisons.items()}
-        return {**paths, **self.write_combined(out, formats, log_x, extra, **figure)}
+        from .writers import write_set
+
+        return write_set(self, out, formats, log_x, extra, **figure)
 
     def write_combined(self, out, formats=("png",), log_x=False, extra=None, *, layout="wide",
                        font_size=None) -> dict:
         """Over all comparisons: ``summary.csv`` (with a ``mesh`` column), ``table.tex``,
         ``manifest.json`` and ``convergence.<format>`` (one row of panels per mesh) in ``out``."""
-        out = _prepare_folder(out, _common_names(formats))
-        tolerances = next(iter(self.comparisons.values())).tolerances
-        columns = ("mesh",) + summary_columns(tolerances)
-        paths = {"summary": out / "summary.csv"}
-        _write_csv(paths["summary"], columns, [[row[c] for c in columns] for row in self.summary_rows()])
-        by_label = {c.label: c for c in self.comparisons.values()}
-        paths.update(_write_common(out, by_label, formats, extra, dict(log_x=log_x, layout=layout,
-                                                                       font_size=font_size)))
-        return paths
+        from .writers import write_combined
+
+        return write_combined(self, out, formats, log_x, extra, layout=layout, font_size=font_size)
 
 
 def exit_status(comparisons) -> int:
@@ -561,14 +520,16 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     >>> {name: run.outcome.value for name, run in comparison.results.items()}
     {'newton': 'converged', 'lbfgs': 'converged'}
     """
-    objective, start, mirror, label, source = _problem(mesh, faces, energy, x0, weights, energy_params)
+    from . import inputs, writers
+
+    objective, start, mirror, label, source = inputs.comparison_problem(mesh, faces, energy, x0, weights, energy_params)
     problem = objective.problem
-    named = _solvers(solvers, problem, max_steps)
-    settings = _settings(max_seconds, reference, repeat, tolerances, formats,
+    named = inputs.comparison_solvers(solvers, problem, max_steps)
+    settings = inputs.check_settings(max_seconds, reference, repeat, tolerances, formats,
                          dict(clock=clock, warmup=warmup, layout=layout, font_size=font_size))
     if out is not None:
-        _prepare_folder(out, _output_names(list(named), problem.dim, settings["formats"]), _inputs([mesh]),
-                        create=False)
+        writers.prepare_folder(out, writers.output_names(list(named), problem.dim, settings["formats"]),
+                               writers.input_files([mesh]), create=False)
     label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, {objective.energy.name}"
     runs, limit, clock = {}, settings["max_seconds"], settings["clock"]
     for name, solver in named.items():
@@ -593,18 +554,20 @@ def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, layout="w
 
     Names are the file names without extension (folder names for LIM cases); they must differ.
     """
+    from . import inputs, writers
+
     if not isinstance(meshes, dict):
-        meshes = {_mesh_key(m): m for m in meshes} if len({_mesh_key(m) for m in meshes}) == len(meshes) else None
+        meshes = {inputs.mesh_key(m): m for m in meshes} if len({inputs.mesh_key(m) for m in meshes}) == len(meshes) else None
         if meshes is None:
             raise ParameterError("compare: two meshes have the same file name; their outputs would share a "
                                  "folder: rename one")
     for key in meshes:
-        if not _NAME.fullmatch(str(key)):
+        if not inputs.NAME.fullmatch(str(key)):
             raise ParameterError(f"compare: mesh name {key!r} cannot be a folder name; use letters, digits and _.+-")
-    figure = _settings(None, "auto", 1, TOLERANCES, formats, dict(layout=layout, font_size=font_size))
+    figure = inputs.check_settings(None, "auto", 1, TOLERANCES, formats, dict(layout=layout, font_size=font_size))
     formats, figure = figure["formats"], {"layout": figure["layout"], "font_size": figure["font_size"]}
     if out is not None:  # created now: each mesh's folder is checked in it before its solves
-        out = _prepare_folder(out, _common_names(formats), _inputs(meshes.values()))
+        out = writers.prepare_folder(out, writers.common_names(formats), writers.input_files(meshes.values()))
     comparisons = {}
     for key, mesh in meshes.items():
         comparisons[key] = compare(mesh, out=None if out is None else out / key, formats=formats, log_x=log_x,
@@ -613,53 +576,6 @@ def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, layout="w
     if out is not None:
         result.write_combined(out, formats, log_x, **figure)
     return result
-
-
-def _mesh_key(mesh) -> str:
-    return Path(mesh).stem if not Path(mesh).is_dir() else Path(mesh).name
-
-
-def _settings(max_seconds, reference, repeat, tolerances, formats, timing_and_figure) -> dict:
-    """The settings of :func:`compare`, checked before anything runs (``timing_and_figure``:
-    ``clock``, ``warmup``, ``layout``, ``font_size``; those left out get their defaults)."""
-    if max_seconds is not None:
-        max_seconds = _positive(max_seconds, "max_seconds")
-    if isinstance(reference, str) and reference not in ("auto", "best"):
-        try:
-            reference = float(reference)
-        except ValueError:
-            raise ParameterError(f"compare: reference must be 'auto', 'best' or a mean energy, got "
-                                 f"{reference!r}") from None
-    if not isinstance(reference, str) and not (isinstance(reference, (int, float)) and math.isfinite(reference)):
-        raise ParameterError(f"compare: reference must be 'auto', 'best' or a finite mean energy, got {reference!r}")
-    if isinstance(repeat, bool) or not isinstance(repeat, (int, np.integer)) or repeat < 1:
-        raise ParameterError(f"compare: repeat must be a whole number >= 1, got {repeat!r}")
-    tol = tuple(float(t) for t in tolerances)
-    if not tol or any(not (0 < t < 1) for t in tol):
-        raise ParameterError(f"compare: tolerances must be relative gaps in (0, 1), got {tolerances!r}")
-    formats = tuple(formats)
-    bad = [f for f in formats if f not in FORMATS]
-    if bad or not formats:
-        raise ParameterError(f"compare: figure formats are {', '.join(FORMATS)}, got {', '.join(bad) or 'none'}")
-    return {"max_seconds": max_seconds, "reference": reference, "repeat": int(repeat),
-            "tolerances": tuple(sorted(tol, reverse=True)), "formats": formats, **_timing_and_figure(**timing_and_figure)}
-
-
-def _timing_and_figure(clock="wall", warmup=True, layout="wide", font_size=None) -> dict:
-    from .report import LAYOUTS
-
-    if clock not in CLOCKS:
-        raise ParameterError(f"compare: clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    if not isinstance(warmup, (bool, np.bool_)):
-        raise ParameterError(f"compare: warmup must be True or False, got {warmup!r}")
-    if layout not in LAYOUTS:
-        raise ParameterError(f"compare: figure layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    if font_size is not None:
-        size = float(font_size) if isinstance(font_size, (int, float, np.number)) else math.nan
-        if not (1.0 <= size <= 72.0):
-            raise ParameterError(f"compare: font_size must be a number of points in [1, 72], got {font_size!r}")
-        font_size = size
-    return {"clock": clock, "warmup": bool(warmup), "layout": layout, "font_size": font_size}
 
 
 def _run(name, solver, objective, x0, max_seconds, progress, tag="", clock="wall") -> SolverRun:
@@ -713,170 +629,3 @@ def _reference(reference, runs, objective, start, progress) -> Reference:
 # ------------------------------------------------------------------------------ inputs
 
 
-def _problem(mesh, faces, energy, x0, weights, energy_params):
-    """``(objective, start map, mirror, label, source)`` for :func:`compare`'s ``mesh``
-    argument; ``source`` records the input (path, content hash) and the start map."""
-    from ..param import start_map
-
-    mirror, case, given = None, None, x0 is not None
-    if isinstance(mesh, (Problem, str, Path)) and faces is not None:
-        raise ParameterError("compare: give faces only with a vertex array, not with a path or a Problem")
-    source = {"input": "arrays", "start": "given x0" if given else None}
-    if isinstance(mesh, Problem):
-        problem, label = mesh, f"{mesh.kind} problem"
-    elif isinstance(mesh, (str, Path)):
-        path = Path(mesh)
-        label = path.name
-        source["input"] = str(path)
-        if path.is_dir():
-            from ..lim import LimCase
-
-            case = path
-            problem, case_x0, _, mirror = LimCase.read(path).to_problem()
-            x0 = case_x0 if x0 is None else io.validate_vertices(x0, "start map x0", dim=problem.dim) * mirror
-            source["files_sha256"] = {p.name: _manifest.file_hash(p) for p in sorted(path.iterdir()) if p.is_file()}
-            source["start"] = source["start"] or "the LIM case's map"
-        else:
-            problem = Problem.surface(*io.read_mesh(path))
-            source["file_sha256"] = _manifest.file_hash(path)
-    else:
-        if faces is None:
-            raise ParameterError("compare: give the faces (m, 3) with a vertex array, or a mesh path, "
-                                 "a LIM case folder or a Problem")
-        V = io.validate_vertices(mesh, "compare: vertices")
-        problem = (Problem.planar if V.shape[1] == 2 else Problem.surface)(V, faces)
-        label = "mesh"
-    objective = Objective(problem, energy, **energy_params)
-    if problem.fixed.size == 0 and problem.dim == 2:
-        from ..param import check_scale_aware
-
-        check_scale_aware(energy, energy_params)
-    if x0 is None:
-        if problem.fixed.size or problem.dim != 2 or problem.elements is not None:
-            raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "
-                                 f"vertices needs a start map x0; only free-boundary 2D maps default "
-                                 f"to the Tutte start")
-        x0, _, _ = start_map(objective, None, weights)
-        source["start"] = f"Tutte embedding ({weights} weights), centred and scaled as parameterize does"
-    x0 = problem.check_map(x0, "start map x0")
-    inverted = problem.count_inverted(x0)
-    if inverted:
-        what = ("tetrahedra" if problem.dim == 3 else "triangle(s)") if problem.elements is None else \
-            element_type(problem.elements)[1]
-        which = "the start map x0" if given else "the start map"
-        if case is not None:
-            which = which if given else f"the map of LIM case {case}"
-            hint = (f"untangle it first (geomopt untangle {case} -o DIR/input.obj, copy its handles "
-                    f"file into DIR, then compare DIR)" if problem.dim == 2 else
-                    f"untangle it first (geomopt untangle {case} -o DIR/init.vtk, copy its rest.vtk and "
-                    f"handles file into DIR, then compare DIR)")
-        else:
-            hint = "untangle it first (geomopt.untangle) or give a flip-free x0"
-        raise MeshError(f"{which} has {inverted} inverted or degenerate {what}; compare needs a "
-                        f"flip-free start map so that every solver can stay flip-free: {hint}")
-    return objective, x0, np.ones(problem.dim) if mirror is None else mirror, label, source
-
-
-def _solvers(solvers, problem, max_steps) -> dict:
-    """``{name: solver}`` with ``max_steps`` applied, checked before anything runs."""
-    if solvers is None:
-        solvers = [s for s in DEFAULT_SOLVERS if problem.dim == 2 or s != "cm"]
-    if isinstance(solvers, str):
-        solvers = [s for s in solvers.split(",") if s.strip()]
-    items = list(solvers.items()) if isinstance(solvers, dict) else [
-        (s.strip().lower().replace("_", "-") if isinstance(s, str) else type(s).__name__.lower(), s)
-        for s in solvers]
-    if not items:
-        raise ParameterError("compare: no solver given; name at least one (e.g. newton,lbfgs)")
-    named = {}
-    for name, s in items:
-        if not isinstance(name, str) or not _NAME.fullmatch(name):
-            raise ParameterError(f"compare: solver name {name!r} cannot be a file name; use letters, "
-                                 f"digits and _.+- (starting with a letter or digit)")
-        if name in named:
-            raise ParameterError(f"compare: solver {name!r} is given twice; name each solver once")
-        solver = get_solver(s)
-        if max_steps is not None:
-            solver = dataclasses.replace(solver, max_steps=max_steps)
-        if isinstance(solver, CM) and problem.dim != 2:
-            raise ParameterError("compare: cm (composite majorization) is defined for triangles only; "
-                                 "leave it out for a tet problem")
-        if name in _DENSE_SOLVERS:
-            nbytes = 8 * (problem.n_vertices * problem.dim) ** 2
-            if nbytes > _DENSE_LIMIT_BYTES:
-                raise ParameterError(
-                    f"compare: {name} keeps a dense inverse Hessian of {nbytes / 2**30:.1f} GiB for "
-                    f"{problem.n_vertices} vertices; use optx-lbfgs or lbfgs on a mesh this size")
-        named[name] = solver
-    return named
-
-
-def _positive(value, name) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = float("nan")
-    if not (v > 0 and math.isfinite(v)):
-        raise ParameterError(f"compare: {name} must be a positive number of seconds, got {value!r}")
-    return v
-
-
-# ------------------------------------------------------------------------------ outputs
-
-
-def _common_names(formats):
-    return ["summary.csv", "table.tex", "manifest.json"] + [f"convergence.{f}" for f in formats]
-
-
-def _output_names(names, dim, formats=("png",)):
-    ext = ".obj" if dim == 2 else ".vtk"
-    return ["history.csv"] + _common_names(formats) + [n + ext for n in names]
-
-
-def _inputs(meshes):
-    """The input files among ``meshes`` (paths; arrays and trimesh objects are not files)."""
-    return [m for m in meshes if isinstance(m, (str, os.PathLike))]
-
-
-def _prepare_folder(out, names, inputs=(), create=True) -> Path:
-    """Check every file in ``names`` (relative to the folder ``out``) before any work with
-    :func:`geomopt.io.check_outputs` (none replaces an input, ``out``'s parent exists), then
-    create ``out`` unless ``create`` is False."""
-    out = Path(out)
-    io.check_outputs([out / n for n in names], inputs, folder=out)
-    return io.create_output_folder(out) if create else out
-
-
-def _write_csv(path, columns, rows):
-    def cell(v):
-        return "" if v is None else repr(float(v)) if isinstance(v, float) else v
-
-    def write(fh):
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(columns)
-        w.writerows([cell(v) for v in row] for row in rows)
-
-    return io.atomic_write(path, write)
-
-
-def _write_common(out, comparisons: dict, formats, extra, figure) -> dict:
-    """``table.tex``, ``manifest.json`` and ``convergence.<format>`` (``figure``: the keyword
-    arguments of :func:`~geomopt.experiments.report.comparison_figure`) of ``comparisons``
-    (label -> :class:`Comparison`) into ``out``."""
-    from .report import comparison_figure, latex_table, save_figure
-
-    paths = {"table": io.atomic_write(out / "table.tex", lambda fh: fh.write(latex_table(comparisons)))}
-    manifest = {"schema_version": _manifest.SCHEMA_VERSION, "kind": "geomopt.compare",
-                "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "versions": _manifest.versions(), "environment": _manifest.environment(),
-                "comparisons": {label: c.manifest() for label, c in comparisons.items()},
-                "figure": {"formats": list(formats), **figure}, **(extra or {})}
-    paths["manifest"] = io.atomic_write(out / "manifest.json",
-                                        lambda fh: fh.write(json.dumps(manifest, indent=1, default=str) + "\n"))
-    fig = comparison_figure(comparisons, **figure)
-    for fmt in formats:
-        buf = _io.BytesIO()
-        save_figure(fig, buf, fmt)
-        paths[f"convergence.{fmt}"] = io.atomic_write(out / f"convergence.{fmt}",
-                                                      lambda fh, data=buf.getvalue(): fh.write(data), mode="wb")
-    return paths
