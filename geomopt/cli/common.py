@@ -5,7 +5,6 @@ that ``geomopt --help`` stays fast."""
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
 
@@ -37,6 +36,8 @@ def report(args, **fields):
 
 def make_solver(name, max_steps=None):
     """The solver named ``name`` (:func:`geomopt.solvers.get_solver`), with ``--max-steps`` when given."""
+    import dataclasses
+
     from .. import solvers
 
     found = solvers.get_solver(name)
