@@ -32,7 +32,8 @@ from .exact.predicates import differing_rows
 from .mesh.problem import Problem, fixed_total_problem
 from .untangling import untangle
 
-__all__ = ["LimCase", "LimProblem", "untangle_case", "read_lim_case", "lim_case_dim", "lim_cases"]
+__all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix", "read_lim_case", "lim_case_dim",
+           "lim_cases"]
 
 
 class LimProblem(NamedTuple):
@@ -405,6 +406,12 @@ def untangle_case(case, solver="lbfgs", progress=True, **options):
     if (setup.mirror < 0).any():
         result = dataclasses.replace(result, x=result.x * setup.mirror)  # negation is exact
     return case, result
+
+
+def output_suffix(dim) -> str:
+    """The file a solved case of dimension ``dim`` (:meth:`LimCase.dim_of`) is written to:
+    ``".obj"`` in 2D (its ``vt`` lines the map), ``".vtk"`` in 3D."""
+    return ".obj" if dim == 2 else ".vtk"
 
 
 def _read_2d(folder):

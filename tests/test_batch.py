@@ -17,8 +17,8 @@ import geomopt.cli
 from geomopt.mesh import generators as G
 from geomopt import ParameterError, io
 from geomopt._runtime.padding import MAXIMUM_ELEMENTS, bucket_sizes
-from geomopt.experiments.batch import SUMMARY_COLUMNS, batch_cases, run_batch
-from geomopt.lim import LimCase
+from geomopt.experiments.batch import EXCEPT_FIXED, SUMMARY_COLUMNS, batch_cases, default_workers, run_batch, tally
+from geomopt.lim import LimCase, output_suffix
 from geomopt.exact.predicates import count_inverted
 from geomopt.untangling import untangle
 from geomopt.untangling.continuation import _outer_stats
@@ -420,6 +420,17 @@ def test_a_scheduler_that_is_not_an_address_is_bad_usage_and_creates_nothing(cli
     assert code == 2 and err.startswith("geomopt: error: cannot reach the Dask scheduler at not a url")
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_the_batch_helpers_the_command_line_calls(monkeypatch):
+    """How many workers a batch gets by default (one per usable core, at most one per case), how its
+    rows are tallied (certified, certified except where the handles fix them, not certified) and
+    where a solved LIM case is written (2D: .obj, 3D: .vtk)."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    assert (default_workers(2), default_workers(9)) == (2, 4)
+    rows = [{"certified": c} for c in ("yes", EXCEPT_FIXED, "no", "yes", "", EXCEPT_FIXED, "yes")]
+    assert tally(rows) == (3, 2, 2) and tally([]) == (0, 0, 0)
+    assert (output_suffix(2), output_suffix(3)) == (".obj", ".vtk")
 
 
 def test_without_dask_a_batch_runs_in_this_process_or_names_the_extra(cli, tmp_path, monkeypatch):

@@ -11,6 +11,7 @@ import pytest
 
 from geomopt import MeshError, MeshFormatError, io
 from geomopt.mesh import generators as G
+from geomopt.mesh.cells import CELL_EXTENSIONS, case_inputs, output_extensions
 from geomopt.mesh.elements import certify_elements, quality
 from geomopt.mesh.problem import Problem
 
@@ -301,3 +302,20 @@ def test_smooth_refuses_an_invalid_mesh_and_its_own_input(cli, tmp_path):
     assert code == 2 and "untangle it first" in one_error_line(err)
     code, _, err = cli("smooth", bad, "-o", bad, "--quiet")
     assert code == 2 and "is the input file" in one_error_line(err)
+
+
+def test_what_a_cell_case_reads_and_may_be_written_to(tmp_path):
+    """The inputs no output may be (a mesh file, or every file of a case folder, then --rest and
+    --handles) and the extensions an output may have (.obj for quads only)."""
+    assert output_extensions("quad") == CELL_EXTENSIONS
+    for kind in ("tetra", "hexahedron"):
+        assert output_extensions(kind) == tuple(e for e in CELL_EXTENSIONS if e != ".obj")
+    folder = tmp_path / "case"
+    folder.mkdir()
+    for name in ("rest.vtk", "init.vtk", "handles.txt"):
+        (folder / name).write_text("")
+    assert sorted(case_inputs(folder)) == sorted(str(folder / n) for n in ("rest.vtk", "init.vtk", "handles.txt"))
+    mesh, rest, handles = (tmp_path / n for n in ("tangled.vtk", "rest.vtk", "ids.txt"))
+    assert case_inputs(mesh) == [str(mesh)]
+    assert case_inputs(mesh, rest, handles) == [str(mesh), str(rest), str(handles)]
+    assert case_inputs(mesh, handles=handles) == [str(mesh), str(handles)]

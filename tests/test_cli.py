@@ -545,10 +545,10 @@ def test_entry_ends_the_process_with_mains_exit_status_unless_a_thread_still_wor
         exits.append(code)
         raise Ended
 
-    observed = geomopt.cli._observed
-    monkeypatch.setattr(geomopt.cli, "_observed", lambda: False)  # even if this test runs under coverage
-    monkeypatch.setattr(geomopt.cli, "main", lambda: 3)
-    monkeypatch.setattr(geomopt.cli.os, "_exit", fake_exit)
+    observed = geomopt.cli.run._observed
+    monkeypatch.setattr(geomopt.cli.run, "_observed", lambda: False)  # even if this test runs under coverage
+    monkeypatch.setattr(geomopt.cli.run, "main", lambda: 3)
+    monkeypatch.setattr(geomopt.cli.run.os, "_exit", fake_exit)
     with pytest.raises(Ended):
         geomopt.cli.entry()
     assert exits == [3]
@@ -562,8 +562,8 @@ def test_entry_ends_the_process_with_mains_exit_status_unless_a_thread_still_wor
     finally:
         release.set()
         worker.join()
-    monkeypatch.setattr(geomopt.cli, "_observed", observed)
-    monkeypatch.setattr(geomopt.cli.sys, "getprofile", lambda: object())  # a profiler reports at exit
+    monkeypatch.setattr(geomopt.cli.run, "_observed", observed)
+    monkeypatch.setattr(geomopt.cli.run.sys, "getprofile", lambda: object())  # a profiler reports at exit
     with pytest.raises(SystemExit):
         geomopt.cli.entry()
     assert exits == [3]

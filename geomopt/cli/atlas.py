@@ -1,7 +1,6 @@
 """``geomopt param`` on a surface that is not a disk (or with ``--atlas``): make a certified
 atlas, write it as OBJ (the input's ``v`` lines and face order, one ``vt`` per chart corner,
-``f v/vt ...``) and, with ``--png``, its picture.  The command line parses and prints; this
-module runs the atlas branch."""
+``f v/vt ...``) and, with ``--png``, its picture."""
 
 from __future__ import annotations
 
@@ -10,6 +9,7 @@ from pathlib import Path
 
 from .._runtime.errors import MeshError, ParameterError
 from ..exact.topology import check_disk
+from .common import EXIT_OK, fail, log, report
 
 __all__ = ["is_disk", "param_atlas"]
 
@@ -23,9 +23,9 @@ def is_disk(F, n_vertices) -> bool:
     return True
 
 
-def param_atlas(args, V, F, energy, solver, log, report, fail) -> int:
-    """The atlas branch of ``geomopt param`` (``args`` as the command parsed them; ``log``,
-    ``report`` and ``fail`` the command's printers).  Returns the exit status."""
+def param_atlas(args, V, F, energy, solver) -> int:
+    """The atlas branch of ``geomopt param`` (``args`` as the command parsed them).  Returns the
+    exit status."""
     from .. import io
     from ..atlas.build import AtlasOptions, make_atlas
 
@@ -35,7 +35,7 @@ def param_atlas(args, V, F, energy, solver, log, report, fail) -> int:
     if args.init != "tutte":
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
-    atlas = make_atlas(V, F, energy=energy, solver=solver, progress=not args.quiet and _progress(args, log),
+    atlas = make_atlas(V, F, energy=energy, solver=solver, progress=not args.quiet and _progress(args),
                        options=AtlasOptions(margin=args.margin))
     m = atlas.metrics
     log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
@@ -57,10 +57,10 @@ def param_atlas(args, V, F, energy, solver, log, report, fail) -> int:
             _save_picture(atlas, V, F, args, outputs)
         io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, atlas.uv,
                               format="obj", uv_faces=atlas.uv_faces)
-    return 0
+    return EXIT_OK
 
 
-def _progress(args, log):
+def _progress(args):
     """The atlas's progress lines, through the command's logger."""
     def say(stage, info):
         log(args, f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"

@@ -20,17 +20,18 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
+import os
 import time
 from pathlib import Path
 
 from .._runtime.errors import GeomoptError, ParameterError
 from .._runtime.padding import bucket_sizes
 from ..mesh.cells import cell_problem, is_cell_case, read_cell_case, write_certified
-from ..lim import LimCase, untangle_case
+from ..lim import LimCase, output_suffix, untangle_case
 from ..solvers import Outcome
 
-__all__ = ["SUMMARY_COLUMNS", "EXCEPT_FIXED", "batch_cases", "dask_available", "solve_case", "run_batch",
-           "write_summary"]
+__all__ = ["SUMMARY_COLUMNS", "EXCEPT_FIXED", "batch_cases", "dask_available", "default_workers", "solve_case",
+           "run_batch", "tally", "write_summary"]
 
 #: what to install for batches on Dask (``distributed`` is an extra, not a dependency)
 DASK_EXTRA = 'pip install "geomopt[batch]"'
@@ -104,7 +105,7 @@ def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
     case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket, start=start)
     _solved(row, res)
     if res.success or res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED:
-        output = Path(outdir) / (folder.name + (".obj" if case.dim == 2 else ".vtk"))
+        output = Path(outdir) / (folder.name + output_suffix(case.dim))
         check = case.write_certified(res, output)
         row.update(inverted_after=check["inverted"], certified="yes" if check["certified"] else EXCEPT_FIXED,
                    output=output.name, message=res.message if not check["certified"] else "")
@@ -173,6 +174,22 @@ def batch_cases(paths):
         seen[c.name] = c.resolve()
     unique = {c.resolve(): c for c in found}  # a case named twice is solved once
     return list(unique.values())
+
+
+def default_workers(n_cases) -> int:
+    """Worker processes for ``n_cases`` cases when none are asked for: one per CPU core this
+    process may run on, at most one per case."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return min(cores, n_cases)
+
+
+def tally(rows) -> tuple:
+    """``(certified, certified_except_fixed, not_certified)``: how many summary rows (:func:`solve_case`)
+    are certified (``"yes"``), written but certified only except where the handles fix them
+    (:data:`EXCEPT_FIXED`), and neither (nothing written)."""
+    except_fixed = sum(row["certified"] == EXCEPT_FIXED for row in rows)
+    failed = sum(row["certified"] not in ("yes", EXCEPT_FIXED) for row in rows)
+    return len(rows) - failed - except_fixed, except_fixed, failed
 
 
 def write_summary(path, rows):

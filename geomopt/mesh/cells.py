@@ -30,7 +30,8 @@ import numpy as np
 
 from .._runtime.errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError
 
-__all__ = ["CellCase", "CELL_EXTENSIONS", "UNTANGLE_KINDS", "SMOOTH_KINDS", "is_cell_case", "read_cell_case", "cell_problem", "write_certified"]
+__all__ = ["CellCase", "CELL_EXTENSIONS", "UNTANGLE_KINDS", "SMOOTH_KINDS", "is_cell_case", "read_cell_case", "cell_problem", "write_certified",
+           "output_extensions", "case_inputs"]
 
 #: Files a tet / quad / hex mesh is read from and written to (``.obj``: quads only).
 CELL_EXTENSIONS = (".vtk", ".vtu", ".msh", ".mesh", ".obj")
@@ -85,6 +86,19 @@ def is_cell_case(path) -> bool:
         rest = path / "rest.vtk"
         return rest.is_file() and _vtk_cell_type(rest) in (9, 12)
     return path.suffix.lower() in CELL_EXTENSIONS
+
+
+def output_extensions(kind) -> tuple:
+    """The files a case of ``kind`` is written to: :data:`CELL_EXTENSIONS`, ``.obj`` for quads only."""
+    return CELL_EXTENSIONS if kind == "quad" else tuple(e for e in CELL_EXTENSIONS if e != ".obj")
+
+
+def case_inputs(path, rest=None, handles=None) -> list:
+    """Every file a case reads (as :func:`read_cell_case` is given it), as strings: the mesh file,
+    or each file in the case folder, then ``rest`` and ``handles`` when given; no output may be one."""
+    path = Path(path)
+    inputs = [str(p) for p in path.iterdir()] if path.is_dir() else [str(path)]
+    return inputs + [str(p) for p in (rest, handles) if p is not None]
 
 
 def read_cell_case(path, rest=None, handles=None, kinds=UNTANGLE_KINDS) -> CellCase:
