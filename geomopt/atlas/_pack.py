@@ -47,7 +47,7 @@ _FIRST_GUESS = 0.6  # packing efficiency assumed when choosing the pixel size
 _MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency down to 0.5): no re-packing
 _TRIES = 4
 _LARGE, _STEPS = 0.1, 6  # a chart of over this fraction of the area is also tried every 90 / _STEPS degrees
-_BUDGET = 80  # square packings per layout (every rule and chart order, bisection steps included)
+_BUDGET = 24  # square packings per layout (every strategy, bisection steps included)
 
 
 @dataclasses.dataclass(frozen=True)

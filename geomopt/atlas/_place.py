@@ -25,6 +25,7 @@ import scipy.fft
 __all__ = ["coarse_factor", "pack_square", "smallest_square"]
 
 _COARSE_SIDE = 128  # pixels a side of the coarse grid
+_REACH = 0.1  # after the first strategy, bisections start this fraction below the best square so far
 _TOLERANCE = 0.01  # bisection stops when the bracket is this fraction of the side (or 1 pixel)
 
 
@@ -42,55 +43,53 @@ def pool(mask, c: int) -> np.ndarray:
     return padded.reshape(Hc, c, Wc, c).any(axis=(1, 3))
 
 
-def _correlate_free(occ, kernel, occ_hat=None, kernel_hat=None, fshape=None):
-    """(H - h + 1, W - w + 1) bool: the spots where ``kernel`` (h, w) meets no set pixel of ``occ``
-    (H, W), by FFT (counts are integers: ``< 0.5`` is safe; callers re-check the spot taken)."""
-    H, W = occ.shape
-    h, w = kernel.shape
-    if h > H or w > W:
-        return np.zeros((max(H - h + 1, 0), max(W - w + 1, 0)), bool)
-    fshape = fshape or (scipy.fft.next_fast_len(H, True), scipy.fft.next_fast_len(W, True))
-    if occ_hat is None:
-        occ_hat = scipy.fft.rfft2(occ.astype(np.float32), fshape)
-    if kernel_hat is None:
-        kernel_hat = scipy.fft.rfft2(kernel[::-1, ::-1].astype(np.float32), fshape)
-    return scipy.fft.irfft2(occ_hat * kernel_hat, fshape)[h - 1:H, w - 1:W] < 0.5
+def _padded(a, shape) -> np.ndarray:
+    """``a`` (h, w) as float32 in the corner of zeros of ``shape``."""
+    out = np.zeros(shape, np.float32)
+    out[:a.shape[0], :a.shape[1]] = a
+    return out
 
 
 class _Canvas:
     """The fine occupancy (masks placed) of an ``S x S`` square grown by ``r`` on every side, its
     coarse blocks, and the FFTs of the charts' coarse kernels (cached per chart orientation)."""
 
-    def __init__(self, S: int, r: int, c: int, cache: dict):
+    def __init__(self, S: int, r: int, c: int, cache: dict, fft_side: int = 0):
         self.S, self.r, self.c = S, r, c
         n = S + 2 * r
         self.occ = np.zeros((-(-n // c) * c,) * 2, bool)
         self.coarse = np.zeros((-(-n // c),) * 2, bool)
-        # rounded up to 16 blocks: the squares of one bisection share it, and the kernels' FFTs
-        self.fshape = (scipy.fft.next_fast_len(-(-self.coarse.shape[0] // 16) * 16, True),) * 2
+        # at least ``fft_side``: the smaller squares of one bisection share it, and the kernels' FFTs
+        self.fshape = (scipy.fft.next_fast_len(max(self.coarse.shape[0], fft_side), True),) * 2
         self.cache = cache
         self.occ_hat = None
 
-    def _kernel_hat(self, shape):
-        key = (id(shape), self.c, self.fshape)
+    def _kernels(self, shapes):
+        """The coarse kernels of the orientations ``shapes`` and their stacked FFTs (cached)."""
+        key = (tuple(id(s) for s in shapes), self.c, self.fshape)
         if key not in self.cache:
-            coarse = pool(shape.grown, self.c)
-            self.cache[key] = (coarse, scipy.fft.rfft2(coarse[::-1, ::-1].astype(np.float32), self.fshape))
+            coarse = [pool(s.grown, self.c) for s in shapes]
+            hats = scipy.fft.rfft2(np.stack([_padded(k[::-1, ::-1], self.fshape) for k in coarse]), axes=(-2, -1))
+            self.cache[key] = (coarse, hats)
         return self.cache[key]
 
-    def free(self, shape):
-        """(bool array of coarse spots (Y, X) where ``shape`` is free and inside the square), or
-        None when it cannot fit the square at all."""
-        h, w = shape.mask.shape
-        top, right = (self.S - h) // self.c, (self.S - w) // self.c
-        if top < 0 or right < 0:
-            return None
+    def free(self, shapes):
+        """Per orientation of ``shapes``: the (bool) coarse spots (Y, X) where it is free and
+        inside the square, or None when it cannot fit the square at all.  One FFT correlation
+        for all orientations (counts are integers: ``< 0.5`` is safe; the spot taken is re-checked)."""
+        out, H = [None] * len(shapes), self.coarse.shape[0]
+        limits = [((self.S - s.mask.shape[0]) // self.c, (self.S - s.mask.shape[1]) // self.c) for s in shapes]
         if not self.coarse.any():
-            return np.ones((top + 1, right + 1), bool)
+            return [np.ones((t + 1, q + 1), bool) if min(t, q) >= 0 else None for t, q in limits]
         if self.occ_hat is None:
             self.occ_hat = scipy.fft.rfft2(self.coarse.astype(np.float32), self.fshape)
-        kernel, kernel_hat = self._kernel_hat(shape)
-        return _correlate_free(self.coarse, kernel, self.occ_hat, kernel_hat, self.fshape)[:top + 1, :right + 1]
+        kernels, hats = self._kernels(shapes)
+        counts = scipy.fft.irfft2(self.occ_hat * hats, self.fshape, axes=(-2, -1))
+        for k, ((top, right), kern) in enumerate(zip(limits, kernels)):
+            if min(top, right) >= 0:
+                h, w = kern.shape
+                out[k] = counts[k, h - 1:H, w - 1:H][:top + 1, :right + 1] < 0.5
+        return out
 
     def _free(self, g, y: int, x: int) -> bool:
         return y >= 0 and x >= 0 and not (self.occ[y:y + g.shape[0], x:x + g.shape[1]] & g).any()
@@ -142,18 +141,18 @@ def _choose(free, shape, c: int, r: int, extent, rule: str):
     return (int(max(R2[j], C2[j])), int(R2[j] * C2[j]), int(ys[j]), int(xs[j])), int(ys[j]), int(xs[j])
 
 
-def pack_square(shapes, order, r: int, S: int, c: int, cache: dict, rule: str = "bottom"):
+def pack_square(shapes, order, r: int, S: int, c: int, cache: dict, rule: str = "bottom", fft_side: int = 0):
     """Each chart in ``order`` at its best free spot by ``rule`` (:func:`_choose`) over its
     orientations ``shapes[i]`` (each with ``mask``, ``grown``), inside an ``S x S`` square of
     fine pixels (coarse blocks of ``c``).  Returns per chart (orientation, y, x) of the mask's
-    first pixel (margin offset included), or None when a chart does not fit."""
-    canvas = _Canvas(S, r, c, cache)
+    first pixel (margin offset included), or None when a chart does not fit.  ``cache`` keeps
+    the charts' kernel FFTs between calls with the same ``c`` and FFT size (at least ``fft_side``)."""
+    canvas = _Canvas(S, r, c, cache, fft_side)
     placed = [None] * len(shapes)
     extent = (0, 0)
     for i in order:
         best = None
-        for s in shapes[i]:
-            free = canvas.free(s)
+        for s, free in zip(shapes[i], canvas.free(shapes[i])):
             spot = None if free is None else _choose(free, s, c, r, extent, rule)
             if spot is not None and (best is None or spot[0] < best[0]):
                 best = (spot[0], s, spot[1], spot[2])
@@ -175,18 +174,20 @@ def smallest_square(strategies, r: int, side_of, budget: int):
     of orientations), rule and order.  The first starts from a square of the charts' total area
     (at an efficiency of 0.8) and grows it by 10 % until the charts fit; then each strategy
     bisects between a side too small for the area and the smallest square that fitted so far
-    (whether a strategy fits is not monotone in the side, so every one bisects from the bottom).
+    (whether a strategy fits is not monotone in the side, so every one bisects from below: the
+    first from the area's bound, the others from ``_REACH`` below the best so far).
     At most ``budget`` square packings in all."""
     shapes = strategies[0][0]
     area = sum(min(int(s.mask.sum()) for s in sh) for sh in shapes)
     least = max(min(max(s.mask.shape) for s in sh) for sh in shapes)
     lo = max(int(math.sqrt(area)), least) - 1  # no square of this side holds them
     c = coarse_factor(int(math.sqrt(area / 0.6)))
-    cache, best, tries = {}, None, 0
+    cache, best, tries, fft_side = {}, None, 0, 0
 
     def fits(S, strategy):
         nonlocal best, tries
-        placed, tries = pack_square(strategy[0], strategy[2], r, S, c, cache, strategy[1]), tries + 1
+        placed = pack_square(strategy[0], strategy[2], r, S, c, cache, strategy[1], fft_side)
+        tries += 1
         if placed is not None and (best is None or side_of(placed) < best[1]):
             best = (placed, side_of(placed))
         return placed is not None
@@ -194,8 +195,9 @@ def smallest_square(strategies, r: int, side_of, budget: int):
     ok = max(lo + 1, int(math.sqrt(area / 0.8)))
     while not fits(ok, strategies[0]):
         ok = max(ok + 1, int(ok * 1.1))
-    for strategy in strategies:
-        fail = lo
+    fft_side = -(-(ok + 2 * r) // c)  # every later square is smaller: one FFT size
+    for k, strategy in enumerate(strategies):
+        fail = lo if k == 0 else max(lo, int(ok * (1 - _REACH)))
         while ok - fail > max(1, _TOLERANCE * ok) and tries < budget:
             mid = (ok + fail) // 2
             if fits(mid, strategy):
