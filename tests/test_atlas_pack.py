@@ -240,6 +240,7 @@ def test_place_pack_square_keeps_masks_apart_and_inside():
             assert r <= y and y + h <= 150 + r and r <= x and x + w <= 150 + r
             occ[y:y + h, x:x + w] += s.mask
         assert occ.max() == 1
+        assert placed[order[0]][1:] == (r, r)  # the first chart in the bottom-left corner
         for s, y, x in placed:  # the grown mask meets nothing but its own chart
             h, w = s.mask.shape
             own = np.zeros_like(occ)
@@ -411,3 +412,21 @@ def _brute_meet(a, b, c, d):
         return True
     return ((o1 == 0 and on(a, b, c)) or (o2 == 0 and on(a, b, d)) or (o3 == 0 and on(c, d, a))
             or (o4 == 0 and on(c, d, b)))
+
+
+def test_place_bottom_rule_fills_a_cavity():
+    """A table-shaped chart (a bar on two legs) goes first; with the "bottom" rule a small square
+    goes under the table (the lowest free spot), not on it (where sliding down from above ends)."""
+    from geomopt.atlas._place import pack_square
+
+    class Shape:
+        def __init__(self, mask):
+            self.mask = self.grown = mask
+
+    table = np.zeros((20, 40), bool)
+    table[16:] = True  # the bar, on top (rows grow upwards)
+    table[:, :4] = table[:, -4:] = True  # the legs
+    square = np.ones((8, 8), bool)
+    placed = pack_square([[Shape(table)], [Shape(square)]], [0, 1], 0, 40, 1, {}, "bottom")
+    assert placed[0][1:] == (0, 0)
+    assert placed[1][1:] == (0, 4)
