@@ -430,3 +430,19 @@ def test_place_bottom_rule_fills_a_cavity():
     placed = pack_square([[Shape(table)], [Shape(square)]], [0, 1], 0, 40, 1, {}, "bottom")
     assert placed[0][1:] == (0, 0)
     assert placed[1][1:] == (0, 4)
+
+
+def test_place_skips_an_orientation_longer_than_the_square():
+    """A long bar fits the square only one way round: the other orientation (longer than the
+    square, and than the FFT of its coarse grid) is skipped, not an error."""
+    from geomopt.atlas._place import pack_square
+
+    class Shape:
+        def __init__(self, mask):
+            self.mask = self.grown = mask
+
+    bar = np.ones((4, 60), bool)
+    small = np.ones((4, 4), bool)
+    shapes = [[Shape(small)], [Shape(bar.T.copy()), Shape(bar)]]
+    placed = pack_square(shapes, [0, 1], 0, 64, 4, {}, "bottom")
+    assert placed is not None and placed[1][0].mask.shape == (4, 60)

@@ -44,9 +44,11 @@ def pool(mask, c: int) -> np.ndarray:
 
 
 def _padded(a, shape) -> np.ndarray:
-    """``a`` (h, w) as float32 in the corner of zeros of ``shape``."""
+    """``a`` (h, w) as float32 in the corner of zeros of ``shape``, cut to it: a kernel larger
+    than the FFT is larger than the square, and its (cut) correlation is never read."""
     out = np.zeros(shape, np.float32)
-    out[:a.shape[0], :a.shape[1]] = a
+    h, w = min(a.shape[0], shape[0]), min(a.shape[1], shape[1])
+    out[:h, :w] = a[:h, :w]
     return out
 
 
