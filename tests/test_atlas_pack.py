@@ -433,16 +433,15 @@ def test_place_bottom_rule_fills_a_cavity():
 
 
 def test_place_skips_an_orientation_longer_than_the_square():
-    """A long bar fits the square only one way round: the other orientation (longer than the
-    square, and than the FFT of its coarse grid) is skipped, not an error."""
+    """A chart whose one orientation is longer than the square (and than the FFT of its coarse
+    grid) goes in at its other orientation: the long one is skipped, not an error."""
     from geomopt.atlas._place import pack_square
 
     class Shape:
         def __init__(self, mask):
             self.mask = self.grown = mask
 
-    bar = np.ones((4, 60), bool)
     small = np.ones((4, 4), bool)
-    shapes = [[Shape(small)], [Shape(bar.T.copy()), Shape(bar)]]
+    shapes = [[Shape(small)], [Shape(np.ones((4, 90), bool)), Shape(np.ones((4, 60), bool))]]
     placed = pack_square(shapes, [0, 1], 0, 64, 4, {}, "bottom")
     assert placed is not None and placed[1][0].mask.shape == (4, 60)
