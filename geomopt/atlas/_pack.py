@@ -1,22 +1,22 @@
 """Pack flat charts into the unit square: one common scale, a rotation and a translation each.
 
-The method is xatlas's bitmap packer (J. Young, https://github.com/jpcy/xatlas, after
-B. Lévy et al. 2002's "Tetris" packer), vectorised:
+A raster packer in the manner of xatlas's (J. Young, https://github.com/jpcy/xatlas, after
+B. Lévy et al. 2002's "Tetris" packer), searching for the smallest square:
 
 1. Each chart is turned so that its minimum-area bounding rectangle is axis-aligned (rotating
    calipers over the convex hull: the optimal rectangle has a side on a hull edge, Freeman &
    Shapira 1975), then tried at that angle plus 0, 90, 180 and 270 degrees (90-degree turns are
-   exact in floating point); a chart long enough to decide the square's side is also tried at the
-   angle of its smallest bounding square (diagonally).  Rotations only: a chart is never mirrored.
+   exact in floating point, and turn the raster exactly); a chart long enough to decide the
+   square's side is also tried at the angle of its smallest bounding square (diagonally), and a
+   chart of over ``_LARGE`` of the total area also every ``90 / _STEPS`` degrees.  Rotations
+   only: a chart is never mirrored.
 2. At a pixel size chosen from the charts' total area and ``resolution``, each orientation is
    rasterised conservatively (:mod:`geomopt.atlas._raster`) and grown by the margin.
-3. Largest first, each chart goes where its grown raster meets no pixel of the charts placed so
-   far and the bounding square of everything placed grows least (ties: the smaller bounding
-   rectangle, then the lowest and leftmost spot).  All free spots of one orientation come from one
-   FFT correlation of the occupancy bitmap with the raster (the occupancy's transform is shared by
-   the four orientations); the chosen spot is re-checked exactly on the bitmaps.  Within a budget
-   of passes (charts x pixels), a second chart order is tried, then bottom-left packings into
-   slightly smaller squares; the smallest square wins.
+3. The charts are placed into a square of ``S`` pixels, one by one (:mod:`geomopt.atlas._place`:
+   free spots on a coarse grid by FFT correlation, then slid down and left on the fine grid), and
+   ``S`` is bisected for several strategies (where the bounding square grows least or at the
+   lowest top edge; charts by decreasing area or length; with or without the large charts'
+   in-between angles), within a budget of packings; the smallest true side wins.
 4. The placed charts are scaled so that their bounding square is ``[0, 1]^2``; a packing whose
    margin, after that scaling, fell short (the extent was under-estimated) is redone with a wider
    margin in pixels, and the result is certified exactly (:func:`certify_atlas`): charts disjoint
