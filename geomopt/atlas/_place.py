@@ -4,9 +4,10 @@ Charts are given as bitmaps (:mod:`geomopt.atlas._raster`): ``mask`` (the chart)
 (the mask grown by the margin ``r`` pixels, offset by ``r``).  A chart may go at spot ``(y, x)``
 (``grown``'s first row and column on the canvas) when ``grown`` there meets no pixel of the masks
 placed so far; the mask then covers rows ``y + r .. y + r + h - 1``.  :func:`pack_square` puts the
-charts, in a given order, each at the free spot of the lowest top edge (then the leftmost) over its
-orientations, inside an ``S x S`` square; :func:`smallest_square` finds the smallest ``S`` that
-holds them all by bisection.
+charts, in a given order, each at its best free spot over its orientations inside an ``S x S``
+square (by a rule: the lowest top edge, or the least growth of the bounding square);
+:func:`smallest_square` finds the smallest ``S`` that holds them all by bisection, over several
+such strategies.
 
 Where to look is decided on a *coarse* grid (blocks of ``c x c`` pixels; a block is set when any
 of its pixels is): a spot free on the coarse grid is free on the fine one, and all coarse spots of
