@@ -445,3 +445,26 @@ def test_place_skips_an_orientation_longer_than_the_square():
     shapes = [[Shape(small)], [Shape(np.ones((4, 90), bool)), Shape(np.ones((4, 60), bool))]]
     placed = pack_square(shapes, [0, 1], 0, 64, 4, {}, "bottom")
     assert placed is not None and placed[1][0].mask.shape == (4, 60)
+
+
+def test_a_packing_split_must_buy_at_least_min_gain_of_efficiency():
+    """split_to_pack keeps a split only when the repacked efficiency rises by ``min_gain``: a
+    seam and a chart are not spent on a marginal packing gain (issue 31: charts and seams)."""
+    from geomopt.atlas.charts import ChartMesh
+    from geomopt.atlas.split import split_to_pack
+    from geomopt.mesh.generators import square_mesh
+
+    V, F = square_mesh(8)
+    n = len(V)
+    mesh = ChartMesh(np.arange(len(F)), F, np.arange(n), np.arange(n))
+    stretched = V * [4.0, 1.0]  # a long chart: splitting it packs better
+
+    class Packed:
+        def __init__(self, maps):
+            self.efficiency = 0.5 + 0.005 * (len(maps) > 1)  # a split gains half a point
+
+    pack = lambda maps, faces: Packed(maps)
+    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.01)
+    assert len(meshes) == 1 and packing.efficiency == 0.5 and owner == [0]
+    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.001)
+    assert len(meshes) > 1 and packing.efficiency > 0.5 and owner == [0] * len(meshes)

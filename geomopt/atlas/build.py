@@ -46,8 +46,10 @@ class AtlasOptions:
     crease : how much cheaper a seam is along a crease (:func:`~geomopt.atlas.seams.edge_costs`).
     max_cuts : the most cone cuts.
     min_efficiency : split the largest flattened chart and repack while the packing efficiency
-        (chart area / unit square) is below this and each split raises it
-        (:func:`~geomopt.atlas.split.split_to_pack`).
+        (chart area / unit square) is below this and each split raises it by at least
+        ``split_gain`` (:func:`~geomopt.atlas.split.split_to_pack`).
+    split_gain : the least rise of the packing efficiency a split must buy with its seam and
+        its extra chart.
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
@@ -56,12 +58,13 @@ class AtlasOptions:
     crease: float = 2.0
     max_cuts: int = 200
     min_efficiency: float = 0.7
+    split_gain: float = 0.01
     margin: float = 0.005
     rotate: bool = True
 
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
-                 min_efficiency=Real(0.0, 1.0), margin=Real(0.0, 0.25, hi_open=True), rotate=Instance(bool))
+                 min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Real(0.0, 0.25, hi_open=True), rotate=Instance(bool))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,7 +218,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
-    meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency)
+    meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
+                                                 min_gain=options.split_gain)
     results = [results[i] for i in owner]
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
     certificate = certify_atlas(uv, uv_faces, chart)

@@ -100,10 +100,11 @@ def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1):
     return pieces
 
 
-def split_to_pack(meshes, maps, pack, goal, max_splits=16):
+def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
-    keeping the split when it raises the packing efficiency, while that is below ``goal``
-    (at most ``max_splits`` tries).
+    keeping the split when it raises the packing efficiency by at least ``min_gain`` (a split
+    costs a seam and a chart: one that buys less packing is not worth them), while the
+    efficiency is below ``goal`` (at most ``max_splits`` tries).
 
     Returns
     -------
@@ -128,7 +129,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16):
         new_meshes = meshes[:i] + [p[0] for p in pieces] + meshes[i + 1:]
         new_maps = maps[:i] + [p[1] for p in pieces] + maps[i + 1:]
         trial = pack(new_maps, [m.F for m in new_meshes])
-        if trial.efficiency <= packing.efficiency:
+        if trial.efficiency < packing.efficiency + min_gain or trial.efficiency <= packing.efficiency:
             continue  # this chart stays whole; try the next largest
         shift = len(pieces) - 1
         tried = {j if j < i else j + shift for j in tried if j != i}
