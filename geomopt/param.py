@@ -13,6 +13,7 @@ from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
 from .objective.objective import Objective, jit
 from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
+from .energies import energy_spec
 from .mesh.problem import Problem
 from .scaffold import bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
@@ -184,7 +185,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     V : (n, 3) float rest vertex positions, or a mesh object with ``.vertices`` and ``.faces``
         (a ``trimesh.Trimesh``...) when ``F`` is None.
     F : (m, 3) int triangles (consistently oriented).
-    energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet).
+    energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet), or a pair
+        ``(name, {parameter: value})`` whose values may be traced
+        (:func:`geomopt.energies.energy_spec`); ``energy_params``: deprecated keywords.
     solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
     weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
     x0 : the start map: ``None`` or ``"tutte"`` (default: Tutte embedding; the mesh must be a
@@ -232,6 +235,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     >>> result.outcome.name, result.success, result.injectivity, result.x.shape
     ('CONVERGED', True, 'global', (5, 2))
     """
+    energy, energy_params = energy_spec(energy, energy_params, "parameterize")
     if is_traced(V, element_weights, energy_params):
         if bijective:
             raise ParameterError("parameterize: bijective=True is not differentiable (the scaffold is remeshed "
@@ -282,9 +286,9 @@ def parameterize_map(V, F=None, energy="symmetric_dirichlet", solver=None, weigh
 
     def solve(obj, p, start):
         w = obj.element_weights
-        result = parameterize(np.asarray(obj.problem.rest_vertices), F, energy, solver, weights,
+        result = parameterize(np.asarray(obj.problem.rest_vertices), F, (energy, p), solver, weights,
                               x0 if start is None else np.asarray(start), progress=False,
-                              element_weights=None if w is None else np.asarray(w), **p)
+                              element_weights=None if w is None else np.asarray(w))
         require_success(result, "geomopt.parameterize")
         return result.x, {"objective": result.objective}
 

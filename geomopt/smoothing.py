@@ -36,7 +36,7 @@ import numpy as np
 
 from ._runtime.errors import MeshError, ParameterError
 from ._runtime.validate import validate_indices
-from .mesh.elements import ElementCertificate, Quality, scaled_jacobian
+from .mesh.elements import ELEMENT_KINDS, ElementCertificate, Quality, scaled_jacobian
 from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
 
 __all__ = ["SmoothDetails", "smooth", "element_problem", "MAX_ROUNDS", "RISK"]
@@ -101,11 +101,11 @@ def element_problem(V, E, fixed=None, rest="reference"):
 
     V = np.asarray(V, dtype=np.float64)
     E = np.asarray(E)
-    if E.ndim != 2 or E.shape[1] not in (4, 8) or V.ndim != 2 or V.shape[1] != (2 if E.shape[1] == 4 else 3):
+    kind = ELEMENT_KINDS.get(E.shape[1]) if E.ndim == 2 else None
+    if kind is None or V.ndim != 2 or V.shape[1] != kind.dim:
         raise MeshError(f"smoothing needs quads with 2D vertices or hexahedra with 3D vertices, got elements "
                         f"of shape {E.shape} and vertices of shape {V.shape}")
-    make = Problem.quads if E.shape[1] == 4 else Problem.hexes
-    problem = make(V, E, rest=rest)
+    problem = Problem.cells(V, E, rest=rest)
     fixed = problem.boundary_vertices() if fixed is None else validate_indices(fixed, len(V), "fixed vertex indices")
     return problem.with_fixed(fixed, V[fixed])
 
@@ -119,7 +119,8 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     V : (n, 2) quad or (n, 3) hex vertex positions.
     E : (m, 4) quads or (m, 8) hexahedra (VTK order), every element valid on ``V`` (a positive
         Jacobian everywhere).
-    energy : an energy name or object (default ``"winslow"``); ``params`` its parameters.
+    energy : an energy name or object (default ``"winslow"``), or a pair ``(name, {parameter:
+        value})`` (:func:`geomopt.energies.energy_spec`); ``params``: deprecated keywords.
     solver : a solver name or object with an injective search (default projected Newton).
     fixed : vertex ids held in place (default: the boundary vertices).
     rest : ``"reference"`` (squares / cubes of the mean edge length: Winslow) or ``"mesh"``
@@ -155,9 +156,11 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     >>> result.details.improved, result.details.after.min > result.details.before.min
     (True, True)
     """
+    from .energies import energy_spec
     from .exact.predicates import box_scale
     from .solvers import get_solver
 
+    energy, params = energy_spec(energy, params, "smooth")
     V = np.asarray(V, dtype=np.float64)
     scale = box_scale(V) if V.ndim == 2 else 1.0  # exact: at 1e200 or 1e-150 as at 1
     problem = element_problem(V * scale, E, fixed, rest)

@@ -40,6 +40,7 @@ import numpy as np
 from ._runtime.errors import MeshError, ParameterError
 from .objective.objective import Objective, element_densities
 from ._runtime.tracing import refuse_traced
+from .energies import energy_spec
 from ._runtime.validate import validate_vertices
 from ._runtime.x64 import float64
 from .exact.certify import SphereCertificate, certify_sphere, spherical_areas
@@ -255,6 +256,7 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
     >>> result.success, result.injectivity, bool(np.allclose(np.linalg.norm(result.x, axis=1), 1.0))
     (True, 'global', True)
     """
+    energy, energy_params = energy_spec(energy, energy_params, "sphere_map")
     refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
     V, F = mesh_arrays(V, F)
     check_progress(progress, "sphere_map")

@@ -164,3 +164,22 @@ def test_the_implicit_namespace_is_a_deprecated_alias():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         np.testing.assert_allclose(x, parameterize_map(V, F), rtol=0, atol=1e-12)
+
+
+def test_energy_parameters_go_with_the_energy_and_keywords_are_deprecated():
+    """Issue 32 item 3: every driver takes ``energy=(name, {parameter: value})``; the old
+    keywords still work for one release, with a DeprecationWarning, and give the same map."""
+    V, F = bumpy_disk(4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        new = geomopt.parameterize(V, F, ("garanzha", {"lam": 0.5, "eps": 0.1}), progress=False)
+    with pytest.warns(DeprecationWarning, match="parameterize: energy parameters as keywords \\(eps, lam\\)"):
+        old = geomopt.parameterize(V, F, "garanzha", progress=False, lam=0.5, eps=0.1)
+    assert new.success and np.array_equal(new.x, old.x)
+    assert new.objective.params()["lam"] == 0.5
+    with pytest.raises(ParameterError, match="a pair \\(name, \\{parameter: value\\}\\)"):
+        geomopt.parameterize(V, F, ("garanzha", 0.5, 0.1), progress=False)
+    with jax.enable_x64(True):  # a traced parameter inside the pair is differentiable
+        g = jax.grad(lambda lam: squared_areas(
+            geomopt.parameterize(V, F, ("garanzha", {"lam": lam, "eps": 0.1}), progress=False).x, F))(0.5)
+    assert np.isfinite(float(g)) and float(g) != 0.0

@@ -9,6 +9,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
+import geomopt
 from geomopt.mesh import generators as G
 from geomopt import Outcome, smooth
 from geomopt.exact import hexvalid
@@ -594,3 +595,28 @@ def test_fixed_stars_are_judged_on_the_elements_tangent_cones():
     r = untangle(q, X, progress=False)  # forced by the handles: reported, not refused (issue 30 item 5)
     assert r.outcome == Outcome.CERTIFIED_EXCEPT_FIXED and not r.success
     assert r.certificate.forced.branch_vertices.tolist() == [0]
+
+
+def test_each_element_kind_is_one_table_row_that_the_library_reads():
+    """Issue 32 item 6: dimension, corner arity, validity test, problem constructor and map file
+    come from the kind's row (:data:`geomopt.mesh.elements.ELEMENT_KINDS`), and an unknown
+    vertex count is one clear error."""
+    from geomopt.mesh import elements
+    from geomopt.mesh.generators import square_mesh
+
+    for k, kind in elements.ELEMENT_KINDS.items():
+        assert kind.n_vertices == k and kind.corners.shape == (k, kind.dim + 1)
+        assert hasattr(geomopt.Problem, kind.constructor) and kind.map_file in (".obj", ".vtk")
+    V, F = square_mesh(3)
+    Q = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]])
+    assert elements.corner_simplices(Q).shape == (16, 3)
+    problem = geomopt.Problem.cells(V, Q)
+    assert problem.dim == 2 and problem.elements.shape == (4, 4) and problem.kind == "quad"
+    X = V * [-1.0, 1.0]  # mirrored: every quad reversed
+    X[0] = V[0]  # ... and the first one also non-convex at a corner
+    valid, corner_valid, tests = elements.ELEMENT_KINDS[4].validity(X, Q)
+    assert not valid.any() and (valid == corner_valid).all() and tests["corners"] == 4
+    assert elements.count_invalid(X, Q) == 4 and elements.count_invalid(V, Q) == 0
+    assert elements.ELEMENT_KINDS[4].validity(V, Q)[0].all()
+    with pytest.raises(geomopt.MeshError, match="no known kind: quads have 4 vertices, hexahedra have 8"):
+        elements.kind_of(np.zeros((2, 6), int))

@@ -17,6 +17,7 @@ from .._runtime.config import Instance, Int, Real, validate
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
+from ..energies import energy_spec
 from ..exact.topology import as_faces, same_side_facets, unique_edges
 from .charts import split_charts
 from .cones import angle_defects
@@ -168,7 +169,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
     ----------
     V : (n, 3) float vertices, or a mesh object with ``.vertices`` and ``.faces`` (``F=None``).
     F : (m, 3) int consistently oriented triangles.
-    energy, solver, energy_params : how each chart is flattened (see :func:`geomopt.parameterize`).
+    energy, solver : how each chart is flattened (see :func:`geomopt.parameterize`; ``energy``
+        a name, an Energy or ``(name, {parameter: value})``); ``energy_params``: deprecated keywords.
     options : :class:`AtlasOptions` (cutting, margin, rotation).
     progress : True prints one line per stage; a callable gets ``(stage, info_dict)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the atlas) when it is not certified.
@@ -201,6 +203,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
     if not isinstance(options, AtlasOptions):
         raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
     check_progress(progress, "make_atlas")
+    energy, energy_params = energy_spec(energy, energy_params, "make_atlas")
     check_scale_aware(energy, energy_params)
     V, F = check_atlas_input(*mesh_arrays(V, F))
     g0 = edge_graph(V, F)

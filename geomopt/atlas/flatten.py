@@ -25,10 +25,10 @@ def flatten_chart(Vc, Fc, energy, solver, energy_params):
     certified."""
     from ..param import parameterize
 
-    res = parameterize(Vc, Fc, energy=energy, solver=solver, progress=False, **energy_params)
+    res = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False)
     if res.success and res.injectivity == "global":
         return res
-    again = parameterize(Vc, Fc, energy=energy, solver=solver, progress=False, bijective=True, **energy_params)
+    again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False, bijective=True)
     return again if again.success or not res.success else res
 
 

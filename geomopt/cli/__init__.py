@@ -13,10 +13,10 @@ interrupt (SIGINT, SIGTERM, SIGHUP) removes the unfinished temporary files and e
 status 128 + the signal number (a batch first writes the summary of what finished).
 ``compare`` writes all its files and exits 0 only when every solver converged certified, else 1.
 
-The modules: :mod:`.run` (the process: :func:`main`, :func:`entry`, signals, warnings, the
-JSON summary, exit statuses), :mod:`.parser` (the argparse grammar), :mod:`.common` (what
-every command shares), and one per command: :mod:`.param` (with :mod:`.atlas`; ``demo``),
-:mod:`.untangle`, :mod:`.smooth`, :mod:`.compare`.  They parse, call the library and print.
+The modules: :mod:`~geomopt.cli.run` (the process: :func:`main`, :func:`entry`, signals, warnings, the
+JSON summary, exit statuses), :mod:`~geomopt.cli.parser` (the argparse grammar), :mod:`~geomopt.cli.common` (what
+every command shares), and one per command: :mod:`~geomopt.cli.param` (with :mod:`~geomopt.cli.atlas`; ``demo``),
+:mod:`~geomopt.cli.untangle`, :mod:`~geomopt.cli.smooth`, :mod:`~geomopt.cli.compare`.  They parse, call the library and print.
 """
 
 from __future__ import annotations

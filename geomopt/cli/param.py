@@ -1,4 +1,4 @@
-"""``geomopt param`` (a disk, an atlas through :mod:`.atlas`, or ``--sphere``) and ``geomopt demo``
+"""``geomopt param`` (a disk, an atlas through :mod:`~geomopt.cli.atlas`, or ``--sphere``) and ``geomopt demo``
 (``param`` on the bundled camelhead): read, call :func:`geomopt.parameterize` /
 :func:`geomopt.sphere.sphere_map`, print, and write the certified map with its pictures."""
 

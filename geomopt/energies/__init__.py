@@ -5,6 +5,7 @@ from ._energy import (
     REGISTRY,
     Energy,
     arap,
+    energy_spec,
     dirichlet,
     garanzha,
     get_energy,
@@ -14,6 +15,6 @@ from ._energy import (
 )
 
 __all__ = [
-    "Energy", "REGISTRY", "get_energy", "chi",
+    "Energy", "REGISTRY", "get_energy", "energy_spec", "chi",
     "dirichlet", "symmetric_dirichlet", "mips", "winslow", "arap", "garanzha",
 ]

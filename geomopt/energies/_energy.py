@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from typing import Callable, Mapping
 
 import jax
@@ -202,6 +203,29 @@ garanzha = Energy(
 
 #: name -> built-in energy (the names and definitions: geomopt._runtime.names)
 REGISTRY: dict[str, Energy] = resolve(_names.ENERGIES)
+
+
+def energy_spec(energy, legacy=None, where: str = "") -> tuple:
+    """A driver's ``energy`` argument as ``(name or Energy, params)``: the one way every driver
+    takes an energy with its parameters.
+
+    ``energy`` is a name, an :class:`Energy` (e.g. ``garanzha.with_params(lam=0.1)``), or a pair
+    ``(name or Energy, {parameter: value})``, whose values may be traced (they reach the
+    objective as parameters, differentiable).  ``legacy``: parameters given to the driver as
+    keywords, the old way: merged, with a ``DeprecationWarning`` (removed in the next release).
+    """
+    params = {}
+    if isinstance(energy, tuple):
+        if len(energy) != 2 or not isinstance(energy[1], Mapping):
+            raise ParameterError(f"{where}: energy must be a name, an Energy or a pair (name, {{parameter: value}}), "
+                                 f"got a tuple of {len(energy)}")
+        energy, params = energy[0], dict(energy[1])
+    if legacy:
+        warnings.warn(f"{where}: energy parameters as keywords ({', '.join(sorted(legacy))}) are deprecated and "
+                      f"will be removed in the next release: pass them with the energy, energy=(name, {{...}})",
+                      DeprecationWarning, stacklevel=3)
+        params = {**params, **legacy}
+    return energy, params
 
 
 def get_energy(name_or_energy, **params) -> Energy:

@@ -51,6 +51,7 @@ import numpy as np
 from . import manifest as _manifest
 from .._runtime.errors import ParameterError
 from .._runtime.x64 import float64
+from ..energies import energy_spec
 from ..objective.objective import Objective
 from ..solvers import Newton, Outcome, Progress, iterate
 
@@ -474,7 +475,8 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     solvers : names (``geomopt.solvers.SOLVERS``), solver objects, or a dict name -> solver
         (names become file names: letters, digits, ``_.+-``).  Default
         :data:`DEFAULT_SOLVERS` (without ``cm`` for tets).
-    energy : energy name or :class:`~geomopt.energies.Energy`; ``energy_params`` override its
+    energy : energy name or :class:`~geomopt.energies.Energy`, or ``(name, {parameter: value})``
+        (:func:`geomopt.energies.energy_spec`); ``energy_params`` (deprecated keywords) override its
         parameters.
     x0 : (n, d) start map, used as given (not rescaled; in the input's frame for a LIM case).
         Default: the free-boundary Tutte start (:func:`~geomopt.param.start_map`, ``weights``)
@@ -522,6 +524,7 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     """
     from . import inputs, writers
 
+    energy, energy_params = energy_spec(energy, energy_params, "compare")
     objective, start, mirror, label, source = inputs.comparison_problem(mesh, faces, energy, x0, weights, energy_params)
     problem = objective.problem
     named = inputs.comparison_solvers(solvers, problem, max_steps)

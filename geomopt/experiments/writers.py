@@ -15,6 +15,7 @@ import numpy as np
 
 from . import manifest as _manifest
 from .. import io
+from ..mesh.elements import kind_of
 from .comparison import HISTORY_COLUMNS, summary_columns
 
 __all__ = ["common_names", "output_names", "set_output_names", "input_files", "prepare_folder", "write_csv",
@@ -45,9 +46,8 @@ def write_maps(comparison, out) -> dict:
     for name, r in comparison.results.items():
         x = np.asarray(r.x) * comparison.mirror  # negation is exact
         if problem.elements is not None:  # quads (.obj) / hexahedra (.vtk): the cells themselves
-            kind = "quad" if problem.elements.shape[1] == 4 else "hexahedron"
-            paths[name] = io.write_cells(out / f"{name}{'.obj' if kind == 'quad' else '.vtk'}", x,
-                                         problem.elements, kind)
+            kind = kind_of(problem.elements)
+            paths[name] = io.write_cells(out / f"{name}{kind.map_file}", x, problem.elements, kind.word)
         elif problem.dim == 2:
             V3 = V if V.shape[1] == 3 else np.c_[V, np.zeros(len(V))]
             paths[name] = io.write_obj_with_uv(out / f"{name}.obj", V3, problem.input_simplices, x)

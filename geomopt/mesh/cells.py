@@ -219,9 +219,8 @@ def cell_problem(case: CellCase, fixed=None):
     if case.kind == "tetra":
         problem = Problem.tets(case.rest, case.elements)
     else:
-        make = Problem.quads if case.kind == "quad" else Problem.hexes
         V, rest = (case.start, "reference") if case.rest is None else (case.rest, "mesh")
-        problem = make(V, case.elements, rest=rest)
+        problem = Problem.cells(V, case.elements, rest=rest)
     fixed = case.handles if fixed is None else np.asarray(fixed, dtype=np.int64)
     fixed = problem.boundary_vertices() if fixed is None else fixed
     return problem.with_fixed(fixed, case.start[fixed])

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -53,7 +54,7 @@ from ..exact.certify import LocalCertificate, fixed_star_certificate, local_cert
 from ..exact.hexvalid import HEX_CORNERS, TESTS, hex_validity
 from ..exact.predicates import orient2d
 
-__all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementCertificate", "Quality",
+__all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementKind", "kind_of", "ElementCertificate", "Quality",
            "validate_elements", "corner_simplices", "corner_edges", "rest_elements",
            "reference_rest", "check_element_facets", "boundary_vertices",
            "scaled_jacobian", "quality", "certify_elements", "count_invalid", "valid_elements", "element_type",
@@ -64,33 +65,88 @@ QUAD_CORNERS = np.array([[0, 1, 3], [1, 2, 0], [2, 3, 1], [3, 0, 2]], dtype=np.i
 
 
 @dataclasses.dataclass(frozen=True)
-class _Kind:
+class ElementKind:
+    """One kind of element evaluated at its corners: every fact about it that the library
+    needs, in one row of :data:`ELEMENT_KINDS` (a new element type is a row here, its exact
+    validity test, and its problem constructor).
+
+    Attributes
+    ----------
+    word, words : its name, singular and plural (messages).
+    dim : the dimension of its map (2: quads, 3: hexahedra); corner simplices have ``dim + 1``
+        vertices.
+    corners : (k, dim + 1) its corner simplices, as vertex positions in the element.
+    reverse : (k,) a vertex permutation reversing its orientation.
+    facets : (f, 2 or 4) its edges (quads) / faces (hexahedra), oriented outwards.
+    edges : (e, 2) its edges.
+    reference : (k, dim) the unit square / cube.
+    map_file : the extension a map of these elements is written as (``.obj`` quads, ``.vtk``
+        hexahedra).
+    constructor : the :class:`~geomopt.mesh.problem.Problem` class method that makes a
+        problem of them (:meth:`~geomopt.mesh.problem.Problem.cells` dispatches on it).
+    validity : ``(X, E) -> (valid, corner_valid, tests)``: the exact test that each element
+        has a positive Jacobian everywhere under ``X`` (and at its corners), with the count of
+        each test of :data:`~geomopt.exact.hexvalid.TESTS` it ran.
+    """
+
     word: str
     words: str
-    corners: np.ndarray  # (k, d+1) corner simplices
-    reverse: np.ndarray  # (k,) a vertex permutation reversing the orientation
-    facets: np.ndarray  # (f, 2 or 4) quad edges / hex faces, oriented outwards
-    edges: np.ndarray  # (e, 2)
-    reference: np.ndarray  # (k, d) the unit square / cube
+    dim: int
+    corners: np.ndarray
+    reverse: np.ndarray
+    facets: np.ndarray
+    edges: np.ndarray
+    reference: np.ndarray
+    map_file: str
+    constructor: str
+    validity: Callable
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.reference)
 
 
-#: vertices per element -> its :class:`_Kind`
+def _quad_validity(X, E):
+    """Quads: positive at the four corners, which is exact and sufficient for a bilinear quad."""
+    C = E[:, QUAD_CORNERS].reshape(-1, 3)
+    valid = (orient2d(X[C[:, 0]], X[C[:, 1]], X[C[:, 2]]) == 1).reshape(len(E), 4).all(axis=1)
+    return valid, valid, {name: (len(E) if name == "corners" else 0) for name in TESTS}
+
+
+def _hex_validity(X, E):
+    """Hexahedra: corners, then the Bernstein test with subdivision (:func:`hex_validity`)."""
+    r = hex_validity(X, E)
+    return r.valid, r.corner_valid, r.tests
+
+
+#: vertices per element -> its :class:`ElementKind`
 ELEMENT_KINDS = {
-    4: _Kind("quad", "quads", QUAD_CORNERS, np.array([0, 3, 2, 1]), np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
-             np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
-             np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64)),
-    8: _Kind("hexahedron", "hexahedra", HEX_CORNERS, np.array([0, 3, 2, 1, 4, 7, 6, 5]),
-             np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
-             np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6],
-                       [3, 7]]),
-             np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
-                      dtype=np.float64)),
+    4: ElementKind("quad", "quads", 2, QUAD_CORNERS, np.array([0, 3, 2, 1]),
+                   np.array([[0, 1], [1, 2], [2, 3], [3, 0]]), np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
+                   np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64), ".obj", "quads", _quad_validity),
+    8: ElementKind("hexahedron", "hexahedra", 3, HEX_CORNERS, np.array([0, 3, 2, 1, 4, 7, 6, 5]),
+                   np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
+                   np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6],
+                             [3, 7]]),
+                   np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+                            dtype=np.float64), ".vtk", "hexes", _hex_validity),
 }
+
+
+def kind_of(E) -> ElementKind:
+    """The :class:`ElementKind` of elements ``E`` (m, k) by their vertex count ``k``;
+    MeshError naming the kinds there are."""
+    E = np.asarray(E)
+    kind = ELEMENT_KINDS.get(E.shape[1]) if E.ndim == 2 else None
+    if kind is None:
+        raise MeshError(f"elements of shape {E.shape} are of no known kind: "
+                        + ", ".join(f"{k.words} have {n} vertices" for n, k in ELEMENT_KINDS.items()))
+    return kind
 
 
 def element_type(E) -> tuple:
     """``(name, plural)`` of elements ``E`` (m, 4) or (m, 8)."""
-    kind = ELEMENT_KINDS[np.asarray(E).shape[1]]
+    kind = kind_of(E)
     return kind.word, kind.words
 
 
@@ -110,8 +166,8 @@ def validate_elements(E, n_vertices, k, name=None) -> np.ndarray:
 
 def corner_simplices(E) -> np.ndarray:
     """Corner simplices of elements ``E`` (m, 4) -> (4 m, 3) or (m, 8) -> (8 m, 4), element-major."""
-    E = np.asarray(E)
-    return E[:, ELEMENT_KINDS[E.shape[1]].corners].reshape(-1, E.shape[1] // 4 + 2)
+    kind = kind_of(E)
+    return np.asarray(E)[:, kind.corners].reshape(-1, kind.dim + 1)
 
 
 def corner_edges(X, E) -> np.ndarray:
@@ -195,10 +251,7 @@ def _untwisted(V, Q):
 def valid_elements(X, E) -> np.ndarray:
     """(m,) bool: exact validity of each element ``E`` (oriented) under ``X``: a positive
     Jacobian everywhere (quads: the four corners; hexahedra: :func:`~geomopt.exact.hexvalid.hex_validity`)."""
-    if E.shape[1] == 8:
-        return hex_validity(X, E).valid
-    C = corner_simplices(E)
-    return (orient2d(X[C[:, 0]], X[C[:, 1]], X[C[:, 2]]) == 1).reshape(len(E), 4).all(axis=1)
+    return kind_of(E).validity(X, E)[0]
 
 
 def reference_rest(V, E) -> np.ndarray:
@@ -368,12 +421,7 @@ def certify_elements(X, E) -> ElementCertificate:
     """
     X = np.asarray(X, dtype=np.float64)
     E = np.asarray(E)
-    if E.shape[1] == 8:
-        r = hex_validity(X, E)
-        valid, corner_valid, tests = r.valid, r.corner_valid, r.tests
-    else:
-        valid = corner_valid = valid_elements(X, E)
-        tests = {name: (len(E) if name == "corners" else 0) for name in TESTS}
+    valid, corner_valid, tests = kind_of(E).validity(X, E)
     return ElementCertificate(valid, corner_valid, tests, quality(X, E))
 
 

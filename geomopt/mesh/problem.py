@@ -295,6 +295,14 @@ class Problem:
         return cls._elements("hex", V, H, 8, rest, fixed, fixed_positions)
 
     @classmethod
+    def cells(cls, V, E, fixed=None, fixed_positions=None, *, rest="mesh"):
+        """Quads (``E`` (m, 4), :meth:`quads`) or hexahedra (``E`` (m, 8), :meth:`hexes`), by
+        the element kind of ``E`` (:func:`geomopt.mesh.elements.kind_of`)."""
+        from .elements import kind_of
+
+        return getattr(cls, kind_of(E).constructor)(V, E, fixed, fixed_positions, rest=rest)
+
+    @classmethod
     def _elements(cls, kind, V, E, k, rest, fixed, fixed_positions):
         """Quads / hexahedra: validated, oriented and checked (:func:`geomopt.mesh.elements.rest_elements`),
         their corner simplices' rest matrices from ``V``, local frames or reference shapes."""
@@ -307,8 +315,9 @@ class Problem:
         else:
             Dm = _local_frames(V, S)[0] if kind == "quad_surface" else _edge_matrices(V, S)
         vol = _signed_sizes(Dm)
-        _check_rest_volumes(vol, "corner triangle" if k == 4 else "corner tetrahedron", Dm=Dm)
-        return cls._make(kind, 3 if k == 8 else 2, V, S, S, Dm, vol, fixed, fixed_positions, elements=E)
+        d = elements.ELEMENT_KINDS[k].dim
+        _check_rest_volumes(vol, "corner triangle" if d == 2 else "corner tetrahedron", Dm=Dm)
+        return cls._make(kind, d, V, S, S, Dm, vol, fixed, fixed_positions, elements=E)
 
     @classmethod
     def _make(cls, kind, d, V, F_in, S, Dm, vol, fixed, fixed_positions, elements=None):
