@@ -18,6 +18,7 @@ from geomopt.exact.topology import boundary_vertices
 from geomopt.mesh import generators
 from geomopt.param import parameterize_map
 from geomopt.solvers import ForwardCertificate
+from geomopt.untangling import UntangleOptions
 from geomopt.untangling.implicit import untangle_map
 
 #: a plain re-solve stops by its energy rule, its map accurate to about 1e-9 relative: central
@@ -94,7 +95,7 @@ def _grad64(loss, a):
 
 
 def test_grad_of_untangle_in_theta_and_handles_matches_re_solves():
-    """``geomopt.untangle`` on a traced problem or ``theta=``: the untangled map's derivative
+    """``geomopt.untangle`` on a traced problem or ``options.theta``: the untangled map's derivative
     equals central differences of the untangled-and-polished map (the function it is the
     derivative of, :func:`~geomopt.untangling.implicit.untangle_map`)."""
     V, F, B = _held(6)
@@ -107,7 +108,7 @@ def test_grad_of_untangle_in_theta_and_handles_matches_re_solves():
     assert Problem.planar(V, F, B, h0).count_inverted(x0) > 0
 
     def loss(h, theta):
-        x = geomopt.untangle(Problem.planar(V, F, B, h), x0, theta=theta, progress=False).x
+        x = geomopt.untangle(Problem.planar(V, F, B, h), x0, options=UntangleOptions(theta=theta), progress=False).x
         return x[inner[3], 0] + 2 * x[inner[7], 1]
 
     def resolve(h, theta):
@@ -183,3 +184,15 @@ def test_energy_parameters_go_with_the_energy_and_keywords_are_deprecated():
         g = jax.grad(lambda lam: squared_areas(
             geomopt.parameterize(V, F, ("garanzha", {"lam": lam, "eps": 0.1}), progress=False).x, F))(0.5)
     assert np.isfinite(float(g)) and float(g) != 0.0
+
+
+def test_untangle_settings_go_in_the_options_object_and_keywords_are_deprecated():
+    tangle = generators.rotated_interior(*generators.square_mesh(4), 180.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        new = geomopt.untangle(tangle.problem(), tangle.x0, options=UntangleOptions(theta=0.1), progress=False)
+    with pytest.warns(DeprecationWarning, match="untangle: settings as keywords \\(theta\\) are deprecated"):
+        old = geomopt.untangle(tangle.problem(), tangle.x0, theta=0.1, progress=False)
+    assert new.success and np.array_equal(new.x, old.x) and new.details.theta == 0.1
+    with pytest.raises(ParameterError, match="theta must be None or a finite number in \\(0, 1\\)"):
+        UntangleOptions(theta=1.5)  # a concrete value is still checked (a traced one passes)

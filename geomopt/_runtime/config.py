@@ -37,6 +37,22 @@ class Int:
 
 
 @dataclasses.dataclass(frozen=True)
+class Traceable:
+    """``rule``, except that a traced JAX value (inside ``jax.grad``, ``jit``, ``vmap``) passes
+    unchecked: a differentiable driver checks its concrete value where it runs on the host."""
+
+    rule: object
+
+    def __call__(self, value):
+        from .tracing import is_traced
+
+        return value if is_traced(value) else self.rule(value)
+
+    def __str__(self):
+        return str(self.rule)
+
+
+@dataclasses.dataclass(frozen=True)
 class Real:
     """A finite real number in ``[lo, hi]``, each end open when ``*_open``."""
 

@@ -44,7 +44,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     a whole (a positive total signed area/volume): mirror it first (see :func:`~geomopt.param.repair_map`).
 
     Differentiable: given a traced ``problem`` (rest vertices, handle positions) or a traced
-    ``theta=`` keyword, ``result.x`` is the untangled map as a function of them (the optimum of
+    ``options.theta``, ``result.x`` is the untangled map as a function of them (the optimum of
     the last eps, polished by Newton, differentiated by the implicit function theorem:
     :func:`geomopt.untangling.implicit.untangle_map`); the start, the last eps and the map's
     normalisation are constants of the solve.
@@ -56,8 +56,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object.
         Its line search should not be injective: the start is tangled.
     options : :class:`UntangleOptions` (theta, max_outer, energy_tol, eps0, max_aspect,
-        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket); ``overrides``
-        (those names as keywords) replace its fields.
+        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket, start);
+        ``overrides`` (those names as keywords, deprecated) replace its fields.
     progress : True (one line per outer iteration on stderr), False, or a callable
         ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
@@ -93,12 +93,11 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     >>> tangle.inverted(), result.certificate.inverted, result.success
     (4, 0, True)
     """
-    if is_traced(problem, x0, overrides):  # differentiable: the implicit adjoint at the last eps's optimum
-        theta = overrides.pop("theta", None if options is None else options.theta)
-        opts = options_from(UntangleOptions, options, overrides, "untangle")
-        return traced_result(untangle_map(problem, x0, theta, solver=solver, adjoint=adjoint, options=opts),
-                             problem=problem, solver=solver)
     opts = options_from(UntangleOptions, options, overrides, "untangle")
+    if is_traced(problem, x0, opts.theta):  # differentiable: the implicit adjoint at the last eps's optimum
+        x = untangle_map(problem, x0, opts.theta, solver=solver, adjoint=adjoint,
+                         options=dataclasses.replace(opts, theta=None))
+        return traced_result(x, problem=problem, solver=solver)
     if not isinstance(solver, (str, AbstractSolver)):
         raise ParameterError(f"solver must be 'lbfgs', 'newton' or a solver object, got {solver!r}")
     check_progress(progress, "untangle")

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
-from .._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
+from .._runtime.config import Instance, Int, Maybe, OneOf, Real, Traceable, validate
 from .._runtime.errors import ParameterError
 from .start import STARTS
 
@@ -62,7 +63,7 @@ class UntangleOptions:
     start: str = "auto"
 
     def __post_init__(self):
-        validate(self, theta=Maybe(Real(0.0, 1.0, lo_open=True, hi_open=True)), max_outer=Int(1),
+        validate(self, theta=Maybe(Traceable(Real(0.0, 1.0, lo_open=True, hi_open=True))), max_outer=Int(1),
                  energy_tol=Real(0.0, 1.0, lo_open=True, hi_open=True), eps0=Maybe(Real(0.0, lo_open=True)),
                  max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
                  injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
@@ -78,11 +79,15 @@ class UntangleOptions:
 
 def options_from(cls, options, overrides, where):
     """``options`` (an instance of ``cls`` or None) with ``overrides`` (field names) applied;
-    ParameterError naming the unknown keywords."""
+    ParameterError naming the unknown keywords.  Settings as keywords are deprecated (one
+    release): a ``DeprecationWarning`` says to pass ``options=cls(...)``."""
     if options is not None and not isinstance(options, cls):
         raise ParameterError(f"{where}: options must be a {cls.__name__} or None, got {type(options).__name__}")
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ParameterError(f"{where}: unknown keyword argument(s) {unknown}; the options are {sorted(known)}")
+    if overrides:
+        warnings.warn(f"{where}: settings as keywords ({', '.join(sorted(overrides))}) are deprecated and will be "
+                      f"removed in the next release: pass options={cls.__name__}(...)", DeprecationWarning, stacklevel=4)
     return dataclasses.replace(options or cls(), **overrides)
