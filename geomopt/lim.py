@@ -30,7 +30,8 @@ from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_v
                  write_obj_with_uv, write_vtk_tets)
 from .exact.predicates import differing_rows
 from .mesh.problem import Problem, fixed_total_problem
-from .untangling import untangle
+from .untangling import UntangleOptions, untangle
+from .untangling.options import options_from
 
 __all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix", "read_lim_case", "lim_case_dim",
            "lim_cases"]
@@ -402,7 +403,8 @@ def untangle_case(case, solver="lbfgs", progress=True, **options):
     """
     case = case if isinstance(case, LimCase) else LimCase.read(case)
     setup = case.to_problem()
-    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, **options)
+    opts = options_from(UntangleOptions, None, options, "untangle_case", deprecated=False)
+    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, options=opts)
     if (setup.mirror < 0).any():
         result = dataclasses.replace(result, x=result.x * setup.mirror)  # negation is exact
     return case, result

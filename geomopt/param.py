@@ -19,7 +19,8 @@ from .scaffold import bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
-from .untangling import untangle
+from .untangling import UntangleOptions, untangle
+from .untangling.options import options_from
 from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
@@ -378,8 +379,9 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
     for B in boundaries:
         start = x0.copy()
         start[loop] = B
-        res = untangle(problem.with_fixed(loop, B), start, solver=solver, theta=theta,
-                       progress=progress, **options)
+        res = untangle(problem.with_fixed(loop, B), start, solver=solver, progress=progress,
+                       options=options_from(UntangleOptions, None, {"theta": theta, **options}, "repair_map",
+                                            deprecated=False))
         if res.success:
             break
     # the inverted elements of the map given, not of the map with its boundary replaced

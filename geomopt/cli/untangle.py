@@ -117,7 +117,7 @@ def _untangle_mesh(args) -> int:
     from .._runtime.timing import compile_seconds
     from ..mesh.cells import case_inputs, cell_problem, read_cell_case, write_certified
     from ..mesh.quality import quality_summary
-    from ..untangling import untangle
+    from ..untangling import UntangleOptions, untangle
 
     path = Path(args.case[0])
     inputs = case_inputs(path, args.rest, args.handles)
@@ -133,7 +133,7 @@ def _untangle_mesh(args) -> int:
         problem = cell_problem(case)
         before = quality_summary(problem, case.start)
     res = timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet,
-                                                    start=args.start))
+                                                    options=UntangleOptions(start=args.start)))
     with split.phase("certify"):
         after = quality_summary(problem, res.x)
     words = {"tetra": "tetrahedra", "quad": "quads", "hexahedron": "hexahedra"}[case.kind]

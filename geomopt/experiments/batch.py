@@ -114,12 +114,12 @@ def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
 def _solve_cell_case(folder, outdir, solver, bucket, row, start="auto"):
     """A quad / hex case folder (:mod:`geomopt.mesh.cells`) into ``row``, solved and written as
     ``geomopt untangle FOLDER -o <name>.vtk`` does (``bucket`` does not apply)."""
-    from ..untangling import untangle
+    from ..untangling import UntangleOptions, untangle
 
     case = read_cell_case(folder)
     problem = cell_problem(case)
     row.update(dim=problem.dim, vertices=len(case.start), elements=len(case.elements))
-    res = untangle(problem, case.start, solver=solver, progress=False, start=start)
+    res = untangle(problem, case.start, solver=solver, progress=False, options=UntangleOptions(start=start))
     _solved(row, res)
     if res.success:
         output = Path(outdir) / (folder.name + ".vtk")
