@@ -102,13 +102,6 @@ def inverted_rgb():
     return to_rgb(INVERTED)
 
 
-def _unit_square(uv):
-    """UVs scaled uniformly into the unit square (the checkerboard spans the map's bounding square)."""
-    uv = np.asarray(uv, np.float64)
-    lo = uv.min(axis=0)
-    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
-
-
 def _distortion_colors(problem, x):
     """(m, 3) RGB per element of ``problem`` under ``x``: viridis over ``log2`` of its conformal
     distortion (the worst corner of a quad / hexahedron), 0 to at least 1 (ratio 2); and (m,)
@@ -137,6 +130,8 @@ def _distortion_colors(problem, x):
 
 def scene(obj, uv=None) -> Scene:
     """The :class:`Scene` of a :class:`~geomopt.solvers.Result` or a mesh (see :func:`show`)."""
+    from .param import unit_square
+
     problem = getattr(obj, "problem", None)
     if problem is None or not hasattr(obj, "x"):
         if uv is not None and np.asarray(uv).shape[-1:] != (2,):
@@ -145,13 +140,13 @@ def scene(obj, uv=None) -> Scene:
         if uv is not None and (volume or len(uv) != len(V)):
             raise ParameterError(f"show: uv must have one row per vertex of a surface ({len(V)} rows), "
                                  f"got {len(uv)}" + (" for a volume mesh" if volume else ""))
-        return Scene(_as_3d(V), C, volume, None if uv is None else _unit_square(uv), planar=V.shape[1] == 2)
+        return Scene(_as_3d(V), C, volume, None if uv is None else unit_square(uv), planar=V.shape[1] == 2)
     if uv is not None:
         raise ParameterError("show: uv= is for a mesh; a Result draws its own map")
     x = np.asarray(obj.x, np.float64)
     cells = problem.input_simplices if problem.elements is None else problem.elements
     if problem.kind in ("surface", "quad_surface"):
-        return Scene(_as_3d(problem.rest_vertices), cells, False, _unit_square(x))
+        return Scene(_as_3d(problem.rest_vertices), cells, False, unit_square(x))
     rgb, bad = _distortion_colors(problem, x)
     if problem.kind == "sphere":
         x = x / np.linalg.norm(x, axis=1, keepdims=True)

@@ -24,7 +24,7 @@ from .untangling.options import options_from
 from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
-    "parameterize", "parameterize_map", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
+    "parameterize", "parameterize_map", "unit_square", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
     "check_scale_aware", "ParamOptions",
 ]
 
@@ -123,6 +123,15 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False, 
     x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)
     return s * x0, s, repaired
+
+
+def unit_square(uv) -> np.ndarray:
+    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
+    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect
+    (``geomopt param --uv-range unit``, the viewers' checkerboard)."""
+    uv = np.asarray(uv, np.float64)
+    lo = uv.min(axis=0)
+    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
 
 
 def mesh_arrays(V, F=None):

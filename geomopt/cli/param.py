@@ -39,7 +39,7 @@ def cmd_param(args) -> int:
     from .._runtime.errors import ParameterError
     from .._runtime.timing import compile_seconds
     from ..energies import get_energy
-    from ..param import parameterize
+    from ..param import parameterize, unit_square
 
     split = args.timing
     split.mark_imported()
@@ -105,7 +105,7 @@ def _param_disk(args, V, F, energy, solve, folder) -> int:
         _warn_overlap(res, args)
     if folder is not None:
         io.create_output_folder(folder)
-    uv = _unit_square(res.x) if args.uv_range == "unit" else res.x
+    uv = unit_square(res.x) if args.uv_range == "unit" else res.x
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
             with split.phase("figures"):
@@ -170,15 +170,6 @@ def _param_sphere(args) -> int:
         with args.timing.phase("write"):
             io.write_obj(outputs.enter_context(io.atomic_path(args.output)), res.x, F)
     return EXIT_OK
-
-
-def _unit_square(uv):
-    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
-    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect."""
-    import numpy as np
-
-    lo = uv.min(axis=0)
-    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
 
 
 def _warn_overlap(res, args):
