@@ -39,7 +39,7 @@ def cmd_param(args) -> int:
     from .._runtime.errors import ParameterError
     from .._runtime.timing import compile_seconds
     from ..energies import get_energy
-    from ..param import parameterize, unit_square
+    from ..param import parameterize
 
     split = args.timing
     split.mark_imported()
@@ -78,6 +78,7 @@ def _param_disk(args, V, F, energy, solve, folder) -> int:
     from .. import io
     from .._runtime.errors import MeshError
     from .._runtime.timing import compile_seconds
+    from ..param import unit_square
 
     split = args.timing
     t_solve, compiled = time.perf_counter(), compile_seconds()
