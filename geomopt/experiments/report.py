@@ -14,9 +14,8 @@ import numpy as np
 
 __all__ = ["solver_style", "comparison_figure", "save_figure", "latex_table", "STYLES", "LAYOUTS", "PAPER_RC"]
 
-#: figure layouts: three panels per mesh, 15 inches wide, or one panel (gap against solve
-#: seconds) per mesh, a paper column wide (3.4 in: ACM 3.33 in, IEEE 3.5 in)
-LAYOUTS = ("wide", "column")
+from .options import LAYOUTS  # three panels per mesh, 15 inches wide, or one panel (gap against solve
+# seconds) per mesh, a paper column wide (3.4 in: ACM 3.33 in, IEEE 3.5 in)
 #: matplotlib settings every comparison figure is saved with: TrueType fonts in PDF / PS
 PAPER_RC = {"pdf.fonttype": 42, "ps.fonttype": 42}
 _WIDTH = {"wide": 15.0, "column": 3.4}
