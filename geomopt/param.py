@@ -286,8 +286,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     energy, energy_params = energy_spec(energy, energy_params, "parameterize")
     if is_traced(V, element_weights, energy_params):
         if options.bijective:
-            raise ParameterError("parameterize: bijective=True is not differentiable (the scaffold is remeshed "
-                                 "as the map moves); differentiate the free-boundary map (bijective=False)")
+            raise ParameterError("parameterize: ParamOptions(bijective=True) is not differentiable (the scaffold is "
+                                 "remeshed as the map moves); differentiate the free-boundary map (bijective=False)")
         x = parameterize_map(V, F, energy, solver, options.weights, x0, element_weights, adjoint, energy_params)
         return traced_result(x, solver=solver)
     V, F = mesh_arrays(V, F)
@@ -295,8 +295,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     check_progress(progress, "parameterize")
     if options.bijective:
         if isinstance(x0, str) or element_weights is not None:
-            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
-                                 "with no element_weights")
+            raise ParameterError("ParamOptions(bijective=True) starts from the Tutte map or a globally injective x0 "
+                                 "array, with no element_weights")
         return bijective_parameterize(V, F, energy=energy, solver=solver, weights=options.weights, x0=x0,
                                       progress=progress, throw=throw, options=options.scaffold, **energy_params)
     problem = Problem.surface(V, F)
@@ -314,7 +314,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     reason = result.reason
     if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
         reason += ("; the free boundary folded over itself there, which the bijective mode prevents "
-                   "(bijective=True, geomopt param --bijective)")
+                   "(ParamOptions(bijective=True), geomopt param --bijective)")
     return dataclasses.replace(result, certificate=cert, reason=reason,
                                details=ParamDetails(start=x0, scale=s, repair=repaired))
 
