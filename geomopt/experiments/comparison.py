@@ -306,10 +306,12 @@ class Comparison:
     def report(self) -> str:
         """A plain-text table: per solver the outcome, totals, and iterations / wall / CPU
         seconds to each tolerance (medians over the repeats)."""
+        from .report import text_table
+
         reps = max(len(r) for r in self.runs.values())
         head = (f"{self.label}; {self.describe_reference()}" + (f"; medians of {reps} runs" if reps > 1 else "")
                 + f"; {'after an untimed warm-up' if self.warmup else 'cold (no warm-up)'}, {self.clock} clock")
-        return head + "\n" + _table(self.summary_rows(), self.tolerances)
+        return head + "\n" + text_table(self.summary_rows(), self.tolerances)
 
     def manifest(self) -> dict:
         """Everything needed to reproduce or question the numbers: versions, environment,
@@ -424,27 +426,6 @@ def exit_status(comparisons) -> int:
 
 def _median(values) -> float:
     return float(np.median(np.fromiter(values, np.float64)))
-
-
-def _table(rows, tolerances) -> str:
-    """Fixed-width text table of summary rows (``mesh`` column when present)."""
-    mesh = bool(rows) and "mesh" in rows[0]
-    left = (f"{'mesh':>16} " if mesh else "") + f"{'solver':>11} {'outcome':>18} {'iters':>6} {'wall s':>8} " \
-                                                f"{'cpu s':>8} {'gap':>8}"
-    head = " " * len(left) + "".join(f" | {'to ' + format(t, '.0e'):^21}" for t in tolerances)
-    lines = [head, left + " | {:>5} {:>7} {:>7}".format("it", "wall s", "cpu s") * len(tolerances)
-             + f" {'setup s':>8} {'flips':>5}"]
-    for row in rows:
-        line = (f"{row['mesh'][:16]:>16} " if mesh else "") + (
-            f"{row['solver']:>11} {row['outcome']:>18} {row['iterations']:>6d} {row['wall_s']:>8.3f} "
-            f"{row['cpu_s']:>8.3f} {row['gap']:>8.1e}")
-        for t in tolerances:
-            key = f"{t:.0e}"
-            it = row[f"it_to_{key}"]
-            line += (" | {:>5} {:>7} {:>7}".format("never", "-", "-") if it is None else
-                     f" | {it:>5d} {row[f'wall_s_to_{key}']:>7.3f} {row[f'cpu_s_to_{key}']:>7.3f}")
-        lines.append(line + f" {row['setup_s']:>8.2f} {row['max_flips']:>5d}")
-    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------ running
@@ -613,8 +594,3 @@ def _reference(reference, runs, objective, start, progress) -> Reference:
         detail["lower"] = best_name
         energy = finals[best_name]
     return Reference(energy, "auto", detail)
-
-
-# ------------------------------------------------------------------------------ inputs
-
-
