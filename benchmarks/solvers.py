@@ -165,8 +165,10 @@ def refine_report(args):
         objective = Objective(Problem.surface(V, F), "symmetric_dirichlet")
         x0 = start_map(objective, None, args.refine_start)[0]
         # compile what the solvers compile in their first steps (per size), outside the timings
-        geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.cold_seconds, reference="best")
-        c = geomopt.compare(V, F, x0=x0, solvers=wanted, max_seconds=args.max_seconds, reference="best")
+        cold = geomopt.CompareOptions(max_seconds=args.cold_seconds, reference="best")
+        geomopt.compare(V, F, x0=x0, solvers=wanted, options=cold)
+        c = geomopt.compare(V, F, x0=x0, solvers=wanted,
+                            options=geomopt.CompareOptions(max_seconds=args.max_seconds, reference="best"))
         best = c.best_mean_energy
         row = {"shape": label, "n_faces": len(F), "E_best": best}
         for name in wanted:
@@ -256,16 +258,16 @@ def main(argv=None):
         solvers, skipped, cold = [], {}, {}
         for name in wanted:  # one solver at a time: compare refuses a list with any unfit solver
             try:
-                cold[name] = geomopt.compare(V, F, x0=x0, solvers=[name], max_seconds=args.cold_seconds,
-                                             reference="best")
+                cold[name] = geomopt.compare(V, F, x0=x0, solvers=[name], options=geomopt.CompareOptions(
+                    max_seconds=args.cold_seconds, reference="best"))
                 solvers.append(name)
             except ParameterError as exc:
                 skipped[name] = str(exc)
                 bench.log(f"  skipped {name}: {exc}")
         warm = []
         for k in range(args.repeat):
-            warm.append(geomopt.compare(V, F, x0=x0, solvers=solvers, max_seconds=args.max_seconds,
-                                        reference="best"))
+            warm.append(geomopt.compare(V, F, x0=x0, solvers=solvers, options=geomopt.CompareOptions(
+                max_seconds=args.max_seconds, reference="best")))
             bench.log(f"  warm run {k + 1}:\n" + warm[-1].report())
         slim = bench.run_slim(V, F, x0, args.slim_iters, objective, objective.params())
         ref = REFERENCES.get(mesh)

@@ -31,6 +31,9 @@ _LAZY = {
     "tutte_embedding": ".mesh.tutte", "compare": ".experiments.comparison", "Comparison": ".experiments.comparison",
     "compare_meshes": ".experiments.comparison", "ComparisonSet": ".experiments.comparison", "sphere_map": ".sphere",
     "make_atlas": ".atlas", "untangle": ".untangling",
+    # the drivers' options (one calling convention: data by position, settings in these)
+    "ParamOptions": ".param", "SphereOptions": ".sphere", "AtlasOptions": ".atlas", "UntangleOptions": ".untangling",
+    "SmoothOptions": ".smoothing", "CompareOptions": ".experiments.options",
 }
 # public submodules reachable as attributes without an import of their own (imported on first use):
 # the layers from the bottom up, then the drivers and the outputs on top

@@ -29,7 +29,8 @@ from .exact.certify import local_certificate
 from .io import (CASE_FILES, atomic_path, atomic_write, read_obj_with_uv, read_vertex_ids, read_vtk_tets,
                  write_obj_with_uv, write_vtk_tets)
 from .exact.predicates import differing_rows
-from .mesh.problem import Problem, fixed_total_problem
+from .mesh.orientation import fixed_total_problem
+from .mesh.problem import Problem
 from .untangling import UntangleOptions, untangle
 from .untangling.options import options_from
 

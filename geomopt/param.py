@@ -7,7 +7,7 @@ from functools import partial
 
 import numpy as np
 
-from ._runtime.config import Instance, validate
+from ._runtime.config import Instance, Maybe, OneOf, keyword_only, options_from, split_options, validate
 from ._runtime.errors import MeshError, ParameterError, SolveError
 from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
@@ -15,13 +15,12 @@ from .objective.objective import Objective, jit
 from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from .energies import energy_spec
 from .mesh.problem import Problem
-from .scaffold import bijective_parameterize
+from .scaffold import ScaffoldOptions, bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
 from .untangling import UntangleOptions, untangle
-from .untangling.options import options_from
-from .mesh.tutte import circle_boundary, optimal_scale, tutte_embedding
+from .mesh.tutte import WEIGHTS as TUTTE_WEIGHTS, circle_boundary, optimal_scale, tutte_embedding
 
 __all__ = [
     "parameterize", "parameterize_map", "unit_square", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
@@ -177,10 +176,50 @@ def _density_at_scales(density, params, scales):
     return jax.vmap(lambda s: density(s * jnp.eye(2), params))(scales)
 
 
+@dataclasses.dataclass(frozen=True)
+class ParamOptions:
+    """The settings of :func:`parameterize` (validated: ``bijective="no"`` is refused, not
+    taken as true).
+
+    Attributes
+    ----------
+    weights : Tutte weights of the start map, ``"uniform"`` or ``"mean_value"``.
+    bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
+        :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
+        Either way ``certificate`` is the exact global certificate
+        (:func:`geomopt.exact.certify.certify_bijective`) and ``result.injectivity`` says
+        ``"global"``, ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
+    scaffold : :class:`~geomopt.scaffold.ScaffoldOptions` of the bijective mode (None: its
+        defaults).
+    buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
+        kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
+        mesh of the same bucket; the padding changes no result (:mod:`geomopt._runtime.padding`).
+    """
+
+    weights: str = "uniform"
+    bijective: bool = False
+    scaffold: ScaffoldOptions | None = None
+    buckets: bool = True
+
+    def __post_init__(self):
+        validate(self, weights=OneOf(TUTTE_WEIGHTS), bijective=Instance(bool),
+                 scaffold=Maybe(Instance(ScaffoldOptions)), buckets=Instance(bool))
+
+
+def param_options(options, deprecated: dict, where: str):
+    """``(ParamOptions, energy parameters)`` from :func:`parameterize`'s ``options`` and its
+    deprecated keywords: settings, scaffold settings and energy parameters (each warned)."""
+    options, rest = split_options(ParamOptions, options, deprecated, where)
+    scaffold, rest = split_options(ScaffoldOptions, options.scaffold, rest, where)
+    if scaffold != (options.scaffold or ScaffoldOptions()):
+        options = dataclasses.replace(options, scaffold=scaffold)
+    return options, rest
+
+
+@keyword_only(4, ("weights", "x0", "progress", "throw"))
 @float64
-def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                 x0=None, progress=True, throw=False, *, buckets=True, bijective=False, element_weights=None,
-                 adjoint="auto", **energy_params):
+def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, options: ParamOptions | None = None,
+                 x0=None, element_weights=None, progress=True, throw=False, adjoint="auto", **deprecated):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Differentiable: given traced ``V``, ``element_weights`` or energy parameters (under
@@ -197,9 +236,10 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     F : (m, 3) int triangles (consistently oriented).
     energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet), or a pair
         ``(name, {parameter: value})`` whose values may be traced
-        (:func:`geomopt.energies.energy_spec`); ``energy_params``: deprecated keywords.
+        (:func:`geomopt.energies.energy_spec`).
     solver : a solver object or name (default :class:`~geomopt.solvers.Newton`).
-    weights : Tutte weights for the start map, ``"uniform"`` or ``"mean_value"``.
+    options : :class:`ParamOptions` (the Tutte weights of the start, the bijective mode and its
+        scaffold, size buckets); None: the defaults.
     x0 : the start map: ``None`` or ``"tutte"`` (default: Tutte embedding; the mesh must be a
         topological disk, :func:`~geomopt.exact.topology.check_disk`), ``"projection"`` (the best-fit
         plane projection, :func:`projection_map`: folded wherever the surface turns over), or an
@@ -209,17 +249,14 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     progress, throw : see :func:`~geomopt.solvers.minimize`.  A callable sees the minimisation
         only: the repair of a folded start reports (as :func:`~geomopt.untangling.untangle` does)
         only with ``progress=True``.
-    bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
-        :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
-        Either way ``certificate`` is the exact global certificate
-        (:func:`geomopt.exact.certify.certify_bijective`) and ``result.injectivity`` says ``"global"``,
-        ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
     element_weights : (m,) positive per-triangle weights of the energy (see
-        :class:`~geomopt.Objective`), or None.  Not with ``bijective``.
+        :class:`~geomopt.Objective`), or None.  Not with ``options.bijective``.
     adjoint : the linear solver of the adjoint on traced inputs (see :func:`geomopt.minimize`).
-    buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
-        kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
-        mesh of the same bucket; the padding changes no result (:mod:`geomopt._runtime.padding`).
+    deprecated : the former keywords ``weights``, ``bijective``, ``buckets`` (now
+        :class:`ParamOptions` fields), the scaffold's settings (``lazy``, ``inner_steps``...: now
+        ``ParamOptions(scaffold=ScaffoldOptions(...))``) and energy parameters (now with the
+        energy) work for one release with a DeprecationWarning; so do ``weights``, ``x0``,
+        ``progress``, ``throw`` given by position.
 
     Returns
     -------
@@ -245,30 +282,31 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     >>> result.outcome.name, result.success, result.injectivity, result.x.shape
     ('CONVERGED', True, 'global', (5, 2))
     """
+    options, energy_params = param_options(options, deprecated, "parameterize")
     energy, energy_params = energy_spec(energy, energy_params, "parameterize")
     if is_traced(V, element_weights, energy_params):
-        if bijective:
-            raise ParameterError("parameterize: bijective=True is not differentiable (the scaffold is remeshed "
-                                 "as the map moves); differentiate the free-boundary map (bijective=False)")
-        x = parameterize_map(V, F, energy, solver, weights, x0, element_weights, adjoint, energy_params)
+        if options.bijective:
+            raise ParameterError("parameterize: ParamOptions(bijective=True) is not differentiable (the scaffold is "
+                                 "remeshed as the map moves); differentiate the free-boundary map (bijective=False)")
+        x = parameterize_map(V, F, energy, solver, options.weights, x0, element_weights, adjoint, energy_params)
         return traced_result(x, solver=solver)
     V, F = mesh_arrays(V, F)
-    ParamOptions(buckets, bijective)
     check_scale_aware(energy, energy_params)
     check_progress(progress, "parameterize")
-    if bijective:
+    if options.bijective:
         if isinstance(x0, str) or element_weights is not None:
-            raise ParameterError("bijective=True starts from the Tutte map or a globally injective x0 array, "
-                                 "with no element_weights")
-        return bijective_parameterize(V, F, energy=energy, solver=solver, weights=weights, x0=x0,
-                                      progress=progress, throw=throw, **energy_params)
+            raise ParameterError("ParamOptions(bijective=True) starts from the Tutte map or a globally injective x0 "
+                                 "array, with no element_weights")
+        return bijective_parameterize(V, F, energy=energy, solver=solver, weights=options.weights, x0=x0,
+                                      progress=progress, throw=throw, options=options.scaffold, **energy_params)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
-    objective = Objective(problem, energy, buckets=buckets, element_weights=element_weights, **energy_params)
+    objective = Objective(problem, energy, buckets=options.buckets, element_weights=element_weights,
+                          **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
     loop = check_disk(problem.input_simplices, problem.n_vertices)  # once: start map and certificate
-    x0, s, repaired = start_map(objective, x0, weights, progress is True, loop)
+    x0, s, repaired = start_map(objective, x0, options.weights, progress is True, loop)
     if x0 is None:
         return _failed_repair(repaired, problem, objective, throw)
     result = minimize(objective, x0, solver, progress=progress, throw=throw)
@@ -276,7 +314,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
     reason = result.reason
     if result.outcome is Outcome.NOT_INJECTIVE and len(cert.local.boundary_overlaps):
         reason += ("; the free boundary folded over itself there, which the bijective mode prevents "
-                   "(bijective=True, geomopt param --bijective)")
+                   "(ParamOptions(bijective=True), geomopt param --bijective)")
     return dataclasses.replace(result, certificate=cert, reason=reason,
                                details=ParamDetails(start=x0, scale=s, repair=repaired))
 
@@ -296,25 +334,13 @@ def parameterize_map(V, F=None, energy="symmetric_dirichlet", solver=None, weigh
 
     def solve(obj, p, start):
         w = obj.element_weights
-        result = parameterize(np.asarray(obj.problem.rest_vertices), F, (energy, p), solver, weights,
-                              x0 if start is None else np.asarray(start), progress=False,
-                              element_weights=None if w is None else np.asarray(w))
+        result = parameterize(np.asarray(obj.problem.rest_vertices), F, (energy, p), solver,
+                              options=ParamOptions(weights=weights), x0=x0 if start is None else np.asarray(start),
+                              progress=False, element_weights=None if w is None else np.asarray(w))
         require_success(result, "geomopt.parameterize")
         return result.x, {"objective": result.objective}
 
     return argmin(objective, dict(energy_params or {}), start, solve, adjoint)
-
-@dataclasses.dataclass(frozen=True)
-class ParamOptions:
-    """The switches of :func:`parameterize` (validated: ``bijective="no"`` is refused, not
-    taken as true)."""
-
-    buckets: bool = True
-    bijective: bool = False
-
-    def __post_init__(self):
-        validate(self, buckets=Instance(bool), bijective=Instance(bool))
-
 
 def _failed_repair(repaired, problem, objective, throw) -> Result:
     """The result of a parameterization whose folded start could not be repaired: the

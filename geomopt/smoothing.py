@@ -34,12 +34,13 @@ import dataclasses
 
 import numpy as np
 
+from ._runtime.config import Int, Maybe, OneOf, keyword_only, split_options, validate
 from ._runtime.errors import MeshError, ParameterError
 from ._runtime.validate import validate_indices
 from .mesh.elements import ELEMENT_KINDS, ElementCertificate, Quality, scaled_jacobian
 from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
 
-__all__ = ["SmoothDetails", "smooth", "element_problem", "MAX_ROUNDS", "RISK"]
+__all__ = ["SmoothDetails", "SmoothOptions", "smooth", "element_problem", "MAX_ROUNDS", "RISK"]
 
 #: solves before :func:`smooth` gives up and returns its input
 MAX_ROUNDS = 8
@@ -110,8 +111,29 @@ def element_problem(V, E, fixed=None, rest="reference"):
     return problem.with_fixed(fixed, V[fixed])
 
 
-def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference", max_steps=None,
-           progress=False, max_rounds=MAX_ROUNDS, **params) -> Result:
+@dataclasses.dataclass(frozen=True)
+class SmoothOptions:
+    """The settings of :func:`smooth` (validated).
+
+    Attributes
+    ----------
+    rest : ``"reference"`` (squares / cubes of the mean edge length: Winslow) or ``"mesh"``
+        (the input's own elements: then the input is the energy's minimum and nothing moves).
+    max_steps : solver iteration limit per solve (default: the solver's).
+    max_rounds : solves before giving up and returning the input (see the module notes).
+    """
+
+    rest: str = "reference"
+    max_steps: int | None = None
+    max_rounds: int = MAX_ROUNDS
+
+    def __post_init__(self):
+        validate(self, rest=OneOf(("reference", "mesh")), max_steps=Maybe(Int(1)), max_rounds=Int(1))
+
+
+@keyword_only(4, ("fixed", "rest", "max_steps", "progress", "max_rounds"))
+def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: SmoothOptions | None = None,
+           progress=False, **deprecated) -> Result:
     """Smooth a valid quad or hex mesh without inverting anything or worsening its worst element.
 
     Parameters
@@ -123,11 +145,11 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
         value})`` (:func:`geomopt.energies.energy_spec`); ``params``: deprecated keywords.
     solver : a solver name or object with an injective search (default projected Newton).
     fixed : vertex ids held in place (default: the boundary vertices).
-    rest : ``"reference"`` (squares / cubes of the mean edge length: Winslow) or ``"mesh"``
-        (``V``'s own elements: then ``V`` is the energy's minimum and nothing moves).
-    max_steps : solver iteration limit per solve (default: the solver's).
+    options : :class:`SmoothOptions` (rest shape, iteration limits).
     progress : passed to :func:`~geomopt.solvers.minimize`.
-    max_rounds : solves before giving up and returning the input (see the module notes).
+    deprecated : the former keywords ``rest``, ``max_steps``, ``max_rounds`` (now
+        :class:`SmoothOptions` fields) and energy parameters (now with the energy) work for one
+        release with a DeprecationWarning; so do the former positional arguments after ``solver``.
 
     Returns
     -------
@@ -160,20 +182,20 @@ def smooth(V, E, energy="winslow", solver="newton", fixed=None, rest="reference"
     from .exact.predicates import box_scale
     from .solvers import get_solver
 
+    options, params = split_options(SmoothOptions, options, deprecated, "smooth")
     energy, params = energy_spec(energy, params, "smooth")
     V = np.asarray(V, dtype=np.float64)
     scale = box_scale(V) if V.ndim == 2 else 1.0  # exact: at 1e200 or 1e-150 as at 1
-    problem = element_problem(V * scale, E, fixed, rest)
+    problem = element_problem(V * scale, E, fixed, options.rest)
     V = V * scale
     start = _certified_input(problem, V)
     solver = get_solver(solver)
     if not getattr(getattr(solver, "search", None), "injective", True):
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
-    if max_steps is not None:
-        solver = dataclasses.replace(solver, max_steps=max_steps)
-    if not isinstance(max_rounds, int) or max_rounds < 1:
-        raise ParameterError(f"smooth: max_rounds must be a whole number >= 1, got {max_rounds!r}")
-    solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, max_rounds, params)
+    if options.max_steps is not None:
+        solver = dataclasses.replace(solver, max_steps=options.max_steps)
+    solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
+                                               params)
     local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
     if not local.ok:  # a free boundary folded over itself: the input
         outcome, reason = Outcome.NOT_INJECTIVE, (f"the minimum is not locally injective ({local.message}); the "

@@ -37,6 +37,7 @@ import time
 
 import numpy as np
 
+from ._runtime.config import Instance, Int, Maybe, OneOf, keyword_only, split_options, validate
 from ._runtime.errors import MeshError, ParameterError
 from .objective.objective import Objective, element_densities
 from ._runtime.tracing import refuse_traced
@@ -49,9 +50,9 @@ from .mesh.problem import Problem
 from .solvers import LBFGS, AbstractContinuation, Decision, Details, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
 from .exact.topology import as_faces, boundary_loops, check_sphere
-from .mesh.tutte import tutte_embedding
+from .mesh.tutte import WEIGHTS as TUTTE_WEIGHTS, tutte_embedding
 
-__all__ = ["sphere_map", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
+__all__ = ["sphere_map", "SphereOptions", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
 
 #: halvings of the stereographic scale before the start is given up (each halves every cap)
 MAX_HALVINGS = 60
@@ -206,9 +207,29 @@ class _OnTheSphere(AbstractContinuation):
         return Final(x, outcome, cert, reason, details=self.details, certify_seconds=time.perf_counter() - t0)
 
 
+@dataclasses.dataclass(frozen=True)
+class SphereOptions:
+    """The settings of :func:`sphere_map` (validated).
+
+    Attributes
+    ----------
+    weights : Tutte weights of the start, ``"uniform"`` or ``"mean_value"`` (:func:`sphere_start`).
+    pole : the start's south-pole vertex (default: one of highest degree).
+    buckets : pad to size buckets (shared compiled kernels), as :class:`geomopt.param.ParamOptions`.
+    """
+
+    weights: str = "uniform"
+    pole: int | None = None
+    buckets: bool = True
+
+    def __post_init__(self):
+        validate(self, weights=OneOf(TUTTE_WEIGHTS), pole=Maybe(Int(0)), buckets=Instance(bool))
+
+
+@keyword_only(4, ("progress", "throw"))
 @float64
-def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=True, throw=False, *,
-               x0=None, pole=None, weights="uniform", buckets=True, **energy_params):
+def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options: SphereOptions | None = None,
+               x0=None, progress=True, throw=False, **deprecated):
     """Map a closed genus-0 triangle mesh bijectively onto the unit sphere, minimising distortion.
 
     Parameters
@@ -222,12 +243,14 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
         total area ``4 pi`` (:meth:`geomopt.Problem.sphere`).
     solver : ``None`` (:func:`default_solver`), ``"lbfgs"`` or an :class:`~geomopt.LBFGS` (the
         sphere map's Jacobians are not linear in ``x``, so no assembled-Hessian solver applies).
-    progress, throw : see :func:`~geomopt.solvers.minimize`.
+    options : :class:`SphereOptions` (the start's Tutte weights and pole, size buckets).
     x0 : None (the certified stereographic start, :func:`sphere_start`) or an (n, 3) start map
         (directions: e.g. another method's sphere map), which must itself certify
         (:func:`geomopt.exact.certify.certify_sphere`).
-    pole, weights : the start's pole vertex and Tutte weights (:func:`sphere_start`).
-    buckets : pad to size buckets (shared compiled kernels), see :func:`~geomopt.parameterize`.
+    progress, throw : see :func:`~geomopt.solvers.minimize`.
+    deprecated : the former keywords ``pole``, ``weights``, ``buckets`` (now :class:`SphereOptions`
+        fields) and energy parameters (now with the energy) work for one release with a
+        DeprecationWarning; so do ``progress`` and ``throw`` given by position.
 
     Returns
     -------
@@ -256,6 +279,7 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
     >>> result.success, result.injectivity, bool(np.allclose(np.linalg.norm(result.x, axis=1), 1.0))
     (True, 'global', True)
     """
+    options, energy_params = split_options(SphereOptions, options, deprecated, "sphere_map")
     energy, energy_params = energy_spec(energy, energy_params, "sphere_map")
     refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
     V, F = mesh_arrays(V, F)
@@ -267,9 +291,9 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, progress=Tr
                              f"is not linear in x, so {type(solver).__name__}'s assembled Hessian does not apply); "
                              f"pass solver='lbfgs' or an LBFGS(...)")
     problem = Problem.sphere(V, F)  # rest checks first: zero-area faces, orientation, non-manifold edges
-    x0, details = (sphere_start(V, problem.input_simplices, pole, weights) if x0 is None else
+    x0, details = (sphere_start(V, problem.input_simplices, options.pole, options.weights) if x0 is None else
                    given_start(problem, x0))
-    objective = Objective(problem, energy, buckets=buckets, **energy_params)
+    objective = Objective(problem, energy, buckets=options.buckets, **energy_params)
     return iterate(solver, objective, objective.prepare_map(x0), objective.params(),
                    continuation=_OnTheSphere(objective, details, x0), progress=progress, trace=True,
                    throw=throw, label="sphere_map")

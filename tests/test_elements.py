@@ -12,6 +12,7 @@ import pytest
 import geomopt
 from geomopt.mesh import generators as G
 from geomopt import Outcome, smooth
+from geomopt.smoothing import SmoothOptions
 from geomopt.exact import hexvalid
 from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.objective.objective import Objective
@@ -423,7 +424,7 @@ def test_smooth_never_lowers_the_minimum_scaled_jacobian():
     d = r.details
     assert r.success and d.elements.certified and d.after.min >= before.min and d.improved
     assert r.stats.outer_iterations > 1 and 0 < len(d.held) < 20 and d.after.below_0_2 < before.below_0_2
-    worst = smooth(X0, Q, max_rounds=1)  # the one solve allowed makes the worst element worse: the input
+    worst = smooth(X0, Q, options=SmoothOptions(max_rounds=1))  # the one solve allowed makes the worst element worse: the input
     assert worst.outcome is Outcome.MAX_STEPS and not worst.success and not worst.details.improved
     assert np.array_equal(worst.x, X0) and "input is returned" in worst.message and not len(worst.details.held)
     assert worst.details.after == before and worst.certificate.locally_injective

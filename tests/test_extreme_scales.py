@@ -233,7 +233,7 @@ def test_untangle_a_start_map_at_extreme_scales(scale, dim):
     map at 1e-150 underflowed to a "collapsed" map and was refused.  Signs and ratios are
     scale-free, so these solve as at scale 1, with the handles bit-identical."""
     from geomopt.mesh import generators as G
-    from geomopt.mesh.problem import check_initial_orientation
+    from geomopt.mesh.orientation import check_initial_orientation
     from geomopt.untangling import untangle
 
     tg = (G.rotated_interior(*G.square_mesh(6), 120.0) if dim == 2

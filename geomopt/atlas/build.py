@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from .._runtime.config import Instance, Int, Real, validate
+from .._runtime.config import Instance, Int, Real, keyword_only, validate
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
@@ -159,8 +159,9 @@ def _assemble(n_faces, meshes, packed):
     return np.concatenate(uv), uv_faces, np.concatenate(vertex), chart
 
 
+@keyword_only(4, ("options", "progress", "throw"))
 @float64
-def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=None, progress=True,
+def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=None, progress=True,
                throw=False, **energy_params) -> Atlas:
     """A certified texture atlas of any edge-manifold triangle mesh: closed of any genus, with
     several boundary loops, with several components (module doc).

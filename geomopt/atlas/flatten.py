@@ -23,12 +23,13 @@ def flatten_chart(Vc, Fc, energy, solver, energy_params):
     """A chart's flip-free flattening (:class:`~geomopt.solvers.Result`, ``x`` (nc, 2)): free
     boundary, then the bijective scaffold when the boundary overlapped itself or the map is not
     certified."""
-    from ..param import parameterize
+    from ..param import ParamOptions, parameterize
 
     res = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False)
     if res.success and res.injectivity == "global":
         return res
-    again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False, bijective=True)
+    again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False,
+                         options=ParamOptions(bijective=True))
     return again if again.success or not res.success else res
 
 

@@ -19,21 +19,20 @@ def cmd_compare(args) -> int:
     Exit status 0 only when every solver converged to a certified map and no iterate had an
     inverted element; else 1, after writing every file, with one line naming each solver and why."""
     from ..experiments.comparison import ComparisonSet, compare, compare_meshes, exit_status
+    from ..experiments.options import CompareOptions
 
-    options = dict(solvers=args.solvers, energy=args.energy, weights=args.weights, max_seconds=args.max_seconds,
-                   max_steps=args.max_steps, reference=args.reference, repeat=args.repeat,
-                   tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
-                   log_x=args.log_x, progress=not args.quiet, clock=args.clock, warmup=args.warmup,
-                   layout=args.layout, font_size=args.font_size)
-    if len(args.mesh) == 1:
-        res = compare(args.mesh[0], out=args.output, **options)
-    else:
-        res = compare_meshes(args.mesh, out=args.output, **options)
+    options = CompareOptions(weights=args.weights, max_seconds=args.max_seconds, max_steps=args.max_steps,
+                             reference=args.reference, repeat=args.repeat,
+                             tolerances=_floats(args.tolerances, "--tolerances"), formats=_names(args.format),
+                             log_x=args.log_x, clock=args.clock, warmup=args.warmup, layout=args.layout,
+                             font_size=args.font_size)
+    run = dict(energy=args.energy, solvers=args.solvers, options=options, out=args.output, progress=not args.quiet)
+    res = compare(args.mesh[0], **run) if len(args.mesh) == 1 else compare_meshes(args.mesh, **run)
     log(args, res.report())
-    files = res.output_names(options["formats"])
+    files = res.output_names(options.formats)
     log(args, f"wrote {', '.join(files)} in {args.output}")
     items = res.comparisons if isinstance(res, ComparisonSet) else {Path(args.mesh[0]).name: res}
-    report(args, output=str(args.output), files=files, repeat=args.repeat, tolerances=options["tolerances"],
+    report(args, output=str(args.output), files=files, repeat=args.repeat, tolerances=options.tolerances,
            meshes=[{"mesh": key, "label": c.label, "elements": c.objective.problem.n_elements,
                     "energy_name": c.objective.energy.name, "rest_area": c.area,
                     "reference": {"source": c.reference.source, "energy": c.reference.energy,

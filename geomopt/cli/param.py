@@ -39,7 +39,7 @@ def cmd_param(args) -> int:
     from .._runtime.errors import ParameterError
     from .._runtime.timing import compile_seconds
     from ..energies import get_energy
-    from ..param import parameterize
+    from ..param import ParamOptions, parameterize
 
     split = args.timing
     split.mark_imported()
@@ -67,8 +67,9 @@ def cmd_param(args) -> int:
 
     if args.atlas or not is_disk(F, len(V)):  # closed, several boundary loops or components: charts
         return param_atlas(args, V, F, energy, solver)
-    solve = functools.partial(parameterize, V, F, energy=energy, solver=solver, weights=args.weights, x0=x0,
-                              progress=not args.quiet, bijective=args.bijective)
+    options = ParamOptions(weights=args.weights, bijective=args.bijective)
+    solve = functools.partial(parameterize, V, F, energy=energy, solver=solver, options=options, x0=x0,
+                              progress=not args.quiet)
     return _param_disk(args, V, F, energy, solve, folder)
 
 
@@ -138,7 +139,7 @@ def _param_sphere(args) -> int:
 
     from .. import io, plot
     from .._runtime.errors import ParameterError
-    from ..sphere import default_solver, sphere_distortion, sphere_map
+    from ..sphere import SphereOptions, default_solver, sphere_distortion, sphere_map
 
     if args.bijective or args.init != "tutte" or args.uv_range != "raw":
         raise ParameterError("--sphere makes its own certified start and writes vertices, not UVs: leave out "
@@ -150,7 +151,8 @@ def _param_sphere(args) -> int:
     with args.timing.phase("read"):
         V, F = io.read_mesh(args.input)
     log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; onto the sphere, energy {args.energy}, L-BFGS")
-    res = sphere_map(V, F, energy=args.energy, solver=solver, progress=not args.quiet, weights=args.weights)
+    res = sphere_map(V, F, energy=args.energy, solver=solver, options=SphereOptions(weights=args.weights),
+                     progress=not args.quiet)
     st, cert, dist = res.stats, res.certificate, sphere_distortion(V, F, res.x)
     log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  mean energy "
               f"{res.mean_energy:.10g}  area ratio {dist['area_min']:.3g}..{dist['area_max']:.3g}  flips "

@@ -12,7 +12,7 @@ __all__ = ["cmd_smooth"]
 def cmd_smooth(args) -> int:
     """Smooth a valid quad / hex mesh (:func:`geomopt.smooth`) into a certified file."""
     from ..mesh.cells import SMOOTH_KINDS, read_cell_case, write_certified
-    from ..smoothing import smooth
+    from ..smoothing import SmoothOptions, smooth
 
     split = args.timing
     split.mark_imported()
@@ -22,7 +22,7 @@ def cmd_smooth(args) -> int:
     fixed = None if args.fix == "boundary" else []
     with split.phase("solve"):  # smooth's rounds, each solved and certified
         res = smooth(case.start, case.elements, energy=args.energy, solver=args.solver, fixed=fixed,
-                     max_steps=args.max_steps, progress=not args.quiet)
+                     options=SmoothOptions(max_steps=args.max_steps), progress=not args.quiet)
     d, st = res.details, res.stats
     seconds = st.seconds + st.setup_seconds  # every solve, set-up included
     log(args, f"{len(case.elements)} {case.kind} elements: before {quality_line(d.before)}")

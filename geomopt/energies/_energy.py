@@ -5,13 +5,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import warnings
 from typing import Callable, Mapping
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._runtime.config import deprecated_call
 from .._runtime import names as _names
 from .._runtime.errors import ParameterError
 from .._runtime.names import resolve
@@ -221,9 +221,8 @@ def energy_spec(energy, legacy=None, where: str = "") -> tuple:
                                  f"got a tuple of {len(energy)}")
         energy, params = energy[0], dict(energy[1])
     if legacy:
-        warnings.warn(f"{where}: energy parameters as keywords ({', '.join(sorted(legacy))}) are deprecated and "
-                      f"will be removed in the next release: pass them with the energy, energy=(name, {{...}})",
-                      DeprecationWarning, stacklevel=3)
+        deprecated_call(f"{where}: energy parameters as keywords ({', '.join(sorted(legacy))}) are deprecated and "
+                        f"will be removed in the next release: pass them with the energy, energy=(name, {{...}})")
         params = {**params, **legacy}
     return energy, params
 

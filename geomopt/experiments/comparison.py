@@ -49,13 +49,15 @@ from typing import Any
 import numpy as np
 
 from . import manifest as _manifest
+from .._runtime.config import split_options
 from .._runtime.errors import ParameterError
 from .._runtime.x64 import float64
 from ..energies import energy_spec
 from ..objective.objective import Objective
 from ..solvers import Newton, Outcome, Progress, iterate
+from .options import CLOCKS, FORMATS, TOLERANCES, CompareOptions
 
-__all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
+__all__ = ["compare", "compare_meshes", "CompareOptions", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
 
 #: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D).
@@ -64,11 +66,6 @@ __all__ = ["compare", "compare_meshes", "Comparison", "ComparisonSet", "SolverRu
 #: it stalls (camelhead: gap 1.9 after 1,000 iterations; geomopt's L-BFGS with the same scalar
 #: seed 1.5, with its Laplacian seed converged in 265); name it to compare it.
 DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
-TOLERANCES = (1e-2, 1e-4, 1e-6)
-#: what ``clock`` may name: elapsed (wall) or process CPU seconds of the solve
-CLOCKS = ("wall", "cpu")
-#: figure formats :meth:`Comparison.write` writes (PDF / PS with TrueType fonts)
-FORMATS = ("png", "pdf", "svg", "eps", "ps")
 HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
                    "grad_norm", "flips")
 _BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
@@ -309,10 +306,12 @@ class Comparison:
     def report(self) -> str:
         """A plain-text table: per solver the outcome, totals, and iterations / wall / CPU
         seconds to each tolerance (medians over the repeats)."""
+        from .report import text_table
+
         reps = max(len(r) for r in self.runs.values())
         head = (f"{self.label}; {self.describe_reference()}" + (f"; medians of {reps} runs" if reps > 1 else "")
                 + f"; {'after an untimed warm-up' if self.warmup else 'cold (no warm-up)'}, {self.clock} clock")
-        return head + "\n" + _table(self.summary_rows(), self.tolerances)
+        return head + "\n" + text_table(self.summary_rows(), self.tolerances)
 
     def manifest(self) -> dict:
         """Everything needed to reproduce or question the numbers: versions, environment,
@@ -429,35 +428,12 @@ def _median(values) -> float:
     return float(np.median(np.fromiter(values, np.float64)))
 
 
-def _table(rows, tolerances) -> str:
-    """Fixed-width text table of summary rows (``mesh`` column when present)."""
-    mesh = bool(rows) and "mesh" in rows[0]
-    left = (f"{'mesh':>16} " if mesh else "") + f"{'solver':>11} {'outcome':>18} {'iters':>6} {'wall s':>8} " \
-                                                f"{'cpu s':>8} {'gap':>8}"
-    head = " " * len(left) + "".join(f" | {'to ' + format(t, '.0e'):^21}" for t in tolerances)
-    lines = [head, left + " | {:>5} {:>7} {:>7}".format("it", "wall s", "cpu s") * len(tolerances)
-             + f" {'setup s':>8} {'flips':>5}"]
-    for row in rows:
-        line = (f"{row['mesh'][:16]:>16} " if mesh else "") + (
-            f"{row['solver']:>11} {row['outcome']:>18} {row['iterations']:>6d} {row['wall_s']:>8.3f} "
-            f"{row['cpu_s']:>8.3f} {row['gap']:>8.1e}")
-        for t in tolerances:
-            key = f"{t:.0e}"
-            it = row[f"it_to_{key}"]
-            line += (" | {:>5} {:>7} {:>7}".format("never", "-", "-") if it is None else
-                     f" | {it:>5d} {row[f'wall_s_to_{key}']:>7.3f} {row[f'cpu_s_to_{key}']:>7.3f}")
-        lines.append(line + f" {row['setup_s']:>8.2f} {row['max_flips']:>5d}")
-    return "\n".join(lines)
-
-
 # ------------------------------------------------------------------------------ running
 
 
 @float64
-def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=None, weights="uniform",
-            max_seconds=None, max_steps=None, reference="auto", repeat=1, tolerances=TOLERANCES, out=None,
-            formats=("png",), log_x=False, progress=False, clock="wall", warmup=True, layout="wide",
-            font_size=None, **energy_params) -> Comparison:
+def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=None,
+            options: CompareOptions | None = None, out=None, progress=False, **deprecated) -> Comparison:
     """Run several solvers on one problem from the same start map and trace each iteration.
 
     Parameters
@@ -472,33 +448,24 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
         * a :class:`~geomopt.Problem` (handles included); ``x0`` is then required unless it
           has no handles and maps to 2D (then the Tutte start).
     faces : (m, 3) int, only with a vertex array.
+    energy : energy name or :class:`~geomopt.energies.Energy`, or ``(name, {parameter: value})``
+        (:func:`geomopt.energies.energy_spec`).
     solvers : names (``geomopt.solvers.SOLVERS``), solver objects, or a dict name -> solver
         (names become file names: letters, digits, ``_.+-``).  Default
         :data:`DEFAULT_SOLVERS` (without ``cm`` for tets).
-    energy : energy name or :class:`~geomopt.energies.Energy`, or ``(name, {parameter: value})``
-        (:func:`geomopt.energies.energy_spec`); ``energy_params`` (deprecated keywords) override its
-        parameters.
     x0 : (n, d) start map, used as given (not rescaled; in the input's frame for a LIM case).
-        Default: the free-boundary Tutte start (:func:`~geomopt.param.start_map`, ``weights``)
-        or the LIM case's map.  It must be flip-free (exact predicate).
-    max_seconds : float > 0, stop a solver once its solve time (setup excluded, on ``clock``)
-        reaches this; its outcome is then ``"max_seconds"`` (``Outcome.MAX_STEPS``).
-    max_steps : int >= 1, iteration limit of every solver (default: each solver's own).
-    reference : ``"auto"`` (a tight Newton solve from the same start, run after the solvers),
-        a float (the reference *mean* energy, as printed), or ``"best"`` (the lowest energy
-        any solver reached).
-    repeat : int >= 1, runs per solver; times are medians over them.
-    clock : ``"wall"`` (default) or ``"cpu"``: the seconds ``max_seconds``, the figure, the
-        LaTeX table and the choice of the median run use (see the module notes, Timing).
-    warmup : True (default): one untimed, discarded run per solver before its timed runs, so
-        that lazy compilation is not solve time; False: the first run is timed cold.
-    tolerances : the relative gaps the summary reports iterations and seconds to.
-    out : folder to :meth:`~Comparison.write` the files into (``formats`` of the figure: png,
-        pdf, svg, eps, ps; ``log_x``, ``layout`` ``"wide"`` or ``"column"`` (one panel, a paper
-        column wide), ``font_size`` in points); every output path is checked *before* solving
-        (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``, and the folder's
-        parent must exist), the folder is created after solving.
+        Default: the free-boundary Tutte start (:func:`~geomopt.param.start_map`, the options'
+        ``weights``) or the LIM case's map.  It must be flip-free (exact predicate).
+    options : :class:`~geomopt.experiments.options.CompareOptions`: time and iteration limits,
+        the reference, repeats and warm-up, the clock, the tolerances and the figure's formats,
+        axis and layout (see the module notes, Timing).
+    out : folder to :meth:`~Comparison.write` the files into; every output path is checked
+        *before* solving (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``,
+        and the folder's parent must exist), the folder is created after solving.
     progress : True: per-iteration progress and one line per run on stderr.
+    deprecated : the former keywords (``max_seconds``, ``repeat``, ``clock``... now
+        :class:`CompareOptions` fields) and energy parameters (now with the energy) work for one
+        release with a DeprecationWarning.
 
     Returns
     -------
@@ -524,41 +491,44 @@ def compare(mesh, faces=None, *, solvers=None, energy="symmetric_dirichlet", x0=
     """
     from . import inputs, writers
 
+    settings, energy_params = split_options(CompareOptions, options, deprecated, "compare")
     energy, energy_params = energy_spec(energy, energy_params, "compare")
-    objective, start, mirror, label, source = inputs.comparison_problem(mesh, faces, energy, x0, weights, energy_params)
+    objective, start, mirror, label, source = inputs.comparison_problem(mesh, faces, energy, x0, settings.weights,
+                                                                         energy_params)
     problem = objective.problem
-    named = inputs.comparison_solvers(solvers, problem, max_steps)
-    settings = inputs.check_settings(max_seconds, reference, repeat, tolerances, formats,
-                         dict(clock=clock, warmup=warmup, layout=layout, font_size=font_size))
+    named = inputs.comparison_solvers(solvers, problem, settings.max_steps)
     if out is not None:
-        writers.prepare_folder(out, writers.output_names(list(named), problem.dim, settings["formats"]),
+        writers.prepare_folder(out, writers.output_names(list(named), problem.dim, settings.formats),
                                writers.input_files([mesh]), create=False)
     label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, {objective.energy.name}"
-    runs, limit, clock = {}, settings["max_seconds"], settings["clock"]
+    runs, limit, clock = {}, settings.max_seconds, settings.clock
     for name, solver in named.items():
-        if settings["warmup"]:  # untimed, discarded: what the solver compiles lazily
+        if settings.warmup:  # untimed, discarded: what the solver compiles lazily
             _run(name, solver, objective, start, limit, progress, " [warm-up]", clock)
         runs[name] = tuple(_run(name, solver, objective, start, limit, progress,
-                                f" [{k + 1}/{settings['repeat']}]" if settings["repeat"] > 1 else "", clock)
-                           for k in range(settings["repeat"]))
-    ref = _reference(settings["reference"], runs, objective, start, progress)
-    comparison = Comparison(runs, ref, objective, start, mirror, label, settings["tolerances"], source, clock,
-                            settings["warmup"])
+                                f" [{k + 1}/{settings.repeat}]" if settings.repeat > 1 else "", clock)
+                           for k in range(settings.repeat))
+    ref = _reference(settings.reference, runs, objective, start, progress)
+    comparison = Comparison(runs, ref, objective, start, mirror, label, settings.tolerances, source, clock,
+                            settings.warmup)
     if out is not None:
-        comparison.write(out, settings["formats"], log_x, layout=settings["layout"], font_size=settings["font_size"])
+        comparison.write(out, settings.formats, settings.log_x, layout=settings.layout, font_size=settings.font_size)
     return comparison
 
 
-def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, layout="wide", font_size=None,
-                   **options) -> ComparisonSet:
+def compare_meshes(meshes, energy="symmetric_dirichlet", solvers=None, *, options: CompareOptions | None = None,
+                   out=None, progress=False, **deprecated) -> ComparisonSet:
     """:func:`compare` on each of several meshes (paths, or a dict name -> mesh) with the same
-    ``options``; with ``out``, each comparison is written into ``out/<name>/`` (its outputs
-    checked before it is solved) and the combined table, manifest and figure into ``out``.
+    ``energy``, ``solvers`` and ``options``; with ``out``, each comparison is written into
+    ``out/<name>/`` (its outputs checked before it is solved) and the combined table, manifest
+    and figure into ``out``.  ``deprecated``: as :func:`compare`'s.
 
     Names are the file names without extension (folder names for LIM cases); they must differ.
     """
     from . import inputs, writers
 
+    options, energy_params = split_options(CompareOptions, options, deprecated, "compare_meshes")
+    energy, energy_params = energy_spec(energy, energy_params, "compare_meshes")
     if not isinstance(meshes, dict):
         meshes = {inputs.mesh_key(m): m for m in meshes} if len({inputs.mesh_key(m) for m in meshes}) == len(meshes) else None
         if meshes is None:
@@ -567,17 +537,14 @@ def compare_meshes(meshes, *, out=None, formats=("png",), log_x=False, layout="w
     for key in meshes:
         if not inputs.NAME.fullmatch(str(key)):
             raise ParameterError(f"compare: mesh name {key!r} cannot be a folder name; use letters, digits and _.+-")
-    figure = inputs.check_settings(None, "auto", 1, TOLERANCES, formats, dict(layout=layout, font_size=font_size))
-    formats, figure = figure["formats"], {"layout": figure["layout"], "font_size": figure["font_size"]}
     if out is not None:  # created now: each mesh's folder is checked in it before its solves
-        out = writers.prepare_folder(out, writers.common_names(formats), writers.input_files(meshes.values()))
-    comparisons = {}
-    for key, mesh in meshes.items():
-        comparisons[key] = compare(mesh, out=None if out is None else out / key, formats=formats, log_x=log_x,
-                                   **figure, **options)
+        out = writers.prepare_folder(out, writers.common_names(options.formats), writers.input_files(meshes.values()))
+    comparisons = {key: compare(mesh, energy=(energy, energy_params), solvers=solvers, options=options,
+                                out=None if out is None else out / key, progress=progress)
+                   for key, mesh in meshes.items()}
     result = ComparisonSet(comparisons)
     if out is not None:
-        result.write_combined(out, formats, log_x, **figure)
+        result.write_combined(out, options.formats, options.log_x, layout=options.layout, font_size=options.font_size)
     return result
 
 
@@ -627,8 +594,3 @@ def _reference(reference, runs, objective, start, progress) -> Reference:
         detail["lower"] = best_name
         energy = finals[best_name]
     return Reference(energy, "auto", detail)
-
-
-# ------------------------------------------------------------------------------ inputs
-
-

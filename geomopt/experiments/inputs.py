@@ -4,7 +4,6 @@ anything runs: its settings, the problem and start map from a mesh, and the solv
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 from pathlib import Path
 
@@ -17,10 +16,9 @@ from ..objective.objective import Objective
 from ..mesh.elements import element_type
 from ..mesh.problem import Problem
 from ..solvers import CM, get_solver
-from .comparison import CLOCKS, DEFAULT_SOLVERS, FORMATS
+from .comparison import DEFAULT_SOLVERS
 
-__all__ = ["mesh_key", "check_settings", "check_timing_and_figure", "comparison_problem", "comparison_solvers",
-           "positive_seconds", "NAME"]
+__all__ = ["mesh_key", "comparison_problem", "comparison_solvers", "NAME"]
 
 #: a solver or mesh name usable as a file name
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
@@ -31,49 +29,6 @@ DENSE_LIMIT_BYTES = 2 << 30
 
 def mesh_key(mesh) -> str:
     return Path(mesh).stem if not Path(mesh).is_dir() else Path(mesh).name
-
-
-def check_settings(max_seconds, reference, repeat, tolerances, formats, timing_and_figure) -> dict:
-    """The settings of :func:`compare`, checked before anything runs (``timing_and_figure``:
-    ``clock``, ``warmup``, ``layout``, ``font_size``; those left out get their defaults)."""
-    if max_seconds is not None:
-        max_seconds = positive_seconds(max_seconds, "max_seconds")
-    if isinstance(reference, str) and reference not in ("auto", "best"):
-        try:
-            reference = float(reference)
-        except ValueError:
-            raise ParameterError(f"compare: reference must be 'auto', 'best' or a mean energy, got "
-                                 f"{reference!r}") from None
-    if not isinstance(reference, str) and not (isinstance(reference, (int, float)) and math.isfinite(reference)):
-        raise ParameterError(f"compare: reference must be 'auto', 'best' or a finite mean energy, got {reference!r}")
-    if isinstance(repeat, bool) or not isinstance(repeat, (int, np.integer)) or repeat < 1:
-        raise ParameterError(f"compare: repeat must be a whole number >= 1, got {repeat!r}")
-    tol = tuple(float(t) for t in tolerances)
-    if not tol or any(not (0 < t < 1) for t in tol):
-        raise ParameterError(f"compare: tolerances must be relative gaps in (0, 1), got {tolerances!r}")
-    formats = tuple(formats)
-    bad = [f for f in formats if f not in FORMATS]
-    if bad or not formats:
-        raise ParameterError(f"compare: figure formats are {', '.join(FORMATS)}, got {', '.join(bad) or 'none'}")
-    return {"max_seconds": max_seconds, "reference": reference, "repeat": int(repeat),
-            "tolerances": tuple(sorted(tol, reverse=True)), "formats": formats, **check_timing_and_figure(**timing_and_figure)}
-
-
-def check_timing_and_figure(clock="wall", warmup=True, layout="wide", font_size=None) -> dict:
-    from .report import LAYOUTS
-
-    if clock not in CLOCKS:
-        raise ParameterError(f"compare: clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    if not isinstance(warmup, (bool, np.bool_)):
-        raise ParameterError(f"compare: warmup must be True or False, got {warmup!r}")
-    if layout not in LAYOUTS:
-        raise ParameterError(f"compare: figure layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    if font_size is not None:
-        size = float(font_size) if isinstance(font_size, (int, float, np.number)) else math.nan
-        if not (1.0 <= size <= 72.0):
-            raise ParameterError(f"compare: font_size must be a number of points in [1, 72], got {font_size!r}")
-        font_size = size
-    return {"clock": clock, "warmup": bool(warmup), "layout": layout, "font_size": font_size}
 
 
 def comparison_problem(mesh, faces, energy, x0, weights, energy_params):
@@ -174,11 +129,3 @@ def comparison_solvers(solvers, problem, max_steps) -> dict:
     return named
 
 
-def positive_seconds(value, name) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = float("nan")
-    if not (v > 0 and math.isfinite(v)):
-        raise ParameterError(f"compare: {name} must be a positive number of seconds, got {value!r}")
-    return v

@@ -12,11 +12,10 @@ import zlib
 
 import numpy as np
 
-__all__ = ["solver_style", "comparison_figure", "save_figure", "latex_table", "STYLES", "LAYOUTS", "PAPER_RC"]
+__all__ = ["solver_style", "comparison_figure", "save_figure", "latex_table", "text_table", "STYLES", "LAYOUTS", "PAPER_RC"]
 
-#: figure layouts: three panels per mesh, 15 inches wide, or one panel (gap against solve
-#: seconds) per mesh, a paper column wide (3.4 in: ACM 3.33 in, IEEE 3.5 in)
-LAYOUTS = ("wide", "column")
+from .options import LAYOUTS  # three panels per mesh, 15 inches wide, or one panel (gap against solve
+# seconds) per mesh, a paper column wide (3.4 in: ACM 3.33 in, IEEE 3.5 in)
 #: matplotlib settings every comparison figure is saved with: TrueType fonts in PDF / PS
 PAPER_RC = {"pdf.fonttype": 42, "ps.fonttype": 42}
 _WIDTH = {"wide": 15.0, "column": 3.4}
@@ -177,4 +176,25 @@ def latex_table(comparisons: dict) -> str:
             cells += [f"{row['gap']:.1e}", _tex(row["outcome"].replace("_", " "))]
             lines.append(" & ".join(cells) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}", ""]
+    return "\n".join(lines)
+
+
+def text_table(rows, tolerances) -> str:
+    """Fixed-width text table of summary rows (``mesh`` column when present)."""
+    mesh = bool(rows) and "mesh" in rows[0]
+    left = (f"{'mesh':>16} " if mesh else "") + f"{'solver':>11} {'outcome':>18} {'iters':>6} {'wall s':>8} " \
+                                                f"{'cpu s':>8} {'gap':>8}"
+    head = " " * len(left) + "".join(f" | {'to ' + format(t, '.0e'):^21}" for t in tolerances)
+    lines = [head, left + " | {:>5} {:>7} {:>7}".format("it", "wall s", "cpu s") * len(tolerances)
+             + f" {'setup s':>8} {'flips':>5}"]
+    for row in rows:
+        line = (f"{row['mesh'][:16]:>16} " if mesh else "") + (
+            f"{row['solver']:>11} {row['outcome']:>18} {row['iterations']:>6d} {row['wall_s']:>8.3f} "
+            f"{row['cpu_s']:>8.3f} {row['gap']:>8.1e}")
+        for t in tolerances:
+            key = f"{t:.0e}"
+            it = row[f"it_to_{key}"]
+            line += (" | {:>5} {:>7} {:>7}".format("never", "-", "-") if it is None else
+                     f" | {it:>5d} {row[f'wall_s_to_{key}']:>7.3f} {row[f'cpu_s_to_{key}']:>7.3f}")
+        lines.append(line + f" {row['setup_s']:>8.2f} {row['max_flips']:>5d}")
     return "\n".join(lines)

@@ -62,7 +62,7 @@ class CGOperator(NamedTuple):
     over_row, over_src, over_col : (n_over,) int32;  over_t : (n_over,) bool, the overflow.
     diag : (n_vertices,) int32, the diagonal block of each vertex (the zero block if unused).
     free : (n_vertices, d) float64, 1 on free DOFs.
-    blocks, swap : the element-to-block map of :class:`~geomopt.objective.objective.HessianPattern`.
+    blocks, swap : the element-to-block map of :class:`~geomopt.objective.pattern.HessianPattern`.
     """
 
     ell_src: jax.Array

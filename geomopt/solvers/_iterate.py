@@ -36,6 +36,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
+from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
@@ -414,9 +415,10 @@ def _result(final: Final, solver, objective, state, run, setup, throw, label) ->
     return result
 
 
+@keyword_only(4, ("progress", "throw"))
 @float64
-def minimize(objective, x0, solver=None, params=None, progress: bool | Callable = True,
-             throw: bool = False, *, adjoint: str = "auto") -> Result:
+def minimize(objective, x0, solver=None, params=None, *, progress: bool | Callable = True,
+             throw: bool = False, adjoint: str = "auto") -> Result:
     """Minimise ``objective`` from ``x0`` (n, d) with ``solver`` (default: projected Newton).
 
     Differentiable: given traced values (an ``objective`` built from traced rest vertices,

@@ -14,7 +14,8 @@ from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ..energies import garanzha
 from ..exact.predicates import box_scale
-from ..mesh.problem import Problem, fixed_total_problem
+from ..mesh.orientation import fixed_total_problem
+from ..mesh.problem import Problem
 from ..objective.objective import Objective
 from ..solvers import (AbstractSolver, LocalCertificate, Outcome, Progress, Result, RunStats, UntangleDetails, iterate,
                        traced_result)

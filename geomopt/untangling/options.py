@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
-from .._runtime.config import Instance, Int, Maybe, OneOf, Real, Traceable, validate
+from .._runtime.config import Instance, Int, Maybe, OneOf, Real, Traceable, options_from, validate
 from .._runtime.errors import ParameterError
 from .start import STARTS
 
@@ -75,19 +74,3 @@ class UntangleOptions:
 
     def resolved_theta(self, dim: int) -> float:
         return self.theta if self.theta is not None else (1.0 / 128.0 if dim == 2 else 0.5)
-
-
-def options_from(cls, options, overrides, where, deprecated: bool = True):
-    """``options`` (an instance of ``cls`` or None) with ``overrides`` (field names) applied;
-    ParameterError naming the unknown keywords.  With ``deprecated`` (a driver's keywords:
-    deprecated for one release) a ``DeprecationWarning`` says to pass ``options=cls(...)``."""
-    if options is not None and not isinstance(options, cls):
-        raise ParameterError(f"{where}: options must be a {cls.__name__} or None, got {type(options).__name__}")
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ParameterError(f"{where}: unknown keyword argument(s) {unknown}; the options are {sorted(known)}")
-    if overrides and deprecated:
-        warnings.warn(f"{where}: settings as keywords ({', '.join(sorted(overrides))}) are deprecated and will be "
-                      f"removed in the next release: pass options={cls.__name__}(...)", DeprecationWarning, stacklevel=4)
-    return dataclasses.replace(options or cls(), **overrides)

@@ -1,0 +1,124 @@
+"""One calling convention for the drivers: the data (and energy, solver) by position, every
+setting keyword-only, configuration in frozen validated options objects; the old forms work one
+release with a DeprecationWarning pointing at the caller's line."""
+
+import dataclasses
+import inspect
+import warnings
+
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import ParameterError
+from geomopt.experiments.options import CompareOptions
+from geomopt.param import ParamOptions
+from geomopt.scaffold import ScaffoldOptions
+from geomopt.smoothing import SmoothOptions
+from geomopt.sphere import SphereOptions
+
+V = [[0, 0, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]
+F = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]
+DRIVERS = {  # name -> (function, its positional parameters)
+    "parameterize": (geomopt.parameterize, ("V", "F", "energy", "solver")),
+    "sphere_map": (geomopt.sphere_map, ("V", "F", "energy", "solver")),
+    "make_atlas": (geomopt.make_atlas, ("V", "F", "energy", "solver")),
+    "smooth": (geomopt.smooth, ("V", "E", "energy", "solver")),
+    "minimize": (geomopt.minimize, ("objective", "x0", "solver", "params")),
+    "untangle": (geomopt.untangle, ("problem", "x0", "solver")),
+    "compare": (geomopt.compare, ("mesh", "faces", "energy", "solvers")),
+    "compare_meshes": (geomopt.compare_meshes, ("meshes", "energy", "solvers")),
+}
+
+
+@pytest.mark.parametrize("name", sorted(DRIVERS))
+def test_every_driver_takes_data_by_position_and_settings_by_keyword(name):
+    func, positional = DRIVERS[name]
+    params = inspect.signature(func).parameters.values()
+    assert tuple(p.name for p in params if p.kind is p.POSITIONAL_OR_KEYWORD) == positional
+    keyword = {p.name for p in params if p.kind is p.KEYWORD_ONLY}
+    assert "progress" in keyword
+    assert name == "minimize" or "options" in keyword  # minimize's settings are its solver's
+
+
+def _recorded(call):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = call()
+    return result, [w for w in caught if issubclass(w.category, DeprecationWarning)]
+
+
+def test_the_old_positional_form_still_works_and_warns_at_the_callers_line():
+    line = inspect.currentframe().f_lineno + 1
+    old, caught = _recorded(lambda: geomopt.parameterize(V, F, "symmetric_dirichlet", None, "mean_value", None, False))
+    new = geomopt.parameterize(V, F, options=ParamOptions(weights="mean_value"), progress=False)
+    np.testing.assert_array_equal(old.x, new.x)
+    assert any("by position" in str(w.message) and "weights, x0, progress" in str(w.message) for w in caught)
+    assert {(w.filename, w.lineno) for w in caught} == {(__file__, line)}
+    with pytest.raises(ParameterError, match="x0 given by position and by keyword"):
+        geomopt.parameterize(V, F, "symmetric_dirichlet", None, "uniform", None, x0=None)
+    with pytest.raises(ParameterError, match="at most 8 positional"):
+        geomopt.parameterize(V, F, "symmetric_dirichlet", None, "uniform", None, False, False, True)
+
+
+def test_settings_as_keywords_still_work_and_go_into_the_options():
+    V = [[0.4, 0.2, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]  # off centre: the weights differ
+    old, caught = _recorded(lambda: geomopt.parameterize(V, F, weights="mean_value", progress=False))
+    new = geomopt.parameterize(V, F, options=ParamOptions(weights="mean_value"), progress=False)
+    np.testing.assert_array_equal(old.x, new.x)
+    assert [str(w.message) for w in caught] == [
+        "parameterize: settings as keywords (weights) are deprecated and will be removed in the next release: "
+        "pass options=ParamOptions(...)"]
+    np.testing.assert_array_equal(old.details.start, new.details.start)
+    plain = geomopt.parameterize(V, F, progress=False)
+    assert not np.allclose(plain.details.start, new.details.start)  # the weights reached the start map
+
+
+def test_the_bijective_mode_and_its_scaffold_come_from_the_options():
+    eager = geomopt.parameterize(V, F, options=ParamOptions(bijective=True, scaffold=ScaffoldOptions(lazy=False)),
+                                 progress=False)
+    assert eager.success and eager.injectivity == "global" and eager.stats.outer_iterations >= 1
+    plain = geomopt.parameterize(V, F, options=ParamOptions(bijective=True), progress=False)
+    assert plain.stats.outer_iterations == 0  # lazy: no scaffold needed on a tent
+    old, caught = _recorded(lambda: geomopt.parameterize(V, F, bijective=True, lazy=False, progress=False))
+    assert old.stats.outer_iterations == eager.stats.outer_iterations and len(caught) == 2
+
+
+@pytest.mark.parametrize("cls, field, bad", [
+    (ParamOptions, "weights", "cotan"), (ParamOptions, "bijective", "no"), (ParamOptions, "scaffold", {"lazy": 1}),
+    (SphereOptions, "pole", -1), (SphereOptions, "weights", 1), (SmoothOptions, "rest", "square"),
+    (SmoothOptions, "max_rounds", 0), (CompareOptions, "repeat", 0), (CompareOptions, "clock", "gpu"),
+    (CompareOptions, "max_seconds", float("nan")), (CompareOptions, "tolerances", (0.1, 2.0)),
+    (CompareOptions, "formats", ("png", "jpg")), (CompareOptions, "reference", "lowest"),
+    (CompareOptions, "font_size", 100),
+])
+def test_options_refuse_a_bad_value_naming_the_field(cls, field, bad):
+    with pytest.raises(ParameterError, match=rf"{field}"):
+        cls(**{field: bad})
+
+
+def test_options_are_frozen_and_normalised():
+    opts = CompareOptions(tolerances=[1e-6, 1e-2], formats="pdf", reference="0.5", repeat=2.0)
+    assert opts.tolerances == (1e-2, 1e-6) and opts.formats == ("pdf",) and opts.reference == 0.5
+    assert opts.repeat == 2 and isinstance(opts.repeat, int)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.repeat = 3
+
+
+def test_compare_runs_as_its_options_say():
+    c = geomopt.compare(V, F, "symmetric_dirichlet", ["newton"], options=CompareOptions(repeat=2, reference="best"))
+    assert len(c.runs["newton"]) == 2 and c.reference.source == "best"
+    with pytest.raises(ParameterError, match="options must be a CompareOptions"):
+        geomopt.compare(V, F, options={"repeat": 2})
+
+
+def test_smooth_and_sphere_read_their_options():
+    from geomopt.mesh import generators
+
+    Vq, Q = generators.sector_mesh(2, 4, perturb=0.4, seed=1)
+    one = geomopt.smooth(Vq, Q, options=SmoothOptions(max_steps=1))
+    assert one.stats.iterations <= 1 < geomopt.smooth(Vq, Q).stats.iterations
+    Vs = [[0, 0, 1], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, -1]]
+    Fs = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1], [5, 2, 1], [5, 3, 2], [5, 4, 3], [5, 1, 4]]
+    poles = {geomopt.sphere_map(Vs, Fs, options=SphereOptions(pole=p), progress=False).details.pole for p in (0, 5)}
+    assert poles == {0, 5}
