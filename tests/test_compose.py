@@ -63,7 +63,8 @@ def test_linear_ticks_are_matplotlibs(lo, hi, nbins, integer):
 
 
 @pytest.mark.parametrize("lo, hi, n", [(-14.7, 1.2, 9), (-11.7, 3.6, 9), (-3.2, 0.4, 9), (-2.3, 5.9, 4),
-                                       (-20.0, 2.0, 9), (0.2, 1.6, 9), (-6.1, -1.05, 2)])
+                                       (-20.0, 2.0, 9), (0.2, 1.6, 9), (-6.1, -1.05, 2),
+                                       (-13.5, 2.5, 9)])
 def test_log_ticks_are_matplotlibs(lo, hi, n):
     from matplotlib.ticker import LogLocator
 
@@ -109,22 +110,26 @@ def test_checker_panels_are_the_rasterizers_renders_where_matplotlib_puts_them()
 
 
 def test_layout_triangles_have_their_values_colours():
-    """Two triangles of the unit square with the values 0 and 1: each one's inside is the
-    first and the last viridis colour; the colour bar runs through the table, top the last."""
-    V = np.c_[SQUARE, np.zeros(4)]
-    image = _pixels(_compose.param_picture(V, SQUARE_F, SQUARE, np.array([0.0, 1.0]), title="t"))
-    # the layout's axes: 556 x 731.5 px box right of column 1054, equal aspect, 5% margins:
-    # a 556 px square of data 1.1 wide anchored right, centred on row 82.5 + 731.5 / 2
-    scale = 556.0 / 1.1
-    left, top = 1054.0 + 556.0 - 1.1 * scale, 82.5 + (731.5 - 1.1 * scale) / 2
+    """Two triangles of a 1 x 2 rectangle with the values 0 and 1: each one's inside is the
+    first and the last viridis colour, placed as matplotlib places the layout; the colour bar
+    runs through the table, top the last."""
+    uv = SQUARE * [1.0, 2.0]
+    image = _pixels(_compose.param_picture(np.c_[uv, np.zeros(4)], SQUARE_F, uv, np.array([0.0, 1.0]), title="t"))
+    # matplotlib's layout axes: the cell's 556 x 731.5 px left of the colour bar (from column
+    # 1054, row 82.5), equal aspect, 5% margins: data 1.1 x 2.2 scaled to the height, the
+    # axes anchored to the right
+    scale = 731.5 / 2.2
+    left, top = 1054.0 + 556.0 - 1.1 * scale, 82.5
 
     def at(u, v):
-        return int(round(top + (1.05 - v) * scale)), int(round(left + (u + 0.05) * scale))
+        return int(round(top + (2.1 - v) * scale)), int(round(left + (u + 0.05) * scale))
 
     first, last = _compose.VIRIDIS[0], _compose.VIRIDIS[255]
-    for (u, v), colour in (((0.8, 0.2), first), ((0.6, 0.35), first), ((0.2, 0.8), last), ((0.35, 0.6), last)):
+    for (u, v), colour in (((0.8, 0.4), first), ((0.6, 0.7), first), ((0.2, 1.6), last), ((0.35, 1.2), last),
+                           ((0.02, 1.95), last), ((0.98, 0.05), first)):
         assert np.array_equal(image[at(u, v)], colour), (u, v)
-    assert np.array_equal(image[at(-0.03, 0.5)], [255, 255, 255])  # outside the square: white
+    for u, v in ((-0.03, 1.0), (1.03, 1.0), (0.5, -0.03), (0.5, 2.03)):  # outside the rectangle: white
+        assert np.array_equal(image[at(u, v)], [255, 255, 255]), (u, v)
     # the colour bar: 585.2 x 29.3 px from row 155.65, column 1644.7 (matplotlib's), its outline
     # on rows 156 and 741; each row inside the table's colour of its place, top the largest value
     rows = np.arange(158, 739)
