@@ -96,11 +96,11 @@ def _param_picture(title="t", values=None, **kw):
 
 def test_checker_panels_are_the_rasterizers_renders_where_matplotlib_puts_them():
     """matplotlib's layout at 110 dpi (measured): the front panel a 695 px square at column 11,
-    row 100.75; the back one 291.9 px at column 734, row 302.3; the renders 990 and 495 px."""
+    row 100.75; the back one 291.9 px at column 734, row 302.3; the renders 1.25x as large."""
     image, uv = _param_picture()
     assert image.size == (1760, 825)
     pixels = _pixels(image)
-    for size, azim, (col, row, side) in ((990, 30.0, (11, 101, 695)), (495, 210.0, (734, 302, 292))):
+    for size, azim, (col, row, side) in ((869, 30.0, (11, 101, 695)), (365, 210.0, (734, 302, 292))):
         render = render_uv_checker(V3, F, uv, size=(size, size), elev=15.0, azim=azim, checks=20, supersample=1)
         a = render[..., 3:]
         rgb = np.rint((render[..., :3] * a + 1.0 - a) * 255).astype(np.uint8)
