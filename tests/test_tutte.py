@@ -223,29 +223,3 @@ def test_mean_value_degenerate_rest_mesh():
     F = np.array([[0, 1, 3], [1, 2, 3], [0, 2, 1]])  # last face is flat (180 degrees at 1)
     with pytest.raises(MeshError, match="weights='uniform'"):
         tutte_weights(V, F, "mean_value")
-
-
-@pytest.mark.parametrize("f, lo, hi, xatol", [
-    (lambda t: (t - 0.3) ** 2, -4.0, 4.0, 1e-7),
-    (lambda t: np.cosh(t - 1.7) + 0.1 * t**3, -4.0, 4.0, 1e-7),
-    (lambda t: abs(t + 2.2), -4.0, 4.0, 1e-9),  # a kink: golden steps
-    (lambda t: -t, -1.0, 2.0, 1e-5),  # the minimum on the bound
-    (lambda t: np.inf if t > 0.5 else (t - 0.7) ** 2, -4.0, 4.0, 1e-7),  # inf beyond 0.5, as optimal_scale's f
-    (lambda t: np.exp(2 * t) + 3.0 * np.exp(-4 * t), -4.0, 4.0, 1e-7),  # E(s x) of a symmetric Dirichlet energy
-])
-def test_bounded_minimum_is_scipys_bounded_search(f, lo, hi, xatol):
-    """The same iterates as scipy's minimize_scalar(method="bounded"): the same minimiser to
-    the bit, after as many evaluations."""
-    from scipy.optimize import minimize_scalar
-
-    from geomopt.mesh.tutte import bounded_minimum
-
-    calls = []
-
-    def counted(t):
-        calls.append(t)
-        return f(t)
-
-    ref = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xatol})
-    assert bounded_minimum(counted, lo, hi, xatol) == ref.x
-    assert len(calls) == ref.nfev

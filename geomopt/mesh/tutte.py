@@ -11,8 +11,6 @@ point for distortion-minimising parameterization.  :func:`scale_to_area` and
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -23,8 +21,7 @@ from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..exact.topology import as_faces, check_disk
 
-__all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "optimal_scale", "bounded_minimum", "WEIGHTS",
-           "circle_boundary"]
+__all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "optimal_scale", "WEIGHTS", "circle_boundary"]
 
 WEIGHTS = ("uniform", "mean_value")
 
@@ -236,14 +233,16 @@ def scale_to_area(UV, V, F) -> np.ndarray:
 @float64
 def optimal_scale(objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> float:
     """The factor ``s`` minimising ``E(s * x)``, by bounded Brent search on ``log s`` in
-    ``[lo, hi]`` (:func:`bounded_minimum`, scipy's ``minimize_scalar(method="bounded")``: about
-    15-25 evaluations where a fixed golden-section search took 62).
+    ``[lo, hi]`` (:func:`scipy.optimize.minimize_scalar`, about 15-25 evaluations where a
+    fixed golden-section search took 62).
 
     For symmetric Dirichlet this is the classic ``(sum|J^-1|^2 / sum|J|^2)^(1/4)``; the search
     makes it work for any energy.  ``x`` (n, d) is assumed centred on the problem's free
     vertices; ``xtol`` is the tolerance on ``log s``.  ``objective`` is an
     :class:`~geomopt.Objective` (only its ``params``, ``pad_map`` and ``value`` are used).
     """
+    from scipy.optimize import minimize_scalar
+
     refuse_traced("optimal_scale (a host search)", "start maps have zero derivative: compute them from concrete "
                   "values", objective, x, params)
     params = objective.params(**(params or {}))
@@ -253,55 +252,5 @@ def optimal_scale(objective, x, params=None, lo=-4.0, hi=4.0, xtol=1e-7) -> floa
         v = float(objective.value(np.exp(t) * x, params))
         return v if np.isfinite(v) else np.inf
 
-    return float(np.exp(bounded_minimum(f, lo, hi, xtol)))
-
-
-def bounded_minimum(f, lo, hi, xatol=1e-5, maxfun=500):
-    """The minimiser of ``f`` on ``[lo, hi]`` by Brent's bounded search: the steps, iterates and
-    result of :func:`scipy.optimize.minimize_scalar` with ``method="bounded"`` (scipy's
-    ``_minimize_scalar_bounded``, transcribed), without importing :mod:`scipy.optimize`,
-    whose import (0.15 s: every solver, and their docstrings parsed) was a third of
-    ``geomopt param``'s setup on a 20k-triangle mesh."""
-    sqrt_eps, golden_mean = math.sqrt(2.2e-16), 0.5 * (3.0 - math.sqrt(5.0))
-    a, b = lo, hi
-    fulc = nfc = xf = a + golden_mean * (b - a)
-    rat = e = 0.0
-    fx = f(xf)
-    num, ffulc, fnfc = 1, fx, fx
-    xm, tol1 = 0.5 * (a + b), sqrt_eps * abs(xf) + xatol / 3.0
-    tol2 = 2.0 * tol1
-    while abs(xf - xm) > tol2 - 0.5 * (b - a):
-        golden = True
-        if abs(e) > tol1:  # a parabola through the three best points
-            golden = False
-            r, q = (xf - nfc) * (fx - ffulc), (xf - fulc) * (fx - fnfc)
-            p, q = (xf - fulc) * q - (xf - nfc) * r, 2.0 * (q - r)
-            p, q = (-p if q > 0.0 else p), abs(q)
-            r, e = e, rat
-            if abs(p) < abs(0.5 * q * r) and q * (a - xf) < p < q * (b - xf):
-                rat = (p + 0.0) / q
-                x = xf + rat
-                if x - a < tol2 or b - x < tol2:
-                    rat = tol1 * (1.0 if xm - xf >= 0 else -1.0)
-            else:
-                golden = True
-        if golden:  # a golden-section step into the larger part
-            e = a - xf if xf >= xm else b - xf
-            rat = golden_mean * e
-        x = xf + (1.0 if rat >= 0 else -1.0) * max(abs(rat), tol1)
-        fu = f(x)
-        num += 1
-        if fu <= fx:
-            a, b = (xf, b) if x >= xf else (a, xf)
-            fulc, ffulc, nfc, fnfc, xf, fx = nfc, fnfc, xf, fx, x, fu
-        else:
-            a, b = (x, b) if x < xf else (a, x)
-            if fu <= fnfc or nfc == xf:
-                fulc, ffulc, nfc, fnfc = nfc, fnfc, x, fu
-            elif fu <= ffulc or fulc == xf or fulc == nfc:
-                fulc, ffulc = x, fu
-        xm, tol1 = 0.5 * (a + b), sqrt_eps * abs(xf) + xatol / 3.0
-        tol2 = 2.0 * tol1
-        if num >= maxfun:
-            break
-    return xf
+    res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xtol})
+    return float(np.exp(res.x))
