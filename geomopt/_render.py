@@ -130,10 +130,11 @@ def nearest_faces(xy, depth, F, size):
 def plane_values(P, pixels, face, width):
     """(k, a) the affine functions ``P`` (m, 3, a) of the pixel (``(x, y, 1) @ P[f]``) of the
     triangles ``face`` (k,) at the centres of the ``pixels`` (k,) (row-major, ``width`` wide)."""
-    a = P.shape[2]
-    Q = P.reshape(len(P), 3 * a)[face]
-    x, y = (pixels % width + 0.5)[:, None], (pixels // width + 0.5)[:, None]
-    return x * Q[:, :a] + y * Q[:, a:2 * a] + Q[:, 2 * a:]
+    row, col = np.divmod(pixels, width)
+    out = (col + 0.5)[:, None] * np.take(P[:, 0], face, axis=0)  # one (k, a) gather at a time: a
+    out += (row + 0.5)[:, None] * np.take(P[:, 1], face, axis=0)  # third of the memory, half the time
+    out += np.take(P[:, 2], face, axis=0)
+    return out
 
 
 def barycentric_planes(T):
@@ -239,7 +240,9 @@ def render_surface(V, F, colour, size=(900, 900), elev=15.0, azim=30.0, up="y", 
 def _checker_rgb(orange):
     """(k, 3) the checkerboard's colours for the (k,) shares of its second colour."""
     orange = orange[:, None]
-    return (1.0 - orange) * np.asarray(CHECKER_COLORS[0]) + orange * np.asarray(CHECKER_COLORS[1])
+    rgb = (1.0 - orange) * np.asarray(CHECKER_COLORS[0])
+    rgb += orange * np.asarray(CHECKER_COLORS[1])
+    return rgb
 
 
 def render_uv_checker(V, F, uv, size=(900, 900), elev=15.0, azim=30.0, up="y", checks=20,
@@ -305,11 +308,17 @@ def _filtered_checker(t, foot):
     lies on one side of a border is mostly of that side's colour."""
     w = np.minimum(foot, 2.0)  # at two checks per pixel the average is the mean colour
 
-    def ramp(x):  # the integral of the square wave +1 on [0, 1), -1 on [1, 2)
-        return 1.0 - np.abs(np.mod(x, 2.0) - 1.0)
+    def ramp(x):  # the integral of the square wave +1 on [0, 1), -1 on [1, 2): 1 - |x mod 2 - 1|, in place
+        np.mod(x, 2.0, out=x)
+        x -= 1.0
+        np.abs(x, out=x)
+        return np.subtract(1.0, x, out=x)
 
-    w = np.maximum(w, 1e-9)  # no narrower than 1e-9: the sharp wave to 1e-7
-    wave = (ramp(t + w / 2) - ramp(t - w / 2)) / w
+    np.maximum(w, 1e-9, out=w)  # no narrower than 1e-9: the sharp wave to 1e-7
+    half = w / 2
+    wave = ramp(t + half)  # in place: a quarter of the temporaries (first touches of fresh memory)
+    wave -= ramp(np.subtract(t, half, out=half))
+    wave /= w
     return 0.5 - 0.5 * wave[:, 0] * wave[:, 1]
 
 

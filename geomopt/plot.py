@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._compose import SUPERSCRIPT
 from ._render import camera_rotation, project, rasterize, render_sphere_checker, render_surface, render_uv_checker
 from ._view import show
 
@@ -166,8 +167,24 @@ def param_figure(V, F, uv, face_values=None, title="", label="distortion", check
 
 def save_param_figure(path, V, F, uv, face_values=None, title="", label="distortion", checks=20, format=None,
                       view=(15.0, 30.0), up="y"):
-    """Save :func:`param_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG)."""
+    """Save :func:`param_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG).  A PNG is
+    composed without matplotlib (:func:`geomopt._compose.param_picture`, the same panels) where
+    that can draw it; PDF and SVG, and the rest, are drawn by matplotlib."""
+    if _is_png(path, format):
+        from ._compose import param_picture, save_png
+
+        image = param_picture(V, F, uv, face_values, title, label, checks, view, up, dpi=110)
+        if image is not None:
+            save_png(image, path, 110)
+            return
     save_figure(param_figure(V, F, uv, face_values, title, label, checks, view, up, dpi=110), path, format)
+
+
+def _is_png(target, format):
+    """Whether ``target`` (a path, or an open file with ``format``) is to hold a PNG."""
+    if format is not None:
+        return format.lower() == "png"
+    return not hasattr(target, "write") and str(target).lower().endswith(".png")
 
 
 def sphere_figure(V, F, x, face_values=None, title="", label="log2 area ratio", checks=12, view=(15.0, 30.0),
@@ -371,9 +388,6 @@ def save_untangle_figure(path, start, result, S, inverted_start, inverted_result
     save_figure(untangle_figure(start, result, S, inverted_start, inverted_result, title, dpi=110), path, format)
 
 
-_SUPERSCRIPT = str.maketrans("0123456789-+", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b\u207a")
-
-
 def superscript_powers(label):
     """A log axis's mathtext tick label (``$\\mathdefault{10^{-3}}$``,
     ``$\\mathdefault{2\\times10^{-3}}$``) as plain text with Unicode superscripts (``10⁻³``,
@@ -384,7 +398,7 @@ def superscript_powers(label):
     if m is None:
         return label
     coeff, base, exponent = m.groups()
-    return (f"{coeff}\u00d7" if coeff else "") + base + exponent.translate(_SUPERSCRIPT)
+    return (f"{coeff}\u00d7" if coeff else "") + base + exponent.translate(SUPERSCRIPT)
 
 
 def _superscript_log_formatter(**kwargs):
@@ -450,5 +464,13 @@ def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=10
 
 
 def save_convergence(path, series, ylabel="energy", title="", format=None, reference=None):
-    """Save :func:`convergence_figure` to ``path`` (120 dpi)."""
+    """Save :func:`convergence_figure` to ``path`` (120 dpi).  A PNG is composed without
+    matplotlib (:func:`geomopt._compose.convergence_picture`) where that can draw it."""
+    if _is_png(path, format):
+        from ._compose import convergence_picture, save_png
+
+        image = convergence_picture(series, ylabel, title, reference, dpi=120)
+        if image is not None:
+            save_png(image, path, 120)
+            return
     save_figure(convergence_figure(series, ylabel, title, reference, dpi=120), path, format)

@@ -25,8 +25,9 @@ LAYERS = [
     ("solvers", ("geomopt.solvers",)),
     ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
                  "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas")),
-    ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt._render", "geomopt._view",
-                           "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__", "geomopt")),
+    ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt._render", "geomopt._compose",
+                           "geomopt._view", "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__",
+                           "geomopt")),
 ]
 #: the one import that points up, lazily, with why: ``Result.save`` is the convenience that
 #: hands a result to the writers (files and figures) on top
