@@ -25,6 +25,7 @@ from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
+from ._pack import packing_estimate
 from .split import split_to_pack
 
 __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
@@ -221,8 +222,12 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, options=Non
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
+    def screen(maps, faces):
+        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate)
+
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
-                                                 min_gain=options.split_gain)
+                                                 min_gain=options.split_gain,
+                                                 screen=screen)
     results = [results[i] for i in owner]
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
     certificate = certify_atlas(uv, uv_faces, chart)
