@@ -570,3 +570,51 @@ def test_packing_estimate_is_close_to_pack_charts():
         U, Fs = [c[0] for c in charts], [c[1] for c in charts]
         est, full = packing_estimate(U, Fs), pack_charts(U, Fs).efficiency
         assert abs(est - full) < 0.08, (est, full)
+
+
+def test_the_exact_smallest_square_angle_beats_every_sampled_angle():
+    """smallest_square_angle (critical angles and width = height crossings) gives a bounding
+    square no larger than any of 360 sampled angles, and the side it reports is the side at the
+    angle it returns, on random convex polygons of every aspect."""
+    from scipy.spatial import ConvexHull
+
+    from geomopt.atlas._pack import smallest_square_angle
+
+    def sides(P, a):
+        c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+        return np.maximum(np.ptp(c * P[:, 0] - s * P[:, 1], axis=1), np.ptp(s * P[:, 0] + c * P[:, 1], axis=1))
+
+    rng = np.random.default_rng(11)
+    sampled = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    strictly = 0
+    for _ in range(200):
+        P = rng.normal(size=(int(rng.integers(3, 30)), 2)) * [rng.uniform(0.1, 4.0), 1.0]
+        hull = P[ConvexHull(P).vertices]
+        a, side = smallest_square_angle(hull)
+        assert 0.0 <= a < np.pi / 2
+        assert side == pytest.approx(sides(hull, np.array([a]))[0], rel=1e-12)
+        best = sides(hull, sampled).min()
+        assert side <= best * (1 + 1e-12)
+        strictly += side < best * (1 - 1e-9)
+    assert strictly > 150  # a sampled angle almost never hits the optimum
+
+
+def test_split_candidates_leave_no_crumbs():
+    """A straight cut across a grid's diagonal or a ragged outline leaves single triangles
+    joined to their side by a vertex only; each would become a chart.  Every piece of every
+    candidate split keeps more than a sliver of the chart."""
+    from geomopt.atlas.split import _SLIVER, candidate_splits
+
+    mesh, x = _shape_chart(lambda c: (c[:, 0] < 1.0) | (c[:, 1] < 0.2))
+    total = _uv_area(x, mesh.F)
+    cands = candidate_splits(mesh, x)
+    assert len(cands) > 10
+    for pieces in cands:
+        for m, u in pieces:
+            assert _uv_area(u, m.F) >= _SLIVER * total and len(m.F) > 1
+
+
+def _uv_area(x, F):
+    P = x[F]
+    a, b = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    return 0.5 * float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))

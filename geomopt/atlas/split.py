@@ -25,7 +25,7 @@ __all__ = ["candidate_splits", "split_flat_chart", "split_to_pack"]
 _DIRECTIONS = 6  # straight cuts tried across this many directions over half a turn
 _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
 _FINALISTS = 3  # the best screened splits packed with all the charts
-_SLIVER = 0.002  # a piece of a split under this fraction of the chart's area joins the other side
+_SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
 _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
 
 
@@ -96,35 +96,32 @@ class _Cutter:
         return [self._without_slivers(_smoothed(self.mesh.F, t <= t[order][k], pairs=(self.a, self.b)))
                 for k in at]
 
-    def _without_slivers(self, low):
+    def _without_slivers(self, low, rounds=3):
         """``low`` with every connected piece of either side under ``_SLIVER`` of the chart's
-        area moved to the other side (which surrounds it): a line across a ragged outline or a
-        diagonal of the grid leaves such crumbs, each of which would be a chart of its own."""
+        area moved to the other side (which surrounds it), again until none is left (at most
+        ``rounds`` times): a line across a ragged outline or a diagonal of the grid leaves such
+        crumbs, each of which would be a chart of its own."""
         low = low.copy()
-        total = self.A.sum()
-        for side in (low.copy(), ~low):
-            faces = np.flatnonzero(side)
-            if not len(faces):
-                continue
-            labels = _face_components(self.mesh.F, side, pairs=(self.a, self.b))
-            small = np.bincount(labels, self.A[faces]) < _SLIVER * total
-            low[faces[small[labels]]] = ~low[faces[small[labels]]]
+        for _ in range(rounds):
+            flip = np.zeros(len(low), dtype=bool)
+            for side in (low, ~low):
+                faces = np.flatnonzero(side)
+                if len(faces):
+                    labels = _face_components(self.mesh.F, side, pairs=(self.a, self.b))
+                    flip[faces] = (np.bincount(labels, self.A[faces]) < _SLIVER * self.A.sum())[labels]
+            if not flip.any():
+                break
+            low ^= flip
         return low
 
     def _is_disk(self, sel) -> bool:
-        """Whether the connected faces ``sel`` of the chart (a disk) form a disk: every boundary
-        vertex on exactly two boundary edges (no pinch: a vertex of two fans has four) and Euler
-        characteristic 1 (a connected planar surface with one boundary loop)."""
-        e, count = np.unique(self.edge_of[sel], return_counts=True)
-        F = self.mesh.F[sel]
-        nv = len(np.unique(F))
-        if nv - len(e) + len(sel) != 1:
-            return False
-        once = np.zeros(self.edge_of.max() + 1, dtype=bool)
-        once[e[count == 1]] = True
-        corner = once[self.edge_of[sel]]  # half-edge (F[:, c], F[:, c + 1]) on the boundary
-        ends = np.r_[F[corner], np.roll(F, -1, axis=1)[corner]]
-        return bool(np.all(np.bincount(ends, minlength=1)[np.unique(ends)] == 2))
+        """Whether the edge-connected faces ``sel`` of the chart (a disk) form a disk: exactly
+        when their Euler characteristic is 1.  They lie in a disk, so (Alexander duality) the
+        characteristic is 1 minus the number of bounded regions of the disk they leave out:
+        holes, and at a vertex where the faces meet in two fans, the region between the fans
+        that a path of faces from one fan to the other encloses."""
+        nv = len(np.unique(self.mesh.F[sel]))
+        return nv - len(np.unique(self.edge_of[sel])) + len(sel) == 1
 
     def pieces(self, low):
         """``[(ChartMesh, x_piece), ...]``: the connected pieces of both sides of ``low`` (m,)
