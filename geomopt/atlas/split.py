@@ -22,7 +22,7 @@ from .charts import ChartMesh
 
 __all__ = ["candidate_splits", "split_flat_chart", "split_to_pack"]
 
-_DIRECTIONS = 6  # straight cuts tried across this many directions over half a turn
+_DIRECTIONS = 8  # straight cuts tried across this many directions over half a turn
 _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
 _FINALISTS = 3  # the best screened splits packed with all the charts
 _SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
