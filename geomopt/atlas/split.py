@@ -125,7 +125,8 @@ class _Cutter:
 
     def pieces(self, low):
         """``[(ChartMesh, x_piece), ...]``: the connected pieces of both sides of ``low`` (m,)
-        bool, or None when a side is empty or a piece is not a disk."""
+        bool, or None when a side is empty or a piece is not a disk or is under ``_SLIVER`` of
+        the chart's area."""
         mesh, pieces = self.mesh, []
         for side in (low, ~low):
             if not side.any():
@@ -134,8 +135,8 @@ class _Cutter:
             labels = _face_components(mesh.F, side, pairs=(self.a, self.b))
             for k in range(labels.max() + 1):
                 sel = faces[labels == k]
-                if not self._is_disk(sel):
-                    return None
+                if not self._is_disk(sel) or self.A[sel].sum() < _SLIVER * self.A.sum():
+                    return None  # not a disk, or a crumb that absorbing did not remove
                 rows, local = np.unique(mesh.F[sel], return_inverse=True)
                 pieces.append((ChartMesh(mesh.faces[sel], local.reshape(-1, 3), mesh.wedges[rows],
                                          mesh.vertices[rows]), self.x[rows]))
