@@ -47,11 +47,11 @@ class AtlasOptions:
         :func:`~geomopt.atlas.flatten.flatten_to`).  Lower: more seams.
     crease : how much cheaper a seam is along a crease (:func:`~geomopt.atlas.seams.edge_costs`).
     max_cuts : the most cone cuts.
-    min_efficiency : split the largest flattened chart and repack while the packing efficiency
-        (chart area / unit square) is below this and each split raises it by at least
-        ``split_gain`` (:func:`~geomopt.atlas.split.split_to_pack`).
-    split_gain : the least rise of the packing efficiency a split must buy with its seam and
-        its extra chart.
+    min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
+        repack while the packing efficiency (chart area / unit square) is below this and each
+        split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
+    split_gain : the least rise of the packing efficiency a split must buy with its seam, per
+        extra chart it makes.
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
