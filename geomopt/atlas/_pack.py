@@ -7,7 +7,8 @@ B. Lévy et al. 2002's "Tetris" packer), searching for the smallest square:
    calipers over the convex hull: the optimal rectangle has a side on a hull edge, Freeman &
    Shapira 1975), then tried at that angle plus 0, 90, 180 and 270 degrees (90-degree turns are
    exact in floating point, and turn the raster exactly); a chart long enough to decide the
-   square's side is also tried at the angle of its smallest bounding square (diagonally), and a
+   square's side is also tried at the angle of its smallest bounding square (exactly:
+   :func:`smallest_square_angle`; a long chart may fit only diagonally), and a
    chart of over ``_LARGE`` of the total area also every ``90 / _STEPS`` degrees.  Rotations
    only: a chart is never mirrored.
 2. At a pixel size chosen from the charts' total area and ``resolution``, each orientation is
@@ -39,7 +40,7 @@ from ._certify import certify_atlas
 from ._place import smallest_square
 from ._raster import dilate, rasterize
 
-__all__ = ["Packing", "pack_charts"]
+__all__ = ["Packing", "pack_charts", "packing_estimate", "smallest_square_angle"]
 
 _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.0, 0.0]]),
                   np.array([[-1.0, 0.0], [0.0, -1.0]]), np.array([[0.0, 1.0], [-1.0, 0.0]])]
@@ -106,8 +107,8 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
     """Rotations (2, 2) to try a chart at (each then by quarter turns), each with a flag ``extra``:
     the one making the minimum-area bounding rectangle of the points ``u`` (n, 2) axis-aligned,
     long side along x (rotating calipers: that rectangle has a side on a hull edge, Freeman &
-    Shapira 1975); for a ``big`` chart also the one making its bounding square smallest (sampled
-    every half degree): a long chart may fit the square only diagonally; and (``extra``) that
+    Shapira 1975); for a ``big`` chart also the one making its bounding square smallest
+    (:func:`smallest_square_angle`): a long chart may fit the square only diagonally; and (``extra``) that
     rectangle's at ``steps - 1`` angles between its quarter turns."""
     try:
         hull = u[ConvexHull(u).vertices]
@@ -124,14 +125,52 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
     out = [(R, False)] + [(_rotation(math.cos(a), math.sin(a)) @ R, True)
                           for a in 0.5 * np.pi * np.arange(1, steps) / steps]
     if big:
-        a = np.deg2rad(np.arange(0.0, 90.0, 0.5))
-        c, s = np.cos(a), np.sin(a)
-        side = np.maximum(np.ptp(np.outer(c, hull[:, 0]) - np.outer(s, hull[:, 1]), axis=1),
-                          np.ptp(np.outer(s, hull[:, 0]) + np.outer(c, hull[:, 1]), axis=1))
-        j = int(np.argmin(side))
-        if side[j] < 0.98 * max(w[k], h[k]):
-            out.append((_rotation(c[j], s[j]), False))
+        a, side = smallest_square_angle(hull)
+        if side < 0.98 * max(w[k], h[k]):
+            out.append((_rotation(math.cos(a), math.sin(a)), False))
     return out
+
+
+def _square_sides(P, a) -> np.ndarray:
+    """(len(a),) the side of the axis-aligned bounding square of the points ``P`` (n, 2)
+    rotated by each angle of ``a``: ``x' = x cos a - y sin a``, ``y' = x sin a + y cos a``."""
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    return np.maximum(np.ptp(c * P[:, 0] - s * P[:, 1], axis=1), np.ptp(s * P[:, 0] + c * P[:, 1], axis=1))
+
+
+def smallest_square_angle(hull) -> tuple[float, float]:
+    """The rotation angle (radians, in [0, pi / 2)) that makes the axis-aligned bounding square
+    of a convex polygon smallest, and that square's side, exactly (up to rounding).
+
+    Between two *critical* angles (where a hull edge turns parallel to an axis) the extreme
+    vertices along both axes stay the same, so the width is ``dx cos a - dy sin a`` and the
+    height ``ex sin a + ey cos a`` for fixed vertex differences ``d``, ``e``: positive arcs of
+    sinusoids, concave there.  The larger of two concave functions is smallest at an end of the
+    interval or where they cross (on each side of a crossing one of them is the larger, and a
+    concave function is smallest at an end), so the minimum over all angles is at a critical
+    angle or at a crossing ``tan a = (dx - ey) / (dy + ex)``; all of them are evaluated.
+
+    Parameters
+    ----------
+    hull : (n, 2) float, the polygon's vertices (any order; extra points inside do no harm).
+    """
+    P = np.asarray(hull, dtype=np.float64)
+    quarter = 0.5 * np.pi
+    e = np.roll(P, -1, axis=0) - P
+    e = e[np.hypot(e[:, 0], e[:, 1]) > 0]
+    crit = np.unique(np.mod(-np.arctan2(e[:, 1], e[:, 0]), quarter))
+    lo, hi = crit, np.r_[crit[1:], crit[0] + quarter]
+    mid = 0.5 * (lo + hi)
+    c, s = np.cos(mid)[:, None], np.sin(mid)[:, None]
+    X, Y = c * P[:, 0] - s * P[:, 1], s * P[:, 0] + c * P[:, 1]
+    d = P[np.argmax(X, axis=1)] - P[np.argmin(X, axis=1)]
+    f = P[np.argmax(Y, axis=1)] - P[np.argmin(Y, axis=1)]
+    cross = np.arctan2(d[:, 0] - f[:, 1], d[:, 1] + f[:, 0])  # w = h there (mod pi)
+    cross = lo + np.mod(cross - lo, np.pi)  # the first solution at or after lo
+    cand = np.r_[crit, cross[cross <= hi]]
+    side = _square_sides(P, cand)
+    j = int(np.argmin(side))
+    return float(np.mod(cand[j], quarter)), float(side[j])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,7 +233,7 @@ def _search(U, shapes, h, r, passes):
     return placement(placed), best_side
 
 
-def _layout(U, Bs, bases, turns, area, margin, resolution):
+def _layout(U, Bs, bases, turns, area, margin, resolution, budget=_BUDGET):
     """Pack at a pixel size giving about ``resolution`` pixels a side; returns (rotations (k, 2, 2),
     pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
     ``margin`` of the packed side (a finer margin than needed only costs space)."""
@@ -204,8 +243,7 @@ def _layout(U, Bs, bases, turns, area, margin, resolution):
     while True:
         tried.add(r)
         shapes = [_shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
-        passes = _BUDGET
-        placed, side = _search(U, shapes, h, r, passes)
+        placed, side = _search(U, shapes, h, r, budget)
         want = math.ceil(margin * side)
         if want <= r:
             return np.array([p[0] for p in placed]), np.array([p[1] for p in placed]), h
@@ -228,6 +266,46 @@ def _to_unit_square(U, R, t, h):
     offsets = (t - lo) / side
     uvs = [np.clip(scale * (u @ Ri.T) + o, 0.0, 1.0) for u, Ri, o in zip(U, R, offsets)]  # clip: rounding only
     return uvs, scale, offsets
+
+
+def _prepare(U, Fs, rotate, steps=_STEPS):
+    """The charts ``U`` rescaled near 1 by a power of two (``unit``), their total ``area``,
+    boundary edges ``Bs`` and the rotations to try (``bases``, ``turns``)."""
+    # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
+    unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
+    U = [u * unit for u in U]
+    area = sum(_area(u, f) for u, f in zip(U, Fs))
+    Bs = [boundary_half_edges(f) for f in Fs]
+    bases, turns = [[(np.eye(2), False)]] * len(U), _QUARTER_TURNS[:1]
+    if rotate:
+        big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
+        bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big,
+                                 steps if _area(u, f) > _LARGE * area else 1) for u, f, B in zip(U, Fs, Bs)]
+        turns = _QUARTER_TURNS
+    return U, unit, area, Bs, bases, turns
+
+
+def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 128,
+                     budget: int = _BUDGET // 2) -> float:
+    """The packing efficiency :func:`pack_charts` would about reach, cheaply: one layout on a
+    coarse bitmap, with fewer square packings and no angles between the quarter turns of a
+    chart's minimum-area rectangle, neither checked nor certified (for ranking candidate chart
+    sets, e.g. packing splits; the charts are not validated).
+
+    Parameters
+    ----------
+    uvs, faces, margin, rotate, resolution : as :func:`pack_charts`.
+    budget : int, the most square packings.
+
+    Returns
+    -------
+    float, chart area over the packed bounding square's area.
+    """
+    U = [np.asarray(u, dtype=np.float64) for u in uvs]
+    Fs = [np.asarray(f, dtype=np.int64) for f in faces]
+    U, _, area, Bs, bases, turns = _prepare(U, Fs, rotate, steps=1)
+    R, t, h = _layout(U, Bs, bases, turns, area, margin, max(16, int(resolution)), budget)
+    return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
 
 
 def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512) -> Packing:
@@ -261,17 +339,7 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     if int(resolution) < 16:
         raise ParameterError(f"resolution must be at least 16 pixels, got {resolution}")
     U, Fs = _check_charts(uvs, faces)
-    # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
-    unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
-    U = [u * unit for u in U]
-    area = sum(_area(u, f) for u, f in zip(U, Fs))
-    Bs = [boundary_half_edges(f) for f in Fs]
-    bases, turns = [[(np.eye(2), False)]] * len(U), _QUARTER_TURNS[:1]
-    if rotate:
-        big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
-        bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big,
-                                 _STEPS if _area(u, f) > _LARGE * area else 1) for u, f, B in zip(U, Fs, Bs)]
-        turns = _QUARTER_TURNS
+    U, unit, area, Bs, bases, turns = _prepare(U, Fs, rotate)
     res = int(resolution)
     for _ in range(_TRIES):
         R, t, h = _layout(U, Bs, bases, turns, area, margin, res)

@@ -25,6 +25,7 @@ from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
+from ._pack import packing_estimate
 from .split import split_to_pack
 
 __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
@@ -46,11 +47,11 @@ class AtlasOptions:
         :func:`~geomopt.atlas.flatten.flatten_to`).  Lower: more seams.
     crease : how much cheaper a seam is along a crease (:func:`~geomopt.atlas.seams.edge_costs`).
     max_cuts : the most cone cuts.
-    min_efficiency : split the largest flattened chart and repack while the packing efficiency
-        (chart area / unit square) is below this and each split raises it by at least
-        ``split_gain`` (:func:`~geomopt.atlas.split.split_to_pack`).
-    split_gain : the least rise of the packing efficiency a split must buy with its seam and
-        its extra chart.
+    min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
+        repack while the packing efficiency (chart area / unit square) is below this and each
+        split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
+    split_gain : the least rise of the packing efficiency a split must buy with its seam, per
+        extra chart it makes.
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
@@ -222,8 +223,12 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
+    def screen(maps, faces):
+        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate)
+
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
-                                                 min_gain=options.split_gain)
+                                                 min_gain=options.split_gain,
+                                                 screen=screen)
     results = [results[i] for i in owner]
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
     certificate = certify_atlas(uv, uv_faces, chart)

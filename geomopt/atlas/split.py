@@ -1,12 +1,16 @@
 """Split flattened charts where the atlas packs badly.
 
 One large chart of irregular outline (long arms, deep notches) wastes the square it is packed
-into; two halves of it leave less empty space.  :func:`split_flat_chart` cuts a flattened chart
-across its longest direction (the principal axis of its triangles' centroids, area-weighted) at
-the area median: each side's connected pieces keep their flattened coordinates (a part of a
-flip-free, injective map is one), so no chart is solved again.  :func:`split_to_pack` splits the
-largest chart not tried yet and repacks, keeping a split only when the packing efficiency grows,
-while it is below the goal.
+into; pieces of it leave less empty space.  A split is a straight cut across the flattened chart
+(:func:`split_flat_chart`): the faces whose centroids lie on one side of a line, the line placed
+at a quantile of the chart's area along a direction, the sides smoothed; each side's connected
+pieces keep their flattened coordinates (a part of a flip-free, injective map is one), so no
+chart is solved again.  :func:`split_to_pack` tries the largest chart not tried yet: every
+distinct cut of :func:`candidate_splits` (``_DIRECTIONS`` directions from the principal axis,
+``_QUANTILES`` positions) is screened by a cheap packing of its pieces, the ``_FINALISTS`` best
+are packed with all the charts, and the best is kept when it pays (``min_gain`` of efficiency per
+chart it adds), while the efficiency is below the goal.  The cut that packs best is seldom the
+one across the principal axis at the median: it is where the outline has a notch or an arm.
 """
 
 from __future__ import annotations
@@ -16,7 +20,13 @@ import scipy.sparse as sp
 
 from .charts import ChartMesh
 
-__all__ = ["split_flat_chart", "split_to_pack"]
+__all__ = ["candidate_splits", "split_flat_chart", "split_to_pack"]
+
+_DIRECTIONS = 8  # straight cuts tried across this many directions over half a turn
+_QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
+_FINALISTS = 3  # the best screened splits packed with all the charts
+_SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
+_PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
 
 
 def _face_pairs(F):
@@ -32,21 +42,24 @@ def _face_pairs(F):
     return f[pair], f[pair + 1]
 
 
-def _face_components(F, keep):
-    """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges."""
+def _face_components(F, keep, pairs=None):
+    """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges (``pairs``: the
+    face pairs of ``F`` sharing an edge, :func:`_face_pairs`, when known)."""
     from scipy.sparse.csgraph import connected_components
 
-    G = F[keep]
-    a, b = _face_pairs(G)
-    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(G), len(G)))
+    a, b = _face_pairs(F) if pairs is None else pairs
+    both = keep[a] & keep[b]
+    index = np.cumsum(keep) - 1
+    n = int(keep.sum())
+    graph = sp.coo_matrix((np.ones(int(both.sum())), (index[a[both]], index[b[both]])), shape=(n, n))
     return connected_components(graph.tocsr(), directed=False)[1]
 
 
-def _smoothed(F, side, rounds=3):
+def _smoothed(F, side, rounds=3, pairs=None):
     """``side`` (m,) bool with every face that has at least two edge neighbours on the other
     side moved over, ``rounds`` times: a straighter cut line, without faces that touch the other
     side at a vertex only (which would leave a piece pinched there, not a disk)."""
-    a, b = _face_pairs(F)
+    a, b = _face_pairs(F) if pairs is None else pairs
     side = side.copy()
     for _ in range(rounds):
         other = np.bincount(a, side[b] != side[a], minlength=len(F)) + np.bincount(b, side[a] != side[b],
@@ -58,82 +71,179 @@ def _smoothed(F, side, rounds=3):
     return side
 
 
-def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1):
-    """Cut a flattened chart in two across its longest direction (module doc).
+class _Cutter:
+    """One flattened chart, ready to be cut by straight lines many times: its faces' edge ids,
+    face adjacency, centroids and areas are computed once."""
+
+    def __init__(self, mesh: ChartMesh, x):
+        from ..exact.topology import unique_edges
+
+        self.mesh, self.x = mesh, np.asarray(x, dtype=np.float64)
+        P = self.x[mesh.F]
+        self.c, self.A = P.mean(axis=1), _areas(P)
+        _, _, self.edge_of = unique_edges(mesh.F)
+        self.a, self.b = _face_pairs(mesh.F)
+        mean = np.average(self.c, axis=0, weights=self.A)
+        cov = ((self.c - mean) * self.A[:, None]).T @ (self.c - mean)
+        self.axes = np.linalg.eigh(cov)[1]  # columns: shortest, longest direction
+
+    def sides(self, direction, quantiles):
+        """Per quantile, (m,) bool: the faces on the low side of the line across ``direction``
+        that leaves that fraction of the area there, smoothed (:func:`_smoothed`)."""
+        t = self.c @ direction
+        order = np.argsort(t)
+        at = np.minimum(np.searchsorted(np.cumsum(self.A[order]), np.asarray(quantiles) * self.A.sum()), len(t) - 1)
+        return [self._without_slivers(_smoothed(self.mesh.F, t <= t[order][k], pairs=(self.a, self.b)))
+                for k in at]
+
+    def _without_slivers(self, low, rounds=3):
+        """``low`` with every connected piece of either side under ``_SLIVER`` of the chart's
+        area moved to the other side (which surrounds it), again until none is left (at most
+        ``rounds`` times): a line across a ragged outline or a diagonal of the grid leaves such
+        crumbs, each of which would be a chart of its own."""
+        low = low.copy()
+        for _ in range(rounds):
+            flip = np.zeros(len(low), dtype=bool)
+            for side in (low, ~low):
+                faces = np.flatnonzero(side)
+                if len(faces):
+                    labels = _face_components(self.mesh.F, side, pairs=(self.a, self.b))
+                    flip[faces] = (np.bincount(labels, self.A[faces]) < _SLIVER * self.A.sum())[labels]
+            if not flip.any():
+                break
+            low ^= flip
+        return low
+
+    def _is_disk(self, sel) -> bool:
+        """Whether the edge-connected faces ``sel`` of the chart (a disk) form a disk: exactly
+        when their Euler characteristic is 1.  They lie in a disk, so (Alexander duality) the
+        characteristic is 1 minus the number of bounded regions of the disk they leave out:
+        holes, and at a vertex where the faces meet in two fans, the region between the fans
+        that a path of faces from one fan to the other encloses."""
+        nv = len(np.unique(self.mesh.F[sel]))
+        return nv - len(np.unique(self.edge_of[sel])) + len(sel) == 1
+
+    def pieces(self, low):
+        """``[(ChartMesh, x_piece), ...]``: the connected pieces of both sides of ``low`` (m,)
+        bool, or None when a side is empty or a piece is not a disk or is under ``_SLIVER`` of
+        the chart's area."""
+        mesh, pieces = self.mesh, []
+        for side in (low, ~low):
+            if not side.any():
+                return None
+            faces = np.flatnonzero(side)
+            labels = _face_components(mesh.F, side, pairs=(self.a, self.b))
+            for k in range(labels.max() + 1):
+                sel = faces[labels == k]
+                if not self._is_disk(sel) or self.A[sel].sum() < _SLIVER * self.A.sum():
+                    return None  # not a disk, or a crumb that absorbing did not remove
+                rows, local = np.unique(mesh.F[sel], return_inverse=True)
+                pieces.append((ChartMesh(mesh.faces[sel], local.reshape(-1, 3), mesh.wedges[rows],
+                                         mesh.vertices[rows]), self.x[rows]))
+        return pieces
+
+
+def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1, direction=None):
+    """Cut a flattened chart in two across a direction (module doc).
 
     Parameters
     ----------
     mesh : the chart's :class:`~geomopt.atlas.charts.ChartMesh`;  x : (nc, 2) its flattening.
-    quantile : where along the axis, as a fraction of the chart's area.
-    axis : -1 across the longest direction, 0 across the shortest.
+    quantile : where along the direction, as a fraction of the chart's area.
+    axis : -1 across the longest direction, 0 across the shortest (principal axes of the faces'
+        centroids, area-weighted).
+    direction : (2,) unit vector, the direction to cut across instead of ``axis``.
 
     Returns
     -------
     list of ``(ChartMesh, x_piece)``, each piece a disk; None when a piece would not be a disk
     or the chart cannot be split (fewer than 2 faces).
     """
-    x = np.asarray(x, dtype=np.float64)
     if len(mesh.F) < 2:
         return None
-    P = x[mesh.F]
-    c = P.mean(axis=1)
-    A = _areas(P)
-    mean = np.average(c, axis=0, weights=A)
-    cov = ((c - mean) * A[:, None]).T @ (c - mean)
-    t = c @ np.linalg.eigh(cov)[1][:, axis]
-    order = np.argsort(t)
-    cut_at = t[order][np.searchsorted(np.cumsum(A[order]), quantile * A.sum())]
-    pieces = []
-    low = _smoothed(mesh.F, t <= cut_at)
-    for side in (low, ~low):
-        if not side.any():
-            return None
-        faces = np.flatnonzero(side)
-        labels = _face_components(mesh.F, side)
-        for k in range(labels.max() + 1):
-            sel = faces[labels == k]
-            rows, local = np.unique(mesh.F[sel], return_inverse=True)
-            piece = ChartMesh(mesh.faces[sel], local.reshape(-1, 3), mesh.wedges[rows], mesh.vertices[rows])
-            if piece.disk_loop() is None:
-                return None
-            pieces.append((piece, x[rows]))
-    return pieces
+    cutter = _Cutter(mesh, x)
+    d = cutter.axes[:, axis] if direction is None else np.asarray(direction, dtype=np.float64)
+    return cutter.pieces(cutter.sides(d, [quantile])[0])
 
 
-def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01):
+def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantiles=_QUANTILES):
+    """Every distinct straight split of a flattened chart that leaves disks: across
+    ``directions`` directions evenly spaced over half a turn from the longest principal axis,
+    at each of ``quantiles`` of the area (:func:`split_flat_chart`'s cuts).  Returns a list of
+    piece lists (each as :func:`split_flat_chart` returns it)."""
+    if len(mesh.F) < 2:
+        return []
+    cutter = _Cutter(mesh, x)
+    a0 = np.arctan2(cutter.axes[1, -1], cutter.axes[0, -1])
+    seen, out = set(), []
+    for a in a0 + np.pi * np.arange(directions) / directions:
+        d = np.array([np.cos(a), np.sin(a)])
+        for low in cutter.sides(d, quantiles):
+            key = np.packbits(low ^ low[0]).tobytes()  # a partition, whichever side is low
+            if key in seen:
+                continue
+            seen.add(key)
+            pieces = cutter.pieces(low)
+            if pieces is not None:
+                out.append(pieces)
+    return out
+
+
+def _best_split(meshes, maps, i, pack, screen, min_gain):
+    """The split of chart ``i`` (:func:`candidate_splits`) that packs best, charged ``min_gain``
+    of efficiency per extra chart: every candidate's pieces are packed alone by ``screen`` (a
+    cheap estimate), the ``_FINALISTS`` best are packed with all the other charts by ``pack``.
+    Returns ``(score, pieces, packing)`` or None when the chart has no split."""
+    cands = candidate_splits(meshes[i], maps[i])
+    est = [screen([p[1] for p in c], [p[0].F for p in c]) - min_gain * (len(c) - 1) for c in cands]
+    best = None
+    for j in np.argsort(est)[::-1][:_FINALISTS]:
+        pieces = cands[j]
+        trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
+                     [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
+        score = trial.efficiency - min_gain * (len(pieces) - 1)
+        if best is None or score > best[0]:
+            best = (score, pieces, trial)
+    return best
+
+
+def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
-    keeping the split when it raises the packing efficiency by at least ``min_gain`` (a split
-    costs a seam and a chart: one that buys less packing is not worth them), while the
-    efficiency is below ``goal`` (at most ``max_splits`` tries).
+    keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
+    least ``min_gain`` per extra chart (a split costs a seam and charts: one that buys less
+    packing is not worth them), while the efficiency is below ``goal`` (at most ``max_splits``
+    charts tried; none more after ``_PATIENCE`` in a row that stay whole: charts are tried by
+    decreasing area, and a smaller chart's split moves the packing less).  ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply
+    (default: ``pack``'s).
 
     Returns
     -------
     ``(meshes, maps, packing, owner)``: the charts, their flattenings, their packing, and for
     each chart the index of the chart of the input it came from.
     """
+    screen = screen or (lambda m, f: pack(m, f).efficiency)
     owner = list(range(len(meshes)))
     packing = pack(maps, [m.F for m in meshes])
-    tried = set()
+    tried, failed = set(), 0
     for _ in range(max_splits):
-        if packing.efficiency >= goal:
+        if packing.efficiency >= goal or failed >= _PATIENCE:
             break
         area = [_uv_area(x, m.F) if i not in tried else -1.0 for i, (m, x) in enumerate(zip(meshes, maps))]
         i = int(np.argmax(area))
         if area[i] < 0:
             break
         tried.add(i)
-        pieces = next(filter(None, (split_flat_chart(meshes[i], maps[i], q, axis) for axis in (-1, 0)
-                                    for q in (0.5, 0.35, 0.65))), None)
-        if pieces is None:
-            continue
-        new_meshes = meshes[:i] + [p[0] for p in pieces] + meshes[i + 1:]
-        new_maps = maps[:i] + [p[1] for p in pieces] + maps[i + 1:]
-        trial = pack(new_maps, [m.F for m in new_meshes])
-        if trial.efficiency < packing.efficiency + min_gain or trial.efficiency <= packing.efficiency:
+        best = _best_split(meshes, maps, i, pack, screen, min_gain)
+        if best is None or best[0] < packing.efficiency or best[2].efficiency <= packing.efficiency:
+            failed += 1
             continue  # this chart stays whole; try the next largest
+        score, pieces, trial = best
+        failed = 0
         shift = len(pieces) - 1
         tried = {j if j < i else j + shift for j in tried if j != i}
-        meshes, maps, packing = new_meshes, new_maps, trial
+        meshes = meshes[:i] + [p[0] for p in pieces] + meshes[i + 1:]
+        maps = maps[:i] + [p[1] for p in pieces] + maps[i + 1:]
+        packing = trial
         owner = owner[:i] + [owner[i]] * len(pieces) + owner[i + 1:]
     return meshes, maps, packing, owner
 
