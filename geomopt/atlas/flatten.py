@@ -2,10 +2,10 @@
 
 Each chart is flattened by :func:`geomopt.parameterize` (free boundary, flip-free).  When that
 map is flip-free but its boundary overlaps itself, the chart is cut between the overlapping
-sheets (:func:`~geomopt.atlas.split.separate_overlaps`): its pieces keep their nearly isometric
-coordinates, where the bijective scaffold would squeeze the whole chart to keep the sheets apart
-(on a large chart with many seams, tens to thousands of times the distortion).  Only when no such
-cut is found is the chart flattened again with the bijective scaffold.  The cone cuts are chosen by a
+sheets (:func:`~geomopt.atlas.split.separate_overlaps`) unless the bijective scaffold keeps the
+sheets apart at little cost (its mean symmetric Dirichlet at most the goal's or the free map's):
+the pieces keep their nearly isometric coordinates, where the scaffold may squeeze a large chart
+with many seams to tens or thousands of times the distortion, or not converge.  The cone cuts are chosen by a
 conformal estimate (:mod:`geomopt.atlas.cones`) that runs above what the flattening reaches;
 :func:`flatten_to` measures the real mean symmetric Dirichlet, and while it is above the goal it
 lowers the estimate's target by the measured gap and cuts again, re-flattening only the charts
@@ -75,10 +75,12 @@ def _separate(g, cut, mesh, res, known):
     return cut
 
 
-def _flatten_all(g, cut, solve, known, say):
+def _flatten_all(g, cut, solve, known, say, goal):
     """``(cut, split, meshes, results, sd, area)`` of every chart of ``cut``, reusing the
-    results in ``known`` (keyed by the chart's first face and vertex count) of unchanged charts;
-    a chart whose flattening overlaps itself is cut (:func:`_separate`), so ``cut`` may grow."""
+    results in ``known`` (keyed by the chart's first face and vertex count) of unchanged charts.
+    A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
+    converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
+    is cut instead (:func:`_separate`), so ``cut`` may grow."""
     split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
@@ -86,14 +88,16 @@ def _flatten_all(g, cut, solve, known, say):
         key = (int(mesh.faces[0]), len(mesh.wedges))
         if key not in known:
             Vc = g.V[mesh.vertices]
-            res = solve(Vc, mesh.F, scaffold=False)
-            if res.success and res.injectivity == "local":
-                more = _separate(g, cut, mesh, res, known)
-                if more is not None:
-                    say(f"chart {c}", faces=len(mesh.F), separated=int(more.sum() - cut.sum()))
-                    return _flatten_all(g, more, solve, known, say)
-            res = solve(Vc, mesh.F, free=res)
+            free = solve(Vc, mesh.F, scaffold=False)
+            res = solve(Vc, mesh.F, free=free)
             known[key] = (res,) + _mean_sd(Vc, mesh.F, res.x)
+            if res is not free and free.success and free.injectivity == "local" and not (
+                    res.success and known[key][1] <= max(goal, _mean_sd(Vc, mesh.F, free.x)[0])):
+                more = _separate(g, cut, mesh, free, known)
+                if more is not None:
+                    say(f"chart {c}", faces=len(mesh.F), scaffold_mean_symmetric_dirichlet=known[key][1],
+                        separated=int(more.sum() - cut.sum()))
+                    return _flatten_all(g, more, solve, known, say, goal)
             say(f"chart {c}", faces=len(mesh.F), mean_symmetric_dirichlet=known[key][1],
                 injectivity=res.injectivity)
         meshes.append(mesh)
@@ -136,7 +140,7 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
     """
     known = {}
     for _ in range(rounds + 1):
-        cut, split, meshes, results, sd, area = _flatten_all(g, cut, solve, known, say)
+        cut, split, meshes, results, sd, area = _flatten_all(g, cut, solve, known, say, goal)
         measured = float(np.sum(sd * area) / area.sum())
         say("flattened", charts=split.count, mean_symmetric_dirichlet=measured, estimate=estimate)
         if measured <= goal or max_cuts <= 0 or _ == rounds:
