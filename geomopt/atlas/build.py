@@ -236,7 +236,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
                   certificate, tuple(results), time.perf_counter() - t0)
     _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
-         mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet)
+         mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet, success=atlas.success)
+    if not atlas.success:
+        _say(progress, "not successful", message=atlas.message)
     if throw and not atlas.success:
         raise SolveError(f"the atlas is not certified: {atlas.message}", atlas)
     return atlas
