@@ -70,8 +70,8 @@ def _separate(g, cut, mesh, res, known):
         mesh = split.mesh(int(split.chart[piece.faces[0]]))  # same faces, in the same order
         xs = np.empty((len(mesh.wedges), 2))
         xs[mesh.F.ravel()] = x[piece.F.ravel()]
-        known[(int(mesh.faces[0]), len(mesh.wedges))] = ((dataclasses.replace(res, x=xs, certificate=cert, problem=None),)
-                                                         + _mean_sd(g.V[mesh.vertices], mesh.F, xs))
+        own = dataclasses.replace(res, x=xs, certificate=cert, problem=None)  # its part of the solve
+        known[(int(mesh.faces[0]), len(mesh.wedges))] = (own,) + _mean_sd(g.V[mesh.vertices], mesh.F, xs)
     return cut
 
 
