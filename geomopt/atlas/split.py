@@ -212,11 +212,40 @@ def _boundary_face(F, a, b):
     return int(np.argmax((F == a).any(axis=1) & (F == b).any(axis=1)))
 
 
+def _shared_edge_lengths(F, V, a, b):
+    """(p,) 3D length of the edge shared by the faces ``a`` and ``b`` (p,) of ``F``."""
+    common = (F[a][:, :, None] == F[b][:, None, :]).any(axis=2)  # (p, 3): F[a]'s shared corners
+    ends = F[a][common].reshape(-1, 2)
+    return np.linalg.norm(V[ends[:, 1]] - V[ends[:, 0]], axis=1)
+
+
+def _min_cut_side(n, a, b, capacity, sources, sinks):
+    """(n,) bool, the nodes on the source side of a minimum cut of the undirected graph with
+    edges ``(a, b)`` and integer ``capacity`` between the node sets ``sources`` and ``sinks``."""
+    from scipy.sparse.csgraph import breadth_first_order, maximum_flow
+
+    s, t = n, n + 1
+    big = int(capacity.sum()) + 1
+    i = np.r_[a, b, np.full(len(sources), s), sinks]
+    j = np.r_[b, a, sources, np.full(len(sinks), t)]
+    cap = np.r_[capacity, capacity, np.full(len(sources) + len(sinks), big)].astype(np.int64)
+    C = sp.csr_matrix((cap, (i, j)), shape=(n + 2, n + 2))
+    flow = maximum_flow(C, s, t).flow
+    residual = (C - flow).tocsr()
+    residual.data = np.where(residual.data > 0, 1, 0)
+    residual.eliminate_zeros()
+    side = np.zeros(n + 2, dtype=bool)
+    side[breadth_first_order(residual, s, directed=True, return_predecessors=False)] = True
+    return side[:n]
+
+
 def _overlap_halves(mesh: ChartMesh, x, V, crossing):
-    """The pieces of a chart cut between the two faces of a boundary crossing: each face goes
-    with the nearer of the two crossing faces (a graph Voronoi split of the faces, 3D centroid
-    distances across shared edges, smoothed and without slivers as :class:`_Cutter` makes its
-    sides).  Returns :meth:`_Cutter.pieces`'s list, or None."""
+    """The pieces of a chart cut between the two faces ``fa``, ``fb`` of a boundary crossing,
+    along the shortest cut (3D length) between the faces nearer than a quarter of their distance
+    to ``fa`` and those as near to ``fb`` (a minimum cut of the faces' dual graph, distances
+    between centroids across shared edges): the narrowest neck of the chart between the two
+    sheets.  Smoothed and without slivers as :class:`_Cutter` makes its sides; returns
+    :meth:`_Cutter.pieces`'s list, or None."""
     from scipy.sparse.csgraph import dijkstra
 
     from ..exact.topology import check_disk
@@ -227,13 +256,17 @@ def _overlap_halves(mesh: ChartMesh, x, V, crossing):
     if seeds[0] == seeds[1]:
         return None
     cutter = _Cutter(mesh, x)
-    c = V[mesh.vertices][mesh.F].mean(axis=1)
+    Vc = V[mesh.vertices]
+    c = Vc[mesh.F].mean(axis=1)
     w = np.linalg.norm(c[cutter.a] - c[cutter.b], axis=1) + 1e-300
     m = len(mesh.F)
     graph = sp.coo_matrix((w, (cutter.a, cutter.b)), shape=(m, m)).tocsr()
-    _, _, source = dijkstra(graph, directed=False, indices=seeds, min_only=True, return_predecessors=True)
-    low = cutter._without_slivers(_smoothed(mesh.F, source == seeds[0], pairs=(cutter.a, cutter.b)))
-    return cutter.pieces(low)
+    d = dijkstra(graph, directed=False, indices=seeds)
+    reach = d[0, seeds[1]] / 4
+    length = _shared_edge_lengths(mesh.F, Vc, cutter.a, cutter.b)
+    capacity = np.maximum(1, np.round(length / length.max() * 2 ** 20)).astype(np.int64)
+    low = _min_cut_side(m, cutter.a, cutter.b, capacity, np.flatnonzero(d[0] < reach), np.flatnonzero(d[1] < reach))
+    return cutter.pieces(cutter._without_slivers(_smoothed(mesh.F, low, pairs=(cutter.a, cutter.b))))
 
 
 def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
