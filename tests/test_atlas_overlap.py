@@ -45,6 +45,21 @@ def test_separate_overlaps_leaves_injective_disks_with_the_same_coordinates():
         np.testing.assert_array_equal(xp[piece.F], x[F[piece.faces]])
 
 
+def test_the_sheets_are_cut_apart_at_the_narrowest_neck():
+    """A ramp of 1.5 turns, its width 1 but 0.2 half a turn in: one cut, across the neck."""
+    V, F, x = ramp(1.5)
+    t = np.tile(np.linspace(0.0, 3 * np.pi, 120), 4)
+    r = np.linalg.norm(x, axis=1)
+    x *= ((1 + (r - 1) * (1 - 0.8 * np.exp(-((t - np.pi) / 0.4) ** 2))) / r)[:, None]
+    V[:, :2] = x
+    ids = np.arange(len(V))
+    pieces = separate_overlaps(ChartMesh(np.arange(len(F)), F, ids, ids), x, V)
+    assert len(pieces) == 2
+    shared = np.intersect1d(F[pieces[0][0].faces], F[pieces[1][0].faces])
+    assert 2 <= len(shared) <= 6  # the cut: one short path across the strip
+    assert np.linalg.norm(np.ptp(x[shared], axis=0)) < 0.3  # the neck is 0.2 wide, elsewhere 1
+
+
 def _scaffold_solve(fake):
     """A chart solve: the real free-boundary flattening, and ``fake(free)`` in place of the
     bijective scaffold."""
