@@ -215,8 +215,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts)
     _say(progress, "cut", seam_length=float(g.length[cut].sum()), cone_cuts=made, estimate=estimate)
 
-    def solve(Vc, Fc):
-        return flatten_chart(Vc, Fc, energy, solver, energy_params)
+    def solve(Vc, Fc, free=None, scaffold=True):
+        return flatten_chart(Vc, Fc, energy, solver, energy_params, free=free, scaffold=scaffold)
 
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
                                              options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info))
@@ -236,7 +236,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
                   certificate, tuple(results), time.perf_counter() - t0)
     _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
-         mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet)
+         mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet, success=atlas.success)
+    if not atlas.success:
+        _say(progress, "not successful", message=atlas.message)
     if throw and not atlas.success:
         raise SolveError(f"the atlas is not certified: {atlas.message}", atlas)
     return atlas

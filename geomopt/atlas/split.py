@@ -20,7 +20,7 @@ import scipy.sparse as sp
 
 from .charts import ChartMesh
 
-__all__ = ["candidate_splits", "split_flat_chart", "split_to_pack"]
+__all__ = ["candidate_splits", "split_flat_chart", "split_to_pack", "separate_overlaps"]
 
 _DIRECTIONS = 8  # straight cuts tried across this many directions over half a turn
 _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
@@ -205,6 +205,106 @@ def _best_split(meshes, maps, i, pack, screen, min_gain):
         if best is None or score > best[0]:
             best = (score, pieces, trial)
     return best
+
+
+def _boundary_face(F, a, b):
+    """The face of ``F`` (m, 3) holding the boundary edge ``(a, b)``."""
+    return int(np.argmax((F == a).any(axis=1) & (F == b).any(axis=1)))
+
+
+def _shared_edge_lengths(F, V, a, b):
+    """(p,) 3D length of the edge shared by the faces ``a`` and ``b`` (p,) of ``F``."""
+    common = (F[a][:, :, None] == F[b][:, None, :]).any(axis=2)  # (p, 3): F[a]'s shared corners
+    ends = F[a][common].reshape(-1, 2)
+    return np.linalg.norm(V[ends[:, 1]] - V[ends[:, 0]], axis=1)
+
+
+def _min_cut_side(n, a, b, capacity, sources, sinks):
+    """(n,) bool, the nodes on the source side of a minimum cut of the undirected graph with
+    edges ``(a, b)`` and integer ``capacity`` between the node sets ``sources`` and ``sinks``."""
+    from scipy.sparse.csgraph import breadth_first_order, maximum_flow
+
+    s, t = n, n + 1
+    big = int(capacity.sum()) + 1
+    i = np.r_[a, b, np.full(len(sources), s), sinks]
+    j = np.r_[b, a, sources, np.full(len(sinks), t)]
+    cap = np.r_[capacity, capacity, np.full(len(sources) + len(sinks), big)].astype(np.int64)
+    C = sp.csr_matrix((cap, (i, j)), shape=(n + 2, n + 2))
+    flow = maximum_flow(C, s, t).flow
+    residual = (C - flow).tocsr()
+    residual.data = np.where(residual.data > 0, 1, 0)
+    residual.eliminate_zeros()
+    side = np.zeros(n + 2, dtype=bool)
+    side[breadth_first_order(residual, s, directed=True, return_predecessors=False)] = True
+    return side[:n]
+
+
+def _overlap_halves(mesh: ChartMesh, x, V, crossing):
+    """The pieces of a chart cut between the two faces ``fa``, ``fb`` of a boundary crossing,
+    along the shortest cut (3D length) between the faces nearer than a quarter of their distance
+    to ``fa`` and those as near to ``fb`` (a minimum cut of the faces' dual graph, distances
+    between centroids across shared edges): the narrowest neck of the chart between the two
+    sheets.  Smoothed and without slivers as :class:`_Cutter` makes its sides; returns
+    :meth:`_Cutter.pieces`'s list, or None."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from ..exact.topology import check_disk
+
+    loop = check_disk(mesh.F, len(mesh.wedges))
+    i, j = (int(k) for k in crossing)
+    seeds = [_boundary_face(mesh.F, loop[k], loop[(k + 1) % len(loop)]) for k in (i, j)]
+    if seeds[0] == seeds[1]:
+        return None
+    cutter = _Cutter(mesh, x)
+    Vc = V[mesh.vertices]
+    c = Vc[mesh.F].mean(axis=1)
+    w = np.linalg.norm(c[cutter.a] - c[cutter.b], axis=1) + 1e-300
+    m = len(mesh.F)
+    graph = sp.coo_matrix((w, (cutter.a, cutter.b)), shape=(m, m)).tocsr()
+    d = dijkstra(graph, directed=False, indices=seeds)
+    reach = d[0, seeds[1]] / 4
+    length = _shared_edge_lengths(mesh.F, Vc, cutter.a, cutter.b)
+    capacity = np.maximum(1, np.round(length / length.max() * 2 ** 20)).astype(np.int64)
+    low = _min_cut_side(m, cutter.a, cutter.b, capacity, np.flatnonzero(d[0] < reach), np.flatnonzero(d[1] < reach))
+    return cutter.pieces(cutter._without_slivers(_smoothed(mesh.F, low, pairs=(cutter.a, cutter.b))))
+
+
+def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
+    """A flip-free flattening whose boundary overlaps itself, cut into pieces that each map
+    injectively, keeping their coordinates (no chart solved again).
+
+    While a piece's exact certificate (:func:`~geomopt.exact.certify.certify_bijective`) finds
+    two boundary edges crossing, the piece is cut between their two faces
+    (:func:`_overlap_halves`): the overlap is two sheets of the map that meet only far apart on
+    the surface, and a cut half-way between them puts them in different pieces.
+
+    Parameters
+    ----------
+    mesh : the chart's :class:`~geomopt.atlas.charts.ChartMesh`;  x : (nc, 2) its locally
+        injective flattening;  V : (n, 3) the surface's vertices (``mesh.vertices`` index them).
+    max_pieces : give up (None) when more pieces would be needed.
+
+    Returns
+    -------
+    list of ``(ChartMesh, x_piece, certificate)``, every piece certified globally injective, or
+    None (a piece not locally injective, a cut that leaves no disks, too many pieces).
+    """
+    from ..exact.certify import certify_bijective
+
+    todo, done = [(mesh, np.asarray(x, dtype=np.float64))], []
+    while todo:
+        piece, xp = todo.pop()
+        cert = certify_bijective(xp, piece.F)
+        if cert.globally_injective:
+            done.append((piece, xp, cert))
+            continue
+        if not cert.locally_injective or not len(cert.crossings) or len(done) + len(todo) + 2 > max_pieces:
+            return None
+        halves = _overlap_halves(piece, xp, V, cert.crossings[0])
+        if halves is None:
+            return None
+        todo.extend(halves)
+    return done
 
 
 def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None):
