@@ -2,10 +2,10 @@
 low distortion.
 
 Three steps (in the spirit of Sheffer & Hart's Seamster and of Gu, Gortler & Hoppe's geometry
-images): (a) topology, :func:`~geomopt.atlas.seams.topological_cut` opens every component with
-handles or several boundary loops into a disk along cheap edges; (b) a closed genus-0 component
-is opened by one cheap path between its two points of most concentrated curvature, far apart;
-(c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
+images): (a) topology, :func:`~geomopt.atlas.seams.shortest_topological_cut` opens every
+component with handles or several boundary loops into a disk along cheap edges (from the best of
+several roots); (b) a closed genus-0 component is opened by one cheap path between its two
+points of most concentrated curvature, far apart; (c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
 (:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
 excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
 vertex to the boundary keeps a disk a disk, so every chart stays one.
@@ -17,7 +17,7 @@ import numpy as np
 
 from .charts import split_charts
 from .cones import log_scale, scale_estimate
-from .seams import EdgeGraph, cut_path_to_seams, topological_cut
+from .seams import EdgeGraph, cut_path_to_seams, shortest_topological_cut
 
 __all__ = ["cut_surface", "chart_estimate", "relieve"]
 
@@ -143,6 +143,6 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
     max_cuts : the most cone cuts.
     """
     labels, roots = _component_roots(g)
-    cut = topological_cut(g, cost, roots)
+    cut = shortest_topological_cut(g, cost, labels, roots)
     cut = _open_spheres(g, cost, cut, labels, roots)
     return relieve(g, cost, cut, target, max_cuts)

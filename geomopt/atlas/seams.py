@@ -9,6 +9,10 @@ tree-cotree construction of Eppstein (2003) with Erickson & Whittlesey's (2005) 
 a shortest-path forest ``T`` grown by cost from the boundary vertices (or one root per closed
 component), a maximum dual spanning tree ``C`` of the edges outside ``T`` weighted by the cost of
 the loop each closes, and the edges in neither, together with their ``T`` paths, as the cut.
+On a closed component every loop passes through the root, so the root decides the cut's cost:
+Erickson & Whittlesey's shortest system of loops is the greedy one from the best root, and
+:func:`shortest_topological_cut` tries several roots spread over each component (farthest-point
+sampling) and keeps the cheapest cut of each.
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ import scipy.sparse as sp
 
 from ..exact.topology import unique_edges
 
-__all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "cut_path_to_seams"]
+__all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "shortest_topological_cut",
+           "cut_path_to_seams"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,6 +186,44 @@ def topological_cut(g: EdgeGraph, cost: np.ndarray, roots) -> np.ndarray:
     cut = inner.copy()
     cut[e[dual]] = False
     return _prune(g, cut)
+
+
+def _spread_roots(g: EdgeGraph, cost, labels, roots, tries):
+    """(len(roots), tries) vertex ids: per closed component, its root then the vertices farthest
+    (by ``cost``) from those chosen before (farthest-point sampling)."""
+    adjacency = g.adjacency(cost)
+    out = np.empty((len(roots), tries), dtype=np.int64)
+    for i, r in enumerate(roots):
+        inside = labels == labels[r]
+        out[i, 0] = r
+        near = np.full(len(g.V), np.inf)
+        for k in range(1, tries):
+            near = np.minimum(near, _dijkstra(adjacency, [out[i, k - 1]])[0])
+            out[i, k] = int(np.argmax(np.where(inside & np.isfinite(near), near, -1.0)))
+    return out
+
+
+def shortest_topological_cut(g: EdgeGraph, cost: np.ndarray, labels, roots, tries: int = 16) -> np.ndarray:
+    """:func:`topological_cut` with the root of each closed component chosen among ``tries``
+    spread vertices (module doc) to make that component's cut cheapest; the first try is
+    ``roots`` itself, so the cut never costs more than ``topological_cut(g, cost, roots)``.
+
+    Parameters
+    ----------
+    labels : (n,) component of each vertex;  roots : one vertex per closed component.
+    """
+    roots = np.asarray(roots, dtype=np.int64)
+    if len(roots) == 0 or tries <= 1:
+        return topological_cut(g, cost, roots)
+    candidates = _spread_roots(g, cost, labels, roots, tries)
+    comp = labels[g.E[:, 0]]
+    best, best_cost = roots.copy(), np.full(len(roots), np.inf)
+    for k in range(tries):
+        cut = topological_cut(g, cost, candidates[:, k])
+        spent = np.bincount(comp[cut], cost[cut], minlength=labels.max() + 1)[labels[roots]]
+        better = spent < best_cost
+        best[better], best_cost[better] = candidates[better, k], spent[better]
+    return topological_cut(g, cost, best)
 
 
 def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.ndarray) -> list:

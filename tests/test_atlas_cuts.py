@@ -1,0 +1,40 @@
+"""The topological cut of a closed surface with handles: the root of its system of loops is chosen
+to make the cut cheapest (issue 31)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geomopt.atlas.cones import angle_defects
+from geomopt.atlas.charts import split_charts
+from geomopt.atlas.seams import edge_costs, edge_graph, shortest_topological_cut, topological_cut
+from geomopt.mesh.generators import holed_plate
+
+
+def _labels(g):
+    from geomopt.exact.topology import connected_components
+
+    return connected_components(g.F, len(g.V))[1]
+
+
+def _plates():
+    """Two genus-5 plates side by side (two closed components)."""
+    V, F = holed_plate(5, cells=3)
+    return edge_graph(np.r_[V, V + [0.0, 20.0, 0.0]], np.r_[F, F + len(V)])
+
+
+def test_the_cheapest_root_opens_each_handle_body_into_one_disk_more_cheaply():
+    g = _plates()
+    cost = edge_costs(g, 2.0, angle_defects(g.V, g.F))
+    labels = _labels(g)
+    roots = np.array([0, len(g.V) // 2])  # the first vertex of each plate: a corner, far from most holes
+    old = topological_cut(g, cost, roots)
+    new = shortest_topological_cut(g, cost, labels, roots)
+    split = split_charts(g.F, g.edge_of, g.edge_faces, new)
+    assert split.count == 2
+    assert all(split.mesh(c).disk_loop() is not None for c in range(2))
+    comp = labels[g.E[:, 0]]
+    for k in range(2):
+        here = comp == labels[roots[k]]
+        assert cost[new & here].sum() < cost[old & here].sum() - 1e-9
+        assert g.length[new & here].sum() < g.length[old & here].sum()
