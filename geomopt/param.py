@@ -150,15 +150,14 @@ def check_scale_aware(energy, energy_params):
     its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
     on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
     ``s = 1e-3`` (every scale-aware or scale-invariant distortion fails this test)."""
-    import jax.numpy as jnp
-
     from .energies import get_energy
 
     e = get_energy(energy)
     # unknown or misplaced names are reported by the caller's own checks, with better advice
     params = e.resolve_params(**{k: v for k, v in energy_params.items() if k in e.params})
-    # one kept program per density (no trace in a warm process) instead of dozens of eager operations
-    at = dict(zip((1.0, 1e-3), np.asarray(_density_at_scales(e.density, params, jnp.array([1.0, 1e-3]))).tolist()))
+    # one kept program per density (no trace in a warm process) instead of dozens of eager operations;
+    # its argument a NumPy array: jnp.array would compile an eager conversion in every process
+    at = dict(zip((1.0, 1e-3), np.asarray(_density_at_scales(e.density, params, np.array([1.0, 1e-3]))).tolist()))
     if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
         raise ParameterError(
             f"energy {e.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "

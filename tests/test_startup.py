@@ -353,6 +353,45 @@ def test_optimal_scale_matches_the_closed_form_for_symmetric_dirichlet():
 # ------------------------------------------------------------------ trimesh input, tet formats
 
 
+def test_optimal_scale_matches_the_closed_form_for_arap():
+    # E(s) = sum_w sum_i (s sigma_i - 1)^2 is least at s = sum_w (sigma_1 + sigma_2) / sum_w |J|^2
+    from geomopt.param import optimal_scale
+
+    V, F = bumpy(9)
+    problem = Problem.surface(V, F)
+    obj = Objective(problem, "arap", buckets=True)
+    x = (V[:, :2] - V[:, :2].mean(axis=0)) * np.array([2.3, 0.8])
+    P = x[problem.simplices]
+    J = np.einsum("mij,mjk->mik", np.swapaxes(P[:, 1:] - P[:, :1], 1, 2), problem.rest_inv)
+    sigma = np.linalg.svd(J, compute_uv=False)
+    s = (problem.volumes * sigma.sum(1)).sum() / (problem.volumes * (sigma**2).sum(1)).sum()
+    assert optimal_scale(obj, x) == pytest.approx(s, rel=1e-6)
+
+
+_LINE_CASES = {  # f(t), its minimiser on [-4, 4], the most evaluations allowed
+    "symmetric Dirichlet": (lambda t: 3.0 * np.exp(2 * t) + 0.2 * np.exp(-2 * t), 0.25 * np.log(0.2 / 3.0), 14),
+    "quadratic": (lambda t: (t - 1.3) ** 2, 1.3, 12),
+    "quartic": (lambda t: (t - 0.01) ** 4, 0.01, 20),
+    "kink": (lambda t: abs(t - 2.2), 2.2, 40),
+    "barrier below -1": (lambda t: np.inf if t < -1 else np.exp(-3 * t) + np.exp(t), 0.25 * np.log(3.0), 16),
+    "beyond the upper bound": (lambda t: (t - 7.0) ** 2, 4.0, 6),
+    "beyond the lower bound": (lambda t: (t + 9.0) ** 2, -4.0, 6),
+    "flat (scale-invariant)": (lambda t: 5.0, 0.0, 3),
+}
+
+
+@pytest.mark.parametrize("case", list(_LINE_CASES))
+def test_the_scale_search_finds_the_minimum_in_few_evaluations(case):
+    from geomopt.mesh.tutte import _line_minimum
+
+    f, best, most = _LINE_CASES[case]
+    calls = []
+    t = _line_minimum(lambda t: calls.append(t) or f(t), -4.0, 4.0, 1e-7)
+    tol = 1e-5 if case == "quartic" else 1e-6  # a quartic's values say less about where its minimum is
+    assert t == pytest.approx(best, abs=tol) and len(calls) <= most
+    assert all(-4.0 <= c <= 4.0 for c in calls)
+
+
 def test_parameterize_accepts_a_trimesh_or_any_vertices_faces_object():
     import types
 
