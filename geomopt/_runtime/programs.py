@@ -221,6 +221,7 @@ class Program:
                 _lapack_ready()
                 loaded = se.deserialize_and_load(blob, in_tree, out_tree)
                 self._unproven[key] = path
+                _cache.count_loaded()
                 return loaded
             except Exception:  # noqa: BLE001 -- checksummed but not loadable here: compile it
                 pass
