@@ -11,6 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..exact.topology import unique_edges
+from ..mesh.quality import triangle_symmetric_dirichlet
 
 __all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet"]
 
@@ -68,16 +69,7 @@ def face_symmetric_dirichlet(V, F, uv, uv_faces) -> np.ndarray:
     f1, f2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
     A2 = 0.5 * np.abs(f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
     s = np.sqrt(A3.sum() / A2.sum())
-    f1, f2, A2 = s * f1, s * f2, s * s * A2
-    # |J|_F^2 = sum over edges of cot-weighted squared uv lengths / (2 A3); same form for J^-1
-    g11, g12, g22 = np.sum(e1 * e1, 1), np.sum(e1 * e2, 1), np.sum(e2 * e2, 1)
-    h11, h12, h22 = np.sum(f1 * f1, 1), np.sum(f1 * f2, 1), np.sum(f2 * f2, 1)
-    # tr(G^-1 H) and tr(H^-1 G), G, H the metric tensors of the 3D and UV triangle
-    detG, detH = 4 * A3 ** 2, 4 * A2 ** 2
-    tr = g22 * h11 - 2 * g12 * h12 + g11 * h22
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = tr / detG + tr / detH
-    return np.where(A2 > 0, out, np.inf)
+    return np.where(A2 > 0, triangle_symmetric_dirichlet(P, s * Q), np.inf)
 
 
 def atlas_metrics(V, F, uv, uv_faces) -> AtlasMetrics:

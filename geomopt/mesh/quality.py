@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["size_ratios", "scaled_jacobians", "element_quality", "quality_summary"]
+__all__ = ["size_ratios", "scaled_jacobians", "element_quality", "quality_summary", "triangle_symmetric_dirichlet"]
 
 #: the corners' edge vectors: corner i of a simplex and the vertices it is joined to, in an
 #: order whose determinant has the simplex's orientation
@@ -83,3 +83,19 @@ def quality_summary(problem, x) -> dict:
     return {"elements": len(sj), "invalid": problem.count_inverted(x), "corner_only": 0, "tests": {},
             "sj_min": float(sj.min()), "sj_mean": float(sj.mean()), "sj_below_0": int(np.count_nonzero(sj < 0)),
             "sj_below_0_2": int(np.count_nonzero(sj < 0.2))}
+
+
+def triangle_symmetric_dirichlet(P, Q) -> np.ndarray:
+    """(m,) symmetric Dirichlet ``|J|_F^2 + |J^-1|_F^2`` of the affine maps from the triangles
+    ``P`` (m, 3, d) onto the triangles ``Q`` (m, 3, d'), in 2D or 3D alike (from the metric
+    tensors of the two triangles: ``tr(G^-1 H) + tr(H^-1 G)``); ``inf`` where ``Q`` has no area.
+    Orientation is not looked at."""
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    f1, f2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
+    g11, g12, g22 = np.sum(e1 * e1, 1), np.sum(e1 * e2, 1), np.sum(e2 * e2, 1)
+    h11, h12, h22 = np.sum(f1 * f1, 1), np.sum(f1 * f2, 1), np.sum(f2 * f2, 1)
+    det_g, det_h = g11 * g22 - g12 * g12, h11 * h22 - h12 * h12  # 4 area^2 each
+    tr = g22 * h11 - 2 * g12 * h12 + g11 * h22
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = tr / det_g + tr / det_h
+    return np.where(det_h > 0, out, np.inf)

@@ -21,7 +21,7 @@ from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..exact.topology import as_faces, check_disk
 
-__all__ = ["tutte_embedding", "tutte_weights", "scale_to_area", "optimal_scale", "WEIGHTS", "circle_boundary"]
+__all__ = ["tutte_embedding", "tutte_weights", "weighted_embedding", "scale_to_area", "optimal_scale", "WEIGHTS", "circle_boundary"]
 
 WEIGHTS = ("uniform", "mean_value")
 
@@ -164,16 +164,22 @@ def tutte_embedding(V, F, weights: str = "uniform", boundary=None) -> np.ndarray
         unused = n - np.unique(F).size
         if unused:
             raise MeshError(f"{unused} vertices are not used by any face; remove them first")
+    return weighted_embedding(tutte_weights(V, F, weights), loop, circle_boundary(V, loop))
 
+
+def weighted_embedding(W, loop, boundary_positions) -> np.ndarray:
+    """(n, 2) every vertex off ``loop`` at the ``W``-weighted average of its neighbours, the
+    loop's vertices at ``boundary_positions`` (k, 2): one sparse solve.  ``W`` (n, n) holds
+    positive weights on the edges (any, not necessarily symmetric: Floater 2003's theorem makes
+    the map flip-free for a convex boundary polygon in loop order)."""
+    n = W.shape[0]
     UV = np.zeros((n, 2))
-    UV[loop] = circle_boundary(V, loop)
+    UV[loop] = boundary_positions
     is_interior = np.ones(n, dtype=bool)
     is_interior[loop] = False
     interior = np.flatnonzero(is_interior)
     if interior.size == 0:
         return UV
-
-    W = tutte_weights(V, F, weights)
     W = sp.diags(1.0 / np.asarray(W.sum(axis=1)).ravel()) @ W  # row-normalised
     # rows of interior vertices: u_i - sum_j W_ij u_j = 0, boundary terms to the right
     W_int = W[interior]
