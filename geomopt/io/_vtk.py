@@ -93,6 +93,8 @@ _VTK_TYPES = {b"UNSIGNED_CHAR": "u1", b"CHAR": "i1", b"UNSIGNED_SHORT": "u2", b"
               b"VTKTYPEINT16": "i2", b"VTKTYPEUINT16": "u2", b"VTKTYPEINT32": "i4", b"VTKTYPEUINT32": "u4",
               b"VTKTYPEINT64": "i8", b"VTKTYPEUINT64": "u8", b"VTKTYPEFLOAT32": "f4", b"VTKTYPEFLOAT64": "f8"}
 _VTK_ATTRIBUTES = (b"POINT_DATA", b"CELL_DATA")
+#: The start of a line whose first token begins with a letter: a keyword (or a value such as nan).
+_NEXT_KEYWORD = re.compile(rb"\n[ \t]*[A-Za-z]")
 
 
 class _VtkCursor:
@@ -103,7 +105,7 @@ class _VtkCursor:
         """``data`` from byte ``binary_start`` in a binary file; ``None``: all of ``data``, ASCII text
         from the file's line 4."""
         self.data, self.pos, self.binary, self.path = data, binary_start or 0, binary_start is not None, path
-        self.tokens = None if self.binary else Tokens(data, path, line=4)
+        self.tokens = None  # ASCII: built when a section does not parse whole, to name the culprit
 
     def line(self):
         """Tokens of the next non-blank line (``[]`` at the end of the file)."""
@@ -131,7 +133,27 @@ class _VtkCursor:
             out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)  # native byte order
             self.pos += size
             return out
-        tokens, dtype = self.tokens, np.float64 if code[0] == "f" else np.int64
+        dtype = np.float64 if code[0] == "f" else np.int64
+        found = _NEXT_KEYWORD.search(self.data, self.pos)  # the section's values end where a line starts a word
+        end = found.start() + 1 if found else len(self.data)
+        values = parse(self.data[self.pos:end], dtype)
+        if values is None or len(values) != count:  # not exactly the declared values: find out why, token by token
+            values, end = self._located(count, dtype, section)
+        self.pos = end
+        if code[0] == "f":
+            with np.errstate(over="ignore"):
+                return values.astype(code)
+        info = np.iinfo(code)
+        if values.size and (values.min() < info.min or values.max() > info.max):
+            raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
+                                  f"{np.dtype(code).name}")
+        return values
+
+    def _located(self, count, dtype, section):
+        """``(count values, where they end)`` from the tokens at ``pos``, or a refusal naming the culprit."""
+        if self.tokens is None:
+            self.tokens = Tokens(self.data, self.path, line=4)
+        tokens = self.tokens
         t = int(np.searchsorted(tokens.start, self.pos))
         if len(tokens) - t < count:
             raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
@@ -143,15 +165,7 @@ class _VtkCursor:
                 raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
                                       f"{show(tokens.text(bad))} follows after {bad - t}; fix the count")
             tokens.refuse(bad, dtype, where=lambda i: f"{self.path}, {section} section, value {i - t + 1}")
-        self.pos = int(tokens.end[t + count - 1]) if count else self.pos
-        if code[0] == "f":
-            with np.errstate(over="ignore"):
-                return values.astype(code)
-        info = np.iinfo(code)
-        if values.size and (values.min() < info.min or values.max() > info.max):
-            raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
-                                  f"{np.dtype(code).name}")
-        return values
+        return values, int(tokens.end[t + count - 1]) if count else self.pos
 
     def expect_keyword(self, after):
         """The next line must start a section (not more values of the previous one)."""
