@@ -20,7 +20,7 @@ from .._runtime.errors import MeshError, MeshFormatError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._faces import fan, mesh_with_uv
-from ._files import check_not_empty, existing_file, read_bytes
+from ._files import existing_file, read_input
 from ._text import Tokens, gc_paused, ints, parse, ranges, show, text_data, uncomment, write_int_rows, write_rows
 
 __all__ = ["read_obj", "parse_obj", "read_obj_quads", "read_obj_uv", "read_obj_with_uv", "write_obj",
@@ -219,9 +219,8 @@ def _each_corner(corners, line_of, path):
 
 def _read(path, with_uv=False):
     """:func:`parse_obj` of the OBJ file at ``path`` (checked to exist, not empty)."""
-    path = existing_file(path, "OBJ file")
-    check_not_empty(path, "OBJ file")
-    return path, parse_obj(read_bytes(path, "OBJ file"), path, with_uv=with_uv)
+    path, data = read_input(path, "OBJ file")
+    return path, parse_obj(data, path, with_uv=with_uv)
 
 
 def read_obj_quads(path):

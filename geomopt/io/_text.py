@@ -20,7 +20,7 @@ import numpy as np
 
 from .._runtime.errors import MeshFormatError
 from .._runtime.validate import validate_indices
-from ._files import existing_file, read_bytes
+from ._files import read_input
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse",
            "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
@@ -354,8 +354,8 @@ def read_vertex_ids(path, n_vertices, what="handles"):
     MeshError
         Ids out of range or repeated (:func:`~geomopt._runtime.validate.validate_indices`).
     """
-    path = existing_file(path, f"{what} file")
-    tokens = Tokens(text_data(read_bytes(path, f"{what} file"), path, f"{what} file"), path)
+    path, data = read_input(path, f"{what} file", empty_ok=True)
+    tokens = Tokens(text_data(data, path, f"{what} file"), path)
     try:
         ids = tokens.numbers(0, len(tokens), np.int64)
     except MeshFormatError as exc:

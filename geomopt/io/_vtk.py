@@ -16,9 +16,8 @@ import re
 import numpy as np
 
 from .._runtime.errors import MeshFormatError
-from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
-from ._cells import KINDS, VTK_CELLS, WORDS, VolumeCells, code_of, vtk_blocks
+from ._cells import VTK_CELLS, VolumeCells, checked_cells, code_of, vtk_blocks
 from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
 
 __all__ = ["parse_vtk", "write_vtk_tets", "write_vtk_cells"]
@@ -67,11 +66,8 @@ def write_vtk_cells(path, P, C, kind):
     -------
     pathlib.Path
     """
-    size, dim = KINDS[kind]
-    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
-    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
-    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
-    m, code = C.shape[0], code_of(VTK_CELLS, kind)
+    P, C = checked_cells(P, C, kind)
+    (m, size), code = C.shape, code_of(VTK_CELLS, kind)
 
     def write(fh):
         fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
