@@ -217,6 +217,17 @@ def _vtk_skip_optional(cursor):
             return
 
 
+def _vtk_section(cursor, keyword, expected, width=None):
+    """The tokens of the next section's line (after METADATA / FIELD blocks), which must start with
+    ``keyword`` (and hold ``width`` tokens); else a refusal saying ``expected`` and what was found."""
+    _vtk_skip_optional(cursor)
+    tokens = cursor.line()
+    if _vtk_keyword(tokens) != keyword or (width is not None and len(tokens) != width):
+        raise MeshFormatError(f"{cursor.path}: expected {expected}, found "
+                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    return tokens
+
+
 def parse_vtk(data, path):
     """The points and cells of a legacy VTK unstructured grid (bytes ``data``).
 
@@ -240,30 +251,18 @@ def parse_vtk(data, path):
         found = show(b" ".join(tokens)) if tokens else "nothing"
         raise MeshFormatError(f"{path}: expected 'DATASET UNSTRUCTURED_GRID', found {found}; only unstructured "
                               f"grids (tetrahedral meshes) are supported")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"POINTS" or len(tokens) != 3:
-        raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"POINTS", "'POINTS n type'", 3)
     n = _vtk_count(tokens, 1, cursor, "POINTS")
     points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64, copy=False)
     cursor.expect_keyword("POINTS")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"CELLS" or len(tokens) != 3:
-        raise MeshFormatError(f"{path}: expected 'CELLS' after the points, found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"CELLS", "'CELLS' after the points", 3)
     a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
     version5 = _vtk_keyword(cursor.peek()) == b"OFFSETS"
     offsets, conn = _vtk_cells(cursor, a, b, path)
     a += 0 if version5 else 1  # as many offsets as cells + 1, like version 5
     cells = a - 1
     cursor.expect_keyword("CELLS")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"CELL_TYPES":
-        raise MeshFormatError(f"{path}: expected 'CELL_TYPES' after the cells, found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"CELL_TYPES", "'CELL_TYPES' after the cells")
     m = _vtk_count(tokens, 1, cursor, "CELL_TYPES")
     if m != cells:
         raise MeshFormatError(f"{path}: CELLS declares {cells} cells but CELL_TYPES declares {m}; fix the counts")
