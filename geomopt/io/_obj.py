@@ -1,13 +1,9 @@
 """OBJ meshes: ``v`` / ``vt`` / ``f`` statements read exactly as the file says, and written.
 
-``v x y z`` lines (an optional ``w`` or ``r g b`` after the position is checked as numbers and
-ignored), ``f`` lines with corners ``a``, ``a/t``, ``a/t/n`` or ``a//n`` (1-based; negative
-indices count back from the last ``v`` line before the face, as the format defines); attribute
-and grouping statements (``vn``, ``g``, ``usemtl``, ``l``, ...) are ignored; free-form geometry
-and unknown statements are refused; ``#`` starts a comment; a line ending in ``\\`` continues on
-the next.  Lines are classified and their numbers parsed by NumPy over whole sections
-(:mod:`geomopt.io._text`); face corners of one regular form (all ``a``, all ``a/t``, all
-``a/t/n`` or ``a//n``) are parsed at once, any other mix corner by corner.
+The statements read, ignored and refused are listed in :func:`geomopt.io.read_mesh`.  Lines are
+classified and their numbers parsed by NumPy over whole sections (:mod:`geomopt.io._text`); face
+corners of one regular form (all ``a``, all ``a/t``, all ``a/t/n`` or ``a//n``) are parsed at once,
+any other mix corner by corner.
 """
 
 from __future__ import annotations
