@@ -434,6 +434,7 @@ def test_vtk_trailing_garbage_and_bad_numbers(tmp_path):
     (b"POINTS 5 double", b"POINTS 5", "expected 'POINTS n type', found 'POINTS 5'"),
     (b"CELLS 2 10", b"CELLS 2", "expected 'CELLS' after the points, found 'CELLS 2'"),
     (b"CELL_TYPES", b"CELL_KINDS", "expected 'CELL_TYPES' after the cells"),
+    (b"CELL_TYPES 2\n10 ", b"CELL_TYPES 2\n4294967306 ", "CELL_TYPES section: a value does not fit the declared type int32"),
 ])
 def test_vtk_section_lines_not_as_declared_are_refused(tmp_path, old, new, word):
     data = vtk_bytes(TET_P, TET_T)

@@ -385,6 +385,14 @@ def test_vtu_truncated_binary_data_is_refused(tmp_path):
         io.read_tets(tmp_path / "t.vtu")
 
 
+def test_vtu_ascii_integers_beyond_their_declared_type_are_refused(tmp_path):
+    good = _cube_vtu()
+    assert b'"UInt8" Name="types" NumberOfComponents="1" format="ascii">10 ' in good
+    (tmp_path / "t.vtu").write_bytes(good.replace(b'format="ascii">10 ', b'format="ascii">266 ', 1))
+    with pytest.raises(geomopt.MeshFormatError, match="types: a value does not fit the declared type uint8"):
+        io.read_tets(tmp_path / "t.vtu")
+
+
 @pytest.mark.parametrize("fmt", ["raw", "base64"])
 def test_vtu_data_ending_inside_an_array_header_is_refused(tmp_path, fmt):
     """Compressed appended data cut inside the last array's 4-byte header (raw: 2 bytes, base64: 3) is refused

@@ -23,7 +23,7 @@ from .._runtime.validate import validate_indices
 from ._files import read_input
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse",
-           "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
+           "fits", "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
            "read_vertex_ids"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
@@ -126,6 +126,15 @@ def parse(span, dtype):
             return None
     if integer and values.size and (values.min() == _INT64.min or values.max() == _INT64.max):
         return None  # NumPy clamps what overflows; such values are read, if valid, token by token
+    return values
+
+
+def fits(values, code, where):
+    """``values`` (numbers read as int64 or float64) if ``code`` (a NumPy type code) is real or every
+    value fits that integer type; else a MeshFormatError at ``where``."""
+    info = np.iinfo(code) if code[0] in "iu" else None
+    if info is not None and values.size and (values.min() < info.min or values.max() > info.max):
+        raise MeshFormatError(f"{where}: a value does not fit the declared type {np.dtype(code).name}")
     return values
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from .._runtime.errors import MeshFormatError
 from ._atomic import atomic_write
 from ._cells import VTK_CELLS, VolumeCells, checked_cells, code_of, vtk_blocks
-from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
+from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, fits, parse, show, text_data, write_int_rows, write_rows
 
 __all__ = ["parse_vtk", "write_vtk_tets", "write_vtk_cells"]
 
@@ -139,11 +139,7 @@ class _VtkCursor:
         if code[0] == "f":
             with np.errstate(over="ignore"):
                 return values.astype(code)
-        info = np.iinfo(code)
-        if values.size and (values.min() < info.min or values.max() > info.max):
-            raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
-                                  f"{np.dtype(code).name}")
-        return values
+        return fits(values, code, f"{self.path}, {section} section")
 
     def _located(self, count, dtype, section):
         """``(count values, where they end)`` from the tokens at ``pos``, or a refusal naming the culprit."""

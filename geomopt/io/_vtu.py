@@ -23,7 +23,7 @@ import numpy as np
 
 from .._runtime.errors import MeshFormatError
 from ._cells import VolumeCells, vtk_blocks
-from ._text import UTF8_BOM, Tokens
+from ._text import UTF8_BOM, Tokens, fits
 
 __all__ = ["parse_vtu"]
 
@@ -208,12 +208,7 @@ def _array(element, file, where, expected, real=False, components=1):
 def _ascii(text, code, where):
     tokens = Tokens(text.encode(), where)
     dtype = np.float64 if code[0] == "f" else np.int64
-    values = tokens.numbers(0, len(tokens), dtype, where=lambda t: where)
-    if code[0] != "f" and values.size:
-        info = np.iinfo(code)
-        if values.min() < info.min or values.max() > info.max:
-            raise MeshFormatError(f"{where}: a value does not fit the declared type {np.dtype(code).name}")
-    return values
+    return fits(tokens.numbers(0, len(tokens), dtype, where=lambda t: where), code, where)
 
 
 def _values(raw, code, file, where):
