@@ -430,6 +430,19 @@ def test_vtk_trailing_garbage_and_bad_numbers(tmp_path):
             read_vtk_tets(put(tmp_path / "m.vtk", data))
 
 
+@pytest.mark.parametrize("old, new, word", [
+    (b"POINTS 5 double", b"POINTS 5", "expected 'POINTS n type', found 'POINTS 5'"),
+    (b"CELLS 2 10", b"CELLS 2", "expected 'CELLS' after the points, found 'CELLS 2'"),
+    (b"CELL_TYPES", b"CELL_KINDS", "expected 'CELL_TYPES' after the cells"),
+    (b"CELL_TYPES 2\n10 ", b"CELL_TYPES 2\n4294967306 ", "CELL_TYPES section: a value does not fit the declared type int32"),
+])
+def test_vtk_section_lines_not_as_declared_are_refused(tmp_path, old, new, word):
+    data = vtk_bytes(TET_P, TET_T)
+    assert old in data
+    with pytest.raises(MeshFormatError, match=word):
+        read_vtk_tets(put(tmp_path / "m.vtk", data.replace(old, new)))
+
+
 def test_readers_restore_the_garbage_collector(tmp_path):
     """The parsers pause the cyclic GC (speed); it must come back on, also after a refusal."""
     import gc

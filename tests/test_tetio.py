@@ -255,6 +255,7 @@ def test_invalid_arrays_and_contents_are_mesh_errors(tmp_path):
 # ------------------------------------------------------------------ issue 19: read exactly or refuse
 
 import base64  # noqa: E402
+import re  # noqa: E402
 import zlib  # noqa: E402
 
 _VTU_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "u1": "UInt8", "i1": "Int8",
@@ -381,6 +382,27 @@ def test_vtu_truncated_binary_data_is_refused(tmp_path):
     at = good.index(b"</AppendedData>")
     (tmp_path / "t.vtu").write_bytes(good[:at - 20] + good[at:])
     with pytest.raises(geomopt.MeshFormatError, match="ends inside|truncated"):
+        io.read_tets(tmp_path / "t.vtu")
+
+
+def test_vtu_ascii_integers_beyond_their_declared_type_are_refused(tmp_path):
+    good = _cube_vtu()
+    assert b'"UInt8" Name="types" NumberOfComponents="1" format="ascii">10 ' in good
+    (tmp_path / "t.vtu").write_bytes(good.replace(b'format="ascii">10 ', b'format="ascii">266 ', 1))
+    with pytest.raises(geomopt.MeshFormatError, match="types: a value does not fit the declared type uint8"):
+        io.read_tets(tmp_path / "t.vtu")
+
+
+@pytest.mark.parametrize("fmt", ["raw", "base64"])
+def test_vtu_data_ending_inside_an_array_header_is_refused(tmp_path, fmt):
+    """Compressed appended data cut inside the last array's 4-byte header (raw: 2 bytes, base64: 3) is refused
+    as truncated."""
+    good = _cube_vtu(fmt=fmt, compressor="zlib")
+    start = good.index(b'">\n_') + 4
+    last = int(re.findall(rb'offset="([0-9]+)"', good)[-1])
+    cut = good[:start + last + (2 if fmt == "raw" else 4)]
+    (tmp_path / "t.vtu").write_bytes(cut + b"\n</AppendedData>\n</VTKFile>\n")
+    with pytest.raises(geomopt.MeshFormatError, match="types: the (appended|binary) data ends inside this array's"):
         io.read_tets(tmp_path / "t.vtu")
 
 

@@ -137,8 +137,7 @@ def _output_problem(path, what, extensions=None):
         return f"cannot write {what} {path}: the folder {path.parent} is not a directory"
     except OSError as exc:
         if exc.errno == errno.ENAMETOOLONG:
-            return (f"{what} {path} has a name too long for the file system "
-                    f"({len(os.fsencode(path.name))} bytes); choose a shorter name")
+            return _too_long(what, path)
         return f"cannot access {what} {path} ({one_line(exc)}); check the path"
     if mode is not None and stat.S_ISDIR(mode):
         return f"{what} {path} is a directory; give a file name (e.g. {path / example})"
@@ -160,8 +159,7 @@ def _output_problem(path, what, extensions=None):
         pass
     except OSError as exc:
         if exc.errno == errno.ENAMETOOLONG:
-            return (f"{what} {path} has a name too long for the file system "
-                    f"({len(os.fsencode(path.name))} bytes with its temporary file); choose a shorter name")
+            return _too_long(what, path, " with its temporary file")
         return f"cannot write {what} {path} ({one_line(exc)})"
     if not _can_create_in(folder):
         rdonly = getattr(os, "ST_RDONLY", 0)
@@ -170,6 +168,11 @@ def _output_problem(path, what, extensions=None):
                 return f"cannot write {what} {path}: the folder {folder} is on a read-only file system"
         return f"cannot write {what} {path}: no permission to create files in {folder}; check its permissions"
     return None
+
+
+def _too_long(what, path, beside=""):
+    return (f"{what} {path} has a name too long for the file system ({len(os.fsencode(path.name))} bytes{beside}); "
+            f"choose a shorter name")
 
 
 def _can_create_in(folder):
@@ -508,8 +511,7 @@ def _check_new_name(path, extensions, what):
     except (OSError, ValueError):  # no such limit here
         return
     if max(len(os.fsencode(path.name)), len(os.fsencode(_temp_path(path).name))) > limit:
-        raise GeomoptError(f"{what} {path} has a name too long for the file system "
-                           f"({len(os.fsencode(path.name))} bytes); choose a shorter name")
+        raise GeomoptError(_too_long(what, path))
 
 
 def _input_files(inputs):

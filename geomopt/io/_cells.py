@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._runtime.errors import MeshFormatError, ParameterError
+from .._runtime.validate import validate_simplices, validate_vertices
 
-__all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VolumeCells", "vtk_blocks", "select_kind",
-           "first_kind", "code_of", "check_kinds"]
+__all__ = ["KINDS", "WORDS", "VTK_CELLS", "GMSH_CELLS", "MEDIT_SECTIONS", "VTK_NODES", "GMSH_NODES", "VolumeCells",
+           "vtk_blocks", "select_kind", "first_kind", "code_of", "check_kinds", "nodes_of", "checked_cells"]
 
 #: The cells the readers return: name -> (nodes per cell, dimension).
 KINDS = {"tetra": (4, 3), "hexahedron": (8, 3), "quad": (4, 2)}
@@ -71,9 +72,30 @@ MEDIT_SECTIONS = {
 }
 
 
-#: Points per cell of each VTK type code: the fixed count, -1 where the cell says, -2 for no such type.
-_FIXED = np.full(max(VTK_CELLS) + 1, -2)
-_FIXED[list(VTK_CELLS)] = [-1 if nodes is None else nodes for _, _, nodes in VTK_CELLS.values()]
+def _nodes(table):
+    nodes = np.full(max(table) + 1, -2)
+    nodes[list(table)] = [-1 if k is None else k for _, _, k in table.values()]
+    return nodes
+
+
+#: Points per cell of each VTK / Gmsh type code (:func:`nodes_of`): -1 where the cell says, -2 for no such type.
+VTK_NODES, GMSH_NODES = _nodes(VTK_CELLS), _nodes(GMSH_CELLS)
+
+
+def nodes_of(nodes, codes):
+    """Points per cell of each type code in ``codes`` (int array) by a table ``nodes``
+    (:data:`VTK_NODES`, :data:`GMSH_NODES`): -1 where the cell says, -2 for a code not in the table."""
+    known = (codes >= 0) & (codes < len(nodes))
+    return np.where(known, nodes[np.where(known, codes, 0)], -2)
+
+
+def checked_cells(P, C, kind):
+    """Validated ``(P (n, 3) float64, C (m, k) int64)`` of a mesh of ``kind`` for a writer (2D points
+    get ``z = 0``); a MeshError names ``P`` and ``T`` (tets) or the kind's plural."""
+    size, dim = KINDS[kind]
+    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
+    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
+    return P, validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
 
 
 class VolumeCells:
@@ -162,7 +184,7 @@ def vtk_blocks(types, offsets, conn, n, where):
     in order of first appearance; refuses an unknown type, offsets that do not rise or do not use
     the whole connectivity, a cell whose size is not its type's, an index outside ``0..n-1`` (unless
     ``n`` is None: then an index out of range is left to the validators, a MeshError)."""
-    nodes = int(_FIXED[types[0]]) if 0 <= types[0] < len(_FIXED) else -2
+    nodes = int(nodes_of(VTK_NODES, types[:1])[0])
     uniform = (nodes > 0 and len(conn) == nodes * len(types) and (types == types[0]).all()
                and (offsets == np.arange(nodes, len(conn) + 1, nodes)).all())  # one type of fixed size, in order
     sizes = None if uniform else _checked_sizes(types, offsets, conn, where)
@@ -184,9 +206,8 @@ def vtk_blocks(types, offsets, conn, n, where):
 def _checked_sizes(types, offsets, conn, where):
     """The points of each cell, refusing an unknown type, offsets that do not rise or do not use the
     whole connectivity, and a cell whose size is not its type's."""
-    known = (types >= 0) & (types < len(_FIXED))
-    fixed = _FIXED[np.where(known, types, 0)]  # points per cell of the type, -1: the cell says, -2: no type
-    unknown = np.flatnonzero(~known | (fixed == -2))
+    fixed = nodes_of(VTK_NODES, types)  # points per cell of the type, -1: the cell says, -2: no type
+    unknown = np.flatnonzero(fixed == -2)
     if unknown.size:
         raise MeshFormatError(f"{where}: cell {unknown[0]} has unknown VTK cell type {types[unknown[0]]}")
     sizes = np.diff(np.r_[0, offsets])

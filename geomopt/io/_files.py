@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .._runtime.errors import MeshFormatError
 
-__all__ = ["file_kind", "existing_file", "check_not_empty", "read_bytes", "one_line"]
+__all__ = ["file_kind", "existing_file", "read_input", "one_line"]
 
 
 def file_kind(mode):
@@ -41,19 +41,16 @@ def existing_file(path, what):
     return path
 
 
-def check_not_empty(path, what):
-    if path.stat().st_size == 0:
+def read_input(path, what, empty_ok=False):
+    """``(Path, bytes)`` of the input file ``path`` (:func:`existing_file`), not empty unless ``empty_ok``;
+    an empty or unreadable one gives a MeshFormatError naming ``what``."""
+    path = existing_file(path, what)
+    if not empty_ok and path.stat().st_size == 0:
         raise MeshFormatError(f"{what} {path} is empty (0 bytes); re-export or re-download it")
-
-
-def read_bytes(path, what):
-    """The bytes of an existing file; an unreadable one gives a MeshFormatError."""
     try:
-        return path.read_bytes()
+        return path, path.read_bytes()
     except OSError as exc:
-        raise MeshFormatError(
-            f"cannot read {what} {path} ({one_line(exc)}); check its permissions"
-        ) from exc
+        raise MeshFormatError(f"cannot read {what} {path} ({one_line(exc)}); check its permissions") from exc
 
 
 def one_line(exc):

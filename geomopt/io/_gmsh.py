@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._runtime.errors import MeshFormatError
-from ._cells import GMSH_CELLS, KINDS, VolumeCells
+from ._cells import GMSH_CELLS, GMSH_NODES, KINDS, VolumeCells, nodes_of
 from ._text import UTF8_BOM, ascii_rows
 
 __all__ = ["parse_gmsh"]
@@ -77,10 +77,7 @@ def _sections(rows):
 
 def _nodes_per_element(types, rows, first):
     """Nodes of each Gmsh element type in ``types`` (row ``first + i`` for messages; refuses unknown types)."""
-    table = np.full(max(GMSH_CELLS) + 1, -1)
-    table[list(GMSH_CELLS)] = [nodes for _, _, nodes in GMSH_CELLS.values()]
-    known = (types >= 0) & (types < len(table))
-    nodes = np.where(known, table[np.where(known, types, 0)], -1)
+    nodes = nodes_of(GMSH_NODES, types)
     if (nodes < 0).any():
         i = int(np.flatnonzero(nodes < 0)[0])
         raise MeshFormatError(f"{rows.path}, line {rows.lineno[first + i]}: unsupported Gmsh element type "

@@ -1,13 +1,9 @@
 """OBJ meshes: ``v`` / ``vt`` / ``f`` statements read exactly as the file says, and written.
 
-``v x y z`` lines (an optional ``w`` or ``r g b`` after the position is checked as numbers and
-ignored), ``f`` lines with corners ``a``, ``a/t``, ``a/t/n`` or ``a//n`` (1-based; negative
-indices count back from the last ``v`` line before the face, as the format defines); attribute
-and grouping statements (``vn``, ``g``, ``usemtl``, ``l``, ...) are ignored; free-form geometry
-and unknown statements are refused; ``#`` starts a comment; a line ending in ``\\`` continues on
-the next.  Lines are classified and their numbers parsed by NumPy over whole sections
-(:mod:`geomopt.io._text`); face corners of one regular form (all ``a``, all ``a/t``, all
-``a/t/n`` or ``a//n``) are parsed at once, any other mix corner by corner.
+The statements read, ignored and refused are listed in :func:`geomopt.io.read_mesh`.  Lines are
+classified and their numbers parsed by NumPy over whole sections (:mod:`geomopt.io._text`); face
+corners of one regular form (all ``a``, all ``a/t``, all ``a/t/n`` or ``a//n``) are parsed at once,
+any other mix corner by corner.
 """
 
 from __future__ import annotations
@@ -20,7 +16,7 @@ from .._runtime.errors import MeshError, MeshFormatError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
 from ._faces import fan, mesh_with_uv
-from ._files import check_not_empty, existing_file, read_bytes
+from ._files import existing_file, read_input
 from ._text import Tokens, gc_paused, ints, parse, ranges, show, text_data, uncomment, write_int_rows, write_rows
 
 __all__ = ["read_obj", "parse_obj", "read_obj_quads", "read_obj_uv", "read_obj_with_uv", "write_obj",
@@ -219,9 +215,8 @@ def _each_corner(corners, line_of, path):
 
 def _read(path, with_uv=False):
     """:func:`parse_obj` of the OBJ file at ``path`` (checked to exist, not empty)."""
-    path = existing_file(path, "OBJ file")
-    check_not_empty(path, "OBJ file")
-    return path, parse_obj(read_bytes(path, "OBJ file"), path, with_uv=with_uv)
+    path, data = read_input(path, "OBJ file")
+    return path, parse_obj(data, path, with_uv=with_uv)
 
 
 def read_obj_quads(path):

@@ -1,10 +1,5 @@
-"""OFF surface meshes (``OFF``, ``COFF``, ``NOFF``, ``STOFF`` ...), ASCII, read exactly as the header says.
-
-The header's vertex and face counts must match the body exactly (one vertex or face per line,
-``#`` starts a comment); a face line ``k i1 .. ik`` may end with up to 4 colour numbers.
-Polygons are fan-triangulated.  Numbers are parsed by NumPy over whole sections
-(:mod:`geomopt.io._text`).
-"""
+"""OFF surface meshes, ASCII, read exactly as the header says (the rules: :func:`geomopt.io.read_mesh`);
+numbers parsed by NumPy over whole sections (:mod:`geomopt.io._text`)."""
 
 from __future__ import annotations
 

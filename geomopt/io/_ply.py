@@ -1,14 +1,10 @@
-"""PLY surface meshes (ASCII, binary little- and big-endian), read exactly as the header declares.
+"""PLY surface meshes (ASCII, binary little- and big-endian), read exactly as the header declares
+(the rules: :func:`geomopt.io.read_mesh`).
 
-The header is validated (format, element counts, property types); the body must hold exactly
-the declared elements (ASCII: one element per line; binary: the exact byte count).  Vertices
-come from ``x y z`` of element ``vertex`` (``float`` properties are float32, as declared),
-faces from the list ``vertex_indices`` (or ``vertex_index``) of element ``face``,
-fan-triangulated; other elements and properties are read past.  Binary bodies are decoded by
-``np.frombuffer`` with one structured dtype per element (a Python walk only for lists of
-varying length); ASCII bodies by NumPy's number parser, one call per element (an element whose
-properties are all integers is parsed as integers, strictly; one mixing integer and real
-properties is parsed as reals and its integer values must be whole).
+Binary bodies are decoded by ``np.frombuffer`` with one structured dtype per element (a Python walk
+only for lists of varying length); ASCII bodies by NumPy's number parser, one call per element (an
+element whose properties are all integers is parsed as integers, strictly; one mixing integer and
+real properties is parsed as reals and its integer values must be whole).
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
-"""STL surface meshes, ASCII or binary; corners with equal coordinates welded into vertices.
-
-STL stores every triangle with its own three corners, so corners with equal coordinates
-(-0.0 = 0.0) are welded into one vertex, numbered in order of first appearance: without
-welding no STL mesh is connected.  Binary STL stores float32 (read by ``np.frombuffer``).  An
-ASCII file must hold exactly one ``solid`` of ``facet normal`` / ``outer loop`` / 3 ``vertex``
-/ ``endloop`` / ``endfacet`` blocks (keywords in any case).
+"""STL surface meshes, ASCII or binary, corners with equal coordinates welded into vertices (the
+rules: :func:`geomopt.io.read_mesh`).  Binary STL is read by ``np.frombuffer``; an ASCII file must
+hold exactly one ``solid`` of ``facet normal`` / ``outer loop`` / 3 ``vertex`` / ``endloop`` /
+``endfacet`` blocks (keywords in any case).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ from __future__ import annotations
 from .._runtime.errors import GeomoptError, MeshFormatError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import check_output_path
-from ._files import check_not_empty, existing_file, read_bytes
+from ._files import existing_file, read_input
 from ._obj import read_obj, write_obj_with_uv
 from ._off import read_off
 from ._ply import read_ply, write_ply_with_uv
@@ -87,8 +87,8 @@ def read_mesh(path):
             f"mesh file {path} has unsupported extension {path.suffix!r}; supported: "
             f"{', '.join(MESH_EXTENSIONS)} (convert it, e.g. with meshio or MeshLab)"
         )
-    check_not_empty(path, "mesh file")
-    V, F = reader(read_bytes(path, "mesh file"), path)
+    path, data = read_input(path, "mesh file")
+    V, F = reader(data, path)
     V = validate_vertices(V, f"{path.name}: vertices", dim=3)
     return V, validate_simplices(F, V.shape[0], 3, f"{path.name}: faces")
 

@@ -20,10 +20,10 @@ import numpy as np
 
 from .._runtime.errors import MeshFormatError
 from .._runtime.validate import validate_indices
-from ._files import existing_file, read_bytes
+from ._files import read_input
 
 __all__ = ["UTF8_BOM", "FLOAT_RE", "INT_RE", "show", "uncomment", "line_of", "text_data", "number_problem", "parse",
-           "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
+           "fits", "ints", "gc_paused", "ranges", "Tokens", "Rows", "ascii_rows", "write_rows", "write_int_rows",
            "read_vertex_ids"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
@@ -126,6 +126,15 @@ def parse(span, dtype):
             return None
     if integer and values.size and (values.min() == _INT64.min or values.max() == _INT64.max):
         return None  # NumPy clamps what overflows; such values are read, if valid, token by token
+    return values
+
+
+def fits(values, code, where):
+    """``values`` (numbers read as int64 or float64) if ``code`` (a NumPy type code) is real or every
+    value fits that integer type; else a MeshFormatError at ``where``."""
+    info = np.iinfo(code) if code[0] in "iu" else None
+    if info is not None and values.size and (values.min() < info.min or values.max() > info.max):
+        raise MeshFormatError(f"{where}: a value does not fit the declared type {np.dtype(code).name}")
     return values
 
 
@@ -354,8 +363,8 @@ def read_vertex_ids(path, n_vertices, what="handles"):
     MeshError
         Ids out of range or repeated (:func:`~geomopt._runtime.validate.validate_indices`).
     """
-    path = existing_file(path, f"{what} file")
-    tokens = Tokens(text_data(read_bytes(path, f"{what} file"), path, f"{what} file"), path)
+    path, data = read_input(path, f"{what} file", empty_ok=True)
+    tokens = Tokens(text_data(data, path, f"{what} file"), path)
     try:
         ids = tokens.numbers(0, len(tokens), np.int64)
     except MeshFormatError as exc:

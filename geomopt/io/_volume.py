@@ -41,8 +41,8 @@ import numpy as np
 from .._runtime.errors import GeomoptError, MeshFormatError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_path, check_output_path
-from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
-from ._files import check_not_empty, existing_file, read_bytes
+from ._cells import KINDS, WORDS, check_kinds, checked_cells, first_kind, select_kind
+from ._files import read_input
 from ._gmsh import parse_gmsh
 from ._medit import parse_medit
 from ._obj import read_obj_quads, write_obj_quads
@@ -189,9 +189,7 @@ def _read(path, kinds, format=None):
     if ext == ".obj" and "quad" in kinds:
         return read_obj_quads(path) + ("quad",)
     ext = _extension(path.with_suffix(ext), "read")
-    path = existing_file(path, "tet mesh" if kinds == ("tetra",) else "mesh")
-    check_not_empty(path, "tet mesh" if kinds == ("tetra",) else "mesh")
-    data = read_bytes(path, "tet mesh" if kinds == ("tetra",) else "mesh")
+    path, data = read_input(path, "tet mesh" if kinds == ("tetra",) else "mesh")
     dims = (2, 3) if "quad" in kinds else (3,)
     found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
     kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]
@@ -264,12 +262,9 @@ def write_cells(path, P, C, kind, format=None):
     if ext == ".obj" and kind == "quad":
         return write_obj_quads(path, P, C)
     ext = _extension(path.with_suffix(ext), "write")
-    size, dim = KINDS[kind]
-    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
-    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
-    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
     if ext == ".vtk":
         return write_vtk_cells(path, P, C, kind)
+    P, C = checked_cells(P, C, kind)
     what = "tet mesh" if kind == "tetra" else f"{WORDS[kind][0]} mesh"
     check_output_path(path, what=what)
     import meshio

@@ -16,10 +16,9 @@ import re
 import numpy as np
 
 from .._runtime.errors import MeshFormatError
-from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import atomic_write
-from ._cells import KINDS, VTK_CELLS, WORDS, VolumeCells, code_of, vtk_blocks
-from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, parse, show, text_data, write_int_rows, write_rows
+from ._cells import VTK_CELLS, VolumeCells, checked_cells, code_of, vtk_blocks
+from ._text import FLOAT_RE, INT_RE, UTF8_BOM, Tokens, fits, parse, show, text_data, write_int_rows, write_rows
 
 __all__ = ["parse_vtk", "write_vtk_tets", "write_vtk_cells"]
 
@@ -67,11 +66,8 @@ def write_vtk_cells(path, P, C, kind):
     -------
     pathlib.Path
     """
-    size, dim = KINDS[kind]
-    P = validate_vertices(P, "P", dim=3 if dim == 3 else None)
-    P = np.column_stack([P, np.zeros(len(P))]) if P.shape[1] == 2 else P
-    C = validate_simplices(C, P.shape[0], size, "T" if kind == "tetra" else WORDS[kind][1], words=WORDS[kind])
-    m, code = C.shape[0], code_of(VTK_CELLS, kind)
+    P, C = checked_cells(P, C, kind)
+    (m, size), code = C.shape, code_of(VTK_CELLS, kind)
 
     def write(fh):
         fh.write("# vtk DataFile Version 2.0\nwritten by geomopt\nASCII\nDATASET UNSTRUCTURED_GRID\n")
@@ -93,6 +89,8 @@ _VTK_TYPES = {b"UNSIGNED_CHAR": "u1", b"CHAR": "i1", b"UNSIGNED_SHORT": "u2", b"
               b"VTKTYPEINT16": "i2", b"VTKTYPEUINT16": "u2", b"VTKTYPEINT32": "i4", b"VTKTYPEUINT32": "u4",
               b"VTKTYPEINT64": "i8", b"VTKTYPEUINT64": "u8", b"VTKTYPEFLOAT32": "f4", b"VTKTYPEFLOAT64": "f8"}
 _VTK_ATTRIBUTES = (b"POINT_DATA", b"CELL_DATA")
+#: The start of a line whose first token begins with a letter: a keyword (or a value such as nan).
+_NEXT_KEYWORD = re.compile(rb"\n[ \t]*[A-Za-z]")
 
 
 class _VtkCursor:
@@ -103,7 +101,7 @@ class _VtkCursor:
         """``data`` from byte ``binary_start`` in a binary file; ``None``: all of ``data``, ASCII text
         from the file's line 4."""
         self.data, self.pos, self.binary, self.path = data, binary_start or 0, binary_start is not None, path
-        self.tokens = None if self.binary else Tokens(data, path, line=4)
+        self.tokens = None  # ASCII: built when a section does not parse whole, to name the culprit
 
     def line(self):
         """Tokens of the next non-blank line (``[]`` at the end of the file)."""
@@ -131,7 +129,23 @@ class _VtkCursor:
             out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)  # native byte order
             self.pos += size
             return out
-        tokens, dtype = self.tokens, np.float64 if code[0] == "f" else np.int64
+        dtype = np.float64 if code[0] == "f" else np.int64
+        found = _NEXT_KEYWORD.search(self.data, self.pos)  # the section's values end where a line starts a word
+        end = found.start() + 1 if found else len(self.data)
+        values = parse(self.data[self.pos:end], dtype)
+        if values is None or len(values) != count:  # not exactly the declared values: find out why, token by token
+            values, end = self._located(count, dtype, section)
+        self.pos = end
+        if code[0] == "f":
+            with np.errstate(over="ignore"):
+                return values.astype(code)
+        return fits(values, code, f"{self.path}, {section} section")
+
+    def _located(self, count, dtype, section):
+        """``(count values, where they end)`` from the tokens at ``pos``, or a refusal naming the culprit."""
+        if self.tokens is None:
+            self.tokens = Tokens(self.data, self.path, line=4)
+        tokens = self.tokens
         t = int(np.searchsorted(tokens.start, self.pos))
         if len(tokens) - t < count:
             raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but the file "
@@ -143,15 +157,7 @@ class _VtkCursor:
                 raise MeshFormatError(f"{self.path}: the {section} section declares {count} values but "
                                       f"{show(tokens.text(bad))} follows after {bad - t}; fix the count")
             tokens.refuse(bad, dtype, where=lambda i: f"{self.path}, {section} section, value {i - t + 1}")
-        self.pos = int(tokens.end[t + count - 1]) if count else self.pos
-        if code[0] == "f":
-            with np.errstate(over="ignore"):
-                return values.astype(code)
-        info = np.iinfo(code)
-        if values.size and (values.min() < info.min or values.max() > info.max):
-            raise MeshFormatError(f"{self.path}: a value of the {section} section does not fit its type "
-                                  f"{np.dtype(code).name}")
-        return values
+        return values, int(tokens.end[t + count - 1]) if count else self.pos
 
     def expect_keyword(self, after):
         """The next line must start a section (not more values of the previous one)."""
@@ -207,6 +213,17 @@ def _vtk_skip_optional(cursor):
             return
 
 
+def _vtk_section(cursor, keyword, expected, width=None):
+    """The tokens of the next section's line (after METADATA / FIELD blocks), which must start with
+    ``keyword`` (and hold ``width`` tokens); else a refusal saying ``expected`` and what was found."""
+    _vtk_skip_optional(cursor)
+    tokens = cursor.line()
+    if _vtk_keyword(tokens) != keyword or (width is not None and len(tokens) != width):
+        raise MeshFormatError(f"{cursor.path}: expected {expected}, found "
+                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    return tokens
+
+
 def parse_vtk(data, path):
     """The points and cells of a legacy VTK unstructured grid (bytes ``data``).
 
@@ -230,30 +247,18 @@ def parse_vtk(data, path):
         found = show(b" ".join(tokens)) if tokens else "nothing"
         raise MeshFormatError(f"{path}: expected 'DATASET UNSTRUCTURED_GRID', found {found}; only unstructured "
                               f"grids (tetrahedral meshes) are supported")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"POINTS" or len(tokens) != 3:
-        raise MeshFormatError(f"{path}: expected 'POINTS n type', found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"POINTS", "'POINTS n type'", 3)
     n = _vtk_count(tokens, 1, cursor, "POINTS")
     points = cursor.values(3 * n, _vtk_type(tokens[2], cursor, "POINTS"), "POINTS").astype(np.float64, copy=False)
     cursor.expect_keyword("POINTS")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"CELLS" or len(tokens) != 3:
-        raise MeshFormatError(f"{path}: expected 'CELLS' after the points, found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"CELLS", "'CELLS' after the points", 3)
     a, b = _vtk_count(tokens, 1, cursor, "CELLS"), _vtk_count(tokens, 2, cursor, "CELLS")
     version5 = _vtk_keyword(cursor.peek()) == b"OFFSETS"
     offsets, conn = _vtk_cells(cursor, a, b, path)
     a += 0 if version5 else 1  # as many offsets as cells + 1, like version 5
     cells = a - 1
     cursor.expect_keyword("CELLS")
-    _vtk_skip_optional(cursor)
-    tokens = cursor.line()
-    if _vtk_keyword(tokens) != b"CELL_TYPES":
-        raise MeshFormatError(f"{path}: expected 'CELL_TYPES' after the cells, found "
-                              f"{show(b' '.join(tokens)) if tokens else 'the end of the file'}")
+    tokens = _vtk_section(cursor, b"CELL_TYPES", "'CELL_TYPES' after the cells")
     m = _vtk_count(tokens, 1, cursor, "CELL_TYPES")
     if m != cells:
         raise MeshFormatError(f"{path}: CELLS declares {cells} cells but CELL_TYPES declares {m}; fix the counts")

@@ -23,7 +23,7 @@ import numpy as np
 
 from .._runtime.errors import MeshFormatError
 from ._cells import VolumeCells, vtk_blocks
-from ._text import UTF8_BOM, Tokens
+from ._text import UTF8_BOM, Tokens, fits
 
 __all__ = ["parse_vtu"]
 
@@ -208,12 +208,7 @@ def _array(element, file, where, expected, real=False, components=1):
 def _ascii(text, code, where):
     tokens = Tokens(text.encode(), where)
     dtype = np.float64 if code[0] == "f" else np.int64
-    values = tokens.numbers(0, len(tokens), dtype, where=lambda t: where)
-    if code[0] != "f" and values.size:
-        info = np.iinfo(code)
-        if values.min() < info.min or values.max() > info.max:
-            raise MeshFormatError(f"{where}: a value does not fit the declared type {np.dtype(code).name}")
-    return values
+    return fits(tokens.numbers(0, len(tokens), dtype, where=lambda t: where), code, where)
 
 
 def _values(raw, code, file, where):
@@ -239,12 +234,8 @@ def _appended(element, file, where):
 def _raw(data, at, file, where):
     """One array's bytes from raw appended ``data`` at byte ``at`` (header, then the data)."""
     h = file.header.itemsize
-    first = data[at:at + h]
-    if len(first) < h:
-        raise MeshFormatError(f"{where}: the appended data ends inside this array's header; the file is truncated")
-    items = 1 if file.decompress is None else 3 + int(np.frombuffer(first, file.header)[0])
-    header = np.frombuffer(_take(data, at, items * h, where), file.header).astype(np.int64)
-    size = int(header[0]) if file.decompress is None else int(header[3:].sum())
+    items = _header_items(data[at:at + h], file, "appended", where)
+    header, size = _header(_take(data, at, items * h, where), file)
     return _inflate(header, _take(data, at + items * h, size, where), file, where)
 
 
@@ -255,16 +246,11 @@ def _base64(text, at, file, where):
     header chunk ending in ``=`` padding means the former.
     """
     h = file.header.itemsize
-    first = _decode(text[at:at + _chars(h)], where)[:h]
-    if len(first) < h:
-        raise MeshFormatError(f"{where}: the binary data ends inside this array's header; the file is truncated")
-    items = 1 if file.decompress is None else 3 + int(np.frombuffer(first, file.header)[0])
-    hb = items * h
+    hb = _header_items(_decode(text[at:at + _chars(h)], where)[:h], file, "binary", where) * h
     if at + _chars(hb) > len(text):
         raise MeshFormatError(f"{where}: the binary data ends inside this array's header; the file is truncated")
     chunk = text[at:at + _chars(hb)]
-    header = np.frombuffer(_decode(chunk, where)[:hb], file.header).astype(np.int64)
-    size = int(header[0]) if file.decompress is None else int(header[3:].sum())
+    header, size = _header(_decode(chunk, where)[:hb], file)
     if b"=" in chunk:  # header and data encoded separately
         start, end = at + _chars(hb), at + _chars(hb) + _chars(size)
         raw = _decode(text[start:end], where)
@@ -275,6 +261,20 @@ def _base64(text, at, file, where):
         raise MeshFormatError(f"{where}: the binary data ends before the {size} bytes its header declares; the "
                               f"file is truncated")
     return _inflate(header, raw[:size], file, where), end
+
+
+def _header_items(first, file, what, where):
+    """How many integers an array's header holds (1, or 3 + its blocks when compressed), from its first
+    ``file.header`` bytes ``first``; refuses a header cut short (``what``: the data, for the message)."""
+    if len(first) < file.header.itemsize:
+        raise MeshFormatError(f"{where}: the {what} data ends inside this array's header; the file is truncated")
+    return 1 if file.decompress is None else 3 + int(np.frombuffer(first, file.header)[0])
+
+
+def _header(raw, file):
+    """``(header (int64), data bytes it declares)`` of an array's header bytes ``raw``."""
+    header = np.frombuffer(raw, file.header).astype(np.int64)
+    return header, int(header[0]) if file.decompress is None else int(header[3:].sum())
 
 
 def _chars(nbytes):
