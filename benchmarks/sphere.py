@@ -87,13 +87,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--delta", type=float, default=1e-3)
-    ap.add_argument("--meshes", default="bunny,cheburashka,cow,blob")
+    ap.add_argument("--meshes", default="bunny,cheburashka,cow,blob",
+                    help="comma-separated names in shared/data/closed, 'blob', or paths of other closed meshes")
     args = ap.parse_args()
     print("| mesh | faces | method | mean sym. Dirichlet | area ratio min | max | mean | inverted | seconds | "
           "certificate |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.meshes.split(","):
-        V, F = blob() if name == "blob" else read_mesh(f"{DATA}/{name}.off")
+        V, F = blob() if name == "blob" else read_mesh(name if "/" in name else f"{DATA}/{name}.off")
+        name = name.rsplit("/", 1)[-1]
         t = time.perf_counter()
         x = cmcf_sphere(V, F, args.steps, args.delta)
         row(name, f"cMCF ({args.steps} x {args.delta:g}) + projection", time.perf_counter() - t, V, F, x,
