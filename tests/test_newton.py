@@ -102,3 +102,24 @@ def test_bunny_cut_from_shared_data_flip_free():
     assert not res.success and res.injectivity == "none" and "boundary vertex" in res.message
     assert "--bijective" in res.message
     assert len(cert.boundary_overlaps) == 4 and len(cert.branch_vertices) == 0
+
+
+def test_newton_shares_the_meshs_symbolic_analysis():
+    """Newton factors with the mesh's one Cholesky (one symbolic analysis and one factor in
+    memory per mesh and backend, "auto" resolved), and a derivative that factored the same
+    Cholesky before a later solve refactored it still gets its own matrix back."""
+    from geomopt.objective.linsolve import available_backends
+
+    V, F = grid(6, jitter=0.2, seed=1)
+    b = np.flatnonzero((V[:, 0] == 0) | (V[:, 0] == 1) | (V[:, 1] == 0) | (V[:, 1] == 1))
+    obj = Objective(Problem.planar(V, F, fixed=b, fixed_positions=V[b]), "symmetric_dirichlet")
+    backend = available_backends()[0]
+    assert obj.cholesky("auto") is obj.cholesky(backend)
+    x0 = V + 0.02 * np.sin(6 * V[:, ::-1]) * np.isin(np.arange(len(V)), b, invert=True)[:, None]
+    for name in ("auto", backend):
+        state = Newton(linear_solver=name).init(obj, x0, obj.params())
+        assert state.memory.factor is obj.cholesky(backend)
+    first = minimize(obj, x0, Newton(linear_solver=backend), progress=False)
+    again = minimize(obj, x0, Newton(linear_solver="auto"), progress=False)
+    assert first.outcome is again.outcome is Outcome.CONVERGED
+    np.testing.assert_allclose(again.x, first.x, atol=1e-12)

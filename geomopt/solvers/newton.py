@@ -21,7 +21,7 @@ from .._runtime.config import OneOf, Real
 from .._runtime.errors import ParameterError
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
-from ..objective.linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
+from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
@@ -122,9 +122,10 @@ class AbstractNewton(AbstractSolver):
             for projection in self.projection.kernels():
                 self.cg.compile(state.memory.cg_op, objective, state.x, params, projection)
         else:
-            pat = objective.pattern
-            chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
-            chol.analyze()
+            # the mesh's shared Cholesky: one symbolic analysis (and one factor's memory) per
+            # mesh and backend, whichever solves or derivatives use it; each step refactors
+            # before it solves (SparseCholesky.generation)
+            chol = objective.cholesky(self.linear_solver)
             state = self._start(objective, x0, params, NewtonMemory(factor=chol))
             # compile (or load) every kernel the loop uses now, so that setup time holds the
             # compilation; ahead of time: no warm-up evaluation is run
@@ -141,14 +142,15 @@ class AbstractNewton(AbstractSolver):
             return self._cg_direction(state, projection, shifts)
         obj, pat, chol = state.objective, state.objective.pattern, state.memory.factor
         value, grad, data = obj.hessian(state.x, state.params, projection)
-        data = np.array(data)
+        data = np.asarray(data)  # on the CPU a view of the kernel's output: one host copy below
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
         scale = max(float(np.mean(np.abs(data[pat.diag]))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
         for shift in shifts:
             try:
-                d_ = data.copy()
+                d_ = np.array(data)  # the shifted values (data stays unshifted for the next shift)
                 d_[pat.diag] += shift * scale
                 chol.factor(d_)
+                del d_  # the factor holds its own copy
             except NotPositiveDefinite:
                 continue
             d_free = -chol.solve(g)
