@@ -152,16 +152,16 @@ class AbstractNewton(AbstractSolver):
             return self._cg_direction(state, projection, shifts) + (state.memory.costs,)
         obj, pat, mem = state.objective, state.objective.pattern, state.memory
         value, grad, data = obj.hessian(state.x, state.params, projection)
-        data = np.asarray(data)  # on the CPU a view of the kernel's output: one host copy below
+        data = np.array(data)  # the one host copy (the kernel's output is freed), shifted in place
+        diag = data[pat.diag]  # unshifted
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
-        scale = max(float(np.mean(np.abs(data[pat.diag]))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
+        scale = max(float(np.mean(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
         costs = mem.costs
         for i, shift in enumerate(shifts):
-            d_ = np.array(data)  # the shifted values (data stays unshifted for the next shift)
-            d_[pat.diag] += shift * scale
-            d_free, costs = self._lagged_direction(mem, pat, d_, g) if i == 0 else (None, costs)
+            data[pat.diag] = diag + shift * scale
+            d_free, costs = self._lagged_direction(mem, pat, data, g) if i == 0 else (None, costs)
             if d_free is None:
-                d_free, costs = self._factored_direction(mem, d_, g, costs)
+                d_free, costs = self._factored_direction(mem, data, g, costs)
             if d_free is None:
                 continue
             dx = np.zeros(state.x.size)
@@ -172,7 +172,7 @@ class AbstractNewton(AbstractSolver):
 
     @staticmethod
     def _factored_direction(mem, data, g, costs):
-        """``(-H^-1 g, costs)`` by factoring ``data`` (consumed); None when it does not factor."""
+        """``(-H^-1 g, costs)`` by factoring ``data``; None when it does not factor."""
         chol = mem.factor
         t0 = time.perf_counter()
         try:
