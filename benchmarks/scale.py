@@ -35,7 +35,8 @@ after ``init``), ``factor_s, solve_s, linesearch_s`` (parts of the direct iterat
 ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to the direct
 step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than wall time
 on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton_iters,
-energy, outcome`` (projected Newton to convergence, second run).  ``--untangle`` measures
+energy, outcome`` (projected Newton to convergence, second run; ``reuse_*``: the direct
+direction with ``Newton(reuse_factor=True)``).  ``--untangle`` measures
 instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
 untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
 outer iteration of :func:`geomopt.untangling.untangle` (its default solver) on the mesh with
@@ -97,14 +98,18 @@ def _peak_mb():
 
 
 def run_solves(obj, x0):
-    """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
-    seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
+    """Projected Newton (clamp) to convergence with the direct direction, the direct one
+    with ``reuse_factor`` (CG preconditioned by the factorization held, refactoring only when
+    that costs more) and the CG direction: warm seconds (the second of two runs), Newton
+    iterations, final energy."""
     import geomopt
     from geomopt.objective.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
-    for key, solver in (("direct", Newton(projection="clamp", linear_solver=available_backends()[0])),
+    backend = available_backends()[0]
+    for key, solver in (("direct", Newton(projection="clamp", linear_solver=backend)),
+                        ("reuse", Newton(projection="clamp", linear_solver=backend, reuse_factor=True)),
                         ("cg", Newton(projection="clamp", linear_solver="cg"))):
         for _ in range(2):  # the first run compiles
             c = time.process_time()
