@@ -145,8 +145,8 @@ def test_reuse_factor_takes_cg_directions_preconditioned_by_the_held_factor():
     chol = obj.cholesky("auto")
     state = solver.step(solver.init(obj, x0, obj.params()))
     factored = chol.generation
-    solver.step(dataclasses.replace(state, memory=state.memory._replace(costs=(1e-6, 1.0))))
-    assert chol.generation == factored + 1  # no budget: the second iteration factors
+    solver.step(dataclasses.replace(state, memory=state.memory._replace(costs=(3e-3, 1e-3))))
+    assert chol.generation == factored + 1  # 3 CG iterations' time: too few, the second iteration factors
     state = dataclasses.replace(state, memory=state.memory._replace(costs=(1.0, 1e-6)))
     for _ in range(8):
         state = solver.step(state)
