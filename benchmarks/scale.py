@@ -27,14 +27,16 @@ is its own, and prints one JSON object per line on stdout with the keys
 
 Extra keys: ``vertices, dofs, nnz, setup_s`` (mesh and ``Problem``), ``compile_s`` (first
 energy + gradient + Hessian calls), ``analyze_s`` (the Cholesky's symbolic analysis, once per
-mesh), ``direct_init_s`` / ``cg_init_s`` (``Newton.init``: analysis or CG operator, ahead of
-time compilation from the warm in-process cache), ``*_first_iter_s`` (the first iteration
+mesh), ``direct_init_s`` / ``cg_init_s`` (``Newton.init``: the mesh's analysis, done here
+before the factorization timings and shared, or the CG operator; ahead of time compilation
+from the warm in-process cache), ``*_first_iter_s`` (the first iteration
 after ``init``), ``factor_s, solve_s, linesearch_s`` (parts of the direct iteration); with
 ``--cg``: ``cg_step_s, cg_iters`` (the CG direction alone with Newton's forcing term),
 ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to the direct
 step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than wall time
 on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton_iters,
-energy, outcome`` (projected Newton to convergence, second run).  ``--untangle`` measures
+energy, outcome`` (projected Newton to convergence, second run; ``reuse_*``: the direct
+direction with ``Newton(reuse_factor=True)``).  ``--untangle`` measures
 instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
 untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
 outer iteration of :func:`geomopt.untangling.untangle` (its default solver) on the mesh with
@@ -96,14 +98,18 @@ def _peak_mb():
 
 
 def run_solves(obj, x0):
-    """Projected Newton (clamp) to convergence with the direct and the CG direction: warm
-    seconds (the second of two runs), Newton iterations, final energy, CG iterations."""
+    """Projected Newton (clamp) to convergence with the direct direction, the direct one
+    with ``reuse_factor`` (CG preconditioned by the factorization held, refactoring only when
+    that costs more) and the CG direction: warm seconds (the second of two runs), Newton
+    iterations, final energy."""
     import geomopt
     from geomopt.objective.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
-    for key, solver in (("direct", Newton(projection="clamp", linear_solver=available_backends()[0])),
+    backend = available_backends()[0]
+    for key, solver in (("direct", Newton(projection="clamp", linear_solver=backend)),
+                        ("reuse", Newton(projection="clamp", linear_solver=backend, reuse_factor=True)),
                         ("cg", Newton(projection="clamp", linear_solver="cg"))):
         for _ in range(2):  # the first run compiles
             c = time.process_time()
@@ -126,7 +132,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
 
     from geomopt.mesh import generators as G
     from geomopt.objective.objective import Objective, hessian_pattern
-    from geomopt.objective.linsolve import SparseCholesky, available_backends, newton_linear_solver
+    from geomopt.objective.linsolve import available_backends, newton_linear_solver
     from geomopt.mesh.problem import Problem
     from geomopt.solvers import Newton
 
@@ -169,10 +175,8 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
     data[pat.diag] += Newton.regularization * np.mean(np.abs(data[pat.diag]))
     d_direct = None
     if direct:
-        chol = SparseCholesky(pat.indptr, pat.indices)
-        out["analyze_s"], _ = _median(lambda: SparseCholesky(pat.indptr, pat.indices).analyze(),
-                                      1, "analyze_s")
-        chol.analyze()
+        # the mesh's analysis (once per mesh), which Newton shares: no second PARDISO instance
+        out["analyze_s"], chol = _median(lambda: obj.cholesky(available_backends()[0]), 1, "analyze_s")
         out["factor_s"], _ = _median(lambda: chol.factor(data), 3, "factor_s")
         out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3, "solve_s")
         newton = Newton(projection="clamp", linear_solver=available_backends()[0])

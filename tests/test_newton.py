@@ -102,3 +102,72 @@ def test_bunny_cut_from_shared_data_flip_free():
     assert not res.success and res.injectivity == "none" and "boundary vertex" in res.message
     assert "--bijective" in res.message
     assert len(cert.boundary_overlaps) == 4 and len(cert.branch_vertices) == 0
+
+
+def _swirled_grid(n=6):
+    """A jittered grid with its boundary fixed and its interior swirled (injective)."""
+    V, F = grid(n, jitter=0.2, seed=1)
+    b = np.flatnonzero((V[:, 0] == 0) | (V[:, 0] == 1) | (V[:, 1] == 0) | (V[:, 1] == 1))
+    obj = Objective(Problem.planar(V, F, fixed=b, fixed_positions=V[b]), "symmetric_dirichlet")
+    x0 = V + 0.02 * np.sin(6 * V[:, ::-1]) * np.isin(np.arange(len(V)), b, invert=True)[:, None]
+    return obj, x0
+
+
+def test_pcg_solves_spd_systems_and_refuses_the_rest():
+    from geomopt.objective.linsolve import pcg
+
+    rng = np.random.default_rng(0)
+    B = rng.standard_normal((40, 40))
+    A = B @ B.T + 40 * np.eye(40)
+    b = rng.standard_normal(40)
+    exact = np.linalg.solve(A, b)
+    x, k = pcg(lambda v: A @ v, b, lambda r: r / np.diag(A), 1e-10, 200)
+    np.testing.assert_allclose(x, exact, rtol=1e-8)
+    assert np.linalg.norm(b - A @ x) <= 1e-10 * np.linalg.norm(b) and 1 < k < 40
+    x, k = pcg(lambda v: A @ v, b, lambda r: np.linalg.solve(A, r), 1e-10, 5)  # the exact inverse
+    assert k == 1
+    np.testing.assert_allclose(x, exact, rtol=1e-10)
+    assert pcg(lambda v: A @ v, b, lambda r: r, 1e-12, 3)[0] is None  # too few iterations
+    assert pcg(lambda v: -(A @ v), b, lambda r: r, 1e-8, 100)[0] is None  # negative definite
+    x, k = pcg(lambda v: A @ v, np.zeros(40), lambda r: r, 1e-8, 10)
+    assert k == 0 and not x.any()
+
+
+def test_reuse_factor_takes_cg_directions_preconditioned_by_the_held_factor():
+    """With ``reuse_factor`` and a budget of CG iterations, Newton reaches the minimum without
+    another factorization (each direction by CG preconditioned with the first iteration's
+    factor); with no budget (a factorization cheaper than one CG iteration) it factors."""
+    import dataclasses
+
+    obj, x0 = _swirled_grid(8)
+    ref = minimize(obj, x0, Newton(projection="clamp", rtol=1e-13), progress=False)
+    solver = Newton(projection="clamp", reuse_factor=True)
+    chol = obj.cholesky("auto")
+    state = solver.step(solver.init(obj, x0, obj.params()))
+    factored = chol.generation
+    solver.step(dataclasses.replace(state, memory=state.memory._replace(costs=(3e-3, 1e-3))))
+    assert chol.generation == factored + 1  # 3 CG iterations' time: too few, the second iteration factors
+    state = dataclasses.replace(state, memory=state.memory._replace(costs=(1.0, 1e-6)))
+    for _ in range(8):
+        state = solver.step(state)
+    assert chol.generation == factored + 1
+    assert float(state.value) == pytest.approx(float(ref.energy), rel=1e-12)
+    np.testing.assert_allclose(np.asarray(obj.unpad_map(state.x)), ref.x, atol=1e-7)
+
+
+def test_newton_shares_the_meshs_symbolic_analysis():
+    """Newton factors with the mesh's one Cholesky (one symbolic analysis and one factor in
+    memory per mesh and backend, "auto" resolved), and a derivative that factored the same
+    Cholesky before a later solve refactored it still gets its own matrix back."""
+    from geomopt.objective.linsolve import available_backends
+
+    obj, x0 = _swirled_grid()
+    backend = available_backends()[0]
+    assert obj.cholesky("auto") is obj.cholesky(backend)
+    for name in ("auto", backend):
+        state = Newton(linear_solver=name).init(obj, x0, obj.params())
+        assert state.memory.factor is obj.cholesky(backend)
+    first = minimize(obj, x0, Newton(linear_solver=backend), progress=False)
+    again = minimize(obj, x0, Newton(linear_solver="auto"), progress=False)
+    assert first.outcome is again.outcome is Outcome.CONVERGED
+    np.testing.assert_allclose(again.x, first.x, atol=1e-12)

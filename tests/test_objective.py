@@ -262,3 +262,20 @@ def test_assembled_hessian_equals_dense_autodiff_and_chunks_agree(dim):
     obj.chunk = 7
     _, _, data = obj.hessian(jnp.asarray(x), p, "clamp")
     np.testing.assert_allclose(np.asarray(data), np.asarray(ref), rtol=1e-12, atol=1e-14)
+
+
+def test_pattern_index_width_does_not_change_it(monkeypatch):
+    """The assembly maps are int32 below 2^31 entries (half the memory of a Newton step's
+    largest kept arrays); built with int64 indices instead, the pattern is the same."""
+    from geomopt.objective import pattern as pattern_module
+
+    index_dtype = pattern_module.index_dtype
+    assert index_dtype(2**31 - 2) == np.int32 and index_dtype(2**31) == np.int64
+    cases = list(_pattern_cases())
+    narrow = [hessian_pattern(P, free) for _, P, free in cases]
+    monkeypatch.setattr(pattern_module, "index_dtype", lambda size: np.int64)
+    for (name, P, free), a in zip(cases, narrow):
+        b = hessian_pattern(P, free)
+        assert a.gather.dtype == np.int32 and b.gather.dtype == np.int64, name
+        for field in ("indptr", "indices", "diag", "gather", "blocks", "swap", "vertex_idx"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=f"{name}: {field}")

@@ -29,7 +29,7 @@ from .._runtime.errors import NotPositiveDefinite, ParameterError
 
 __all__ = [
     "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM",
-    "newton_linear_solver",
+    "newton_linear_solver", "pcg",
     "BACKENDS",
     "CG_FROM_DOFS",
 ]
@@ -314,3 +314,44 @@ def newton_linear_solver(dim: int, n_free: int, platform: str = "cpu") -> str:
         return "cg"
     limit = CG_FROM_DOFS.get(int(dim))
     return "cg" if limit is not None and n_free >= limit else "direct"
+
+
+def pcg(matvec, b, precondition, rtol, maxiter):
+    """Preconditioned conjugate gradients for ``A x = b`` on the host.
+
+    Parameters
+    ----------
+    matvec : (n,) -> (n,) product with the symmetric matrix A.
+    b : (n,) right-hand side.
+    precondition : (n,) -> (n,) product with a symmetric positive-definite approximation of
+        A^-1 (e.g. the solve of an earlier factorization).
+    rtol : stop when ``|b - A x|_2 <= rtol |b|_2``.
+    maxiter : iteration limit.
+
+    Returns
+    -------
+    ``(x, iterations)``; ``x`` None when the limit is reached first or a search direction of
+    non-positive curvature (A not positive definite) is met.
+    """
+    x = np.zeros_like(b)
+    r = np.array(b, dtype=np.float64)
+    bnorm = float(np.linalg.norm(r))
+    if bnorm == 0.0:
+        return x, 0
+    z = precondition(r)
+    p, rz = z.copy(), float(r @ z)
+    for k in range(1, maxiter + 1):
+        Ap = matvec(p)
+        curvature = float(p @ Ap)
+        if not curvature > 0.0:
+            return None, k
+        alpha = rz / curvature
+        x += alpha * p
+        r -= alpha * Ap
+        if float(np.linalg.norm(r)) <= rtol * bnorm:
+            return x, k
+        z = precondition(r)
+        rz, rz_old = float(r @ z), rz
+        p *= rz / rz_old
+        p += z
+    return None, maxiter

@@ -37,7 +37,7 @@ from .._runtime.errors import ParameterError
 from .._runtime.tracing import StaticKey, is_traced, refuse_traced
 from ..energies import Energy, get_energy
 from .projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
-from .linsolve import SparseCholesky
+from .linsolve import SparseCholesky, available_backends
 from .pattern import HessianPattern, block_pairs, hessian_pattern, local_pairs  # noqa: F401  (re-exported)
 from ..mesh.problem import Problem
 
@@ -454,6 +454,8 @@ class _Mesh:
         self._cholesky = {}
 
     def cholesky(self, backend):
+        if backend == "auto":  # one analysis whether asked for by name or as "auto"
+            backend = available_backends()[0]
         if backend not in self._cholesky:
             pat = self.pattern
             chol = SparseCholesky(pat.indptr, pat.indices, backend)

@@ -12,7 +12,7 @@ import scipy.sparse as sp
 
 from ..mesh.problem import Problem
 
-__all__ = ["HessianPattern", "hessian_pattern", "vertex_graph", "block_pairs", "local_pairs"]
+__all__ = ["HessianPattern", "hessian_pattern", "vertex_graph", "block_pairs", "local_pairs", "index_dtype"]
 
 
 def local_pairs(d):
@@ -52,8 +52,8 @@ class HessianPattern:
         ``a <= b`` (:func:`block_pairs`).
     swap : (m, (d+1)(d+2)/2) bool, True where the stored block ``H[v-dofs, w-dofs]`` is the
         element block ``(b, a)`` (``S[a] < S[b]``), False where it is ``(a, b)``.
-    gather : (nnz,) int64, position in the block data (n_blocks, d, d) flattened of each CSC
-        entry.
+    gather : (nnz,) int32 (int64 from 2^31 block entries, :func:`index_dtype`), position in
+        the block data (n_blocks, d, d) flattened of each CSC entry.
     """
 
     n: int
@@ -103,6 +103,12 @@ class HessianPattern:
         return (L + L.T - sp.diags(L.diagonal())).tocsc()
 
 
+def index_dtype(size):
+    """int32 for indices into arrays of ``size`` entries when they fit, else int64: the
+    assembly maps are the largest arrays a Newton step keeps beside the factor."""
+    return np.int32 if size < np.iinfo(np.int32).max else np.int64
+
+
 def vertex_graph(simplices, n_vertices):
     """The vertex graph of a mesh in CSC lower-triangle form, diagonal included.
 
@@ -150,20 +156,27 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
     # each block k of vertex column w (rows idx[k] >= w) and each coordinate c, the row
     # (idx[k], c); drop the fixed DOFs and the upper half of the diagonal blocks
     seglen = np.repeat(deg * d, d)  # candidates per DOF column w*d+e
-    col = np.repeat(np.arange(nv * d), seglen)
-    j = np.arange(len(col)) - np.repeat(np.cumsum(seglen) - seglen, seglen)
-    w, e = np.divmod(col, d)
-    k, c = np.divmod(j, d)
-    k += ptr[w]
-    v = idx[k]
-    row = v * d + c
+    it = index_dtype(max(d * d * len(idx), nv * d))  # int32 below 2^31 entries: half the scratch
+    col = np.repeat(np.arange(nv * d, dtype=it), seglen)
+    j = np.arange(len(col), dtype=it) - np.repeat((np.cumsum(seglen) - seglen).astype(it), seglen)
+    w, e = np.divmod(col, it(d))
+    k, c = np.divmod(j, it(d))
+    del j
+    k += ptr[w].astype(it)
+    v = idx[k].astype(it)
+    row = v * it(d) + c
     keep = ((v > w) | (c >= e)) & free[row] & free[col]
+    del v, w
     indices = red[row[keep]]
+    del row
     cols = red[col[keep]]
+    del col
     indptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
     diag = np.flatnonzero(indices == cols)
-    gather = ((k * d + c) * d + e)[keep]  # position (k, c, e) in the block data
+    del cols
+    gather = ((k * it(d) + c) * it(d) + e)[keep]  # position (k, c, e) in the block data
+    del k, c, e, keep
     # element blocks: the diagonal ones lead their vertex's row; locate the others
     bi, bj = block_pairs(d)
     sa, sb = S[:, bi], S[:, bj]

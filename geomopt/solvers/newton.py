@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from typing import Any, NamedTuple
 
 import jax
@@ -21,11 +22,16 @@ from .._runtime.config import OneOf, Real
 from .._runtime.errors import ParameterError
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
-from ..objective.linsolve import BACKENDS, NotPositiveDefinite, SparseCholesky, newton_linear_solver
+from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver, pcg
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
 __all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory"]
+
+
+#: fewest preconditioned CG iterations, in the time of one factorization, for which
+#: ``reuse_factor`` tries CG before factoring
+MIN_REUSE_ITERS = 4
 
 
 class NewtonMemory(NamedTuple):
@@ -35,7 +41,9 @@ class NewtonMemory(NamedTuple):
         on the CG path;  cg_op : the CG operator (:meth:`NewtonCG.prepare`), or None;
     grad_ref : the first gradient norm (CG's scale-free forcing term);
     cooldown : iterations left during which ``Adaptive`` clamps after an exact Hessian failed
-        to factor;  mu : the Levenberg-Marquardt shift of the exact Hessian (None: not used yet).
+        to factor;  mu : the Levenberg-Marquardt shift of the exact Hessian (None: not used yet);
+    costs : wall seconds of the last numeric factorization and of one iteration of CG
+        preconditioned by it (``reuse_factor``; 0: not measured yet).
     """
 
     factor: Any = None
@@ -43,6 +51,7 @@ class NewtonMemory(NamedTuple):
     grad_ref: float = 1.0
     cooldown: int = 0
     mu: float | None = None
+    costs: tuple = (0.0, 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +80,11 @@ class AbstractNewton(AbstractSolver):
     search : the :class:`~geomopt.solvers.linesearch.InjectiveSearch`.
     cg : the :class:`geomopt.objective.cg.NewtonCG` configuration (iteration limit, forcing term) of
         the CG direction.
+    reuse_factor : with a Cholesky, first try the direction by CG on the new Hessian
+        preconditioned with the factorization already held (an earlier iteration's): taken when
+        CG reaches the forcing term ``min(cg.eta_max, sqrt(|g| / g_ref))`` (Eisenstat & Walker
+        1996) within the wall time of one factorization, else the Hessian is factored (an
+        inexact Newton step that skips the factorization where the Hessian changed little).
     """
 
     projection: Any = Clamp()
@@ -81,6 +95,7 @@ class AbstractNewton(AbstractSolver):
     search: InjectiveSearch = InjectiveSearch()
     # eta_max 0.01, not 0.5: measured 4 instead of 8 Newton iterations, 1.9x less CPU (10^5 tets)
     cg: NewtonCG = NewtonCG(eta_max=0.01)
+    reuse_factor: bool = False
 
     def __post_init__(self):
         if type(self) is AbstractNewton:
@@ -117,15 +132,15 @@ class AbstractNewton(AbstractSolver):
         self.projection.check_dim(objective.problem.dim)
         if self.uses_cg(objective):
             state = self._start(objective, x0, params, NewtonMemory(cg_op=self.cg.prepare(objective)))
-            gref = max(float(np.linalg.norm(np.asarray(state.grad))), 1e-300)  # scale-free forcing
-            state = dataclasses.replace(state, memory=state.memory._replace(grad_ref=gref))
+            state = _with_grad_ref(state)
             for projection in self.projection.kernels():
                 self.cg.compile(state.memory.cg_op, objective, state.x, params, projection)
         else:
-            pat = objective.pattern
-            chol = SparseCholesky(pat.indptr, pat.indices, self.linear_solver)
-            chol.analyze()
-            state = self._start(objective, x0, params, NewtonMemory(factor=chol))
+            # the mesh's shared Cholesky: one symbolic analysis (and one factor's memory) per
+            # mesh and backend, whichever solves or derivatives use it; each step refactors
+            # before it solves (SparseCholesky.generation)
+            chol = objective.cholesky(self.linear_solver)
+            state = _with_grad_ref(self._start(objective, x0, params, NewtonMemory(factor=chol)))
             # compile (or load) every kernel the loop uses now, so that setup time holds the
             # compilation; ahead of time: no warm-up evaluation is run
             for projection in self.projection.kernels():
@@ -135,28 +150,67 @@ class AbstractNewton(AbstractSolver):
 
     def _direction(self, state, projection, shifts):
         """Newton direction with the first diagonal shift (relative to the mean diagonal) in
-        ``shifts`` that factors: ``(value, grad, dx, decrement, shift)``, ``dx`` (shaped like
-        ``x``, zero on fixed DOFs, on the device) None on failure."""
+        ``shifts`` that factors: ``(value, grad, dx, decrement, shift, costs)``, ``dx`` (shaped
+        like ``x``, zero on fixed DOFs, on the device) None on failure; ``costs`` as
+        :attr:`NewtonMemory.costs`."""
         if state.memory.cg_op is not None:
-            return self._cg_direction(state, projection, shifts)
-        obj, pat, chol = state.objective, state.objective.pattern, state.memory.factor
+            return self._cg_direction(state, projection, shifts) + (state.memory.costs,)
+        obj, pat, mem = state.objective, state.objective.pattern, state.memory
         value, grad, data = obj.hessian(state.x, state.params, projection)
-        data = np.array(data)
+        data = np.array(data)  # the one host copy (the kernel's output is freed), shifted in place
+        diag = data[pat.diag]  # unshifted
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
-        scale = max(float(np.mean(np.abs(data[pat.diag]))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
-        for shift in shifts:
-            try:
-                d_ = data.copy()
-                d_[pat.diag] += shift * scale
-                chol.factor(d_)
-            except NotPositiveDefinite:
+        scale = max(float(np.mean(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
+        costs = mem.costs
+        for i, shift in enumerate(shifts):
+            data[pat.diag] = diag + shift * scale
+            d_free, costs = self._lagged_direction(mem, pat, data, g) if i == 0 else (None, costs)
+            if d_free is None:
+                d_free, costs = self._factored_direction(mem, data, g, costs)
+            if d_free is None:
                 continue
-            d_free = -chol.solve(g)
             dx = np.zeros(state.x.size)
             dx[pat.free_dofs] = d_free
             # device_put: no copy program per shape (jnp.asarray compiles one)
-            return float(value), grad, jax.device_put(dx.reshape(state.x.shape)), 0.5 * float(-g @ d_free), shift
-        return float(value), grad, None, None, None
+            return float(value), grad, jax.device_put(dx.reshape(state.x.shape)), 0.5 * float(-g @ d_free), shift, costs
+        return float(value), grad, None, None, None, costs
+
+    @staticmethod
+    def _factored_direction(mem, data, g, costs):
+        """``(-H^-1 g, costs)`` by factoring ``data``; None when it does not factor."""
+        chol = mem.factor
+        t0 = time.perf_counter()
+        try:
+            chol.factor(data)
+        except NotPositiveDefinite:
+            return None, costs
+        t1 = time.perf_counter()
+        d_free = -chol.solve(g)
+        # one preconditioned CG iteration: a solve and about half a solve's time in products
+        return d_free, (t1 - t0, costs[1] or 1.5 * (time.perf_counter() - t1))
+
+    def _lagged_direction(self, mem, pat, data, g):
+        """``(-H^-1 g, costs)`` for the values ``data`` by CG preconditioned with the
+        factorization held (``reuse_factor``); None instead of the direction when reuse is off,
+        nothing is factored yet, or CG does not reach the forcing term within one
+        factorization's time (or meets negative curvature)."""
+        factor_s, iter_s = mem.costs
+        budget = int(factor_s / iter_s) if iter_s else 0
+        # CG needs a few iterations even where the Hessian changed little (3-9 measured at 10^6
+        # triangles): below MIN_REUSE_ITERS affordable ones, trying costs more than it saves
+        if not self.reuse_factor or mem.factor.generation == 0 or budget < MIN_REUSE_ITERS:
+            return None, mem.costs
+        L = pat.lower(data)
+        D, LT = L.diagonal(), L.T
+
+        def matvec(p):
+            return L @ p + LT @ p - D * p
+
+        gnorm = float(np.linalg.norm(g))
+        rtol = min(self.cg.eta_max, math.sqrt(gnorm / mem.grad_ref))
+        t0 = time.perf_counter()
+        d_free, iterations = pcg(matvec, -g, mem.factor.solve, rtol, budget)
+        return d_free, (factor_s, (time.perf_counter() - t0) / max(iterations, 1))
 
     def _cg_direction(self, state, projection, shifts):
         """:meth:`_direction` by CG, all on the device (only scalars come to the host): the
@@ -178,13 +232,13 @@ class AbstractNewton(AbstractSolver):
         mem = mem._replace(cooldown=max(mem.cooldown - 1, 0))
         if not projection.psd:
             mu = max(mem.mu if mem.mu is not None else reg, reg)
-            value, grad, dx, decrement, used = self._direction(state, projection, [mu, 1e2 * mu])
+            value, grad, dx, decrement, used, costs = self._direction(state, projection, [mu, 1e2 * mu])
             if dx is not None:
-                return value, grad, dx, decrement, mem._replace(mu=used), True
-            mem = mem._replace(cooldown=2, mu=1e4 * mu)
+                return value, grad, dx, decrement, mem._replace(mu=used, costs=costs), True
+            mem = mem._replace(cooldown=2, mu=1e4 * mu, costs=costs)
             projection = Clamp()
-        value, grad, dx, decrement, _ = self._direction(state, projection, [reg * 100**k for k in range(8)])
-        return value, grad, dx, decrement, mem, False
+        value, grad, dx, decrement, _, costs = self._direction(state, projection, [reg * 100**k for k in range(8)])
+        return value, grad, dx, decrement, mem._replace(costs=costs), False
 
     def step(self, state: State) -> State:
         obj, params, x = state.objective, state.params, state.x
@@ -203,6 +257,12 @@ class AbstractNewton(AbstractSolver):
             mem = mem._replace(mu=max(mem.mu / 10, self.regularization) if t >= 1.0 else mem.mu * 10)
         return state.update(x=xn, value=vn, grad=gn, iteration=it, step_size=t, decrement=decrement,
                             past_value=value, memory=mem, evaluations=evaluations, extent=map_extent(xn))
+
+
+def _with_grad_ref(state):
+    """``state`` with its first gradient norm in memory (the scale of the forcing terms)."""
+    gref = max(float(np.linalg.norm(np.asarray(state.grad))), 1e-300)
+    return dataclasses.replace(state, memory=state.memory._replace(grad_ref=gref))
 
 
 @dataclasses.dataclass(frozen=True)
