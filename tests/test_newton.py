@@ -171,3 +171,18 @@ def test_newton_shares_the_meshs_symbolic_analysis():
     again = minimize(obj, x0, Newton(linear_solver="auto"), progress=False)
     assert first.outcome is again.outcome is Outcome.CONVERGED
     np.testing.assert_allclose(again.x, first.x, atol=1e-12)
+
+
+def test_newton_takes_its_last_step_where_the_energy_cannot_rank_steps():
+    # once the decrement is ~1e-15 |E| the search's energy tests are rounding: it took no step, a
+    # sliver or a doubled step, leaving the gradient at 2e-7 (maps accurate to ~1e-9, too little
+    # for finite differences of re-solves); the full Newton step is taken when admissible
+    from geomopt.mesh.generators import saddle
+
+    V, F = saddle(rings=8, amplitude=1.2)
+    d = np.random.default_rng(0).standard_normal(len(F))
+    # plain weights: the search took no step; these: it doubled the last one
+    for weights in (None, jnp.exp(-1e-3 * d / np.linalg.norm(d))):
+        res = geomopt.parameterize(V, F, element_weights=weights, progress=False)
+        grad = np.asarray(res.trace.grad_norm)
+        assert res.success and grad[-1] < 1e-11 * grad[0]
