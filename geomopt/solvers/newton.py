@@ -30,7 +30,7 @@ __all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory"]
 
 
 #: how far above the energy a full Newton step at rounding level may land and still be taken
-#: (:func:`_polish_step`): a few hundred ulps of the energy, which sums many elements' terms
+#: (:meth:`AbstractNewton._polish`): a few hundred ulps of the energy, which sums many elements' terms
 POLISH_ROUNDING = 1e-13
 
 #: fewest preconditioned CG iterations, in the time of one factorization, for which
@@ -180,7 +180,23 @@ class AbstractNewton(AbstractSolver):
         return float(value), grad, None, None, None, costs
 
     def _polish(self, obj, params, x, value, dx, decrement):
-        return _polish_step(self.search, self.termination, obj, params, x, value, dx, decrement)
+        """``(x + dx, E, gradient)`` where the search took no step, a sliver of one or a doubled
+        one only because the energy cannot tell: the direction promises at most ``flat * |E|``
+        (the termination's "stationary up to rounding"), the full step keeps every element
+        positive (the search's own admissibility test) and the energy stays within
+        :data:`POLISH_ROUNDING` ``|E|`` of ``E``; None otherwise.  Newton's last step there still
+        squares the error of the map (its gradient 2e-7 -> 1e-13 on a curved free-boundary
+        saddle, where energy tests alone leave maps accurate to ~1e-9: too little for finite
+        differences of re-solves)."""
+        scale = max(abs(value), 1e-300)
+        if not decrement <= self.termination.flat * scale:
+            return None
+        xn = x + dx
+        vn, gn = obj.value_and_grad(xn, params)
+        vn = float(vn)
+        if not vn <= value + POLISH_ROUNDING * scale or not self.search.admissible_step(obj, x, dx, 1.0, vn):
+            return None
+        return xn, vn, gn
 
     @staticmethod
     def _factored_direction(mem, data, g, costs):
@@ -269,25 +285,6 @@ class AbstractNewton(AbstractSolver):
             mem = mem._replace(mu=max(mem.mu / 10, self.regularization) if t >= 1.0 else mem.mu * 10)
         return state.update(x=xn, value=vn, grad=gn, iteration=it, step_size=t, decrement=decrement,
                             past_value=value, memory=mem, evaluations=evaluations, extent=map_extent(xn))
-
-
-def _polish_step(search, termination, obj, params, x, value, dx, decrement):
-    """``(x + dx, E, gradient)`` where the search took no step, a sliver of one or a doubled one
-    only because the energy cannot tell: the direction promises at most ``termination.flat * |E|`` (the rule's "stationary up to
-    rounding"), the full step keeps every element positive (the search's own admissibility test)
-    and the energy stays within :data:`POLISH_ROUNDING` ``|E|`` of ``E``; None otherwise.  Newton's
-    last step there still squares the error of the map (its gradient 2e-7 -> 1e-13 on a curved
-    free-boundary saddle, where energy tests alone leave maps accurate to ~1e-9: too little for
-    finite differences of re-solves)."""
-    scale = max(abs(value), 1e-300)
-    if not decrement <= termination.flat * scale:
-        return None
-    xn = x + dx
-    vn, gn = obj.value_and_grad(xn, params)
-    vn = float(vn)
-    if not vn <= value + POLISH_ROUNDING * scale or not search.admissible_step(obj, x, dx, 1.0, vn):
-        return None
-    return xn, vn, gn
 
 
 def _with_grad_ref(state):
