@@ -217,6 +217,21 @@ def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_ca
     assert float(lam(2.0, x)) == 2.0 * x.sum() and _programs.stats["plain"] == before["plain"] + 1
 
 
+def test_loading_a_kept_program_compiles_nothing_not_even_the_options_probe(fresh_cache):
+    """A warm process loads its kept programs without compiling: the key names the XLA options
+    asked for, so the probe of whether jaxlib takes them (a compilation of ~30 ms) waits for
+    the first program that must be compiled."""
+    x, idx = np.linspace(0.0, 1.0, 40), np.arange(30)[::-1] % 40
+    expect = float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx))  # compiled and kept
+    _programs.xla_options.cache_clear()  # as a new process: nothing probed, nothing in memory
+    try:
+        misses, again = _misses(lambda: float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)))
+        assert again == expect and misses == 0
+        assert _programs.xla_options.cache_info().currsize == 0
+    finally:
+        _programs.xla_options()  # probed now, not inside a later test's count
+
+
 def test_a_kept_program_composes_with_jit_grad_and_vmap(fresh_cache):
     """Called on traced values a kept program is its function inlined into the caller's trace
     (a compiled executable takes no tracers, and XLA options only go to the outermost jit)."""

@@ -179,6 +179,13 @@ class Program:
         """The compiler options (:func:`xla_options` unless given)."""
         return xla_options() if self._given is None else self._given
 
+    @property
+    def requested_options(self) -> dict:
+        """The compiler options asked for (:data:`XLA_OPTIONS` unless given): the key of a kept
+        program, so that loading one needs no :func:`xla_options` probe (a compilation of ~30 ms
+        in every process); whether jaxlib accepts them follows from its version, in the key."""
+        return XLA_OPTIONS if self._given is None else self._given
+
     @functools.cached_property
     def plain(self):
         return jax.jit(self.fun, static_argnums=self.static, compiler_options=self.options or None)
@@ -254,7 +261,7 @@ class Program:
                 "platform": str(getattr(devices[0].client, "platform_version", "")),
                 "devices": f"{len(devices)} x {devices[0].device_kind}", "cpu": _cpu(), "function": name,
                 "static": text, "tree": str(tree), "arguments": repr(key[2:]),
-                "options": repr(sorted(self.options.items())), "xla_flags": os.environ.get("XLA_FLAGS", ""),
+                "options": repr(sorted(self.requested_options.items())), "xla_flags": os.environ.get("XLA_FLAGS", ""),
                 "sources": " ".join(sorted(_source_fingerprint(m) for m in modules))}
 
     def __call__(self, *args):
