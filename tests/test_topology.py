@@ -177,6 +177,26 @@ def test_check_disk_accepts_grid():
     assert loop.size == 16
 
 
+def test_check_disk_checks_the_same_faces_once_and_changed_faces_again(monkeypatch):
+    """The command asks whether the mesh is a disk, then parameterize asks again: the second
+    answer is the first's (a copy), unless the faces changed, even in place."""
+    import geomopt.exact.topology as topology
+
+    V, F = grid_disk(5, 3)
+    loop = check_disk(F, len(V))
+    monkeypatch.setattr(topology, "_check_manifold_faces", lambda *a: pytest.fail("checked twice"))
+    again = check_disk(F.copy(), len(V))
+    assert np.array_equal(again, loop) and again is not loop
+    again[:] = -1  # the caller's copy: the next answer is still the loop
+    assert np.array_equal(check_disk(F, len(V)), loop)
+    monkeypatch.undo()
+    F[0] = F[0, [1, 0, 2]]  # flipped in place: the same array object, other faces
+    with pytest.raises(MeshError, match="orientation"):
+        check_disk(F, len(V))
+    with pytest.raises(MeshError, match="vertices are not used"):
+        check_disk(grid_disk(5, 3)[1], len(V) + 1)  # same faces, another vertex count
+
+
 @pytest.mark.parametrize(
     "name, expected",
     [("camelhead.off", 56), ("bunny_cut.obj", 744)],

@@ -9,6 +9,8 @@ Half-edge ``h = 3 * f + c`` of face ``f`` runs from ``F[f, c]`` to ``F[f, (c + 1
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -337,6 +339,11 @@ def _fans_per_vertex(F: np.ndarray, n: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- disk check
 
+#: the last mesh :func:`check_disk` passed, keyed by its vertex count and its faces' bytes (their
+#: content, not the array object: one changed in place is checked again), with its loop
+_last_disk: dict = {}
+
+
 def check_disk(F, n_vertices) -> np.ndarray:
     """Check that a triangle mesh is a topological disk; return its boundary loop.
 
@@ -362,8 +369,14 @@ def check_disk(F, n_vertices) -> np.ndarray:
     """
     F = as_faces(F, n_vertices)
     n = _as_count(n_vertices)
-    E = _check_manifold_faces(F, n)
-    return _check_one_boundary(F, n, E)
+    key = (n, F.shape, hashlib.blake2b(F.tobytes(), digest_size=16).digest())
+    found = _last_disk.get(key)  # the same faces checked just before (the command, then parameterize)
+    if found is None:
+        E = _check_manifold_faces(F, n)
+        found = _check_one_boundary(F, n, E)
+        _last_disk.clear()
+        _last_disk[key] = found
+    return found.copy()
 
 
 def _check_manifold_faces(F, n, sphere=False) -> np.ndarray:
