@@ -168,6 +168,28 @@ def test_connected_components_of_tets():
     assert labels[4] == labels[0] != labels[8]
 
 
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 40), st.lists(st.tuples(st.integers(0, 39), st.integers(0, 39)), max_size=70),
+       st.randoms(use_true_random=False))
+def test_graph_components_partition_as_scipy_does(n, edges, rnd):
+    """The same partition as SciPy's csgraph on random graphs (isolated nodes, loops, repeated
+    edges, long chains numbered in any order)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as scipy_components
+
+    from geomopt.exact.topology import graph_components
+
+    perm = list(range(n))
+    rnd.shuffle(perm)
+    chain = [(perm[k], perm[k + 1]) for k in range(n - 1) if rnd.random() < 0.7]
+    i, j = (np.array(e, np.int64).reshape(-1) for e in zip(*([(a % n, b % n) for a, b in edges] + chain or [(0, 0)])))
+    count, labels = graph_components(n, i, j)
+    want, ref = scipy_components(coo_matrix((np.ones(i.size), (i, j)), shape=(n, n)).tocsr(), directed=False)
+    assert count == want and labels.shape == (n,) and labels.dtype == np.int64
+    assert sorted(set(labels.tolist())) == list(range(count))
+    assert len(set(zip(labels.tolist(), ref.tolist()))) == count  # one label of ours per component of SciPy's
+
+
 # ---------------------------------------------------------------- check_disk
 
 

@@ -50,11 +50,9 @@ Every function expects every element positively oriented (see
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from .predicates import normal_signs, orient2d, orient3d, vertex_windings
-from .topology import boundary_half_edges
+from .topology import boundary_half_edges, graph_components
 
 __all__ = ["fan_overlaps_2d", "star_overlaps_3d"]
 
@@ -361,9 +359,7 @@ def _boundary_vertex_failures(X, T, BF, tet, face, up, down, tested):
     node = np.concatenate([np.arange(cv.size)] * 2)
     order = np.argsort(ends, kind="stable")
     link = np.flatnonzero(ends[order][1:] == ends[order][:-1])
-    graph = sp.coo_matrix((np.ones(link.size, np.int8), (node[order][link], node[order][link + 1])),
-                          shape=(cv.size, cv.size))
-    _, label = connected_components(graph, directed=False)
+    _, label = graph_components(cv.size, node[order][link], node[order][link + 1])
     first = np.unique(label, return_index=True)[1]  # one corner per cycle
     cycles = np.bincount(cv[first], minlength=n)
     need = (cycles > 1) | ((cycles == 1) & (up > 0) & (down > 0))
