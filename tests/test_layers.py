@@ -29,9 +29,11 @@ LAYERS = [
                            "geomopt._view", "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__",
                            "geomopt")),
 ]
-#: the one import that points up, lazily, with why: ``Result.save`` is the convenience that
-#: hands a result to the writers (files and figures) on top
-UPWARD_ALLOWED = {("geomopt.solvers._result", "geomopt._save")}
+#: the imports that point up, lazily, with why: ``Result.save`` is the convenience that hands a
+#: result to the writers (files and figures) on top; the Tutte map's symmetric system is factored
+#: by the sparse Cholesky the Newton step uses (``linsolve`` imports nothing of geomopt but the
+#: runtime's errors), not by SciPy's SuperLU, which is 3x slower and whose import costs 40 ms
+UPWARD_ALLOWED = {("geomopt.solvers._result", "geomopt._save"), ("geomopt.mesh.tutte", "geomopt.objective.linsolve")}
 
 
 def module_name(path: Path) -> str:

@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from .._runtime.errors import MeshError, ParameterError
+from .._runtime.errors import MeshError, NotPositiveDefinite, ParameterError
 from .._runtime.tracing import refuse_traced
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
@@ -180,20 +179,35 @@ def weighted_embedding(W, loop, boundary_positions) -> np.ndarray:
     interior = np.flatnonzero(is_interior)
     if interior.size == 0:
         return UV
-    W = sp.diags(1.0 / np.asarray(W.sum(axis=1)).ravel()) @ W  # row-normalised
-    # rows of interior vertices: u_i - sum_j W_ij u_j = 0, boundary terms to the right
+    W = sp.csr_matrix(W)
+    degree = np.asarray(W.sum(axis=1)).ravel()
+    # rows of interior vertices: d_i u_i - sum_j W_ij u_j = 0, boundary terms to the right
     W_int = W[interior]
-    A = sp.identity(interior.size, format="csc") - W_int[:, interior].tocsc()
+    A = sp.diags(degree[interior]) - W_int[:, interior]
     rhs = W_int[:, loop] @ UV[loop]
     try:
-        UV[interior] = spla.splu(A).solve(rhs)
-    except RuntimeError as err:  # "Factor is exactly singular"
+        UV[interior] = _solve(A, rhs, symmetric=(W != W.T).nnz == 0)
+    except (RuntimeError, NotPositiveDefinite) as err:  # "Factor is exactly singular", a zero pivot
         raise MeshError(
             f"Tutte system is singular ({err}); every component must touch the boundary"
         ) from None
     if not np.isfinite(UV).all():
         raise MeshError("Tutte system is singular; every component must touch the boundary")
     return UV
+
+
+def _solve(A, rhs, symmetric):
+    """``A^-1 rhs`` for the Tutte system ``A`` (k, k): a sparse Cholesky factorization where the
+    weights are symmetric (``A`` is then a Laplacian's block, positive definite when every
+    component touches the boundary: PARDISO where installed, 3x faster than SuperLU, whose
+    import also costs 40 ms), else SuperLU."""
+    if symmetric:
+        from ..objective.linsolve import SparseCholesky  # the one up-pointing import of the mesh layer
+
+        return SparseCholesky.factored(A).solve(rhs)
+    import scipy.sparse.linalg as spla
+
+    return spla.splu(sp.csc_matrix(A)).solve(rhs)
 
 
 def scale_to_area(UV, V, F) -> np.ndarray:
