@@ -217,6 +217,25 @@ def test_compiled_programs_are_kept_on_disk_and_loaded_by_a_new_process(fresh_ca
     assert float(lam(2.0, x)) == 2.0 * x.sum() and _programs.stats["plain"] == before["plain"] + 1
 
 
+def _eigenvalues(a):
+    return jnp.linalg.eigh(a)[0]
+
+
+def test_only_a_kept_program_that_calls_lapack_readies_lapack_when_loaded(fresh_cache, monkeypatch):
+    """Loading a kept program that calls LAPACK (a 3D Hessian's eigh) first lowers one eigh, so
+    that jaxlib's table of LAPACK functions is filled (else: a segmentation fault); a program
+    that calls none loads without it (the lowering and scipy.linalg's import: ~0.1 s)."""
+    x, idx, A = np.linspace(0.0, 1.0, 40), np.arange(30)[::-1] % 40, np.diag([3.0, 1.0, 2.0])
+    plain = float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx))  # compiled and kept
+    eig = np.asarray(_programs.jit(_eigenvalues)(A))
+    readied = []
+    monkeypatch.setattr(_programs, "_lapack_ready", lambda: readied.append(1))
+    assert float(_programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)) == plain  # a new process's load
+    assert readied == [] and _programs.stats["loaded"] >= 1
+    assert np.array_equal(np.asarray(_programs.jit(_eigenvalues)(A)), eig) and eig.tolist() == [1.0, 2.0, 3.0]
+    assert readied == [1]
+
+
 def test_loading_a_kept_program_compiles_nothing_not_even_the_options_probe(fresh_cache):
     """A warm process loads its kept programs without compiling: the key names the XLA options
     asked for, so the probe of whether jaxlib takes them (a compilation of ~30 ms) waits for

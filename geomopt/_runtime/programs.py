@@ -158,6 +158,18 @@ def _lapack_ready() -> None:
     jax.jit(jnp.linalg.eigh).lower(jax.ShapeDtypeStruct((3, 3), np.float32))
 
 
+def _calls_lapack(compiled) -> bool:
+    """Whether a compiled program calls LAPACK (a custom call to a ``lapack_*`` target in its HLO;
+    the text's metadata also names the caller's functions and files, so the target is what is
+    matched; True when the text cannot be had): only then does loading it need
+    :func:`_lapack_ready`, whose lowering and import of ``scipy.linalg`` cost ~0.1 s of a warm
+    process."""
+    try:
+        return 'custom_call_target="lapack_' in compiled.as_text()
+    except Exception:  # noqa: BLE001 -- no text on this backend or jax version
+        return True
+
+
 class Program:
     """``jax.jit(fun, static_argnums=..., compiler_options=...)`` whose compiled executables are
     kept on disk (see the module notes).  Call it like ``fun``; :meth:`prepare` loads or
@@ -223,9 +235,10 @@ class Program:
         data = _read(path, ident)
         if data is not None:
             try:
-                blob, in_tree, out_tree = pickle.loads(data)
+                blob, in_tree, out_tree, *lapack = pickle.loads(data)
                 stats["loaded"] += 1
-                _lapack_ready()
+                if lapack != [False]:  # a file of a former release does not say: ready it
+                    _lapack_ready()
                 loaded = se.deserialize_and_load(blob, in_tree, out_tree)
                 self._unproven[key] = path
                 _cache.count_loaded()
@@ -236,7 +249,7 @@ class Program:
         with _cache.bypassed():
             compiled = lowered.compile()
         try:
-            data = pickle.dumps(se.serialize(compiled))
+            data = pickle.dumps((*se.serialize(compiled), _calls_lapack(compiled)))
         except Exception:  # noqa: BLE001 -- host callbacks, captured constants: plain jit
             stats["plain"] += 1
             return None

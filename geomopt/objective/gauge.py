@@ -9,7 +9,6 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 
 from .objective import Objective
 
@@ -29,6 +28,8 @@ def _symmetries_of(density, params, d, samples=4, rtol=1e-9):
     J = np.eye(d) + 0.3 * rng.standard_normal((samples, d, d))
     J[np.linalg.det(J) < 0, 0] *= -1
     A = rng.standard_normal((d, d))
+    import scipy.linalg  # here: 30 ms of import that a solve without a gauge question never needs
+
     R = scipy.linalg.expm(A - A.T)
     base = np.asarray(psi(J, p))
     ok = np.isfinite(base)
@@ -87,6 +88,8 @@ def gauge_pins(N, free_dofs) -> np.ndarray:
     M = N @ _null(N[~free & _moving(N)])
     if M.shape[1] == 0:
         return np.zeros(0, np.int64)
+    import scipy.linalg
+
     _, _, piv = scipy.linalg.qr(M[free].T, pivoting=True, mode="economic")
     return np.sort(piv[: M.shape[1]])
 
