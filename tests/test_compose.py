@@ -192,6 +192,26 @@ def test_the_font_is_matplotlibs_found_without_importing_it():
     assert path is not None and path.endswith("DejaVuSans.ttf") and os.path.isfile(path)
 
 
+def test_a_warm_param_png_process_traces_lowers_and_compiles_nothing(tmp_path):
+    """The second ``geomopt param --png`` process (its programs kept on disk by the first) runs
+    no JAX trace, lowering or compilation: every kernel is loaded, nothing is done eagerly
+    (an eager ``jnp.asarray`` or slice would be lowered and compiled in every process)."""
+    mesh = write_obj(tmp_path / "m.obj", V3, F)
+    script = ("import sys, jax, geomopt.cli\n"
+              "events = []\n"
+              "jax.monitoring.register_event_duration_secs_listener(\n"
+              "    lambda event, secs, **kw: events.append(event.rsplit('/', 1)[-1]))\n"
+              f"code = geomopt.cli.main(['param', {str(mesh)!r}, '-o', {str(tmp_path / 'uv.obj')!r}, '--png', "
+              f"{str(tmp_path / 'uv.png')!r}, '--quiet'])\n"
+              "print(code, sorted(set(e for e in events if 'trace' in e or 'mlir' in e or 'compile' in e)))\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO), "GEOMOPT_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, env=env,
+                           cwd=str(tmp_path)) for _ in range(2)]
+    assert all(r.returncode == 0 for r in runs), runs[-1].stderr
+    assert "trace" in runs[0].stdout  # the cold process does trace: the listener hears it
+    assert runs[1].stdout.split() == ["0", "[]"], runs[1].stdout
+
+
 def test_param_png_does_not_import_matplotlib(tmp_path):
     """``geomopt param --png`` writes both PNGs (composed) with matplotlib never imported (nor
     scipy.optimize, nor scipy.sparse.linalg and csgraph where a sparse Cholesky other than SuperLU

@@ -492,7 +492,13 @@ def _densities_kernel(density, geom, x, params):
 
 @_x64.float64
 def element_densities(objective: Objective, x, params=None) -> jax.Array:
-    """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring."""
-    out = _densities_kernel(objective.energy.density, objective.geom, objective._pad(jnp.asarray(x))[0],
+    """(m,) the density of each element under ``x`` (unweighted), e.g. for colouring.  A concrete
+    ``x`` stays on the host up to the kept kernel and the result is cut to ``m`` there: no eager
+    JAX operation, which a new process would compile."""
+    concrete = not is_traced(x)
+    x = np.asarray(x, np.float64) if concrete else jnp.asarray(x)
+    out = _densities_kernel(objective.energy.density, objective.geom, objective.pad_map(x),
                             objective.params(**(params or {})))
-    return out[: objective.sizes.m] if objective.sizes.padded else out
+    if not objective.sizes.padded:
+        return out
+    return jax.device_put(np.asarray(out)[: objective.sizes.m]) if concrete else out[: objective.sizes.m]
