@@ -253,7 +253,11 @@ def boundary_loops(F) -> list[np.ndarray]:
         walk takes the first unused one, so such loops may pass a vertex twice;
         :func:`check_disk` reports those meshes.
     """
-    B = boundary_half_edges(F)
+    return _walk_loops(boundary_half_edges(F))
+
+
+def _walk_loops(B) -> list[np.ndarray]:
+    """:func:`boundary_loops` of the boundary half-edges ``B`` (k, 2), in half-edge order."""
     if B.shape[0] == 0:
         return []
     order = np.argsort(B[:, 0], kind="stable")
@@ -342,13 +346,12 @@ def connected_components(F, n_vertices):
     return int(uniq.size), labels
 
 
-def _fans_per_vertex(F: np.ndarray, n: int) -> np.ndarray:
+def _fans_per_vertex(F: np.ndarray, n: int, twin: np.ndarray) -> np.ndarray:
     """Number of edge-connected fans of faces around each vertex, ``(n,)`` int64.
 
     Corners of one vertex are linked when their faces share an edge at that vertex;
-    a manifold vertex has exactly one such group.  Needs valid twins (see ``_twins``).
+    a manifold vertex has exactly one such group.  Needs valid twins (``twin``, see ``_twins``).
     """
-    twin = _twins(F)
     h = np.flatnonzero(twin >= 0)
     t = twin[h]
     # source corner of h (vertex a) <-> target corner of its twin (also vertex a)
@@ -460,14 +463,14 @@ def _check_one_boundary(F, n, E) -> np.ndarray:
 
     B = H[twin < 0]
     degree = np.bincount(B.ravel(), minlength=n)
-    bad = (degree > 2) | (_fans_per_vertex(F, n) > 1)
+    bad = (degree > 2) | (_fans_per_vertex(F, n, twin) > 1)
     if bad.any():
         raise MeshError(
             f"{int(bad.sum())} non-manifold (bow-tie) vertices, whose faces do not form a "
             "single fan; split these vertices (one copy per fan) or remove faces"
         )
 
-    loops = boundary_loops(F)
+    loops = _walk_loops(B)
     if len(loops) != 1:
         raise MeshError(
             f"the mesh has {len(loops)} boundary loops; a disk has exactly one: "
@@ -506,12 +509,13 @@ def check_sphere(F, n_vertices) -> None:
     F = as_faces(F, n_vertices)
     n = _as_count(n_vertices)
     E = _check_manifold_faces(F, n, sphere=True)
-    open_edges = int((_twins(F) < 0).sum())
+    twin = _twins(F)
+    open_edges = int((twin < 0).sum())
     if open_edges:
         raise MeshError(
             f"the mesh has a boundary ({len(boundary_loops(F))} loop(s), {open_edges} edges): only a closed "
             "genus-0 surface maps onto the sphere; fill its holes first")
-    bad = _fans_per_vertex(F, n) > 1
+    bad = _fans_per_vertex(F, n, twin) > 1
     if bad.any():
         raise MeshError(
             f"{int(bad.sum())} non-manifold (pinched) vertices, whose faces do not form a single fan; "
