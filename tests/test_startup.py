@@ -40,6 +40,39 @@ def test_backend_solves_two_factorizations_on_one_analysis(backend):
 
 
 @pytest.mark.parametrize("backend", linsolve.available_backends())
+@pytest.mark.parametrize("ordering", ["metis", "amd"])
+def test_either_ordering_solves(backend, ordering):
+    _, _, _, A = _spd_lower(n=200, seed=3)
+    chol = linsolve.SparseCholesky.factored(A, backend, ordering)
+    assert chol.ordering == ordering
+    b = np.cos(np.arange(A.shape[0]))
+    np.testing.assert_allclose(A @ chol.solve(b), b, rtol=1e-10, atol=1e-10)
+
+
+def test_an_unknown_ordering_is_refused():
+    from geomopt import ParameterError
+
+    ip, ix, _, _ = _spd_lower()
+    with pytest.raises(ParameterError, match="unknown ordering 'rcm'; valid: metis, amd"):
+        linsolve.SparseCholesky(ip, ix, ordering="rcm")
+
+
+def test_a_tutte_system_factored_once_is_ordered_by_minimum_degree(monkeypatch):
+    """Its analysis is most of the work: minimum degree analyses it 3x faster than nested
+    dissection below ~3e5 rows (the factorization is no slower there)."""
+    from geomopt.mesh.tutte import tutte_embedding
+    from test_topology import grid_disk
+
+    asked = []
+    factored = linsolve.SparseCholesky.factored
+    monkeypatch.setattr(linsolve.SparseCholesky, "factored",
+                        classmethod(lambda cls, A, *a, **k: asked.append(k.get("ordering")) or factored(A, *a, **k)))
+    V, F = grid_disk(6, 5)
+    uv = tutte_embedding(V, F)
+    assert asked == ["amd"] and np.isfinite(uv).all()
+
+
+@pytest.mark.parametrize("backend", linsolve.available_backends())
 def test_backend_reports_an_indefinite_matrix_then_recovers(backend):
     ip, ix, data, A = _spd_lower()
     chol = linsolve.SparseCholesky(ip, ix, backend)

@@ -204,7 +204,8 @@ def _solve(A, rhs, symmetric):
     if symmetric:
         from ..objective.linsolve import SparseCholesky  # the one up-pointing import of the mesh layer
 
-        return SparseCholesky.factored(A).solve(rhs)
+        # factored once: minimum degree analyses faster than nested dissection below ~3e5 rows
+        return SparseCholesky.factored(A, ordering="amd" if A.shape[0] < 300_000 else "metis").solve(rhs)
     import scipy.sparse.linalg as spla
 
     return spla.splu(sp.csc_matrix(A)).solve(rhs)
