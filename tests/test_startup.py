@@ -49,6 +49,26 @@ def test_either_ordering_solves(backend, ordering):
     np.testing.assert_allclose(A @ chol.solve(b), b, rtol=1e-10, atol=1e-10)
 
 
+def test_an_analysis_in_the_background_is_waited_for_by_the_first_factorization():
+    pytest.importorskip("pymklpardiso")
+    ip, ix, data, A = _spd_lower(n=300, seed=5)
+    chol = linsolve.SparseCholesky(ip, ix, "pardiso")
+    chol.analyze(background=True)
+    chol.factor(data)  # waits for the thread, then factors on its analysis
+    b = np.sin(np.arange(A.shape[0]))
+    np.testing.assert_allclose(A @ chol.solve(b), b, rtol=1e-10, atol=1e-10)
+    assert chol._pending is None
+
+
+def test_what_a_background_analysis_raises_is_raised_where_it_is_waited_for():
+    def fail():
+        raise MemoryError("the analysis ran out of memory")
+
+    job = linsolve._Background(fail)
+    with pytest.raises(MemoryError, match="ran out of memory"):
+        job.result()
+
+
 def test_an_unknown_ordering_is_refused():
     from geomopt import ParameterError
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -132,6 +133,27 @@ def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
     return next(b for b in order if b in installed)
 
 
+class _Background(threading.Thread):
+    """``fn()`` run in a daemon thread from construction; :meth:`result` joins it and raises
+    what it raised."""
+
+    def __init__(self, fn):
+        super().__init__(daemon=True)
+        self.fn, self.error = fn, None
+        self.start()
+
+    def run(self):
+        try:
+            self.fn()
+        except BaseException as exc:  # noqa: BLE001 -- handed to the thread that waits
+            self.error = exc
+
+    def result(self):
+        self.join()
+        if self.error is not None:
+            raise self.error
+
+
 class SparseCholesky:
     """Factor symmetric positive-definite matrices sharing one CSC pattern (lower triangle), then
     solve.
@@ -171,6 +193,7 @@ class SparseCholesky:
         self.indices = np.asarray(indices, np.int64)
         self.n = len(indptr) - 1
         self._analysis = None
+        self._pending = None  # the analysis's thread while it runs in the background
         self._factor = None
         self.generation = 0
         if backend == "cholespy":
@@ -190,10 +213,19 @@ class SparseCholesky:
     def _csc(self, data):
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
-    def analyze(self):
-        """Symbolic analysis (fill-reducing ordering) of the pattern, for backends that reuse it."""
+    def analyze(self, background=False):
+        """Symbolic analysis (fill-reducing ordering) of the pattern, for backends that reuse it.
+        ``background``: PARDISO's runs in a thread (it releases the GIL) while the caller goes on
+        (e.g. loads its kernels: camelhead's 70 ms analysis hidden behind them); the first
+        :meth:`factor` waits for it and raises what it raised."""
         if self.n == 0:  # no free DOF (every vertex a handle): nothing to factor, backends refuse n=0
             return
+        if background and self.backend == "pardiso" and self._analysis is None and self._pending is None:
+            self._pending = _Background(self.analyze)
+            return
+        if self._pending is not None and self._pending is not threading.current_thread():
+            pending, self._pending = self._pending, None
+            pending.result()
         if self.backend == "pardiso" and self._analysis is None:
             from pymklpardiso import MTYPE_REAL_SYM_POSDEF
             from pymklpardiso._mkl_pardiso import PardisoSolver

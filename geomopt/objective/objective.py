@@ -459,7 +459,7 @@ class _Mesh:
         if backend not in self._cholesky:
             pat = self.pattern
             chol = SparseCholesky(pat.indptr, pat.indices, backend)
-            chol.analyze()
+            chol.analyze(background=True)  # while the solver loads its kernels
             self._cholesky[backend] = chol
         return self._cholesky[backend]
 
