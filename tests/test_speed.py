@@ -2,6 +2,7 @@
 
 import json
 import os
+import time
 import subprocess
 import sys
 from pathlib import Path
@@ -288,3 +289,71 @@ def test_a_kept_program_that_fails_at_its_first_run_is_deleted_and_jitted_again(
     assert not kept[0].exists()
     assert np.isclose(float(fresh(2.0, x, idx)), expect, rtol=1e-13)  # the plain program from now on
     assert _programs.stats["loaded"] == before["loaded"] + 1
+
+
+def _files(folder, sizes_and_ages):
+    """Files of the given sizes (bytes), last used the given seconds ago, half in ``programs/``."""
+    now = time.time()
+    paths = []
+    for k, (size, age) in enumerate(sizes_and_ages):
+        sub = folder / "programs" if k % 2 else folder
+        sub.mkdir(parents=True, exist_ok=True)
+        path = sub / f"entry-{k}-cache"
+        path.write_bytes(b"x" * size)
+        os.utime(path, (now - age, now - age))
+        paths.append(path)
+    return paths
+
+
+def test_the_cache_folder_is_kept_within_its_size_limit_least_recently_used_first(tmp_path):
+    paths = _files(tmp_path, [(400, 50), (300, 10), (200, 40), (100, 1), (300, 30)])  # 1,300 bytes
+    assert _cache.prune(tmp_path, limit=2000) == 0 and all(p.exists() for p in paths)  # under the limit
+    assert _cache.prune(tmp_path, limit=1000) == 2  # over: down to 3/4 of it, oldest first
+    assert [p.exists() for p in paths] == [False, True, False, True, True]
+    assert _cache.prune(tmp_path, limit=None) == 0  # no limit
+
+
+def test_the_size_limit_comes_from_the_environment(monkeypatch):
+    from geomopt import ParameterError
+
+    monkeypatch.setenv("GEOMOPT_CACHE_MAX_MB", "1.5")
+    assert _cache.max_bytes() == int(1.5 * 2**20)
+    monkeypatch.setenv("GEOMOPT_CACHE_MAX_MB", "off")
+    assert _cache.max_bytes() is None
+    monkeypatch.delenv("GEOMOPT_CACHE_MAX_MB")
+    assert _cache.max_bytes() == _cache.DEFAULT_MAX_MB * 2**20
+    monkeypatch.setenv("GEOMOPT_CACHE_MAX_MB", "lots")
+    with pytest.raises(ParameterError, match="GEOMOPT_CACHE_MAX_MB='lots' is not a size in MB"):
+        _cache.max_bytes()
+
+
+def test_a_loaded_program_is_marked_used_and_a_kept_one_prunes_the_folder(fresh_cache, monkeypatch):
+    """Loading a kept program touches its file (so the limit removes it last); keeping a new one
+    prunes the folder once per process, old files first."""
+    old = _files(fresh_cache, [(5000, 3600), (5000, 7200)])
+    monkeypatch.setattr(_cache, "_state", {**_cache._state, "pruned": False})
+    monkeypatch.setenv("GEOMOPT_CACHE_MAX_MB", str(1e-6))  # a byte: every old file must go
+    monkeypatch.setattr(_cache.threading, "Thread", _Inline)
+    x, idx = np.linspace(0.0, 1.0, 24), np.arange(20)[::-1] % 24
+    _programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)  # compiled, kept: prunes
+    assert not any(p.exists() for p in old) and _cache._state["pruned"]
+    kept = next((fresh_cache / "programs").glob("_gather_sum-*.xla"), None)
+    assert kept is None  # past a one-byte limit the new program went too: its file, not its use
+    monkeypatch.setenv("GEOMOPT_CACHE_MAX_MB", "off")
+    _programs.clear()
+    _programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)  # compiled and kept again (no second prune)
+    kept = next((fresh_cache / "programs").glob("_gather_sum-*.xla"))
+    os.utime(kept, (1.0, 1.0))
+    _programs.clear()
+    _programs.jit(_gather_sum, static_argnums=0)(2.0, x, idx)  # loaded: touched
+    assert kept.stat().st_mtime > time.time() - 60
+
+
+class _Inline:
+    """A Thread that runs its target at start, in the caller's thread."""
+
+    def __init__(self, target, daemon=None):
+        self.target = target
+
+    def start(self):
+        self.target()

@@ -29,13 +29,16 @@ import sys
 import threading
 import warnings
 
+from .errors import ParameterError
+
 ENV = "GEOMOPT_CACHE_DIR"
 _OFF = ("", "0", "off", "none", "false", "no")
 #: never write: a read-only cache folder is only read
 _NEVER = 1e12
 
 _lock = threading.Lock()
-_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "bypassed": 0, "listening": False}
+_state = {"dir": None, "writable": False, "hits": 0, "requests": 0, "bypassed": 0, "listening": False,
+          "pruned": False}
 
 
 def default_dir() -> str | None:
@@ -113,6 +116,70 @@ def set_cache_dir(path):
         path = None if path is None else os.path.abspath(os.path.expanduser(os.fspath(path)))
         _apply(path, path is not None and _writable(path))
         return path
+
+
+#: the environment variable of the cache folder's size limit in MB (default :data:`DEFAULT_MAX_MB`;
+#: ``0``, ``off`` or ``none``: no limit)
+MAX_ENV = "GEOMOPT_CACHE_MAX_MB"
+DEFAULT_MAX_MB = 2048
+
+
+def max_bytes() -> int | None:
+    """The cache folder's size limit in bytes (``GEOMOPT_CACHE_MAX_MB``), None for no limit; a
+    value that is not a number of MB is refused in one line."""
+    value = os.environ.get(MAX_ENV, str(DEFAULT_MAX_MB)).strip().lower()
+    if value in _OFF:
+        return None
+    try:
+        mb = float(value)
+    except ValueError:
+        raise ParameterError(f"{MAX_ENV}={value!r} is not a size in MB; give a number, or off for no limit") from None
+    if not mb >= 0:
+        raise ParameterError(f"{MAX_ENV}={value!r} is not a size in MB; give a number, or off for no limit")
+    return None if mb == 0 else int(mb * 2**20)
+
+
+def prune(folder=None, limit=None) -> int:
+    """Delete the least recently used files of the cache ``folder`` (default: the one in use;
+    JAX's entries and geomopt's ``programs/``) while it holds more than 3/4 of ``limit`` bytes
+    (default :func:`max_bytes`), once it holds more than ``limit``.  "Used" is a file's
+    modification time: a kept program is touched each time it is loaded, JAX's entries when
+    written.  Returns the number of files deleted (0 with no limit, no folder, or a folder that
+    cannot be written).  Runs after geomopt compiles (and keeps) a program: a warm process never
+    lists the folder."""
+    folder = cache_dir() if folder is None else folder
+    limit = max_bytes() if limit is None else limit
+    if folder is None or limit is None:
+        return 0
+    files = []
+    for base in (folder, os.path.join(folder, "programs")):
+        with contextlib.suppress(OSError), os.scandir(base) as entries:
+            for entry in entries:
+                with contextlib.suppress(OSError):
+                    if entry.is_file(follow_symlinks=False) and not entry.name.startswith(".probe"):
+                        st = entry.stat(follow_symlinks=False)
+                        files.append((st.st_mtime, st.st_size, entry.path))
+    total = sum(size for _, size, _ in files)
+    if total <= limit:
+        return 0
+    deleted = 0
+    for _, size, path in sorted(files):
+        if total <= 0.75 * limit:
+            break
+        with contextlib.suppress(OSError):
+            os.remove(path)
+            total -= size
+            deleted += 1
+    return deleted
+
+
+def prune_once() -> None:
+    """:func:`prune` in a background thread, once per process (the first compilation kept)."""
+    with _lock:
+        if _state.get("pruned"):
+            return
+        _state["pruned"] = True
+    threading.Thread(target=lambda: prune(), daemon=True).start()
 
 
 def cache_dir() -> str | None:

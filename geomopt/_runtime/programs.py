@@ -242,6 +242,8 @@ class Program:
                 loaded = se.deserialize_and_load(blob, in_tree, out_tree)
                 self._unproven[key] = path
                 _cache.count_loaded()
+                with contextlib.suppress(OSError):  # used now: the size limit removes the least recently used
+                    os.utime(path)
                 return loaded
             except Exception:  # noqa: BLE001 -- checksummed but not loadable here: compile it
                 pass
@@ -255,6 +257,7 @@ class Program:
             return None
         if _cache.programs_writable():
             _write(path, _header(ident, data) + data)
+            _cache.prune_once()  # the folder grows: keep it within its size limit
         stats["stored"] += 1
         return compiled
 
