@@ -189,7 +189,7 @@ def _read(path, kinds, format=None):
     if ext == ".obj" and "quad" in kinds:
         return read_obj_quads(path) + ("quad",)
     ext = _extension(path.with_suffix(ext), "read")
-    path, data = read_input(path, "tet mesh" if kinds == ("tetra",) else "mesh")
+    path, data = read_input(path, "tet mesh" if kinds == ("tetra",) else "mesh", mapped=ext == ".vtk")
     dims = (2, 3) if "quad" in kinds else (3,)
     found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
     kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]

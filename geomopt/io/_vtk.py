@@ -119,16 +119,21 @@ class _VtkCursor:
         self.pos = pos
         return tokens
 
+    def view(self, count, code, section):
+        """A binary file's next ``count`` big-endian values of numpy type ``code``, as a read-only
+        view of the file's bytes (no copy: the caller converts what it keeps, once)."""
+        size = count * np.dtype(code).itemsize
+        if self.pos + size > len(self.data):
+            raise MeshFormatError(f"{self.path}: the file ends inside the {section} section (it declares "
+                                  f"{count} values, {size} bytes); the file is truncated or a count is wrong")
+        out = np.frombuffer(self.data, ">" + code, count, self.pos)
+        self.pos += size
+        return out
+
     def values(self, count, code, section):
         """``count`` values of numpy type ``code`` (ASCII tokens or big-endian binary)."""
         if self.binary:
-            size = count * np.dtype(code).itemsize
-            if self.pos + size > len(self.data):
-                raise MeshFormatError(f"{self.path}: the file ends inside the {section} section (it declares "
-                                      f"{count} values, {size} bytes); the file is truncated or a count is wrong")
-            out = np.frombuffer(self.data, ">" + code, count, self.pos).astype(code)  # native byte order
-            self.pos += size
-            return out
+            return self.view(count, code, section).astype(code)  # native byte order
         dtype = np.float64 if code[0] == "f" else np.int64
         found = _NEXT_KEYWORD.search(self.data, self.pos)  # the section's values end where a line starts a word
         end = found.start() + 1 if found else len(self.data)
@@ -231,15 +236,15 @@ def parse_vtk(data, path):
     -------
     VolumeCells
     """
-    data = data.removeprefix(UTF8_BOM)
-    head = data[:4096].split(b"\n", 3)
+    skip = len(UTF8_BOM) if data[:len(UTF8_BOM)] == UTF8_BOM else 0  # bytes or a mapped file: no copy
+    head = data[skip:skip + 4096].split(b"\n", 3)
     if len(head) < 4 or not head[0].strip().lower().startswith(b"# vtk datafile version"):
         raise MeshFormatError(f"{path} does not start with '# vtk DataFile Version ...'; it is not a legacy "
                               f"VTK file")
     mode = head[2].strip().upper()
     if mode not in (b"ASCII", b"BINARY"):
         raise MeshFormatError(f"{path}, line 3: expected ASCII or BINARY, found {show(head[2].strip())}")
-    binary, start = mode == b"BINARY", sum(len(line) + 1 for line in head[:3])
+    binary, start = mode == b"BINARY", skip + sum(len(line) + 1 for line in head[:3])
     cursor = _VtkCursor(data, start, path) if binary else _VtkCursor(text_data(data[start:], path, "VTK file"), None,
                                                                       path)
     tokens = cursor.line()
@@ -290,10 +295,11 @@ def _vtk_cells(cursor, a, b, path):
         if a == 0 or offsets[0] != 0 or offsets[-1] != b:
             raise MeshFormatError(f"{path}: the OFFSETS must rise from 0 to the connectivity size {b}")
         return offsets[1:], conn  # that they rise is checked with the cell types
-    flat = cursor.values(b, "i4", "CELLS").astype(np.int64, copy=False)
+    flat = cursor.view(b, "i4", "CELLS") if cursor.binary else cursor.values(b, "i4", "CELLS")
     k = b // a - 1 if a and b % a == 0 else -1  # one cell size throughout (tets, hexes, ...)?
-    if k >= 0 and (flat[0::k + 1] == k).all():
-        return np.arange(1, a + 1) * k, flat.reshape(a, k + 1)[:, 1:].ravel()
+    if k >= 0 and (flat[0::k + 1] == k).all():  # byte order, width and the sizes' removal in one copy
+        return np.arange(1, a + 1) * k, flat.reshape(a, k + 1)[:, 1:].astype(np.int64).ravel()
+    flat = flat.astype(np.int64)
     sizes, conn, pos = [], [], 0
     for _ in range(a):
         if pos >= b or flat[pos] < 0 or pos + 1 + flat[pos] > b:
