@@ -69,6 +69,26 @@ def test_what_a_background_analysis_raises_is_raised_where_it_is_waited_for():
         job.result()
 
 
+def test_a_pattern_or_array_the_c_libraries_would_overrun_is_refused():
+    """A column without its diagonal (a DOF no element couples) crashed the process in PARDISO's
+    analysis (heap corruption); such patterns, and values or right-hand sides of the wrong size,
+    are refused before any C call."""
+    ip, ix, data, A = _spd_lower(n=10)
+    chol = linsolve.SparseCholesky(ip, ix)
+    with pytest.raises(ValueError, match="9 values for a pattern of"):
+        chol.factor(data[:9])
+    chol.factor(data)
+    with pytest.raises(ValueError, match=r"right-hand side of shape \(11,\) for 10 unknowns"):
+        chol.solve(np.ones(11))
+    empty = np.r_[ip[:5], ip[4], ip[5:] + 0]  # an 11th column, empty, inserted after the 4th
+    with pytest.raises(ValueError, match="column 4 is empty"):
+        linsolve.SparseCholesky(empty, np.where(ix >= 4, ix + 1, ix))
+    with pytest.raises(ValueError, match="column 1 does not start with its diagonal"):
+        linsolve.SparseCholesky(np.array([0, 2, 3, 4]), np.array([0, 1, 2, 2]))  # column 1: row 2 only
+    with pytest.raises(ValueError, match="row index outside 0..1"):
+        linsolve.SparseCholesky(np.array([0, 2, 3]), np.array([0, 5, 1]))  # column 0: rows 0 and 5 of 2
+
+
 def test_an_unknown_ordering_is_refused():
     from geomopt import ParameterError
 
@@ -289,6 +309,25 @@ def test_a_different_mesh_of_the_same_bucket_compiles_nothing(tmp_path, cache_at
     exact = Objective(pb, "symmetric_dirichlet")
     misses, _ = _misses_hits(lambda: exact.value(B[0][:, :2], exact.params()))
     assert misses > 0
+
+
+def test_a_bijective_solve_of_another_mesh_of_the_same_bucket_compiles_nothing(tmp_path, cache_at):
+    """The bijective mode's objectives (the mesh's, and mesh + scaffold at each remesh) are padded
+    to size buckets as parameterize's are: without them every triangle count compiled its own
+    kernels (~2.3 s a count in every process), and an atlas's charts compiled one set each."""
+    from geomopt.mesh.generators import spiral_strip
+    from geomopt.scaffold import bijective_parameterize
+
+    A = spiral_strip(turns=2.5, spacing=0.5, width=0.3, lift=1.5, n_across=2)
+    B = spiral_strip(turns=2.4, spacing=0.5, width=0.3, lift=1.5, n_across=2)  # same size buckets
+    assert len(A[1]) != len(B[1])
+    cache_at(tmp_path / "cache")
+    first = bijective_parameterize(*A, x0=A[0][:, :2].copy(), progress=False)
+    assert first.success and first.details.scaffold_triangles > 0, first.message
+    jax.clear_caches()  # a new process, as far as compiled code goes
+    _programs.clear()
+    misses, hits = _misses_hits(lambda: bijective_parameterize(*B, x0=B[0][:, :2].copy(), progress=False))
+    assert misses == 0 and hits > 0
 
 
 def test_a_read_only_cache_is_read_and_never_written(tmp_path, cache_at, monkeypatch):

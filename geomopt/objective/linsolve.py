@@ -133,6 +133,25 @@ def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
     return next(b for b in order if b in installed)
 
 
+def _check_lower_pattern(indptr, indices) -> None:
+    """Refuse (ValueError) what is not a lower-triangle CSC pattern with every diagonal entry
+    first in its column: the C libraries read such a pattern out of bounds (a column of a vertex
+    that no element uses crashed the process in PARDISO's analysis), so it must never reach them."""
+    n = len(indptr) - 1
+    if n < 0 or indptr[0] != 0 or indptr[-1] != len(indices) or (np.diff(indptr) < 0).any():
+        raise ValueError(f"sparse pattern: column pointers must rise from 0 to {len(indices)} entries")
+    if n and (np.diff(indptr) == 0).any():
+        j = int(np.flatnonzero(np.diff(indptr) == 0)[0])
+        raise ValueError(f"sparse pattern: column {j} is empty (a DOF no element couples); every column needs "
+                         f"its diagonal entry")
+    if n and (indices[indptr[:-1]] != np.arange(n)).any():
+        j = int(np.flatnonzero(indices[indptr[:-1]] != np.arange(n))[0])
+        raise ValueError(f"sparse pattern: column {j} does not start with its diagonal entry (a lower triangle "
+                         f"with sorted rows is expected)")
+    if len(indices) and (indices.max() >= n or indices.min() < 0):
+        raise ValueError(f"sparse pattern: a row index outside 0..{n - 1}")
+
+
 class _Background(threading.Thread):
     """``fn()`` run in a daemon thread from construction; :meth:`result` joins it and raises
     what it raised."""
@@ -192,6 +211,7 @@ class SparseCholesky:
         self.indptr = np.asarray(indptr, np.int64)
         self.indices = np.asarray(indices, np.int64)
         self.n = len(indptr) - 1
+        _check_lower_pattern(self.indptr, self.indices)
         self._analysis = None
         self._pending = None  # the analysis's thread while it runs in the background
         self._factor = None
@@ -247,6 +267,9 @@ class SparseCholesky:
         one: :attr:`generation` counts them)."""
         self.generation += 1
         data = np.ascontiguousarray(data, dtype=np.float64)
+        if data.shape != self.indices.shape:  # the C libraries would read past it: a crash, not an error
+            raise ValueError(f"SparseCholesky.factor: {data.shape[0] if data.ndim == 1 else data.shape} values for a "
+                             f"pattern of {self.indices.size} entries")
         if not np.isfinite(data).all():
             raise NotPositiveDefinite("matrix has non-finite entries")
         if self.n == 0:
@@ -288,6 +311,8 @@ class SparseCholesky:
 
     def solve(self, b):
         b = np.ascontiguousarray(b, dtype=np.float64)
+        if b.ndim not in (1, 2) or b.shape[0] != self.n:  # the C libraries would read and write past it
+            raise ValueError(f"SparseCholesky.solve: right-hand side of shape {b.shape} for {self.n} unknowns")
         if self.n == 0:
             return np.zeros_like(b)
         if self.backend == "pardiso":
