@@ -206,7 +206,9 @@ class ScaffoldContinuation(AbstractContinuation):
             self.problem, kind="planar", n_vertices=len(X), simplices=simplices, input_simplices=simplices,
             rest_inv=np.concatenate([inv, rest_inverse(X, S)]),
             volumes=np.concatenate([vol, np.full(len(S), self.weight)]), rest_vertices=X)
-        return Objective(problem, self.objective.energy)
+        # size buckets: every remesh of the scaffold has another triangle count, and without them
+        # each count compiled its own kernels (~2.3 s a size, warm processes too)
+        return Objective(problem, self.objective.energy, buckets=True)
 
     def scaffolded(self, X):
         """``(objective, X)``: the scaffold built around the map ``X`` (n, 2) (refined), the
@@ -227,13 +229,13 @@ class ScaffoldContinuation(AbstractContinuation):
 
     def __call__(self, state, outcome) -> Decision:
         if self.S is None:  # the scaffold-free phase ended
-            self.free, self.X = state.iteration, np.asarray(state.x)
+            self.free, self.X = state.iteration, _real_rows(state)
             record = FreeRecord(self.free, self._log(self.X), outcome)
             if outcome is not None:
                 return Decision.stop_with(outcome, record=record)
             objective, X = self.scaffolded(self.X)
             return Decision.go(objective=objective, x=X, solver=self.inner, record=record)
-        X = np.asarray(state.x)
+        X = _real_rows(state)
         if outcome is Outcome.NONFINITE or not np.isfinite(X).all():
             return Decision.stop_with(Outcome.NONFINITE)
         self.outer += 1
@@ -258,6 +260,11 @@ class ScaffoldContinuation(AbstractContinuation):
                                flips=self.flips, scaffold_triangles=0 if self.S is None else len(self.S))
         return Final(x, outcome, cert, reason, problem=self.problem, objective=self.objective,
                      energy=self.energies[-1], volume=self.objective.total_volume, details=details)
+
+
+def _real_rows(state) -> np.ndarray:
+    """A solver state's map without the rows its size-bucketed objective pads it with."""
+    return np.asarray(state.objective.unpad_map(np.asarray(state.x)))
 
 
 def _inner_solver(solver, opts, named):
@@ -354,7 +361,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     check_progress(progress, "bijective_parameterize")
     t_start = time.perf_counter()
     problem = Problem.surface(V, F)
-    objective = Objective(problem, energy, **kwargs)
+    objective = Objective(problem, energy, buckets=True, **kwargs)
     named = solver is None or isinstance(solver, str)
     solver = get_solver("newton" if solver is None else solver)
     inner = _inner_solver(solver, opts, named)
