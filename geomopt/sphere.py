@@ -398,7 +398,7 @@ def sphere_distortion(V, F, x) -> dict:
     the triangles not positively oriented about the centre (exact).
     """
     problem = Problem.sphere(V, F)
-    objective = Objective(problem, "symmetric_dirichlet")
+    objective = Objective(problem, "symmetric_dirichlet", buckets=True)  # one kernel per size bucket
     x = np.asarray(x, dtype=np.float64)
     density = np.asarray(element_densities(objective, x))
     ratio = spherical_areas(x, problem.simplices) / problem.volumes
