@@ -298,8 +298,9 @@ def graph_components(n, i, j):
     Union by hooking with pointer jumping (Shiloach & Vishkin 1982), in whole-array steps: each
     round hooks the larger of the two roots of every edge whose ends have different roots onto
     the smaller, then compresses every path to its root.  The roots of one component merge in a
-    few rounds (a grid of 10^6 triangles: as fast as SciPy's ``csgraph``, whose import brings
-    ``scipy.sparse.linalg`` and ``scipy.linalg``, 50 ms of every process that checks a mesh).
+    few rounds (the vertex graph of 10^6 shuffled grid triangles: 0.13-0.4 s, SciPy's ``csgraph``
+    0.14-0.2 s with its matrix built; ``csgraph``'s import brings ``scipy.sparse.linalg`` and
+    ``scipy.linalg``, 50 ms of every process that checks a mesh).
     """
     parent = np.arange(n, dtype=np.int64)
     i, j = np.asarray(i, np.int64).ravel(), np.asarray(j, np.int64).ravel()
