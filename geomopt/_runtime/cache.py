@@ -24,6 +24,7 @@ child processes inherit them; otherwise it updates ``jax.config``.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 import threading
@@ -133,8 +134,8 @@ def max_bytes() -> int | None:
     try:
         mb = float(value)
     except ValueError:
-        raise ParameterError(f"{MAX_ENV}={value!r} is not a size in MB; give a number, or off for no limit") from None
-    if not mb >= 0:
+        mb = math.nan
+    if not mb >= 0:  # also NaN: not a number
         raise ParameterError(f"{MAX_ENV}={value!r} is not a size in MB; give a number, or off for no limit")
     return None if mb == 0 else int(mb * 2**20)
 
@@ -176,7 +177,7 @@ def prune(folder=None, limit=None) -> int:
 def prune_once() -> None:
     """:func:`prune` in a background thread, once per process (the first compilation kept)."""
     with _lock:
-        if _state.get("pruned"):
+        if _state["pruned"]:
             return
         _state["pruned"] = True
     threading.Thread(target=lambda: prune(), daemon=True).start()
