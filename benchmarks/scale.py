@@ -35,8 +35,8 @@ after ``init``), ``factor_s, solve_s, linesearch_s`` (parts of the direct iterat
 ``cg_tight_*`` (the same with ``rtol=1e-8``), ``*_direct_rel`` (relative distance to the direct
 step); ``*_cpu_s``: median CPU seconds (all threads) of each timing, steadier than wall time
 on a loaded machine; with ``--solve``: ``direct_*`` / ``cg_*`` ``solve_s, newton_iters,
-energy, outcome`` (projected Newton to convergence, second run; ``reuse_*``: the direct
-direction with ``Newton(reuse_factor=True)``).  ``--untangle`` measures
+energy, outcome`` (projected Newton to convergence, second run; ``direct_*`` factors every
+iteration, ``reuse_factor=False``; ``reuse_*``: ``Newton(reuse_factor=True)``).  ``--untangle`` measures
 instead, alone in the process: ``untangle_outer_s, untangle_setup_s, untangle_cpu_s,
 untangle_inner, untangle_inverted`` (before, after) and ``untangle_peak_mem_mb`` for one
 outer iteration of :func:`geomopt.untangling.untangle` (its default solver) on the mesh with
@@ -108,7 +108,7 @@ def run_solves(obj, x0):
 
     out = {}
     backend = available_backends()[0]
-    for key, solver in (("direct", Newton(projection="clamp", linear_solver=backend)),
+    for key, solver in (("direct", Newton(projection="clamp", linear_solver=backend, reuse_factor=False)),
                         ("reuse", Newton(projection="clamp", linear_solver=backend, reuse_factor=True)),
                         ("cg", Newton(projection="clamp", linear_solver="cg"))):
         for _ in range(2):  # the first run compiles
@@ -179,7 +179,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
         out["analyze_s"], chol = _median(lambda: obj.cholesky(available_backends()[0]), 1, "analyze_s")
         out["factor_s"], _ = _median(lambda: chol.factor(data), 3, "factor_s")
         out["solve_s"], d_direct = _median(lambda: -chol.solve(g), 3, "solve_s")
-        newton = Newton(projection="clamp", linear_solver=available_backends()[0])
+        newton = Newton(projection="clamp", linear_solver=available_backends()[0], reuse_factor=False)
         out["direct_init_s"], state = _median(lambda: newton.init(obj, x, params), 1, "direct_init_s")
         dx = np.zeros(x.size)
         dx[pat.free_dofs] = d_direct

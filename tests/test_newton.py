@@ -145,14 +145,73 @@ def test_reuse_factor_takes_cg_directions_preconditioned_by_the_held_factor():
     chol = obj.cholesky("auto")
     state = solver.step(solver.init(obj, x0, obj.params()))
     factored = chol.generation
-    solver.step(dataclasses.replace(state, memory=state.memory._replace(costs=(3e-3, 1e-3))))
+    def costs(state, factor_s, iter_s):
+        reuse = state.memory.reuse._replace(factor_s=factor_s, iter_s=iter_s)
+        return dataclasses.replace(state, memory=state.memory._replace(reuse=reuse))
+
+    solver.step(costs(state, 3e-3, 1e-3))
     assert chol.generation == factored + 1  # 3 CG iterations' time: too few, the second iteration factors
-    state = dataclasses.replace(state, memory=state.memory._replace(costs=(1.0, 1e-6)))
+    state = costs(state, 1.0, 1e-6)
     for _ in range(8):
         state = solver.step(state)
     assert chol.generation == factored + 1
     assert float(state.value) == pytest.approx(float(ref.energy), rel=1e-12)
     np.testing.assert_allclose(np.asarray(obj.unpad_map(state.x)), ref.x, atol=1e-7)
+
+
+def test_reuse_factor_waits_1_2_4_iterations_after_failed_tries(monkeypatch):
+    """A try of CG with the held factor that misses the forcing term is followed by 1, then 2,
+    then 4 iterations that factor without trying (a Hessian that changes too fast for the
+    lagged factor costs at most O(log) wasted tries), and a try that succeeds resets the wait;
+    no try follows a step the search cut."""
+    import dataclasses
+
+    from geomopt.solvers import newton
+    from geomopt.solvers.newton import Reuse
+
+    obj, x0 = _swirled_grid(8)
+    solver = Newton(projection="clamp", reuse_factor=True, max_steps=50)
+    tries = []
+
+    def missing(matvec, b, precondition, rtol, maxiter):
+        tries.append(len(tries))
+        return None, 1
+
+    monkeypatch.setattr(newton, "pcg", missing)
+    state = solver.step(solver.init(obj, x0, obj.params()))
+    state = dataclasses.replace(state, memory=state.memory._replace(reuse=state.memory.reuse._replace(factor_s=1.0)))
+    tried_at = []
+    for k in range(8):
+        before = len(tries)
+        state = solver.step(dataclasses.replace(state, memory=state.memory._replace(
+            reuse=state.memory.reuse._replace(factor_s=1.0))))
+        if len(tries) > before:
+            tried_at.append(k)
+    assert tried_at == [0, 2, 5]  # a try, 1 iteration factoring, a try, 2, a try, 4...
+    assert Reuse(on=True, misses=3, wait=4).tried(True, 1e-3) == Reuse(on=True, iter_s=1e-3)
+    # after a cut step (outside Newton's local regime, where the Hessian still changes fast) no try
+    fresh = state.memory._replace(reuse=Reuse(on=True, factor_s=1.0, iter_s=1e-6))
+    before = len(tries)
+    solver.step(dataclasses.replace(state, memory=fresh, stats=state.stats._replace(step_size=0.5)))
+    assert len(tries) == before
+    solver.step(dataclasses.replace(state, memory=fresh, stats=state.stats._replace(step_size=1.0)))
+    assert len(tries) == before + 1
+
+
+def test_reuse_factor_auto_from_a_size(monkeypatch):
+    """``reuse_factor="auto"`` (the default) reuses the factorization only from
+    ``REUSE_FROM_DOFS`` free DOFs; a value other than True, False, 'auto' is refused."""
+    from geomopt.solvers import newton
+
+    obj, x0 = _swirled_grid()
+    assert Newton().reuse_factor == "auto"
+    assert not Newton().init(obj, x0, obj.params()).memory.reuse.on
+    assert Newton(reuse_factor=True).init(obj, x0, obj.params()).memory.reuse.on
+    monkeypatch.setattr(newton, "REUSE_FROM_DOFS", 10)
+    assert Newton().init(obj, x0, obj.params()).memory.reuse.on
+    assert not Newton(reuse_factor=False).init(obj, x0, obj.params()).memory.reuse.on
+    with pytest.raises(geomopt.ParameterError, match="reuse_factor must be True, False or 'auto'"):
+        Newton(reuse_factor="yes")
 
 
 def test_newton_shares_the_meshs_symbolic_analysis():

@@ -26,7 +26,7 @@ from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_so
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
-__all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory"]
+__all__ = ["Newton", "SLIM", "CM", "AbstractNewton", "NewtonMemory", "Reuse"]
 
 
 #: how far above the energy a full Newton step at rounding level may land and still be taken
@@ -37,6 +37,36 @@ POLISH_ROUNDING = 1e-13
 #: ``reuse_factor`` tries CG before factoring
 MIN_REUSE_ITERS = 4
 
+#: free DOFs from which ``reuse_factor="auto"`` reuses the factorization (see :class:`AbstractNewton`)
+REUSE_FROM_DOFS = 300_000
+
+
+class Reuse(NamedTuple):
+    """The bookkeeping of ``reuse_factor`` (:class:`AbstractNewton`).
+
+    on : whether CG preconditioned with the factorization held is tried (``reuse_factor``
+        resolved for the mesh);  factor_s, iter_s : wall seconds of the last numeric
+        factorization and of one iteration of that CG (0: not measured yet);  wait : iterations
+        that factor before the next try, after ``misses`` tries in a row did not reach the
+        forcing term in time (1, 2, 4...; 0 again after a try that did).
+    """
+
+    on: bool = False
+    factor_s: float = 0.0
+    iter_s: float = 0.0
+    wait: int = 0
+    misses: int = 0
+
+    def tried(self, ok: bool, iter_s: float) -> "Reuse":
+        """After a try: its outcome and the measured seconds of one CG iteration."""
+        misses = 0 if ok else self.misses + 1
+        return self._replace(iter_s=iter_s, misses=misses, wait=0 if ok else 2 ** (misses - 1))
+
+    def factored(self, factor_s: float, solve_s: float) -> "Reuse":
+        """After a factorization (seconds) and its solve (the first estimate of a CG iteration:
+        a solve and about half a solve's time in products)."""
+        return self._replace(factor_s=factor_s, iter_s=self.iter_s or 1.5 * solve_s)
+
 
 class NewtonMemory(NamedTuple):
     """What a Newton-type solver keeps between steps.
@@ -46,8 +76,7 @@ class NewtonMemory(NamedTuple):
     grad_ref : the first gradient norm (CG's scale-free forcing term);
     cooldown : iterations left during which ``Adaptive`` clamps after an exact Hessian failed
         to factor;  mu : the Levenberg-Marquardt shift of the exact Hessian (None: not used yet);
-    costs : wall seconds of the last numeric factorization and of one iteration of CG
-        preconditioned by it (``reuse_factor``; 0: not measured yet).
+    reuse : the :class:`Reuse` bookkeeping of ``reuse_factor``.
     """
 
     factor: Any = None
@@ -55,7 +84,7 @@ class NewtonMemory(NamedTuple):
     grad_ref: float = 1.0
     cooldown: int = 0
     mu: float | None = None
-    costs: tuple = (0.0, 0.0)
+    reuse: Reuse = Reuse()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,6 +118,12 @@ class AbstractNewton(AbstractSolver):
         CG reaches the forcing term ``min(cg.eta_max, sqrt(|g| / g_ref))`` (Eisenstat & Walker
         1996) within the wall time of one factorization, else the Hessian is factored (an
         inexact Newton step that skips the factorization where the Hessian changed little).
+        Tried only after a full step (Newton's local regime), and after a failed try the next
+        1, 2, 4... iterations factor without trying.  ``"auto"`` (default): on from
+        :data:`REUSE_FROM_DOFS` free DOFs, where a factorization costs seconds; measured at
+        10^6 triangles (benchmarks/README, "Newton at 10^6"): the swirled grid 23.0 -> 16.3 s to
+        convergence (1 factorization instead of 5), igea subdivided (960k triangles, free
+        boundary, 17 iterations) 90.3 -> 88.3 s.
     """
 
     projection: Any = Clamp()
@@ -99,7 +134,7 @@ class AbstractNewton(AbstractSolver):
     search: InjectiveSearch = InjectiveSearch()
     # eta_max 0.01, not 0.5: measured 4 instead of 8 Newton iterations, 1.9x less CPU (10^5 tets)
     cg: NewtonCG = NewtonCG(eta_max=0.01)
-    reuse_factor: bool = False
+    reuse_factor: bool | str = "auto"
 
     def __post_init__(self):
         if type(self) is AbstractNewton:
@@ -111,6 +146,9 @@ class AbstractNewton(AbstractSolver):
                                  f"'none' (the exact Hessian) or a projection object (geomopt.solvers.Clamp(), "
                                  f"SLIMProxy()...), got {self.projection!r}") from None
         self._check(linear_solver=OneOf(BACKENDS + ("cg",)), regularization=Real(0.0, lo_open=True))
+        if not (isinstance(self.reuse_factor, bool) or self.reuse_factor == "auto"):
+            raise ParameterError(f"{type(self).__name__}: reuse_factor must be True, False or 'auto', "
+                                 f"got {self.reuse_factor!r}")
 
     @property
     def termination(self) -> Termination:
@@ -144,7 +182,8 @@ class AbstractNewton(AbstractSolver):
             # mesh and backend, whichever solves or derivatives use it; each step refactors
             # before it solves (SparseCholesky.generation)
             chol = objective.cholesky(self.linear_solver)
-            state = _with_grad_ref(self._start(objective, x0, params, NewtonMemory(factor=chol)))
+            reuse = self.reuse_factor is True or (self.reuse_factor == "auto" and chol.n >= REUSE_FROM_DOFS)
+            state = _with_grad_ref(self._start(objective, x0, params, NewtonMemory(factor=chol, reuse=Reuse(on=reuse))))
             # compile (or load) every kernel the loop uses now, so that setup time holds the
             # compilation; ahead of time: no warm-up evaluation is run
             for projection in self.projection.kernels():
@@ -154,30 +193,32 @@ class AbstractNewton(AbstractSolver):
 
     def _direction(self, state, projection, shifts):
         """Newton direction with the first diagonal shift (relative to the mean diagonal) in
-        ``shifts`` that factors: ``(value, grad, dx, decrement, shift, costs)``, ``dx`` (shaped
-        like ``x``, zero on fixed DOFs, on the device) None on failure; ``costs`` as
-        :attr:`NewtonMemory.costs`."""
+        ``shifts`` that factors: ``(value, grad, dx, decrement, shift, reuse)``, ``dx`` (shaped
+        like ``x``, zero on fixed DOFs, on the device) None on failure; ``reuse`` the
+        :class:`Reuse` bookkeeping after it."""
         if state.memory.cg_op is not None:
-            return self._cg_direction(state, projection, shifts) + (state.memory.costs,)
+            return self._cg_direction(state, projection, shifts) + (state.memory.reuse,)
         obj, pat, mem = state.objective, state.objective.pattern, state.memory
         value, grad, data = obj.hessian(state.x, state.params, projection)
         data = np.array(data)  # the one host copy (the kernel's output is freed), shifted in place
         diag = data[pat.diag]  # unshifted
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
         scale = max(float(np.mean(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
-        costs = mem.costs
+        reuse = mem.reuse
         for i, shift in enumerate(shifts):
             data[pat.diag] = diag + shift * scale
-            d_free, costs = self._lagged_direction(mem, pat, data, g) if i == 0 else (None, costs)
+            # the lagged factor only where Newton converges locally: after a full step
+            lag = i == 0 and state.stats.step_size >= 1.0
+            d_free, reuse = self._lagged_direction(mem, pat, data, g) if lag else (None, reuse)
             if d_free is None:
-                d_free, costs = self._factored_direction(mem, data, g, costs)
+                d_free, reuse = self._factored_direction(mem.factor, data, g, reuse)
             if d_free is None:
                 continue
             dx = np.zeros(state.x.size)
             dx[pat.free_dofs] = d_free
             # device_put: no copy program per shape (jnp.asarray compiles one)
-            return float(value), grad, jax.device_put(dx.reshape(state.x.shape)), 0.5 * float(-g @ d_free), shift, costs
-        return float(value), grad, None, None, None, costs
+            return float(value), grad, jax.device_put(dx.reshape(state.x.shape)), 0.5 * float(-g @ d_free), shift, reuse
+        return float(value), grad, None, None, None, reuse
 
     def _polish(self, obj, params, x, value, dx, decrement):
         """``(x + dx, E, gradient)`` where the search took no step, a sliver of one or a doubled
@@ -199,30 +240,30 @@ class AbstractNewton(AbstractSolver):
         return xn, vn, gn
 
     @staticmethod
-    def _factored_direction(mem, data, g, costs):
-        """``(-H^-1 g, costs)`` by factoring ``data``; None when it does not factor."""
-        chol = mem.factor
+    def _factored_direction(chol, data, g, reuse):
+        """``(-H^-1 g, reuse)`` by factoring ``data``; None when it does not factor."""
         t0 = time.perf_counter()
         try:
             chol.factor(data)
         except NotPositiveDefinite:
-            return None, costs
+            return None, reuse
         t1 = time.perf_counter()
         d_free = -chol.solve(g)
-        # one preconditioned CG iteration: a solve and about half a solve's time in products
-        return d_free, (t1 - t0, costs[1] or 1.5 * (time.perf_counter() - t1))
+        return d_free, reuse.factored(t1 - t0, time.perf_counter() - t1)
 
     def _lagged_direction(self, mem, pat, data, g):
-        """``(-H^-1 g, costs)`` for the values ``data`` by CG preconditioned with the
-        factorization held (``reuse_factor``); None instead of the direction when reuse is off,
-        nothing is factored yet, or CG does not reach the forcing term within one
-        factorization's time (or meets negative curvature)."""
-        factor_s, iter_s = mem.costs
-        budget = int(factor_s / iter_s) if iter_s else 0
+        """``(-H^-1 g, reuse)`` for the values ``data`` by CG preconditioned with the
+        factorization held (``reuse_factor``); None instead of the direction when reuse is off
+        or waits after failed tries, nothing is factored yet, or CG does not reach the forcing
+        term within one factorization's time (or meets negative curvature)."""
+        reuse = mem.reuse
+        budget = int(reuse.factor_s / reuse.iter_s) if reuse.iter_s else 0
         # CG needs a few iterations even where the Hessian changed little (3-9 measured at 10^6
         # triangles): below MIN_REUSE_ITERS affordable ones, trying costs more than it saves
-        if not self.reuse_factor or mem.factor.generation == 0 or budget < MIN_REUSE_ITERS:
-            return None, mem.costs
+        if reuse.wait:
+            return None, reuse._replace(wait=reuse.wait - 1)
+        if not reuse.on or mem.factor.generation == 0 or budget < MIN_REUSE_ITERS:
+            return None, reuse
         L = pat.lower(data)
         D, LT = L.diagonal(), L.T
 
@@ -233,7 +274,7 @@ class AbstractNewton(AbstractSolver):
         rtol = min(self.cg.eta_max, math.sqrt(gnorm / mem.grad_ref))
         t0 = time.perf_counter()
         d_free, iterations = pcg(matvec, -g, mem.factor.solve, rtol, budget)
-        return d_free, (factor_s, (time.perf_counter() - t0) / max(iterations, 1))
+        return d_free, reuse.tried(d_free is not None, (time.perf_counter() - t0) / max(iterations, 1))
 
     def _cg_direction(self, state, projection, shifts):
         """:meth:`_direction` by CG, all on the device (only scalars come to the host): the
@@ -255,13 +296,13 @@ class AbstractNewton(AbstractSolver):
         mem = mem._replace(cooldown=max(mem.cooldown - 1, 0))
         if not projection.psd:
             mu = max(mem.mu if mem.mu is not None else reg, reg)
-            value, grad, dx, decrement, used, costs = self._direction(state, projection, [mu, 1e2 * mu])
+            value, grad, dx, decrement, used, reuse = self._direction(state, projection, [mu, 1e2 * mu])
             if dx is not None:
-                return value, grad, dx, decrement, mem._replace(mu=used, costs=costs), True
-            mem = mem._replace(cooldown=2, mu=1e4 * mu, costs=costs)
+                return value, grad, dx, decrement, mem._replace(mu=used, reuse=reuse), True
+            mem = mem._replace(cooldown=2, mu=1e4 * mu, reuse=reuse)
             projection = Clamp()
-        value, grad, dx, decrement, _, costs = self._direction(state, projection, [reg * 100**k for k in range(8)])
-        return value, grad, dx, decrement, mem._replace(costs=costs), False
+        value, grad, dx, decrement, _, reuse = self._direction(state, projection, [reg * 100**k for k in range(8)])
+        return value, grad, dx, decrement, mem._replace(reuse=reuse), False
 
     def step(self, state: State) -> State:
         obj, params, x = state.objective, state.params, state.x
