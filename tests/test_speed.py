@@ -119,6 +119,32 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
     assert diag.success and auto.success
     assert diag.stats.iterations > 2 * STIFF_AFTER and auto.stats.iterations < 0.6 * diag.stats.iterations
     assert auto.solver.precondition == "laplacian"
+    # the switched solve starts from the map its inner solve started at, not the probe's (whose
+    # 100 diagonal iterations had gained folds there); Newton (hexahedra) goes on from the probe's
+    from geomopt.untangling import continuation as C
+
+    starts, switched = [], []
+    real_start, real_call = C.EpsContinuation.start, C.EpsContinuation.__call__
+
+    def start(self, state):
+        starts.append(np.asarray(state.x))
+        return real_start(self, state)
+
+    def call(self, state, outcome):
+        decision = real_call(self, state, outcome)
+        if decision.objective is not None:
+            switched.append((np.asarray(decision.x), np.asarray(state.x)))
+        return decision
+
+    bend = G.bent_box(4, 48, 180.0, hexes=True)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(C.EpsContinuation, "start", start)
+        mp.setattr(C.EpsContinuation, "__call__", call)
+        untangle(rot.problem(), rot.x0, progress=False)
+        assert len(switched) == 1 and np.array_equal(switched[0][0], starts[0])
+        assert not np.array_equal(switched[0][1], starts[0])
+        untangle(bend.problem(), bend.x0, progress=False, start="given")  # hexahedra: L-BFGS's probe, Newton
+        assert len(switched) == 2 and np.array_equal(switched[1][0], switched[1][1])
     noise = G.noisy_interior(*G.disk_mesh(12), 1.0, seed=3)
     a = untangle(noise.problem(), noise.x0, progress=False)
     b = untangle(noise.problem(), noise.x0, solver=default_solver("lbfgs", 2), progress=False)
