@@ -145,6 +145,13 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
         assert not np.array_equal(switched[0][1], starts[0])
         untangle(bend.problem(), bend.x0, progress=False, start="given")  # hexahedra: L-BFGS's probe, Newton
         assert len(switched) == 2 and np.array_equal(switched[1][0], switched[1][1])
+        # a Laplacian-seeded probe (the mesh above LAPLACIAN_FROM) goes on from its own map
+        import geomopt.untangling.inner as inner
+
+        mp.setattr(inner, "LAPLACIAN_FROM", 100)
+        mp.setattr(C, "STIFF_AFTER", 10)  # a probe short enough to end before that solve converges
+        untangle(rot.problem(), rot.x0, progress=False)
+        assert len(switched) == 3 and np.array_equal(switched[2][0], switched[2][1])
     noise = G.noisy_interior(*G.disk_mesh(12), 1.0, seed=3)
     a = untangle(noise.problem(), noise.x0, progress=False)
     b = untangle(noise.problem(), noise.x0, solver=default_solver("lbfgs", 2), progress=False)

@@ -72,8 +72,8 @@ class EpsContinuation(AbstractContinuation):
     -----
     While ``stiff`` is pending the inner solves run :attr:`phase_solver`, the solver capped at
     :data:`STIFF_AFTER` iterations (the same compiled loop), and a solve that reaches the cap
-    starts again with ``stiff`` from the map it started at (Newton: goes on from its map), for
-    the rest of the solve, unless (L-BFGS seeds
+    continues with ``stiff`` for the rest of the solve (from the map it started at after a
+    diagonal-seeded probe, from the probe's map otherwise), unless (L-BFGS seeds
     only) the probe made fast progress: it removed inverted elements and energy, fewer than
     :data:`PROBE_PROGRESS` times those at its start are left.  Then the same solver goes on for
     another probe, memory kept.  Local tangles (noise) lose folds and energy fast under the
@@ -131,11 +131,14 @@ class EpsContinuation(AbstractContinuation):
             if self._probe_progressed(state):  # still untangling locally: another probe, same solver
                 self.probed += state.iteration
                 return Decision.go(state.params, solver=self.phase_solver)
-            # a stiff, global inner solve: the Laplacian seed from here on, same eps, from the map
-            # this inner solve started at (the diagonal probe's map, which gained folds, cost the
-            # Laplacian seed 1,107 iterations on a 10^6-tet noisy box, against 202 from the
-            # start); Newton (hexahedra's corners) goes on from the probe's map
-            x = state.x if isinstance(self.stiff, Newton) else self.x_solve
+            # a stiff, global inner solve: the Laplacian seed from here on, same eps; after a
+            # diagonal-seeded probe from the map this inner solve started at (the probe's map,
+            # which gained folds, cost the Laplacian seed 1,107 iterations on a 10^6-tet noisy
+            # box, against 202 from the start); after a Laplacian-seeded probe, and before
+            # Newton (hexahedra's corners), from the probe's map (restarting a Laplacian probe
+            # from its start cost rotated 10^5-triangle squares 18-33 % more iterations)
+            diagonal = getattr(self.solver, "precondition", None) == "diagonal"
+            x = self.x_solve if diagonal and not isinstance(self.stiff, Newton) else state.x
             self.probed, self.solver, self.stiff = self.probed + state.iteration, self.stiff, None
             return Decision.go(state.params, objective=self.objective, x=x, solver=self.solver)
         opts, E_prev = self.options, self.E
