@@ -279,6 +279,21 @@ def test_obj_vt_w_is_read_only_when_zero(tmp_path):
         read_obj_with_uv(put(tmp_path / "w.obj", head + "vt 0 0\nvt 1 0 0\nvt 0 1 0.5\n" + faces))
 
 
+def test_off_faces_written_across_lines_are_read_as_geomview_defines(tmp_path):
+    # libigl-tutorial-data's inspired_mesh_quads_*.off write "4 a\nb\nc\nd\n": OFF is free format,
+    # a face's colour runs to the end of the line of its last index
+    head = "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+    V, F = read_mesh(put(tmp_path / "q.off", head + "4 0\n1\n2\n3\n\n3 0\n2 1 0.5 0.5 0.5\n"))
+    assert F.tolist() == [[0, 1, 2], [0, 2, 3], [0, 2, 1]]
+    np.testing.assert_array_equal(V[:, :2], [[0, 0], [1, 0], [1, 1], [0, 1]])
+    for body, word in [("4 0\n1\n2\n3\n3 0 2 1\n3 0 1 2\n", "declares 4 vertices and 2 faces, but the file holds more"),
+                       ("4 0\n1\n2\n3 1 2 3 4 5\n3 0 2 1\n", "holds more"),  # 5 colour numbers: not a face
+                       ("4 0\n1\n2\n3\n3 0 2\n", "holds more"),  # a face cut short by the end of the file
+                       ("2 0\n1\n3 0 1 2\n", "holds more")]:
+        with pytest.raises(MeshFormatError, match=word):
+            read_mesh(put(tmp_path / "bad.off", head + body))
+
+
 def test_off_variants_and_errors(tmp_path):
     ok = "COFF\n# c\n3 1 3\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2 1 0 0\n"
     V, F = read_mesh(put(tmp_path / "c.off", ok))

@@ -45,6 +45,12 @@ def read_off(data, path):
     if nv < 0 or nf < 0:
         raise MeshFormatError(f"{path}, line {lineno}: negative vertex or face count")
     held = len(rows) - at
+    widths = sorted({3 + (3 if normal else 0) + c + (2 if st else 0) for c in ((3, 4) if colour else (0,))})
+    if held > nv + nf:  # more lines than records: faces written across lines, or records the header omits
+        F = _faces_across_lines(rows, at + nv, nf)
+        if F is not None:
+            V = _vertices(rows, at, at + nv, widths)
+            return V, fan(*F, V, path)
     if held != nv + nf:
         raise MeshFormatError(
             f"{path}: the header (line {lineno}) declares {nv} vertices and {nf} faces, but the file "
@@ -54,7 +60,6 @@ def read_off(data, path):
                f"the truncated file"))
     if nf == 0:
         raise MeshFormatError(f"{path} has no triangle faces (the header declares 0 faces)")
-    widths = sorted({3 + (3 if normal else 0) + c + (2 if st else 0) for c in ((3, 4) if colour else (0,))})
     V = _vertices(rows, at, at + nv, widths)
     return V, _faces(rows, at + nv, at + nv + nf, V)
 
@@ -88,3 +93,28 @@ def _faces(rows, a, b, V):
         tokens.numbers_at(ranges(first + 1 + k, extra), np.float64,
                           where=lambda t: f"{rows.path}, line {tokens.lineno(t)} (face colour)")
     return fan(index, k, V, rows.path)
+
+
+def _faces_across_lines(rows, a, nf):
+    """``(indices, counts)`` of ``nf`` faces read as Geomview defines OFF (free format: a face is
+    ``k`` and ``k`` indices wherever the lines break, then up to 4 colour numbers to the end of
+    the line of its last index) from row ``a`` on, when that reads every number after the
+    vertices exactly; None otherwise (the line-per-face reading's refusal then stands)."""
+    t0 = rows.first[a]
+    values = rows.tokens.numbers(t0, rows.first[-1] + rows.count[-1], np.float64)
+    row_end = (np.repeat(rows.first[a:] + rows.count[a:], rows.count[a:]) - t0).tolist()
+    whole = np.isfinite(values) & (values == np.round(values))
+    starts, counts, pos = [], [], 0
+    for _ in range(nf):
+        if pos >= len(values) or not whole[pos] or values[pos] < 3 or pos + values[pos] >= len(values):
+            return None
+        k = int(values[pos])
+        end = row_end[pos + k]
+        if end - (pos + k + 1) > 4 or not whole[pos + 1:pos + k + 1].all():
+            return None
+        starts.append(pos + 1)
+        counts.append(k)
+        pos = end
+    if pos != len(values):
+        return None
+    return values[ranges(starts, counts)].astype(np.int64), np.array(counts, dtype=np.int64)

@@ -42,8 +42,9 @@ def read_mesh(path):
       ...) are ignored; free-form geometry and unknown statements are refused.  ``#``
       starts a comment; a line ending in ``\\`` continues on the next.
     * **OFF** (``OFF``, ``COFF``, ``NOFF``, ``STOFF`` ...): the header's vertex and face
-      counts must match the body exactly (one vertex or face per line); a face line
-      ``k i1 .. ik`` may end with up to 4 colour numbers.  Polygons are fan-triangulated.
+      counts must match the body exactly (one vertex per line); a face is ``k i1 .. ik`` and
+      up to 4 colour numbers to the end of its last index's line (one face per line, or, as
+      Geomview's free format allows, its numbers across lines).  Polygons are fan-triangulated.
     * **PLY** (ASCII, binary little- and big-endian): the header is validated (format,
       element counts, property types); the body must hold exactly the declared elements
       (ASCII: one element per line; binary: the exact byte count).  Vertices come from
