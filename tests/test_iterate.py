@@ -146,6 +146,39 @@ def test_an_observer_stops_the_solve_with_its_reason():
     assert res.outcome is Outcome.MAX_STEPS and res.reason == "enough" and res.stats.iterations == 2
 
 
+def _blas_threads():
+    from threadpoolctl import threadpool_info
+
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+
+def test_the_solve_loop_runs_blas_on_one_thread_and_restores_the_callers_setting():
+    from threadpoolctl import threadpool_limits
+
+    obj, V = _objective()
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):  # as on a machine of 2 cores or more
+        iterate(LBFGS(), obj, obj.prepare_map(V), obj.params(),
+                observe=lambda state, seconds: seen.append(_blas_threads()))
+        assert _blas_threads() == [2]
+    assert seen and all(s == [1] for s in seen)
+
+
+def test_overlapping_solve_loops_restore_blas_threads_when_the_last_one_ends():
+    from threadpoolctl import threadpool_limits
+
+    from geomopt._runtime.threads import single_blas_thread
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        first, second = single_blas_thread(), single_blas_thread()
+        first.__enter__()
+        second.__enter__()  # e.g. a solve on another thread
+        first.__exit__(None, None, None)
+        assert _blas_threads() == [1]  # the second still runs
+        second.__exit__(None, None, None)
+        assert _blas_threads() == [2]
+
+
 def test_lbfgs_advances_in_its_kernel_to_the_same_iterate_as_stepping():
     obj, V = _objective()
     x0 = obj.prepare_map(V)

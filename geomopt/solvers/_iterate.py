@@ -38,6 +38,7 @@ import numpy as np
 
 from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
+from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ._registry import get_solver
@@ -347,6 +348,13 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     -------
     :class:`~geomopt.solvers.Result`.
     """
+    with single_blas_thread():
+        return _iterate(solver, objective, x0, params, continuation, guard, observe, progress, trace, throw,
+                        label, warn, clock)
+
+
+def _iterate(solver, objective, x0, params, continuation, guard, observe, progress, trace, throw, label, warn,
+             clock) -> Result:
     report = _as_progress(progress, getattr(solver, "max_steps", None))
     t0, c0 = time.perf_counter(), time.process_time()
     state = solver.init(objective, x0, params)

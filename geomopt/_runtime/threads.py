@@ -1,0 +1,42 @@
+"""One BLAS thread while geomopt's solve loop runs.
+
+A solve interleaves XLA's kernels (which use every core) with NumPy and SciPy calls on the host
+(gradient norms, dot products of the Newton and CG steps, certificates).  NumPy's OpenBLAS
+starts a thread per core for a vector of 10,000 or more values and keeps them spinning after the
+call, on the cores XLA needs for the next kernel: measured on a 2-core machine, a warm
+``sphere_map`` of the bunny took 1.8-3.2 s with OpenBLAS's threads and 1.4-1.7 s with one, and
+under load the demo's Newton solve 1.6-1.7 s against 0.86-0.97 s.  :func:`single_blas_thread`
+limits every loaded BLAS (OpenBLAS, MKL, BLIS, Accelerate: ``threadpoolctl``) to one thread for
+the loop and restores the caller's settings after it; nothing else in the process is changed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+
+__all__ = ["single_blas_thread"]
+
+_lock = threading.Lock()
+_state = {"users": 0, "limits": None}  # solves running in this process; the limiter they share
+
+
+@contextlib.contextmanager
+def single_blas_thread():
+    """Context: the loaded BLAS libraries run on one thread inside it.  The limit is the
+    process's (BLAS thread pools are): the first of overlapping uses (nested, or solves on
+    several threads) sets it and the last one out restores the settings found before the first."""
+    with _lock:
+        if _state["users"] == 0:
+            from threadpoolctl import threadpool_limits
+
+            _state["limits"] = threadpool_limits(limits=1, user_api="blas")
+        _state["users"] += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _state["users"] -= 1
+            if _state["users"] == 0:
+                _state["limits"].restore_original_limits()
+                _state["limits"] = None
