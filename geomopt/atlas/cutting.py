@@ -4,11 +4,17 @@ low distortion.
 Three steps (in the spirit of Sheffer & Hart's Seamster and of Gu, Gortler & Hoppe's geometry
 images): (a) topology, :func:`~geomopt.atlas.seams.shortest_topological_cut` opens every
 component with handles or several boundary loops into a disk along cheap edges (from the best of
-several roots); (b) a closed genus-0 component is opened by one cheap path between its two
-points of most concentrated curvature, far apart; (c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
+several roots); (a') on CAD-like parts, whose curvature sits in strong cones (corners of angle
+defect at least 45 degrees), the strong cones are first joined by a cheap tree
+(:func:`~geomopt.atlas.seams.steiner_tree`) on which the loops of (a) are rooted: a disk whose
+curvature is all on its boundary flattens isometrically; the tree's dangling paths that the
+estimate of (c) can do without are then uncut (:func:`trim`); (b) a closed genus-0 component is
+opened by one cheap path between its two points of most concentrated curvature, far apart; (c)
+distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
 (:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
 excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
-vertex to the boundary keeps a disk a disk, so every chart stays one.
+vertex to the boundary keeps a disk a disk, so every chart stays one.  :func:`cut_surface` makes
+the seam graph with and without (a') and keeps the shorter that reaches the target.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from .cones import angle_defects, log_scale, scale_estimate
 from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
                     steiner_tree)
 
-__all__ = ["cut_surface", "chart_estimate", "relieve"]
+__all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
 
 
 def _component_roots(g: EdgeGraph):
@@ -178,18 +184,18 @@ def _estimates(g: EdgeGraph, cut, known):
     return split, rows
 
 
-def trim(g: EdgeGraph, cut, target):
+def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
     """``cut`` without those of its dangling paths (:func:`~geomopt.atlas.seams.dangling_paths`,
     longest first) that the estimate (area-weighted, as in :func:`relieve`) can do without while
     it stays at most ``target``: joining every strong cone is isometric but may cut more than
-    the goal needs."""
+    the goal needs.  At most ``max_trials`` paths are tried (each costs a chart's estimate)."""
     known, cut = {}, cut.copy()
     tried = set()
-    while True:
+    while len(tried) < max_trials:
         split, rows = _estimates(g, cut, known)
         mean, area = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
         paths = [p for p in dangling_paths(g, cut) if tuple(p) not in tried]
-        for path in sorted(paths, key=lambda p: -float(g.length[p].sum())):
+        for path in sorted(paths, key=lambda p: -float(g.length[p].sum()))[:max_trials - len(tried)]:
             tried.add(tuple(path))
             trial = cut.copy()
             trial[path] = False
@@ -202,6 +208,7 @@ def trim(g: EdgeGraph, cut, target):
                 break
         else:
             return cut
+    return cut
 
 
 def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cost=None,

@@ -12,7 +12,9 @@ the loop each closes, and the edges in neither, together with their ``T`` paths,
 On a closed component every loop passes through the root, so the root decides the cut's cost:
 Erickson & Whittlesey's shortest system of loops is the greedy one from the best root, and
 :func:`shortest_topological_cut` tries several roots spread over each component (farthest-point
-sampling) and keeps the cheapest cut of each.
+sampling) and keeps the cheapest cut of each.  Edges cut already (``opened``, e.g. a
+:func:`steiner_tree` joining the corners of a CAD-like part, Takahashi & Matsuyama's heuristic
+improved by key-path exchange) count as boundary: the forest grows from them and they are kept.
 """
 
 from __future__ import annotations
@@ -103,12 +105,13 @@ def saddle_factor(defects) -> np.ndarray:
     return 1.0 + 4.0 * np.maximum(-np.asarray(defects, dtype=np.float64), 0.0)
 
 
-def _dijkstra(adjacency, sources):
-    """Distances and predecessors of a multi-source shortest-path forest."""
+def _dijkstra(adjacency, sources, limit=np.inf):
+    """Distances and predecessors of a multi-source shortest-path forest (vertices farther than
+    ``limit`` unreached: infinite distance)."""
     from scipy.sparse.csgraph import dijkstra
 
     dist, pred, _ = dijkstra(adjacency, directed=False, indices=np.asarray(sources), min_only=True,
-                             return_predecessors=True)
+                             return_predecessors=True, limit=limit)
     return dist, pred
 
 
@@ -319,10 +322,10 @@ def _exchange_key_paths(g: EdgeGraph, cost, tree, terminals, rounds: int = 4):
             a, b = part[list(_ends(g, path))]
             if a == b:
                 continue
-            dist, pred = _dijkstra(adjacency, np.flatnonzero(part == a))
+            dist, pred = _dijkstra(adjacency, np.flatnonzero(part == a), limit=cost[path].sum())
             there = np.flatnonzero(part == b)
             v = int(there[np.argmin(dist[there])])
-            if dist[v] >= cost[path].sum() * (1 - 1e-9):
+            if not dist[v] < cost[path].sum() * (1 - 1e-9):
                 continue
             while pred[v] >= 0:
                 rest[index(v, pred[v])] = True
