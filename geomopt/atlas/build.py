@@ -212,7 +212,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
     g = edge_graph(V[manifold.vertex], manifold.wedge)
     cost = edge_costs(g, options.crease, angle_defects(g.V, g.F))
-    cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts)
+    cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
+                                      tree_cost=edge_costs(g, options.crease))
     _say(progress, "cut", seam_length=float(g.length[cut].sum()), cone_cuts=made, estimate=estimate)
 
     def solve(Vc, Fc, free=None, scaffold=True):

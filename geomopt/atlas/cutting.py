@@ -4,11 +4,17 @@ low distortion.
 Three steps (in the spirit of Sheffer & Hart's Seamster and of Gu, Gortler & Hoppe's geometry
 images): (a) topology, :func:`~geomopt.atlas.seams.shortest_topological_cut` opens every
 component with handles or several boundary loops into a disk along cheap edges (from the best of
-several roots); (b) a closed genus-0 component is opened by one cheap path between its two
-points of most concentrated curvature, far apart; (c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
+several roots); (a') on CAD-like parts, whose curvature sits in strong cones (corners of angle
+defect at least 45 degrees), the strong cones are first joined by a cheap tree
+(:func:`~geomopt.atlas.seams.steiner_tree`) on which the loops of (a) are rooted: a disk whose
+curvature is all on its boundary flattens isometrically; the tree's dangling paths that the
+estimate of (c) can do without are then uncut (:func:`trim`); (b) a closed genus-0 component is
+opened by one cheap path between its two points of most concentrated curvature, far apart; (c)
+distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
 (:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
 excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
-vertex to the boundary keeps a disk a disk, so every chart stays one.
+vertex to the boundary keeps a disk a disk, so every chart stays one.  :func:`cut_surface` makes
+the seam graph with and without (a') and keeps the shorter that reaches the target.
 """
 
 from __future__ import annotations
@@ -16,10 +22,11 @@ from __future__ import annotations
 import numpy as np
 
 from .charts import split_charts
-from .cones import log_scale, scale_estimate
-from .seams import EdgeGraph, cut_path_to_seams, shortest_topological_cut
+from .cones import angle_defects, log_scale, scale_estimate
+from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
+                    steiner_tree)
 
-__all__ = ["cut_surface", "chart_estimate", "relieve"]
+__all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
 
 
 def _component_roots(g: EdgeGraph):
@@ -132,7 +139,80 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
     return cut, estimate, made
 
 
-def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
+def strong_cones(g: EdgeGraph, least: float = np.pi / 4) -> np.ndarray:
+    """Interior vertices whose angle defect is at least ``least`` (radians) in magnitude, most
+    concentrated first: the corners of CAD-like parts, where no flattening without a seam
+    through the vertex is near isometric (a cone of defect ``K`` on a seam opens by ``K``)."""
+    K = angle_defects(g.V, g.F)
+    K[g.E[g.boundary].ravel()] = 0.0
+    strong = np.flatnonzero(np.abs(K) >= least)
+    return strong[np.argsort(-np.abs(K[strong]), kind="stable")]
+
+
+def _relieved(g: EdgeGraph, cost, tree):
+    """``cost`` without :func:`~geomopt.atlas.seams.edge_costs`' saddle factor at the vertices of
+    ``tree``: a saddle on a seam already, that one more seam through it splits further, no longer
+    keeps more than a full turn on one side."""
+    on = np.zeros(len(g.V), dtype=bool)
+    on[g.E[tree].ravel()] = True
+    relief = np.where(on, saddle_factor(angle_defects(g.V, g.F)), 1.0)
+    return cost / (relief[g.E[:, 0]] * relief[g.E[:, 1]])
+
+
+def _topological(g: EdgeGraph, cost, tree_cost, labels, roots, least, target):
+    """The topological cut (step a, with the strong cones of defect at least ``least`` joined
+    first by a cheap tree, step a'; none when ``least`` is None), spheres opened (step b)."""
+    tree = np.zeros(len(g.E), dtype=bool)
+    if least is not None:
+        tree = steiner_tree(g, tree_cost, strong_cones(g, least), labels)
+    cut = shortest_topological_cut(g, _relieved(g, cost, tree), labels, roots, opened=tree)
+    cut = _open_spheres(g, cost, cut, labels, roots)
+    return cut if least is None else trim(g, cut, target)
+
+
+def _estimates(g: EdgeGraph, cut, known):
+    """``(split, rows)``: the charts of ``cut`` and their :func:`chart_estimate` rows, reusing
+    those in ``known`` (keyed by the chart's first face and face count)."""
+    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    rows = []
+    for c in range(split.count):
+        mesh = split.mesh(c)
+        key = (int(mesh.faces[0]), len(mesh.faces))
+        if key not in known:
+            known[key] = chart_estimate(g.V, mesh)
+        rows.append(known[key])
+    return split, rows
+
+
+def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
+    """``cut`` without those of its dangling paths (:func:`~geomopt.atlas.seams.dangling_paths`,
+    longest first) that the estimate (area-weighted, as in :func:`relieve`) can do without while
+    it stays at most ``target``: joining every strong cone is isometric but may cut more than
+    the goal needs.  At most ``max_trials`` paths are tried (each costs a chart's estimate)."""
+    known, cut = {}, cut.copy()
+    tried = set()
+    while len(tried) < max_trials:
+        split, rows = _estimates(g, cut, known)
+        mean, area = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+        paths = [p for p in dangling_paths(g, cut) if tuple(p) not in tried]
+        for path in sorted(paths, key=lambda p: -float(g.length[p].sum()))[:max_trials - len(tried)]:
+            tried.add(tuple(path))
+            trial = cut.copy()
+            trial[path] = False
+            face = g.edge_faces[path[0], 0]
+            c = int(split.chart[face])
+            joined = split_charts(g.F, g.edge_of, g.edge_faces, trial)
+            after = chart_estimate(g.V, joined.mesh(int(joined.chart[face])))[0]
+            if float(np.sum(mean * area) + (after - mean[c]) * area[c]) / area.sum() <= target:
+                cut = trial
+                break
+        else:
+            return cut
+    return cut
+
+
+def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cost=None,
+                levels=(None, np.pi / 4)):
     """The interior edges of ``g`` to cut (module doc), as :func:`relieve` returns them.
 
     Parameters
@@ -141,8 +221,18 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
     cost : (k,) edge costs (:func:`~geomopt.atlas.seams.edge_costs`).
     target : the estimated area-weighted mean symmetric Dirichlet to reach (4 = isometric).
     max_cuts : the most cone cuts.
+    tree_cost : (k,) edge costs of the tree joining the strong cones (default ``cost``).
+    levels : the least angle defects of the strong cones to try joining (None: none joined).
+        Each seam graph is relieved (step c); the shortest one that reaches ``target`` is kept,
+        or, when none does, the one with the lowest estimate.
     """
     labels, roots = _component_roots(g)
-    cut = shortest_topological_cut(g, cost, labels, roots)
-    cut = _open_spheres(g, cost, cut, labels, roots)
-    return relieve(g, cost, cut, target, max_cuts)
+    tree_cost = cost if tree_cost is None else tree_cost
+    best = None
+    for least in levels:
+        cut, estimate, made = relieve(g, cost, _topological(g, cost, tree_cost, labels, roots, least, target),
+                                      target, max_cuts)
+        key = (estimate > target, estimate if estimate > target else float(g.length[cut].sum()))
+        if best is None or key < best[0]:
+            best = (key, (cut, estimate, made))
+    return best[1]

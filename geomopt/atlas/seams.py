@@ -12,7 +12,9 @@ the loop each closes, and the edges in neither, together with their ``T`` paths,
 On a closed component every loop passes through the root, so the root decides the cut's cost:
 Erickson & Whittlesey's shortest system of loops is the greedy one from the best root, and
 :func:`shortest_topological_cut` tries several roots spread over each component (farthest-point
-sampling) and keeps the cheapest cut of each.
+sampling) and keeps the cheapest cut of each.  Edges cut already (``opened``, e.g. a
+:func:`steiner_tree` joining the corners of a CAD-like part, Takahashi & Matsuyama's heuristic
+improved by key-path exchange) count as boundary: the forest grows from them and they are kept.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import scipy.sparse as sp
 from ..exact.topology import unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "shortest_topological_cut",
-           "cut_path_to_seams"]
+           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,17 +95,23 @@ def edge_costs(g: EdgeGraph, crease: float = 2.0, defects=None) -> np.ndarray:
     cost = g.length.copy()
     cost[inner] /= 1.0 + crease * sharp
     if defects is not None:
-        saddle = 1.0 + 4.0 * np.maximum(-np.asarray(defects), 0.0)
+        saddle = saddle_factor(defects)
         cost *= saddle[g.E[:, 0]] * saddle[g.E[:, 1]]
     return np.maximum(cost, 1e-12 * max(float(g.length.max()), 1e-300))
 
 
-def _dijkstra(adjacency, sources):
-    """Distances and predecessors of a multi-source shortest-path forest."""
+def saddle_factor(defects) -> np.ndarray:
+    """(n,) how much more an edge costs per saddle end in :func:`edge_costs`: ``1 + 4 max(0, -K)``."""
+    return 1.0 + 4.0 * np.maximum(-np.asarray(defects, dtype=np.float64), 0.0)
+
+
+def _dijkstra(adjacency, sources, limit=np.inf):
+    """Distances and predecessors of a multi-source shortest-path forest (vertices farther than
+    ``limit`` unreached: infinite distance)."""
     from scipy.sparse.csgraph import dijkstra
 
     dist, pred, _ = dijkstra(adjacency, directed=False, indices=np.asarray(sources), min_only=True,
-                             return_predecessors=True)
+                             return_predecessors=True, limit=limit)
     return dist, pred
 
 
@@ -138,11 +146,11 @@ def _max_spanning_forest(n_nodes, a, b, weight) -> np.ndarray:
     return keep
 
 
-def _prune(g: EdgeGraph, cut: np.ndarray) -> np.ndarray:
+def _prune(g: EdgeGraph, cut: np.ndarray, kept=None) -> np.ndarray:
     """``cut`` without its dangling interior edges: repeatedly drop an interior cut edge with
-    an end that no other cut or boundary edge touches (cutting it opens nothing)."""
+    an end that no other cut, boundary or ``kept`` edge touches (cutting it opens nothing)."""
     cut = cut.copy()
-    on = cut | g.boundary
+    on = cut | g.boundary | (False if kept is None else kept)
     degree = np.bincount(g.E[on].ravel(), minlength=len(g.V))
     incident = [[] for _ in range(len(g.V))]
     for e in np.flatnonzero(cut).tolist():
@@ -162,22 +170,26 @@ def _prune(g: EdgeGraph, cut: np.ndarray) -> np.ndarray:
     return cut
 
 
-def topological_cut(g: EdgeGraph, cost: np.ndarray, roots) -> np.ndarray:
+def topological_cut(g: EdgeGraph, cost: np.ndarray, roots, opened=None) -> np.ndarray:
     """(k,) bool, interior edges to cut so that every component becomes a disk, or (for a
     closed genus-0 component) stays a sphere that a single cut path then opens.
 
     Parameters
     ----------
     g : the mesh's :class:`EdgeGraph`;  cost : (k,) positive edge costs (:func:`edge_costs`).
-    roots : vertex ids, one per closed component (the boundary vertices root the others).
+    roots : vertex ids, one per closed component without ``opened`` edges (the boundary and
+        ``opened`` vertices root the others).
+    opened : (k,) bool or None, interior edges cut already (a tree, e.g. :func:`steiner_tree`):
+        they count as boundary, the loops are rooted on them, and they are in the result.
     """
-    sources = np.unique(np.r_[g.E[g.boundary].ravel(), np.asarray(roots, dtype=np.int64)])
+    opened = np.zeros(len(g.E), dtype=bool) if opened is None else np.asarray(opened, dtype=bool)
+    sources = np.unique(np.r_[g.E[g.boundary | opened].ravel(), np.asarray(roots, dtype=np.int64)])
     dist, pred = _dijkstra(g.adjacency(cost), sources)
     index = _edge_index(g)
     child = np.flatnonzero(pred >= 0)
     in_tree = np.zeros(len(g.E), dtype=bool)
     in_tree[index(child, pred[child])] = True
-    inner = ~g.boundary
+    inner = ~g.boundary & ~opened
     loop = dist[g.E[:, 0]] + dist[g.E[:, 1]] + cost
     # tree edges may join the dual tree only when nothing else connects it
     weight = np.where(in_tree, -1.0 - loop.max(), loop)
@@ -185,7 +197,7 @@ def topological_cut(g: EdgeGraph, cost: np.ndarray, roots) -> np.ndarray:
     dual = _max_spanning_forest(len(g.F), g.edge_faces[e, 0], g.edge_faces[e, 1], weight[e])
     cut = inner.copy()
     cut[e[dual]] = False
-    return _prune(g, cut)
+    return _prune(g, cut, opened) | opened
 
 
 def _spread_roots(g: EdgeGraph, cost, labels, roots, tries):
@@ -203,7 +215,8 @@ def _spread_roots(g: EdgeGraph, cost, labels, roots, tries):
     return out
 
 
-def shortest_topological_cut(g: EdgeGraph, cost: np.ndarray, labels, roots, tries: int = 16) -> np.ndarray:
+def shortest_topological_cut(g: EdgeGraph, cost: np.ndarray, labels, roots, tries: int = 16,
+                             opened=None) -> np.ndarray:
     """:func:`topological_cut` with the root of each closed component chosen among ``tries``
     spread vertices (module doc) to make that component's cut cheapest; the first try is
     ``roots`` itself, so the cut never costs more than ``topological_cut(g, cost, roots)``.
@@ -211,19 +224,147 @@ def shortest_topological_cut(g: EdgeGraph, cost: np.ndarray, labels, roots, trie
     Parameters
     ----------
     labels : (n,) component of each vertex;  roots : one vertex per closed component.
+    opened : as for :func:`topological_cut`; the components it touches need no root.
     """
     roots = np.asarray(roots, dtype=np.int64)
+    if opened is not None:
+        roots = roots[~np.isin(labels[roots], labels[g.E[opened].ravel()])]
     if len(roots) == 0 or tries <= 1:
-        return topological_cut(g, cost, roots)
+        return topological_cut(g, cost, roots, opened)
     candidates = _spread_roots(g, cost, labels, roots, tries)
     comp = labels[g.E[:, 0]]
     best, best_cost = roots.copy(), np.full(len(roots), np.inf)
     for k in range(tries):
-        cut = topological_cut(g, cost, candidates[:, k])
+        cut = topological_cut(g, cost, candidates[:, k], opened)
         spent = np.bincount(comp[cut], cost[cut], minlength=labels.max() + 1)[labels[roots]]
         better = spent < best_cost
         best[better], best_cost[better] = candidates[better, k], spent[better]
-    return topological_cut(g, cost, best)
+    return topological_cut(g, cost, best, opened)
+
+
+def steiner_tree(g: EdgeGraph, cost: np.ndarray, terminals, labels) -> np.ndarray:
+    """(k,) bool, interior edges of a cheap forest joining the ``terminals`` (vertex ids) of each
+    component (the shortest-path heuristic of Takahashi & Matsuyama 1980, at most twice the
+    cheapest Steiner tree): from the first terminal of a component, add the cheapest path from
+    the tree to the nearest terminal not on it, until all are on it.  A component with boundary
+    starts from its boundary instead (the terminals are joined to it)."""
+    adjacency = g.adjacency(np.where(g.boundary, 0.0, cost) + 1e-300)
+    tree = np.zeros(len(g.E), dtype=bool)
+    index = _edge_index(g)
+    terminals = np.asarray(terminals, dtype=np.int64)
+    rim = np.unique(g.E[g.boundary].ravel())
+    for comp in np.unique(labels[terminals]):
+        todo = terminals[labels[terminals] == comp]
+        on = rim[labels[rim] == comp]
+        on = on if len(on) else todo[:1]
+        reached = np.zeros(len(g.V), dtype=bool)
+        reached[on] = True
+        while not reached[todo].all():
+            dist, pred = _dijkstra(adjacency, np.flatnonzero(reached))
+            v = int(todo[~reached[todo]][np.argmin(dist[todo[~reached[todo]]])])
+            if not np.isfinite(dist[v]):
+                break
+            while not reached[v]:
+                tree[index(v, pred[v])] = True
+                reached[v] = True
+                v = int(pred[v])
+    return _exchange_key_paths(g, cost, tree & ~g.boundary, terminals)
+
+
+def _key_paths(g: EdgeGraph, tree, key):
+    """The key paths of the forest ``tree | boundary``: lists of its interior edges between two
+    vertices of ``key`` (bool, (n,)) or of degree other than 2, through none (boundary skipped)."""
+    on = tree | g.boundary
+    incident = [[] for _ in range(len(g.V))]
+    for e in np.flatnonzero(on).tolist():
+        incident[g.E[e, 0]].append(e)
+        incident[g.E[e, 1]].append(e)
+    node = key | np.array([len(i) not in (0, 2) for i in incident])
+    paths, seen = [], np.zeros(len(g.E), dtype=bool)
+    for v in np.flatnonzero(node).tolist():
+        for e in incident[v]:
+            if seen[e]:
+                continue
+            path, w = [], v
+            while True:
+                seen[e] = True
+                path.append(e)
+                w = int(g.E[e, 0] + g.E[e, 1] - w)
+                if node[w]:
+                    break
+                e = next(f for f in incident[w] if f != e)
+            if not g.boundary[path].any():
+                paths.append(path)
+    return paths
+
+
+def _exchange_key_paths(g: EdgeGraph, cost, tree, terminals, rounds: int = 4):
+    """``tree`` improved by key-path exchange (a local search for Steiner trees): take out one
+    key path (between terminals or branch vertices) and join the two parts it held together by
+    their cheapest path instead, when that is cheaper; until no exchange helps."""
+    from scipy.sparse.csgraph import connected_components
+
+    adjacency = g.adjacency(np.where(g.boundary, 0.0, cost) + 1e-300)
+    index = _edge_index(g)
+    key = np.zeros(len(g.V), dtype=bool)
+    key[np.asarray(terminals, dtype=np.int64)] = True
+    for _ in range(rounds):
+        changed = False
+        for path in _key_paths(g, tree, key):
+            if not tree[path].all():
+                continue  # an earlier exchange of this round moved it
+            rest = tree.copy()
+            rest[path] = False
+            on = np.flatnonzero(rest | g.boundary)
+            n = len(g.V)
+            links = sp.coo_matrix((np.ones(len(on)), (g.E[on, 0], g.E[on, 1])), shape=(n, n))
+            _, part = connected_components(links, directed=False)
+            a, b = part[list(_ends(g, path))]
+            if a == b:
+                continue
+            dist, pred = _dijkstra(adjacency, np.flatnonzero(part == a), limit=cost[path].sum())
+            there = np.flatnonzero(part == b)
+            v = int(there[np.argmin(dist[there])])
+            if not dist[v] < cost[path].sum() * (1 - 1e-9):
+                continue
+            while pred[v] >= 0:
+                rest[index(v, pred[v])] = True
+                v = int(pred[v])
+            tree, changed = rest & ~g.boundary, True
+        if not changed:
+            break
+    return tree
+
+
+def _ends(g: EdgeGraph, path):
+    """The two end vertices of a path of edges (rows of ``g.E``)."""
+    count = np.bincount(g.E[path].ravel(), minlength=len(g.V))
+    ends = np.flatnonzero(count == 1)
+    return int(ends[0]), int(ends[1])
+
+
+def dangling_paths(g: EdgeGraph, cut: np.ndarray) -> list:
+    """The paths of ``cut`` that hang off the rest of the seams: lists of interior edges from a
+    vertex of degree 1 in ``cut | boundary`` through vertices of degree 2 up to a vertex of
+    degree 3 or more (a cut that is one lone path has none).  Uncutting one keeps every chart
+    a disk."""
+    on = cut | g.boundary
+    incident = [[] for _ in range(len(g.V))]
+    for e in np.flatnonzero(on).tolist():
+        incident[g.E[e, 0]].append(e)
+        incident[g.E[e, 1]].append(e)
+    paths = []
+    for v in [v for v in range(len(g.V)) if len(incident[v]) == 1]:
+        path, e, w = [], incident[v][0], v
+        while True:
+            path.append(e)
+            w = int(g.E[e, 0] + g.E[e, 1] - w)
+            if len(incident[w]) != 2:
+                break
+            e = incident[w][0] if incident[w][0] != e else incident[w][1]
+        if len(incident[w]) >= 3 and not g.boundary[path].any():
+            paths.append(path)
+    return paths
 
 
 def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.ndarray) -> list:
