@@ -9,7 +9,10 @@ with many seams to tens or thousands of times the distortion, or not converge.  
 conformal estimate (:mod:`geomopt.atlas.cones`) that runs above what the flattening reaches;
 :func:`flatten_to` measures the real mean symmetric Dirichlet, and while it is above the goal it
 lowers the estimate's target by the measured gap and cuts again, re-flattening only the charts
-that changed.
+that changed.  Where the cone cuts stall above the goal (a coarse or strongly curved surface,
+whose curvature is spread over many vertices rather than held by a few cones),
+:func:`split_to_goal` splits charts into nearly developable pieces instead
+(:mod:`geomopt.atlas.regions`), measured split by split, the most distortion bought per seam first.
 """
 
 from __future__ import annotations
@@ -19,9 +22,16 @@ import numpy as np
 from .charts import split_charts
 from .cutting import relieve
 from .metrics import face_symmetric_dirichlet
+from .regions import normal_regions
 from .split import separate_overlaps
 
-__all__ = ["flatten_chart", "flatten_to"]
+__all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
+
+# a split of a chart into nearly developable pieces must lower the measured mean symmetric
+# Dirichlet by this much per unit of seam it adds (in units of the square root of the area)
+_SPLIT_WORTH = 0.06
+_SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
+_SPLIT_COMPACT = (0.1,)  # and the compactness of the pieces (normal_regions)
 
 
 def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=True):
@@ -151,4 +161,74 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
         max_cuts -= made
         if made == 0:
             break
+    if measured > goal:
+        return split_to_goal(g, cut, solve, say, goal, known)
     return cut, split, meshes, results
+
+
+def _region_cuts(g, cut, mesh):
+    """``cut`` with the borders of :func:`~geomopt.atlas.regions.normal_regions` of the chart
+    ``mesh``, for each number of pieces in ``_SPLIT_REGIONS`` and compactness in
+    ``_SPLIT_COMPACT`` that gives disks (distinct splits only)."""
+    import itertools
+
+    out, seen = [], set()
+    f1, f2 = g.edge_faces[:, 0], np.maximum(g.edge_faces[:, 1], 0)
+    for k, compact in itertools.product(_SPLIT_REGIONS, _SPLIT_COMPACT):
+        piece = normal_regions(g.V[mesh.vertices], mesh.F, k, compact=compact)
+        if piece is None or piece.tobytes() in seen:
+            continue
+        seen.add(piece.tobytes())
+        label = np.full(len(g.F), -1)
+        label[mesh.faces] = piece
+        new = ~g.boundary & (label[f1] >= 0) & (label[f1] != label[f2])
+        if (new & ~cut).any():
+            out.append(cut | new)
+    return out
+
+
+def _mean(state):
+    return float(np.sum(state[4] * state[5]) / state[5].sum())
+
+
+def _best_region_split(g, state, c, solve, known, goal):
+    """``(rate, new_edges)``: the split of chart ``c`` of ``state`` (:func:`_flatten_all`'s
+    tuple) by :func:`_region_cuts` that lowers the measured mean symmetric Dirichlet most per
+    unit of seam it adds (seam over the square root of the surface's area), or None."""
+    cut, measured, scale = state[0], _mean(state), np.sqrt(state[5].sum())
+    best = None
+    for more in _region_cuts(g, cut, state[2][c]):
+        trial = _flatten_all(g, more, solve, known, lambda *a, **k: None, goal)
+        added = float(g.length[trial[0]].sum() - g.length[cut].sum()) / scale
+        rate = (measured - _mean(trial)) / max(added, 1e-12)
+        if best is None or rate > best[0]:
+            best = (rate, trial[0] & ~cut)
+    return best
+
+
+def split_to_goal(g, cut, solve, say, goal, known=None, max_splits=32, worth=_SPLIT_WORTH):
+    """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
+    above ``goal``, split charts into nearly developable pieces
+    (:func:`~geomopt.atlas.regions.normal_regions`), the split that buys the most: every chart
+    above the goal gets its best split (:func:`_best_region_split`, each candidate flattened and
+    measured), and the one that lowers the measured mean most per unit of seam it adds is made,
+    while that rate is at least ``worth`` (per unit of seam length over the square root of the
+    surface's area).  A chart's pieces may be split again.  Returns ``(cut, split, meshes,
+    results)`` as :func:`flatten_to`."""
+    known = {} if known is None else known
+    state = _flatten_all(g, cut, solve, known, say, goal)
+    offers = {}  # chart key -> its best split (rate, new edges) or None
+    for _ in range(max_splits):
+        if _mean(state) <= goal:
+            break
+        keys = [(int(m.faces[0]), len(m.wedges)) for m in state[2]]
+        for c, key in enumerate(keys):
+            if key not in offers and state[4][c] > goal:
+                offers[key] = _best_region_split(g, state, c, solve, known, goal)
+        live = [offers[k] for k in keys if offers.get(k) is not None]
+        if not live or max(r for r, _ in live) < worth:
+            break
+        rate, new = max(live, key=lambda offer: offer[0])
+        state = _flatten_all(g, state[0] | new, solve, known, say, goal)
+        say("split", charts=state[1].count, rate=float(rate), mean_symmetric_dirichlet=_mean(state))
+    return state[:4]
