@@ -7,7 +7,7 @@ D-Charts (Julius, Kraevoy & Sheffer 2005) and of variational shape approximation
 Alliez & Desbrun 2004), :func:`normal_regions` grows ``k`` regions over the chart's faces
 (Lloyd iterations): every face joins the region whose seed it reaches by the cheapest path of
 face steps, a step costing its length times ``compact`` plus the face's normal deviation from
-the region's mean normal; each region's mean normal and seed are then updated.  Crumbs join the
+the region's mean normal; each region's mean normal and seed are then updated (the seed to a face deep inside the region).  Crumbs join the
 neighbour they share the longest border with, and the regions must be disks.
 """
 
@@ -68,6 +68,29 @@ def _grow(N, a, b, step, seeds, proxies, compact):
     return np.argmin(dist, axis=0), dist
 
 
+def _centres(label, N, a, b, step, proxies, seeds):
+    """Each region's new seed: the face that least deviates from the region's mean normal,
+    ties (within 0.05 of ``1 - cos``) going to the face farthest inside the region (from faces
+    at its border or at the chart's boundary); an empty region keeps its seed in ``seeds``."""
+    from scipy.sparse.csgraph import dijkstra
+
+    m = len(N)
+    same = label[a] == label[b]
+    graph = sp.coo_matrix((np.r_[step[same], step[same]], (np.r_[a[same], b[same]], np.r_[b[same], a[same]])),
+                          shape=(m, m)).tocsr()
+    inner = np.bincount(np.r_[a[same], b[same]], minlength=m) == 3
+    depth = dijkstra(graph, indices=np.flatnonzero(~inner), min_only=True) if (~inner).any() else np.zeros(m)
+    out = list(seeds)
+    for r, p in enumerate(proxies):
+        faces = np.flatnonzero(label == r)
+        if not len(faces):
+            continue
+        dev = 1 - N[faces] @ p
+        deep = depth[faces] / max(float(depth[faces].max()), 1e-300)
+        out[r] = int(faces[np.argmin(dev + 0.05 * (1 - deep))])
+    return out
+
+
 def _pieces(F, label, a, b):
     """Connected pieces (faces joined across edges inside one region): ``(count, piece)``."""
     from scipy.sparse.csgraph import connected_components
@@ -110,7 +133,7 @@ def _all_disks(F, piece):
     return True
 
 
-def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1):
+def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1, centred: bool = True):
     """Split a disk chart into about ``k`` nearly developable pieces (module doc).
 
     Parameters
@@ -119,6 +142,9 @@ def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1):
     k : the number of regions grown (crumbs joined, so the pieces may be fewer).
     rounds : Lloyd iterations;  compact : the cost of a face step per unit length (beside the
         normal deviation ``1 - cos``): larger, rounder pieces.
+    centred : move each seed to the deepest of its region's least deviating faces
+        (:func:`_centres`), else to the least deviating face nearest the old seed (the regions
+        then leak a little across creases, which sometimes flattens better).
 
     Returns
     -------
@@ -136,10 +162,13 @@ def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1):
         label, dist = _grow(N, a, b, step, seeds, proxies, compact)
         for r in range(len(seeds)):
             faces = np.flatnonzero(label == r)
-            if len(faces):
-                p = (A[faces, None] * N[faces]).sum(axis=0)
-                proxies[r] = p / max(np.linalg.norm(p), 1e-300)
-                seeds[r] = int(faces[np.argmin(1 - N[faces] @ proxies[r] + dist[r, faces] / max(dist[r, faces].max(), 1e-300) * 1e-3)])
+            p = (A[faces, None] * N[faces]).sum(axis=0) if len(faces) else proxies[r]
+            proxies[r] = p / max(np.linalg.norm(p), 1e-300)
+            if len(faces) and not centred:  # the least deviating face, the nearest of ties
+                seeds[r] = int(faces[np.argmin(1 - N[faces] @ proxies[r] + 1e-3 * dist[r, faces] / max(dist[r, faces].max(), 1e-300))])
+        if centred:
+            seeds = _centres(label, N, a, b, step, proxies, seeds)
+    label, _ = _grow(N, a, b, step, seeds, proxies, compact)
     piece = _absorb_crumbs(F, label, A, a, b, length)
     if piece.max() < 1 or not _all_disks(F, piece):
         return None
