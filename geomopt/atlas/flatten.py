@@ -31,7 +31,7 @@ __all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
 # Dirichlet by this much per unit of seam it adds (in units of the square root of the area)
 _SPLIT_WORTH = 0.06
 _SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
-_SPLIT_COMPACT = (0.1,)  # and the compactness of the pieces (normal_regions)
+_SPLIT_SEEDS = (True, False)  # each with seeds centred in their regions, and not (normal_regions)
 
 
 def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=True):
@@ -47,6 +47,13 @@ def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=Tru
     again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False,
                          options=ParamOptions(bijective=True))
     return again if again.success or not res.success else res
+
+
+def _key(mesh):
+    """A chart's key in the caches of flattenings: its faces and their local vertex ids (the
+    gluing inside it); alternative splits of one chart may give pieces with the same first face
+    and vertex count."""
+    return mesh.faces.tobytes(), mesh.F.tobytes()
 
 
 def _areas(V, F):
@@ -81,13 +88,13 @@ def _separate(g, cut, mesh, res, known):
         xs = np.empty((len(mesh.wedges), 2))
         xs[mesh.F.ravel()] = x[piece.F.ravel()]
         own = dataclasses.replace(res, x=xs, certificate=cert, problem=None)  # its part of the solve
-        known[(int(mesh.faces[0]), len(mesh.wedges))] = (own,) + _mean_sd(g.V[mesh.vertices], mesh.F, xs)
+        known[_key(mesh)] = (own,) + _mean_sd(g.V[mesh.vertices], mesh.F, xs)
     return cut
 
 
 def _flatten_all(g, cut, solve, known, say, goal):
     """``(cut, split, meshes, results, sd, area)`` of every chart of ``cut``, reusing the
-    results in ``known`` (keyed by the chart's first face and vertex count) of unchanged charts.
+    results in ``known`` (keyed by :func:`_key`) of unchanged charts.
     A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
     converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
     is cut instead (:func:`_separate`), so ``cut`` may grow."""
@@ -95,7 +102,7 @@ def _flatten_all(g, cut, solve, known, say, goal):
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)
-        key = (int(mesh.faces[0]), len(mesh.wedges))
+        key = _key(mesh)
         if key not in known:
             Vc = g.V[mesh.vertices]
             free = solve(Vc, mesh.F, scaffold=False)
@@ -168,14 +175,14 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
 
 def _region_cuts(g, cut, mesh):
     """``cut`` with the borders of :func:`~geomopt.atlas.regions.normal_regions` of the chart
-    ``mesh``, for each number of pieces in ``_SPLIT_REGIONS`` and compactness in
-    ``_SPLIT_COMPACT`` that gives disks (distinct splits only)."""
+    ``mesh``, for each number of pieces in ``_SPLIT_REGIONS`` and seeding in ``_SPLIT_SEEDS``
+    that gives disks (distinct splits only)."""
     import itertools
 
     out, seen = [], set()
     f1, f2 = g.edge_faces[:, 0], np.maximum(g.edge_faces[:, 1], 0)
-    for k, compact in itertools.product(_SPLIT_REGIONS, _SPLIT_COMPACT):
-        piece = normal_regions(g.V[mesh.vertices], mesh.F, k, compact=compact)
+    for k, centred in itertools.product(_SPLIT_REGIONS, _SPLIT_SEEDS):
+        piece = normal_regions(g.V[mesh.vertices], mesh.F, k, centred=centred)
         if piece is None or piece.tobytes() in seen:
             continue
         seen.add(piece.tobytes())
@@ -191,16 +198,23 @@ def _mean(state):
     return float(np.sum(state[4] * state[5]) / state[5].sum())
 
 
+def _failed(state):
+    return sum(not r.success for r in state[3])
+
+
 def _best_region_split(g, state, c, solve, known, goal):
     """``(rate, new_edges)``: the split of chart ``c`` of ``state`` (:func:`_flatten_all`'s
     tuple) by :func:`_region_cuts` that lowers the measured mean symmetric Dirichlet most per
-    unit of seam it adds (seam over the square root of the surface's area), or None."""
+    unit of seam it adds (seam over the square root of the surface's area), or None; a split
+    with a piece not flattened flip-free is never taken."""
     cut, measured, scale = state[0], _mean(state), np.sqrt(state[5].sum())
     best = None
     for more in _region_cuts(g, cut, state[2][c]):
         trial = _flatten_all(g, more, solve, known, lambda *a, **k: None, goal)
         added = float(g.length[trial[0]].sum() - g.length[cut].sum()) / scale
         rate = (measured - _mean(trial)) / max(added, 1e-12)
+        if _failed(trial) > _failed(state):
+            continue  # a piece did not flatten flip-free
         if best is None or rate > best[0]:
             best = (rate, trial[0] & ~cut)
     return best
@@ -221,7 +235,7 @@ def split_to_goal(g, cut, solve, say, goal, known=None, max_splits=32, worth=_SP
     for _ in range(max_splits):
         if _mean(state) <= goal:
             break
-        keys = [(int(m.faces[0]), len(m.wedges)) for m in state[2]]
+        keys = [_key(m) for m in state[2]]
         for c, key in enumerate(keys):
             if key not in offers and state[4][c] > goal:
                 offers[key] = _best_region_split(g, state, c, solve, known, goal)
