@@ -5,10 +5,13 @@ Three steps (in the spirit of Sheffer & Hart's Seamster and of Gu, Gortler & Hop
 images): (a) topology, :func:`~geomopt.atlas.seams.shortest_topological_cut` opens every
 component with handles or several boundary loops into a disk along cheap edges (from the best of
 several roots); (b) a closed genus-0 component is opened by one cheap path between its two
-points of most concentrated curvature, far apart; (c) distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
-(:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
-excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
-vertex to the boundary keeps a disk a disk, so every chart stays one.
+points of most concentrated curvature, far apart; (c) distortion, greedy cone cuts: while the
+estimated mean symmetric Dirichlet (:func:`~geomopt.atlas.cones.scale_estimate`) is above the
+target, the chart with the most excess gets a cheapest cut from its most shrunk vertex to its
+boundary.  A cut from an interior vertex to the boundary keeps a disk a disk, so every chart
+stays one.  When the cuts stall short of the target, the later ones that did not pay for their
+seam are taken back (:func:`relieve`); the charts are then split into nearly developable pieces
+instead, by measurement (:func:`~geomopt.atlas.flatten.split_to_goal`).
 """
 
 from __future__ import annotations

@@ -7,8 +7,9 @@ D-Charts (Julius, Kraevoy & Sheffer 2005) and of variational shape approximation
 Alliez & Desbrun 2004), :func:`normal_regions` grows ``k`` regions over the chart's faces
 (Lloyd iterations): every face joins the region whose seed it reaches by the cheapest path of
 face steps, a step costing its length times ``compact`` plus the face's normal deviation from
-the region's mean normal; each region's mean normal and seed are then updated (the seed to a face deep inside the region).  Crumbs join the
-neighbour they share the longest border with, and the regions must be disks.
+the region's mean normal; each region's mean normal and seed are then updated (the seed to a
+face deep inside the region, or the least deviating one).  Crumbs join the neighbour they share
+the longest border with, and the regions must be disks.
 """
 
 from __future__ import annotations
@@ -165,7 +166,8 @@ def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1, centred:
             p = (A[faces, None] * N[faces]).sum(axis=0) if len(faces) else proxies[r]
             proxies[r] = p / max(np.linalg.norm(p), 1e-300)
             if len(faces) and not centred:  # the least deviating face, the nearest of ties
-                seeds[r] = int(faces[np.argmin(1 - N[faces] @ proxies[r] + 1e-3 * dist[r, faces] / max(dist[r, faces].max(), 1e-300))])
+                near = dist[r, faces] / max(dist[r, faces].max(), 1e-300)
+                seeds[r] = int(faces[np.argmin(1 - N[faces] @ proxies[r] + 1e-3 * near)])
         if centred:
             seeds = _centres(label, N, a, b, step, proxies, seeds)
     label, _ = _grow(N, a, b, step, seeds, proxies, compact)
