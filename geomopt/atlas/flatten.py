@@ -31,6 +31,7 @@ __all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
 # Dirichlet by this much per unit of seam it adds (in units of the square root of the area)
 _SPLIT_WORTH = 0.06
 _SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
+_SPLIT_OFFERS = 4  # charts (of most excess) whose splits are tried per split made
 _SPLIT_SEEDS = (True, False)  # each with seeds centred in their regions, and not (normal_regions)
 
 
@@ -220,12 +221,30 @@ def _best_region_split(g, state, c, solve, known, goal):
     return best
 
 
+def _best_offer(g, state, offers, solve, known, goal, worth):
+    """The best split ``(rate, new_edges)`` offered for the charts of ``state`` (None when
+    none): the charts above the goal are offered their best split (:func:`_best_region_split`,
+    cached in ``offers`` by chart key), ``_SPLIT_OFFERS`` at a time in order of excess
+    (symmetric Dirichlet above the goal times area), until one is worth making or all were."""
+    keys = [_key(m) for m in state[2]]
+    excess = (state[4] - goal) * state[5]
+    waiting = [int(c) for c in np.argsort(-excess) if keys[c] not in offers and excess[c] > 0]
+    while True:
+        live = [offers[k] for k in keys if offers.get(k) is not None]
+        best = max(live, key=lambda offer: offer[0]) if live else None
+        if (best is not None and best[0] >= worth) or not waiting:
+            return best
+        for c in waiting[:_SPLIT_OFFERS]:
+            offers[keys[c]] = _best_region_split(g, state, c, solve, known, goal)
+        waiting = waiting[_SPLIT_OFFERS:]
+
+
 def split_to_goal(g, cut, solve, say, goal, known=None, max_splits=32, worth=_SPLIT_WORTH):
     """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
     above ``goal``, split charts into nearly developable pieces
-    (:func:`~geomopt.atlas.regions.normal_regions`), the split that buys the most: every chart
-    above the goal gets its best split (:func:`_best_region_split`, each candidate flattened and
-    measured), and the one that lowers the measured mean most per unit of seam it adds is made,
+    (:func:`~geomopt.atlas.regions.normal_regions`), the split that buys the most: of the best
+    splits of the charts above the goal (:func:`_best_offer`, each candidate flattened and
+    measured), the one that lowers the measured mean most per unit of seam it adds is made,
     while that rate is at least ``worth`` (per unit of seam length over the square root of the
     surface's area).  A chart's pieces may be split again.  Returns ``(cut, split, meshes,
     results)`` as :func:`flatten_to`."""
@@ -235,14 +254,9 @@ def split_to_goal(g, cut, solve, say, goal, known=None, max_splits=32, worth=_SP
     for _ in range(max_splits):
         if _mean(state) <= goal:
             break
-        keys = [_key(m) for m in state[2]]
-        for c, key in enumerate(keys):
-            if key not in offers and state[4][c] > goal:
-                offers[key] = _best_region_split(g, state, c, solve, known, goal)
-        live = [offers[k] for k in keys if offers.get(k) is not None]
-        if not live or max(r for r, _ in live) < worth:
+        best = _best_offer(g, state, offers, solve, known, goal, worth)
+        if best is None or best[0] < worth:
             break
-        rate, new = max(live, key=lambda offer: offer[0])
-        state = _flatten_all(g, state[0] | new, solve, known, say, goal)
-        say("split", charts=state[1].count, rate=float(rate), mean_symmetric_dirichlet=_mean(state))
+        state = _flatten_all(g, state[0] | best[1], solve, known, say, goal)
+        say("split", charts=state[1].count, rate=float(best[0]), mean_symmetric_dirichlet=_mean(state))
     return state[:4]
