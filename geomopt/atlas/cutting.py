@@ -107,10 +107,10 @@ def _worth_keeping(history, seam, scale, worth=_SEAM_WORTH):
     return int(np.argmin(np.asarray(history) + worth * np.asarray(seam) / scale))
 
 
-def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
+def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
     """Greedy cone cuts (module doc, step c) until the area-weighted estimate is at most
-    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.  When the target
-    was not reached, only the first cuts that paid for their seam are kept
+    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.  With ``prune``,
+    when the target was not reached, only the first cuts that paid for their seam are kept
     (:func:`_worth_keeping`): on a coarse mesh whose curvature is spread out the later cuts are
     slits that buy little, and their seam is better spent on splitting the charts
     (:func:`~geomopt.atlas.flatten.split_to_goal`).
@@ -148,7 +148,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
         paths.append(np.asarray(path)[~cut[path]])
         cut[path] = True
         known.pop(int(first[c]))
-    if estimate > target and made:
+    if prune and estimate > target and made:
         made = _worth_keeping(history, seam, np.sqrt(_area(g)))
         for path in paths[made:]:
             cut[path] = False
@@ -174,4 +174,4 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200):
     labels, roots = _component_roots(g)
     cut = shortest_topological_cut(g, cost, labels, roots)
     cut = _open_spheres(g, cost, cut, labels, roots)
-    return relieve(g, cost, cut, target, max_cuts)
+    return relieve(g, cost, cut, target, max_cuts, prune=True)

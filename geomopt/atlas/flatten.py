@@ -27,8 +27,9 @@ from .split import separate_overlaps
 
 __all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
 
-# a split of a chart into nearly developable pieces must lower the measured mean symmetric
-# Dirichlet by this much per unit of seam it adds (in units of the square root of the area)
+# a split of a chart into nearly developable pieces, or a round of cone cuts, must lower the
+# measured mean symmetric Dirichlet by this much per unit of seam it adds (in units of the
+# square root of the area)
 _SPLIT_WORTH = 0.06
 _SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
 _SPLIT_OFFERS = 4  # charts (of most excess) whose splits are tried per split made
@@ -127,7 +128,10 @@ def _flatten_all(g, cut, solve, known, say, goal):
 
 def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
     """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
-    above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.
+    above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.  A
+    round of cuts that lowers the measured mean by less than ``_SPLIT_WORTH`` per unit of seam
+    it adds is taken back; when the mean is still above the goal, the charts are split instead
+    (:func:`split_to_goal`).
 
     Parameters
     ----------
@@ -156,22 +160,26 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
     ``(cut, split, meshes, results)``: the final seam graph, its
     :class:`~geomopt.atlas.charts.ChartSplit`, chart meshes and flattenings.
     """
-    known = {}
+    known, last = {}, None
     for _ in range(rounds + 1):
-        cut, split, meshes, results, sd, area = _flatten_all(g, cut, solve, known, say, goal)
-        measured = float(np.sum(sd * area) / area.sum())
-        say("flattened", charts=split.count, mean_symmetric_dirichlet=measured, estimate=estimate)
-        if measured <= goal or max_cuts <= 0 or _ == rounds:
+        state = _flatten_all(g, cut, solve, known, say, goal)
+        say("flattened", charts=state[1].count, mean_symmetric_dirichlet=_mean(state), estimate=estimate)
+        if last is not None and _rate(g, last, state) < _SPLIT_WORTH:
+            state = last  # the round's cuts did not pay for their seam: split instead
+            say("cuts taken back", charts=state[1].count, mean_symmetric_dirichlet=_mean(state))
+            break
+        if _mean(state) <= goal or max_cuts <= 0 or _ == rounds:
             break
         # the estimate runs above the flattening by about the measured gap: aim it that much lower
-        target = max(4.0 + 1e-3, goal + (estimate - measured))
-        cut, estimate, made = relieve(g, cost, cut, target, max_cuts)
+        target = max(4.0 + 1e-3, goal + (estimate - _mean(state)))
+        last = state
+        cut, estimate, made = relieve(g, cost, state[0], target, max_cuts)
         max_cuts -= made
         if made == 0:
             break
-    if measured > goal:
-        return split_to_goal(g, cut, solve, say, goal, known)
-    return cut, split, meshes, results
+    if _mean(state) > goal:
+        return split_to_goal(g, state[0], solve, say, goal, known)
+    return state[:4]
 
 
 def _region_cuts(g, cut, mesh):
@@ -199,6 +207,13 @@ def _mean(state):
     return float(np.sum(state[4] * state[5]) / state[5].sum())
 
 
+def _rate(g, before, after):
+    """How much ``after`` (:func:`_flatten_all`'s tuple) lowered the measured mean symmetric
+    Dirichlet of ``before`` per unit of seam it added (seam over the square root of the area)."""
+    added = float(g.length[after[0]].sum() - g.length[before[0]].sum()) / np.sqrt(before[5].sum())
+    return (_mean(before) - _mean(after)) / max(added, 1e-12)
+
+
 def _failed(state):
     return sum(not r.success for r in state[3])
 
@@ -208,16 +223,14 @@ def _best_region_split(g, state, c, solve, known, goal):
     tuple) by :func:`_region_cuts` that lowers the measured mean symmetric Dirichlet most per
     unit of seam it adds (seam over the square root of the surface's area), or None; a split
     with a piece not flattened flip-free is never taken."""
-    cut, measured, scale = state[0], _mean(state), np.sqrt(state[5].sum())
     best = None
-    for more in _region_cuts(g, cut, state[2][c]):
+    for more in _region_cuts(g, state[0], state[2][c]):
         trial = _flatten_all(g, more, solve, known, lambda *a, **k: None, goal)
-        added = float(g.length[trial[0]].sum() - g.length[cut].sum()) / scale
-        rate = (measured - _mean(trial)) / max(added, 1e-12)
+        rate = _rate(g, state, trial)
         if _failed(trial) > _failed(state):
             continue  # a piece did not flatten flip-free
         if best is None or rate > best[0]:
-            best = (rate, trial[0] & ~cut)
+            best = (rate, trial[0] & ~state[0])
     return best
 
 
