@@ -59,3 +59,63 @@ def test_strong_cones_joined_by_a_tree_open_a_cad_part_nearly_isometrically_with
     assert g.length[cut].sum() <= 50.0
     split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
     assert all(split.mesh(c).disk_loop() is not None for c in range(split.count))
+
+
+def _open_box():
+    """A subdivided cube without its top: a disk of five flat sides."""
+    import trimesh
+
+    m = trimesh.creation.box().subdivide().subdivide()
+    V, F = np.asarray(m.vertices), np.asarray(m.faces)
+    F = F[~(V[F][:, :, 2] > 0.49).all(axis=1)]
+    used, F = np.unique(F, return_inverse=True)
+    return V[used], F.reshape(-1, 3)
+
+
+def test_normal_regions_finds_the_flat_sides_of_an_open_box():
+    from geomopt.atlas.regions import normal_regions
+    from geomopt.exact.topology import check_disk
+
+    V, F = _open_box()
+    piece = normal_regions(V, F, 5)
+    assert piece is not None and piece.max() == 4
+    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    for p in range(5):
+        sel = F[piece == p]
+        assert np.ptp(N[piece == p], axis=0).max() < 1e-9  # one flat side each
+        used, local = np.unique(sel, return_inverse=True)
+        check_disk(local.reshape(-1, 3), len(used))
+
+
+def _bumpy_sphere():
+    """A coarse icosphere with strong bumps: its curvature is spread over many vertices, so cone
+    cuts relieve little and the charts must be split into nearly developable pieces."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(1)
+    P = np.asarray(s.vertices)
+    r = 1 + 0.6 * np.sin(6 * P[:, 0]) * np.sin(6 * P[:, 1]) * np.sin(6 * P[:, 2])
+    return P * r[:, None] * [1.0, 1.3, 0.8], np.asarray(s.faces)
+
+
+def test_charts_above_the_goal_without_cone_cuts_left_are_split_into_developable_pieces():
+    from geomopt.atlas.cutting import cut_surface
+    from geomopt.atlas.flatten import flatten_chart, flatten_to
+
+    g = edge_graph(*_bumpy_sphere())
+    cost = edge_costs(g, 2.0, angle_defects(g.V, g.F))
+    cut, estimate, _ = cut_surface(g, cost, 4.2, max_cuts=0)  # the topological cut only
+
+    def solve(Vc, Fc, free=None, scaffold=True):
+        return flatten_chart(Vc, Fc, "symmetric_dirichlet", None, {}, free=free, scaffold=scaffold)
+
+    said = []
+    new, split, meshes, results = flatten_to(g, cost, cut, estimate, 4.01, solve, 0,
+                                             lambda stage, **info: said.append((stage, info)))
+    flat = [i["mean_symmetric_dirichlet"] for s, i in said if s == "flattened"]
+    splits = [i for s, i in said if s == "split"]
+    assert splits and all(i["rate"] >= 0.06 for i in splits)
+    assert splits[-1]["mean_symmetric_dirichlet"] < flat[0] - 0.05
+    assert split.count == splits[-1]["charts"] > 1 and (new >= cut).all()
+    assert all(r.success for r in results) and all(m.disk_loop() is not None for m in meshes)

@@ -13,8 +13,11 @@ opened by one cheap path between its two points of most concentrated curvature, 
 distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
 (:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
 excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
-vertex to the boundary keeps a disk a disk, so every chart stays one.  :func:`cut_surface` makes
-the seam graph with and without (a') and keeps the shorter that reaches the target.
+vertex to the boundary keeps a disk a disk, so every chart stays one.  When the cuts stall short
+of the target, the later ones that did not pay for their seam are taken back (:func:`relieve`);
+the charts are then split into nearly developable pieces instead, by measurement
+(:func:`~geomopt.atlas.flatten.split_to_goal`).  :func:`cut_surface` makes the seam graph with
+and without (a') and keeps the shorter that reaches the target.
 """
 
 from __future__ import annotations
@@ -27,6 +30,10 @@ from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor,
                     steiner_tree)
 
 __all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
+
+# a cone cut that the target was not reached with must lower the area-weighted estimate by this
+# much per unit of seam length (in units of the square root of the surface's area)
+_SEAM_WORTH = 0.5
 
 
 def _component_roots(g: EdgeGraph):
@@ -101,9 +108,19 @@ def _stalled(history, window=10, gain=1e-3):
     return len(history) > window and history[-window - 1] - history[-1] < gain * history[-1]
 
 
-def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
+def _worth_keeping(history, seam, scale, worth=_SEAM_WORTH):
+    """How many of the cuts to keep: the count ``j`` minimising ``history[j] + worth *
+    seam[j] / scale`` (the estimate after ``j`` cuts plus the price of their seam)."""
+    return int(np.argmin(np.asarray(history) + worth * np.asarray(seam) / scale))
+
+
+def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
     """Greedy cone cuts (module doc, step c) until the area-weighted estimate is at most
-    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.
+    ``target``, ``max_cuts`` cuts were made, or the last cuts stopped helping.  With ``prune``,
+    when the target was not reached, only the first cuts that paid for their seam are kept
+    (:func:`_worth_keeping`): on a coarse mesh whose curvature is spread out the later cuts are
+    slits that buy little, and their seam is better spent on splitting the charts
+    (:func:`~geomopt.atlas.flatten.split_to_goal`).
 
     Returns
     -------
@@ -112,7 +129,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
     """
     known = {}  # chart key (its first face) -> (mean, area, vertex)
     cut = cut.copy()
-    history = []
+    history, seam, paths = [], [], []
     for made in range(max_cuts + 1):
         split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
         first = np.full(split.count, len(g.F))
@@ -126,6 +143,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
         area = np.array([r[1] for r in rows])
         estimate = float(np.sum(mean * area) / area.sum())
         history.append(estimate)
+        seam.append(float(g.length[cut].sum()))
         if estimate <= target or made == max_cuts or _stalled(history):
             break
         excess = np.where([r[2] >= 0 for r in rows], (mean - target) * area, -np.inf)
@@ -134,9 +152,20 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts):
             break  # no chart has an interior vertex left to cut from
         seams = np.unique(g.E[cut | g.boundary].ravel())
         path = cut_path_to_seams(g, cost, rows[c][2], seams)
+        paths.append(np.asarray(path)[~cut[path]])
         cut[path] = True
         known.pop(int(first[c]))
+    if prune and estimate > target and made:
+        made = _worth_keeping(history, seam, np.sqrt(_area(g)))
+        for path in paths[made:]:
+            cut[path] = False
+        estimate = history[made]
     return cut, estimate, made
+
+
+def _area(g: EdgeGraph):
+    P = g.V[g.F]
+    return 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
 
 
 def strong_cones(g: EdgeGraph, least: float = np.pi / 4) -> np.ndarray:
@@ -231,7 +260,7 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cos
     best = None
     for least in levels:
         cut, estimate, made = relieve(g, cost, _topological(g, cost, tree_cost, labels, roots, least, target),
-                                      target, max_cuts)
+                                      target, max_cuts, prune=True)
         key = (estimate > target, estimate if estimate > target else float(g.length[cut].sum()))
         if best is None or key < best[0]:
             best = (key, (cut, estimate, made))

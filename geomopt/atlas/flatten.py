@@ -9,7 +9,10 @@ with many seams to tens or thousands of times the distortion, or not converge.  
 conformal estimate (:mod:`geomopt.atlas.cones`) that runs above what the flattening reaches;
 :func:`flatten_to` measures the real mean symmetric Dirichlet, and while it is above the goal it
 lowers the estimate's target by the measured gap and cuts again, re-flattening only the charts
-that changed.
+that changed.  Where the cone cuts stall above the goal (a coarse or strongly curved surface,
+whose curvature is spread over many vertices rather than held by a few cones),
+:func:`split_to_goal` splits charts into nearly developable pieces instead
+(:mod:`geomopt.atlas.regions`), measured split by split, the most distortion bought per seam first.
 """
 
 from __future__ import annotations
@@ -19,9 +22,18 @@ import numpy as np
 from .charts import split_charts
 from .cutting import relieve
 from .metrics import face_symmetric_dirichlet
+from .regions import normal_regions
 from .split import separate_overlaps
 
-__all__ = ["flatten_chart", "flatten_to"]
+__all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
+
+# a split of a chart into nearly developable pieces, or a round of cone cuts, must lower the
+# measured mean symmetric Dirichlet by this much per unit of seam it adds (in units of the
+# square root of the area)
+_SPLIT_WORTH = 0.06
+_SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
+_SPLIT_OFFERS = 4  # charts (of most excess) whose splits are tried per split made
+_SPLIT_SEEDS = (True, False)  # each with seeds centred in their regions, and not (normal_regions)
 
 
 def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=True):
@@ -37,6 +49,13 @@ def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=Tru
     again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False,
                          options=ParamOptions(bijective=True))
     return again if again.success or not res.success else res
+
+
+def _key(mesh):
+    """A chart's key in the caches of flattenings: its faces and their local vertex ids (the
+    gluing inside it); alternative splits of one chart may give pieces with the same first face
+    and vertex count."""
+    return mesh.faces.tobytes(), mesh.F.tobytes()
 
 
 def _areas(V, F):
@@ -71,13 +90,13 @@ def _separate(g, cut, mesh, res, known):
         xs = np.empty((len(mesh.wedges), 2))
         xs[mesh.F.ravel()] = x[piece.F.ravel()]
         own = dataclasses.replace(res, x=xs, certificate=cert, problem=None)  # its part of the solve
-        known[(int(mesh.faces[0]), len(mesh.wedges))] = (own,) + _mean_sd(g.V[mesh.vertices], mesh.F, xs)
+        known[_key(mesh)] = (own,) + _mean_sd(g.V[mesh.vertices], mesh.F, xs)
     return cut
 
 
 def _flatten_all(g, cut, solve, known, say, goal):
     """``(cut, split, meshes, results, sd, area)`` of every chart of ``cut``, reusing the
-    results in ``known`` (keyed by the chart's first face and vertex count) of unchanged charts.
+    results in ``known`` (keyed by :func:`_key`) of unchanged charts.
     A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
     converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
     is cut instead (:func:`_separate`), so ``cut`` may grow."""
@@ -85,7 +104,7 @@ def _flatten_all(g, cut, solve, known, say, goal):
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)
-        key = (int(mesh.faces[0]), len(mesh.wedges))
+        key = _key(mesh)
         if key not in known:
             Vc = g.V[mesh.vertices]
             free = solve(Vc, mesh.F, scaffold=False)
@@ -109,7 +128,10 @@ def _flatten_all(g, cut, solve, known, say, goal):
 
 def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
     """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
-    above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.
+    above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.  A
+    round of cuts that lowers the measured mean by less than ``_SPLIT_WORTH`` per unit of seam
+    it adds is taken back; when the mean is still above the goal, the charts are split instead
+    (:func:`split_to_goal`).
 
     Parameters
     ----------
@@ -138,17 +160,116 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
     ``(cut, split, meshes, results)``: the final seam graph, its
     :class:`~geomopt.atlas.charts.ChartSplit`, chart meshes and flattenings.
     """
-    known = {}
+    known, last = {}, None
     for _ in range(rounds + 1):
-        cut, split, meshes, results, sd, area = _flatten_all(g, cut, solve, known, say, goal)
-        measured = float(np.sum(sd * area) / area.sum())
-        say("flattened", charts=split.count, mean_symmetric_dirichlet=measured, estimate=estimate)
-        if measured <= goal or max_cuts <= 0 or _ == rounds:
+        state = _flatten_all(g, cut, solve, known, say, goal)
+        say("flattened", charts=state[1].count, mean_symmetric_dirichlet=_mean(state), estimate=estimate)
+        if last is not None and _rate(g, last, state) < _SPLIT_WORTH:
+            state = last  # the round's cuts did not pay for their seam: split instead
+            say("cuts taken back", charts=state[1].count, mean_symmetric_dirichlet=_mean(state))
+            break
+        if _mean(state) <= goal or max_cuts <= 0 or _ == rounds:
             break
         # the estimate runs above the flattening by about the measured gap: aim it that much lower
-        target = max(4.0 + 1e-3, goal + (estimate - measured))
-        cut, estimate, made = relieve(g, cost, cut, target, max_cuts)
+        target = max(4.0 + 1e-3, goal + (estimate - _mean(state)))
+        last = state
+        cut, estimate, made = relieve(g, cost, state[0], target, max_cuts)
         max_cuts -= made
         if made == 0:
             break
-    return cut, split, meshes, results
+    if _mean(state) > goal:
+        return split_to_goal(g, state[0], solve, say, goal, known)
+    return state[:4]
+
+
+def _region_cuts(g, cut, mesh):
+    """``cut`` with the borders of :func:`~geomopt.atlas.regions.normal_regions` of the chart
+    ``mesh``, for each number of pieces in ``_SPLIT_REGIONS`` and seeding in ``_SPLIT_SEEDS``
+    that gives disks (distinct splits only)."""
+    import itertools
+
+    out, seen = [], set()
+    f1, f2 = g.edge_faces[:, 0], np.maximum(g.edge_faces[:, 1], 0)
+    for k, centred in itertools.product(_SPLIT_REGIONS, _SPLIT_SEEDS):
+        piece = normal_regions(g.V[mesh.vertices], mesh.F, k, centred=centred)
+        if piece is None or piece.tobytes() in seen:
+            continue
+        seen.add(piece.tobytes())
+        label = np.full(len(g.F), -1)
+        label[mesh.faces] = piece
+        new = ~g.boundary & (label[f1] >= 0) & (label[f1] != label[f2])
+        if (new & ~cut).any():
+            out.append(cut | new)
+    return out
+
+
+def _mean(state):
+    return float(np.sum(state[4] * state[5]) / state[5].sum())
+
+
+def _rate(g, before, after):
+    """How much ``after`` (:func:`_flatten_all`'s tuple) lowered the measured mean symmetric
+    Dirichlet of ``before`` per unit of seam it added (seam over the square root of the area)."""
+    added = float(g.length[after[0]].sum() - g.length[before[0]].sum()) / np.sqrt(before[5].sum())
+    return (_mean(before) - _mean(after)) / max(added, 1e-12)
+
+
+def _failed(state):
+    return sum(not r.success for r in state[3])
+
+
+def _best_region_split(g, state, c, solve, known, goal):
+    """``(rate, new_edges)``: the split of chart ``c`` of ``state`` (:func:`_flatten_all`'s
+    tuple) by :func:`_region_cuts` that lowers the measured mean symmetric Dirichlet most per
+    unit of seam it adds (seam over the square root of the surface's area), or None; a split
+    with a piece not flattened flip-free is never taken."""
+    best = None
+    for more in _region_cuts(g, state[0], state[2][c]):
+        trial = _flatten_all(g, more, solve, known, lambda *a, **k: None, goal)
+        rate = _rate(g, state, trial)
+        if _failed(trial) > _failed(state):
+            continue  # a piece did not flatten flip-free
+        if best is None or rate > best[0]:
+            best = (rate, trial[0] & ~state[0])
+    return best
+
+
+def _best_offer(g, state, offers, solve, known, goal, worth):
+    """The best split ``(rate, new_edges)`` offered for the charts of ``state`` (None when
+    none): the charts above the goal are offered their best split (:func:`_best_region_split`,
+    cached in ``offers`` by chart key), ``_SPLIT_OFFERS`` at a time in order of excess
+    (symmetric Dirichlet above the goal times area), until one is worth making or all were."""
+    keys = [_key(m) for m in state[2]]
+    excess = (state[4] - goal) * state[5]
+    waiting = [int(c) for c in np.argsort(-excess) if keys[c] not in offers and excess[c] > 0]
+    while True:
+        live = [offers[k] for k in keys if offers.get(k) is not None]
+        best = max(live, key=lambda offer: offer[0]) if live else None
+        if (best is not None and best[0] >= worth) or not waiting:
+            return best
+        for c in waiting[:_SPLIT_OFFERS]:
+            offers[keys[c]] = _best_region_split(g, state, c, solve, known, goal)
+        waiting = waiting[_SPLIT_OFFERS:]
+
+
+def split_to_goal(g, cut, solve, say, goal, known=None, max_splits=32, worth=_SPLIT_WORTH):
+    """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
+    above ``goal``, split charts into nearly developable pieces
+    (:func:`~geomopt.atlas.regions.normal_regions`), the split that buys the most: of the best
+    splits of the charts above the goal (:func:`_best_offer`, each candidate flattened and
+    measured), the one that lowers the measured mean most per unit of seam it adds is made,
+    while that rate is at least ``worth`` (per unit of seam length over the square root of the
+    surface's area).  A chart's pieces may be split again.  Returns ``(cut, split, meshes,
+    results)`` as :func:`flatten_to`."""
+    known = {} if known is None else known
+    state = _flatten_all(g, cut, solve, known, say, goal)
+    offers = {}  # chart key -> its best split (rate, new edges) or None
+    for _ in range(max_splits):
+        if _mean(state) <= goal:
+            break
+        best = _best_offer(g, state, offers, solve, known, goal, worth)
+        if best is None or best[0] < worth:
+            break
+        state = _flatten_all(g, state[0] | best[1], solve, known, say, goal)
+        say("split", charts=state[1].count, rate=float(best[0]), mean_symmetric_dirichlet=_mean(state))
+    return state[:4]
