@@ -119,3 +119,25 @@ def test_charts_above_the_goal_without_cone_cuts_left_are_split_into_developable
     assert splits[-1]["mean_symmetric_dirichlet"] < flat[0] - 0.05
     assert split.count == splits[-1]["charts"] > 1 and (new >= cut).all()
     assert all(r.success for r in results) and all(m.disk_loop() is not None for m in meshes)
+
+
+def test_trim_keeps_the_estimate_of_every_chart_at_the_target():
+    """Two holed plates in one mesh (two charts): each uncut path changes one chart's gluing but
+    not its faces, so an estimate cached by faces went stale and later trims counted the trimmed
+    chart at its old, lower estimate (the result 4.95 for a target of 4.5)."""
+    from geomopt.atlas.cutting import chart_estimate, strong_cones, trim
+    from geomopt.atlas.seams import steiner_tree
+
+    (V1, F1), (V2, F2) = holed_plate(2, cells=2), holed_plate(3, cells=2)
+    V, F = np.vstack([V1, V2 + [0.0, 20.0, 0.0]]), np.vstack([F1, F2 + len(V1)])
+    g = edge_graph(V, F)
+    cost = edge_costs(g, 2.0, angle_defects(g.V, g.F))
+    tree = steiner_tree(g, edge_costs(g, 2.0), strong_cones(g), _labels(g))
+    labels = _labels(g)
+    cut = shortest_topological_cut(g, cost, labels, np.unique(labels, return_index=True)[1], opened=tree)
+    for target in (4.5, 4.8):
+        trimmed = trim(g, cut, target)
+        assert trimmed.sum() < cut.sum()
+        split = split_charts(g.F, g.edge_of, g.edge_faces, trimmed)
+        rows = np.array([chart_estimate(g.V, split.mesh(c))[:2] for c in range(split.count)])
+        assert split.count == 2 and rows[:, 0] @ rows[:, 1] / rows[:, 1].sum() <= target + 1e-9

@@ -234,6 +234,8 @@ def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
             after = chart_estimate(g.V, joined.mesh(int(joined.chart[face])))[0]
             if float(np.sum(mean * area) + (after - mean[c]) * area[c]) / area.sum() <= target:
                 cut = trial
+                mesh = split.mesh(c)  # same faces, new gluing: its cached estimate is stale
+                known.pop((int(mesh.faces[0]), len(mesh.faces)))
                 break
         else:
             return cut
