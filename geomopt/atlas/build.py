@@ -51,7 +51,7 @@ class AtlasOptions:
         repack while the packing efficiency (chart area / unit square) is below this and each
         split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
     split_gain : the least rise of the packing efficiency a split must buy per extra chart it
-        makes (among those that do, shorter seams are preferred: :func:`~geomopt.atlas.split.split_to_pack`).
+        makes; its seam is charged too, by length (:func:`~geomopt.atlas.split.split_to_pack`).
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """

@@ -10,10 +10,9 @@ distinct cut of :func:`candidate_splits` (``_DIRECTIONS`` directions from the pr
 ``_QUANTILES`` positions) is screened by a cheap packing of its pieces, the ``_FINALISTS`` best
 are packed with all the charts, and the best is kept when it pays, while the efficiency is below
 the goal.  A split is charged, in efficiency, ``min_gain`` per chart it adds and ``seam_cost``
-per square root of the surface's area of seam it adds (3D length of the cut edges) when ranking
-the candidates, so that among cuts that pack about alike the shortest wins (across a neck rather
-than along an arm); the best that pays for its charts (the efficiency rises by ``min_gain`` per
-chart it adds) is kept.
+per square root of the surface's area of seam it adds (3D length of the cut edges), both when
+ranking the candidates and when deciding whether the best pays: among cuts that pack about alike
+the shortest wins (across a neck rather than along an arm), and a long cut must buy more packing.
 The cut that packs best is seldom the one across the principal axis at the median: it is where
 the outline has a notch or an arm.
 """
@@ -32,7 +31,7 @@ _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the 
 _FINALISTS = 3  # the best screened splits packed with all the charts
 _SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
 _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
-_SEAM_COST = 0.1  # efficiency a split's seam costs, per sqrt(surface area), among splits that pay
+_SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
 
 
 def _face_pairs(F):
@@ -208,10 +207,10 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
 def _best_split(meshes, maps, i, pack, screen, charge, current):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
-    for their charts (the packing's efficiency rises above ``current`` by ``charge.charts``):
-    every candidate's pieces are packed alone by ``screen`` (a cheap estimate), the
-    ``_FINALISTS`` best are packed with all the other charts by ``pack``.  Returns
-    ``(pieces, packing)`` or None when no split pays."""
+    (the packing's efficiency rises above ``current`` by at least the charge): every candidate's
+    pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
+    with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
+    pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
     est = [screen([p[1] for p in c], [p[0].F for p in c]) - charge(c, seam) for c, seam in cands]
     best = None
@@ -219,9 +218,9 @@ def _best_split(meshes, maps, i, pack, screen, charge, current):
         pieces, seam = cands[j]
         trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
                      [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
-        if trial.efficiency <= current or trial.efficiency - charge.charts(pieces) < current:
-            continue
         score = trial.efficiency - charge(pieces, seam)
+        if trial.efficiency <= current or score < current:
+            continue
         if best is None or score > best[0]:
             best = (score, pieces, trial)
     return None if best is None else best[1:]
@@ -231,7 +230,8 @@ class _Charge:
     """The cost of a split in packing efficiency: ``min_gain`` per chart it adds, and
     ``seam_cost`` per ``unit`` of seam length it adds (``unit``: the square root of the charts'
     total area, 3D with the surface's vertices ``V``, else in UV), so that among splits that pack
-    about as well the one with the shorter cut wins."""
+    about as well the one with the shorter cut wins, and a long cut must buy more packing.  The
+    unit is the whole surface's, not the chart's: the seam and the efficiency are the atlas's."""
 
     def __init__(self, meshes, maps, V, min_gain, seam_cost):
         self.V, self.min_gain, self.seam_cost = V, min_gain, seam_cost
@@ -242,11 +242,8 @@ class _Charge:
             area = sum(_surface_area(V[m.vertices][m.F]) for m in meshes)
         self.unit = max(np.sqrt(area), 1e-300)
 
-    def charts(self, pieces) -> float:
-        return self.min_gain * (len(pieces) - 1)
-
     def __call__(self, pieces, seam) -> float:
-        return self.charts(pieces) + self.seam_cost * seam / self.unit
+        return self.min_gain * (len(pieces) - 1) + self.seam_cost * seam / self.unit
 
 
 def _boundary_face(F, a, b):
@@ -353,14 +350,15 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
                   seam_cost=_SEAM_COST):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
     keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
-    least ``min_gain`` per extra chart (a split costs a seam and charts: one that buys less
-    packing is not worth them), while the efficiency is below ``goal`` (at most ``max_splits``
-    charts tried; none more after ``_PATIENCE`` in a row that stay whole: charts are tried by
-    decreasing area, and a smaller chart's split moves the packing less).
+    least its charge: ``min_gain`` per extra chart and ``seam_cost`` per unit of seam (a split
+    costs a seam and charts: one that buys less packing is not worth them), while the efficiency
+    is below ``goal`` (at most ``max_splits`` charts tried; none more after ``_PATIENCE`` in a row
+    that stay whole: charts are tried by decreasing area, and a smaller chart's split moves the
+    packing less).
     ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply (default:
-    ``pack``'s).  Among the splits that pay, the seam a split adds is charged ``seam_cost`` of
-    efficiency per square root of the charts' total area (:class:`_Charge`), measured on the
-    surface ``V`` (the vertices that the charts' ``vertices`` index) when given, else in UV.
+    ``pack``'s).  The seam's unit is the square root of the charts' total area
+    (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
+    charts' ``vertices`` index) when given, else in UV.
 
     Returns
     -------
