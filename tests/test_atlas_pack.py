@@ -464,7 +464,7 @@ def test_a_packing_split_must_buy_at_least_min_gain_of_efficiency():
             self.efficiency = 0.5 + 0.005 * (len(maps) > 1)  # a split gains half a point
 
     pack = lambda maps, faces: Packed(maps)
-    # seam_cost=0: the charge per chart alone (the seam's: the next test but one)
+    # seam_cost=0: the charge per chart alone (the seam's: test_among_splits_that_pack_alike_the_shortest...)
     meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.01, seam_cost=0.0)
     assert len(meshes) == 1 and packing.efficiency == 0.5 and owner == [0]
     meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.001, seam_cost=0.0)
