@@ -464,9 +464,10 @@ def test_a_packing_split_must_buy_at_least_min_gain_of_efficiency():
             self.efficiency = 0.5 + 0.005 * (len(maps) > 1)  # a split gains half a point
 
     pack = lambda maps, faces: Packed(maps)
-    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.01)
+    # seam_cost=0: the charge per chart alone (the seam's: test_among_splits_that_pack_alike_the_shortest...)
+    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.01, seam_cost=0.0)
     assert len(meshes) == 1 and packing.efficiency == 0.5 and owner == [0]
-    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.001)
+    meshes, _, packing, owner = split_to_pack([mesh], [stretched], pack, goal=0.9, min_gain=0.001, seam_cost=0.0)
     assert len(meshes) > 1 and packing.efficiency > 0.5 and owner == [0] * len(meshes)
 
 
@@ -522,7 +523,7 @@ def test_each_extra_chart_of_a_split_must_buy_min_gain():
             self.efficiency = 0.5 + {1: 0.0, 2: 0.012}.get(len(maps), 0.018)
 
     pack = lambda maps, faces: Packed(maps)
-    meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, min_gain=0.01)
+    meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, min_gain=0.01, seam_cost=0.0)
     assert len(meshes) == 2 and packing.efficiency == pytest.approx(0.512)
 
     class NoPairs(Packed):
@@ -530,7 +531,7 @@ def test_each_extra_chart_of_a_split_must_buy_min_gain():
             self.efficiency = 0.5 + {1: 0.0, 2: -0.1}.get(len(maps), 0.018)
 
     meshes, _, packing, _ = split_to_pack([mesh], [x], lambda m, f: NoPairs(m), goal=0.9, max_splits=1,
-                                          min_gain=0.01)
+                                          min_gain=0.01, seam_cost=0.0)
     assert len(meshes) == 1 and packing.efficiency == 0.5
 
 
@@ -618,3 +619,32 @@ def _uv_area(x, F):
     P = x[F]
     a, b = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
     return 0.5 * float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+
+
+def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
+    """Every split of a 3 x 1 rectangle packs alike here (a stand-in packer that counts charts),
+    so the split kept must be the one adding the least seam, measured on the surface: stretched
+    five times across in 3D, the cut across the chart's length (3 long) is shorter there than
+    the one across its width (1 in UV, 5 in 3D).  The seam is charged when deciding whether a
+    split pays too: at a high enough price per length, the same split is refused."""
+    from geomopt.atlas.split import candidate_splits, split_to_pack
+
+    mesh, x = _shape_chart(lambda c: c[:, 1] < 1.0, n=13, size=(3.0, 3.0))
+    V = np.c_[x * [1.0, 5.0], np.zeros(len(x))]
+
+    class Packed:
+        def __init__(self, maps):
+            self.efficiency = 0.5 + 0.2 * (len(maps) == 2)
+
+    pack = lambda maps, faces: Packed(maps)
+    screen = lambda maps, faces: Packed(maps).efficiency
+    cands = candidate_splits(mesh, x, V=V, seams=True)
+    seams = [seam for pieces, seam in cands if len(pieces) == 2]
+    assert min(seams) == pytest.approx(3.0) and max(seams) > 4.0, seams
+    meshes, maps, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, screen=screen, V=V)
+    assert len(meshes) == 2 and packing.efficiency == 0.7
+    cut = np.intersect1d(*[m.vertices for m in meshes])  # the vertices on the new seam
+    assert np.ptp(V[cut, 1]) < 1e-9 and np.ptp(V[cut, 0]) == pytest.approx(3.0), V[cut]
+    meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, screen=screen, V=V,
+                                          seam_cost=1.0)  # 0.01 + 1.0 * 3 / sqrt(15) > 0.2
+    assert len(meshes) == 1 and packing.efficiency == 0.5

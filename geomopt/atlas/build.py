@@ -50,8 +50,8 @@ class AtlasOptions:
     min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
         repack while the packing efficiency (chart area / unit square) is below this and each
         split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
-    split_gain : the least rise of the packing efficiency a split must buy with its seam, per
-        extra chart it makes.
+    split_gain : the least rise of the packing efficiency a split must buy per extra chart it
+        makes; its seam is charged too, by length (:func:`~geomopt.atlas.split.split_to_pack`).
     margin : gap between packed charts, as a fraction of the unit square.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
@@ -229,7 +229,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
 
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
                                                  min_gain=options.split_gain,
-                                                 screen=screen)
+                                                 screen=screen, V=g.V)
     results = [results[i] for i in owner]
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
     certificate = certify_atlas(uv, uv_faces, chart)

@@ -8,9 +8,13 @@ pieces keep their flattened coordinates (a part of a flip-free, injective map is
 chart is solved again.  :func:`split_to_pack` tries the largest chart not tried yet: every
 distinct cut of :func:`candidate_splits` (``_DIRECTIONS`` directions from the principal axis,
 ``_QUANTILES`` positions) is screened by a cheap packing of its pieces, the ``_FINALISTS`` best
-are packed with all the charts, and the best is kept when it pays (``min_gain`` of efficiency per
-chart it adds), while the efficiency is below the goal.  The cut that packs best is seldom the
-one across the principal axis at the median: it is where the outline has a notch or an arm.
+are packed with all the charts, and the best is kept when it pays, while the efficiency is below
+the goal.  A split is charged, in efficiency, ``min_gain`` per chart it adds and ``seam_cost``
+per square root of the surface's area of seam it adds (3D length of the cut edges), both when
+ranking the candidates and when deciding whether the best pays: among cuts that pack about alike
+the shortest wins (across a neck rather than along an arm), and a long cut must buy more packing.
+The cut that packs best is seldom the one across the principal axis at the median: it is where
+the outline has a notch or an arm.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the 
 _FINALISTS = 3  # the best screened splits packed with all the charts
 _SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
 _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
+_SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
 
 
 def _face_pairs(F):
@@ -75,7 +80,7 @@ class _Cutter:
     """One flattened chart, ready to be cut by straight lines many times: its faces' edge ids,
     face adjacency, centroids and areas are computed once."""
 
-    def __init__(self, mesh: ChartMesh, x):
+    def __init__(self, mesh: ChartMesh, x, V=None):
         from ..exact.topology import unique_edges
 
         self.mesh, self.x = mesh, np.asarray(x, dtype=np.float64)
@@ -83,6 +88,9 @@ class _Cutter:
         self.c, self.A = P.mean(axis=1), _areas(P)
         _, _, self.edge_of = unique_edges(mesh.F)
         self.a, self.b = _face_pairs(mesh.F)
+        # the length of the edge between each face pair: 3D when the surface is known, else in UV
+        self.length = _shared_edge_lengths(mesh.F, self.x if V is None else np.asarray(V)[mesh.vertices],
+                                           self.a, self.b)
         mean = np.average(self.c, axis=0, weights=self.A)
         cov = ((self.c - mean) * self.A[:, None]).T @ (self.c - mean)
         self.axes = np.linalg.eigh(cov)[1]  # columns: shortest, longest direction
@@ -95,6 +103,10 @@ class _Cutter:
         at = np.minimum(np.searchsorted(np.cumsum(self.A[order]), np.asarray(quantiles) * self.A.sum()), len(t) - 1)
         return [self._without_slivers(_smoothed(self.mesh.F, t <= t[order][k], pairs=(self.a, self.b)))
                 for k in at]
+
+    def seam(self, low) -> float:
+        """The length of the seam that cutting the chart between ``low`` and the rest adds."""
+        return float(self.length[low[self.a] != low[self.b]].sum())
 
     def _without_slivers(self, low, rounds=3):
         """``low`` with every connected piece of either side under ``_SLIVER`` of the chart's
@@ -166,14 +178,17 @@ def split_flat_chart(mesh: ChartMesh, x, quantile: float = 0.5, axis: int = -1, 
     return cutter.pieces(cutter.sides(d, [quantile])[0])
 
 
-def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantiles=_QUANTILES):
+def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantiles=_QUANTILES, V=None,
+                     seams: bool = False):
     """Every distinct straight split of a flattened chart that leaves disks: across
     ``directions`` directions evenly spaced over half a turn from the longest principal axis,
     at each of ``quantiles`` of the area (:func:`split_flat_chart`'s cuts).  Returns a list of
-    piece lists (each as :func:`split_flat_chart` returns it)."""
+    piece lists (each as :func:`split_flat_chart` returns it); with ``seams``, a list of
+    ``(pieces, seam)``, ``seam`` the length of the cut (3D with the surface's vertices ``V``,
+    which ``mesh.vertices`` index; else in UV)."""
     if len(mesh.F) < 2:
         return []
-    cutter = _Cutter(mesh, x)
+    cutter = _Cutter(mesh, x, V)
     a0 = np.arctan2(cutter.axes[1, -1], cutter.axes[0, -1])
     seen, out = set(), []
     for a in a0 + np.pi * np.arange(directions) / directions:
@@ -185,26 +200,50 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
             seen.add(key)
             pieces = cutter.pieces(low)
             if pieces is not None:
-                out.append(pieces)
+                out.append((pieces, cutter.seam(low)) if seams else pieces)
     return out
 
 
-def _best_split(meshes, maps, i, pack, screen, min_gain):
-    """The split of chart ``i`` (:func:`candidate_splits`) that packs best, charged ``min_gain``
-    of efficiency per extra chart: every candidate's pieces are packed alone by ``screen`` (a
-    cheap estimate), the ``_FINALISTS`` best are packed with all the other charts by ``pack``.
-    Returns ``(score, pieces, packing)`` or None when the chart has no split."""
-    cands = candidate_splits(meshes[i], maps[i])
-    est = [screen([p[1] for p in c], [p[0].F for p in c]) - min_gain * (len(c) - 1) for c in cands]
+def _best_split(meshes, maps, i, pack, screen, charge, current):
+    """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
+    ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
+    (the packing's efficiency rises above ``current`` by at least the charge): every candidate's
+    pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
+    with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
+    pays."""
+    cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
+    est = [screen([p[1] for p in c], [p[0].F for p in c]) - charge(c, seam) for c, seam in cands]
     best = None
     for j in np.argsort(est)[::-1][:_FINALISTS]:
-        pieces = cands[j]
+        pieces, seam = cands[j]
         trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
                      [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
-        score = trial.efficiency - min_gain * (len(pieces) - 1)
+        score = trial.efficiency - charge(pieces, seam)
+        if trial.efficiency <= current or score < current:
+            continue
         if best is None or score > best[0]:
             best = (score, pieces, trial)
-    return best
+    return None if best is None else best[1:]
+
+
+class _Charge:
+    """The cost of a split in packing efficiency: ``min_gain`` per chart it adds, and
+    ``seam_cost`` per ``unit`` of seam length it adds (``unit``: the square root of the charts'
+    total area, 3D with the surface's vertices ``V``, else in UV), so that among splits that pack
+    about as well the one with the shorter cut wins, and a long cut must buy more packing.  The
+    unit is the whole surface's, not the chart's: the seam and the efficiency are the atlas's."""
+
+    def __init__(self, meshes, maps, V, min_gain, seam_cost):
+        self.V, self.min_gain, self.seam_cost = V, min_gain, seam_cost
+        if V is None:
+            area = sum(_uv_area(x, m.F) for m, x in zip(meshes, maps))
+        else:
+            V = np.asarray(V, dtype=np.float64)
+            area = sum(_surface_area(V[m.vertices][m.F]) for m in meshes)
+        self.unit = max(np.sqrt(area), 1e-300)
+
+    def __call__(self, pieces, seam) -> float:
+        return self.min_gain * (len(pieces) - 1) + self.seam_cost * seam / self.unit
 
 
 def _boundary_face(F, a, b):
@@ -307,14 +346,19 @@ def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
     return done
 
 
-def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None):
+def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None, V=None,
+                  seam_cost=_SEAM_COST):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
     keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
-    least ``min_gain`` per extra chart (a split costs a seam and charts: one that buys less
-    packing is not worth them), while the efficiency is below ``goal`` (at most ``max_splits``
-    charts tried; none more after ``_PATIENCE`` in a row that stay whole: charts are tried by
-    decreasing area, and a smaller chart's split moves the packing less).  ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply
-    (default: ``pack``'s).
+    least its charge: ``min_gain`` per extra chart and ``seam_cost`` per unit of seam (a split
+    costs a seam and charts: one that buys less packing is not worth them), while the efficiency
+    is below ``goal`` (at most ``max_splits`` charts tried; none more after ``_PATIENCE`` in a row
+    that stay whole: charts are tried by decreasing area, and a smaller chart's split moves the
+    packing less).
+    ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply (default:
+    ``pack``'s).  The seam's unit is the square root of the charts' total area
+    (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
+    charts' ``vertices`` index) when given, else in UV.
 
     Returns
     -------
@@ -322,6 +366,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     each chart the index of the chart of the input it came from.
     """
     screen = screen or (lambda m, f: pack(m, f).efficiency)
+    charge = _Charge(meshes, maps, V, min_gain, seam_cost)
     owner = list(range(len(meshes)))
     packing = pack(maps, [m.F for m in meshes])
     tried, failed = set(), 0
@@ -333,11 +378,11 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
         if area[i] < 0:
             break
         tried.add(i)
-        best = _best_split(meshes, maps, i, pack, screen, min_gain)
-        if best is None or best[0] < packing.efficiency or best[2].efficiency <= packing.efficiency:
+        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency)
+        if best is None:
             failed += 1
             continue  # this chart stays whole; try the next largest
-        score, pieces, trial = best
+        pieces, trial = best
         failed = 0
         shift = len(pieces) - 1
         tried = {j if j < i else j + shift for j in tried if j != i}
@@ -352,6 +397,11 @@ def _areas(P):
     """(m,) areas of the 2D triangles ``P`` (m, 3, 2)."""
     a, b = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
     return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+
+
+def _surface_area(P) -> float:
+    """The total area of the 3D triangles ``P`` (m, 3, 3)."""
+    return 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
 
 
 def _uv_area(x, F):
