@@ -55,8 +55,8 @@ from .mesh.problem import Problem
 from .solvers import LBFGS, AbstractContinuation, Decision, Details, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
 from .exact.topology import as_faces, boundary_loops, check_sphere
-from .mesh.quality import triangle_symmetric_dirichlet
 from .mesh.tutte import WEIGHTS as TUTTE_WEIGHTS, circle_boundary, tutte_weights, weighted_embedding
+from .mesh.quality import triangle_areas, triangle_symmetric_dirichlet
 
 __all__ = ["sphere_map", "SphereOptions", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
 
@@ -156,7 +156,7 @@ def sphere_start(V, F, pole=None, weights="uniform"):
     elif not (isinstance(pole, (int, np.integer)) and 0 <= pole < n):
         raise ParameterError(f"pole must be a vertex index in [0, {n}), got {pole!r}")
     rest, keep, loop = _disk_without(F, n, pole)
-    A = _areas(V, F)
+    A = triangle_areas(V[F])
     share = min(max(float(np.sum(A[np.any(F == pole, axis=1)])) / float(np.sum(A)), 1e-12), 0.5)
     W = tutte_weights(V[keep], rest, weights)
     circle = circle_boundary(V[keep], loop)
@@ -204,7 +204,7 @@ def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
     :data:`BALANCE_PATIENCE` of them do not lower it."""
     n = len(V)
     P = weighted_embedding(W, loop, circle)
-    A = _areas(V, F)
+    A = triangle_areas(V[F])
     target = A * (4.0 * math.pi / A.sum())
     rest_tri = V[F] * math.sqrt(4.0 * math.pi / A.sum())
     rounds, history = [], []
@@ -218,7 +218,7 @@ def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
         rounds = rounds[:1] + sorted(rounds[1:] + [(history[-1], r, P, s)], key=lambda c: c[0])[:3]
         if r == BALANCE_ROUNDS or (r >= BALANCE_PATIENCE and min(history[-BALANCE_PATIENCE:]) > min(history)):
             break
-        chord = 0.5 * np.linalg.norm(np.cross(x[F[:, 1]] - x[F[:, 0]], x[F[:, 2]] - x[F[:, 0]]), axis=1)
+        chord = triangle_areas(x[F])
         stretch2 = target / np.maximum(chord, 1e-300 * target)  # squared length stretch per triangle
         per_vertex = np.bincount(F.ravel(), np.repeat(target * stretch2, 3), minlength=n)
         sigma = np.sqrt(per_vertex / np.bincount(F.ravel(), np.repeat(target, 3), minlength=n))[keep]
@@ -242,8 +242,6 @@ def given_start(problem, x0):
     return x, SphereDetails(x, -1, math.nan, 0, cert)
 
 
-def _areas(V, F):
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
 def default_solver() -> LBFGS:

@@ -3,7 +3,7 @@
 
 import numpy as np
 
-from geomopt.mesh.quality import triangle_symmetric_dirichlet
+from geomopt.mesh.quality import triangle_areas, triangle_symmetric_dirichlet
 
 
 def _rotation(rng):
@@ -34,3 +34,16 @@ def test_isometry_scaling_and_collapse():
     flat[0, 2] = [0.5, 0.0, 0.0]  # on the first edge: no area
     assert triangle_symmetric_dirichlet(P, flat)[0] == np.inf
     assert triangle_symmetric_dirichlet(P, np.zeros_like(P))[0] == np.inf  # a point: 0 / 0 otherwise
+
+
+def test_triangle_areas_in_the_plane_and_in_space_either_orientation():
+    rng = np.random.default_rng(1)
+    P = rng.standard_normal((50, 3, 2))
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    signed = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    np.testing.assert_allclose(triangle_areas(P), np.abs(signed), rtol=1e-13)
+    np.testing.assert_allclose(triangle_areas(P[:, ::-1]), np.abs(signed), rtol=1e-13)
+    Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))  # the same triangles turned into space
+    lifted = np.concatenate([P, rng.standard_normal((50, 1, 1)).repeat(3, axis=1)], axis=2) @ Q.T
+    np.testing.assert_allclose(triangle_areas(lifted), np.abs(signed), rtol=1e-12)
+    assert triangle_areas(np.zeros((1, 3, 3)))[0] == 0.0

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..mesh.quality import triangle_areas
+
 __all__ = ["angle_defects", "cotan_laplacian", "log_scale", "scale_estimate"]
 
 
@@ -66,7 +68,7 @@ def log_scale(V, F, boundary) -> np.ndarray:
     L = L + 1e-10 * sp.diags(np.asarray(abs(L).sum(axis=1)).ravel())  # obtuse-mesh safety
     u = np.zeros(n)
     if len(boundary) == 0:
-        area = np.bincount(F.ravel(), np.repeat(_areas(V, F) / 3, 3), minlength=n)
+        area = np.bincount(F.ravel(), np.repeat(triangle_areas(V[F]) / 3, 3), minlength=n)
         rhs = -(K - area * K.sum() / area.sum())
         free = np.arange(1, n)
         u[free] = spsolve(L[free][:, free].tocsc(), rhs[free])
@@ -77,8 +79,6 @@ def log_scale(V, F, boundary) -> np.ndarray:
     return u
 
 
-def _areas(V, F):
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
 def scale_estimate(V, F, u):
@@ -90,7 +90,7 @@ def scale_estimate(V, F, u):
     mean : float, area-weighted mean density (4 at an isometry).
     vertex_log_area : (n,) log area scale at each vertex after the best uniform scale.
     """
-    A = _areas(V, F)
+    A = triangle_areas(V[F])
     s = np.exp(2 * u[F].mean(axis=1))
     c = np.sqrt(np.sum(A / s) / np.sum(A * s))  # minimises sum A (c s + 1 / (c s))
     mean = float(np.sum(A * 2 * (c * s + 1 / (c * s))) / A.sum())

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mesh.quality import triangle_areas
 from .charts import split_charts
 from .cones import angle_defects, log_scale, scale_estimate
 from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
@@ -93,8 +94,7 @@ def chart_estimate(V, chart):
         raise RuntimeError("a chart of the seam graph is not a disk")  # never: see module doc
     u = log_scale(Vc, chart.F, loop)
     mean, log_area = scale_estimate(Vc, chart.F, u)
-    P = Vc[chart.F]
-    area = 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
+    area = float(triangle_areas(Vc[chart.F]).sum())
     inner = np.ones(len(Vc), dtype=bool)
     inner[loop] = False
     k = np.flatnonzero(inner)
@@ -156,16 +156,11 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
         cut[path] = True
         known.pop(int(first[c]))
     if prune and estimate > target and made:
-        made = _worth_keeping(history, seam, np.sqrt(_area(g)))
+        made = _worth_keeping(history, seam, np.sqrt(triangle_areas(g.V[g.F]).sum()))
         for path in paths[made:]:
             cut[path] = False
         estimate = history[made]
     return cut, estimate, made
-
-
-def _area(g: EdgeGraph):
-    P = g.V[g.F]
-    return 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
 
 
 def strong_cones(g: EdgeGraph, least: float = np.pi / 4) -> np.ndarray:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mesh.quality import triangle_areas
 from .charts import split_charts
 from .cutting import relieve
 from .metrics import face_symmetric_dirichlet
@@ -58,13 +59,10 @@ def _key(mesh):
     return mesh.faces.tobytes(), mesh.F.tobytes()
 
 
-def _areas(V, F):
-    P = V[F]
-    return 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
 
 
 def _mean_sd(Vc, Fc, x):
-    A = _areas(Vc, Fc)
+    A = triangle_areas(Vc[Fc])
     return float(np.sum(A * face_symmetric_dirichlet(Vc, Fc, x, Fc)) / A.sum()), float(A.sum())
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..exact.topology import unique_edges
-from ..mesh.quality import triangle_symmetric_dirichlet
+from ..mesh.quality import triangle_areas, triangle_symmetric_dirichlet
 
 __all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet"]
 
@@ -64,10 +64,7 @@ def face_symmetric_dirichlet(V, F, uv, uv_faces) -> np.ndarray:
     so that their total (unsigned) area equals the 3D area; ``inf`` on a collapsed triangle."""
     V, uv = np.asarray(V, dtype=np.float64), np.asarray(uv, dtype=np.float64)
     P, Q = V[np.asarray(F)], uv[np.asarray(uv_faces)]
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    A3 = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
-    f1, f2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
-    A2 = 0.5 * np.abs(f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
+    A3, A2 = triangle_areas(P), triangle_areas(Q)
     s = np.sqrt(A3.sum() / A2.sum())
     return np.where(A2 > 0, triangle_symmetric_dirichlet(P, s * Q), np.inf)
 
@@ -86,8 +83,7 @@ def atlas_metrics(V, F, uv, uv_faces) -> AtlasMetrics:
     used = uv[np.unique(T)]
     side = float(np.ptp(used, axis=0).max())
     sd = face_symmetric_dirichlet(V, F, uv, T)
-    P = V[F]
-    A3 = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    A3 = triangle_areas(V[F])
     return AtlasMetrics(
         charts=count,
         seam_length=float(np.linalg.norm(V[seams[:, 1]] - V[seams[:, 0]], axis=1).sum()),

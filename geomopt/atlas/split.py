@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..mesh.quality import triangle_areas
 from .charts import ChartMesh
 
 __all__ = ["candidate_splits", "split_flat_chart", "split_to_pack", "separate_overlaps"]
@@ -85,7 +86,7 @@ class _Cutter:
 
         self.mesh, self.x = mesh, np.asarray(x, dtype=np.float64)
         P = self.x[mesh.F]
-        self.c, self.A = P.mean(axis=1), _areas(P)
+        self.c, self.A = P.mean(axis=1), triangle_areas(P)
         _, _, self.edge_of = unique_edges(mesh.F)
         self.a, self.b = _face_pairs(mesh.F)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
@@ -236,10 +237,10 @@ class _Charge:
     def __init__(self, meshes, maps, V, min_gain, seam_cost):
         self.V, self.min_gain, self.seam_cost = V, min_gain, seam_cost
         if V is None:
-            area = sum(_uv_area(x, m.F) for m, x in zip(meshes, maps))
+            area = sum(float(triangle_areas(np.asarray(x)[m.F]).sum()) for m, x in zip(meshes, maps))
         else:
             V = np.asarray(V, dtype=np.float64)
-            area = sum(_surface_area(V[m.vertices][m.F]) for m in meshes)
+            area = sum(float(triangle_areas(V[m.vertices][m.F]).sum()) for m in meshes)
         self.unit = max(np.sqrt(area), 1e-300)
 
     def __call__(self, pieces, seam) -> float:
@@ -373,7 +374,8 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     for _ in range(max_splits):
         if packing.efficiency >= goal or failed >= _PATIENCE:
             break
-        area = [_uv_area(x, m.F) if i not in tried else -1.0 for i, (m, x) in enumerate(zip(meshes, maps))]
+        area = [float(triangle_areas(np.asarray(x)[m.F]).sum()) if i not in tried else -1.0
+                for i, (m, x) in enumerate(zip(meshes, maps))]
         i = int(np.argmax(area))
         if area[i] < 0:
             break
@@ -393,16 +395,4 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     return meshes, maps, packing, owner
 
 
-def _areas(P):
-    """(m,) areas of the 2D triangles ``P`` (m, 3, 2)."""
-    a, b = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
 
-
-def _surface_area(P) -> float:
-    """The total area of the 3D triangles ``P`` (m, 3, 3)."""
-    return 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
-
-
-def _uv_area(x, F):
-    return float(_areas(np.asarray(x)[F]).sum())

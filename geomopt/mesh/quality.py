@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["size_ratios", "scaled_jacobians", "element_quality", "quality_summary", "triangle_symmetric_dirichlet"]
+__all__ = ["size_ratios", "scaled_jacobians", "element_quality", "quality_summary", "triangle_symmetric_dirichlet",
+           "triangle_areas"]
 
 #: the corners' edge vectors: corner i of a simplex and the vertices it is joined to, in an
 #: order whose determinant has the simplex's orientation
@@ -83,6 +84,15 @@ def quality_summary(problem, x) -> dict:
     return {"elements": len(sj), "invalid": problem.count_inverted(x), "corner_only": 0, "tests": {},
             "sj_min": float(sj.min()), "sj_mean": float(sj.mean()), "sj_below_0": int(np.count_nonzero(sj < 0)),
             "sj_below_0_2": int(np.count_nonzero(sj < 0.2))}
+
+
+def triangle_areas(P) -> np.ndarray:
+    """(m,) unsigned areas of the triangles ``P`` (m, 3, d), in the plane (d = 2) or in space
+    (d = 3): half the length of the edges' cross product."""
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    if P.shape[2] == 2:
+        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
 
 
 def triangle_symmetric_dirichlet(P, Q) -> np.ndarray:

@@ -19,6 +19,7 @@ from .._runtime.tracing import refuse_traced
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..exact.topology import as_faces, check_disk
+from .quality import triangle_areas
 
 __all__ = ["tutte_embedding", "tutte_weights", "weighted_embedding", "scale_to_area", "optimal_scale", "WEIGHTS", "circle_boundary"]
 
@@ -29,11 +30,6 @@ def _as_3d(V: np.ndarray) -> np.ndarray:
     return V if V.shape[1] == 3 else np.pad(V, ((0, 0), (0, 1)))
 
 
-def _rest_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Unsigned areas ``|(b - a) x (c - a)| / 2`` of the rest triangles, ``(m,)``."""
-    V = _as_3d(V)
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
 def _checked_input(V, F, weights):
@@ -240,7 +236,7 @@ def scale_to_area(UV, V, F) -> np.ndarray:
     a, b, c = UV[F[:, 0]], UV[F[:, 1]], UV[F[:, 2]]
     u, v = b - a, c - a
     map_area = 0.5 * float(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]))
-    rest_area = float(_rest_areas(V, F).sum())
+    rest_area = float(triangle_areas(V[F]).sum())
     if not map_area > 0:
         raise MeshError(
             f"the map's total signed area is {map_area:g}, not positive: "

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._runtime.errors import MeshError
 from ..mesh.problem import Problem
+from ..mesh.quality import triangle_areas
 
 __all__ = ["badly_shaped", "equilateral_rest", "equilateral_problem", "check_rest"]
 
@@ -18,11 +19,7 @@ __all__ = ["badly_shaped", "equilateral_rest", "equilateral_problem", "check_res
 def _aspect_ratio(P):
     """(m,) aspect ratio ``lmax (l1+l2+l3) / (4 sqrt(3) area)`` of triangles P (m, 3, k); 1 = equilateral."""
     l = np.linalg.norm(P[:, [1, 2, 0]] - P, axis=2)
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    if P.shape[2] == 2:
-        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    else:
-        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    area = triangle_areas(P)
     with np.errstate(divide="ignore", invalid="ignore"):
         return l.max(1) * l.sum(1) / (4.0 * np.sqrt(3.0) * area)
 
