@@ -35,6 +35,22 @@ _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no spl
 _SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
 
 
+def _distinct(ids, size) -> int:
+    """How many distinct values ``ids`` (ints in ``[0, size)``) holds: a mark per value, linear
+    (``np.unique`` sorts: most of the split search's time on a 38k-face chart)."""
+    seen = np.zeros(size, dtype=bool)
+    seen[ids.ravel()] = True
+    return int(np.count_nonzero(seen))
+
+
+def _compact(F, size):
+    """``(rows, local)``: the sorted distinct vertex ids of the faces ``F`` and ``F`` renumbered
+    into them (``np.unique(F, return_inverse=True)``, linear)."""
+    seen = np.zeros(size, dtype=bool)
+    seen[F.ravel()] = True
+    return np.flatnonzero(seen), (np.cumsum(seen) - 1)[F]
+
+
 def _face_pairs(F):
     """``(a, b)``: the pairs of faces of ``F`` (m, 3) that share an edge."""
     from ..exact.topology import unique_edges
@@ -88,6 +104,7 @@ class _Cutter:
         P = self.x[mesh.F]
         self.c, self.A = P.mean(axis=1), triangle_areas(P)
         _, _, self.edge_of = unique_edges(mesh.F)
+        self.nv, self.ne = len(self.x), int(self.edge_of.max()) + 1 if self.edge_of.size else 0
         self.a, self.b = _face_pairs(mesh.F)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
         self.length = _shared_edge_lengths(mesh.F, self.x if V is None else np.asarray(V)[mesh.vertices],
@@ -133,8 +150,7 @@ class _Cutter:
         characteristic is 1 minus the number of bounded regions of the disk they leave out:
         holes, and at a vertex where the faces meet in two fans, the region between the fans
         that a path of faces from one fan to the other encloses."""
-        nv = len(np.unique(self.mesh.F[sel]))
-        return nv - len(np.unique(self.edge_of[sel])) + len(sel) == 1
+        return _distinct(self.mesh.F[sel], self.nv) - _distinct(self.edge_of[sel], self.ne) + len(sel) == 1
 
     def pieces(self, low):
         """``[(ChartMesh, x_piece), ...]``: the connected pieces of both sides of ``low`` (m,)
@@ -150,8 +166,8 @@ class _Cutter:
                 sel = faces[labels == k]
                 if not self._is_disk(sel) or self.A[sel].sum() < _SLIVER * self.A.sum():
                     return None  # not a disk, or a crumb that absorbing did not remove
-                rows, local = np.unique(mesh.F[sel], return_inverse=True)
-                pieces.append((ChartMesh(mesh.faces[sel], local.reshape(-1, 3), mesh.wedges[rows],
+                rows, local = _compact(mesh.F[sel], self.nv)
+                pieces.append((ChartMesh(mesh.faces[sel], local, mesh.wedges[rows],
                                          mesh.vertices[rows]), self.x[rows]))
         return pieces
 
