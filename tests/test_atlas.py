@@ -144,7 +144,12 @@ def test_the_obj_keeps_the_v_lines_and_the_face_order(cli, tmp_path):
     V, F = torus()
     mesh = _write_obj(tmp_path / "torus.obj", V, F)
     code, out, _ = cli("param", mesh, "-o", tmp_path / "atlas.obj", "--json", "--quiet")
-    assert code == 0 and json.loads(out)["atlas"] is True
+    summary = json.loads(out)
+    assert code == 0 and summary["atlas"] is True
+    # the atlas's stages in the timing split: they add up to its own seconds
+    stages = [summary["timing"][k] for k in ("cut", "flatten", "pack")]
+    assert all(x > 0 for x in stages) and summary["timing"]["write"] > 0
+    assert abs(sum(stages) - summary["seconds"]) < 0.05 * summary["seconds"] + 0.05
     v, vt, f = _obj(tmp_path / "atlas.obj")
     assert np.array_equal(v, V) and np.array_equal(f[:, :, 0], F)
     assert len(vt) > len(V) and np.all((vt >= 0) & (vt <= 1))  # a closed surface needs seams

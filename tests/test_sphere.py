@@ -2,6 +2,7 @@
 optimised map, the exact certificate (flips and double covers rejected), refused inputs, the
 energy's gradient and the command line."""
 
+import json
 import subprocess
 import sys
 
@@ -250,9 +251,11 @@ def test_cli_writes_the_sphere_obj(tmp_path):
         fh.write(f"OFF\n{len(V)} {len(F)} 0\n")
         np.savetxt(fh, V, fmt="%.17g")
         np.savetxt(fh, np.column_stack([np.full(len(F), 3), F]), fmt="%d")
-    run = subprocess.run([sys.executable, "-m", "geomopt", "param", str(src), "--sphere", "-o", str(out), "--quiet"],
-                         capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-m", "geomopt", "param", str(src), "--sphere", "-o", str(out), "--quiet",
+                          "--json"], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
+    timing = json.loads(run.stdout)["timing"]  # the map's own phases, not "other"
+    assert timing["solve"] > 0 and timing["setup"] > 0 and timing["other"] < 0.5 * timing["total"]
     X, G = read_mesh(out)
     assert np.array_equal(G, F) and np.allclose(np.linalg.norm(X, axis=1), 1.0, atol=1e-14)
     assert certify_sphere(X, G).ok

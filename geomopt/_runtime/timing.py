@@ -10,6 +10,8 @@ to what a user waits for:
   (summed from JAX's own duration events; it happens inside set-up, whose figure excludes it,
   except for a program first used inside the loop, which ``solve`` also counts);
 * ``setup``: the solver's set-up less ``compile`` (scaling, patterns, factorizations);
+* ``cut``, ``flatten``, ``pack``: an atlas's stages (``geomopt param`` on a surface that is not a
+  disk): the seam graph, the charts' flattenings and splits, the packing with its certificate;
 * ``solve``: the solve loop;
 * ``certify``: the exact checks of the result (orientation predicates, branch points);
 * ``write``: writing the output, reading it back and certifying the file;

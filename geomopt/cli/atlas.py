@@ -35,7 +35,7 @@ def param_atlas(args, V, F, energy, solver) -> int:
     if args.init != "tutte":
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
-    atlas = make_atlas(V, F, energy=energy, solver=solver, progress=not args.quiet and _progress(args),
+    atlas = make_atlas(V, F, energy=energy, solver=solver, progress=_progress(args),
                        options=AtlasOptions(margin=args.margin))
     m = atlas.metrics
     log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
@@ -54,17 +54,38 @@ def param_atlas(args, V, F, energy, solver) -> int:
         io.create_output_folder(folder)
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
         if args.png:
-            _save_picture(atlas, V, F, args, outputs)
-        io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, atlas.uv,
-                              format="obj", uv_faces=atlas.uv_faces)
+            with args.timing.phase("figures"):
+                _save_picture(atlas, V, F, args, outputs)
+        with args.timing.phase("write"):
+            io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, atlas.uv,
+                                  format="obj", uv_faces=atlas.uv_faces)
     return EXIT_OK
 
 
 def _progress(args):
-    """The atlas's progress lines, through the command's logger."""
+    """The atlas's progress: its lines through the command's logger (unless ``--quiet``), and its
+    stages' seconds into the ``--json`` timing split: ``cut`` until the seam graph is made,
+    ``flatten`` until the last chart is flattened or split (the last stage before packing), and
+    ``pack`` (packing splits, packing, the exact certificate and the metrics) until it is packed."""
+    import time
+
+    t = {"stage": time.perf_counter(), "flattened": None}  # the stage's start; the last flattening event
+
     def say(stage, info):
-        log(args, f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
-                                                 for k, v in info.items()))
+        now = time.perf_counter()
+        if stage == "cut":
+            args.timing.add("cut", now - t["stage"])
+            t["stage"] = now
+        elif stage == "packed":
+            end = t["flattened"] or t["stage"]
+            args.timing.add("flatten", end - t["stage"])
+            args.timing.add("pack", now - end)
+            t["stage"] = now
+        else:  # a chart flattened, the charts flattened, a split, cuts taken back
+            t["flattened"] = now
+        if not args.quiet:
+            log(args, f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
+                                                     for k, v in info.items()))
     return say
 
 

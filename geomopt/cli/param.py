@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from .common import EXIT_OK, cache_summary, fail, log, make_solver, output_paths, report
+from .common import EXIT_OK, cache_summary, fail, log, make_solver, output_paths, report, timed_solve
 
 __all__ = ["cmd_param", "cmd_demo", "convergence_path"]
 
@@ -151,8 +151,8 @@ def _param_sphere(args) -> int:
     with args.timing.phase("read"):
         V, F = io.read_mesh(args.input)
     log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; onto the sphere, energy {args.energy}, L-BFGS")
-    res = sphere_map(V, F, energy=args.energy, solver=solver, options=SphereOptions(weights=args.weights),
-                     progress=not args.quiet)
+    res = timed_solve(args.timing, lambda: sphere_map(V, F, energy=args.energy, solver=solver, progress=not args.quiet,
+                                                      options=SphereOptions(weights=args.weights)))
     st, cert, dist = res.stats, res.certificate, sphere_distortion(V, F, res.x)
     log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  mean energy "
               f"{res.mean_energy:.10g}  area ratio {dist['area_min']:.3g}..{dist['area_max']:.3g}  flips "
@@ -168,8 +168,9 @@ def _param_sphere(args) -> int:
         if args.png:
             title = (f"{Path(args.input).name}: {len(F)} triangles onto the sphere, {args.energy}, mean energy "
                      f"{res.mean_energy:.6g}, certified bijective")
-            plot.save_sphere_figure(outputs.enter_context(io.atomic_output(args.png, "wb")), V, F, res.x,
-                                    title=title, format=Path(args.png).suffix[1:].lower())
+            with args.timing.phase("figures"):
+                plot.save_sphere_figure(outputs.enter_context(io.atomic_output(args.png, "wb")), V, F, res.x,
+                                        title=title, format=Path(args.png).suffix[1:].lower())
         with args.timing.phase("write"):
             io.write_obj(outputs.enter_context(io.atomic_path(args.output)), res.x, F)
     return EXIT_OK
