@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from .._runtime.errors import MeshError
 from ..exact.topology import check_disk
 
-__all__ = ["ChartSplit", "ChartMesh", "split_charts"]
+__all__ = ["ChartSplit", "ChartMesh", "split_charts", "face_pairs", "patch_is_disk"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +78,36 @@ def _corner_pairs(F, edge_of, edge_faces, keep):
     a1, b1 = 3 * f1 + c1, 3 * f1 + (c1 + 1) % 3  # corners of a, b in f1
     b2, a2 = 3 * f2 + c2, 3 * f2 + (c2 + 1) % 3  # f2 runs the edge the other way
     return np.r_[a1, b1], np.r_[a2, b2]
+
+
+def face_pairs(F):
+    """``(a, b, edge, E, edge_of)``: the pairs of faces ``a``, ``b`` of ``F`` (m, 3) that share an
+    edge, that edge (a row of ``E``), and ``E``, ``edge_of`` as
+    :func:`~geomopt.exact.topology.unique_edges` gives them."""
+    from ..exact.topology import unique_edges
+
+    E, _, edge_of = unique_edges(F)
+    e = edge_of.ravel()
+    f = np.repeat(np.arange(len(F)), 3)
+    order = np.argsort(e, kind="stable")
+    e, f = e[order], f[order]
+    pair = np.flatnonzero(e[1:] == e[:-1])
+    return f[pair], f[pair + 1], e[pair], E, edge_of
+
+
+def patch_is_disk(F, edge_of, faces, n_vertices, n_edges) -> bool:
+    """Whether the edge-connected faces ``faces`` of a disk ``F`` (``edge_of`` its faces' edge
+    ids, ``n_edges`` of them) form a disk: exactly when their Euler characteristic is 1.  They lie
+    in a disk, so (Alexander duality) the characteristic is 1 minus the number of bounded regions
+    of the disk they leave out: holes, and at a vertex where the faces meet in two fans, the
+    region between the fans that a path of faces from one fan to the other encloses.  Counted by
+    marks, not sorts (linear)."""
+    def distinct(ids, size):
+        seen = np.zeros(size, dtype=bool)
+        seen[ids.ravel()] = True
+        return int(np.count_nonzero(seen))
+
+    return distinct(F[faces], n_vertices) - distinct(edge_of[faces], n_edges) + len(faces) == 1
 
 
 def _components(n, i, j):

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..exact.topology import unique_edges
+from .charts import face_pairs, patch_is_disk
 
 __all__ = ["normal_regions"]
 
@@ -25,16 +25,11 @@ _CRUMB = 0.02  # a piece under this fraction of the chart's area joins a neighbo
 
 
 def _dual(V, F):
-    """``(a, b, length, step)``: the face pairs sharing an edge, that edge's 3D length, and the
-    distance between the two faces' centroids."""
-    E, _, edge_of = unique_edges(F)
-    e, f = edge_of.ravel(), np.repeat(np.arange(len(F)), 3)
-    order = np.argsort(e, kind="stable")
-    e, f = e[order], f[order]
-    pair = np.flatnonzero(e[1:] == e[:-1])
-    a, b, edge = f[pair], f[pair + 1], e[pair]
+    """``(a, b, length, step, edge_of)``: the face pairs sharing an edge, that edge's 3D length,
+    the distance between the two faces' centroids, and the faces' edge ids."""
+    a, b, edge, E, edge_of = face_pairs(F)
     c = V[F].mean(axis=1)
-    return a, b, np.linalg.norm(V[E[edge, 1]] - V[E[edge, 0]], axis=1), np.linalg.norm(c[a] - c[b], axis=1)
+    return a, b, np.linalg.norm(V[E[edge, 1]] - V[E[edge, 0]], axis=1), np.linalg.norm(c[a] - c[b], axis=1), edge_of
 
 
 def _normals(V, F):
@@ -124,14 +119,10 @@ def _absorb_crumbs(F, label, A, a, b, length, rounds=4):
     return _pieces(F, label, a, b)[1]
 
 
-def _all_disks(F, piece):
-    """Whether every piece (edge-connected faces of a disk) is a disk: Euler characteristic 1."""
-    for p in range(piece.max() + 1):
-        sel = F[piece == p]
-        _, _, eo = unique_edges(sel)
-        if len(np.unique(sel)) - (eo.max() + 1) + len(sel) != 1:
-            return False
-    return True
+def _all_disks(F, edge_of, piece):
+    """Whether every piece (edge-connected faces of a disk) is a disk."""
+    nv, ne = int(F.max()) + 1, int(edge_of.max()) + 1
+    return all(patch_is_disk(F, edge_of, np.flatnonzero(piece == p), nv, ne) for p in range(piece.max() + 1))
 
 
 def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1, centred: bool = True):
@@ -156,7 +147,7 @@ def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1, centred:
     if len(F) < 2 * k:
         return None
     N, A = _normals(V, F)
-    a, b, length, step = _dual(V, F)
+    a, b, length, step, edge_of = _dual(V, F)
     seeds = _seeds(N, A, k)
     proxies = [N[s] for s in seeds]
     for _ in range(rounds):
@@ -172,6 +163,6 @@ def normal_regions(V, F, k: int, rounds: int = 6, compact: float = 0.1, centred:
             seeds = _centres(label, N, a, b, step, proxies, seeds)
     label, _ = _grow(N, a, b, step, seeds, proxies, compact)
     piece = _absorb_crumbs(F, label, A, a, b, length)
-    if piece.max() < 1 or not _all_disks(F, piece):
+    if piece.max() < 1 or not _all_disks(F, edge_of, piece):
         return None
     return piece.astype(np.int64)

@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..mesh.quality import triangle_areas
-from .charts import ChartMesh
+from .charts import ChartMesh, face_pairs, patch_is_disk
 
 __all__ = ["candidate_splits", "split_flat_chart", "split_to_pack", "separate_overlaps"]
 
@@ -35,14 +35,6 @@ _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no spl
 _SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
 
 
-def _distinct(ids, size) -> int:
-    """How many distinct values ``ids`` (ints in ``[0, size)``) holds: a mark per value, linear
-    (``np.unique`` sorts: most of the split search's time on a 38k-face chart)."""
-    seen = np.zeros(size, dtype=bool)
-    seen[ids.ravel()] = True
-    return int(np.count_nonzero(seen))
-
-
 def _compact(F, size):
     """``(rows, local)``: the sorted distinct vertex ids of the faces ``F`` and ``F`` renumbered
     into them (``np.unique(F, return_inverse=True)``, linear)."""
@@ -51,25 +43,12 @@ def _compact(F, size):
     return np.flatnonzero(seen), (np.cumsum(seen) - 1)[F]
 
 
-def _face_pairs(F):
-    """``(a, b)``: the pairs of faces of ``F`` (m, 3) that share an edge."""
-    from ..exact.topology import unique_edges
-
-    _, _, edge_of = unique_edges(F)
-    e = edge_of.ravel()
-    f = np.repeat(np.arange(len(F)), 3)
-    order = np.argsort(e, kind="stable")
-    e, f = e[order], f[order]
-    pair = np.flatnonzero(e[1:] == e[:-1])
-    return f[pair], f[pair + 1]
-
-
 def _face_components(F, keep, pairs=None):
     """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges (``pairs``: the
-    face pairs of ``F`` sharing an edge, :func:`_face_pairs`, when known)."""
+    face pairs of ``F`` sharing an edge, :func:`~geomopt.atlas.charts.face_pairs`, when known)."""
     from scipy.sparse.csgraph import connected_components
 
-    a, b = _face_pairs(F) if pairs is None else pairs
+    a, b = face_pairs(F)[:2] if pairs is None else pairs
     both = keep[a] & keep[b]
     index = np.cumsum(keep) - 1
     n = int(keep.sum())
@@ -81,7 +60,7 @@ def _smoothed(F, side, rounds=3, pairs=None):
     """``side`` (m,) bool with every face that has at least two edge neighbours on the other
     side moved over, ``rounds`` times: a straighter cut line, without faces that touch the other
     side at a vertex only (which would leave a piece pinched there, not a disk)."""
-    a, b = _face_pairs(F) if pairs is None else pairs
+    a, b = face_pairs(F)[:2] if pairs is None else pairs
     side = side.copy()
     for _ in range(rounds):
         other = np.bincount(a, side[b] != side[a], minlength=len(F)) + np.bincount(b, side[a] != side[b],
@@ -98,17 +77,14 @@ class _Cutter:
     face adjacency, centroids and areas are computed once."""
 
     def __init__(self, mesh: ChartMesh, x, V=None):
-        from ..exact.topology import unique_edges
-
         self.mesh, self.x = mesh, np.asarray(x, dtype=np.float64)
         P = self.x[mesh.F]
         self.c, self.A = P.mean(axis=1), triangle_areas(P)
-        _, _, self.edge_of = unique_edges(mesh.F)
-        self.nv, self.ne = len(self.x), int(self.edge_of.max()) + 1 if self.edge_of.size else 0
-        self.a, self.b = _face_pairs(mesh.F)
+        self.a, self.b, edge, E, self.edge_of = face_pairs(mesh.F)
+        self.nv, self.ne = len(self.x), len(E)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
-        self.length = _shared_edge_lengths(mesh.F, self.x if V is None else np.asarray(V)[mesh.vertices],
-                                           self.a, self.b)
+        X = self.x if V is None else np.asarray(V)[mesh.vertices]
+        self.length = np.linalg.norm(X[E[edge, 1]] - X[E[edge, 0]], axis=1)
         mean = np.average(self.c, axis=0, weights=self.A)
         cov = ((self.c - mean) * self.A[:, None]).T @ (self.c - mean)
         self.axes = np.linalg.eigh(cov)[1]  # columns: shortest, longest direction
@@ -150,7 +126,7 @@ class _Cutter:
         characteristic is 1 minus the number of bounded regions of the disk they leave out:
         holes, and at a vertex where the faces meet in two fans, the region between the fans
         that a path of faces from one fan to the other encloses."""
-        return _distinct(self.mesh.F[sel], self.nv) - _distinct(self.edge_of[sel], self.ne) + len(sel) == 1
+        return patch_is_disk(self.mesh.F, self.edge_of, sel, self.nv, self.ne)
 
     def pieces(self, low):
         """``[(ChartMesh, x_piece), ...]``: the connected pieces of both sides of ``low`` (m,)
@@ -268,13 +244,6 @@ def _boundary_face(F, a, b):
     return int(np.argmax((F == a).any(axis=1) & (F == b).any(axis=1)))
 
 
-def _shared_edge_lengths(F, V, a, b):
-    """(p,) 3D length of the edge shared by the faces ``a`` and ``b`` (p,) of ``F``."""
-    common = (F[a][:, :, None] == F[b][:, None, :]).any(axis=2)  # (p, 3): F[a]'s shared corners
-    ends = F[a][common].reshape(-1, 2)
-    return np.linalg.norm(V[ends[:, 1]] - V[ends[:, 0]], axis=1)
-
-
 def _min_cut_side(n, a, b, capacity, sources, sinks):
     """(n,) bool, the nodes on the source side of a minimum cut of the undirected graph with
     edges ``(a, b)`` and integer ``capacity`` between the node sets ``sources`` and ``sinks``."""
@@ -311,7 +280,7 @@ def _overlap_halves(mesh: ChartMesh, x, V, crossing):
     seeds = [_boundary_face(mesh.F, loop[k], loop[(k + 1) % len(loop)]) for k in (i, j)]
     if seeds[0] == seeds[1]:
         return None
-    cutter = _Cutter(mesh, x)
+    cutter = _Cutter(mesh, x, V)  # its lengths in 3D
     Vc = V[mesh.vertices]
     c = Vc[mesh.F].mean(axis=1)
     w = np.linalg.norm(c[cutter.a] - c[cutter.b], axis=1) + 1e-300
@@ -319,7 +288,7 @@ def _overlap_halves(mesh: ChartMesh, x, V, crossing):
     graph = sp.coo_matrix((w, (cutter.a, cutter.b)), shape=(m, m)).tocsr()
     d = dijkstra(graph, directed=False, indices=seeds)
     reach = d[0, seeds[1]] / 4
-    length = _shared_edge_lengths(mesh.F, Vc, cutter.a, cutter.b)
+    length = cutter.length
     capacity = np.maximum(1, np.round(length / length.max() * 2 ** 20)).astype(np.int64)
     low = _min_cut_side(m, cutter.a, cutter.b, capacity, np.flatnonzero(d[0] < reach), np.flatnonzero(d[1] < reach))
     return cutter.pieces(cutter._without_slivers(_smoothed(mesh.F, low, pairs=(cutter.a, cutter.b))))
