@@ -17,6 +17,7 @@ always take matplotlib's path.
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
 
@@ -332,13 +333,24 @@ def param_picture(V, F, uv, face_values, title="", label="distortion", checks=20
     top = (0.75 if title else 0.4) * dpi
     cells = _columns(0.1 * dpi, c.width - 0.1 * dpi, (1.0, 0.42, 1.0), 0.05)
     height = c.height - 0.1 * dpi - top
-    for (x, w), azim, caption in ((cells[0], view[1], f"{checks} x {checks} checkerboard through the UV map"),
-                                  (cells[1], view[1] + 180.0, "other side")):
+    panels = ((cells[0], view[1], f"{checks} x {checks} checkerboard through the UV map"),
+              (cells[1], view[1] + 180.0, "other side"))
+
+    def render(panel):
+        (_, w), azim, _ = panel
         px = int(round(RENDER_SCALE * min(w, height)))
-        image = render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks,
-                                  supersample=1)
+        return render_uv_checker(V, F, uv, size=(px, px), elev=view[0], azim=azim, up=up, checks=checks,
+                                 supersample=1)
+
+    # the large render on a thread while this one renders the small one and draws the layout
+    # (about as much work): NumPy and Pillow release the GIL in their loops
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        large = pool.submit(render, panels[0])
+        images = [None, render(panels[1])]
+        _layout_panel(c, uv, F, values, (cells[2][0], top, cells[2][1], height), label)
+        images[0] = large.result()
+    for ((x, w), _, caption), image in zip(panels, images):
         _image_panel(c, image, (x, top, w, height), caption)
-    _layout_panel(c, uv, F, values, (cells[2][0], top, cells[2][1], height), label)
     if title:
         c.text((c.width / 2, 0.02 * c.height), title, 12, "ma")
     return c.image

@@ -304,6 +304,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     objective = Objective(problem, energy, buckets=options.buckets, element_weights=element_weights,
                           **energy_params)
     # untangle's callback has another signature than minimize's: only True goes to the repair
+    solver.load_ahead(objective)  # the solver's kernels load on a thread while the start map is built
     loop = check_disk(problem.input_simplices, problem.n_vertices)  # once: start map and certificate
     x0, s, repaired = start_map(objective, x0, options.weights, progress is True, loop)
     if x0 is None:

@@ -199,3 +199,71 @@ def test_a_static_function_from_outside_geomopt_is_never_kept(fresh_cache, monke
     _programs.clear()
     jax.clear_caches()
     assert float(_programs.jit(_apply, static_argnums=0)(_user_density, X)) == pytest.approx(5.0 * np.sum(X * X))
+
+
+# --- kernels loaded ahead on a thread (issue 33: the demo's set-up) ----------------------------
+
+def _slow_sum(x):
+    return jnp.sum(jnp.sin(x) ** 2)
+
+
+def test_one_program_asked_for_on_two_threads_is_compiled_once(fresh_cache, monkeypatch):
+    """A solver's kernels are loaded ahead on a thread while the caller builds its start map;
+    the caller's own call for the same program waits for that load instead of making its own."""
+    import threading
+    import time
+
+    kept = _programs.jit(_slow_sum)
+    real_load = _programs.Program._load
+
+    def slow_load(self, *args):  # hold the first load long enough for the second call to arrive
+        time.sleep(0.3)
+        return real_load(self, *args)
+
+    monkeypatch.setattr(_programs.Program, "_load", slow_load)
+    before = dict(_programs.stats)
+    thread = threading.Thread(target=kept.prepare, args=(X,))
+    thread.start()
+    time.sleep(0.05)
+    assert float(kept(X)) == pytest.approx(np.sum(np.sin(X) ** 2))
+    thread.join()
+    assert _programs.stats["stored"] - before["stored"] == 1 and _programs.stats["loaded"] == before["loaded"]
+
+
+def test_newton_loads_its_kernels_ahead_and_its_init_finds_them(fresh_cache):
+    from geomopt.solvers import Newton
+
+    V, F = G.square_mesh(7)
+    objective = geomopt.Objective(geomopt.Problem.planar(V, F), "symmetric_dirichlet")
+    solver = Newton()
+    solver.load_ahead(objective).join()
+    ahead = dict(_programs.stats)
+    assert ahead["stored"] >= 2  # the Hessian and search kernels, compiled on the thread
+    state = solver.init(objective, V * np.array([1.3, 0.8]), objective.params())
+    # init compiles or loads only the value-and-gradient kernel it evaluates
+    assert _programs.stats["stored"] - ahead["stored"] <= 1 and _programs.stats["loaded"] == ahead["loaded"]
+    assert state.value > 0
+
+
+def test_a_failure_ahead_is_dropped_quietly(monkeypatch):
+    """The work ahead is best effort: an exception there is neither raised nor printed by the
+    thread (the caller's own call, made anyway, raises it where it belongs)."""
+    import threading
+
+    from geomopt._runtime.threads import ahead
+
+    hooked, seen = [], []
+    monkeypatch.setattr(threading, "excepthook", hooked.append)
+    ahead(lambda: seen.append(1) or 1 / 0).join()
+    assert seen == [1] and hooked == []
+
+
+def test_parameterize_loads_the_solvers_kernels_ahead(monkeypatch):
+    from geomopt.solvers import Newton
+
+    asked = []
+    real = Newton.load_ahead
+    monkeypatch.setattr(Newton, "load_ahead", lambda self, objective: asked.append(objective) or real(self, objective))
+    V, F = G.square_mesh(6)
+    result = geomopt.parameterize(np.c_[V, 0.1 * V[:, 0] ** 2], F, progress=False)
+    assert result.success and len(asked) == 1 and asked[0] is result.objective

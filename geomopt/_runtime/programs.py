@@ -42,6 +42,7 @@ import os
 import pickle
 import platform
 import sys
+import threading
 import types
 import weakref
 
@@ -183,6 +184,7 @@ class Program:
         self._given = None if compiler_options is None else dict(compiler_options)
         self._calls: dict = {}
         self._unproven: dict = {}  # key -> file of a loaded executable not yet run
+        self._loading = threading.RLock()
         functools.update_wrapper(self, fun)
         _programs.add(self)
 
@@ -220,7 +222,10 @@ class Program:
         except (TypeError, AttributeError):  # unhashable static argument, a leaf without dtype
             return None, None, None
         if call is False:
-            call = self._calls[key] = self._load(args, statics, tree, key, folder)
+            with self._loading:  # a load already under way on another thread is waited for
+                call = self._calls.get(key, False)
+                if call is False:
+                    call = self._calls[key] = self._load(args, statics, tree, key, folder)
         return call, dynamic, key
 
     def _load(self, args, statics, tree, key, folder):

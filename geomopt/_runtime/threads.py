@@ -1,4 +1,5 @@
-"""One BLAS thread while geomopt's solve loop runs.
+"""Threads: one BLAS thread while geomopt's solve loop runs (:func:`single_blas_thread`), and
+work started ahead of need on a thread (:func:`ahead`).
 
 A solve interleaves XLA's kernels (which use every core) with NumPy and SciPy calls on the host
 (gradient norms, dot products of the Newton and CG steps, certificates).  NumPy's OpenBLAS
@@ -15,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import threading
 
-__all__ = ["single_blas_thread"]
+__all__ = ["single_blas_thread", "ahead"]
 
 _lock = threading.Lock()
 _state = {"users": 0, "limits": None}  # solves running in this process; the limiter they share
@@ -40,3 +41,22 @@ def single_blas_thread():
             if _state["users"] == 0:
                 _state["limits"].restore_original_limits()
                 _state["limits"] = None
+
+
+def ahead(work) -> threading.Thread:
+    """Start ``work()`` on a daemon thread in JAX's 64-bit mode and return the thread: work done
+    ahead of need (loading or compiling kernels while the caller builds a start map), whose
+    results the caller finds where it would have made them.  Best effort: an exception there is
+    dropped, and the caller's own call (which waits for the work already under way, see
+    :class:`geomopt._runtime.programs.Program`) raises it in its place."""
+    from .x64 import float64
+
+    def run():
+        try:
+            float64(work)()
+        except Exception:  # noqa: BLE001 -- the caller's own call raises it
+            pass
+
+    thread = threading.Thread(target=run, name="geomopt-ahead", daemon=True)
+    thread.start()
+    return thread

@@ -22,6 +22,7 @@ weights and the padded rest geometry).
 from __future__ import annotations
 
 import functools
+import threading
 import types
 from functools import partial
 
@@ -451,6 +452,7 @@ class _Mesh:
         self._connectivity = types.SimpleNamespace(dim=d, simplices=problem.simplices,
                                                    n_vertices=problem.n_vertices)
         self._pattern = None
+        self._building = threading.Lock()
         self._cholesky = {}
 
     def cholesky(self, backend):
@@ -465,24 +467,27 @@ class _Mesh:
 
     @property
     def pattern(self) -> HessianPattern:
-        if self._pattern is None:
-            if self._connectivity.simplices.shape[1] == self._connectivity.dim:  # cones over the origin
-                raise ParameterError("a map onto the sphere has no assembled Hessian (its Jacobians are not "
-                                     "linear in x): minimise it with L-BFGS (geomopt.sphere_map)")
-            pat = hessian_pattern(self._connectivity, self.free_dofs)
-            sz = self.sizes
-            # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)
-            # add zero blocks to their originals' blocks, padded CSC entries gather block entry 0
-            # and are cut off on the host
-            self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
-            self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
-            blocks = _padding.pad_rows(pat.blocks, sz.m_padded, cycle=True)
-            swap = _padding.pad_rows(pat.swap, sz.m_padded, cycle=True)
-            gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
-            with jax.ensure_compile_time_eval():
-                self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
-            self._pattern = pat
-        return self._pattern
+        with self._building:  # built once, also when a solver's kernels are loaded ahead on a thread
+            return self._pattern if self._pattern is not None else self._build_pattern()
+
+    def _build_pattern(self) -> HessianPattern:
+        if self._connectivity.simplices.shape[1] == self._connectivity.dim:  # cones over the origin
+            raise ParameterError("a map onto the sphere has no assembled Hessian (its Jacobians are not "
+                                 "linear in x): minimise it with L-BFGS (geomopt.sphere_map)")
+        pat = hessian_pattern(self._connectivity, self.free_dofs)
+        sz = self.sizes
+        # padded kernels see bucketed sizes: padded elements (zero-volume copies, cycling)
+        # add zero blocks to their originals' blocks, padded CSC entries gather block entry 0
+        # and are cut off on the host
+        self.nnz_padded = _padding.power_bucket(pat.nnz) if sz.padded else pat.nnz
+        self.n_blocks_padded = _padding.power_bucket(pat.n_blocks) if sz.padded else pat.n_blocks
+        blocks = _padding.pad_rows(pat.blocks, sz.m_padded, cycle=True)
+        swap = _padding.pad_rows(pat.swap, sz.m_padded, cycle=True)
+        gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
+        with jax.ensure_compile_time_eval():
+            self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
+        self._pattern = pat
+        return pat
 
 
 @partial(jit, static_argnums=0)

@@ -134,6 +134,13 @@ class AbstractSolver(abc.ABC):
     @abc.abstractmethod
     def init(self, objective, x0, params) -> State: ...
 
+    def load_ahead(self, objective):
+        """Start loading (or compiling) the kernels :meth:`init` will need for ``objective`` on a
+        thread (:func:`geomopt._runtime.threads.ahead`), for a caller with other work before
+        :meth:`init` (:func:`geomopt.parameterize` builds its start map meanwhile).  Returns the
+        thread, or None when this solver loads nothing ahead (the default)."""
+        return None
+
     @abc.abstractmethod
     def step(self, state: State) -> State: ...
 

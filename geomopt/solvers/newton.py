@@ -20,6 +20,7 @@ import numpy as np
 from ..objective.cg import NewtonCG
 from .._runtime.config import OneOf, Real
 from .._runtime.errors import ParameterError
+from .._runtime.threads import ahead
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
 from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver, pcg
@@ -169,6 +170,19 @@ class AbstractNewton(AbstractSolver):
             return self.linear_solver == "cg"
         n_free = int(np.count_nonzero(objective.free_dofs))
         return newton_linear_solver(objective.problem.dim, n_free, jax.default_backend()) == "cg"
+
+    def load_ahead(self, objective):
+        if self.uses_cg(objective):
+            return None
+
+        def work():  # the kernels and arguments of init's compile_hessian and search.compile
+            params = objective.params()
+            x = jax.device_put(objective.pad_map(np.zeros(objective.free_dofs.shape)))
+            for projection in self.projection.kernels():
+                objective.compile_hessian(x, params, projection)
+            self.search.compile(objective, params, x, 0.0, x)
+
+        return ahead(work)
 
     def init(self, objective, x0, params) -> State:
         self.projection.check_dim(objective.problem.dim)
