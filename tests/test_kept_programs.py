@@ -267,3 +267,33 @@ def test_parameterize_loads_the_solvers_kernels_ahead(monkeypatch):
     V, F = G.square_mesh(6)
     result = geomopt.parameterize(np.c_[V, 0.1 * V[:, 0] ** 2], F, progress=False)
     assert result.success and len(asked) == 1 and asked[0] is result.objective
+
+
+ANNULUS = """
+import sys
+import numpy as np, geomopt
+from geomopt.mesh import generators as G
+V, F = G.square_mesh(12)
+F = F[np.linalg.norm(V[F].mean(axis=1) - 0.5, axis=1) > 0.2]  # a hole: not a disk
+used, F = np.unique(F, return_inverse=True)
+V, F = V[used], F.reshape(-1, 3)
+try:
+    geomopt.parameterize(np.c_[V, 0.1 * V[:, 0] ** 2], F, progress=False)
+except geomopt.MeshError as exc:
+    assert "boundary loops" in str(exc), exc  # refused by the disk check, after the kernels started
+    sys.exit(3)
+"""
+
+
+def test_a_script_ending_while_kernels_compile_ahead_exits_normally(tmp_path):
+    """parameterize starts its solver's kernels compiling on a thread, then refuses the mesh; a
+    script that catches the error and exits at once must end with its own status.  On a daemon
+    thread, interpreter shutdown inside XLA's compiler aborted the process (exit 134, about one
+    run in three): the thread is not a daemon, so the exit waits for it."""
+    from geomopt._runtime.threads import ahead
+
+    assert not ahead(lambda: None).daemon
+    env = dict(os.environ, GEOMOPT_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-c", ANNULUS], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 3, run.stderr[-2000:]

@@ -44,11 +44,14 @@ def single_blas_thread():
 
 
 def ahead(work) -> threading.Thread:
-    """Start ``work()`` on a daemon thread in JAX's 64-bit mode and return the thread: work done
+    """Start ``work()`` on a thread in JAX's 64-bit mode and return the thread: work done
     ahead of need (loading or compiling kernels while the caller builds a start map), whose
     results the caller finds where it would have made them.  Best effort: an exception there is
     dropped, and the caller's own call (which waits for the work already under way, see
-    :class:`geomopt._runtime.programs.Program`) raises it in its place."""
+    :class:`geomopt._runtime.programs.Program`) raises it in its place.  Not a daemon thread:
+    a process that ends while it compiles (the caller failed on a bad mesh, the script caught
+    that and exited) waits for it; a daemon thread inside XLA's compiler at interpreter
+    shutdown aborted the process (exit 134)."""
     from .x64 import float64
 
     def run():
@@ -57,6 +60,6 @@ def ahead(work) -> threading.Thread:
         except Exception:  # noqa: BLE001 -- the caller's own call raises it
             pass
 
-    thread = threading.Thread(target=run, name="geomopt-ahead", daemon=True)
+    thread = threading.Thread(target=run, name="geomopt-ahead")
     thread.start()
     return thread
