@@ -65,6 +65,7 @@ def row(name, tool, m, certified, cold, warm):
 
 
 def main(argv=None):
+    from geomopt import MeshError
     from geomopt.atlas import atlas_metrics, certify_atlas, uv_charts
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -80,7 +81,11 @@ def main(argv=None):
         _, _, warm = run_xatlas(V, F)
         ok = certify_atlas(uv, T, uv_charts(T)[1]).ok
         print(row(name, "xatlas", atlas_metrics(V, F, uv, T), ok, cold, warm), flush=True)
-        a, cold = run_geomopt(V, F)
+        try:
+            a, cold = run_geomopt(V, F)
+        except MeshError as exc:  # refused (non-manifold...): say so and go on with the next mesh
+            print(f"| {name} | geomopt | refused: {exc} | | | | | | | |", flush=True)
+            continue
         a, warm = run_geomopt(V, F)
         print(row(name, "geomopt", a.metrics, a.success, cold, warm), flush=True)
 

@@ -43,7 +43,11 @@ compilation), the median of several calls with ``block_until_ready`` of energy +
 and one injective search (:class:`geomopt.solvers.linesearch.InjectiveSearch`), each as a ratio to the
 time its bytes take to move once at that bandwidth: the arrays it must read (positions,
 directions, element indices, rest inverse matrices and sizes, the free mask, the Hessian's
-assembly maps) and write (gradient, Hessian values, the new point), each counted once.
+assembly maps) and write (gradient, Hessian values, the new point), each counted once; and as
+a ratio to the time of its floating-point operations (XLA's cost analysis of the same jitted
+computation) at the machine's float64 arithmetic rate (an XLA kernel of fused multiply-adds
+alone): a kernel near neither limit is bound by something else (irregular gathers and
+scatter-adds, latency).
 """
 
 from __future__ import annotations
@@ -261,6 +265,37 @@ def bandwidth_gbs(nbytes=1 << 30, repeat=5):
     return 2.0 * src.nbytes / best / 1e9
 
 
+def flop_rate_gflops(n=1 << 20, depth=64, repeat=7):
+    """Float64 arithmetic rate, GFLOP/s, of an XLA kernel that does nothing else: ``depth``
+    fused multiply-adds per element of an ``n``-array in cache-sized passes (best of ``repeat``;
+    XLA's own count of its flops)."""
+    import jax
+    import jax.numpy as jnp
+
+    jax.config.update("jax_enable_x64", True)
+
+    @jax.jit
+    def horner(x):
+        y = x
+        for _ in range(depth):
+            y = y * x + 0.5
+        return y
+
+    x = jnp.linspace(0.1, 0.9, n)
+    flops = _xla_flops(horner, x)
+    jax.block_until_ready(horner(x))
+    best = min(_timed(lambda: jax.block_until_ready(horner(x))) for _ in range(repeat))
+    return flops / best / 1e9
+
+
+def _xla_flops(jitted, *args):
+    """XLA's count of the floating-point operations of ``jitted`` on ``args`` (its cost
+    analysis: a division or square root counts one), None where the backend gives none."""
+    cost = jitted.lower(*args).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return float(cost["flops"]) if cost and cost.get("flops") else None
+
+
 def _timed(f):
     t = time.perf_counter()
     f()
@@ -302,20 +337,21 @@ def kernel_rows(dim, repeat):
     value, grad = obj.value_and_grad(x, params)
     rows = []
 
-    def add(name, f, reads, writes, note=""):
+    def add(name, f, reads, writes, note="", flops=None):
         t = _warm_median(f, repeat)
         rows.append({"kernel": name, "dim": dim, "elements": len(S), "seconds": t,
-                     "bytes": _nbytes(*reads) + _nbytes(*writes), "note": note})
+                     "bytes": _nbytes(*reads) + _nbytes(*writes), "flops": flops, "note": note})
         print(f"  {dim}D {name}: {t:.4f} s", file=sys.stderr, flush=True)
 
     add("energy + gradient", lambda: jax.block_until_ready(obj.value_and_grad(x, params)),
-        (Sd, x, Minv, vol, free), (grad,))
+        (Sd, x, Minv, vol, free), (grad,), flops=_xla_flops(jax.jit(lambda y: obj.value_and_grad(y, params)), x))
     data = obj.hessian(x, params, "clamp")[2]
     blocks, swap, _ = obj.block_assembly
     add("Hessian (values, clamp)", lambda: jax.block_until_ready(obj.hessian(x, params, "clamp")),
         (Sd, x, Minv, vol, free, blocks, swap, obj.pattern.gather), (grad, data),
         f"nnz {obj.pattern.nnz:,}")
-    add("injective bound", lambda: jax.block_until_ready(max_injective_step(Sd, x, d)), (Sd, x, d), ())
+    add("injective bound", lambda: jax.block_until_ready(max_injective_step(Sd, x, d)), (Sd, x, d), (),
+        flops=_xla_flops(jax.jit(max_injective_step), Sd, x, d))
     search = InjectiveSearch()
     evals = search(obj, params, x, float(value), grad, d)[4]
     add("injective search", lambda: search(obj, params, x, float(value), grad, d),
@@ -327,7 +363,8 @@ def kernel_rows(dim, repeat):
     up = unt.params()
     g_unt = unt.value_and_grad(x, up)[1]
     add("energy + gradient (untangling)", lambda: jax.block_until_ready(unt.value_and_grad(x, up)),
-        (Sd, x, unt.geom[1], unt.geom[2], unt.free_mask), (g_unt,))
+        (Sd, x, unt.geom[1], unt.geom[2], unt.free_mask), (g_unt,),
+        flops=_xla_flops(jax.jit(lambda y: unt.value_and_grad(y, up)), x))
     free_v = np.flatnonzero(np.asarray(obj.free_dofs).all(axis=1))
     K = rest_laplacian(P)[free_v][:, free_v].tocsc()
     backend = repeated_solves_backend(dim, len(free_v))
@@ -353,18 +390,27 @@ def kernels_in_subprocess(dim, repeat):
 
 
 def print_kernels(results):
-    print("\n| kernel | dim | elements | warm s (median) | bytes once (MB) | at bandwidth s | ratio | note |")
-    print("|---|---|---|---|---|---|---|---|")
+    """The kernels' table: each kernel's time against the time of its bytes at the streaming
+    bandwidth and of its flops (XLA's count) at the measured arithmetic rate; the last column
+    is the time over the larger of the two (1 = at the machine's limit)."""
+    print("\n| kernel | dim | elements | warm s (median) | bytes once (MB) | at bandwidth s | ratio | "
+          "MFLOP | at flop rate s | ratio to the larger | note |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for res in results:
-        bw = res.get("bandwidth_gbs")
+        bw, rate = res.get("bandwidth_gbs"), res.get("gflops")
         for r in res["rows"]:
             t_bytes = r["bytes"] / (bw * 1e9) if r["bytes"] else None
-            ratio = r["seconds"] / t_bytes if t_bytes else None
+            t_flops = r["flops"] / (rate * 1e9) if r.get("flops") and rate else None
+            limit = max((t for t in (t_bytes, t_flops) if t), default=None)
             mb = r["bytes"] / 1e6 if r["bytes"] else None
+            mflop = r["flops"] / 1e6 if r.get("flops") else None
             print(f"| {r['kernel']} | {r['dim']} | {r['elements']:,} | {r['seconds']:.4f} | {_f(mb, '{:.0f}')} | "
-                  f"{_f(t_bytes, '{:.4f}')} | {_f(ratio)} | {r['note']} |")
+                  f"{_f(t_bytes, '{:.4f}')} | {_f(r['seconds'] / t_bytes if t_bytes else None)} | "
+                  f"{_f(mflop, '{:.0f}')} | {_f(t_flops, '{:.4f}')} | {_f(r['seconds'] / limit if limit else None)} | "
+                  f"{r['note']} |")
     for res in results:
         print(f"{res['dim']}D: bandwidth {_f(res.get('bandwidth_gbs'), '{:.2f}')} GB/s (streaming copy, best of 5), "
+              f"arithmetic {_f(res.get('gflops'), '{:.1f}')} GFLOP/s (fused multiply-adds, best of 7), "
               f"peak {_f(res.get('peak_mb', float('nan')) / 1024, '{:.2f}')} GB, load {_f(res.get('load'))}")
 
 
@@ -388,7 +434,7 @@ def main(argv=None):
     ap.add_argument("--kernel-child", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.kernel_child:
-        out = {"dim": a.kernel_child, "bandwidth_gbs": bandwidth_gbs()}
+        out = {"dim": a.kernel_child, "bandwidth_gbs": bandwidth_gbs(), "gflops": flop_rate_gflops()}
         out["rows"] = kernel_rows(a.kernel_child, max(a.repeat, 5))
         print(json.dumps(out))
         return 0

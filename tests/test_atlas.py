@@ -107,7 +107,8 @@ def test_a_reversed_surface_still_has_no_mirrored_chart():
 def test_bad_input_is_refused_with_one_line(cli, tmp_path):
     V, F = sphere()
     nonmanifold = np.r_[F, [[F[0, 0], F[0, 1], len(V)]]]
-    with pytest.raises(MeshError, match="non-manifold edge"):
+    a, b = sorted(F[0, :2])
+    with pytest.raises(MeshError, match=f"non-manifold edge.*first: the edge of vertices {a} and {b}, in 3 faces"):
         make_atlas(np.r_[V, [[5.0, 5.0, 5.0]]], nonmanifold, progress=False)
     flat = V.copy()
     flat[F[3, 2]] = 0.5 * (flat[F[3, 0]] + flat[F[3, 1]])  # a triangle collapsed to a segment
@@ -177,3 +178,18 @@ def test_options_are_validated():
         AtlasOptions(max_distortion=3.0)
     with pytest.raises(Exception, match="options must be"):
         make_atlas(*torus(), options={"margin": 0.1}, progress=False)
+
+
+def test_a_split_made_for_the_packing_is_reported():
+    """A chart split to pack better changes the chart count after the flattening stage said it:
+    the progress says so (the command's log showed one chart flattened, then two packed)."""
+    from geomopt.mesh import generators
+
+    V, F = generators.holed_plate(2, cells=3)
+    events = []
+    atlas = make_atlas(V, F, progress=lambda stage, info: events.append((stage, info)))
+    stages = [s for s, _ in events]
+    charts = int(atlas.chart.max()) + 1
+    flattened = [info["charts"] for s, info in events if s == "flattened"]
+    assert atlas.success and flattened and flattened[-1] < charts  # this plate is split to pack
+    assert stages.index("split to pack") == len(stages) - 2 and events[-2][1]["charts"] == charts

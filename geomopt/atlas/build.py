@@ -127,10 +127,13 @@ def check_atlas_input(V, F):
     if flat.any():
         raise MeshError(f"{int(flat.sum())} face(s) have zero area (first: face {int(np.argmax(flat))}); "
                         f"remove or repair them (e.g. trimesh's remove_degenerate_faces) before making an atlas")
-    _, count, _ = unique_edges(F)
+    E, count, _ = unique_edges(F)
     if (count > 2).any():
-        raise MeshError(f"{int((count > 2).sum())} non-manifold edges (used by more than 2 faces); an atlas "
-                        f"needs an edge-manifold mesh: split or remove the extra faces")
+        first = int(np.argmax(count > 2))
+        a, b = E[first]
+        raise MeshError(f"{int((count > 2).sum())} non-manifold edges (used by more than 2 faces; first: the edge of "
+                        f"vertices {a} and {b}, in {int(count[first])} faces); an atlas needs an edge-manifold "
+                        f"mesh: split or remove the extra faces")
     same, _ = same_side_facets(F)
     if same:
         raise MeshError(f"inconsistent face orientation: {same} edge(s) used twice in the same direction; "
@@ -231,6 +234,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
                                                  min_gain=options.split_gain,
                                                  screen=screen, V=g.V)
     results = [results[i] for i in owner]
+    if len(meshes) > len(set(owner)):
+        _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
     certificate = certify_atlas(uv, uv_faces, chart)
     metrics = atlas_metrics(V, F, uv, uv_faces)

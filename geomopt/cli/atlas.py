@@ -81,8 +81,8 @@ def _progress(args):
             args.timing.add("flatten", end - t["stage"])
             args.timing.add("pack", now - end)
             t["stage"] = now
-        else:  # a chart flattened, the charts flattened, a split, cuts taken back
-            t["flattened"] = now
+        elif stage != "split to pack":  # a chart flattened, the charts flattened, a split, cuts taken back
+            t["flattened"] = now  # (a split to pack is packing's)
         if not args.quiet:
             log(args, f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
                                                      for k, v in info.items()))
