@@ -303,9 +303,9 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     _check_misplaced_settings(energy, solver, energy_params)
     objective = Objective(problem, energy, buckets=options.buckets, element_weights=element_weights,
                           **energy_params)
-    # untangle's callback has another signature than minimize's: only True goes to the repair
     solver.load_ahead(objective)  # the solver's kernels load on a thread while the start map is built
     loop = check_disk(problem.input_simplices, problem.n_vertices)  # once: start map and certificate
+    # untangle's callback has another signature than minimize's: only True goes to the repair
     x0, s, repaired = start_map(objective, x0, options.weights, progress is True, loop)
     if x0 is None:
         return _failed_repair(repaired, problem, objective, throw)
