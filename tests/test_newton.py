@@ -198,6 +198,32 @@ def test_reuse_factor_waits_1_2_4_iterations_after_failed_tries(monkeypatch):
     assert len(tries) == before + 1
 
 
+def test_a_failed_factorization_is_not_reused(monkeypatch):
+    """Near the minimum the adaptive projection tries the exact (indefinite) Hessian; when its
+    factorizations fail, the clamped retry must not precondition CG with the factor those
+    attempts destroyed (igea at 959,944 triangles ended "matrix is not factored" at iteration 11):
+    it factors again and the step goes on."""
+    import dataclasses
+
+    from geomopt.objective.linsolve import NotPositiveDefinite
+
+    obj, x0 = _swirled_grid(8)
+    solver = Newton(projection="clamp", reuse_factor=True)
+    state = solver.step(solver.init(obj, x0, obj.params()))
+    chol = state.memory.factor
+    bad = np.ones(len(chol.indices))
+    bad[chol.indptr[:-1]] = -1.0  # negative diagonal: not positive definite
+    with pytest.raises(NotPositiveDefinite):
+        chol.factor(bad)
+    reuse = state.memory.reuse._replace(factor_s=1.0, iter_s=1e-6)  # trying CG would be cheap
+    state = dataclasses.replace(state, memory=state.memory._replace(reuse=reuse),
+                                stats=state.stats._replace(step_size=1.0))
+    before = chol.generation
+    new = solver.step(state)
+    assert chol.generation == before + 1 and chol.has_factor  # factored afresh, no CG on the failed one
+    assert new.stats.accepted and float(new.value) < float(state.value)
+
+
 def test_reuse_factor_auto_from_a_size(monkeypatch):
     """``reuse_factor="auto"`` (the default) reuses the factorization only from
     ``REUSE_FROM_DOFS`` free DOFs; a value other than True, False, 'auto' is refused."""

@@ -127,6 +127,28 @@ def test_backend_reports_an_indefinite_matrix_then_recovers(backend):
     np.testing.assert_allclose(A @ chol.solve(b), b, rtol=1e-10, atol=1e-10)
 
 
+@pytest.mark.parametrize("backend", linsolve.available_backends())
+def test_after_a_failed_factorization_no_factor_is_held(backend):
+    """A failed factor() leaves none: PARDISO's and CHOLMOD's factors are overwritten in place by
+    the attempt (a solve then raised "matrix is not factored" inside a 10^6-triangle Newton
+    solve, from the lagged-factor CG), and cholespy's solve used the previous matrix's factor
+    silently; the lagged direction asks `has_factor` first."""
+    ip, ix, data, A = _spd_lower()
+    chol = linsolve.SparseCholesky(ip, ix, backend)
+    assert not chol.has_factor
+    chol.factor(data)
+    assert chol.has_factor
+    if backend == "superlu":
+        pytest.skip("SuperLU factors indefinite matrices (no positive-definiteness check)")
+    bad = data.copy()
+    bad[ip[:-1]] -= 10.0
+    with pytest.raises(linsolve.NotPositiveDefinite):
+        chol.factor(bad)
+    assert not chol.has_factor
+    with pytest.raises(RuntimeError, match="no factorization held"):
+        chol.solve(np.ones(A.shape[0]))
+
+
 def test_auto_backend_is_the_measured_winner_when_installed():
     pytest.importorskip("pymklpardiso")
     assert linsolve.available_backends()[0] == "pardiso"

@@ -262,10 +262,17 @@ class SparseCholesky:
             A = self._csc(np.ones(len(self.indices)))
             self._analysis = analyze(A, mode="supernodal", ordering_method=self.ordering)
 
+    @property
+    def has_factor(self) -> bool:
+        """Whether a factorization is held: the last :meth:`factor` succeeded (a failed one
+        leaves none: PARDISO's and CHOLMOD's factors are overwritten in place by the attempt)."""
+        return self._factor is not None or (self.n == 0 and self.generation > 0)
+
     def factor(self, data):
         """Numeric factorization of the matrix with values ``data`` (nnz,) (replaces the previous
-        one: :attr:`generation` counts them)."""
+        one: :attr:`generation` counts them; when it raises, no factorization is held)."""
         self.generation += 1
+        self._factor = None
         data = np.ascontiguousarray(data, dtype=np.float64)
         if data.shape != self.indices.shape:  # the C libraries would read past it: a crash, not an error
             raise ValueError(f"SparseCholesky.factor: {data.shape[0] if data.ndim == 1 else data.shape} values for a "
@@ -315,6 +322,9 @@ class SparseCholesky:
             raise ValueError(f"SparseCholesky.solve: right-hand side of shape {b.shape} for {self.n} unknowns")
         if self.n == 0:
             return np.zeros_like(b)
+        if self._factor is None:
+            raise RuntimeError("SparseCholesky.solve: no factorization held (none made yet, or the last factor() "
+                               "failed): factor the matrix first")
         if self.backend == "pardiso":
             x = self._factor.solve(b)
         elif self.backend == "cholespy":

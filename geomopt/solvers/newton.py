@@ -269,14 +269,15 @@ class AbstractNewton(AbstractSolver):
         """``(-H^-1 g, reuse)`` for the values ``data`` by CG preconditioned with the
         factorization held (``reuse_factor``); None instead of the direction when reuse is off
         or waits after failed tries, nothing is factored yet, or CG does not reach the forcing
-        term within one factorization's time (or meets negative curvature)."""
+        term within one factorization's time (or meets negative curvature); also when the last
+        factorization failed (a shift too small for an indefinite Hessian): none is held then."""
         reuse = mem.reuse
         budget = int(reuse.factor_s / reuse.iter_s) if reuse.iter_s else 0
         # CG needs a few iterations even where the Hessian changed little (3-9 measured at 10^6
         # triangles): below MIN_REUSE_ITERS affordable ones, trying costs more than it saves
         if reuse.wait:
             return None, reuse._replace(wait=reuse.wait - 1)
-        if not reuse.on or mem.factor.generation == 0 or budget < MIN_REUSE_ITERS:
+        if not reuse.on or not mem.factor.has_factor or budget < MIN_REUSE_ITERS:
             return None, reuse
         L = pat.lower(data)
         D, LT = L.diagonal(), L.T
