@@ -346,9 +346,9 @@ def param_picture(V, F, uv, face_values, title="", label="distortion", checks=20
     # (about as much work): NumPy and Pillow release the GIL in their loops
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
         large = pool.submit(render, panels[0])
-        images = [None, render(panels[1])]
+        small = render(panels[1])
         _layout_panel(c, uv, F, values, (cells[2][0], top, cells[2][1], height), label)
-        images[0] = large.result()
+        images = (large.result(), small)
     for ((x, w), _, caption), image in zip(panels, images):
         _image_panel(c, image, (x, top, w, height), caption)
     if title:

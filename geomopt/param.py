@@ -319,7 +319,6 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
                                details=ParamDetails(start=x0, scale=s, repair=repaired))
 
 
-
 def parameterize_map(V, F=None, energy="symmetric_dirichlet", solver=None, weights="uniform", x0=None,
                      element_weights=None, adjoint="auto", energy_params=None):
     """:func:`parameterize`'s map (n, 2) as a differentiable function of ``V``,

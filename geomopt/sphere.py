@@ -242,8 +242,6 @@ def given_start(problem, x0):
     return x, SphereDetails(x, -1, math.nan, 0, cert)
 
 
-
-
 def default_solver() -> LBFGS:
     """:func:`sphere_map`'s L-BFGS: no gradient test (``gtol=0``: the Tutte start's gradient is
     some 1e14, so a test relative to it stops at energies far from the minimum; measured on cow),

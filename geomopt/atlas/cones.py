@@ -79,8 +79,6 @@ def log_scale(V, F, boundary) -> np.ndarray:
     return u
 
 
-
-
 def scale_estimate(V, F, u):
     """The symmetric Dirichlet a conformal map of log scale ``u`` (n,) would have, at its best
     uniform scale.

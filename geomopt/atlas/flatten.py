@@ -59,8 +59,6 @@ def _key(mesh):
     return mesh.faces.tobytes(), mesh.F.tobytes()
 
 
-
-
 def _mean_sd(Vc, Fc, x):
     A = triangle_areas(Vc[Fc])
     return float(np.sum(A * face_symmetric_dirichlet(Vc, Fc, x, Fc)) / A.sum()), float(A.sum())

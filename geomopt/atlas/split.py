@@ -380,4 +380,3 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     return meshes, maps, packing, owner
 
 
-

@@ -30,8 +30,6 @@ def _as_3d(V: np.ndarray) -> np.ndarray:
     return V if V.shape[1] == 3 else np.pad(V, ((0, 0), (0, 1)))
 
 
-
-
 def _checked_input(V, F, weights):
     """Validated ``(V, F)`` after checking the weights name."""
     if weights not in WEIGHTS:
