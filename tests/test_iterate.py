@@ -179,6 +179,32 @@ def test_overlapping_solve_loops_restore_blas_threads_when_the_last_one_ends():
         assert _blas_threads() == [2]
 
 
+def test_the_blas_libraries_are_looked_for_again_only_after_an_import(monkeypatch):
+    """Scanning the process for BLAS libraries costs 2 ms (a tenth of a small chart's solve):
+    it is done once, and again when a module was imported since (which may load a library)."""
+    import sys
+    import types
+
+    import threadpoolctl
+
+    from geomopt._runtime.threads import single_blas_thread
+
+    made = []
+    real = threadpoolctl.ThreadpoolController
+    monkeypatch.setattr(threadpoolctl, "ThreadpoolController", lambda: made.append(1) or real())
+    with single_blas_thread():
+        pass
+    made.clear()
+    for _ in range(3):
+        with single_blas_thread():
+            pass
+    assert made == []
+    monkeypatch.setitem(sys.modules, "geomopt_test_new_module", types.ModuleType("geomopt_test_new_module"))
+    with single_blas_thread():
+        assert made == [1]
+        assert _blas_threads() == [1]  # the libraries found again are limited
+
+
 def test_lbfgs_advances_in_its_kernel_to_the_same_iterate_as_stepping():
     obj, V = _objective()
     x0 = obj.prepare_map(V)

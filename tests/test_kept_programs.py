@@ -230,9 +230,10 @@ def test_one_program_asked_for_on_two_threads_is_compiled_once(fresh_cache, monk
     assert _programs.stats["stored"] - before["stored"] == 1 and _programs.stats["loaded"] == before["loaded"]
 
 
-def test_newton_loads_its_kernels_ahead_and_its_init_finds_them(fresh_cache):
-    from geomopt.solvers import Newton
+def test_newton_loads_its_kernels_ahead_and_its_init_finds_them(fresh_cache, monkeypatch):
+    from geomopt.solvers import Newton, newton
 
+    monkeypatch.setattr(newton, "AHEAD_FROM", 0)  # a small mesh's kernels are loaded on the caller's thread
     V, F = G.square_mesh(7)
     objective = geomopt.Objective(geomopt.Problem.planar(V, F), "symmetric_dirichlet")
     solver = Newton()
@@ -258,6 +259,29 @@ def test_a_failure_ahead_is_dropped_quietly(monkeypatch):
     assert seen == [1] and hooked == []
 
 
+def test_only_a_problem_of_thousands_of_unknowns_loads_its_kernels_on_a_thread(monkeypatch):
+    """A thread's start and join cost more than a small problem's loading (AHEAD_FROM): none is
+    started there, nor for the symbolic analysis; from AHEAD_FROM free unknowns both are."""
+    from geomopt._runtime.threads import AHEAD_FROM
+    from geomopt.objective import linsolve
+    from geomopt.solvers import Newton
+
+    analyses = []
+    real = linsolve.SparseCholesky.analyze
+    monkeypatch.setattr(linsolve.SparseCholesky, "analyze",
+                        lambda self, background=False: analyses.append(background) or real(self, background))
+    for k, threaded in ((7, False), (int(np.sqrt(AHEAD_FROM / 2)) + 2, True)):
+        V, F = G.square_mesh(k)
+        objective = geomopt.Objective(geomopt.Problem.planar(V, F), "symmetric_dirichlet")
+        thread = Newton().load_ahead(objective)
+        assert (thread is not None) == threaded
+        if thread is not None:
+            thread.join()
+        start = len(analyses)
+        objective.cholesky("auto")
+        assert analyses[start] == threaded  # the first call (a background one calls again on its thread)
+
+
 def test_parameterize_loads_the_solvers_kernels_ahead(monkeypatch):
     from geomopt.solvers import Newton
 
@@ -273,6 +297,8 @@ ANNULUS = """
 import sys
 import numpy as np, geomopt
 from geomopt.mesh import generators as G
+from geomopt.solvers import newton
+newton.AHEAD_FROM = 0  # the kernels of this small mesh load on a thread too
 V, F = G.square_mesh(12)
 F = F[np.linalg.norm(V[F].mean(axis=1) - 0.5, axis=1) > 0.2]  # a hole: not a disk
 used, F = np.unique(F, return_inverse=True)

@@ -33,6 +33,7 @@ import numpy as np
 from .._runtime import padding as _padding
 from .._runtime import programs as _programs
 from .._runtime import x64 as _x64
+from .._runtime.threads import AHEAD_FROM
 from ..mesh.geometry import chord_jacobians, dets
 from .._runtime.errors import ParameterError
 from .._runtime.tracing import StaticKey, is_traced, refuse_traced
@@ -461,7 +462,7 @@ class _Mesh:
         if backend not in self._cholesky:
             pat = self.pattern
             chol = SparseCholesky(pat.indptr, pat.indices, backend)
-            chol.analyze(background=True)  # while the solver loads its kernels
+            chol.analyze(background=chol.n >= AHEAD_FROM)  # while the solver loads its kernels
             self._cholesky[backend] = chol
         return self._cholesky[backend]
 

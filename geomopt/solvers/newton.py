@@ -20,7 +20,7 @@ import numpy as np
 from ..objective.cg import NewtonCG
 from .._runtime.config import OneOf, Real
 from .._runtime.errors import ParameterError
-from .._runtime.threads import ahead
+from .._runtime.threads import AHEAD_FROM, ahead
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
 from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver, pcg
@@ -172,8 +172,8 @@ class AbstractNewton(AbstractSolver):
         return newton_linear_solver(objective.problem.dim, n_free, jax.default_backend()) == "cg"
 
     def load_ahead(self, objective):
-        if self.uses_cg(objective):
-            return None
+        if self.uses_cg(objective) or int(np.count_nonzero(objective.free_dofs)) < AHEAD_FROM:
+            return None  # CG compiles its own kernels; a small problem's load is quicker than a thread
 
         def work():  # the kernels and arguments of init's compile_hessian and search.compile
             params = objective.params()
