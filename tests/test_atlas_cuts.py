@@ -4,6 +4,8 @@ to make the cut cheapest (issue 31)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import trimesh
 
 from geomopt.atlas.cones import angle_defects
 from geomopt.atlas.charts import split_charts
@@ -139,5 +141,37 @@ def test_trim_keeps_the_estimate_of_every_chart_at_the_target():
         trimmed = trim(g, cut, target)
         assert trimmed.sum() < cut.sum()
         split = split_charts(g.F, g.edge_of, g.edge_faces, trimmed)
-        rows = np.array([chart_estimate(g.V, split.mesh(c))[:2] for c in range(split.count)])
+        rows = np.array([chart_estimate(g, split.mesh(c), trimmed | g.boundary)[:2] for c in range(split.count)])
         assert split.count == 2 and rows[:, 0] @ rows[:, 1] / rows[:, 1].sum() <= target + 1e-9
+
+
+def test_a_charts_estimate_takes_its_boundary_from_the_seams_and_refuses_a_non_disk():
+    """chart_estimate finds a chart's boundary where its faces meet the seams (no topology check:
+    the Euler characteristic is counted) and gives the estimate of the chart's own boundary loop
+    (check_disk's); a chart that is not a disk (an annulus: a torus cut along one loop) is refused."""
+    from geomopt.atlas.cones import log_scale, scale_estimate
+    from geomopt.atlas.cutting import chart_estimate, relieve
+    from geomopt.exact.topology import check_disk
+
+    t = trimesh.creation.torus(1.0, 0.4, major_sections=24, minor_sections=12)
+    g = edge_graph(np.asarray(t.vertices), np.asarray(t.faces))
+    cost = edge_costs(g, 2.0, angle_defects(g.V, g.F))
+    labels = _labels(g)
+    cut = shortest_topological_cut(g, cost, labels, np.unique(labels, return_index=True)[1])
+    cut, _, made = relieve(g, cost, cut, 4.0, 3)  # a slit or more inside the chart too
+    assert made > 0
+    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    for c in range(split.count):
+        mesh = split.mesh(c)
+        Vc = g.V[mesh.vertices]
+        expected = scale_estimate(Vc, mesh.F, log_scale(Vc, mesh.F, check_disk(mesh.F, len(mesh.wedges))))[0]
+        assert chart_estimate(g, mesh, cut | g.boundary)[0] == pytest.approx(expected, rel=1e-9)
+    from geomopt.mesh.generators import square_mesh
+
+    V, F = square_mesh(9)  # a flat annulus: the faces around the centre removed
+    F = F[np.linalg.norm(V[F].mean(axis=1) - 0.5, axis=1) > 0.2]
+    used, F = np.unique(F, return_inverse=True)
+    a = edge_graph(np.c_[V[used], np.zeros(len(used))], F.reshape(-1, 3))
+    none = np.zeros(len(a.E), dtype=bool)
+    with pytest.raises(RuntimeError, match="not a disk"):
+        chart_estimate(a, split_charts(a.F, a.edge_of, a.edge_faces, none).mesh(0), a.boundary)

@@ -84,15 +84,19 @@ def _cheapest_edge_at(g: EdgeGraph, cost, v, other):
     return int(at[np.argmin(cost[at])])
 
 
-def chart_estimate(V, chart):
+def chart_estimate(g: EdgeGraph, chart, seams):
     """``(mean, area, vertex)``: the estimated mean symmetric Dirichlet of a disk chart
-    (:class:`~geomopt.atlas.charts.ChartMesh`), its 3D area, and its most shrunk interior
-    vertex (an input vertex id of ``V``, or -1 when it has none)."""
-    Vc = V[chart.vertices]
-    loop = chart.disk_loop()
-    if loop is None:
+    (:class:`~geomopt.atlas.charts.ChartMesh` of a cut of ``g``), its 3D area, and its most shrunk
+    interior vertex (an input vertex id of ``g.V``, or -1 when it has none).  ``seams`` (k,) bool:
+    the cut and boundary edges of ``g``; the chart's boundary is where its faces meet them (no
+    topology check: a connected, oriented manifold chart is a disk exactly when its Euler
+    characteristic is 1, counted here)."""
+    Vc = g.V[chart.vertices]
+    rows, corner = np.nonzero(seams[g.edge_of[chart.faces]])  # the chart's boundary half-edges
+    if not len(rows) or 2 * len(Vc) - len(chart.F) - len(rows) != 2:  # 2 (V - E + F) with 2 E = 3 F + b
         raise RuntimeError("a chart of the seam graph is not a disk")  # never: see module doc
-    u = log_scale(Vc, chart.F, loop)
+    loop = np.unique(np.r_[chart.F[rows, corner], chart.F[rows, (corner + 1) % 3]])
+    u = log_scale(Vc, chart.F, loop, g.angles[chart.faces])
     mean, log_area = scale_estimate(Vc, chart.F, u)
     area = float(triangle_areas(Vc[chart.F]).sum())
     inner = np.ones(len(Vc), dtype=bool)
@@ -137,7 +141,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
         rows = []
         for c in range(split.count):
             if int(first[c]) not in known:
-                known[int(first[c])] = chart_estimate(g.V, split.mesh(c))
+                known[int(first[c])] = chart_estimate(g, split.mesh(c), cut | g.boundary)
             rows.append(known[int(first[c])])
         mean = np.array([r[0] for r in rows])
         area = np.array([r[1] for r in rows])
@@ -203,7 +207,7 @@ def _estimates(g: EdgeGraph, cut, known):
         mesh = split.mesh(c)
         key = (int(mesh.faces[0]), len(mesh.faces))
         if key not in known:
-            known[key] = chart_estimate(g.V, mesh)
+            known[key] = chart_estimate(g, mesh, cut | g.boundary)
         rows.append(known[key])
     return split, rows
 
@@ -226,7 +230,7 @@ def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
             face = g.edge_faces[path[0], 0]
             c = int(split.chart[face])
             joined = split_charts(g.F, g.edge_of, g.edge_faces, trial)
-            after = chart_estimate(g.V, joined.mesh(int(joined.chart[face])))[0]
+            after = chart_estimate(g, joined.mesh(int(joined.chart[face])), trial | g.boundary)[0]
             if float(np.sum(mean * area) + (after - mean[c]) * area[c]) / area.sum() <= target:
                 cut = trial
                 mesh = split.mesh(c)  # same faces, new gluing: its cached estimate is stale

@@ -20,6 +20,7 @@ improved by key-path exchange) count as boundary: the forest grows from them and
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import scipy.sparse as sp
@@ -54,6 +55,14 @@ class EdgeGraph:
     def boundary(self) -> np.ndarray:
         """(k,) bool, edges with one face."""
         return self.edge_faces[:, 1] < 0
+
+    @functools.cached_property
+    def angles(self) -> np.ndarray:
+        """(m, 3) the interior angle at each face corner (computed once: every chart's
+        estimate gathers its own)."""
+        from .cones import corner_angles
+
+        return corner_angles(self.V, self.F)
 
     def adjacency(self, weight) -> sp.csr_matrix:
         """(n, n) symmetric sparse matrix of ``weight`` (k,) on the edges (positive weights)."""

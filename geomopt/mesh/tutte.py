@@ -196,10 +196,9 @@ def _solve(A, rhs, symmetric):
     component touches the boundary: PARDISO where installed, 3x faster than SuperLU, whose
     import also costs 40 ms), else SuperLU."""
     if symmetric:
-        from ..objective.linsolve import SparseCholesky  # the one up-pointing import of the mesh layer
+        from ..objective.linsolve import spd_solve  # the one up-pointing import of the mesh layer
 
-        # factored once: minimum degree analyses faster than nested dissection below ~3e5 rows
-        return SparseCholesky.factored(A, ordering="amd" if A.shape[0] < 300_000 else "metis").solve(rhs)
+        return spd_solve(A, rhs)
     import scipy.sparse.linalg as spla
 
     return spla.splu(sp.csc_matrix(A)).solve(rhs)
