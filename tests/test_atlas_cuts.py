@@ -175,3 +175,20 @@ def test_a_charts_estimate_takes_its_boundary_from_the_seams_and_refuses_a_non_d
     none = np.zeros(len(a.E), dtype=bool)
     with pytest.raises(RuntimeError, match="not a disk"):
         chart_estimate(a, split_charts(a.F, a.edge_of, a.edge_faces, none).mesh(0), a.boundary)
+
+
+def test_a_level_that_starts_from_the_same_cut_is_not_relieved_again(monkeypatch):
+    """cut_surface relieves the topological cut of each level of strong cones; on a smooth torus
+    there is no strong cone to join, both levels start from the same cut, and the second
+    relieving (tens of estimates on a large mesh) would repeat the first."""
+    from geomopt.atlas import cutting
+
+    t = trimesh.creation.torus(1.0, 0.4, major_sections=24, minor_sections=12)
+    g = edge_graph(np.asarray(t.vertices), np.asarray(t.faces))
+    cost = edge_costs(g, 2.0, angle_defects(g.V, g.F))
+    assert not len(cutting.strong_cones(g))
+    calls = []
+    real = cutting.relieve
+    monkeypatch.setattr(cutting, "relieve", lambda *a, **k: calls.append(1) or real(*a, **k))
+    cut, estimate, _ = cutting.cut_surface(g, cost, 4.3)
+    assert len(calls) == 1 and cut.any() and estimate > 4.0

@@ -258,10 +258,13 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cos
     """
     labels, roots = _component_roots(g)
     tree_cost = cost if tree_cost is None else tree_cost
-    best = None
+    best, seen = None, set()
     for least in levels:
-        cut, estimate, made = relieve(g, cost, _topological(g, cost, tree_cost, labels, roots, least, target),
-                                      target, max_cuts, prune=True)
+        start = _topological(g, cost, tree_cost, labels, roots, least, target)
+        if start.tobytes() in seen:
+            continue  # e.g. no strong cone to join: the same cut, relieved the same way
+        seen.add(start.tobytes())
+        cut, estimate, made = relieve(g, cost, start, target, max_cuts, prune=True)
         key = (estimate > target, estimate if estimate > target else float(g.length[cut].sum()))
         if best is None or key < best[0]:
             best = (key, (cut, estimate, made))
