@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -258,6 +259,19 @@ def _radial_guard(solver, old, new):
     return new if r.max() <= RESPHERE_SPREAD * r.min() else None
 
 
+class ResphereRecord(NamedTuple):
+    """A phase of :func:`sphere_map` ended by :func:`_radial_guard`: its iterations and the
+    spread of the map's vertex lengths that ended it (the next phase starts from the map put
+    back on the sphere, its iterations counted from 1 again)."""
+
+    iterations: int
+    spread: float
+
+    def line(self, k: int) -> str:
+        return (f"phase {k:3d}  {self.iterations:4d} iterations, vertex lengths spread {self.spread:.3g}x: "
+                f"back on the sphere")
+
+
 class _OnTheSphere(AbstractContinuation):
     """The phases of :func:`sphere_map`: after :func:`_radial_guard` ends one, L-BFGS starts
     afresh from the map put back on the sphere (at most :data:`MAX_RESPHERES` times); at the end,
@@ -271,8 +285,12 @@ class _OnTheSphere(AbstractContinuation):
     def __call__(self, state, outcome):
         if outcome is None and self.respheres < MAX_RESPHERES:
             self.respheres += 1
+            x = self.objective.unpad_map(np.asarray(state.x))
+            r = np.linalg.norm(x, axis=1)
+            record = ResphereRecord(state.iteration, float(r.max() / r.min()))
             x = np.asarray(state.x)
-            return Decision.go(objective=self.objective, x=x / np.linalg.norm(x, axis=1, keepdims=True))
+            return Decision.go(objective=self.objective, x=x / np.linalg.norm(x, axis=1, keepdims=True),
+                               record=record)
         return Decision.stop_with(outcome if outcome is not None else Outcome.LINE_SEARCH_FAILED,
                                   "" if outcome is not None else "the map kept leaving the sphere")
 
