@@ -83,7 +83,8 @@ def _add_param(sub):
 
     sp = sub.add_parser("param", help="parameterize a surface: a disk with a free boundary, any other "
                                       "surface as a certified atlas")
-    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL): a disk, or any edge-manifold surface "
+    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL; convex polygons are cut into fans of "
+                                  "triangles, which the outputs keep): a disk, or any edge-manifold surface "
                                   "(an atlas)")
     sp.add_argument("-o", "--output", required=True,
                     help="output .obj (one vt per vertex) or .ply (binary, double x y z u v)")
@@ -115,7 +116,7 @@ def _add_param(sub):
                          ".png, .pdf or .svg) and a <name>_convergence plot")
     sp.add_argument("--sphere", action="store_true",
                     help="map a closed genus-0 mesh onto the unit sphere instead (L-BFGS, certified bijective): "
-                         "-o writes an .obj with the same faces, its vertices on the sphere")
+                         "-o writes an .obj with the same (triangle) faces, its vertices on the sphere")
     _common_options(sp)
     sp.set_defaults(func=cmd_param)
 
