@@ -30,6 +30,33 @@ def log(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
+def cad_cylinder(n=64, r=1.0, h=5.0):
+    """A closed cylinder as CAD exports triangulate it: two triangles per side facet, each cap a
+    fan from one rim vertex (slivers)."""
+    t = 2 * np.pi * np.arange(n) / n
+    bottom = np.c_[r * np.cos(t), r * np.sin(t), np.zeros(n)]
+    i, j = np.arange(n), (np.arange(n) + 1) % n
+    k = np.arange(1, n - 1)
+    side = np.stack([np.c_[i, j, n + j], np.c_[i, n + j, n + i]], axis=1).reshape(-1, 3)
+    caps = np.stack([np.c_[0 * k, k + 1, k], np.c_[n + 0 * k, n + k, n + k + 1]], axis=1).reshape(-1, 3)
+    return np.r_[bottom, bottom + [0.0, 0.0, h]], np.r_[side, caps]
+
+
+def holed_block(n=16, a=2.0, r=0.5, h=1.0):
+    """A square block with a round through hole (genus 1): each face a ring of quads, split in two."""
+    t = 2 * np.pi * np.arange(n) / n
+    c = np.c_[np.cos(t), np.sin(t)]
+    square, ring = c / np.abs(c).max(axis=1, keepdims=True) * a / 2, c * r
+    V = np.concatenate([np.c_[p, np.full(n, z)] for z in (0.0, h) for p in (square, ring)])
+    i, j = np.arange(n), (np.arange(n) + 1) % n
+    S0, R0, S1, R1 = 0, n, 2 * n, 3 * n
+    F = [np.c_[S0 + i, R0 + j, S0 + j], np.c_[S0 + i, R0 + i, R0 + j],  # bottom (normal -z)
+         np.c_[S1 + i, S1 + j, R1 + j], np.c_[S1 + i, R1 + j, R1 + i],  # top
+         np.c_[S0 + i, S0 + j, S1 + j], np.c_[S0 + i, S1 + j, S1 + i],  # outer wall
+         np.c_[R0 + i, R1 + j, R0 + j], np.c_[R0 + i, R1 + i, R1 + j]]  # the hole's wall
+    return V, np.stack(F, axis=1).reshape(-1, 3)  # the 8 faces of each step around, in turn
+
+
 def meshes(paths, generated):
     from geomopt.mesh import generators
     from geomopt.io import read_mesh
@@ -39,6 +66,8 @@ def meshes(paths, generated):
         out[Path(p).stem] = read_mesh(p)
     if generated:
         out["plate-genus5 (generated)"] = generators.holed_plate(5, cells=3)
+        out["CAD cylinder (generated)"] = cad_cylinder()
+        out["holed block (generated)"] = holed_block()
     return out
 
 
@@ -70,7 +99,8 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("meshes", nargs="*", help="mesh files (default: shared/data/closed/*.off)")
-    ap.add_argument("--no-generated", action="store_true", help="skip the generated genus-5 plate")
+    ap.add_argument("--no-generated", action="store_true",
+                    help="skip the generated meshes (a genus-5 plate, a CAD-style cylinder, a holed block)")
     args = ap.parse_args(argv)
     print("| mesh | tool | charts | seam length | mean sym. Dirichlet | worst | efficiency | mirrored | "
           "certified | seconds cold / warm |")
