@@ -193,21 +193,3 @@ def test_a_split_made_for_the_packing_is_reported():
     flattened = [info["charts"] for s, info in events if s == "flattened"]
     assert atlas.success and flattened and flattened[-1] < charts  # this plate is split to pack
     assert stages.index("split to pack") == len(stages) - 2 and events[-2][1]["charts"] == charts
-
-
-def test_the_atlas_gauges_splits_before_packing_them(monkeypatch):
-    """make_atlas hands split_to_pack a gauge finer than the screen (an estimate of the whole
-    atlas), so that a split is fully packed only when it may pay (the packings were half of a
-    small atlas's time: the cube's 12 faces took 2 s)."""
-    from geomopt.atlas import build
-
-    seen = []
-    real = build.split_to_pack
-    monkeypatch.setattr(build, "split_to_pack",
-                        lambda *args, **kw: seen.append(kw.get("gauge")) or real(*args, **kw))
-    V, F = torus()
-    assert make_atlas(V, F, progress=False).success
-    assert len(seen) == 1 and callable(seen[0])
-    maps = [np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0], [2.0, 1.0]])]
-    faces = [np.array([[0, 1, 3], [0, 3, 2]])]
-    assert 0.4 < seen[0](maps, faces) <= 0.5  # a 2 x 1 rectangle fills at most half its square

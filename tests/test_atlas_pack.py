@@ -535,33 +535,6 @@ def test_each_extra_chart_of_a_split_must_buy_min_gain():
     assert len(meshes) == 1 and packing.efficiency == 0.5
 
 
-def test_the_gauge_spares_the_packing_of_splits_it_says_do_not_pay():
-    """With a gauge (a finer estimate of the whole atlas), a finalist is packed only when the
-    gauge says its split pays against the gauge of the charts as they are: a gauge under which
-    no split pays leaves the packer one call (the charts as they are) and the chart whole; one
-    under which the splits pay lets them be packed, and the packer's own efficiency still decides."""
-    from geomopt.atlas._pack import packing_estimate
-    from geomopt.atlas.split import split_to_pack
-
-    mesh, x = _shape_chart(lambda c: ((c[:, 0] < 1.0) & (c[:, 1] < 1.0)) | (c[:, 1] < 0.25), n=17, size=(2.0, 2.0))
-    calls = []
-
-    def pack(maps, faces):
-        calls.append(len(maps))
-        return pack_charts(maps, faces)
-
-    def flat(maps, faces):
-        return 0.5  # every split gauged as no better: none is worth packing
-
-    meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.7, min_gain=0.01, screen=packing_estimate,
-                                          gauge=flat)
-    assert len(meshes) == 1 and calls == [1] and packing.efficiency < 0.4
-    calls.clear()
-    meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.7, min_gain=0.01, screen=packing_estimate,
-                                          gauge=lambda maps, faces: 0.5 + 0.1 * len(maps))
-    assert len(meshes) == 2 and packing.efficiency > 0.7 and calls[0] == 1 and 2 in calls[1:]
-
-
 def test_the_fast_disk_test_of_split_pieces_agrees_with_check_disk():
     """The pieces of a split are tested for being disks by counting (Euler characteristic 1, two
     boundary edges at each boundary vertex); on random face subsets of a grid (holes, pinched

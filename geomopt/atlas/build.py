@@ -230,12 +230,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     def screen(maps, faces):
         return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate)
 
-    def gauge(maps, faces):  # a finer estimate: whether a split is worth a full packing
-        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, resolution=256)
-
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
                                                  min_gain=options.split_gain,
-                                                 screen=screen, V=g.V, gauge=gauge)
+                                                 screen=screen, V=g.V)
     results = [results[i] for i in owner]
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)

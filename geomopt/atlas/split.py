@@ -197,31 +197,20 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
     return out
 
 
-def _best_split(meshes, maps, i, pack, screen, charge, current, gauge=None):
+def _best_split(meshes, maps, i, pack, screen, charge, current):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
     (the packing's efficiency rises above ``current`` by at least the charge): every candidate's
     pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
-    with all the other charts by ``pack``.  With ``gauge = (estimate, now)`` a finalist is
-    packed only when ``estimate`` (a cheaper packing of all the charts) says that it pays against
-    ``now``, the same estimate of the charts before the split.  Returns ``(pieces, packing)`` or
-    None when no split pays."""
+    with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
+    pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
     est = [screen([p[1] for p in c], [p[0].F for p in c]) - charge(c, seam) for c, seam in cands]
-
-    def charts(pieces):
-        return (maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
-                [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
-
-    finalists = [int(j) for j in np.argsort(est)[::-1][:_FINALISTS]]
-    if gauge is not None:
-        estimate, now = gauge
-        scored = [(estimate(*charts(cands[j][0])) - charge(*cands[j]), j) for j in finalists]
-        finalists = [j for score, j in sorted(scored, reverse=True) if score >= now]
     best = None
-    for j in finalists:
+    for j in np.argsort(est)[::-1][:_FINALISTS]:
         pieces, seam = cands[j]
-        trial = pack(*charts(pieces))
+        trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
+                     [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
         score = trial.efficiency - charge(pieces, seam)
         if trial.efficiency <= current or score < current:
             continue
@@ -344,7 +333,7 @@ def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
 
 
 def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None, V=None,
-                  seam_cost=_SEAM_COST, gauge=None):
+                  seam_cost=_SEAM_COST):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
     keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
     least its charge: ``min_gain`` per extra chart and ``seam_cost`` per unit of seam (a split
@@ -353,10 +342,9 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     that stay whole: charts are tried by decreasing area, and a smaller chart's split moves the
     packing less).
     ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply (default:
-    ``pack``'s); ``gauge(maps, faces) -> float``, a finer estimate, when given decides which of
-    the best screened splits are worth a packing (:func:`_best_split`).  The seam's unit is the
-    square root of the charts' total area (:class:`_Charge`), seams and areas measured on the
-    surface ``V`` (the vertices that the charts' ``vertices`` index) when given, else in UV.
+    ``pack``'s).  The seam's unit is the square root of the charts' total area
+    (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
+    charts' ``vertices`` index) when given, else in UV.
 
     Returns
     -------
@@ -367,7 +355,6 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     charge = _Charge(meshes, maps, V, min_gain, seam_cost)
     owner = list(range(len(meshes)))
     packing = pack(maps, [m.F for m in meshes])
-    now = None  # the gauge's estimate of the charts, made when first needed
     tried, failed = set(), 0
     for _ in range(max_splits):
         if packing.efficiency >= goal or failed >= _PATIENCE:
@@ -378,10 +365,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
         if area[i] < 0:
             break
         tried.add(i)
-        if gauge is not None and now is None:
-            now = gauge(maps, [m.F for m in meshes])
-        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency,
-                           None if gauge is None else (gauge, now))
+        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency)
         if best is None:
             failed += 1
             continue  # this chart stays whole; try the next largest
@@ -391,7 +375,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
         tried = {j if j < i else j + shift for j in tried if j != i}
         meshes = meshes[:i] + [p[0] for p in pieces] + meshes[i + 1:]
         maps = maps[:i] + [p[1] for p in pieces] + maps[i + 1:]
-        packing, now = trial, None
+        packing = trial
         owner = owner[:i] + [owner[i]] * len(pieces) + owner[i + 1:]
     return meshes, maps, packing, owner
 
