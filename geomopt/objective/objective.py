@@ -21,6 +21,7 @@ weights and the padded rest geometry).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
 import types
@@ -558,6 +559,13 @@ class _Mesh:
         gather = np.concatenate([pat.gather, np.zeros(self.nnz_padded - pat.nnz, pat.gather.dtype)])
         with jax.ensure_compile_time_eval():
             self.assembly = tuple(jax.device_put(a) for a in (blocks, swap, gather))
+        if all(d.platform == "cpu" for a in self.assembly for d in a.devices()):
+            # the pattern's assembly maps become read-only views of the device copies (NumPy
+            # reads a CPU buffer in place): one copy of each in memory, not two (57 MB at 10^6
+            # triangles)
+            m = len(pat.blocks)
+            blocks, swap, gather = (np.asarray(a) for a in self.assembly)
+            pat = dataclasses.replace(pat, blocks=blocks[:m], swap=swap[:m], gather=gather[: pat.nnz])
         self._pattern = pat
         return pat
 
