@@ -42,8 +42,8 @@ MIN_REUSE_ITERS = 4
 #: free DOFs from which ``reuse_factor="auto"`` reuses the factorization (see :class:`AbstractNewton`)
 REUSE_FROM_DOFS = 300_000
 
-#: free DOFs from which a step hands the C heap's free memory back before its Hessian and its
-#: search (:func:`geomopt._runtime.memory.release_free_memory`): the temporaries of the previous
+#: free DOFs from which a step hands the C heap's free memory back before its Hessian, before and
+#: after its search (:func:`geomopt._runtime.memory.release_free_memory`): the temporaries of the previous
 #: kernels, freed on other threads, would otherwise stay resident under the next ones (10^6
 #: triangles: peak 2.66 -> 2.41 GB); below, a few MB are at stake and the pages' refaults cost more
 TRIM_FROM_DOFS = 100_000
@@ -338,6 +338,8 @@ class AbstractNewton(AbstractSolver):
         if trim:
             release_free_memory()
         t, xn, vn, gn, evals = self.search(obj, params, x, value, grad, dx)
+        if trim:  # and after it: what follows the solve (its exact certificate) allocates on top
+            release_free_memory()
         it = state.iteration + 1
         evaluations = state.evaluations + evals
         # at rounding level the energy cannot rank steps: the search may stop at none, at a
