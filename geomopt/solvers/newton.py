@@ -45,7 +45,7 @@ REUSE_FROM_DOFS = 300_000
 #: free DOFs from which a step hands the C heap's free memory back before its Hessian, before and
 #: after its search (:func:`geomopt._runtime.memory.release_free_memory`): the temporaries of the previous
 #: kernels, freed on other threads, would otherwise stay resident under the next ones (10^6
-#: triangles: peak 2.66 -> 2.41 GB); below, a few MB are at stake and the pages' refaults cost more
+#: triangles, swirled grid: peak 2.66 -> 2.52 GB with the first two); below, a few MB are at stake
 TRIM_FROM_DOFS = 100_000
 
 
