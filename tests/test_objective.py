@@ -283,8 +283,8 @@ def test_pattern_index_width_does_not_change_it(monkeypatch):
 
 def test_energy_and_gradient_in_chunks_equal_all_at_once():
     """The kernels' energy and gradient run over chunks of ``grad_chunk`` elements (the last
-    chunk shifted back and its repeated elements masked): the same energy, gradient and the
-    Hessian kernel's value and gradient as all elements at once, up to the order of the sums."""
+    chunk shifted back and its repeated elements masked): the same energy and gradient as all
+    elements at once (and as the Hessian kernel's), up to the order of the sums."""
     V, S = grid(12, jitter=0.3)  # 242 triangles
     P = Problem.planar(V, S).with_fixed([0, 11], V[[0, 11]])
     x = jnp.asarray(V + 0.01 * np.sin(5 * V[:, ::-1]))
