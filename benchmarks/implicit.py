@@ -132,7 +132,7 @@ def energy(triangles, repeat):
     obj = Objective(Problem.planar(V, F), "symmetric_dirichlet")
     x = jax.device_put(V + 0.0)
     p = obj.params()
-    k = lambda: value_and_grad_kernel(obj.energy.density, obj.geom, obj.free_mask, x, p)  # noqa: E731
+    k = lambda: value_and_grad_kernel(obj.energy.density, obj.grad_chunk, obj.geom, obj.free_mask, x, p)  # noqa: E731
     g = jax.jit(jax.grad(lambda x: obj.value(x, p)))
     vg = jax.jit(jax.value_and_grad(lambda x: obj.value(x, p)))
     kw, kc = _cpu_and_wall(k, 20)

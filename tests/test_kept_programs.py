@@ -323,3 +323,23 @@ def test_a_script_ending_while_kernels_compile_ahead_exits_normally(tmp_path):
                PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     run = subprocess.run([sys.executable, "-c", ANNULUS], env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 3, run.stderr[-2000:]
+
+
+def test_kept_programs_are_keyed_on_every_source_file_of_geomopt():
+    """A kept program's key holds the fingerprint of geomopt's sources: an edit anywhere in the
+    package (here the objective's module, outside ``_runtime``) must give another key, else a
+    process loads a program compiled from the code before the edit (the fingerprint had
+    covered ``_runtime`` alone since the modules moved into layers)."""
+    import geomopt.objective.objective as objective_module
+
+    path = objective_module.__file__
+    before = _programs._source_fingerprint("geomopt")
+    st = os.stat(path)
+    try:
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+        _programs._fingerprints.clear()
+        assert _programs._source_fingerprint("geomopt") != before
+    finally:
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+        _programs._fingerprints.clear()
+    assert _programs._source_fingerprint("geomopt") == before

@@ -93,3 +93,25 @@ def test_armijo_rejects_a_full_step_that_does_not_decrease():
         assert float(vg(x + d)[0]) == float(f)  # the full step gives no decrease
         assert bool(ok) and float(t) == 0.5 and float(ft) < float(f)
         np.testing.assert_array_equal(np.asarray(xt), np.full((3, 2), 0.5))
+
+
+def test_injective_bound_and_orientation_test_in_chunks():
+    """:func:`injective_step_bound` and :func:`still_positive` over chunks of elements (the last
+    one shifted back, its repeated elements masked) give what all elements at once give (the
+    bound up to rounding), also with inverted elements (not tested) among the repeated ones."""
+    from geomopt.solvers.linesearch import injective_step_bound, still_positive
+    from geomopt.mesh.geometry import dets
+
+    V, S = grid(9, jitter=0.3, seed=2)  # 128 triangles
+    rng = np.random.default_rng(0)
+    S, x = jnp.asarray(S), jnp.asarray(V + 0.06 * rng.standard_normal(V.shape))
+    was = dets(S, x) > 0
+    assert 0 < int(was.sum()) < len(S)  # some inverted elements
+    for chunk in (7, 30, 50):
+        assert len(S) % chunk
+        for scale in (0.05, 0.3):
+            dx = jnp.asarray(scale * rng.standard_normal(V.shape))
+            np.testing.assert_allclose(float(injective_step_bound(S, x, dx, chunk)),  # in-loop rounding
+                                       float(injective_step_bound(S, x, dx)), rtol=1e-13)
+            for t in (0.0, 0.01, 0.5):
+                assert bool(still_positive(S, x, dx, t, was, chunk)) == bool(still_positive(S, x, dx, t, was))

@@ -279,3 +279,39 @@ def test_pattern_index_width_does_not_change_it(monkeypatch):
         assert a.gather.dtype == np.int32 and b.gather.dtype == np.int64, name
         for field in ("indptr", "indices", "diag", "gather", "blocks", "swap", "vertex_idx"):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=f"{name}: {field}")
+
+
+def test_energy_and_gradient_in_chunks_equal_all_at_once():
+    """The kernels' energy and gradient run over chunks of ``grad_chunk`` elements (the last
+    chunk shifted back and its repeated elements masked): the same energy and gradient as all
+    elements at once (and as the Hessian kernel's), up to the order of the sums."""
+    V, S = grid(12, jitter=0.3)  # 242 triangles
+    P = Problem.planar(V, S).with_fixed([0, 11], V[[0, 11]])
+    x = jnp.asarray(V + 0.01 * np.sin(5 * V[:, ::-1]))
+    whole, parts = Objective(P, "symmetric_dirichlet"), Objective(P, "symmetric_dirichlet")
+    whole.chunk, parts.chunk = 0, 1
+    assert 0 < parts.grad_chunk < len(S) and len(S) % parts.grad_chunk  # several chunks, the last shifted
+    p = whole.params()
+    assert np.isfinite(float(whole.value(x, p)))  # no inverted element
+    for a, b in ((whole.value_and_grad(x, p), parts.value_and_grad(x, p)),
+                 (whole.hessian(x, p, "clamp")[:2], parts.hessian(x, p, "clamp")[:2])):
+        np.testing.assert_allclose(float(b[0]), float(a[0]), rtol=1e-14)
+        np.testing.assert_allclose(np.asarray(b[1]), np.asarray(a[1]), rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(float(parts.value(x, p)), float(whole.value(x, p)), rtol=1e-14)
+
+
+def test_kernel_maps_and_pattern_indices_are_not_copied():
+    """At 10^6 triangles every copy of an index array costs tens of MB beside the factor: the
+    pattern's assembly maps are views of the kernels' (device) copies on the CPU, its indices
+    int32 and shared by the Cholesky."""
+    import jax
+
+    V, S = grid(6, jitter=0.3)
+    obj = Objective(Problem.planar(V, S).with_fixed([0, 5], V[[0, 5]]), "symmetric_dirichlet")
+    pat = obj.pattern
+    assert pat.indices.dtype == pat.indptr.dtype == np.int32
+    if jax.default_backend() == "cpu":
+        blocks, swap, _ = obj.block_assembly
+        assert np.shares_memory(np.asarray(blocks), pat.blocks) and np.shares_memory(np.asarray(swap), pat.swap)
+    chol = obj.cholesky("superlu")
+    assert chol.indices is pat.indices and chol.indptr is pat.indptr

@@ -93,8 +93,8 @@ def _source_fingerprint(module_name: str) -> str:
         return _fingerprints[module_name]
     mod = sys.modules.get(module_name)
     files = []
-    if module_name == "geomopt":
-        root = os.path.dirname(os.path.abspath(__file__))
+    if module_name == "geomopt":  # the package's root, one level above this module's _runtime
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         for base, _, names in os.walk(root):
             files += [os.path.join(base, n) for n in names if n.endswith(".py")]
     elif getattr(mod, "__file__", None):

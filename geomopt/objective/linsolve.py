@@ -208,8 +208,11 @@ class SparseCholesky:
                 f"linear solver {backend!r} is not installed here; available: {', '.join(available_backends())}"
             )
         self.backend = backend
-        self.indptr = np.asarray(indptr, np.int64)
-        self.indices = np.asarray(indices, np.int64)
+        # int32 indices are kept as given (a pattern's, shared: no copy); PARDISO gets int64
+        # copies at its analysis, which it copies again into its own storage
+        it = np.int32 if np.asarray(indptr).dtype == np.asarray(indices).dtype == np.int32 else np.int64
+        self.indptr = np.asarray(indptr, it)
+        self.indices = np.asarray(indices, it)
         self.n = len(indptr) - 1
         _check_lower_pattern(self.indptr, self.indices)
         self._analysis = None
@@ -217,8 +220,8 @@ class SparseCholesky:
         self._factor = None
         self.generation = 0
         if backend == "cholespy":
-            self._ip32 = self.indptr.astype(np.int32)
-            self._ix32 = self.indices.astype(np.int32)
+            self._ip32 = self.indptr.astype(np.int32, copy=False)
+            self._ix32 = self.indices.astype(np.int32, copy=False)
 
     @classmethod
     def factored(cls, A, backend="auto", ordering="metis") -> "SparseCholesky":
@@ -253,7 +256,8 @@ class SparseCholesky:
             # the lower-triangle CSC pattern is the upper-triangle CSR pattern PARDISO reads
             solver = PardisoSolver(MTYPE_REAL_SYM_POSDEF, 0)
             solver.set_iparm(1, 2 if self.ordering == "metis" else 0)  # nested dissection or minimum degree
-            solver.set_pattern(ia=self.indptr, ja=self.indices, n=self.n)
+            solver.set_pattern(ia=self.indptr.astype(np.int64, copy=False),
+                               ja=self.indices.astype(np.int64, copy=False), n=self.n)
             solver.run_phase(11)
             self._analysis = solver
         if self.backend == "cholmod" and self._analysis is None:

@@ -42,7 +42,9 @@ class HessianPattern:
     Attributes
     ----------
     n : number of free DOFs.
-    indptr : (n+1,) int64;  indices : (nnz,) int64, row indices sorted per column.
+    indptr : (n+1,);  indices : (nnz,), row indices sorted per column; int32 (int64 from 2^31
+        entries, :func:`index_dtype`): SciPy then takes them as they are (it converts int64
+        indices that fit to int32 copies at every matrix built on them).
     free_dofs : (n,) global dof ids of the free DOFs.
     diag : (n,) data positions of the diagonal (one per free DOF used by an element).
     dim : d.
@@ -171,10 +173,12 @@ def hessian_pattern(problem: Problem, free_dofs) -> HessianPattern:
     del row
     cols = red[col[keep]]
     del col
-    indptr = np.zeros(n + 1, np.int64)
+    ct = index_dtype(max(len(indices), n + 1))
+    indptr = np.zeros(n + 1, ct)
     np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
     diag = np.flatnonzero(indices == cols)
     del cols
+    indices = indices.astype(ct, copy=False)
     gather = ((k * it(d) + c) * it(d) + e)[keep]  # position (k, c, e) in the block data
     del k, c, e, keep
     # element blocks: the diagonal ones lead their vertex's row; locate the others

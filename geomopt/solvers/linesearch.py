@@ -26,7 +26,7 @@ from .._runtime.errors import ParameterError
 from .._runtime.x64 import float64
 from .._runtime.programs import jit as programs_jit
 from ..mesh.geometry import det, dets, edge_rows
-from ..objective.objective import free_value_and_grad
+from ..objective.objective import element_chunks, free_value_and_grad
 
 __all__ = ["InjectiveSearch", "max_injective_step", "injective_step_bound", "still_positive"]
 
@@ -105,9 +105,25 @@ def max_injective_step(S, x, dx):
     return injective_step_bound(S, x, dx)
 
 
-def injective_step_bound(S, x, dx):
-    A = edge_rows(S, x)
-    B = edge_rows(S, dx)
+def injective_step_bound(S, x, dx, chunk=0):
+    """:func:`max_injective_step`, traceable; ``chunk`` > 0 (below m): over chunks of that many
+    elements, so that the (m, ...) temporaries of the roots are never all stored (the same
+    minimum)."""
+    m = S.shape[0]
+    if not chunk or m <= chunk:
+        return jnp.min(_step_bounds(edge_rows(S, x), edge_rows(S, dx)))
+    count, part = element_chunks(m, chunk)
+
+    def body(i, t):
+        s, new = part(i, S)
+        return jnp.minimum(t, jnp.min(jnp.where(new, _step_bounds(edge_rows(s, x), edge_rows(s, dx)), jnp.inf)))
+
+    return lax.fori_loop(0, count, body, jnp.array(jnp.inf, x.dtype))
+
+
+def _step_bounds(A, B):
+    """(m,) the first positive root of ``det(A + t B)`` per element (edge rows (m, d, d)), inf
+    where nothing blocks or the element is not positive at ``t = 0``."""
     if A.shape[-1] == 2:
         c0, c2 = det(A), det(B)
         c1 = A[:, 0, 0] * B[:, 1, 1] + B[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * B[:, 1, 0] - B[:, 0, 1] * A[:, 1, 0]
@@ -120,14 +136,26 @@ def injective_step_bound(S, x, dx):
         c1 = jnp.sum(cof(A) * B, axis=(1, 2))
         c2 = jnp.sum(cof(B) * A, axis=(1, 2))
         roots = _cubic_roots(c3, c2, c1, c0)
-    t = _smallest_positive(roots)
-    return jnp.min(jnp.where(c0 > 0, t, jnp.inf))
+    return jnp.where(c0 > 0, _smallest_positive(roots), jnp.inf)
 
 
-def still_positive(S, x, dx, t, was_positive):
+def still_positive(S, x, dx, t, was_positive, chunk=0):
     """True when every element positive at x is positive at x + s dx for s in {t/4, t/2, 3t/4, t}
-    (a float guard on top of the closed-form bound, which rounding can make a hair too long)."""
-    A, B = edge_rows(S, x), edge_rows(S, dx)
+    (a float guard on top of the closed-form bound, which rounding can make a hair too long);
+    ``chunk`` as in :func:`injective_step_bound`."""
+    m = S.shape[0]
+    if not chunk or m <= chunk:
+        return _positive_along(edge_rows(S, x), edge_rows(S, dx), t, was_positive)
+    count, part = element_chunks(m, chunk)
+
+    def body(i, ok):
+        (s, new), (was, _) = part(i, S), part(i, was_positive)
+        return ok & _positive_along(edge_rows(s, x), edge_rows(s, dx), t, was & new)
+
+    return lax.fori_loop(0, count, body, jnp.bool_(True))
+
+
+def _positive_along(A, B, t, was_positive):
     ok = jnp.bool_(True)
     for s in (0.25, 0.5, 0.75, 1.0):
         ok = ok & jnp.all(jnp.where(was_positive, det(A + (s * t) * B) > 0, True))
@@ -187,22 +215,23 @@ class InjectiveSearch:
                                  f"c2={self.c2}; lower c1 or raise c2 (0 turns the curvature condition off)")
 
     # -- the pieces of one search, pure JAX (the optimistix adapter and AQP's momentum use them)
-    def cap(self, S, x, d):
+    def cap(self, S, x, d, chunk=0):
         """The largest trial step along ``d`` from ``x``: ``safety`` times the first root of an
-        element's det (inf when not injective or nothing blocks)."""
+        element's det (inf when not injective or nothing blocks); ``chunk``: elements per chunk
+        of the work (:func:`injective_step_bound`)."""
         if not self.injective:
             return jnp.array(jnp.inf, x.dtype)
-        return self.safety * injective_step_bound(S, x, d)
+        return self.safety * injective_step_bound(S, x, d, chunk)
 
     def positive(self, S, x):
         """(m,) bool, the elements positively oriented at ``x`` (None when not injective)."""
         return dets(S, x) > 0 if self.injective else None
 
-    def admissible(self, S, x, d, t, was_positive, f_t, t_cap):
+    def admissible(self, S, x, d, t, was_positive, f_t, t_cap, chunk=0):
         """Whether the trial point ``x + t d`` with energy ``f_t`` may be accepted at all:
         within the cap, every element positive at ``x`` still positive (when injective; a float
         guard on top of the closed-form cap) and a finite energy."""
-        pos = (t <= t_cap) & still_positive(S, x, d, t, was_positive) if self.injective else jnp.bool_(True)
+        pos = (t <= t_cap) & still_positive(S, x, d, t, was_positive, chunk) if self.injective else jnp.bool_(True)
         return pos & jnp.isfinite(f_t)
 
     def sufficient(self, f, f_t, t, slope):
@@ -226,7 +255,7 @@ class InjectiveSearch:
         )
         return jnp.minimum(t_next, t_cap), lo, hi
 
-    def search(self, value_and_grad, S, x, f, g, d, t0=1.0):
+    def search(self, value_and_grad, S, x, f, g, d, t0=1.0, chunk=0):
         """Search along ``d`` from ``x`` (pure JAX; call inside ``jit``).
 
         Parameters
@@ -234,6 +263,8 @@ class InjectiveSearch:
         value_and_grad : callable ``x -> (E, grad)`` (grad zero on fixed DOFs).
         S : (m, d+1) simplices (for the injective bound); x, d, g : (n, dim); f : E(x).
         t0 : the first trial step before the injective cap.
+        chunk : elements per chunk of the injective cap and orientation tests (0: all at once;
+            :func:`injective_step_bound`).
 
         Returns
         -------
@@ -243,7 +274,7 @@ class InjectiveSearch:
         """
         expand = self.expand
         slope = jnp.vdot(g, d)
-        tcap = self.cap(S, x, d)
+        tcap = self.cap(S, x, d, chunk)
         was_pos = self.positive(S, x)
         t = jnp.minimum(jnp.asarray(t0, x.dtype), tcap)
 
@@ -251,7 +282,7 @@ class InjectiveSearch:
             t = c["t"]
             xt = x + t * d
             ft, gt = value_and_grad(xt)
-            good = self.admissible(S, x, d, t, was_pos, ft, tcap)
+            good = self.admissible(S, x, d, t, was_pos, ft, tcap, chunk)
             armijo = good & self.sufficient(f, ft, t, slope)
             at_cap = t >= tcap * (1.0 - 1e-12)
             expanding = c["phase"] == 1
@@ -282,7 +313,7 @@ class InjectiveSearch:
     def __call__(self, objective, params, x, value, grad, dx, t0=1.0):
         """Search on an :class:`~geomopt.Objective`: ``(t, x_new, value_new, grad_new, evals)``;
         ``t == 0`` means no acceptable step."""
-        t, xn, fn, gn, _, n = _search_kernel(self, objective.energy.density, objective.geom,
+        t, xn, fn, gn, _, n = _search_kernel(self, objective.energy.density, objective.grad_chunk, objective.geom,
                                              objective.free_mask, params, x, value, grad, dx, t0)
         return float(t), xn, float(fn), gn, int(n)
 
@@ -300,16 +331,17 @@ class InjectiveSearch:
     def compile(self, objective, params, x, value, grad):
         """Compile (or load from the persistent cache) the kernel :meth:`__call__` runs, for
         maps shaped like ``x``, without running a search."""
-        _search_kernel.prepare(self, objective.energy.density, objective.geom, objective.free_mask, params, x,
+        _search_kernel.prepare(self, objective.energy.density, objective.grad_chunk, objective.geom,
+                               objective.free_mask, params, x,
                                value, grad, jax.ShapeDtypeStruct(x.shape, x.dtype), 1.0)
 
 
-@partial(programs_jit, static_argnums=(0, 1))
-def _search_kernel(search, density, geom, free, params, x, f, g, d, t0):
+@partial(programs_jit, static_argnums=(0, 1, 2))
+def _search_kernel(search, density, chunk, geom, free, params, x, f, g, d, t0):
     def vg(y):
-        return free_value_and_grad(density, geom, free, y, params)
+        return free_value_and_grad(density, geom, free, y, params, chunk)
 
-    return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0)
+    return search.search(vg, geom[0], x, jnp.asarray(f, x.dtype), g, d, t0, chunk)
 
 
 @partial(jax.jit, static_argnums=0)
