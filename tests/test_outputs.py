@@ -146,7 +146,7 @@ geomopt.io._obj.write_rows = slow
 geomopt.param.parameterize = lambda V, F, **k: SimpleNamespace(
     energy=1.0, mean_energy=1.0, stats=SimpleNamespace(iterations=1, seconds=0.0, setup_seconds=0.0),
     certificate=SimpleNamespace(inverted=0), details=None, outcome=SimpleNamespace(value="converged"),
-    success=True, x=V2, injectivity="local", message="converged")
+    success=True, x=V2, injectivity="local", message="converged", objective=None)
 sys.exit(geomopt.cli.main(["param", sys.argv[1], "-o", sys.argv[2], "--quiet"]))
 """
 

@@ -353,7 +353,7 @@ def test_still_positive_rejects_a_flip_inside_the_step():
 def test_search_keeps_orientation_without_the_closed_form_bound(monkeypatch):
     """With the closed-form bound disabled, the per-trial positivity check alone keeps every
     trial flip-free, on an energy that rewards folding (its line minimum is folded)."""
-    monkeypatch.setattr(linesearch_module, "injective_step_bound", lambda S, x, d: jnp.inf)
+    monkeypatch.setattr(linesearch_module, "injective_step_bound", lambda S, x, d, chunk=0: jnp.inf)
     from geomopt.energies import Energy
     from geomopt.mesh.geometry import det
 

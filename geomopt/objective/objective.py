@@ -342,7 +342,8 @@ class Objective:
     @property
     def grad_chunk(self) -> int:
         """Elements per chunk of the kernels' energy and gradient (:func:`free_value_and_grad`;
-        0: all at once): :data:`GRAD_CHUNK_FACTOR` times :attr:`chunk`."""
+        0: all at once): :data:`GRAD_CHUNK_FACTOR` times ``chunk`` (the Hessian work's,
+        :data:`CPU_CHUNK` on CPU)."""
         return GRAD_CHUNK_FACTOR * self.chunk
 
     def tree_flatten(self):
