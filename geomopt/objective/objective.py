@@ -149,10 +149,16 @@ def total_energy_chunked(density, geom, x, params, chunk):
 
     def body(i, v):
         (s, new), (M, _), (w, _) = part(i, S), part(i, Minv), part(i, vol)
-        psi = jax.vmap(density, in_axes=(0, None))(_jacobians_of(x[s], M), params)
-        return v + jnp.sum(jnp.where(new, w * psi, 0.0))
+        return v + _chunk_energy(density, x[s], M, w, new, params)
 
     return jax.lax.fori_loop(0, count, body, jnp.zeros((), x.dtype))
+
+
+def _chunk_energy(density, X, M, w, new, params):
+    """The energy of a chunk's elements (vertex positions ``X``, rest inverses ``M``, sizes
+    ``w``) that ``new`` marks (the others were in an earlier chunk)."""
+    psi = jax.vmap(density, in_axes=(0, None))(_jacobians_of(X, M), params)
+    return jnp.sum(jnp.where(new, w * psi, 0.0))
 
 
 @partial(jit, static_argnums=(0, 1))
@@ -176,14 +182,10 @@ def free_value_and_grad(density, geom, free, x, params, chunk=0):
         return v, g * free
     count, part = element_chunks(m, chunk)
 
-    def energy(X, M, w, new):
-        psi = jax.vmap(density, in_axes=(0, None))(_jacobians_of(X, M), params)
-        return jnp.sum(jnp.where(new, w * psi, 0.0))
-
     def body(i, carry):
         v, g = carry
         (s, new), (M, _), (w, _) = part(i, S), part(i, Minv), part(i, vol)
-        e, gX = jax.value_and_grad(energy)(x[s], M, w, new)
+        e, gX = jax.value_and_grad(_chunk_energy, argnums=1)(density, x[s], M, w, new, params)
         return v + e, g.at[s].add(gX)
 
     v, g = jax.lax.fori_loop(0, count, body, (jnp.zeros((), x.dtype), jnp.zeros_like(x)))
