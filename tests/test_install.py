@@ -71,23 +71,27 @@ def test_every_kept_program_compiles_with_the_xla_options(fresh_options):
         assert program.options == _programs.xla_options(), program.__name__
 
 
-class _OldSolver:
-    """A PardisoSolver of a py-mkl-pardiso whose private API changed: no refactor_values."""
+@pytest.fixture
+def pardiso_without_entry_point(monkeypatch):
+    """A py-mkl-pardiso whose library does not export ``PARDISO_64`` (another layout or build):
+    here the C library stands in for its extension."""
+    import ctypes.util
 
-    def __init__(self, *args):
-        pass
+    from geomopt.objective import pardiso
 
-    set_iparm = set_pattern = run_phase = solve = lambda self, *a, **k: None
-
-
-def test_pardiso_without_the_private_api_falls_back(monkeypatch):
     fake = types.ModuleType("pymklpardiso._mkl_pardiso")
-    fake.PardisoSolver = _OldSolver
+    fake.__file__ = ctypes.util.find_library("c") or "libc.so.6"
     pkg = types.ModuleType("pymklpardiso")
-    pkg.MTYPE_REAL_SYM_POSDEF = 2
     pkg._mkl_pardiso = fake
     monkeypatch.setitem(sys.modules, "pymklpardiso", pkg)
     monkeypatch.setitem(sys.modules, "pymklpardiso._mkl_pardiso", fake)
+    pardiso.entry_point.cache_clear()
+    yield
+    pardiso.entry_point.cache_clear()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="stands the C library in for the extension (Linux)")
+def test_pardiso_without_its_entry_point_falls_back(pardiso_without_entry_point):
     backends = linsolve.available_backends()
     assert "pardiso" not in backends and backends[-1] == "superlu"
     # auto takes the next backend and solves

@@ -394,7 +394,10 @@ class AdjointSystem:
         with _lock:  # another solve of the mesh (a forward, a batch element) refactored it since
             if self.chol.generation != self.generation:
                 self._factor()
-            return self.chol.solve(b)
+            try:
+                return self.chol.solve(b)
+            except NotPositiveDefinite:  # a float32 factor's refinement that did not converge
+                raise SolveError(self._not_pd()) from None
 
     def _embed(self, mu_free, shape):
         """The free-DOF solution ``mu_free`` as an (n, d) array (zero on fixed DOFs and gauge

@@ -27,15 +27,22 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._runtime.errors import NotPositiveDefinite, ParameterError
+from .krylov import pcg
+from .pardiso import Pardiso, Refined, entry_point
 
 __all__ = [
     "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM",
     "newton_linear_solver", "pcg", "spd_solve",
     "BACKENDS",
-    "CG_FROM_DOFS",
+    "CG_FROM_DOFS", "SINGLE_FROM_ROWS",
 ]
 
 BACKENDS = ("auto", "pardiso", "cholmod", "cholespy", "superlu")
+
+#: rows from which a Newton Hessian's PARDISO factorization is made in float32 and refined in
+#: float64 (:class:`SparseCholesky` ``single``; measured in benchmarks/README, "Newton at 10^6
+#: in less memory"): half the factor's memory and less time where the factor dominates both
+SINGLE_FROM_ROWS = 250_000
 
 
 def _c_fflush():
@@ -78,18 +85,8 @@ def _have(module):
         return False
 
 
-#: What :class:`SparseCholesky` calls on py-mkl-pardiso's (private) ``_mkl_pardiso.PardisoSolver``,
-#: tested with py-mkl-pardiso 0.0.6: a release without it falls back to the next backend.
-PARDISO_API = ("set_iparm", "set_pattern", "run_phase", "refactor_values", "solve")
-
-
 def _have_pardiso():
-    try:
-        from pymklpardiso import MTYPE_REAL_SYM_POSDEF  # noqa: F401
-        from pymklpardiso._mkl_pardiso import PardisoSolver
-    except Exception:  # noqa: BLE001 -- not installed, or its layout changed
-        return False
-    return all(callable(getattr(PardisoSolver, name, None)) for name in PARDISO_API)
+    return entry_point() is not None
 
 
 def available_backends():
@@ -187,6 +184,10 @@ class SparseCholesky:
         faster; for a 2D Laplacian factored once below ~3 x 10^5 rows: 11k rows 0.019 s against
         0.044 s analysis, factor and solve, 100k 0.44 against 0.61 s, 10^6 11.4 against 9.9 s;
         in 3D nested dissection wins from 30k rows: 0.44 against 0.63 s).
+    single : PARDISO only (ignored by the other backends): factor in float32 and refine each
+        solve in float64 (:class:`geomopt.objective.pardiso.Refined`: half the factor's memory);
+        the values given to :meth:`factor` are then kept by reference and must not change
+        while this factorization is used.
 
     Attributes
     ----------
@@ -195,7 +196,7 @@ class SparseCholesky:
         symbolic analysis may have refactored it since) and refactor before solving.
     """
 
-    def __init__(self, indptr, indices, backend="auto", ordering="metis"):
+    def __init__(self, indptr, indices, backend="auto", ordering="metis", single=False):
         if backend not in BACKENDS:
             raise ParameterError(f"unknown linear solver {backend!r}; valid: {', '.join(BACKENDS)}")
         if ordering not in ("metis", "amd"):
@@ -208,6 +209,7 @@ class SparseCholesky:
                 f"linear solver {backend!r} is not installed here; available: {', '.join(available_backends())}"
             )
         self.backend = backend
+        self.single = bool(single) and backend == "pardiso"
         # int32 indices are kept as given (a pattern's, shared: no copy); PARDISO gets int64
         # copies at its analysis, which it copies again into its own storage
         it = np.int32 if np.asarray(indptr).dtype == np.asarray(indices).dtype == np.int32 else np.int64
@@ -250,15 +252,9 @@ class SparseCholesky:
             pending, self._pending = self._pending, None
             pending.result()
         if self.backend == "pardiso" and self._analysis is None:
-            from pymklpardiso import MTYPE_REAL_SYM_POSDEF
-            from pymklpardiso._mkl_pardiso import PardisoSolver
-
-            # the lower-triangle CSC pattern is the upper-triangle CSR pattern PARDISO reads
-            solver = PardisoSolver(MTYPE_REAL_SYM_POSDEF, 0)
-            solver.set_iparm(1, 2 if self.ordering == "metis" else 0)  # nested dissection or minimum degree
-            solver.set_pattern(ia=self.indptr.astype(np.int64, copy=False),
-                               ja=self.indices.astype(np.int64, copy=False), n=self.n)
-            solver.run_phase(11)
+            solver = Refined(self.indptr, self.indices, self.ordering) if self.single else \
+                Pardiso(self.indptr, self.indices, self.ordering)
+            solver.analyze()
             self._analysis = solver
         if self.backend == "cholmod" and self._analysis is None:
             from sksparse.cholmod import analyze
@@ -288,10 +284,7 @@ class SparseCholesky:
             return
         if self.backend == "pardiso":
             self.analyze()
-            try:
-                self._analysis.refactor_values(data)
-            except RuntimeError as exc:  # zero or negative pivot: not positive definite
-                raise NotPositiveDefinite(str(exc)) from exc
+            self._analysis.factor(data)  # raises NotPositiveDefinite
             self._factor = self._analysis
         elif self.backend == "cholmod":
             from sksparse.cholmod import CholmodError
@@ -320,7 +313,10 @@ class SparseCholesky:
             except RuntimeError as exc:
                 raise NotPositiveDefinite(str(exc)) from exc
 
-    def solve(self, b):
+    def solve(self, b, rtol: float = 1e-10):
+        """``A^-1 b`` for ``b`` (n,) or (n, k).  ``rtol``: the relative residual a float32
+        factorization (``single``) is refined to; the other solves are direct.  Raises
+        NotPositiveDefinite where a refinement does not converge."""
         b = np.ascontiguousarray(b, dtype=np.float64)
         if b.ndim not in (1, 2) or b.shape[0] != self.n:  # the C libraries would read and write past it
             raise ValueError(f"SparseCholesky.solve: right-hand side of shape {b.shape} for {self.n} unknowns")
@@ -330,7 +326,7 @@ class SparseCholesky:
             raise RuntimeError("SparseCholesky.solve: no factorization held (none made yet, or the last factor() "
                                "failed): factor the matrix first")
         if self.backend == "pardiso":
-            x = self._factor.solve(b)
+            x = self._factor.solve(b, rtol)
         elif self.backend == "cholespy":
             x = np.empty_like(b)
             self._factor.solve(b, x)
@@ -341,6 +337,38 @@ class SparseCholesky:
         if not np.isfinite(x).all():
             raise NotPositiveDefinite("solve produced non-finite values")
         return x
+
+    def free_factor(self):
+        """Free the numeric factor and keep the symbolic analysis (PARDISO; the other backends
+        drop their factor object): a finished solve's factor is not reused, while the analysis
+        is the costly part to redo (at 10^6 triangles: 0.45 GB of float32 factor freed, 0.6 GB
+        of analysis kept).  Counts as a new :attr:`generation`: a holder refactors."""
+        self.generation += 1
+        if self.backend == "pardiso" and self._analysis is not None and self._pending is None:
+            self._analysis.free_factor()
+        if self.backend != "cholmod":  # CHOLMOD's factor is its analysis object: kept
+            self._factor = None
+
+    def forget_values(self):
+        """Drop the values a float32 factorization (``single``) keeps for refining its solves
+        (at 10^6 triangles 60 MB, which a Newton step's next Hessian need not sit on):
+        :meth:`precondition` still works; :meth:`solve` needs a new :meth:`factor`.  A no-op
+        for the other factorizations."""
+        if self.single and self._factor is not None:
+            self._factor.forget_values()
+
+    @property
+    def refinements(self) -> int:
+        """Conjugate-gradient iterations of the last :meth:`solve` of a float32 factorization
+        (``single``); 0 for a direct solve."""
+        return self._factor.iterations if self.single and self._factor is not None else 0
+
+    def precondition(self, b):
+        """An approximate ``A^-1 b``, for preconditioning: a float32 factor's raw solve
+        (``single``), else :meth:`solve`."""
+        if self.single and self._factor is not None:
+            return self._factor.precondition(np.ascontiguousarray(b, dtype=np.float64))
+        return self.solve(b)
 
 
 def spd_solve(A, rhs):
@@ -401,44 +429,3 @@ def newton_linear_solver(dim: int, n_free: int, platform: str = "cpu") -> str:
         return "cg"
     limit = CG_FROM_DOFS.get(int(dim))
     return "cg" if limit is not None and n_free >= limit else "direct"
-
-
-def pcg(matvec, b, precondition, rtol, maxiter):
-    """Preconditioned conjugate gradients for ``A x = b`` on the host.
-
-    Parameters
-    ----------
-    matvec : (n,) -> (n,) product with the symmetric matrix A.
-    b : (n,) right-hand side.
-    precondition : (n,) -> (n,) product with a symmetric positive-definite approximation of
-        A^-1 (e.g. the solve of an earlier factorization).
-    rtol : stop when ``|b - A x|_2 <= rtol |b|_2``.
-    maxiter : iteration limit.
-
-    Returns
-    -------
-    ``(x, iterations)``; ``x`` None when the limit is reached first or a search direction of
-    non-positive curvature (A not positive definite) is met.
-    """
-    x = np.zeros_like(b)
-    r = np.array(b, dtype=np.float64)
-    bnorm = float(np.linalg.norm(r))
-    if bnorm == 0.0:
-        return x, 0
-    z = precondition(r)
-    p, rz = z.copy(), float(r @ z)
-    for k in range(1, maxiter + 1):
-        Ap = matvec(p)
-        curvature = float(p @ Ap)
-        if not curvature > 0.0:
-            return None, k
-        alpha = rz / curvature
-        x += alpha * p
-        r -= alpha * Ap
-        if float(np.linalg.norm(r)) <= rtol * bnorm:
-            return x, k
-        z = precondition(r)
-        rz, rz_old = float(r @ z), rz
-        p *= rz / rz_old
-        p += z
-    return None, maxiter

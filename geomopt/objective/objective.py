@@ -40,7 +40,7 @@ from .._runtime.errors import ParameterError
 from .._runtime.tracing import StaticKey, is_traced, refuse_traced
 from ..energies import Energy, get_energy
 from .projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
-from .linsolve import SparseCholesky, available_backends
+from .linsolve import SINGLE_FROM_ROWS, SparseCholesky, available_backends
 from .pattern import HessianPattern, block_pairs, hessian_pattern, local_pairs  # noqa: F401  (re-exported)
 from ..mesh.problem import Problem
 
@@ -405,6 +405,13 @@ class Objective:
         done once per mesh and backend and shared by every copy of this objective."""
         return self._mesh.cholesky(backend)
 
+    def free_factors(self) -> None:
+        """Free the numeric factors of the mesh's sparse Cholesky factorizations, keeping
+        their symbolic analyses (:meth:`~geomopt.objective.linsolve.SparseCholesky.free_factor`):
+        what a finished solve leaves
+        that no later solve or derivative reuses (each refactors its own matrix)."""
+        self._mesh.free_factors()
+
     def release_factorizations(self) -> None:
         """Forget the mesh's sparse Cholesky factorizations (:meth:`cholesky`: symbolic analyses
         and numeric factors, shared by every copy of this objective): their memory returns once
@@ -545,12 +552,16 @@ class _Mesh:
     def release_choleskys(self):
         self._cholesky.clear()
 
+    def free_factors(self):
+        for chol in self._cholesky.values():
+            chol.free_factor()
+
     def cholesky(self, backend):
         if backend == "auto":  # one analysis whether asked for by name or as "auto"
             backend = available_backends()[0]
         if backend not in self._cholesky:
             pat = self.pattern
-            chol = SparseCholesky(pat.indptr, pat.indices, backend)
+            chol = SparseCholesky(pat.indptr, pat.indices, backend, single=pat.n >= SINGLE_FROM_ROWS)
             chol.analyze(background=chol.n >= AHEAD_FROM)  # while the solver loads its kernels
             self._cholesky[backend] = chol
         return self._cholesky[backend]

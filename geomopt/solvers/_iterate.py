@@ -371,6 +371,7 @@ def _iterate(solver, objective, x0, params, continuation, guard, observe, progre
     finally:
         if isinstance(report, Progress):
             report.close()
+    state.objective.free_factors()  # not reused; the certificate and the result allocate next
     if continuation is not None:
         final = continuation.finish(state, outcome, reason)
     else:

@@ -70,10 +70,12 @@ class Reuse(NamedTuple):
         misses = 0 if ok else self.misses + 1
         return self._replace(iter_s=iter_s, misses=misses, wait=0 if ok else 2 ** (misses - 1))
 
-    def factored(self, factor_s: float, solve_s: float) -> "Reuse":
+    def factored(self, factor_s: float, solve_s: float, refinements: int = 0) -> "Reuse":
         """After a factorization (seconds) and its solve (the first estimate of a CG iteration:
-        a solve and about half a solve's time in products)."""
-        return self._replace(factor_s=factor_s, iter_s=self.iter_s or 1.5 * solve_s)
+        a direct solve and about half a solve's time in products; a refined float32 solve's
+        time per iteration of its own CG, the same preconditioner and products)."""
+        first = solve_s / refinements if refinements else 1.5 * solve_s
+        return self._replace(factor_s=factor_s, iter_s=self.iter_s or first)
 
 
 class NewtonMemory(NamedTuple):
@@ -217,6 +219,8 @@ class AbstractNewton(AbstractSolver):
         ``shifts`` that factors: ``(value, grad, dx, decrement, shift, reuse)``, ``dx`` (shaped
         like ``x``, zero on fixed DOFs, on the device) None on failure; ``reuse`` the
         :class:`Reuse` bookkeeping after it."""
+        if state.x.size >= TRIM_FROM_DOFS:  # also after a failed try: its factorization's temporaries
+            release_free_memory()
         if state.memory.cg_op is not None:
             return self._cg_direction(state, projection, shifts) + (state.memory.reuse,)
         obj, pat, mem = state.objective, state.objective.pattern, state.memory
@@ -262,15 +266,17 @@ class AbstractNewton(AbstractSolver):
 
     @staticmethod
     def _factored_direction(chol, data, g, reuse):
-        """``(-H^-1 g, reuse)`` by factoring ``data``; None when it does not factor."""
+        """``(-H^-1 g, reuse)`` by factoring ``data``; None when it does not factor (or, for a
+        float32 factor, its float64 refinement does not converge)."""
         t0 = time.perf_counter()
         try:
             chol.factor(data)
+            t1 = time.perf_counter()
+            d_free = -chol.solve(g)
         except NotPositiveDefinite:
             return None, reuse
-        t1 = time.perf_counter()
-        d_free = -chol.solve(g)
-        return d_free, reuse.factored(t1 - t0, time.perf_counter() - t1)
+        chol.forget_values()  # this factor's later use is as a preconditioner (reuse_factor)
+        return d_free, reuse.factored(t1 - t0, time.perf_counter() - t1, chol.refinements)
 
     def _lagged_direction(self, mem, pat, data, g):
         """``(-H^-1 g, reuse)`` for the values ``data`` by CG preconditioned with the
@@ -295,7 +301,7 @@ class AbstractNewton(AbstractSolver):
         gnorm = float(np.linalg.norm(g))
         rtol = min(self.cg.eta_max, math.sqrt(gnorm / mem.grad_ref))
         t0 = time.perf_counter()
-        d_free, iterations = pcg(matvec, -g, mem.factor.solve, rtol, budget)
+        d_free, iterations = pcg(matvec, -g, mem.factor.precondition, rtol, budget)
         return d_free, reuse.tried(d_free is not None, (time.perf_counter() - t0) / max(iterations, 1))
 
     def _cg_direction(self, state, projection, shifts):
@@ -329,9 +335,7 @@ class AbstractNewton(AbstractSolver):
     def step(self, state: State) -> State:
         obj, params, x = state.objective, state.params, state.x
         projection = self.projection.select(state.stats, state.memory.cooldown)
-        trim = x.size >= TRIM_FROM_DOFS
-        if trim:
-            release_free_memory()
+        trim = x.size >= TRIM_FROM_DOFS  # (and before each Hessian: _direction)
         value, grad, dx, decrement, mem, exact = self._newton_direction(state, projection)
         if dx is None or not np.isfinite(value):
             return state.update(broken=True)

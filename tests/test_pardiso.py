@@ -1,0 +1,157 @@
+"""Issue 34: PARDISO called directly, its float32 factorization refined in float64 (half the
+factor's memory at 10^6 triangles), and the numeric factor freed when a solve ends."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from geomopt.objective import linsolve, pardiso
+
+pytestmark = pytest.mark.skipif(pardiso.entry_point() is None, reason="py-mkl-pardiso is not installed here")
+
+
+def _laplacian(n=40, shift=1e-6, seed=0):
+    """A 2D grid Laplacian with random weights plus ``shift`` I (ill-conditioned: a float32
+    solve alone is off by ~1e-4), its lower-triangle CSC and the full matrix."""
+    rng = np.random.default_rng(seed)
+    N = n * n
+    i = np.arange(N).reshape(n, n)
+    rows = np.concatenate([i[:, :-1].ravel(), i[:-1, :].ravel()])
+    cols = np.concatenate([i[:, 1:].ravel(), i[1:, :].ravel()])
+    w = rng.uniform(0.5, 2.0, rows.size)
+    W = sp.coo_matrix((w, (rows, cols)), shape=(N, N))
+    W = W + W.T
+    A = (sp.diags(np.asarray(W.sum(axis=1)).ravel() + shift) - W).tocsc()
+    L = sp.tril(A).tocsc()
+    L.sort_indices()
+    return L, A
+
+
+def _accurate(A, x, b, rtol):
+    """``|b - A x| <= rtol |b|``, or the residual float64 can tell (``64 eps |A| |x|``) if
+    larger: what a float64 factorization's solve achieves."""
+    floor = 64 * np.finfo(float).eps * abs(A).sum(axis=1).max() * np.linalg.norm(x)
+    return np.linalg.norm(A @ x - b) <= max(rtol * np.linalg.norm(b), floor)
+
+
+def _single(L):
+    chol = linsolve.SparseCholesky(L.indptr, L.indices, "pardiso", single=True)
+    chol.factor(L.data)
+    return chol
+
+
+def test_a_float32_factorization_is_refined_to_float64_accuracy():
+    L, A = _laplacian(shift=1e-3)
+    chol = _single(L)
+    b = np.cos(np.arange(A.shape[0]))
+    raw = chol.precondition(b)
+    raw_residual = np.linalg.norm(A @ raw - b) / np.linalg.norm(b)
+    assert raw_residual > 1e-8  # float32 alone: the refinement has work to do
+    for rtol in (1e-6, 1e-10, 1e-12):
+        x = chol.solve(b, rtol=rtol)
+        assert _accurate(A, x, b, rtol)
+    assert 1 <= chol.refinements < pardiso.REFINE_ITERS
+    X = chol.solve(np.stack([b, 2.0 * b], axis=1))  # several right-hand sides
+    np.testing.assert_allclose(A @ X, np.stack([b, 2.0 * b], axis=1), rtol=0, atol=1e-9)
+    # the factor's storage is float32: half of the float64 one's, as PARDISO reports it
+    single, double = pardiso.Refined(L.indptr, L.indices), pardiso.Pardiso(L.indptr, L.indices)
+    for h in (single, double):
+        h.analyze()
+        h.factor(L.data)
+    assert 0 < single.factor_bytes < 0.6 * double.factor_bytes
+    # ill-conditioned (1e-6 shift): the float64 factorization's accuracy
+    L, A = _laplacian(shift=1e-6)
+    x = _single(L).solve(b)
+    assert _accurate(A, x, b, 1e-10)
+    exact = linsolve.SparseCholesky.factored(A, "pardiso").solve(b)
+    assert np.linalg.norm(x - exact) <= 1e-6 * np.linalg.norm(exact)
+
+
+def test_single_precision_refuses_an_indefinite_matrix_and_recovers():
+    L, A = _laplacian()
+    chol = linsolve.SparseCholesky(L.indptr, L.indices, "pardiso", single=True)
+    bad = L.data.copy()
+    bad[L.indptr[:-1]] -= 10.0
+    with pytest.raises(linsolve.NotPositiveDefinite):
+        chol.factor(bad)
+    assert not chol.has_factor
+    chol.factor(L.data)
+    b = np.ones(A.shape[0])
+    assert _accurate(A, chol.solve(b), b, 1e-10)
+
+
+def test_a_refinement_that_meets_negative_curvature_raises():
+    """A matrix that factors in float32 but whose float64 values are indefinite (a negative
+    eigenvalue below float32's resolution): conjugate gradients find it, the solve raises."""
+    L, A = _laplacian(n=40, shift=0.0)
+    ones = np.ones(A.shape[0]) / np.sqrt(A.shape[0])  # A's null vector: A - 1e-9 I is indefinite
+    chol = linsolve.SparseCholesky(L.indptr, L.indices, "pardiso", single=True)
+    data = L.data.copy()
+    data[L.indptr[:-1]] -= 1e-9
+    try:
+        chol.factor(data)
+    except linsolve.NotPositiveDefinite:
+        pytest.skip("float32 pivots already saw it")
+    with pytest.raises(linsolve.NotPositiveDefinite):
+        chol.solve(ones + 1e-3 * np.sin(np.arange(A.shape[0])))
+
+
+def test_forgotten_values_still_precondition_and_a_freed_factor_is_refactored():
+    L, A = _laplacian()
+    chol = _single(L)
+    b = np.sin(np.arange(A.shape[0]))
+    chol.forget_values()
+    assert np.isfinite(chol.precondition(b)).all()
+    with pytest.raises(RuntimeError, match="factor again"):
+        chol.solve(b)
+    generation = chol.generation
+    chol.free_factor()
+    assert not chol.has_factor and chol.generation == generation + 1
+    chol.factor(2.0 * L.data)  # on the same analysis
+    assert _accurate(2.0 * A, chol.solve(b), b, 1e-10)
+
+
+@pytest.mark.parametrize("single", [False, True])
+def test_the_direct_handle_frees_its_factor_and_factors_again(single):
+    L, A = _laplacian(n=30)
+    h = (pardiso.Refined if single else pardiso.Pardiso)(L.indptr, L.indices)
+    h.analyze()
+    h.factor(L.data)
+    h.free_factor()
+    h.factor(3.0 * L.data)
+    b = np.arange(A.shape[0], dtype=float)
+    assert _accurate(3.0 * A, h.solve(b, 1e-11), b, 1e-9)
+    h.release()
+    h.release()  # twice: a no-op
+
+
+def test_newton_with_float32_factors_reaches_the_float64_minimum(monkeypatch):
+    """A free-boundary parameterization by Newton with every factorization in float32 (the
+    size threshold lowered): the same minimum, in about as many iterations."""
+    import geomopt
+    from geomopt.objective import objective as objective_module
+
+    V, F = _cap()
+    runs = {}
+    for single_from in (10**9, 0):
+        monkeypatch.setattr(objective_module, "SINGLE_FROM_ROWS", single_from)
+        res = geomopt.parameterize(V, F, progress=False)
+        chol = res.objective.cholesky()
+        assert chol.single == (single_from == 0)
+        assert not chol.has_factor  # freed when the solve ended (its analysis kept)
+        runs[single_from] = res
+    a, b = runs[10**9], runs[0]
+    assert a.success and b.success
+    assert abs(a.energy - b.energy) <= 1e-10 * abs(a.energy)
+    assert abs(a.stats.iterations - b.stats.iterations) <= 1
+    np.testing.assert_allclose(np.abs(b.x - a.x).max(), 0.0, atol=1e-6)
+
+
+def _cap():
+    """A spherical cap (a disk surface) of ~1,000 triangles."""
+    from geomopt.mesh import generators
+
+    V2, F = generators.square_mesh(24)
+    p = 2.0 * V2 - 1.0
+    z = np.sqrt(np.maximum(3.0 - (p**2).sum(axis=1), 0.0))
+    return np.column_stack([p, z]), F
