@@ -39,6 +39,10 @@ POLISH_ROUNDING = 1e-13
 #: ``reuse_factor`` tries CG before factoring
 MIN_REUSE_ITERS = 4
 
+#: the largest relative residual to which a direction is solved with a float32 factorization
+#: refined in float64 (:class:`~geomopt.objective.linsolve.SparseCholesky` ``single``)
+REFINE_RTOL = 1e-6
+
 #: free DOFs from which ``reuse_factor="auto"`` reuses the factorization (see :class:`AbstractNewton`)
 REUSE_FROM_DOFS = 300_000
 
@@ -236,7 +240,7 @@ class AbstractNewton(AbstractSolver):
             lag = i == 0 and state.stats.step_size >= 1.0
             d_free, reuse = self._lagged_direction(mem, pat, data, g) if lag else (None, reuse)
             if d_free is None:
-                d_free, reuse = self._factored_direction(mem.factor, data, g, reuse)
+                d_free, reuse = self._factored_direction(mem.factor, data, g, reuse, mem.grad_ref)
             if d_free is None:
                 continue
             dx = np.zeros(state.x.size)
@@ -265,14 +269,16 @@ class AbstractNewton(AbstractSolver):
         return xn, vn, gn
 
     @staticmethod
-    def _factored_direction(chol, data, g, reuse):
+    def _factored_direction(chol, data, g, reuse, grad_ref):
         """``(-H^-1 g, reuse)`` by factoring ``data``; None when it does not factor (or, for a
         float32 factor, its float64 refinement does not converge)."""
         t0 = time.perf_counter()
         try:
             chol.factor(data)
             t1 = time.perf_counter()
-            d_free = -chol.solve(g)
+            # a float32 factor's refinement to Newton's own forcing term, |g| / |g_0| (quadratic
+            # convergence), at most REFINE_RTOL; a float64 factor's solve is direct
+            d_free = -chol.solve(g, rtol=min(REFINE_RTOL, float(np.linalg.norm(g)) / grad_ref))
         except NotPositiveDefinite:
             return None, reuse
         chol.forget_values()  # this factor's later use is as a preconditioner (reuse_factor)
