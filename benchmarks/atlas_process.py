@@ -1,0 +1,206 @@
+"""Texture atlases as a user meets them: the whole ``geomopt param`` process beside an xatlas process.
+
+For each mesh, as separate processes, alternating, timed from outside (wall seconds; peak
+resident memory from ``os.wait4``):
+
+* geomopt **first run**: ``geomopt param MESH -o OUT.obj --json --quiet`` (an atlas for a mesh
+  that is not a disk) with an empty compilation cache (``GEOMOPT_CACHE_DIR`` pointed at a fresh
+  folder: JAX's persistent cache and geomopt's kept programs both live there);
+* xatlas: a small script that reads the mesh with trimesh (``process=False``), calls
+  ``xatlas.parametrize`` (default options, all threads) and writes the OBJ with ``xatlas.export``;
+* geomopt **later run**: the same command again, the cache now filled; then xatlas again;
+  ``--repeat`` such later rounds (medians reported).
+
+Per mesh: wall seconds, peak RSS and the ratio geomopt / xatlas for first and later runs, and
+geomopt's own ``--json`` timing split (import, read, cut, flatten, pack, write) of the later runs.
+Each process is checked: exit status 0, geomopt's atlas certified, the output written, the
+input file's bytes unchanged.  Outputs go to a temporary folder, removed at the end.
+
+Run it with the Python of the install being measured, as a user installs it::
+
+    python3 -m venv /tmp/plainvenv && /tmp/plainvenv/bin/pip install . xatlas trimesh
+    /tmp/plainvenv/bin/python benchmarks/atlas_process.py            # shared/data/closed/*.off
+    /tmp/plainvenv/bin/python benchmarks/atlas_process.py MESH ... [--repeat 3] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CLOSED = REPO.parent / "shared/data/closed"
+
+#: the xatlas process: read, parametrize, export; its own timing split on stdout
+XATLAS = """
+import json, sys, time
+t0 = time.perf_counter()
+import trimesh, xatlas
+t1 = time.perf_counter()
+mesh = trimesh.load(sys.argv[1], force="mesh", process=False)
+t2 = time.perf_counter()
+vmapping, indices, uvs = xatlas.parametrize(mesh.vertices, mesh.faces)
+t3 = time.perf_counter()
+xatlas.export(sys.argv[2], mesh.vertices[vmapping], indices, uvs)
+t4 = time.perf_counter()
+print(json.dumps({"vertices": len(mesh.vertices), "faces": len(mesh.faces), "uv_vertices": len(uvs),
+                  "timing": {"import": t1 - t0, "read": t2 - t1, "parametrize": t3 - t2, "write": t4 - t3}}))
+"""
+
+
+def log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run_process(args, env=None):
+    """One process to its exit: wall seconds, peak resident MB (``os.wait4``), exit status,
+    stdout, stderr, the 1-minute load average before it."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        load = os.getloadavg()[0]
+        t = time.perf_counter()
+        p = subprocess.Popen(args, stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t
+        p.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
+        out.seek(0), err.seek(0)
+        return {"wall": wall, "peak_mb": usage.ru_maxrss / 1024.0, "rc": p.returncode, "load": load,
+                "stdout": out.read().decode(errors="replace"), "stderr": err.read().decode(errors="replace")}
+
+
+def geomopt_command():
+    """The installed ``geomopt`` script next to this Python (``python -m geomopt`` without one)."""
+    script = Path(sys.executable).parent / "geomopt"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "geomopt"]
+
+
+def checked(run, tool, mesh, output, digest):
+    """``run`` with its ``--json`` line parsed; raises when the process failed, wrote nothing,
+    changed the input or (geomopt) did not certify its atlas."""
+    if run["rc"] != 0:
+        raise RuntimeError(f"{tool} on {mesh} exited {run['rc']}: {run['stderr'][-1500:]}")
+    if not Path(output).is_file() or Path(output).stat().st_size == 0:
+        raise RuntimeError(f"{tool} on {mesh} wrote no {output}")
+    if sha256(mesh) != digest:
+        raise RuntimeError(f"{tool} changed its input {mesh}")
+    run["summary"] = json.loads(run["stdout"].strip().splitlines()[-1])
+    if tool == "geomopt" and not run["summary"].get("certified"):
+        raise RuntimeError(f"geomopt's atlas of {mesh} is not certified: {run['summary'].get('message')}")
+    Path(output).unlink()
+    return run
+
+
+def cache_mb(folder):
+    return sum(p.stat().st_size for p in Path(folder).rglob("*") if p.is_file()) / 2**20
+
+
+def sha256(path):
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def measure(mesh, tmp, repeat):
+    """First and ``repeat`` later runs of both tools on ``mesh``, alternating."""
+    cache = Path(tempfile.mkdtemp(prefix="cache-", dir=tmp))
+    env = {**os.environ, "GEOMOPT_CACHE_DIR": str(cache)}
+    env.pop("PYTHONPATH", None)  # the installed package, not a checkout
+    digest, out_g, out_x = sha256(mesh), tmp / "geomopt.obj", tmp / "xatlas.obj"
+
+    def geomopt():
+        cmd = [*geomopt_command(), "param", str(mesh), "-o", str(out_g), "--json", "--quiet"]
+        return checked(run_process(cmd, env), "geomopt", mesh, out_g, digest)
+
+    def xatlas():
+        return checked(run_process([sys.executable, "-c", XATLAS, str(mesh), str(out_x)], env),
+                       "xatlas", mesh, out_x, digest)
+
+    runs = {"geomopt": [], "xatlas": []}
+    for i in range(1 + repeat):
+        for tool, call in (("geomopt", geomopt), ("xatlas", xatlas)):
+            runs[tool].append(call())
+            r = runs[tool][-1]
+            log(f"  {'first' if i == 0 else 'later'} {tool}: {r['wall']:.2f} s, {r['peak_mb']:.0f} MB "
+                f"(load {r['load']:.2f})" + (f"; cache {cache_mb(cache):.0f} MB" if tool == "geomopt" else ""))
+    faces = (runs["geomopt"][0]["summary"]["faces"], runs["xatlas"][0]["summary"]["faces"])
+    if faces[0] != faces[1]:
+        log(f"  NOTE: geomopt read {faces[0]} faces, trimesh {faces[1]}")
+    return runs
+
+
+def summarise(name, runs):
+    """One row: first run, median of later runs, for both tools, and geomopt's later split."""
+    def later(tool, key):
+        return statistics.median(r[key] for r in runs[tool][1:])
+
+    g, x = runs["geomopt"], runs["xatlas"]
+    phases = [k for k in g[-1]["summary"].get("timing", {}) if k != "total"]
+    return {"mesh": name, "faces": g[0]["summary"]["faces"], "xatlas_faces": x[0]["summary"]["faces"],
+            "charts": g[0]["summary"]["charts"], "efficiency": g[0]["summary"]["efficiency"],
+            "first": {t: {k: runs[t][0][k] for k in ("wall", "peak_mb")} for t in runs},
+            "later": {t: {k: later(t, k) for k in ("wall", "peak_mb")} for t in runs},
+            "split": {k: statistics.median(r["summary"]["timing"].get(k, 0.0) for r in g[1:]) for k in phases},
+            "xatlas_split": {k: statistics.median(r["summary"]["timing"][k] for r in x[1:])
+                             for k in ("import", "parametrize")},
+            "load": [r["load"] for t in runs for r in runs[t]]}
+
+
+def table(rows):
+    lines = ["| mesh | faces | charts | geomopt first s / MB | later s / MB | xatlas first s / MB | later s / MB "
+             "| ratio first: s, MB | ratio later: s, MB | load |", "|---" * 10 + "|"]
+    for r in rows:
+        f, lt = r["first"], r["later"]
+        cell = (lambda d: f"{d['wall']:.2f} / {d['peak_mb']:.0f}")
+        ratio = (lambda d: f"{d['geomopt']['wall'] / d['xatlas']['wall']:.1f}, "
+                           f"{d['geomopt']['peak_mb'] / d['xatlas']['peak_mb']:.1f}")
+        lines.append(f"| {r['mesh']} | {r['faces']} | {r['charts']} | {cell(f['geomopt'])} | {cell(lt['geomopt'])} | "
+                     f"{cell(f['xatlas'])} | {cell(lt['xatlas'])} | {ratio(f)} | {ratio(lt)} | "
+                     f"{min(r['load']):.1f}-{max(r['load']):.1f} |")
+    phases = list(dict.fromkeys(k for r in rows for k in r["split"]))
+    lines += ["", "geomopt's own `--json` split of the later runs, and xatlas's import and parametrize "
+              "(wall s, medians)", "", "| mesh | " + " | ".join(phases) + " | xatlas import | xatlas parametrize |",
+              "|---" * (3 + len(phases)) + "|"]
+    lines += [f"| {r['mesh']} | " + " | ".join(f"{r['split'].get(k, 0.0):.2f}" for k in phases)
+              + f" | {r['xatlas_split']['import']:.2f} | {r['xatlas_split']['parametrize']:.2f} |" for r in rows]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("meshes", nargs="*", help="mesh files (default: shared/data/closed/*.off)")
+    ap.add_argument("--repeat", type=int, default=1, help="later rounds per mesh (medians; default 1)")
+    ap.add_argument("--json", help="write the raw results here")
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat: at least one later round")
+    paths = [Path(p) for p in args.meshes] or sorted(CLOSED.glob("*.off"))
+    if not paths:
+        sys.exit(f"no meshes given and none at {CLOSED}: name mesh files, or clone the project next to shared/")
+    version = subprocess.run([*geomopt_command(), "--version"], capture_output=True, text=True).stdout.strip()
+    log(f"{' '.join(geomopt_command())} ({version or 'no --version'}); load {os.getloadavg()}")
+    rows, failed = [], {}
+    with tempfile.TemporaryDirectory(prefix="atlas_process-") as tmp:
+        for path in paths:
+            if not path.is_file():
+                log(f"{path}: not found, skipped")
+                continue
+            log(f"{path.name}")
+            try:
+                rows.append(summarise(path.stem, measure(path, Path(tmp), args.repeat)))
+            except RuntimeError as exc:  # a failed process: say so and go on with the next mesh
+                log(f"  FAILED: {exc}")
+                failed[path.stem] = str(exc)
+    print(table(rows))
+    for name, why in failed.items():
+        print(f"failed {name}: {why.strip().splitlines()[0]}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"rows": rows, "failed": failed, "geomopt": version}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
