@@ -90,6 +90,30 @@ def pardiso_without_entry_point(monkeypatch):
     pardiso.entry_point.cache_clear()
 
 
+def test_pardiso_without_its_entry_point_goes_through_the_wheels_class(monkeypatch):
+    """A build of py-mkl-pardiso whose library exports no ``PARDISO_64`` (e.g. a Windows DLL)
+    but has its Python class: PARDISO still factors, in float64, through that class."""
+    from geomopt.objective import pardiso
+
+    if pardiso.entry_point() is None or not pardiso.available():
+        pytest.skip("needs the py-mkl-pardiso wheel")
+    monkeypatch.setattr(pardiso, "entry_point", lambda: None)
+    import scipy.sparse as sp
+
+    A = sp.diags([4.0] * 50) + sp.diags([1.0] * 49, -1) + sp.diags([1.0] * 49, 1)
+    L = sp.tril(A).tocsc()
+    chol = linsolve.SparseCholesky(L.indptr, L.indices, "pardiso", single=True)
+    assert not chol.single  # float32 needs the direct call
+    chol.factor(L.data)
+    assert isinstance(chol._analysis, pardiso.WheelPardiso)
+    b = np.arange(50.0)
+    np.testing.assert_allclose(A @ chol.solve(b), b, atol=1e-12)
+    np.testing.assert_allclose(A @ chol.precondition(b), b, atol=1e-12)
+    with pytest.raises(linsolve.NotPositiveDefinite):
+        chol.factor(-L.data)
+    chol.free_factor()
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="stands the C library in for the extension (Linux)")
 def test_pardiso_without_its_entry_point_falls_back(pardiso_without_entry_point):
     backends = linsolve.available_backends()

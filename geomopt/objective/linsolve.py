@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from .._runtime.errors import NotPositiveDefinite, ParameterError
 from .krylov import pcg
-from .pardiso import Pardiso, Refined, entry_point
+from . import pardiso
 
 __all__ = [
     "SparseCholesky", "NotPositiveDefinite", "available_backends", "repeated_solves_backend", "PARDISO_3D_FROM",
@@ -86,7 +86,7 @@ def _have(module):
 
 
 def _have_pardiso():
-    return entry_point() is not None
+    return pardiso.available()
 
 
 def available_backends():
@@ -209,7 +209,8 @@ class SparseCholesky:
                 f"linear solver {backend!r} is not installed here; available: {', '.join(available_backends())}"
             )
         self.backend = backend
-        self.single = bool(single) and backend == "pardiso"
+        # float32 only where PARDISO is called directly (pardiso.handle)
+        self.single = bool(single) and backend == "pardiso" and pardiso.entry_point() is not None
         # int32 indices are kept as given (a pattern's, shared: no copy); PARDISO gets int64
         # copies at its analysis, which it copies again into its own storage
         it = np.int32 if np.asarray(indptr).dtype == np.asarray(indices).dtype == np.int32 else np.int64
@@ -252,8 +253,7 @@ class SparseCholesky:
             pending, self._pending = self._pending, None
             pending.result()
         if self.backend == "pardiso" and self._analysis is None:
-            solver = Refined(self.indptr, self.indices, self.ordering) if self.single else \
-                Pardiso(self.indptr, self.indices, self.ordering)
+            solver = pardiso.handle(self.indptr, self.indices, self.ordering, self.single)
             solver.analyze()
             self._analysis = solver
         if self.backend == "cholmod" and self._analysis is None:
@@ -366,7 +366,7 @@ class SparseCholesky:
     def precondition(self, b):
         """An approximate ``A^-1 b``, for preconditioning: a float32 factor's raw solve
         (``single``), else :meth:`solve`."""
-        if self.single and self._factor is not None:
+        if self.backend == "pardiso" and self._factor is not None:
             return self._factor.precondition(np.ascontiguousarray(b, dtype=np.float64))
         return self.solve(b)
 

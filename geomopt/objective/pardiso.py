@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from .._runtime.errors import NotPositiveDefinite
 from .krylov import pcg
 
-__all__ = ["Pardiso", "Refined", "entry_point"]
+__all__ = ["Pardiso", "Refined", "WheelPardiso", "available", "entry_point", "handle"]
 
 _MTYPE_SPD = 2
 _MESSAGES = {-1: "input inconsistent", -2: "not enough memory", -3: "reordering problem",
@@ -46,6 +46,33 @@ def entry_point():
     fn.restype = None
     fn.argtypes = [ctypes.c_void_p] * 16
     return fn
+
+
+#: what :class:`WheelPardiso` calls on py-mkl-pardiso's (private) ``_mkl_pardiso.PardisoSolver``,
+#: tested with py-mkl-pardiso 0.0.6
+WHEEL_API = ("set_iparm", "set_pattern", "run_phase", "refactor_values", "solve", "release")
+
+
+def _wheel_solver():
+    """py-mkl-pardiso's own Python class when it offers :data:`WHEEL_API`, else None."""
+    try:
+        from pymklpardiso._mkl_pardiso import PardisoSolver
+    except Exception:  # noqa: BLE001 -- not installed, or its layout changed
+        return None
+    return PardisoSolver if all(callable(getattr(PardisoSolver, n, None)) for n in WHEEL_API) else None
+
+
+def available() -> bool:
+    """Whether PARDISO can be called here: directly, or through the wheel's own class."""
+    return entry_point() is not None or _wheel_solver() is not None
+
+
+def handle(indptr, indices, ordering: str = "metis", single: bool = False):
+    """A PARDISO handle for the pattern: :class:`Refined` (``single``) or :class:`Pardiso`
+    where the library exports ``PARDISO_64``; else :class:`WheelPardiso` (float64 only)."""
+    if entry_point() is None:
+        return WheelPardiso(indptr, indices, ordering)
+    return Refined(indptr, indices, ordering) if single else Pardiso(indptr, indices, ordering)
 
 
 def _ptr(a):
@@ -234,3 +261,46 @@ class Refined:
     def release(self):
         self._matrix = None
         self._low.release()
+
+
+class WheelPardiso:
+    """:class:`Pardiso`'s calls (float64 only) through py-mkl-pardiso's own Python class, for a
+    build of the wheel whose library does not export ``PARDISO_64`` (a DLL exports only what
+    it declares).  It keeps its own copies of the pattern and values."""
+
+    single = False
+
+    def __init__(self, indptr, indices, ordering: str = "metis"):
+        from pymklpardiso import MTYPE_REAL_SYM_POSDEF
+
+        self._solver = _wheel_solver()(MTYPE_REAL_SYM_POSDEF, 0)
+        self._solver.set_iparm(1, 2 if ordering == "metis" else 0)
+        self._pattern = (np.asarray(indptr, np.int64), np.asarray(indices, np.int64))
+        self.n = len(indptr) - 1
+
+    def analyze(self):
+        ia, ja = self._pattern
+        self._solver.set_pattern(ia=ia, ja=ja, n=self.n)
+        self._solver.run_phase(11)
+
+    def factor(self, data):
+        try:
+            self._solver.refactor_values(np.ascontiguousarray(data, dtype=np.float64))
+        except RuntimeError as exc:  # zero or negative pivot: not positive definite
+            raise NotPositiveDefinite(str(exc)) from exc
+
+    def solve(self, b, rtol=None):
+        return self._solver.solve(np.ascontiguousarray(b, dtype=np.float64))
+
+    def precondition(self, b):
+        return self.solve(b)
+
+    @property
+    def factor_bytes(self) -> int:
+        return int(self._solver.get_iparm()[16]) * 1024
+
+    def free_factor(self):
+        """Nothing: the class has no call that frees the factor alone (:meth:`release` frees all)."""
+
+    def release(self):
+        self._solver.release()
