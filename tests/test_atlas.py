@@ -147,6 +147,7 @@ def test_the_obj_keeps_the_v_lines_and_the_face_order(cli, tmp_path):
     code, out, _ = cli("param", mesh, "-o", tmp_path / "atlas.obj", "--json", "--quiet")
     summary = json.loads(out)
     assert code == 0 and summary["atlas"] is True
+    assert {"cache_dir", "cache_hits", "cache_misses"} <= set(summary)  # as a disk's: what compiled
     # the atlas's stages in the timing split: they add up to its own seconds
     stages = [summary["timing"][k] for k in ("cut", "flatten", "pack")]
     assert all(x > 0 for x in stages) and summary["timing"]["write"] > 0

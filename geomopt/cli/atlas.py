@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .._runtime.errors import MeshError, ParameterError
 from ..exact.topology import check_disk
-from .common import EXIT_OK, fail, log, report
+from .common import EXIT_OK, cache_summary, fail, log, report
 
 __all__ = ["is_disk", "param_atlas"]
 
@@ -46,7 +46,7 @@ def param_atlas(args, V, F, energy, solver) -> int:
            energy_name=energy.name, solver=args.solver, atlas=True, charts=m.charts, seam_length=m.seam_length,
            mean_symmetric_dirichlet=m.mean_symmetric_dirichlet, worst_symmetric_dirichlet=m.worst_symmetric_dirichlet,
            efficiency=m.efficiency, mirrored_charts=m.mirrored_charts, certified=atlas.success,
-           seconds=round(atlas.seconds, 4), message=atlas.message)
+           seconds=round(atlas.seconds, 4), message=atlas.message, **cache_summary())
     if not atlas.success:
         return fail(f"atlas not certified: {atlas.message}")
     folder = getattr(args, "folder", None)

@@ -165,7 +165,7 @@ def _param_sphere(args) -> int:
            energy_name=args.energy, iterations=st.iterations, solve_seconds=round(st.seconds, 4),
            mean_energy=res.mean_energy, flips=cert.inverted, spherical_area=cert.area, degree=cert.degree,
            area_ratio_min=dist["area_min"], area_ratio_max=dist["area_max"], injectivity=res.injectivity,
-           outcome=res.outcome.value, message=res.message)
+           outcome=res.outcome.value, message=res.message, **cache_summary())
     if not res.success:
         return fail(f"not certified: {res.message}")
     with contextlib.ExitStack() as outputs:  # every file is renamed into place only when all are written
