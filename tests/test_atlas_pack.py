@@ -214,22 +214,30 @@ def test_mixed_rectangles_pack_tightly():
     assert p.efficiency > 0.79
 
 
+def _bitmap_shapes(rng, count, size, r):
+    """``count`` random masks (5 to ``size`` pixels a side, spanning their box), each as two
+    orientations (itself and its transpose) with ``mask`` and ``grown`` (by ``r``), for the placer."""
+    from geomopt.atlas._raster import dilate
+
+    class Shape:
+        def __init__(self, mask):
+            self.mask, self.grown = mask, dilate(mask, r)
+
+    shapes = []
+    for _ in range(count):
+        m = rng.random((int(rng.integers(5, size)), int(rng.integers(5, size)))) < 0.8
+        m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True  # the mask spans its box
+        shapes.append([Shape(m), Shape(m.T.copy())])
+    return shapes
+
+
 def test_place_pack_square_keeps_masks_apart_and_inside():
     """The square placer on bitmaps: every mask inside the S x S square, grown masks meeting no
     other mask (checked on a fresh canvas), and None when the area cannot fit."""
     from geomopt.atlas._place import pack_square
-    from geomopt.atlas._raster import dilate
 
-    class Shape:
-        def __init__(self, mask, r):
-            self.mask, self.grown = mask, dilate(mask, r)
-
-    rng = np.random.default_rng(0)
-    r, shapes = 2, []
-    for _ in range(30):
-        m = rng.random((int(rng.integers(5, 30)), int(rng.integers(5, 30)))) < 0.8
-        m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True  # the mask spans its box
-        shapes.append([Shape(m, r), Shape(m.T.copy(), r)])
+    r = 2
+    shapes = _bitmap_shapes(np.random.default_rng(0), 30, 30, r)
     order = np.argsort([-s[0].mask.sum() for s in shapes])
     for rule in ("square", "bottom"):
         placed = pack_square(shapes, order, r, 150, 4, {}, rule)
@@ -648,3 +656,28 @@ def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
     meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, screen=screen, V=V,
                                           seam_cost=1.0)  # 0.01 + 1.0 * 3 / sqrt(15) > 0.2
     assert len(meshes) == 1 and packing.efficiency == 0.5
+
+
+def test_place_reusing_a_larger_squares_trace_packs_alike(monkeypatch):
+    """A packing that reuses the placements of the same charts in a larger square (while their
+    spots are offered) is the packing a full search finds, with fewer searches."""
+    from geomopt.atlas import _place
+
+    r = 2
+    shapes = _bitmap_shapes(np.random.default_rng(1), 12, 40, r)
+    order = np.argsort([-s[0].mask.sum() for s in shapes])
+    searches = []
+    best_spot = _place._best_spot
+    monkeypatch.setattr(_place, "_best_spot", lambda *a: searches.append(1) or best_spot(*a))
+    for rule in ("square", "bottom"):
+        _, trace = _place._pack_traced(shapes, order, r, 160, 4, {}, rule, 0)
+        reused = 0
+        for S in range(96, 161, 8):
+            fresh = _place.pack_square(shapes, order, r, S, 4, {}, rule)
+            n = len(searches)
+            again, _ = _place._pack_traced(shapes, order, r, S, 4, {}, rule, 0, trace)
+            reused += len(shapes) - (len(searches) - n)
+            assert (fresh is None) == (again is None)
+            if fresh is not None:
+                assert [(id(s), y, x) for s, y, x in fresh] == [(id(s), y, x) for s, y, x in again]
+        assert reused > len(shapes)  # charts were placed from the trace, not searched
