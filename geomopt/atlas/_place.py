@@ -87,11 +87,15 @@ class _Canvas:
         if self.occ_hat is None:
             self.occ_hat = scipy.fft.rfft2(self.coarse.astype(np.float32), self.fshape)
         kernels, hats = self._kernels(shapes)
-        counts = scipy.fft.irfft2(self.occ_hat * hats, self.fshape, axes=(-2, -1))
-        for k, ((top, right), kern) in enumerate(zip(limits, kernels)):
-            if min(top, right) >= 0:
-                h, w = kern.shape
-                out[k] = counts[k, h - 1:H, w - 1:H][:top + 1, :right + 1] < 0.5
+        fit = [k for k, (top, right) in enumerate(limits) if min(top, right) >= 0]
+        if not fit:
+            return out
+        # the inverse 2D FFT in two passes, the second over the rows of the spots only
+        cols = scipy.fft.ifft(self.occ_hat * hats[fit], axis=-2)
+        for j, k in enumerate(fit):
+            (top, right), (h, w) = limits[k], kernels[k].shape
+            counts = scipy.fft.irfft(cols[j, h - 1:min(H, h + top)], self.fshape[1], axis=-1)
+            out[k] = counts[:, w - 1:H][:, :right + 1] < 0.5
         return out
 
     def _free(self, g, y: int, x: int) -> bool:
