@@ -681,3 +681,17 @@ def test_place_reusing_a_larger_squares_trace_packs_alike(monkeypatch):
             if fresh is not None:
                 assert [(id(s), y, x) for s, y, x in fresh] == [(id(s), y, x) for s, y, x in again]
         assert reused > len(shapes)  # charts were placed from the trace, not searched
+
+
+def test_place_pool_marks_the_blocks_holding_a_pixel():
+    """The coarse grid: block (i, j) is set exactly when a pixel of its c x c block is, for block
+    sizes read as machine words (2, 4, 8) and not, and masks not a multiple of the block."""
+    from geomopt.atlas._place import pool
+
+    rng = np.random.default_rng(3)
+    for c in range(1, 10):
+        for shape in [(1, 1), (3, 7), (17, 33), (40, 9)]:
+            m = rng.random(shape) < 0.05
+            want = [[m[i * c:(i + 1) * c, j * c:(j + 1) * c].any() for j in range(-(-shape[1] // c))]
+                    for i in range(-(-shape[0] // c))]
+            assert np.array_equal(pool(m, c), np.array(want, bool))

@@ -27,6 +27,7 @@ __all__ = ["coarse_factor", "pack_square", "smallest_square"]
 
 _COARSE_SIDE = 128  # pixels a side of the coarse grid
 _REACH = 0.1  # after the first strategy, bisections start this fraction below the best square so far
+_WORDS = {2: np.uint16, 4: np.uint32, 8: np.uint64}  # c bools (bytes 0 or 1) read as one word: nonzero = any
 _TOLERANCE = 0.01  # bisection stops when the bracket is this fraction of the side (or 1 pixel)
 
 
@@ -36,12 +37,18 @@ def coarse_factor(side: int) -> int:
 
 
 def pool(mask, c: int) -> np.ndarray:
-    """(ceil(H / c), ceil(W / c)) bool: the blocks of ``c x c`` pixels of ``mask`` (H, W) holding a set pixel."""
+    """(ceil(H / c), ceil(W / c)) bool: the blocks of ``c x c`` pixels of ``mask`` (H, W) holding
+    a set pixel (``mask`` itself for ``c = 1``)."""
+    if c == 1:
+        return np.asarray(mask, bool)
     H, W = mask.shape
     Hc, Wc = -(-H // c), -(-W // c)
     padded = np.zeros((Hc * c, Wc * c), bool)
     padded[:H, :W] = mask
-    return padded.reshape(Hc, c, Wc, c).any(axis=(1, 3))
+    if c not in _WORDS:
+        return padded.reshape(Hc, c, Wc, c).any(axis=(1, 3))
+    words = padded.view(_WORDS[c]).reshape(Hc, c, Wc)  # a block row's c pixels as one word
+    return np.bitwise_or.reduce(words, axis=1) != 0
 
 
 def _padded(a, shape) -> np.ndarray:
