@@ -695,3 +695,16 @@ def test_place_pool_marks_the_blocks_holding_a_pixel():
             want = [[m[i * c:(i + 1) * c, j * c:(j + 1) * c].any() for j in range(-(-shape[1] // c))]
                     for i in range(-(-shape[0] // c))]
             assert np.array_equal(pool(m, c), np.array(want, bool))
+
+
+def test_pack_search_reports_the_true_side_of_its_packing():
+    """The side that the square search ranks packings by (from each orientation's box, moved)
+    is the side of the charts it places, computed from all their points."""
+    from geomopt.atlas import _pack
+
+    uvs, faces = random_charts(6, 5)
+    U, _, area, Bs, bases, turns = _pack._prepare(uvs, faces, True)
+    h, r = np.sqrt(area / 0.6) / 128, 2
+    shapes = [_pack._shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
+    placement, side = _pack._search(U, shapes, h, r, 12)
+    assert side == _pack._side([(u @ R.T) / h + t for u, (R, t) in zip(U, placement)])

@@ -220,8 +220,20 @@ def _search(U, shapes, h, r, passes):
     def placement(placed):
         return [(s.R, np.array([x, y], np.float64) - s.origin) for s, y, x in placed]
 
+    boxes = {}  # per orientation (id), the least and greatest pixel coordinates of its chart, unmoved
+
     def side(placed):
-        return _side([(u @ R.T) / h + t for u, (R, t) in zip(U, placement(placed))])
+        """:func:`_side` of the placed charts from their orientations' boxes: adding the
+        translation is monotone in floating point, so the box of the moved chart is the moved box."""
+        lo, hi = [], []
+        for u, (s, y, x) in zip(U, placed):
+            if id(s) not in boxes:
+                p = (u @ s.R.T) / h
+                boxes[id(s)] = (p.min(axis=0), p.max(axis=0))
+            t = np.array([x, y], np.float64) - s.origin
+            lo.append(boxes[id(s)][0] + t)
+            hi.append(boxes[id(s)][1] + t)
+        return float(np.max(np.max(hi, axis=0) - np.min(lo, axis=0)))
 
     by_area = np.argsort([-sh[0].mask.sum() for sh in shapes], kind="stable")
     by_length = np.argsort([-max(max(s.mask.shape) for s in sh) for sh in shapes], kind="stable")
