@@ -286,13 +286,14 @@ def _prepare(U, Fs, rotate, steps=_STEPS):
     # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
     unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
     U = [u * unit for u in U]
-    area = sum(_area(u, f) for u, f in zip(U, Fs))
+    areas = [_area(u, f) for u, f in zip(U, Fs)]
+    area = sum(areas)
     Bs = [boundary_half_edges(f) for f in Fs]
     bases, turns = [[(np.eye(2), False)]] * len(U), _QUARTER_TURNS[:1]
     if rotate:
         big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
         bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big,
-                                 steps if _area(u, f) > _LARGE * area else 1) for u, f, B in zip(U, Fs, Bs)]
+                                 steps if a > _LARGE * area else 1) for u, a, B in zip(U, areas, Bs)]
         turns = _QUARTER_TURNS
     return U, unit, area, Bs, bases, turns
 
