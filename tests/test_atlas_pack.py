@@ -645,7 +645,7 @@ def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
             self.efficiency = 0.5 + 0.2 * (len(maps) == 2)
 
     pack = lambda maps, faces: Packed(maps)
-    screen = lambda maps, faces: Packed(maps).efficiency
+    screen = lambda maps, faces, boundaries: Packed(maps).efficiency
     cands = candidate_splits(mesh, x, V=V, seams=True)
     seams = [seam for pieces, seam in cands if len(pieces) == 2]
     assert min(seams) == pytest.approx(3.0) and max(seams) > 4.0, seams
@@ -708,3 +708,21 @@ def test_pack_search_reports_the_true_side_of_its_packing():
     shapes = [_pack._shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
     placement, side = _pack._search(U, shapes, h, r, 12)
     assert side == _pack._side([(u @ R.T) / h + t for u, (R, t) in zip(U, placement)])
+
+
+def test_piece_boundaries_are_the_boundary_half_edges_of_the_pieces():
+    """The screens' boundaries of split pieces, from the chart's edges counted once, are each
+    piece's own boundary half-edges (the same rows in the same order), for pieces of pieces too."""
+    from geomopt.atlas.split import candidate_splits, piece_boundaries
+    from geomopt.exact.topology import boundary_half_edges
+
+    mesh, x = _shape_chart(lambda c: (c[:, 1] < 1.0) | (c[:, 0] < 1.0), n=13, size=(3.0, 3.0))
+    splits = candidate_splits(mesh, x)
+    piece, xp = max(splits[0], key=lambda p: len(p[0].F))
+    for chart, u in [(mesh, x), (piece, xp)]:
+        splits = candidate_splits(chart, u)
+        assert len(splits) > 3
+        for pieces, bounds in zip(splits, piece_boundaries(chart, splits)):
+            assert len(bounds) == len(pieces)
+            for (p, _), B in zip(pieces, bounds):
+                assert np.array_equal(B, boundary_half_edges(p.F))
