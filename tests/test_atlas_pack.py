@@ -214,22 +214,30 @@ def test_mixed_rectangles_pack_tightly():
     assert p.efficiency > 0.79
 
 
+def _bitmap_shapes(rng, count, size, r):
+    """``count`` random masks (5 to ``size`` pixels a side, spanning their box), each as two
+    orientations (itself and its transpose) with ``mask`` and ``grown`` (by ``r``), for the placer."""
+    from geomopt.atlas._raster import dilate
+
+    class Shape:
+        def __init__(self, mask):
+            self.mask, self.grown = mask, dilate(mask, r)
+
+    shapes = []
+    for _ in range(count):
+        m = rng.random((int(rng.integers(5, size)), int(rng.integers(5, size)))) < 0.8
+        m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True  # the mask spans its box
+        shapes.append([Shape(m), Shape(m.T.copy())])
+    return shapes
+
+
 def test_place_pack_square_keeps_masks_apart_and_inside():
     """The square placer on bitmaps: every mask inside the S x S square, grown masks meeting no
     other mask (checked on a fresh canvas), and None when the area cannot fit."""
     from geomopt.atlas._place import pack_square
-    from geomopt.atlas._raster import dilate
 
-    class Shape:
-        def __init__(self, mask, r):
-            self.mask, self.grown = mask, dilate(mask, r)
-
-    rng = np.random.default_rng(0)
-    r, shapes = 2, []
-    for _ in range(30):
-        m = rng.random((int(rng.integers(5, 30)), int(rng.integers(5, 30)))) < 0.8
-        m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = True  # the mask spans its box
-        shapes.append([Shape(m, r), Shape(m.T.copy(), r)])
+    r = 2
+    shapes = _bitmap_shapes(np.random.default_rng(0), 30, 30, r)
     order = np.argsort([-s[0].mask.sum() for s in shapes])
     for rule in ("square", "bottom"):
         placed = pack_square(shapes, order, r, 150, 4, {}, rule)
@@ -637,7 +645,7 @@ def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
             self.efficiency = 0.5 + 0.2 * (len(maps) == 2)
 
     pack = lambda maps, faces: Packed(maps)
-    screen = lambda maps, faces: Packed(maps).efficiency
+    screen = lambda maps, faces, boundaries: Packed(maps).efficiency
     cands = candidate_splits(mesh, x, V=V, seams=True)
     seams = [seam for pieces, seam in cands if len(pieces) == 2]
     assert min(seams) == pytest.approx(3.0) and max(seams) > 4.0, seams
@@ -648,3 +656,73 @@ def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
     meshes, _, packing, _ = split_to_pack([mesh], [x], pack, goal=0.9, max_splits=1, screen=screen, V=V,
                                           seam_cost=1.0)  # 0.01 + 1.0 * 3 / sqrt(15) > 0.2
     assert len(meshes) == 1 and packing.efficiency == 0.5
+
+
+def test_place_reusing_a_larger_squares_trace_packs_alike(monkeypatch):
+    """A packing that reuses the placements of the same charts in a larger square (while their
+    spots are offered) is the packing a full search finds, with fewer searches."""
+    from geomopt.atlas import _place
+
+    r = 2
+    shapes = _bitmap_shapes(np.random.default_rng(1), 12, 40, r)
+    order = np.argsort([-s[0].mask.sum() for s in shapes])
+    searches = []
+    best_spot = _place._best_spot
+    monkeypatch.setattr(_place, "_best_spot", lambda *a: searches.append(1) or best_spot(*a))
+    for rule in ("square", "bottom"):
+        _, trace = _place._pack_traced(shapes, order, r, 160, 4, {}, rule, 0)
+        reused = 0
+        for S in range(96, 161, 8):
+            fresh = _place.pack_square(shapes, order, r, S, 4, {}, rule)
+            n = len(searches)
+            again, _ = _place._pack_traced(shapes, order, r, S, 4, {}, rule, 0, trace)
+            reused += len(shapes) - (len(searches) - n)
+            assert (fresh is None) == (again is None)
+            if fresh is not None:
+                assert [(id(s), y, x) for s, y, x in fresh] == [(id(s), y, x) for s, y, x in again]
+        assert reused > len(shapes)  # charts were placed from the trace, not searched
+
+
+def test_place_pool_marks_the_blocks_holding_a_pixel():
+    """The coarse grid: block (i, j) is set exactly when a pixel of its c x c block is, for block
+    sizes read as machine words (2, 4, 8) and not, and masks not a multiple of the block."""
+    from geomopt.atlas._place import pool
+
+    rng = np.random.default_rng(3)
+    for c in range(1, 10):
+        for shape in [(1, 1), (3, 7), (17, 33), (40, 9)]:
+            m = rng.random(shape) < 0.05
+            want = [[m[i * c:(i + 1) * c, j * c:(j + 1) * c].any() for j in range(-(-shape[1] // c))]
+                    for i in range(-(-shape[0] // c))]
+            assert np.array_equal(pool(m, c), np.array(want, bool))
+
+
+def test_pack_search_reports_the_true_side_of_its_packing():
+    """The side that the square search ranks packings by (from each orientation's box, moved)
+    is the side of the charts it places, computed from all their points."""
+    from geomopt.atlas import _pack
+
+    uvs, faces = random_charts(6, 5)
+    U, _, area, Bs, bases, turns = _pack._prepare(uvs, faces, True)
+    h, r = np.sqrt(area / 0.6) / 128, 2
+    shapes = [_pack._shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
+    placement, side = _pack._search(U, shapes, h, r, 12)
+    assert side == _pack._side([(u @ R.T) / h + t for u, (R, t) in zip(U, placement)])
+
+
+def test_piece_boundaries_are_the_boundary_half_edges_of_the_pieces():
+    """The screens' boundaries of split pieces, from the chart's edges counted once, are each
+    piece's own boundary half-edges (the same rows in the same order), for pieces of pieces too."""
+    from geomopt.atlas.split import candidate_splits, piece_boundaries
+    from geomopt.exact.topology import boundary_half_edges
+
+    mesh, x = _shape_chart(lambda c: (c[:, 1] < 1.0) | (c[:, 0] < 1.0), n=13, size=(3.0, 3.0))
+    splits = candidate_splits(mesh, x)
+    piece, xp = max(splits[0], key=lambda p: len(p[0].F))
+    for chart, u in [(mesh, x), (piece, xp)]:
+        splits = candidate_splits(chart, u)
+        assert len(splits) > 3
+        for pieces, bounds in zip(splits, piece_boundaries(chart, splits)):
+            assert len(bounds) == len(pieces)
+            for (p, _), B in zip(pieces, bounds):
+                assert np.array_equal(B, boundary_half_edges(p.F))

@@ -220,8 +220,20 @@ def _search(U, shapes, h, r, passes):
     def placement(placed):
         return [(s.R, np.array([x, y], np.float64) - s.origin) for s, y, x in placed]
 
+    boxes = {}  # per orientation (id), the least and greatest pixel coordinates of its chart, unmoved
+
     def side(placed):
-        return _side([(u @ R.T) / h + t for u, (R, t) in zip(U, placement(placed))])
+        """:func:`_side` of the placed charts from their orientations' boxes: adding the
+        translation is monotone in floating point, so the box of the moved chart is the moved box."""
+        lo, hi = [], []
+        for u, (s, y, x) in zip(U, placed):
+            if id(s) not in boxes:
+                p = (u @ s.R.T) / h
+                boxes[id(s)] = (p.min(axis=0), p.max(axis=0))
+            t = np.array([x, y], np.float64) - s.origin
+            lo.append(boxes[id(s)][0] + t)
+            hi.append(boxes[id(s)][1] + t)
+        return float(np.max(np.max(hi, axis=0) - np.min(lo, axis=0)))
 
     by_area = np.argsort([-sh[0].mask.sum() for sh in shapes], kind="stable")
     by_length = np.argsort([-max(max(s.mask.shape) for s in sh) for sh in shapes], kind="stable")
@@ -268,25 +280,26 @@ def _to_unit_square(U, R, t, h):
     return uvs, scale, offsets
 
 
-def _prepare(U, Fs, rotate, steps=_STEPS):
+def _prepare(U, Fs, rotate, steps=_STEPS, Bs=None):
     """The charts ``U`` rescaled near 1 by a power of two (``unit``), their total ``area``,
-    boundary edges ``Bs`` and the rotations to try (``bases``, ``turns``)."""
+    boundary edges ``Bs`` (found when not given) and the rotations to try (``bases``, ``turns``)."""
     # an exact power-of-two rescaling to sizes near 1 keeps areas and pixel sizes in range
     unit = math.ldexp(1.0, -math.frexp(max(float(np.ptp(u, axis=0).max()) for u in U))[1])
     U = [u * unit for u in U]
-    area = sum(_area(u, f) for u, f in zip(U, Fs))
-    Bs = [boundary_half_edges(f) for f in Fs]
+    areas = [_area(u, f) for u, f in zip(U, Fs)]
+    area = sum(areas)
+    Bs = [boundary_half_edges(f) for f in Fs] if Bs is None else [np.asarray(B, dtype=np.int64) for B in Bs]
     bases, turns = [[(np.eye(2), False)]] * len(U), _QUARTER_TURNS[:1]
     if rotate:
         big = 0.6 * math.sqrt(area / _FIRST_GUESS)  # a chart this long may decide the square's side
         bases = [_base_rotations(u[np.unique(B)], np.ptp(u[B[:, 0]], axis=0).max() > big,
-                                 steps if _area(u, f) > _LARGE * area else 1) for u, f, B in zip(U, Fs, Bs)]
+                                 steps if a > _LARGE * area else 1) for u, a, B in zip(U, areas, Bs)]
         turns = _QUARTER_TURNS
     return U, unit, area, Bs, bases, turns
 
 
 def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 128,
-                     budget: int = _BUDGET // 2) -> float:
+                     budget: int = _BUDGET // 2, boundaries=None) -> float:
     """The packing efficiency :func:`pack_charts` would about reach, cheaply: one layout on a
     coarse bitmap, with fewer square packings and no angles between the quarter turns of a
     chart's minimum-area rectangle, neither checked nor certified (for ranking candidate chart
@@ -296,6 +309,8 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     ----------
     uvs, faces, margin, rotate, resolution : as :func:`pack_charts`.
     budget : int, the most square packings.
+    boundaries : optional list of (s_i, 2) int arrays, each chart's boundary half-edges
+        (:func:`~geomopt.exact.topology.boundary_half_edges` of its faces), when already known.
 
     Returns
     -------
@@ -303,7 +318,7 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     """
     U = [np.asarray(u, dtype=np.float64) for u in uvs]
     Fs = [np.asarray(f, dtype=np.int64) for f in faces]
-    U, _, area, Bs, bases, turns = _prepare(U, Fs, rotate, steps=1)
+    U, _, area, Bs, bases, turns = _prepare(U, Fs, rotate, steps=1, Bs=boundaries)
     R, t, h = _layout(U, Bs, bases, turns, area, margin, max(16, int(resolution)), budget)
     return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
 

@@ -27,6 +27,7 @@ __all__ = ["coarse_factor", "pack_square", "smallest_square"]
 
 _COARSE_SIDE = 128  # pixels a side of the coarse grid
 _REACH = 0.1  # after the first strategy, bisections start this fraction below the best square so far
+_WORDS = {2: np.uint16, 4: np.uint32, 8: np.uint64}  # c bools (bytes 0 or 1) read as one word: nonzero = any
 _TOLERANCE = 0.01  # bisection stops when the bracket is this fraction of the side (or 1 pixel)
 
 
@@ -36,12 +37,18 @@ def coarse_factor(side: int) -> int:
 
 
 def pool(mask, c: int) -> np.ndarray:
-    """(ceil(H / c), ceil(W / c)) bool: the blocks of ``c x c`` pixels of ``mask`` (H, W) holding a set pixel."""
+    """(ceil(H / c), ceil(W / c)) bool: the blocks of ``c x c`` pixels of ``mask`` (H, W) holding
+    a set pixel (``mask`` itself for ``c = 1``)."""
+    if c == 1:
+        return np.asarray(mask, bool)
     H, W = mask.shape
     Hc, Wc = -(-H // c), -(-W // c)
     padded = np.zeros((Hc * c, Wc * c), bool)
     padded[:H, :W] = mask
-    return padded.reshape(Hc, c, Wc, c).any(axis=(1, 3))
+    if c not in _WORDS:
+        return padded.reshape(Hc, c, Wc, c).any(axis=(1, 3))
+    words = padded.view(_WORDS[c]).reshape(Hc, c, Wc)  # a block row's c pixels as one word
+    return np.bitwise_or.reduce(words, axis=1) != 0
 
 
 def _padded(a, shape) -> np.ndarray:
@@ -87,11 +94,15 @@ class _Canvas:
         if self.occ_hat is None:
             self.occ_hat = scipy.fft.rfft2(self.coarse.astype(np.float32), self.fshape)
         kernels, hats = self._kernels(shapes)
-        counts = scipy.fft.irfft2(self.occ_hat * hats, self.fshape, axes=(-2, -1))
-        for k, ((top, right), kern) in enumerate(zip(limits, kernels)):
-            if min(top, right) >= 0:
-                h, w = kern.shape
-                out[k] = counts[k, h - 1:H, w - 1:H][:top + 1, :right + 1] < 0.5
+        fit = [k for k, (top, right) in enumerate(limits) if min(top, right) >= 0]
+        if not fit:
+            return out
+        # the inverse 2D FFT in two passes, the second over the rows of the spots only
+        cols = scipy.fft.ifft(self.occ_hat * hats[fit], axis=-2)
+        for j, k in enumerate(fit):
+            (top, right), (h, w) = limits[k], kernels[k].shape
+            counts = scipy.fft.irfft(cols[j, h - 1:min(H, h + top)], self.fshape[1], axis=-1)
+            out[k] = counts[:, w - 1:H][:, :right + 1] < 0.5
         return out
 
     def _free(self, g, y: int, x: int) -> bool:
@@ -144,29 +155,60 @@ def _choose(free, shape, c: int, r: int, extent, rule: str):
     return (int(max(R2[j], C2[j])), int(R2[j] * C2[j]), int(ys[j]), int(xs[j])), int(ys[j]), int(xs[j])
 
 
+def _best_spot(canvas, shapes, extent, rule: str):
+    """The best orientation of ``shapes`` and its coarse spot, ``(shape, Y, X)``, by ``rule``
+    (:func:`_choose`), or None when no orientation fits; ties go to the first orientation."""
+    best = None
+    for s, free in zip(shapes, canvas.free(shapes)):
+        spot = None if free is None else _choose(free, s, canvas.c, canvas.r, extent, rule)
+        if spot is not None and (best is None or spot[0] < best[0]):
+            best = (spot[0], s, spot[1], spot[2])
+    return None if best is None else best[1:]
+
+
+def _holds(canvas, shape, Y: int, X: int) -> bool:
+    """Whether the coarse spot ``(Y, X)`` of ``shape`` is one that :meth:`_Canvas.free` offers
+    in this canvas: inside the square, its coarse kernel inside the coarse grid."""
+    (h, w), (kh, kw) = shape.mask.shape, shape.grown.shape
+    H, c = canvas.coarse.shape[0], canvas.c
+    return (Y <= (canvas.S - h) // c and X <= (canvas.S - w) // c
+            and Y + -(-kh // c) <= H and X + -(-kw // c) <= H)
+
+
+def _pack_traced(shapes, order, r: int, S: int, c: int, cache: dict, rule: str, fft_side: int, known=()):
+    """:func:`pack_square`'s packing (or None) and its *trace*: per chart placed, in ``order``,
+    ``(shape, Y, X, y, x)`` (coarse and fine spot).  ``known``: the trace of the same charts,
+    order and rule in a square at least as large; its charts are placed alike here while their
+    coarse spots are offered here too (:func:`_holds`), with no search: a smaller square's free
+    spots are a subset of the larger's (the same charts placed before), and a best spot of a set
+    that lies in a subset is that subset's best (the keys order all spots; ties alike), so the
+    packing is the one a search would find."""
+    canvas = _Canvas(S, r, c, cache, fft_side)
+    placed, trace, extent = [None] * len(shapes), [], (0, 0)
+    for k, i in enumerate(order):
+        if k < len(known) and _holds(canvas, *known[k][:3]):
+            s, Y, X, y, x = known[k]
+        else:
+            known = ()
+            best = _best_spot(canvas, shapes[i], extent, rule)
+            if best is None:
+                return None, trace
+            s, Y, X = best
+            y, x = canvas.refine(s, Y, X)
+        canvas.put(s, y, x)
+        trace.append((s, Y, X, y, x))
+        extent = (max(extent[0], y + r + s.mask.shape[0]), max(extent[1], x + r + s.mask.shape[1]))
+        placed[i] = (s, y + r, x + r)
+    return placed, trace
+
+
 def pack_square(shapes, order, r: int, S: int, c: int, cache: dict, rule: str = "bottom", fft_side: int = 0):
     """Each chart in ``order`` at its best free spot by ``rule`` (:func:`_choose`) over its
     orientations ``shapes[i]`` (each with ``mask``, ``grown``), inside an ``S x S`` square of
     fine pixels (coarse blocks of ``c``).  Returns per chart (orientation, y, x) of the mask's
     first pixel (margin offset included), or None when a chart does not fit.  ``cache`` keeps
     the charts' kernel FFTs between calls with the same ``c`` and FFT size (at least ``fft_side``)."""
-    canvas = _Canvas(S, r, c, cache, fft_side)
-    placed = [None] * len(shapes)
-    extent = (0, 0)
-    for i in order:
-        best = None
-        for s, free in zip(shapes[i], canvas.free(shapes[i])):
-            spot = None if free is None else _choose(free, s, c, r, extent, rule)
-            if spot is not None and (best is None or spot[0] < best[0]):
-                best = (spot[0], s, spot[1], spot[2])
-        if best is None:
-            return None
-        _, s, Y, X = best
-        y, x = canvas.refine(s, Y, X)
-        canvas.put(s, y, x)
-        extent = (max(extent[0], y + r + s.mask.shape[0]), max(extent[1], x + r + s.mask.shape[1]))
-        placed[i] = (s, y + r, x + r)
-    return placed
+    return _pack_traced(shapes, order, r, S, c, cache, rule, fft_side)[0]
 
 
 def smallest_square(strategies, r: int, side_of, budget: int):
@@ -186,13 +228,20 @@ def smallest_square(strategies, r: int, side_of, budget: int):
     lo = max(int(math.sqrt(area)), least) - 1  # no square of this side holds them
     c = coarse_factor(int(math.sqrt(area / 0.6)))
     cache, best, tries, fft_side = {}, None, 0, 0
+    traces = {}  # per distinct strategy, {S: trace} of its packings so far
 
     def fits(S, strategy):
         nonlocal best, tries
-        placed = pack_square(strategy[0], strategy[2], r, S, c, cache, strategy[1], fft_side)
+        shapes_, rule, order = strategy
+        done = traces.setdefault((id(shapes_), rule, np.asarray(order).tobytes()), {})
+        larger = [q for q in done if q >= S]
+        known = done[min(larger)] if larger else ()
+        placed, done[S] = _pack_traced(shapes_, order, r, S, c, cache, rule, fft_side, known)
         tries += 1
-        if placed is not None and (best is None or side_of(placed) < best[1]):
-            best = (placed, side_of(placed))
+        if placed is not None:
+            side = side_of(placed)
+            if best is None or side < best[1]:
+                best = (placed, side)
         return placed is not None
 
     ok = max(lo + 1, int(math.sqrt(area / 0.8)))

@@ -227,8 +227,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
-    def screen(maps, faces):
-        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate)
+    def screen(maps, faces, boundaries):
+        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, boundaries=boundaries)
 
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
                                                  min_gain=options.split_gain,

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from ..mesh.quality import triangle_areas
 from .charts import ChartMesh, face_pairs, patch_is_disk
 
-__all__ = ["candidate_splits", "split_flat_chart", "split_to_pack", "separate_overlaps"]
+__all__ = ["candidate_splits", "piece_boundaries", "split_flat_chart", "split_to_pack", "separate_overlaps"]
 
 _DIRECTIONS = 8  # straight cuts tried across this many directions over half a turn
 _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
@@ -197,6 +197,27 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
     return out
 
 
+def piece_boundaries(mesh: ChartMesh, splits):
+    """Per split (a list of pieces ``(ChartMesh, x)`` of the chart ``mesh``), each piece's
+    boundary half-edges in its vertex ids, as :func:`~geomopt.exact.topology.boundary_half_edges`
+    gives them, from the chart's edges found once: a piece's half-edge is on its boundary when its
+    edge has one face in the piece (the chart is a disk: an edge's second face runs it the other way)."""
+    from ..exact.topology import half_edges, unique_edges
+
+    E, _, edge_of = unique_edges(mesh.F)
+    row = np.full(int(mesh.faces.max()) + 1, -1, dtype=np.int64)
+    row[mesh.faces] = np.arange(len(mesh.faces))
+    out = []
+    for pieces in splits:
+        bounds = []
+        for piece, _ in pieces:
+            e = edge_of[row[piece.faces]]
+            once = np.bincount(e.ravel(), minlength=len(E))[e] == 1
+            bounds.append(half_edges(piece.F)[once.ravel()])
+        out.append(bounds)
+    return out
+
+
 def _best_split(meshes, maps, i, pack, screen, charge, current):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
@@ -205,7 +226,8 @@ def _best_split(meshes, maps, i, pack, screen, charge, current):
     with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
     pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
-    est = [screen([p[1] for p in c], [p[0].F for p in c]) - charge(c, seam) for c, seam in cands]
+    bounds = piece_boundaries(meshes[i], [c for c, _ in cands])
+    est = [screen([p[1] for p in c], [p[0].F for p in c], B) - charge(c, seam) for (c, seam), B in zip(cands, bounds)]
     best = None
     for j in np.argsort(est)[::-1][:_FINALISTS]:
         pieces, seam = cands[j]
@@ -341,8 +363,9 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     is below ``goal`` (at most ``max_splits`` charts tried; none more after ``_PATIENCE`` in a row
     that stay whole: charts are tried by decreasing area, and a smaller chart's split moves the
     packing less).
-    ``screen(maps, faces) -> float`` estimates a packing's efficiency cheaply (default:
-    ``pack``'s).  The seam's unit is the square root of the charts' total area
+    ``screen(maps, faces, boundaries) -> float`` estimates a packing's efficiency cheaply
+    (``boundaries``: each chart's boundary half-edges, :func:`piece_boundaries`; default:
+    ``pack``'s efficiency).  The seam's unit is the square root of the charts' total area
     (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
     charts' ``vertices`` index) when given, else in UV.
 
@@ -351,7 +374,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     ``(meshes, maps, packing, owner)``: the charts, their flattenings, their packing, and for
     each chart the index of the chart of the input it came from.
     """
-    screen = screen or (lambda m, f: pack(m, f).efficiency)
+    screen = screen or (lambda m, f, b: pack(m, f).efficiency)
     charge = _Charge(meshes, maps, V, min_gain, seam_cost)
     owner = list(range(len(meshes)))
     packing = pack(maps, [m.F for m in meshes])
