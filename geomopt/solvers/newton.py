@@ -230,6 +230,8 @@ class AbstractNewton(AbstractSolver):
         obj, pat, mem = state.objective, state.objective.pattern, state.memory
         value, grad, data = obj.hessian(state.x, state.params, projection)
         data = np.array(data)  # the one host copy (the kernel's output is freed), shifted in place
+        if state.x.size >= TRIM_FROM_DOFS:  # the kernel's scratch, before the factorization's
+            release_free_memory()
         diag = data[pat.diag]  # unshifted
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
         scale = max(float(np.mean(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
