@@ -8,7 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["pcg"]
+__all__ = ["pcg", "symmetric_product"]
+
+
+def symmetric_product(L):
+    """``p -> A p`` for the symmetric ``A`` whose lower triangle (diagonal included) is the
+    sparse matrix ``L``, without assembling ``A``."""
+    LT, D = L.T, L.diagonal()
+
+    def matvec(p):
+        return L @ p + LT @ p - D * p
+
+    return matvec
 
 
 def pcg(matvec, b, precondition, rtol, maxiter):

@@ -211,8 +211,8 @@ class SparseCholesky:
         self.backend = backend
         # float32 only where PARDISO is called directly (pardiso.handle)
         self.single = bool(single) and backend == "pardiso" and pardiso.entry_point() is not None
-        # int32 indices are kept as given (a pattern's, shared: no copy); PARDISO gets int64
-        # copies at its analysis, which it copies again into its own storage
+        # int32 indices are kept as given (a pattern's, shared: no copy); a PARDISO handle keeps
+        # the int64 copies PARDISO_64 reads
         it = np.int32 if np.asarray(indptr).dtype == np.asarray(indices).dtype == np.int32 else np.int64
         self.indptr = np.asarray(indptr, it)
         self.indices = np.asarray(indices, it)

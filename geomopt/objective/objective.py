@@ -408,8 +408,8 @@ class Objective:
     def free_factors(self) -> None:
         """Free the numeric factors of the mesh's sparse Cholesky factorizations, keeping
         their symbolic analyses (:meth:`~geomopt.objective.linsolve.SparseCholesky.free_factor`):
-        what a finished solve leaves
-        that no later solve or derivative reuses (each refactors its own matrix)."""
+        what a finished solve leaves that no later solve or derivative reuses (each refactors
+        its own matrix)."""
         self._mesh.free_factors()
 
     def release_factorizations(self) -> None:

@@ -8,8 +8,7 @@ Python class, for two reasons measured at 10^6 triangles (996,872 rows, 7.5M ent
   (0.12-0.18 GB); here PARDISO reads the caller's arrays, kept alive by this object;
 * single precision (``iparm[27] = 1``, which the class refuses): the numeric factor in float32
   takes half the memory (885 -> ~440 MB) and less time.  Its solves are accurate to float32
-  only: :class:`~geomopt.objective.linsolve.SparseCholesky` refines them in float64 against
-  the float64 matrix, using the single-precision factor as the preconditioner of conjugate
+  only: :class:`Refined` refines them in float64 against the float64 matrix, using the single-precision factor as the preconditioner of conjugate
   gradients (mixed-precision refinement).
 
 Indices are zero-based (``iparm[34] = 1``); the pattern is the upper triangle in CSR, i.e. the
@@ -25,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._runtime.errors import NotPositiveDefinite
-from .krylov import pcg
+from .krylov import pcg, symmetric_product
 
 __all__ = ["Pardiso", "Refined", "WheelPardiso", "available", "entry_point", "handle"]
 
@@ -192,7 +191,7 @@ class Refined:
     def __init__(self, indptr, indices, ordering: str = "metis"):
         self._low = Pardiso(indptr, indices, ordering, single=True)
         self.n = self._low.n
-        self._matrix = None
+        self._matvec = None
         self.iterations = 0  # of the last solve's conjugate gradients
         ia, ja = self._low.ia, self._low.ja  # the most entries in a row of the full matrix
         self._row_entries = int((np.diff(ia) + np.bincount(ja, minlength=self.n) - 1).max(initial=0))
@@ -201,22 +200,21 @@ class Refined:
         self._low.analyze()
 
     def factor(self, data):
-        self._matrix = None
+        self._matvec = None
         data = np.ascontiguousarray(data, dtype=np.float64)
         # no retry with a shift where float32 pivots fail: the matrices that fail here (an
         # indefinite exact Hessian) fail in float64 too, and a shifted factor then only makes
         # conjugate gradients run to their limit (6 s at 10^6 triangles) before failing
         self._low.factor(data)
         L = sp.csc_matrix((data, self._low.ja, self._low.ia), shape=(self.n, self.n))
-        D = L.diagonal()
         # a bound on |A|'s largest row sum without a copy of the values (at 10^6 triangles 60 MB
         # in the factor's phase): |a_ij| <= sqrt(a_ii a_jj) <= max a_ii in a positive-definite
         # matrix; the float64 residual of any x is only known to ~eps |A| |x|
-        self._norm = float(D.max(initial=0.0)) * self._row_entries
-        self._matrix = (L, L.T, D)
+        self._norm = float(data[self._low.ia[:-1]].max(initial=0.0)) * self._row_entries  # diagonal first
+        self._matvec = symmetric_product(L)  # the refinement's matrix, holding data
 
     def free_factor(self):
-        self._matrix = None
+        self._matvec = None
         self._low.free_factor()
 
     @property
@@ -226,11 +224,7 @@ class Refined:
     def forget_values(self):
         """Drop the reference to the factored values: :meth:`precondition` still works,
         :meth:`solve` needs a new :meth:`factor`."""
-        self._matrix = None
-
-    def _matvec(self, p):
-        L, LT, D = self._matrix
-        return L @ p + LT @ p - D * p
+        self._matvec = None
 
     def precondition(self, b):
         """The float32 factor's solve, unrefined (a preconditioner)."""
@@ -240,7 +234,7 @@ class Refined:
         """``A^-1 b`` to ``|b - A x| <= rtol |b|`` (per column of a 2D ``b``), or to the
         residual float64 can tell (``64 eps |A| |x|``) where that is larger: the accuracy of a
         float64 factorization's solve."""
-        if self._matrix is None:
+        if self._matvec is None:
             raise RuntimeError("no factored values held (forgotten, or the last factor failed): factor again")
         b = np.asarray(b, dtype=np.float64)
         if b.ndim == 2:
@@ -262,7 +256,7 @@ class Refined:
                                   f"conjugate-gradient iterations (indefinite or too ill-conditioned)")
 
     def release(self):
-        self._matrix = None
+        self._matvec = None
         self._low.release()
 
 

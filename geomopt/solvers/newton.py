@@ -24,7 +24,8 @@ from .._runtime.memory import release_free_memory
 from .._runtime.threads import AHEAD_FROM, ahead
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
-from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver, pcg
+from ..objective.krylov import pcg, symmetric_product
+from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
@@ -300,12 +301,7 @@ class AbstractNewton(AbstractSolver):
             return None, reuse._replace(wait=reuse.wait - 1)
         if not reuse.on or not mem.factor.has_factor or budget < MIN_REUSE_ITERS:
             return None, reuse
-        L = pat.lower(data)
-        D, LT = L.diagonal(), L.T
-
-        def matvec(p):
-            return L @ p + LT @ p - D * p
-
+        matvec = symmetric_product(pat.lower(data))
         gnorm = float(np.linalg.norm(g))
         rtol = min(self.cg.eta_max, math.sqrt(gnorm / mem.grad_ref))
         t0 = time.perf_counter()
