@@ -227,12 +227,13 @@ class SparseCholesky:
             self._ix32 = self.indices.astype(np.int32, copy=False)
 
     @classmethod
-    def factored(cls, A, backend="auto", ordering="metis") -> "SparseCholesky":
+    def factored(cls, A, backend="auto", ordering="metis", single=False) -> "SparseCholesky":
         """The factorization of the symmetric positive-definite sparse matrix ``A`` (n, n), from
-        its lower triangle.  Raises :class:`NotPositiveDefinite` when it is not."""
+        its lower triangle (``single``: as the constructor's).  Raises :class:`NotPositiveDefinite`
+        when it is not."""
         L = sp.tril(A).tocsc()
         L.sort_indices()
-        chol = cls(L.indptr, L.indices, backend, ordering)
+        chol = cls(L.indptr, L.indices, backend, ordering, single)
         chol.factor(L.data)
         return chol
 
