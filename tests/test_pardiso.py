@@ -190,3 +190,35 @@ def test_a_large_3d_laplacian_seed_is_a_float32_factor_applied_unrefined(monkeyp
     held = _laplacian._seed_factor((singular + 2e-12 * sp.identity(n)).tocsc(), "pardiso")
     definite = _laplacian._seed_factor((singular + 1e-2 * sp.identity(n)).tocsc(), "pardiso")
     assert not held.single and definite.single
+
+
+def test_a_large_2d_laplacian_seed_solves_each_coordinate_on_its_own_handle(monkeypatch):
+    """From PARDISO_2D_FROM rows on two or more cores, the 2D seed is PARDISO's, each
+    coordinate on its own float32 handle and thread: both coordinates solved (to float32), each
+    from its own column."""
+    import geomopt
+    from geomopt.mesh import generators
+    from geomopt.objective.objective import Objective
+    from geomopt.solvers import _laplacian
+
+    monkeypatch.setattr(linsolve, "PARDISO_2D_FROM", 10)
+    monkeypatch.setattr(linsolve, "usable_cores", lambda: 2)
+    monkeypatch.setattr(_laplacian, "usable_cores", lambda: 2)
+    monkeypatch.setattr(linsolve, "available_backends", lambda: ["pardiso", "cholespy", "superlu"])
+    together, at_once = [], _laplacian._at_once
+    monkeypatch.setattr(_laplacian, "_at_once", lambda calls: together.append(len(calls)) or at_once(calls))
+    V, F = generators.disk_mesh(12)
+    t = generators.rotated_interior(V, F, 90.0)
+    problem = geomopt.Problem.planar(t.rest, t.simplices, fixed=t.fixed, fixed_positions=t.x0[t.fixed])
+    pre = _laplacian.RestLaplacian(Objective(problem, "dirichlet"), "host")
+    free = problem.free_mask
+    K = _laplacian.rest_laplacian(problem).tocsr()[free][:, free]
+    q = np.random.default_rng(2).standard_normal((problem.n_vertices, 2))
+    q[:, 1] *= 1e3  # columns of different sizes: a swapped column would be far off
+    built = len(together)
+    x = pre.solve(q)[free]
+    assert together[built:] == [2]  # the solve too ran the two coordinates at once
+    for c in range(2):
+        error = np.linalg.norm(K @ x[:, c] - q[free, c]) / np.linalg.norm(q[free, c])
+        assert 1e-12 < error < 1e-4, (c, error)
+    assert together[0] == 2  # the two factorizations at once

@@ -176,6 +176,7 @@ def test_repeated_solves_take_the_backend_with_the_fastest_solves(monkeypatch):
     # large 3D Laplacians: PARDISO's nested dissection (cholespy factored a 91k-row hex corner
     # Laplacian in 38 s, PARDISO in 3.6 s)
     big = linsolve.PARDISO_3D_FROM
+    monkeypatch.setattr(linsolve, "usable_cores", lambda: 1)
     for installed, dim, n, expect in ((["pardiso", "cholespy", "superlu"], 3, big, "pardiso"),
                                       (["pardiso", "cholespy", "superlu"], 3, big - 1, "cholespy"),
                                       (["pardiso", "cholespy", "superlu"], 2, 10 * big, "cholespy"),
@@ -183,6 +184,14 @@ def test_repeated_solves_take_the_backend_with_the_fastest_solves(monkeypatch):
                                       (["cholespy", "superlu"], 3, big, "cholespy")):
         monkeypatch.setattr(linsolve, "available_backends", lambda: installed)
         assert linsolve.repeated_solves_backend(dim, n) == expect
+    # large 2D Laplacians on two or more cores: PARDISO, a float32 handle per coordinate solved
+    # on its own thread (498k rows: 82 ms a seed solve with cholespy, 42 ms so)
+    monkeypatch.setattr(linsolve, "available_backends", lambda: ["pardiso", "cholespy", "superlu"])
+    direct = linsolve.pardiso.entry_point() is not None
+    for cores, n, expect in ((2, linsolve.PARDISO_2D_FROM, "pardiso" if direct else "cholespy"),
+                             (2, linsolve.PARDISO_2D_FROM - 1, "cholespy"), (1, 10**6, "cholespy")):
+        monkeypatch.setattr(linsolve, "usable_cores", lambda: cores)
+        assert linsolve.repeated_solves_backend(2, n) == expect
 
 
 # ------------------------------------------------------------------ size buckets (padding)

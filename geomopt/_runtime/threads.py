@@ -20,10 +20,11 @@ that the thread's start and join cost more than the work it overlaps (a 36-verte
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 
-__all__ = ["AHEAD_FROM", "single_blas_thread", "ahead"]
+__all__ = ["AHEAD_FROM", "single_blas_thread", "ahead", "usable_cores"]
 
 #: unknowns from which set-up work is done ahead on a thread (module doc)
 AHEAD_FROM = 4096
@@ -61,6 +62,11 @@ def single_blas_thread():
             if _state["users"] == 0:
                 _state["limits"].restore_original_limits()
                 _state["limits"] = None
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the platform tells it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def ahead(work) -> threading.Thread:

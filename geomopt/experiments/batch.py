@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import csv
 import io as _stdio
-import os
 import time
 from pathlib import Path
 
 from .._runtime.errors import GeomoptError, ParameterError
 from .._runtime.padding import bucket_sizes
+from .._runtime.threads import usable_cores
 from ..mesh.cells import cell_problem, is_cell_case, read_cell_case, write_certified
 from ..lim import LimCase, output_suffix, untangle_case
 from ..solvers import Outcome
@@ -179,8 +179,7 @@ def batch_cases(paths):
 def default_workers(n_cases) -> int:
     """Worker processes for ``n_cases`` cases when none are asked for: one per CPU core this
     process may run on, at most one per case."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return min(cores, n_cases)
+    return min(usable_cores(), n_cases)
 
 
 def tally(rows) -> tuple:

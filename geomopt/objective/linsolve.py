@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._runtime.errors import NotPositiveDefinite, ParameterError
+from .._runtime.threads import usable_cores
 from .krylov import pcg
 from . import pardiso
 
@@ -106,6 +107,9 @@ def available_backends():
 #: vertices (rows per coordinate) from which a 3D Laplacian solved many times is factored by
 #: PARDISO rather than cholespy (see :func:`repeated_solves_backend`)
 PARDISO_3D_FROM = 20_000
+#: rows per coordinate from which a 2D Laplacian solved many times goes to PARDISO, one handle
+#: per coordinate on its own core (see :func:`repeated_solves_backend`)
+PARDISO_2D_FROM = 30_000
 
 
 def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
@@ -123,9 +127,18 @@ def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
     with 3 right-hand sides, cholespy -> PARDISO): the corner Laplacian of 46^3 hexahedra
     (91k rows) 38.1 / 0.080 -> 3.6 / 0.121, of 30^3 (24k) 2.27 / 0.014 -> 0.42 / 0.020, a hex
     rod of 20 x 20 x 240 (86k) 8.3 / 0.065 -> 1.6 / 0.078; a box of 83k tetrahedra (12k rows)
-    0.51 / 0.0052 -> 0.12 / 0.0072 stays with cholespy."""
+    0.51 / 0.0052 -> 0.12 / 0.0072 stays with cholespy.
+
+    From :data:`PARDISO_2D_FROM` rows in 2D, on two or more cores and where PARDISO is called
+    directly, PARDISO too: the seed then factors each coordinate's copy on its own handle in
+    float32 and solves the two at once on two threads (PARDISO's solves are sequential; see
+    :class:`geomopt.solvers.RestLaplacian`).  Measured, disk Laplacians, factor / solve of both
+    coordinates, cholespy -> two float32 PARDISO handles: 19k rows 0.079 s / 0.90 ms -> 0.064 /
+    1.74, 30k 0.150 / 2.05 -> 0.109 / 1.60, 67k 0.39 / 8.2 -> 0.23 / 4.3, 251k 2.15 / 38.2 ->
+    0.99 / 20.4, 498k 6.4 / 82 -> 2.1 / 42."""
     installed = available_backends()
-    order = ("cholmod", "pardiso", "cholespy", "superlu") if dim == 3 and n >= PARDISO_3D_FROM else \
+    split_2d = dim == 2 and n >= PARDISO_2D_FROM and usable_cores() >= 2 and pardiso.entry_point() is not None
+    order = ("cholmod", "pardiso", "cholespy", "superlu") if (dim == 3 and n >= PARDISO_3D_FROM) or split_2d else \
         ("cholmod", "cholespy", "pardiso", "superlu")
     return next(b for b in order if b in installed)
 

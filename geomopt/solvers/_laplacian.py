@@ -17,7 +17,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import os
 import weakref
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +28,8 @@ import scipy.sparse as sp
 
 from .._runtime import hostcall as _hostcall
 from .._runtime.errors import ParameterError
+from .._runtime.threads import usable_cores
+from ..objective import pardiso
 from ..objective.linsolve import NotPositiveDefinite, SparseCholesky, repeated_solves_backend
 from .._runtime.x64 import pure_callback
 
@@ -127,22 +131,63 @@ def resolve_backend(backend: str) -> str:
 #: the relative residual a float32 seed factor must reach on a test solve (see _seed_factor)
 SEED_RTOL = 1e-3
 
+_HELPERS = []  # the thread pool of the per-column solves, made on first use
+if hasattr(os, "register_at_fork"):  # a forked child has none of its threads: it makes its own
+    os.register_at_fork(after_in_child=_HELPERS.clear)
 
-def _seed_factor(H, backend: str) -> SparseCholesky:
-    """``H`` factored to be applied many times as a preconditioner (:meth:`SparseCholesky.precondition`):
-    in float32 where PARDISO is called directly, unrefined.  A seed or a proxy needs no float64
-    solve (its relative error, ~1e-6, is far below what L-BFGS's curvature pairs correct), and
-    PARDISO's solve reads half the bytes: the corner Laplacian of 10^6 tetrahedra (157k rows, 3
-    right-hand sides) 204 -> 116 ms a solve, factored in 4.5 s instead of 7.6 s.  Where float32
-    cannot hold it (its pivots fail, or a test solve misses by over :data:`SEED_RTOL`: a Laplacian
-    kept definite only by its tiny shift) it is factored in float64."""
-    if backend == "pardiso":
-        try:
-            chol = SparseCholesky.factored(H, backend, single=True)
+
+def _at_once(calls):
+    """The results of the callables ``calls``, run at once: the first on this thread, the
+    others on helper threads (PARDISO releases the GIL).  Waits for all before raising."""
+    if not _HELPERS:
+        _HELPERS.append(ThreadPoolExecutor(max(1, usable_cores() - 1), thread_name_prefix="geomopt-seed"))
+    futures = [_HELPERS[0].submit(c) for c in calls[1:]]
+    try:
+        first = calls[0]()
+    finally:
+        wait(futures)
+    return [first] + [f.result() for f in futures]
+
+
+class _Float32Seed:
+    """``H`` factored in float32 by PARDISO and applied unrefined, on one handle or on one per
+    column of the right-hand side (``columns``), solved at once on as many threads: PARDISO's
+    solves run on one core, so the two coordinates of a 2D seed on two cores take the time of
+    one (498k rows: 82 ms with cholespy, 109 on one handle, 42 on two)."""
+
+    def __init__(self, H, columns: int = 1):
+        def part():
+            chol = SparseCholesky.factored(H, "pardiso", single=True)
             chol.forget_values()  # the float64 values only serve refined solves
-            b = np.random.default_rng(0).standard_normal(H.shape[0])
-            if np.linalg.norm(H @ chol.precondition(b) - b) <= SEED_RTOL * np.linalg.norm(b):
-                return chol
+            return chol
+
+        self._parts = _at_once([part] * columns)
+        self.single = True
+
+    def precondition(self, b):
+        if len(self._parts) == 1:
+            return self._parts[0].precondition(b)
+        cols = [np.ascontiguousarray(b[:, i]) for i in range(b.shape[1])]
+        return np.stack(_at_once([functools.partial(p.precondition, c) for p, c in zip(self._parts, cols)]), axis=1)
+
+
+def _seed_factor(H, backend: str, columns: int = 1):
+    """``H`` factored to be applied many times to ``columns`` right-hand sides as a
+    preconditioner (``.precondition``): in float32 where PARDISO is called directly, unrefined.
+    A seed or a proxy needs no float64 solve (its relative error, ~1e-6, is far below what
+    L-BFGS's curvature pairs correct), and PARDISO's solve reads half the bytes: the corner
+    Laplacian of 10^6 tetrahedra (157k rows, 3 right-hand sides) 204 -> 116 ms a solve,
+    factored in 4.5 s instead of 7.6 s.  Two columns (a 2D seed) on two or more cores get a
+    handle each (:class:`_Float32Seed`); three (3D) share one: splitting them 2 + 1 on two
+    cores gained 8 % (110 -> 102 ms at 10^6 tets) for a second factor's 344 MB.  Where float32
+    cannot hold ``H`` (its pivots fail, or a test solve misses by over :data:`SEED_RTOL`: a
+    Laplacian kept definite only by its tiny shift) it is factored in float64."""
+    if backend == "pardiso" and pardiso.entry_point() is not None:
+        try:
+            seed = _Float32Seed(H, columns if columns == 2 and usable_cores() >= 2 else 1)
+            b = np.random.default_rng(0).standard_normal((H.shape[0], columns))
+            if np.linalg.norm(H @ seed.precondition(b) - b) <= SEED_RTOL * np.linalg.norm(b):
+                return seed
         except NotPositiveDefinite:
             pass
     return SparseCholesky.factored(H, backend)
@@ -186,7 +231,8 @@ class RestLaplacian:
                 jnp.asarray(C.data), jnp.asarray(1.0 / H.diagonal()) if n else jnp.zeros(0),
                 jnp.float64(rtol), int(maxiter), self.per_vertex)
         elif n:
-            self._chol = _seed_factor(H, repeated_solves_backend(d, n if self.per_vertex else n // d))
+            self._chol = _seed_factor(H, repeated_solves_backend(d, n if self.per_vertex else n // d),
+                                      d if self.per_vertex else 1)
 
     def solve(self, q):
         out = np.zeros_like(q)
