@@ -132,7 +132,7 @@ def repeated_solves_backend(dim: int = 2, n: int = 0) -> str:
     From :data:`PARDISO_2D_FROM` rows in 2D, on two or more cores and where PARDISO is called
     directly, PARDISO too: the seed then factors each coordinate's copy on its own handle in
     float32 and solves the two at once on two threads (PARDISO's solves are sequential; see
-    :class:`geomopt.solvers.RestLaplacian`).  Measured, disk Laplacians, factor / solve of both
+    L-BFGS's seed in :mod:`geomopt.solvers`).  Measured, disk Laplacians, factor / solve of both
     coordinates, cholespy -> two float32 PARDISO handles: 19k rows 0.079 s / 0.90 ms -> 0.064 /
     1.74, 30k 0.150 / 2.05 -> 0.109 / 1.60, 67k 0.39 / 8.2 -> 0.23 / 4.3, 251k 2.15 / 38.2 ->
     0.99 / 20.4, 498k 6.4 / 82 -> 2.1 / 42."""

@@ -5,7 +5,9 @@ Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
 * ``"host"``: ``K`` factored once by :class:`~geomopt.objective.linsolve.SparseCholesky` and applied on
   the host through an XLA FFI target (:mod:`geomopt._runtime.hostcall`, by an integer handle; unlike
-  ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact; the CPU default.
+  ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact to float64, or to
+  float32 where PARDISO factors it (:func:`_seed_factor`: a seed needs no more, and PARDISO's
+  solves then read half the bytes); the CPU default.
 * ``"device"``: ``K`` kept as a sparse operator in JAX (:class:`LaplacianOperator`) and applied
   by Jacobi-preconditioned conjugate gradients warm-started from the previous solution, so a
   loop on an accelerator makes no host round trip.  Approximate (to ``rtol``); the default on
