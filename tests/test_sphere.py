@@ -124,6 +124,18 @@ def test_optimised_map_is_certified_and_lowers_the_energy():
     assert 4.0 <= end < 5.0
 
 
+@pytest.mark.parametrize("scale", [1e-9, 1e9])
+def test_the_map_does_not_depend_on_the_inputs_units(scale):
+    """The rest triangles are scaled to the sphere's area: a mesh in other units gives the same
+    map (a mesh 1e6 times larger once failed the divergence test: its rest extent was taken
+    as the unit of a map on the unit sphere)."""
+    V, F = dented()
+    unit = geomopt.sphere_map(V, F, progress=False)
+    res = geomopt.sphere_map(V * scale, F, progress=False)
+    assert res.success and certify_sphere(res.x, F).ok
+    assert abs(res.mean_energy - unit.mean_energy) < 1e-6 * unit.mean_energy
+
+
 def test_certificate_rejects_a_flipped_triangle():
     V, F = random_hull(0)
     x, _ = sphere_start(V, F)

@@ -85,8 +85,11 @@ def map_extent(x) -> float:
 
 
 def reference_extent(objective, x0) -> float:
-    """max(extent of the start map, extent of the rest mesh, tiny): the divergence test's unit."""
-    rest = map_extent(objective.problem.rest_vertices)
+    """max(extent of the start map, extent of the rest mesh, tiny): the divergence test's unit.
+    A sphere problem's rest triangles are scaled to the unit sphere's area whatever the input's
+    units (:meth:`~geomopt.Problem.sphere`): its rest extent is the sphere's, 2."""
+    problem = objective.problem
+    rest = 2.0 if problem.kind == "sphere" else map_extent(problem.rest_vertices)
     return max(map_extent(x0), rest, 1e-300)
 
 
