@@ -726,3 +726,55 @@ def test_piece_boundaries_are_the_boundary_half_edges_of_the_pieces():
             assert len(bounds) == len(pieces)
             for (p, _), B in zip(pieces, bounds):
                 assert np.array_equal(B, boundary_half_edges(p.F))
+
+
+def _supercover_by_box(a, b, shape):
+    """Every pixel of each segment's bounding box tested against the segment's line (within the
+    rasteriser's tolerance): the slow reference of the conservative raster's boundary pixels."""
+    from geomopt.atlas import _raster
+
+    eps, out = _raster._EPS, set()
+    for p, q in zip(a, b):
+        lo, hi = np.floor(np.minimum(p, q) - eps).astype(int), np.floor(np.maximum(p, q) + eps).astype(int)
+        nx, ny = p[1] - q[1], q[0] - p[0]
+        for row in range(max(lo[1], 0), min(hi[1] + 1, shape[0])):
+            for col in range(max(lo[0], 0), min(hi[0] + 1, shape[1])):
+                d = [nx * (col + i - p[0]) + ny * (row + j - p[1]) for i in (0, 1) for j in (0, 1)]
+                tol = eps * (abs(nx) + abs(ny))
+                if min(d) <= tol and max(d) >= -tol:
+                    out.add((row, col))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["any", "vertical", "horizontal", "on grid lines"])
+def test_the_boundary_raster_walks_each_segment_and_meets_the_box_test(kind):
+    """The boundary pixels of the conservative raster, walked column by column, are exactly the
+    pixels of each segment's bounding box that the segment meets (or comes within _EPS of)."""
+    from geomopt.atlas import _raster
+
+    rng = np.random.default_rng(["any", "vertical", "horizontal", "on grid lines"].index(kind))
+    for _ in range(150):
+        a, b = rng.uniform(-3, 30, (3, 2)), rng.uniform(-3, 30, (3, 2))
+        if kind == "vertical":
+            b[:, 0] = a[:, 0]
+        elif kind == "horizontal":
+            b[:, 1] = a[:, 1]
+        elif kind == "on grid lines":
+            a, b = np.round(a), np.round(b)
+        got = set(zip(*(v.tolist() for v in _raster._supercover(a, b, (27, 31)))))
+        assert got == _supercover_by_box(a, b, (27, 31))
+
+
+def test_a_thin_strip_is_packed_on_a_bitmap_of_bounded_size():
+    """A chart 1000 times longer than wide sets the packing's side: its pixels are chosen so that
+    it spans at most a few times ``resolution`` (pixels sized by the total area would have made
+    a bitmap of ~10^4 pixels a side; a box of 1000 x 1 x 1 hung in the packer)."""
+    from geomopt.atlas import _pack
+
+    V, F = g.square_mesh(3)
+    U = [V * [1000.0, 1.0]]
+    U, unit, area, Bs, bases, turns = _pack._prepare(U, [F], True)
+    R, t, h = _pack._layout(U, Bs, bases, turns, area, 0.005, 128)
+    assert np.ptp(U[0], axis=0).max() / h <= _pack._LONG_SIDE * 128 + 1
+    packing = pack_charts([V * [1000.0, 1.0]], [F], resolution=128)
+    assert certify_atlas(packing.uvs[0], F, np.zeros(len(F), int)).ok

@@ -49,6 +49,7 @@ _MARGIN_SLACK = 1.1  # margin pixels for a side 10 % above the guess (efficiency
 _TRIES = 4
 _LARGE, _STEPS = 0.1, 6  # a chart of over this fraction of the area is also tried every 90 / _STEPS degrees
 _BUDGET = 24  # square packings per layout (every strategy, bisection steps included)
+_LONG_SIDE = 4  # the longest chart spans at most this many times ``resolution`` pixels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +251,9 @@ def _layout(U, Bs, bases, turns, area, margin, resolution, budget=_BUDGET):
     pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
     ``margin`` of the packed side (a finer margin than needed only costs space)."""
     h = math.sqrt(area / _FIRST_GUESS) / resolution
+    # a chart far longer than that square (a thin strip) decides the side: pixels fine enough
+    # for the area would make a bitmap of millions of pixels a side (a box 1000 x 1 x 1 hung)
+    h = max(h, max(float(np.ptp(u, axis=0).max()) for u in U) / (_LONG_SIDE * resolution))
     r = math.ceil(margin * resolution * _MARGIN_SLACK)
     tried = set()
     while True:

@@ -24,24 +24,37 @@ __all__ = ["dilate", "rasterize"]
 _EPS = 1e-7  # pixels; far above the rounding of coordinates below 2**20 pixels (2**-32)
 
 
+def _expand(count):
+    """(owner, k): for each item i, ``count[i]`` entries ``(i, 0 .. count[i] - 1)``."""
+    owner = np.repeat(np.arange(len(count)), count)
+    return owner, np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)
+
+
 def _supercover(a, b, shape) -> tuple[np.ndarray, np.ndarray]:
     """(row, col) of every pixel that the closed segments ``a -> b`` (each (s, 2), pixel units)
-    meet or come within ``_EPS`` of, clipped to ``shape``."""
+    meet or come within ``_EPS`` of, clipped to ``shape``.  Each segment is walked column by
+    column (the rows its y-range spans within the column, widened by ``_EPS``): work in the
+    pixels it crosses, not in its bounding box (a long diagonal edge of a thin chart spans
+    millions of pixels' box)."""
     lo = np.floor(np.minimum(a, b) - _EPS).astype(np.int64)
     hi = np.floor(np.maximum(a, b) + _EPS).astype(np.int64)
-    wx, wy = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
-    count = wx * wy
-    seg = np.repeat(np.arange(len(a)), count)
-    k = np.arange(seg.size) - np.repeat(np.cumsum(count) - count, count)
-    col, row = lo[seg, 0] + k % wx[seg], lo[seg, 1] + k // wx[seg]
-    nx, ny = a[seg, 1] - b[seg, 1], b[seg, 0] - a[seg, 0]  # a normal of each segment's line
-    d0 = nx * (col - a[seg, 0]) + ny * (row - a[seg, 1])  # at the pixel's lower-left corner
-    tol = _EPS * (np.abs(nx) + np.abs(ny))
-    lo_d = d0 + np.minimum(nx, 0) + np.minimum(ny, 0)
-    hi_d = d0 + np.maximum(nx, 0) + np.maximum(ny, 0)
-    hit = (lo_d <= tol) & (hi_d >= -tol)
-    hit &= (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
-    return row[hit], col[hit]
+    seg, k = _expand(hi[:, 0] - lo[:, 0] + 1)
+    col = lo[seg, 0] + k
+    ax, ay, bx, by = a[seg, 0], a[seg, 1], b[seg, 0], b[seg, 1]
+    x0 = np.maximum(np.minimum(ax, bx), col - _EPS)  # the part of the segment over this column
+    x1 = np.minimum(np.maximum(ax, bx), col + 1 + _EPS)
+    dx = bx - ax
+    flat = np.abs(dx) > 0
+    slope = np.where(flat, (by - ay) / np.where(flat, dx, 1.0), 0.0)
+    y0, y1 = ay + (x0 - ax) * slope, ay + (x1 - ax) * slope
+    ymin, ymax = np.minimum(ay, by), np.maximum(ay, by)
+    ylo = np.where(flat, np.clip(np.minimum(y0, y1), ymin, ymax), ymin)
+    yhi = np.where(flat, np.clip(np.maximum(y0, y1), ymin, ymax), ymax)
+    r0 = np.floor(ylo - _EPS).astype(np.int64)
+    cell, j = _expand(np.floor(yhi + _EPS).astype(np.int64) - r0 + 1)
+    row, col = r0[cell] + j, col[cell]
+    keep = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+    return row[keep], col[keep]
 
 
 def _nonzero_fill(a, b, shape) -> np.ndarray:
