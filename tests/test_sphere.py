@@ -200,7 +200,7 @@ def test_stereographic_orientation():
     assert cone_orientations(stereographic(p), np.array([[0, 1, 2]]))[0] == 1
 
 
-@pytest.mark.parametrize("case", ["torus", "boundary", "nonmanifold", "zero_area", "two_spheres"])
+@pytest.mark.parametrize("case", ["torus", "boundary", "nonmanifold", "zero_area", "two_spheres", "pillow"])
 def test_refuses_anything_but_a_closed_genus0_manifold(case):
     import trimesh
 
@@ -218,13 +218,15 @@ def test_refuses_anything_but_a_closed_genus0_manifold(case):
         V = V.copy()
         a, b, c = F[0]
         V[c] = 0.5 * (V[a] + V[b])
+    elif case == "pillow":  # closed, genus 0, but two triangles on three vertices
+        V, F = np.eye(3), np.array([[0, 1, 2], [0, 2, 1]])
     else:
         V, F = np.vstack([V, V + 3.0]), np.vstack([F, F + len(V)])
     with pytest.raises(MeshError) as info:
         geomopt.sphere_map(V, F, progress=False)
     assert "\n" not in str(info.value)
     words = {"torus": "genus 1", "boundary": "boundary", "nonmanifold": "non-manifold", "zero_area": "zero size",
-             "two_spheres": "components"}
+             "two_spheres": "components", "pillow": "only 3 vertices"}
     assert words[case] in str(info.value)
 
 

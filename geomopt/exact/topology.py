@@ -495,7 +495,7 @@ def check_sphere(F, n_vertices) -> None:
 
     Checks, in order: valid indices, no face repeating a vertex, no unreferenced vertices,
     manifold edges, consistent orientation, one connected component, no boundary, manifold
-    vertices, and Euler characteristic ``V - E + F == 2``.
+    vertices, Euler characteristic ``V - E + F == 2`` and at least 4 vertices.
 
     Parameters
     ----------
@@ -527,3 +527,7 @@ def check_sphere(F, n_vertices) -> None:
             f"Euler characteristic V - E + F = {n} - {E.shape[0]} + {F.shape[0]} = {chi}, not 2: the surface "
             f"has genus {(2 - chi) // 2} and only genus 0 maps onto the sphere; make an atlas instead "
             "(geomopt param without --sphere)")
+    if n < 4:  # two triangles on the same three vertices: their corners and the centre are coplanar
+        raise MeshError(
+            f"the closed mesh has only {n} vertices: no map onto the sphere keeps its triangles positively "
+            "oriented (a triangle on a great circle has no inside); subdivide it (4 vertices at least)")
