@@ -102,6 +102,10 @@ def main(argv=None):
     ap.add_argument("--no-generated", action="store_true",
                     help="skip the generated meshes (a genus-5 plate, a CAD-style cylinder, a holed block)")
     args = ap.parse_args(argv)
+    try:
+        import xatlas  # noqa: F401
+    except ImportError:
+        ap.exit(2, "atlas.py: xatlas is not installed; install the benchmark extra: pip install \".[bench]\"\n")
     print("| mesh | tool | charts | seam length | mean sym. Dirichlet | worst | efficiency | mirrored | "
           "certified | seconds cold / warm |")
     print("|---|---|---|---|---|---|---|---|---|---|")

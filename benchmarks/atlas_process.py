@@ -26,6 +26,7 @@ Run it with the Python of the install being measured, as a user installs it::
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import hashlib
 import json
 import os
@@ -178,6 +179,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: at least one later round")
+    if importlib.util.find_spec("xatlas") is None:
+        ap.exit(2, "atlas_process.py: xatlas is not installed; install the benchmark extra: pip install \".[bench]\"\n")
     paths = [Path(p) for p in args.meshes] or sorted(CLOSED.glob("*.off"))
     if not paths:
         sys.exit(f"no meshes given and none at {CLOSED}: name mesh files, or clone the project next to shared/")
