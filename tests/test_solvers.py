@@ -17,6 +17,7 @@ from geomopt.mesh.generators import boundary_vertices, box_mesh, disk_mesh
 from geomopt.solvers.linesearch import InjectiveSearch, still_positive
 from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import AQP, CM, LBFGS, SLIM, SOLVERS, Newton, get_solver
+import geomopt.solvers.lbfgs as lbfgs_module
 from geomopt.solvers.lbfgs import _two_loop
 from geomopt.objective.projection import CMProxy, SLIMProxy, slim_weights, svd2, true_hessian_block
 
@@ -276,12 +277,70 @@ def test_two_loop_matches_the_materialized_inverse_hessian():
     # ring buffer with the newest pair at slot (k-1) % m, k = m + 2 (wrapped twice)
     k = m + 2
     order = [(k - m + j) % m for j in range(m)]
-    Sb, Yb, rb = np.zeros((m, n, 1)), np.zeros((m, n, 1)), np.zeros(m)
+    Sb, Yb, rb = np.zeros((m, n)), np.zeros((m, n)), np.zeros(m)
     for j, slot in enumerate(order):
-        Sb[slot, :, 0], Yb[slot, :, 0], rb[slot] = S[j], Y[j], rho[j]
+        Sb[slot], Yb[slot], rb[slot] = S[j], Y[j], rho[j]
     d = _two_loop(jnp.asarray(Sb), jnp.asarray(Yb), jnp.asarray(rb), jnp.int32(k),
                   lambda q: gamma * q, jnp.asarray(g[:, None]))
     np.testing.assert_allclose(np.asarray(d)[:, 0], -H @ g, rtol=1e-10)
+
+
+@pytest.mark.parametrize("k", [3, 7])  # memory partly filled; ring buffer wrapped
+def test_compact_direction_equals_the_two_loop_with_the_same_seed(k):
+    """The Laplacian seed's compact form (carried P y_i, P g and their products) gives the
+    two-loop's direction with the seed gamma P applied inside (P a fixed SPD matrix)."""
+    rng = np.random.default_rng(1)
+    n, m = 9, 4
+    A = rng.standard_normal((n, n))
+    P = A @ A.T + n * np.eye(n)
+    S, Y = rng.standard_normal((m, n, 2)), rng.standard_normal((m, n, 2))
+    Y += 3.0 * S  # positive curvature s.y for every pair
+    rho = 1.0 / np.einsum("inc,inc->i", S, Y)
+    g = rng.standard_normal((n, 2))
+    W = np.einsum("ab,ibc->iac", P, Y)
+    gamma = 0.7
+    if k < m:  # slots k.. hold stale pairs the memory must ignore
+        S[k:] *= 50.0
+    apply = lbfgs_module._two_loop(jnp.asarray(S.reshape(m, -1)), jnp.asarray(Y.reshape(m, -1)), jnp.asarray(rho),
+                                   jnp.int32(k), lambda q: gamma * (P @ q.reshape(n, 2)).reshape(-1),
+                                   jnp.asarray(g))
+    SY, YW = np.einsum("inc,jnc->ij", S, Y), np.einsum("inc,jnc->ij", Y, W)
+    compact = lbfgs_module._compact_direction(
+        jnp.asarray(S.reshape(m, -1)), jnp.asarray(W.reshape(m, -1)), jnp.asarray(np.einsum("inc,nc->i", S, g)),
+        jnp.asarray(np.einsum("inc,nc->i", W, g)), jnp.asarray(SY), jnp.asarray(YW), jnp.int32(k),
+        jnp.float64(gamma), jnp.asarray(P @ g))
+    np.testing.assert_allclose(np.asarray(compact), np.asarray(apply), rtol=1e-10, atol=1e-12)
+
+
+def test_the_compact_forms_carried_products_are_those_of_the_memory():
+    """After a Laplacian-seeded solve that wrapped its ring buffer and a change of eps, the
+    carried ``a = S^T g``, ``b = W^T g`` (at the new gradient), ``s_i . y_j`` (older i) and
+    ``y_i . w_j`` equal the products of the buffers (the incremental updates from the change
+    of a and b)."""
+    V, F = grid(12, jitter=0.3, seed=3)
+    b = boundary_vertices(F, len(V))
+    A = np.array([[1.3, 0.2], [-0.1, 0.8]])
+    problem = Problem.planar(V, F, b, V[b] @ A.T)  # the interior at rest: far from the minimum
+    solver = LBFGS(history=3, precondition="laplacian", rtol=0.0, gtol=0.0, max_steps=6,
+                   search=InjectiveSearch(injective=False))
+    obj = Objective(problem, "garanzha")
+    x0 = V.copy()
+    x0[b] = V[b] @ A.T
+    state = solver.advance(solver.init(obj, x0, obj.params(eps=0.5)), 6)
+    c = solver.reparam(state, obj.params(eps=0.1)).memory.carry  # a new gradient, the memory kept
+    g = np.asarray(c["g"])
+    S, Y, W = (np.asarray(c[key]).reshape(-1, *g.shape) for key in ("S", "Y", "W"))
+    k, m = int(c["k"]), S.shape[0]
+    assert k > m, "the solve should have wrapped its memory"
+    a, b = np.einsum("inc,nc->i", S, g), np.einsum("inc,nc->i", W, g)
+    np.testing.assert_allclose(c["a"], a, rtol=1e-9, atol=1e-9 * abs(a).max())
+    np.testing.assert_allclose(c["b"], b, rtol=1e-9, atol=1e-9 * abs(b).max())
+    order = [(k - m + j) % m for j in range(m)]
+    SY, YW = np.einsum("inc,jnc->ij", S, Y), np.einsum("inc,jnc->ij", Y, W)
+    for p, i in enumerate(order):
+        for j in order[p:]:
+            np.testing.assert_allclose(c["SY"][i, j], SY[i, j], rtol=1e-7, atol=1e-12 * abs(SY).max())
+            np.testing.assert_allclose(c["YW"][i, j], YW[i, j], rtol=1e-7, atol=1e-12 * abs(YW).max())
 
 
 def test_the_search_the_user_passes_is_the_one_that_runs():

@@ -593,25 +593,6 @@ def test_rest_laplacian_is_the_dirichlet_hessian(dim):
                                    atol=1e-12)
 
 
-def test_two_loop_with_a_tracked_seed_equals_the_applied_seed():
-    """The Laplacian seed's one-solve form: carrying P y_i and P g through the first loop gives
-    the direction of applying P to q there (P a fixed SPD matrix; ring buffer wrapped)."""
-    rng = np.random.default_rng(1)
-    n, m, k = 9, 4, 7
-    A = rng.standard_normal((n, n))
-    P = A @ A.T + n * np.eye(n)
-    S, Y = rng.standard_normal((m, n, 2)), rng.standard_normal((m, n, 2))
-    rho = 1.0 / np.einsum("inc,inc->i", S, Y)
-    g = rng.standard_normal((n, 2))
-    gamma = 0.7
-    apply = lbfgs_module._two_loop(jnp.asarray(S), jnp.asarray(Y), jnp.asarray(rho), jnp.int32(k),
-                                   lambda q: gamma * (P @ q), jnp.asarray(g))
-    tracked = lbfgs_module._two_loop(jnp.asarray(S), jnp.asarray(Y), jnp.asarray(rho), jnp.int32(k),
-                                     lambda pq: gamma * pq, jnp.asarray(g),
-                                     W=jnp.asarray(np.einsum("ab,ibc->iac", P, Y)), z=jnp.asarray(P @ g))
-    np.testing.assert_allclose(np.asarray(tracked), np.asarray(apply), rtol=1e-12)
-
-
 # ------------------------------------------------- connected parts without handles (issue 30)
 
 

@@ -15,7 +15,8 @@ recompiles.
 The inverse-Hessian seed is the scalar ``s.y / y.y`` (``precondition="scalar"``), the
 diagonal update of M1QN3 (Gilbert & Lemarechal 1989, ``"diagonal"``, as in the STLBFGS
 library used by Garanzha et al. 2021), or a scaled inverse of the rest Dirichlet Hessian
-(``"laplacian"``, the default; one solve with the rest Laplacian per iteration: see :func:`_two_loop`;
+(``"laplacian"``, the default; one solve with the rest Laplacian per iteration and the
+direction in compact form: see :func:`_compact_direction`;
 factored once on the host and applied through an XLA FFI target on CPU, by warm-started
 conjugate gradients on the device elsewhere, so the loop makes no host round trip there).
 """
@@ -51,32 +52,73 @@ def _dot(a, b):
     return jnp.sum(a * b)
 
 
-def _two_loop(S, Y, rho, k, seed, g, W=None, z=None):
-    """``-H g`` for the L-BFGS inverse Hessian held in ring buffers S, Y (m, n, d), newest at
-    slot ``(k-1) % m``; ``seed(q)`` applies the initial inverse Hessian.
-
-    With ``W`` (m, n, d) holding ``P y_i`` and ``z = P g`` for a linear operator ``P`` (the
-    Laplacian seed's ``K^-1``), the first loop carries ``P q = z - sum a_i P y_i`` alongside
-    ``q`` and the seed is ``seed(P q)``: the same direction without applying ``P`` here."""
+def _two_loop(S, Y, rho, k, seed, g):
+    """``-H g`` (shaped like ``g``) for the L-BFGS inverse Hessian held in ring buffers S, Y
+    (m, g.size), newest at slot ``(k-1) % m``; ``seed(q)`` applies the initial inverse Hessian
+    to a flat vector."""
     m = S.shape[0]
     used = jnp.minimum(k, m)
-    tracked = W is not None
 
     def back(j, carry):
-        q, pq, alpha = carry
+        q, alpha = carry
         i = (k - 1 - j) % m
         a = rho[i] * _dot(S[i], q)
-        return q - a * Y[i], (pq - a * W[i]) if tracked else pq, alpha.at[i].set(a)
+        return q - a * Y[i], alpha.at[i].set(a)
 
-    q, pq, alpha = lax.fori_loop(0, used, back, (g, z if tracked else g, jnp.zeros(m, g.dtype)))
-    r = seed(pq if tracked else q)
+    q, alpha = lax.fori_loop(0, used, back, (g.reshape(-1), jnp.zeros(m, g.dtype)))
+    r = seed(q)
 
     def forward(j, r):
         i = (k - used + j) % m
         b = rho[i] * _dot(Y[i], r)
         return r + (alpha[i] - b) * S[i]
 
-    return -lax.fori_loop(0, used, forward, r)
+    return -lax.fori_loop(0, used, forward, r).reshape(g.shape)
+
+
+def _rows_dot(A, v):
+    """``(A_i . v)_i`` for a buffer A (m, v.size): one matrix-vector product."""
+    return A @ v.reshape(-1)
+
+
+def _compact_direction(S, W, a, b, SY, YW, k, gamma, z):
+    """``-H g`` for the L-BFGS inverse Hessian with the seed ``gamma P`` in the compact form of
+    Byrd, Nocedal & Schnabel (1994): ``H g = gamma z + S p + gamma W q`` with ``q = -R^-1 a``
+    and ``p = R^-T ((D + gamma Y^T W) R^-1 a - gamma b)``, where ``z = P g``, ``W = P Y`` (P
+    symmetric; buffers (m, z.size)), ``a = S^T g``, ``b = W^T g``, ``SY[i, j] = s_i . y_j``
+    (``R`` its upper triangle in the pairs' chronological order, ``D`` its diagonal) and
+    ``YW[i, j] = y_i . w_j``, all carried (slot order, newest at ``(k-1) % m``).
+
+    The same direction as the two-loop recursion with that seed (tested), from two passes over
+    the buffers (matrix-vector products) instead of two dependent ones per pair: an untangling
+    iteration at 10^6 triangles 0.135 -> 0.126 s.  Slots not in use get unit rows of ``R`` and
+    no coefficients."""
+    m = S.shape[0]
+    used = jnp.minimum(k, m)
+    order = (k - m + jnp.arange(m)) % m  # chronological: oldest possible slot first
+    valid = jnp.arange(m) >= m - used
+    both = valid[:, None] & valid[None, :]
+    R = jnp.where(both, jnp.triu(SY[order][:, order]), jnp.eye(m, dtype=SY.dtype))
+    inner = jnp.where(both, jnp.diag(jnp.diag(R)) + gamma * YW[order][:, order], 0.0)
+    ac, bc = jnp.where(valid, a[order], 0.0), jnp.where(valid, b[order], 0.0)
+    c = jax.scipy.linalg.solve_triangular(R, ac, lower=False)
+    p = jax.scipy.linalg.solve_triangular(R, inner @ c - gamma * bc, trans=1, lower=False)
+    coef_s = jnp.zeros(m, z.dtype).at[order].set(p)
+    coef_w = jnp.zeros(m, z.dtype).at[order].set(-gamma * c)
+    return -(gamma * z + (coef_s @ S + coef_w @ W).reshape(z.shape))
+
+
+def _compact_update(c, S, Wn, gn, slot, good, sy, yPy, **extra):
+    """The compact form's carried products after the pair at ``slot`` (stored when ``good``):
+    ``a = S^T gn``, ``b = W^T gn`` at the iterate's gradient (one pass), and the new pair's column of
+    ``SY`` and row and column of ``YW`` from their change, ``s_i . y = a_i - a_i(old)`` and
+    ``w_i . y = b_i - b_i(old)`` (the old pairs are unchanged), without another pass."""
+    a, b = _rows_dot(S, gn), _rows_dot(Wn, gn)
+    col_sy = (a - c["a"]).at[slot].set(sy)
+    col_yw = (b - c["b"]).at[slot].set(yPy)
+    SY = jnp.where(good, c["SY"].at[:, slot].set(col_sy), c["SY"])
+    YW = jnp.where(good, c["YW"].at[:, slot].set(col_yw).at[slot, :].set(col_yw), c["YW"])
+    return dict(extra, a=a, b=b, SY=SY, YW=YW)
 
 
 def _iteration(solver, density, geom, free, params, c):
@@ -87,10 +129,10 @@ def _iteration(solver, density, geom, free, params, c):
     x, f, g, S, Y, rho, k, H0 = c["x"], st.value, c["g"], c["S"], c["Y"], c["rho"], c["k"], c["H0"]
     laplacian = solver.precondition == "laplacian"
 
-    def seed(q):
-        return H0 * q
-    if laplacian:  # z = K^-1 g and W = K^-1 Y are carried: no solve for the direction
-        d = _two_loop(S, Y, rho, k, seed, g, W=c["W"], z=c["z"])
+    def seed(q):  # flat q
+        return (H0 * q.reshape(g.shape)).reshape(-1)
+    if laplacian:  # z = K^-1 g, W = K^-1 Y and their products are carried: no solve here
+        d = _compact_direction(S, c["W"], c["a"], c["b"], c["SY"], c["YW"], k, H0, c["z"])
     else:
         d = _two_loop(S, Y, rho, k, seed, g)
     slope = _dot(g, d)
@@ -108,9 +150,10 @@ def _iteration(solver, density, geom, free, params, c):
     good = ok & (sy > 1e-10 * jnp.sqrt(ss * yy)) & jnp.isfinite(sy)
     m = S.shape[0]
     slot = k % m
-    # in place (dynamic-update-slice): a select between whole buffers would copy them
-    S = S.at[slot].set(jnp.where(good, s, S[slot]))
-    Y = Y.at[slot].set(jnp.where(good, y, Y[slot]))
+    # in place (dynamic-update-slice): a select between whole buffers would copy them; the
+    # buffers are (m, n*d), which no product reshapes (a reshaped buffer made XLA copy it)
+    S = S.at[slot].set(jnp.where(good, s.reshape(-1), S[slot]))
+    Y = Y.at[slot].set(jnp.where(good, y.reshape(-1), Y[slot]))
     rho = rho.at[slot].set(jnp.where(good, 1.0 / jnp.where(good, sy, 1.0), rho[slot]))
     extra = {}
     if solver.precondition == "diagonal":
@@ -124,8 +167,9 @@ def _iteration(solver, density, geom, free, params, c):
         z = c["z"]
         zn = lax.cond(ok, lambda: laplacian_solve(c["pre"], gn, z), lambda: z)
         w = zn - z
-        extra = {"z": zn, "W": c["W"].at[slot].set(jnp.where(good, w, c["W"][slot]))}
+        Wn = c["W"].at[slot].set(jnp.where(good, w.reshape(-1), c["W"][slot]))
         yPy = _dot(y, w)
+        extra = _compact_update(c, S, Wn, jnp.where(ok, gn, g), slot, good, sy, yPy, z=zn, W=Wn)
         newH0 = sy / jnp.where(yPy > 0, yPy, 1.0)
     else:
         newH0 = sy / jnp.where(yy > 0, yy, 1.0)
@@ -168,13 +212,14 @@ def _blank_carry(m, precondition, window, x, pre, stats):
     f8, i4 = np.float64, np.int32
     types = dict(iteration=i4, evaluations=i4, accepted=np.bool_, broken=np.bool_, done=np.bool_)
     carry = {
-        "x": x, "g": np.zeros((n, d)), "S": np.zeros((m, n, d)), "Y": np.zeros((m, n, d)),
+        "x": x, "g": np.zeros((n, d)), "S": np.zeros((m, n * d)), "Y": np.zeros((m, n * d)),
         "rho": np.zeros(m), "k": i4(0), "H0": np.ones((n, d)) if precondition == "diagonal" else f8(1.0),
         "f_hist": np.full(window, np.inf), "pre": pre if isinstance(pre, LaplacianOperator) else i4(pre),
         "stats": Stats(*(types.get(k, f8)(v) for k, v in zip(Stats._fields, stats))),
     }
     if precondition == "laplacian":
-        carry.update(z=np.zeros((n, d)), W=np.zeros((m, n, d)))
+        carry.update(z=np.zeros((n, d)), W=np.zeros((m, n * d)), a=np.zeros(m), b=np.zeros(m),
+                     SY=np.zeros((m, m)), YW=np.zeros((m, m)))
     return jax.device_put(carry)
 
 
@@ -192,6 +237,7 @@ def _reparam_kernel(laplacian, density, geom, free, params, carry):
     out = dict(carry, g=g, stats=stats, f_hist=jnp.full_like(carry["f_hist"], jnp.inf).at[-1].set(f))
     if laplacian:  # warm start (device CG) from the last K^-1 g
         out["z"] = laplacian_solve(carry["pre"], g, carry["z"])
+        out["a"], out["b"] = _rows_dot(carry["S"], g), _rows_dot(carry["W"], g)
     return out
 
 
