@@ -303,3 +303,13 @@ def test_cli_refuses_a_torus_with_one_line(tmp_path):
                          capture_output=True, text=True)
     assert run.returncode == 2 and not out.exists()
     assert run.stderr.strip().count("\n") == 0 and "genus 1" in run.stderr
+
+
+def test_cli_refuses_options_a_sphere_map_cannot_take(tmp_path, cli):
+    import trimesh
+
+    src, out = tmp_path / "ball.obj", tmp_path / "out.obj"
+    trimesh.creation.icosphere(1).export(src)
+    for extra in (["--atlas"], ["--bijective"], ["--uv-range", "unit"]):
+        code, _, err = cli("param", src, "--sphere", "-o", out, "--quiet", *extra)
+        assert code == 2 and not out.exists() and extra[0] in err and err.strip().count("\n") == 0
