@@ -192,3 +192,28 @@ def test_a_level_that_starts_from_the_same_cut_is_not_relieved_again(monkeypatch
     monkeypatch.setattr(cutting, "relieve", lambda *a, **k: calls.append(1) or real(*a, **k))
     cut, estimate, _ = cutting.cut_surface(g, cost, 4.3)
     assert len(calls) == 1 and cut.any() and estimate > 4.0
+
+
+def test_the_scale_estimate_holds_scales_beyond_floating_point_range():
+    """A long chart's conformal scales span more than exp's range: the estimate is computed in
+    logs (finite log area, an infinite mean, no warning), and equals the direct formula where
+    that is finite."""
+    import warnings
+
+    from geomopt.atlas.cones import scale_estimate
+    from geomopt.mesh.generators import square_mesh
+
+    V, F = square_mesh(6)
+    V3 = np.c_[V, np.zeros(len(V))]
+    u = np.linspace(-0.3, 0.2, len(V))
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    A = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    s = np.exp(2 * u[F].mean(axis=1))
+    c = np.sqrt(np.sum(A / s) / np.sum(A * s))
+    mean, log_area = scale_estimate(V3, F, u)
+    assert mean == pytest.approx(np.sum(A * 2 * (c * s + 1 / (c * s))) / A.sum(), rel=1e-12)
+    np.testing.assert_allclose(log_area, 2 * u + np.log(c), rtol=1e-12, atol=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mean, log_area = scale_estimate(V3, F, 800.0 * np.linspace(-1.0, 1.0, len(V)))
+    assert mean == np.inf and np.isfinite(log_area).all()

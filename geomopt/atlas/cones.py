@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.special import logsumexp
 
 from ..mesh.quality import triangle_areas
 
@@ -105,7 +106,10 @@ def scale_estimate(V, F, u):
     vertex_log_area : (n,) log area scale at each vertex after the best uniform scale.
     """
     A = triangle_areas(V[F])
-    s = np.exp(2 * u[F].mean(axis=1))
-    c = np.sqrt(np.sum(A / s) / np.sum(A * s))  # minimises sum A (c s + 1 / (c s))
-    mean = float(np.sum(A * 2 * (c * s + 1 / (c * s))) / A.sum())
-    return mean, 2 * u + np.log(c)
+    t = 2 * u[F].mean(axis=1)  # log of each triangle's area scale s
+    # c = sqrt(sum A / s / sum A s) minimises sum A (c s + 1 / (c s)); in logs, since the scales of
+    # a long chart's conformal map span more than a float's range (a box of 1000 x 1 x 1)
+    log_c = 0.5 * (logsumexp(-t, b=A) - logsumexp(t, b=A))
+    with np.errstate(over="ignore"):  # a distortion beyond float64's range is inf
+        mean = float(np.sum(A * 4 * np.cosh(t + log_c)) / A.sum())  # 2 (c s + 1 / (c s))
+    return mean, 2 * u + log_c
