@@ -66,9 +66,8 @@ def _nonzero_fill(a, b, shape) -> np.ndarray:
     lo, hi = np.minimum(ya, yb), np.maximum(ya, yb)
     r0 = np.maximum(np.ceil(lo - 0.5).astype(np.int64), 0)
     r1 = np.minimum(np.ceil(hi - 0.5).astype(np.int64), H)  # rows r0 .. r1 - 1 have lo <= yc < hi
-    count = np.maximum(r1 - r0, 0)
-    seg = np.repeat(np.arange(len(a)), count)
-    row = r0[seg] + np.arange(seg.size) - np.repeat(np.cumsum(count) - count, count)
+    seg, k = _expand(np.maximum(r1 - r0, 0))
+    row = r0[seg] + k
     yc = row + 0.5
     t = (yc - ya[seg]) / (yb[seg] - ya[seg])
     x = a[seg, 0] + t * (b[seg, 0] - a[seg, 0])

@@ -126,7 +126,7 @@ def _iteration(solver, density, geom, free, params, c):
     def vg(x):
         return free_value_and_grad(density, geom, free, x, params)
     st = c["stats"]
-    x, f, g, S, Y, rho, k, H0 = c["x"], st.value, c["g"], c["S"], c["Y"], c["rho"], c["k"], c["H0"]
+    x, f, g, S, rho, k, H0 = c["x"], st.value, c["g"], c["S"], c["rho"], c["k"], c["H0"]
     laplacian = solver.precondition == "laplacian"
 
     def seed(q):  # flat q
@@ -134,7 +134,7 @@ def _iteration(solver, density, geom, free, params, c):
     if laplacian:  # z = K^-1 g, W = K^-1 Y and their products are carried: no solve here
         d = _compact_direction(S, c["W"], c["a"], c["b"], c["SY"], c["YW"], k, H0, c["z"])
     else:
-        d = _two_loop(S, Y, rho, k, seed, g)
+        d = _two_loop(S, c["Y"], rho, k, seed, g)
     slope = _dot(g, d)
     restart = ~(slope < 0) | ~jnp.all(jnp.isfinite(d))
     d = jnp.where(restart, -g, d)
@@ -153,9 +153,9 @@ def _iteration(solver, density, geom, free, params, c):
     # in place (dynamic-update-slice): a select between whole buffers would copy them; the
     # buffers are (m, n*d), which no product reshapes (a reshaped buffer made XLA copy it)
     S = S.at[slot].set(jnp.where(good, s.reshape(-1), S[slot]))
-    Y = Y.at[slot].set(jnp.where(good, y.reshape(-1), Y[slot]))
     rho = rho.at[slot].set(jnp.where(good, 1.0 / jnp.where(good, sy, 1.0), rho[slot]))
-    extra = {}
+    # the compact form needs no Y: its products with S and W are carried instead
+    extra = {} if laplacian else {"Y": c["Y"].at[slot].set(jnp.where(good, y.reshape(-1), c["Y"][slot]))}
     if solver.precondition == "diagonal":
         # M1QN3 diagonal update (Gilbert & Lemarechal 1989) of the seed D, as in STLBFGS
         dinvss = _dot(s * s, 1.0 / H0)
@@ -185,7 +185,7 @@ def _iteration(solver, density, geom, free, params, c):
         decrement=-0.5 * slope, step_size=t, grad_norm=jnp.sqrt(_dot(gk, gk)), accepted=ok,
         extent=jnp.max(jnp.max(xk, axis=0) - jnp.min(xk, axis=0)),
         evaluations=(st.evaluations + nls).astype(jnp.int32))
-    return {"x": xk, "g": gk, "S": S, "Y": Y, "rho": rho, "k": k, "H0": H0,
+    return {"x": xk, "g": gk, "S": S, "rho": rho, "k": k, "H0": H0,
             "f_hist": c["f_hist"].at[slot].set(jnp.where(ok, fn, f)), "pre": c["pre"], "stats": stats, **extra}
 
 
@@ -212,14 +212,16 @@ def _blank_carry(m, precondition, window, x, pre, stats):
     f8, i4 = np.float64, np.int32
     types = dict(iteration=i4, evaluations=i4, accepted=np.bool_, broken=np.bool_, done=np.bool_)
     carry = {
-        "x": x, "g": np.zeros((n, d)), "S": np.zeros((m, n * d)), "Y": np.zeros((m, n * d)),
+        "x": x, "g": np.zeros((n, d)), "S": np.zeros((m, n * d)),
         "rho": np.zeros(m), "k": i4(0), "H0": np.ones((n, d)) if precondition == "diagonal" else f8(1.0),
         "f_hist": np.full(window, np.inf), "pre": pre if isinstance(pre, LaplacianOperator) else i4(pre),
         "stats": Stats(*(types.get(k, f8)(v) for k, v in zip(Stats._fields, stats))),
     }
-    if precondition == "laplacian":
+    if precondition == "laplacian":  # the compact form: W = K^-1 Y and the products, no Y
         carry.update(z=np.zeros((n, d)), W=np.zeros((m, n * d)), a=np.zeros(m), b=np.zeros(m),
                      SY=np.zeros((m, m)), YW=np.zeros((m, m)))
+    else:
+        carry["Y"] = np.zeros((m, n * d))
     return jax.device_put(carry)
 
 
