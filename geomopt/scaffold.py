@@ -331,7 +331,7 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     energy, solver, weights, throw : as for :func:`~geomopt.param.parameterize`; the solver's
         ``max_steps`` is replaced by ``inner_steps`` in the scaffold phase (a solver that is not
         a dataclass with ``max_steps`` is rejected).
-    progress : bool, one line per phase on stderr.
+    progress : bool, one record per phase on the ``geomopt`` logger (INFO).
     x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
         embedding onto a circle, is).
     options : :class:`ScaffoldOptions`; ``kwargs`` naming its fields (``scaffold_weight``,

@@ -5,6 +5,7 @@ values."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import warnings
 
@@ -107,7 +108,8 @@ class _Rec(tuple):
         return f"phase {k} energy {self.energy:.6g}"
 
 
-def test_a_continuation_gets_each_phase_and_its_records_reach_trace_and_progress(capsys):
+def test_a_continuation_gets_each_phase_and_its_records_reach_trace_and_progress(caplog):
+    caplog.set_level(logging.INFO, logger="geomopt")
     obj, V = _objective()
     cont = _Halving()
     solver = Newton(max_steps=1)
@@ -117,7 +119,7 @@ def test_a_continuation_gets_each_phase_and_its_records_reach_trace_and_progress
     assert res.outcome is Outcome.CONVERGED and res.reason == "three phases"
     assert res.stats.outer_iterations == 3 and res.stats.iterations == 3
     assert len(res.trace.phases) == 3 and len(res.trace.energy) == 3
-    lines = capsys.readouterr().err.strip().splitlines()
+    lines = [r.getMessage() for r in caplog.records if r.name == "geomopt"]
     assert [line.split()[:2] for line in lines] == [["phase", "1"], ["phase", "2"], ["phase", "3"]]
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._runtime.config import Instance, Int, Real, keyword_only, validate
 from .._runtime.errors import MeshError, ParameterError, SolveError
+from .._runtime.log import logger
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..energies import energy_spec
@@ -144,8 +145,8 @@ def check_atlas_input(V, F):
 
 def _say(progress, stage, **info):
     if progress is True:
-        print(f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
-                                             for k, v in info.items()), flush=True)
+        logger.info(f"atlas {stage}: " + ", ".join(f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}"
+                                                   for k, v in info.items()))
     elif callable(progress):
         progress(stage, info)
 
@@ -177,7 +178,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     energy, solver : how each chart is flattened (see :func:`geomopt.parameterize`; ``energy``
         a name, an Energy or ``(name, {parameter: value})``); ``energy_params``: deprecated keywords.
     options : :class:`AtlasOptions` (cutting, margin, rotation).
-    progress : True prints one line per stage; a callable gets ``(stage, info_dict)``.
+    progress : True: one record per stage on the ``geomopt`` logger (INFO; see
+        :mod:`geomopt._runtime.log`) and the charts' solves' progress; a callable gets
+        ``(stage, info_dict)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the atlas) when it is not certified.
 
     Returns

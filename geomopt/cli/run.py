@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import sys
@@ -14,6 +15,7 @@ import threading
 import time
 import warnings
 
+from .._runtime.log import attach_stderr
 from .common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, report
 from .parser import UsageError, build_parser
 
@@ -71,7 +73,8 @@ def main(argv=None) -> int:
     args.timing = Split()
     code = EXIT_FAILED
     try:
-        code = _run(args)
+        with attach_stderr(logging.WARNING if getattr(args, "quiet", False) else logging.DEBUG):
+            code = _run(args)  # the library's progress records are the command's lines on stderr
         return code
     finally:
         if args.json:

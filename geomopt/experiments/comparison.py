@@ -43,7 +43,6 @@ solver and the convergence figure; :class:`ComparisonSet` does the same for seve
 from __future__ import annotations
 
 import dataclasses
-import sys
 from typing import Any
 
 import numpy as np
@@ -51,6 +50,7 @@ import numpy as np
 from . import manifest as _manifest
 from .._runtime.config import split_options
 from .._runtime.errors import ParameterError
+from .._runtime.log import logger
 from .._runtime.x64 import float64
 from ..energies import energy_spec
 from ..objective.objective import Objective
@@ -462,7 +462,8 @@ def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=
     out : folder to :meth:`~Comparison.write` the files into; every output path is checked
         *before* solving (:func:`geomopt.io.check_outputs`: none may replace the input ``mesh``,
         and the folder's parent must exist), the folder is created after solving.
-    progress : True: per-iteration progress and one line per run on stderr.
+    progress : True: each solve's progress (:class:`~geomopt.solvers.Progress`) and one record
+        per run on the ``geomopt`` logger (INFO).
     deprecated : the former keywords (``max_seconds``, ``repeat``, ``clock``... now
         :class:`CompareOptions` fields) and energy parameters (now with the energy) work for one
         release with a DeprecationWarning.
@@ -570,9 +571,9 @@ def _run(name, solver, objective, x0, max_seconds, progress, tag="", clock="wall
                     np.asarray(flips, np.int64), st.setup_seconds, st.setup_cpu_seconds, st.evaluations,
                     res.certificate)
     if progress:
-        print(f"{name}{tag}: {run.iterations} it, {run.seconds:.2f} s (cpu {run.cpu_seconds:.2f} s) + setup "
-              f"{run.setup_seconds:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
-              f"{int(run.flips_history.max())}, {run.status}", file=sys.stderr, flush=True)
+        logger.info(f"{name}{tag}: {run.iterations} it, {run.seconds:.2f} s (cpu {run.cpu_seconds:.2f} s) + setup "
+                    f"{run.setup_seconds:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
+                    f"{int(run.flips_history.max())}, {run.status}")
     return run
 
 

@@ -26,6 +26,7 @@ Outer schemes are handed to it, never loops of their own:
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import sys
@@ -38,6 +39,7 @@ import numpy as np
 
 from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
+from .._runtime.log import bar_wanted, in_notebook, iteration_logger, logger
 from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
@@ -140,25 +142,30 @@ class AbstractContinuation:
 
 
 class Progress:
-    """Progress on ``stream`` (default: the current ``sys.stderr``): per iteration a tqdm bar
-    when the stream is a terminal, else one line per ``every`` iterations (``iterations``);
-    per outer iteration one line (``phases``).  ``stream=None`` is stderr."""
+    """Progress of a solve: per iteration a bar (``tqdm.auto``) on a terminal or in a notebook,
+    else nothing unless asked; per outer iteration one line (``phases``).
+
+    Lines go to ``stream`` when one is given (one per ``every`` iterations when no bar is
+    drawn), else to the ``geomopt`` logger (:mod:`geomopt._runtime.log`): iterations at DEBUG
+    on ``geomopt.iterations``, outer iterations at INFO, which print nothing until the
+    application configures logging (the command line does)."""
 
     def __init__(self, stream=None, every: int = 1, prefix: str = "", total: int | None = None,
                  iterations: bool = True, phases: bool = True):
         self.stream = stream
         self.every, self.prefix, self.total = every, prefix, total
         self.iterations, self.phases = iterations, phases
-        self._bar = None
-        isatty = getattr(self.out, "isatty", None)
-        if iterations and isatty is not None and isatty():
-            from tqdm import tqdm
-
-            self._bar = tqdm(total=total, file=self.out, desc=prefix or "geomopt", leave=False)
+        self._bar = _bar(self.out, total, prefix) if iterations and bar_wanted(self.out) else None
 
     @property
     def out(self):
         return self.stream if self.stream is not None else sys.stderr
+
+    def _line(self, text: str, log: logging.Logger, level: int):
+        if self.stream is not None:
+            print(f"{self.prefix}{text}", file=self.stream, flush=True)
+        elif log.isEnabledFor(level):
+            log.log(level, f"{self.prefix}{text}")
 
     def __call__(self, state, elapsed: float, mean_energy: float):
         if not self.iterations:
@@ -168,24 +175,39 @@ class Progress:
             shown = {"step": f"{state.step_size:.2g}"} if math.isfinite(state.step_size) else {}
             self._bar.set_postfix(mean_energy=f"{mean_energy:.8g}", **shown, refresh=False)
             return
-        if state.iteration % self.every:
+        if state.iteration % self.every or (self.stream is None and not iteration_logger.isEnabledFor(logging.DEBUG)):
             return
         # a solver that does not report a quantity (optimistix's: step, decrement) leaves it out
         extra = "".join(f"  {name} {value:.3g}" for name, value in
                         (("step", state.step_size), ("decrement", state.decrement)) if math.isfinite(value))
-        print(f"{self.prefix}iter {state.iteration:4d}  mean energy {mean_energy:.10g}{extra}  {elapsed:7.2f}s",
-              file=self.out, flush=True)
+        self._line(f"iter {state.iteration:4d}  mean energy {mean_energy:.10g}{extra}  {elapsed:7.2f}s",
+                   iteration_logger, logging.DEBUG)
 
     def phase(self, index: int, record, elapsed: float):
         if not self.phases or record is None:
             return
         line = record.line(index) if hasattr(record, "line") else f"outer {index:3d}  " + "  ".join(
             f"{k} {v:.6g}" if isinstance(v, float) else f"{k} {v}" for k, v in record._asdict().items())
-        print(f"{self.prefix}{line}  {elapsed:7.2f}s", file=self.out, flush=True)
+        self._line(f"{line}  {elapsed:7.2f}s", logger, logging.INFO)
 
     def close(self):
         if self._bar is not None:
             self._bar.close()
+
+
+def _bar(out, total, prefix):
+    """A tqdm bar: a widget in a notebook (text when its widgets are not installed), text on
+    the terminal ``out``."""
+    if in_notebook():
+        try:
+            from tqdm.auto import tqdm as auto_tqdm
+
+            return auto_tqdm(total=total, desc=prefix or "geomopt", leave=False)
+        except ImportError:  # tqdm.notebook without ipywidgets
+            pass
+    from tqdm import tqdm
+
+    return tqdm(total=total, file=out, desc=prefix or "geomopt", leave=False)
 
 
 def check_progress(progress, where="minimize"):
@@ -334,8 +356,8 @@ def iterate(solver, objective, x0, params, *, continuation: AbstractContinuation
     clock : the solve seconds the observer and the progress see: ``"wall"`` (elapsed, the
         default) or ``"cpu"`` (the process's CPU time, every thread summed); the trace and the
         result's stats hold both.
-    progress : True (a bar on a terminal, lines otherwise, on stderr), False, a
-        :class:`Progress`, or a callable ``(state, seconds, mean_energy)`` called per iterate.
+    progress : True (a :class:`Progress`: a bar on a terminal or in a notebook, records on
+        the ``geomopt`` logger), False, a :class:`Progress`, or a callable ``(state, seconds, mean_energy)`` called per iterate.
     trace : record the energy, solve seconds and gradient norm of every iterate (else the
         solver may run whole phases in its jitted kernel).
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless it ``success``.
@@ -443,8 +465,8 @@ def minimize(objective, x0, solver=None, params=None, *, progress: bool | Callab
     x0 : (n, d) start map (handle rows replaced by the handles' positions).
     solver : a solver object or name (``geomopt.solvers.SOLVERS``), default ``"newton"``.
     params : energy parameters overriding the objective's (validated like the energy's own).
-    progress : True (a bar on a terminal, lines otherwise, on stderr), False, or a callable
-        ``(state, elapsed, mean_energy)``.
+    progress : True (a bar on a terminal or in a notebook, records on the ``geomopt``
+        logger: :class:`Progress`), False, or a callable ``(state, elapsed, mean_energy)``.
     throw : raise :class:`~geomopt.SolveError` unless the result is converged and injective.
         Traced inputs always raise then (no map is differentiated that is not certified).
     adjoint : the linear solver of the adjoint on traced inputs: ``"auto"`` (as the forward

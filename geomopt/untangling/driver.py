@@ -59,7 +59,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     options : :class:`UntangleOptions` (theta, max_outer, energy_tol, eps0, max_aspect,
         keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket, start);
         ``overrides`` (those names as keywords, deprecated) replace its fields.
-    progress : True (one line per outer iteration on stderr), False, or a callable
+    progress : True (one record per outer iteration on the ``geomopt`` logger, INFO: see
+        :mod:`geomopt._runtime.log`), False, or a callable
         ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless ``success``.
     adjoint : the linear solver of the adjoint on traced inputs (see :func:`geomopt.minimize`).
