@@ -478,3 +478,54 @@ def test_cli_clock_warmup_layout_font_size_and_truetype_pdf(cli, tmp_path):
     with pytest.raises(SystemExit) as exit_:
         cli("compare", mesh, "-o", tmp_path / "p", "--solvers", "newton", "--clock", "gpu")
     assert exit_.value.code == 2 and not (tmp_path / "p").exists()
+
+
+def test_the_short_warm_up_leaves_nothing_to_compile_in_the_timed_runs(monkeypatch, caplog):
+    """The warm-up (a few iterations, not a whole solve) compiles what every solver compiles
+    lazily, its convergence steps included (Newton's polish once compiled an add per shape
+    there): no timed run compiles anything, and the warm-up is no whole solve."""
+    import jax
+
+    from geomopt.experiments import comparison
+
+    V, Fq = grid(9, jitter=0.3, seed=3)
+    V3q = np.c_[V, 0.2 * np.sin(2.0 * V[:, 0]) * V[:, 1]]
+    phase = {"now": "set-up"}
+    warm_iterations = []
+    run, warm_up, iterate = comparison._run, comparison._warm_up, comparison.iterate
+
+    def timed(*args, **kw):
+        phase["now"] = "timed"
+        return run(*args, **kw)
+
+    def warm(*args):
+        phase["now"] = "warm-up"
+        return warm_up(*args)
+
+    def counted(*args, **kw):
+        res = iterate(*args, **kw)
+        if phase["now"] == "warm-up":
+            warm_iterations.append(res.stats.iterations)
+        return res
+
+    monkeypatch.setattr(comparison, "_run", timed)
+    monkeypatch.setattr(comparison, "_warm_up", warm)
+    monkeypatch.setattr(comparison, "iterate", counted)
+    compiled = []
+
+    class Seen(logging.Handler):
+        def emit(self, record):
+            if record.getMessage().startswith("Compiling"):
+                compiled.append((phase["now"], record.getMessage()[:100]))
+
+    handler = Seen(level=logging.DEBUG)
+    logging.getLogger("jax").addHandler(handler)
+    try:
+        with jax.log_compiles():
+            c = geomopt.compare(V3q, Fq, solvers=["newton", "lbfgs", "aqp", "cm"], progress=False,
+                                options=geomopt.CompareOptions(reference="best"))
+    finally:
+        logging.getLogger("jax").removeHandler(handler)
+    assert all(r.outcome.value == "converged" for r in c.results.values())
+    assert [w for w in compiled if w[0] == "timed"] == []
+    assert max(warm_iterations) == geomopt.experiments.options.WARMUP_STEPS

@@ -208,8 +208,8 @@ def _add_compare(sub):
                          "wall (elapsed, the default) or cpu (process CPU time, all threads summed: steadier "
                          "on a loaded machine); both are always in the CSV files")
     sp.add_argument("--no-warmup", dest="warmup", action="store_false",
-                    help="time each solver's first, cold run (default: one untimed warm-up run per solver "
-                         "first, so that lazy compilation is not solve time)")
+                    help="time each solver's first, cold run (default: a few untimed warm-up iterations per "
+                         "solver first, so that lazy compilation is not solve time)")
     sp.add_argument("--format", default="png",
                     help="figure formats, comma-separated: png, pdf, svg, eps, ps (default png; PDF and "
                          "PostScript embed TrueType fonts)")

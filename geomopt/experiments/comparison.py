@@ -9,10 +9,11 @@ comparison is that every solver stays flip-free.  ``setup`` (``init`` and a firs
 ``terminate``: JIT compilation, sparsity pattern, symbolic analysis) is measured separately and
 never counted in the solve time; neither is the bookkeeping done after each step.
 
-**Timing.**  By default (``warmup=True``) each solver first runs once untimed, with the same
-limits, from the same start, and is discarded: what a solver compiles lazily during its first
-steps (AQP's first iterate, the search's rarer branches) is then not solve time.  This costs one
-more solve per solver; ``warmup=False`` times the first, cold run.  ``clock`` chooses what the
+**Timing.**  By default (``warmup=True``) each solver first runs :data:`WARMUP_STEPS`
+iterations untimed from the same start, through the same loop, and they are discarded: what a
+solver compiles lazily during its first steps (AQP's first iterate, the search, the trace) is
+then not solve time, at the cost of a few iterations, not a whole solve; ``warmup=False`` times
+the first, cold run.  ``clock`` chooses what the
 limit ``max_seconds``, the figure's time axis, the LaTeX table and the choice of the median
 run use: ``"wall"`` (default; elapsed time, what a user waits and what papers usually report)
 or ``"cpu"`` (the process's CPU time, every thread summed: steadier on a loaded, shared machine,
@@ -55,7 +56,7 @@ from .._runtime.x64 import float64
 from ..energies import energy_spec
 from ..objective.objective import Objective
 from ..solvers import Newton, Outcome, Progress, iterate
-from .options import CLOCKS, FORMATS, TOLERANCES, CompareOptions
+from .options import CLOCKS, FORMATS, TOLERANCES, WARMUP_STEPS, CompareOptions
 
 __all__ = ["compare", "compare_meshes", "CompareOptions", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
@@ -504,8 +505,8 @@ def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=
     label = f"{label}: {problem.n_elements} {'tets' if problem.dim == 3 else 'triangles'}, {objective.energy.name}"
     runs, limit, clock = {}, settings.max_seconds, settings.clock
     for name, solver in named.items():
-        if settings.warmup:  # untimed, discarded: what the solver compiles lazily
-            _run(name, solver, objective, start, limit, progress, " [warm-up]", clock)
+        if settings.warmup:
+            _warm_up(solver, objective, start)
         runs[name] = tuple(_run(name, solver, objective, start, limit, progress,
                                 f" [{k + 1}/{settings.repeat}]" if settings.repeat > 1 else "", clock)
                            for k in range(settings.repeat))
@@ -575,6 +576,14 @@ def _run(name, solver, objective, x0, max_seconds, progress, tag="", clock="wall
                     f"{run.setup_seconds:.2f} s, mean energy {run.energy / objective.total_volume:.10g}, max flips "
                     f"{int(run.flips_history.max())}, {run.status}")
     return run
+
+
+def _warm_up(solver, objective, start):
+    """:data:`WARMUP_STEPS` untimed, discarded iterations of ``solver`` through the same loop as
+    its timed runs (every iterate traced): what it compiles lazily (its step, the search, the
+    trace's kernels) is compiled here, not in its timed run."""
+    short = dataclasses.replace(solver, max_steps=min(solver.max_steps, WARMUP_STEPS))
+    iterate(short, objective, start, objective.params(), progress=False, trace=True, warn=False)
 
 
 def _reference(reference, runs, objective, start, progress) -> Reference:

@@ -10,9 +10,11 @@ from .._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
 from .._runtime.errors import ParameterError
 from ..mesh.tutte import WEIGHTS
 
-__all__ = ["CompareOptions", "TOLERANCES", "CLOCKS", "FORMATS"]
+__all__ = ["CompareOptions", "TOLERANCES", "CLOCKS", "FORMATS", "WARMUP_STEPS"]
 
 TOLERANCES = (1e-2, 1e-4, 1e-6)
+#: untimed iterations each solver runs before its timed runs when ``warmup`` is on
+WARMUP_STEPS = 5
 #: what ``clock`` may name: elapsed (wall) or process CPU seconds of the solve
 CLOCKS = ("wall", "cpu")
 #: figure formats :meth:`~geomopt.experiments.comparison.Comparison.write` writes (PDF / PS with TrueType fonts)
@@ -35,8 +37,9 @@ class CompareOptions:
         a float (the reference *mean* energy, as printed; a numeric string is read as one), or
         ``"best"`` (the lowest energy any solver reached).
     repeat : int >= 1, runs per solver; times are medians over them.
-    warmup : True (default): one untimed, discarded run per solver before its timed runs, so
-        that lazy compilation is not solve time; False: the first run is timed cold.
+    warmup : True (default): :data:`WARMUP_STEPS` untimed, discarded iterations per solver
+        before its timed runs, so that lazy compilation is not solve time; False: the first run
+        is timed cold.
     clock : ``"wall"`` (default) or ``"cpu"``: the seconds ``max_seconds``, the figure, the
         LaTeX table and the choice of the median run use.
     tolerances : the relative gaps in (0, 1) the summary reports iterations and seconds to

@@ -264,7 +264,7 @@ class AbstractNewton(AbstractSolver):
         scale = max(abs(value), 1e-300)
         if not decrement <= self.termination.flat * scale:
             return None
-        xn = x + dx
+        xn = jax.device_put(np.asarray(x) + np.asarray(dx))  # on the host: no add program compiled per shape
         vn, gn = obj.value_and_grad(xn, params)
         vn = float(vn)
         if not vn <= value + POLISH_ROUNDING * scale or not self.search.admissible_step(obj, x, dx, 1.0, vn):
