@@ -15,6 +15,8 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
+from ._runtime.formats import extensions
+
 __all__ = ["MAP_FILES", "PICTURE_EXTENSIONS", "save_result", "save_param_picture"]
 
 #: Picture formats geomopt writes (matplotlib's own backends, no extra dependency).
@@ -23,8 +25,8 @@ PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
 #: ``Problem.kind`` -> the map file extensions :func:`save_result` writes for it.
 MAP_FILES = {
     "surface": (".obj", ".ply"), "planar": (".obj", ".ply"), "sphere": (".obj",),
-    "tet": (".vtk", ".vtu", ".msh", ".mesh"), "hex": (".vtk", ".vtu", ".msh", ".mesh"),
-    "quad": (".vtk", ".vtu", ".msh", ".mesh", ".obj"),
+    "tet": extensions("tetra", writable=True), "hex": extensions("hexahedron", writable=True),
+    "quad": extensions("quad", writable=True),
 }
 _DRAWN = ("surface", "planar", "sphere")  # kinds whose result alone makes a picture
 

@@ -507,3 +507,28 @@ def test_fuzz_found_crashes_are_one_line_refusals(tmp_path):
     (tmp_path / "c.vtu").write_bytes(_cube_vtu().replace(b'NumberOfComponents="3"', b'NumberOfComponents="3x"'))
     with pytest.raises(geomopt.MeshFormatError, match="expected 3 components"):
         io.read_tets(tmp_path / "c.vtu")
+
+
+def test_a_format_is_one_row_of_the_table_and_a_read_only_one_is_never_written(tmp_path, monkeypatch):
+    """Formats are one table (geomopt._runtime.formats): a row added there is read by every
+    reader, listed by the help and the output checks; without a writer it is refused on
+    writing (it used to be written as VTU under its own extension), creating nothing."""
+    from geomopt._runtime import formats
+    from geomopt.mesh.cells import is_cell_case, output_extensions
+
+    monkeypatch.setitem(formats.CELL_FORMATS, ".vtkr", formats.CellFormat(
+        "legacy VTK, read-only", "geomopt.io._vtk:parse_vtk", None, mapped=True, one_kind=True))
+    V, T = _jittered(1)
+    src = io.write_tets(tmp_path / "cube.vtk", V, T)
+    copy = tmp_path / "cube.vtkr"
+    copy.write_bytes(src.read_bytes())
+    P, C = io.read_tets(copy)
+    np.testing.assert_array_equal(P, V)
+    np.testing.assert_array_equal(C, T)
+    assert is_cell_case(copy) and ".vtkr" in formats.listing()
+    assert ".vtkr" not in output_extensions("tetra") and ".vtk" in output_extensions("tetra")
+    out = tmp_path / "out.vtkr"
+    with pytest.raises(geomopt.MeshFormatError, match=r"\.vtkr \(legacy VTK, read-only\), which geomopt reads but "
+                                                      r"does not write; supported tet-mesh formats: \.vtk"):
+        io.write_tets(out, V, T)
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["cube.vtk", "cube.vtkr"]

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+from .._runtime import formats
+
 from .compare import cmd_compare
 from .param import cmd_demo, cmd_param
 from .smooth import cmd_smooth
@@ -127,8 +129,8 @@ def _add_untangle(sub):
     sp.add_argument("case", nargs="+",
                     help="case folder (input.obj + handles.txt in 2D, rest.vtk + init.vtk in 3D, with "
                          "triangles, tets, quads or hexahedra), or several, or folders holding case "
-                         "folders; or one tangled tet/quad/hex mesh file (.vtk .vtu .msh .mesh, .obj for "
-                         "quads), untangled with its boundary fixed (or --handles) and the rest shapes of "
+                         "folders; or one tangled tet/quad/hex mesh file (" + formats.listing() + "), "
+                         "untangled with its boundary fixed (or --handles) and the rest shapes of "
                          "--rest (quads/hexahedra without it: squares/cubes)")
     sp.add_argument("-o", "--output", required=True,
                     help="one case: output OBJ (2D) or VTK (3D), any tet/quad/hex mesh format for a mesh "
@@ -165,7 +167,7 @@ def _add_smooth(sub):
 
     sp = sub.add_parser("smooth", help="smooth a valid quad/hex mesh (Winslow), never making an element worse "
                                        "than the input's worst")
-    sp.add_argument("input", help="quad or hex mesh (.vtk .vtu .msh .mesh, .obj for quads), every element valid")
+    sp.add_argument("input", help=f"quad or hex mesh ({formats.listing()}), every element valid")
     sp.add_argument("-o", "--output", required=True, help="output mesh, same cells (any of the input formats)")
     sp.add_argument("--energy", default="winslow", metavar="NAME",
                     help=f"one of {', '.join(ENERGIES)} (default winslow: the inverse-harmonic map)")

@@ -19,7 +19,7 @@ from ._faces import fan, mesh_with_uv
 from ._files import existing_file, read_input
 from ._text import Tokens, gc_paused, ints, parse, ranges, show, text_data, uncomment, write_int_rows, write_rows
 
-__all__ = ["read_obj", "parse_obj", "read_obj_quads", "read_obj_uv", "read_obj_with_uv", "write_obj",
+__all__ = ["read_obj", "parse_obj", "read_obj_quads", "write_obj_cells", "read_obj_uv", "read_obj_with_uv", "write_obj",
            "write_obj_quads", "write_obj_with_uv"]
 
 #: OBJ statements that carry no vertex position or face: read past.
@@ -390,6 +390,11 @@ def write_obj_quads(path, V, Q):
         write_int_rows(fh, "f %d %d %d %d", Q + 1)
 
     return atomic_write(path, write)
+
+
+def write_obj_cells(path, V, C, kind):
+    """:func:`write_obj_quads` as a writer of the cell-format table (``kind`` is ``"quad"``)."""
+    return write_obj_quads(path, V, C)
 
 
 def write_obj_with_uv(path, V, F, UV, uv_faces=None):

@@ -31,72 +31,41 @@ with full precision, so ``read_tets`` gives back exactly what was written.
 
 from __future__ import annotations
 
-import contextlib
-import warnings
-from io import StringIO
 from pathlib import Path
 
-import numpy as np
-
-from .._runtime.errors import GeomoptError, MeshFormatError
+from .._runtime.errors import MeshFormatError
+from .._runtime.formats import CELL_FORMATS, extensions, resolve
 from .._runtime.validate import validate_simplices, validate_vertices
-from ._atomic import atomic_path, check_output_path
-from ._cells import KINDS, WORDS, check_kinds, checked_cells, first_kind, select_kind
+from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import read_input
-from ._gmsh import parse_gmsh
-from ._medit import parse_medit
-from ._obj import read_obj_quads, write_obj_quads
-from ._vtk import parse_vtk, write_vtk_cells
-from ._vtu import parse_vtu
 
 __all__ = ["TET_FORMATS", "CELL_KINDS", "read_tets", "read_vtk_tets", "write_tets", "read_cells", "write_cells"]
 
-#: The tet-mesh formats geomopt reads and writes: extension -> description.
-TET_FORMATS = {
-    ".vtk": "legacy VTK",
-    ".vtu": "VTK XML unstructured grid",
-    ".msh": "Gmsh ASCII 2.2/4.1",
-    ".mesh": "Medit ASCII",
-}
+#: The tet-mesh formats geomopt reads and writes: extension -> description (from
+#: :data:`geomopt._runtime.formats.CELL_FORMATS`, the one table of cell-mesh formats).
+TET_FORMATS = {ext: CELL_FORMATS[ext].description for ext in extensions("tetra")}
 
 #: The kinds of cell :func:`read_cells` and :func:`write_cells` handle: name -> (nodes per cell,
 #: dimension).  Vertex orders are VTK's (Gmsh and Medit use the same for these).
 CELL_KINDS = dict(KINDS)
 
-_PARSERS = {".vtk": parse_vtk, ".vtu": parse_vtu, ".msh": parse_gmsh, ".mesh": parse_medit}
 
-
-def _supported():
-    return ", ".join(f"{ext} ({what})" for ext, what in TET_FORMATS.items())
-
-
-def _extension(path: Path, doing: str) -> str:
-    """``path``'s extension (lower case) if geomopt reads and writes it, else a MeshFormatError."""
-    suffix = path.suffix.lower()
-    if suffix not in TET_FORMATS:
+def _format(path: Path, ext: str, kinds: tuple, doing: str):
+    """The :class:`~geomopt._runtime.formats.CellFormat` of ``ext`` for a mesh of one of
+    ``kinds``, else a MeshFormatError naming the formats that can (read-only ones are refused
+    for writing)."""
+    fmt = CELL_FORMATS.get(ext)
+    if fmt is not None and any(fmt.holds(k) for k in kinds) and (doing == "read" or fmt.write is not None):
+        return fmt
+    what = "tet mesh" if kinds == ("tetra",) else f"{WORDS[kinds[0]][0]} mesh" if len(kinds) == 1 else "mesh"
+    usable = [e for k in kinds for e in extensions(k, writable=doing == "write")]
+    supported = ", ".join(f"{e} ({CELL_FORMATS[e].description})" for e in dict.fromkeys(usable))
+    if fmt is not None and fmt.write is None and doing == "write":
+        got = f"{ext} ({fmt.description}), which geomopt reads but does not write"
+    else:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"
-        raise MeshFormatError(f"cannot {doing} tet mesh {path}: it has {got}; supported tet-mesh formats: "
-                              f"{_supported()}")
-    return suffix
-
-
-@contextlib.contextmanager
-def _quiet():
-    """Silence what meshio prints (rich console on stderr, ``print``) and warns; yields the text."""
-    text = StringIO()
-    with warnings.catch_warnings(), contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
-        warnings.simplefilter("ignore")
-        yield text
-
-
-def _detail(exc, printed):
-    """One line saying what meshio found wrong."""
-    causes = [exc, exc.__cause__ or exc.__context__]  # meshio often re-raises a bare ReadError
-    words = next((" ".join(str(e).split()) for e in causes if e is not None and not isinstance(e, SystemExit)
-                  and str(e).strip()), "")
-    words = words or " ".join(printed.getvalue().split())
-    return words[:200] or (f"meshio's reader stopped ({type(exc).__name__}, no detail): malformed, "
-                           f"truncated or unsupported content")
+    raise MeshFormatError(f"cannot {doing} {what} {path}: it has {got}; supported {what.replace(' mesh', '-mesh')} formats: "
+                          f"{supported}")
 
 
 def read_tets(path):
@@ -186,14 +155,14 @@ def read_cells(path, kinds=("hexahedron", "quad"), format=None):
 def _read(path, kinds, format=None):
     """``(P, C, kind)``: see :func:`read_cells`."""
     ext = (format or path.suffix).lower()
-    if ext == ".obj" and "quad" in kinds:
-        return read_obj_quads(path) + ("quad",)
-    ext = _extension(path.with_suffix(ext), "read")
-    path, data = read_input(path, "tet mesh" if kinds == ("tetra",) else "mesh", mapped=ext == ".vtk")
-    dims = (2, 3) if "quad" in kinds else (3,)
-    found = parse_medit(data, path, dims) if ext == ".mesh" else _PARSERS[ext](data, path)
+    fmt = _format(path, ext, kinds, "read")
+    if fmt.whole_file:
+        return resolve(fmt.parse)(path) + (next(k for k in kinds if fmt.holds(k)),)
+    path, data = read_input(path, "tet mesh" if kinds == ("tetra",) else "mesh", mapped=fmt.mapped)
+    parse = resolve(fmt.parse)
+    found = parse(data, path, (2, 3) if "quad" in kinds else (3,)) if fmt.planar else parse(data, path)
     kind = first_kind(found, kinds, path) if len(kinds) > 1 else kinds[0]
-    C = select_kind(found, kind, path, alone=ext == ".vtk")
+    C = select_kind(found, kind, path, alone=fmt.one_kind)
     size, dim = KINDS[kind]
     P = validate_vertices(found.points, f"{path.name}: points", dim=3 if dim == 3 else None)
     return P, validate_simplices(C, P.shape[0], size, f"{path.name}: {WORDS[kind][1]}", words=WORDS[kind]), kind
@@ -259,28 +228,4 @@ def write_cells(path, P, C, kind, format=None):
     path = Path(path)
     (kind,) = check_kinds([kind])
     ext = (format or path.suffix).lower()
-    if ext == ".obj" and kind == "quad":
-        return write_obj_quads(path, P, C)
-    ext = _extension(path.with_suffix(ext), "write")
-    if ext == ".vtk":
-        return write_vtk_cells(path, P, C, kind)
-    P, C = checked_cells(P, C, kind)
-    what = "tet mesh" if kind == "tetra" else f"{WORDS[kind][0]} mesh"
-    check_output_path(path, what=what)
-    import meshio
-
-    if ext == ".msh":
-        ones = np.ones(len(C), dtype=np.int64)
-        mesh = meshio.Mesh(P, [(kind, C)], cell_data={"gmsh:physical": [ones], "gmsh:geometrical": [ones]})
-        write = lambda tmp: meshio.gmsh.write(tmp, mesh, fmt_version="4.1", binary=False)  # noqa: E731
-    elif ext == ".mesh":
-        write = lambda tmp: meshio.medit.write(tmp, meshio.Mesh(P, [(kind, C)]))  # noqa: E731
-    else:
-        write = lambda tmp: meshio.vtu.write(tmp, meshio.Mesh(P, [(kind, C)]), binary=True)  # noqa: E731
-    with atomic_path(path, what) as tmp, _quiet() as printed:
-        try:
-            write(str(tmp))
-        except Exception as exc:  # meshio's WriteError, OSError (disk full), ...
-            raise GeomoptError(f"could not write {path} as {TET_FORMATS[ext]} ({_detail(exc, printed)}); "
-                               f"nothing was written") from exc
-    return path
+    return resolve(_format(path, ext, (kind,), "write").write)(path, P, C, kind)

@@ -28,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .._runtime import formats
 from .._runtime.errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError
 
 __all__ = ["CellCase", "CELL_EXTENSIONS", "UNTANGLE_KINDS", "SMOOTH_KINDS", "is_cell_case", "read_cell_case", "cell_problem", "write_certified",
            "output_extensions", "case_inputs"]
 
-#: Files a tet / quad / hex mesh is read from and written to (``.obj``: quads only).
-CELL_EXTENSIONS = (".vtk", ".vtu", ".msh", ".mesh", ".obj")
+#: Files a tet / quad / hex mesh is read from (:data:`geomopt._runtime.formats.CELL_FORMATS`).
+CELL_EXTENSIONS = formats.extensions()
 #: The kinds of mesh untangled from one file, by priority (volume cells before quads).
 UNTANGLE_KINDS = ("hexahedron", "tetra", "quad")
 #: The kinds of mesh smoothed (and held in case folders).
@@ -85,12 +86,13 @@ def is_cell_case(path) -> bool:
     if path.is_dir():
         rest = path / "rest.vtk"
         return rest.is_file() and _vtk_cell_type(rest) in (9, 12)
-    return path.suffix.lower() in CELL_EXTENSIONS
+    return path.suffix.lower() in formats.extensions()
 
 
 def output_extensions(kind) -> tuple:
-    """The files a case of ``kind`` is written to: :data:`CELL_EXTENSIONS`, ``.obj`` for quads only."""
-    return CELL_EXTENSIONS if kind == "quad" else tuple(e for e in CELL_EXTENSIONS if e != ".obj")
+    """The files a case of ``kind`` is written to: the formats of
+    :data:`~geomopt._runtime.formats.CELL_FORMATS` that hold ``kind`` and have a writer."""
+    return formats.extensions(kind, writable=True)
 
 
 def case_inputs(path, rest=None, handles=None) -> list:
