@@ -92,6 +92,7 @@ def _write_map(result, tmp, ext):
     import numpy as np
 
     from . import io
+    from .mesh.elements import kind_of
 
     problem, x = result.problem, np.asarray(result.x, dtype=np.float64)
     if problem.kind in ("surface", "planar"):
@@ -101,7 +102,7 @@ def _write_map(result, tmp, ext):
     elif problem.kind == "tet":
         io.write_cells(tmp, x, problem.input_simplices, "tetra", format=ext)
     else:
-        io.write_cells(tmp, x, problem.elements, "quad" if problem.kind == "quad" else "hexahedron", format=ext)
+        io.write_cells(tmp, x, problem.elements, kind_of(problem.elements).word, format=ext)
 
 
 def _rest_3d(problem):

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._runtime.errors import ParameterError
+from .mesh.elements import ELEMENT_KINDS
 from ._render import CHECKER_COLORS, camera_rotation
 
 __all__ = ["show", "scene", "camera", "inverted_rgb", "Scene", "BACKENDS", "VIEW_EXTRA"]
@@ -73,11 +74,13 @@ def _mesh_cells(mesh):
     else:
         raise ParameterError(f"show draws a geomopt Result, a mesh object with .vertices and .faces, a "
                              f"meshio.Mesh or a (vertices, cells) pair; got {type(mesh).__name__}")
-    if V.ndim != 2 or V.shape[1] not in (2, 3) or C.ndim != 2 or C.shape[1] not in (3, 4, 8):
-        raise ParameterError(f"show: vertices must be (n, 2) or (n, 3) and cells (m, 3), (m, 4) or (m, 8); "
-                             f"got {V.shape} and {C.shape}")
-    volume = C.shape[1] == 8 or (C.shape[1] == 4 and V.shape[1] == 3 and _is_tets(V, C))
-    return V, C, volume
+    arities = sorted({3, 4} | set(ELEMENT_KINDS))
+    if V.ndim != 2 or V.shape[1] not in (2, 3) or C.ndim != 2 or C.shape[1] not in arities:
+        raise ParameterError(f"show: vertices must be (n, 2) or (n, 3) and cells (m, k) with k one of "
+                             f"{', '.join(map(str, arities))}; got {V.shape} and {C.shape}")
+    if C.shape[1] == 4 and V.shape[1] == 3:  # tetrahedra, or the quads of a surface
+        return V, C, _is_tets(V, C)
+    return V, C, C.shape[1] != 3 and ELEMENT_KINDS[C.shape[1]].dim == 3
 
 
 def _is_tets(V, C):

@@ -115,6 +115,7 @@ def _untangle_mesh(args) -> int:
     to one certified file: one path for every kind of element."""
     from .._runtime.errors import ParameterError
     from .._runtime.timing import compile_seconds
+    from ..io import CELL_WORDS
     from ..mesh.cells import case_inputs, cell_problem, read_cell_case, write_certified
     from ..mesh.quality import quality_summary
     from ..untangling import UntangleOptions, untangle
@@ -136,7 +137,7 @@ def _untangle_mesh(args) -> int:
                                                     options=UntangleOptions(start=args.start)))
     with split.phase("certify"):
         after = quality_summary(problem, res.x)
-    words = {"tetra": "tetrahedra", "quad": "quads", "hexahedron": "hexahedra"}[case.kind]
+    words = CELL_WORDS[case.kind][1]
     log(args, f"{len(case.elements)} {words}: before {quality_line(before)}, {before['invalid']} invalid")
     tests = f" ({after['corner_only']} only inside); tests {after['tests']}" if after["tests"] else ""
     log(args, f"after  {quality_line(after)}, {after['invalid']} invalid{tests}; outer iterations "

@@ -41,7 +41,7 @@ from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, writ
 from ._ply import write_ply_with_uv
 from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, write_mesh_with_uv
 from ._text import read_vertex_ids
-from ._volume import CELL_KINDS, TET_FORMATS, read_cells, read_tets, read_vtk_tets, write_cells, write_tets
+from ._volume import CELL_KINDS, CELL_WORDS, TET_FORMATS, read_cells, read_tets, read_vtk_tets, write_cells, write_tets
 from ._vtk import write_vtk_tets
 
 __all__ = [
@@ -49,6 +49,7 @@ __all__ = [
     "UV_MESH_EXTENSIONS",
     "TET_FORMATS",
     "CELL_KINDS",
+    "CELL_WORDS",
     "read_cells",
     "write_cells",
     "atomic_output",

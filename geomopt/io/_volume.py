@@ -39,7 +39,7 @@ from .._runtime.validate import validate_simplices, validate_vertices
 from ._cells import KINDS, WORDS, check_kinds, first_kind, select_kind
 from ._files import read_input
 
-__all__ = ["TET_FORMATS", "CELL_KINDS", "read_tets", "read_vtk_tets", "write_tets", "read_cells", "write_cells"]
+__all__ = ["TET_FORMATS", "CELL_KINDS", "CELL_WORDS", "read_tets", "read_vtk_tets", "write_tets", "read_cells", "write_cells"]
 
 #: The tet-mesh formats geomopt reads and writes: extension -> description (from
 #: :data:`geomopt._runtime.formats.CELL_FORMATS`, the one table of cell-mesh formats).
@@ -48,6 +48,8 @@ TET_FORMATS = {ext: CELL_FORMATS[ext].description for ext in extensions("tetra")
 #: The kinds of cell :func:`read_cells` and :func:`write_cells` handle: name -> (nodes per cell,
 #: dimension).  Vertex orders are VTK's (Gmsh and Medit use the same for these).
 CELL_KINDS = dict(KINDS)
+#: How messages name each of the :data:`CELL_KINDS`: name -> (singular, plural).
+CELL_WORDS = dict(WORDS)
 
 
 def _format(path: Path, ext: str, kinds: tuple, doing: str):

@@ -72,7 +72,8 @@ class ElementKind:
 
     Attributes
     ----------
-    word, words : its name, singular and plural (messages).
+    word, words : its name, singular and plural (messages); ``word`` is also its cell name in
+        the files (:data:`geomopt.io.CELL_KINDS`).
     dim : the dimension of its map (2: quads, 3: hexahedra); corner simplices have ``dim + 1``
         vertices.
     corners : (k, dim + 1) its corner simplices, as vertex positions in the element.
