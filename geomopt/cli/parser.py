@@ -145,7 +145,8 @@ def _add_untangle(sub):
     sp.add_argument("--start", default="auto", choices=["auto", "given", "harmonic"],
                     help="where untangling starts: the given map, the harmonic extension of the handles "
                          "(its free vertices moved), or auto (default: the harmonic extension for quads and "
-                         "hexahedra when it has fewer inverted corners, else the given map)")
+                         "hexahedra when it has fewer inverted corners, else the given map, and the harmonic extension "
+                         "again when the given map stalls)")
     sp.add_argument("--png", default=None,
                     help="also save a picture of the start and the result, inverted elements in red")
     where = sp.add_mutually_exclusive_group()
