@@ -73,6 +73,9 @@ BALANCE_ROUNDS, BALANCE_POWER, BALANCE_PATIENCE = 30, 0.5, 3
 #: the most a vertex's stretch may differ from the median stretch in one round of balancing
 #: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150)
 BALANCE_SPREAD = 100.0
+#: most rounds of balancing while every round so far leaves triangles flat in the plane (a limb
+#: crowded past float64 needs its weights moved by more than BALANCE_ROUNDS bounded rounds move)
+BALANCE_ROUNDS_CROWDED = 100
 #: the spread of vertex lengths (largest / smallest) at which the map is put back on the sphere
 #: and L-BFGS restarted there, and the most such restarts (:func:`_radial_guard`)
 RESPHERE_SPREAD, MAX_RESPHERES = 2.0, 100
@@ -252,28 +255,31 @@ def _stereo_scale(P, rest, share):
 
 def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
     """``[(estimate, round, P, s)]``: the Tutte map of the disk (round 0) and the three best maps
-    of up to :data:`BALANCE_ROUNDS` rounds of stretch-minimising reweighting (Yoshizawa, Belyaev & Seidel
-    2004): each vertex's incoming weights divided by ``sigma ** BALANCE_POWER``, ``sigma`` its
-    area-weighted RMS length stretch of the sphere map against the rest triangles scaled to
-    ``4 pi``, kept within :data:`BALANCE_SPREAD` of its median.  Positive weights keep every round flip-free in the plane (Floater 2003), and each
-    spreads what a harmonic map crowds exponentially (a long limb's far end).  ``estimate`` is
-    ``(flat, mean)``: the planar triangles not positive in floating point
-    (:func:`_flat_in_plane`), then the area-weighted mean symmetric Dirichlet of the chord
-    triangles (inf where it is not finite), compared in that order; the rounds stop when :data:`BALANCE_PATIENCE` of them do not lower it, when a
-    stretch is not finite or when the reweighted system is singular.  The weights are divided
-    by their largest after each round (the embedding does not change; a start collapsed near a
-    point multiplied every weight by ~1e-75 a round, which underflowed to 0 in round 5).  A
-    harmonic map crowds a long limb beyond float64 (its far end's triangles collinear or flipped
-    in the plane, their stretch 1e150 and more): the bounded update spreads it over rounds
-    instead of tearing the system apart in one."""
+    of up to :data:`BALANCE_ROUNDS` rounds of stretch-minimising reweighting (Yoshizawa, Belyaev &
+    Seidel 2004): each vertex's incoming weights divided by ``sigma ** BALANCE_POWER``, ``sigma``
+    its area-weighted RMS length stretch of the sphere map against the rest triangles scaled to
+    ``4 pi``, kept within :data:`BALANCE_SPREAD` of its median.  Positive weights keep every round
+    flip-free in the plane (Floater 2003), and each spreads what a harmonic map crowds
+    exponentially (a long limb's far end).
 
+    ``estimate`` is ``(flat, mean)``: the planar triangles not positive in floating point
+    (:func:`_flat_in_plane`), then the area-weighted mean symmetric Dirichlet of the chord
+    triangles (inf where it is not finite), compared in that order.  The rounds stop after
+    :data:`BALANCE_ROUNDS` (:data:`BALANCE_ROUNDS_CROWDED` while every round leaves a flat
+    triangle), when :data:`BALANCE_PATIENCE` of them do not lower the estimate, when a stretch is
+    not finite or when the reweighted system is singular.  The weights are divided by their
+    largest after each round (the embedding does not change; a start collapsed near a point
+    multiplied every weight by ~1e-75 a round, which underflowed to 0 in round 5).  A harmonic
+    map crowds a long limb beyond float64 (its far end's triangles collinear or flipped in the
+    plane, their stretch 1e150 and more): the bounded update spreads it over rounds instead of
+    tearing the system apart in one."""
     n = len(V)
     P = weighted_embedding(W, loop, circle)
     A = triangle_areas(V[F])
     target = A * (4.0 * math.pi / A.sum())
     rest_tri = V[F] * math.sqrt(4.0 * math.pi / A.sum())
     rounds, history = [], []
-    for r in range(BALANCE_ROUNDS + 1):
+    for r in range(BALANCE_ROUNDS_CROWDED + 1):
         s = _stereo_scale(P, rest, share)
         x = _on_sphere(P, s, keep, pole, n)
         sd = triangle_symmetric_dirichlet(rest_tri, x[F])
@@ -282,7 +288,8 @@ def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
         # round 0 and the three best others: a map per round kept would be 31 at 10^6 vertices
         rounds = rounds[:1] + sorted(rounds[1:] + [(history[-1], r, P, s)], key=lambda c: c[0])[:3]
         # stop when the last rounds found nothing lower (none finite counts as none lower)
-        if r == BALANCE_ROUNDS or (r >= BALANCE_PATIENCE and
+        last = BALANCE_ROUNDS if min(history)[0] == 0 else BALANCE_ROUNDS_CROWDED  # more while every round is flat
+        if r >= last or (r >= BALANCE_PATIENCE and
                                    not min(history[-BALANCE_PATIENCE:]) < min(history[:-BALANCE_PATIENCE])):
             break
         chord = triangle_areas(x[F])
