@@ -43,13 +43,13 @@ REFERENCE_SECONDS = {"WeberZorin14_fig19": 4.2, "armadillo-598": 3.8, "disk46-no
 
 def families(sizes):
     """(name, group, factory) for the generated cases of about ``sizes`` elements
-    (among 1e3, 1e4, 1e5)."""
+    (among 1e2, 1e3, 1e4, 1e5; 1e2 is for tests/test_untangle_families.py)."""
     out = []
-    sq = {1_000: 23, 10_000: 72, 100_000: 225}  # 2 (n-1)^2 triangles
-    disk = {1_000: 13, 10_000: 41, 100_000: 129}  # 6 R^2 triangles
-    cube = {1_000: 6, 10_000: 12, 100_000: 26}  # 6 n^3 tets
-    rod = {1_000: (4, 10), 10_000: (8, 26), 100_000: (16, 65)}  # 6 c^2 l tets
-    for size in (1_000, 10_000, 100_000):
+    sq = {100: 8, 1_000: 23, 10_000: 72, 100_000: 225}  # 2 (n-1)^2 triangles
+    disk = {100: 4, 1_000: 13, 10_000: 41, 100_000: 129}  # 6 R^2 triangles
+    cube = {100: 3, 1_000: 6, 10_000: 12, 100_000: 26}  # 6 n^3 tets
+    rod = {100: (3, 10), 1_000: (4, 10), 10_000: (8, 26), 100_000: (16, 65)}  # 6 c^2 l tets
+    for size in (100, 1_000, 10_000, 100_000):
         if size not in sizes:
             continue
         n, R, c = sq[size], disk[size], cube[size]
@@ -125,7 +125,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3, help="warm runs per case (median reported)")
     ap.add_argument("--sizes", default="1000,10000,100000",
-                    help="family sizes to run (elements, among 1000, 10000, 100000)")
+                    help="family sizes to run (elements, among 100, 1000, 10000, 100000)")
     ap.add_argument("--only", default="", help="run cases whose name contains this")
     ap.add_argument("--solver", default="lbfgs", choices=["lbfgs", "newton"])
     ap.add_argument("--no-families", action="store_true")

@@ -59,15 +59,23 @@ from .exact.topology import as_faces, boundary_loops, check_sphere
 from .mesh.tutte import WEIGHTS as TUTTE_WEIGHTS, circle_boundary, tutte_weights, weighted_embedding
 from .mesh.quality import triangle_areas, triangle_symmetric_dirichlet
 
-__all__ = ["sphere_map", "SphereOptions", "sphere_start", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
+__all__ = ["sphere_map", "SphereOptions", "sphere_start", "candidate_poles", "given_start", "sphere_distortion", "default_solver", "SphereDetails", "stereographic"]
 
-#: halvings of the stereographic scale before the start is given up (each halves every cap)
+#: halvings of the stereographic scale before a pole's start is given up (each halves every cap)
 MAX_HALVINGS = 60
+#: poles :func:`sphere_start` tries when none is given (:func:`candidate_poles`)
+POLE_TRIES = 5
 #: most rounds of the start's area balancing, the damping power of its weight update, and the
 #: rounds without a lower estimate that end it (:func:`_balanced_rounds`; measured on cow and a
 #: hand-and-arm scan: power 1 overshoots into slivers, 0.5 takes the cow from 1,586 L-BFGS
 #: iterations to 569 and the arm from no certified map to 541)
 BALANCE_ROUNDS, BALANCE_POWER, BALANCE_PATIENCE = 30, 0.5, 3
+#: the most a vertex's stretch may differ from the median stretch in one round of balancing
+#: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150)
+BALANCE_SPREAD = 100.0
+#: most rounds of balancing while every round so far leaves triangles flat in the plane (a limb
+#: crowded past float64 needs its weights moved by more than BALANCE_ROUNDS bounded rounds move)
+BALANCE_ROUNDS_CROWDED = 100
 #: the spread of vertex lengths (largest / smallest) at which the map is put back on the sphere
 #: and L-BFGS restarted there, and the most such restarts (:func:`_radial_guard`)
 RESPHERE_SPREAD, MAX_RESPHERES = 2.0, 100
@@ -101,7 +109,9 @@ def stereographic(p, s: float = 1.0) -> np.ndarray:
 def _cap_bound(P, F) -> float:
     """``max over triangles of r^2 - |c|^2`` for the circumcircles (centre c, radius r) of the
     planar triangles ``P[F]``: the power of the origin with respect to each circle, negated
-    (``|a|^2 - 2 a.c`` for a corner ``a``)."""
+    (``|a|^2 - 2 a.c`` for a corner ``a``).  Triangles degenerate in floating point (no
+    circumcircle) are left out: they certify at no scale, and counting them as an infinite bound
+    put the whole map at the north pole (scale 0)."""
     a, b, c = (P[F[:, k]] for k in range(3))
     d = 2.0 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
     ab, ac = b - a, c - a
@@ -109,7 +119,8 @@ def _cap_bound(P, F) -> float:
     with np.errstate(all="ignore"):
         centre = a + np.stack([ac[:, 1] * lab - ab[:, 1] * lac, ab[:, 0] * lac - ac[:, 0] * lab], axis=1) / d[:, None]
         q = np.sum(a * a, axis=1) - 2.0 * np.sum(a * centre, axis=1)
-    return float(np.max(np.where(np.isfinite(q), q, np.inf)))
+    q = q[np.isfinite(q)]  # a triangle degenerate in the plane: no scale certifies it, none is set by it
+    return float(np.max(q)) if len(q) else 0.0
 
 
 def _disk_without(F, n, pole):
@@ -135,7 +146,9 @@ def sphere_start(V, F, pole=None, weights="uniform"):
     ----------
     V : (n, 3) rest vertices;  F : (m, 3) triangles, consistently oriented (checked by
         :func:`geomopt.exact.topology.check_sphere`).
-    pole : the vertex put at the south pole (default: one of highest degree).
+    pole : the vertex put at the south pole (0-based).  Default: one of highest degree, then, when
+        no start from it certifies, up to :data:`POLE_TRIES` - 1 others (:func:`candidate_poles`:
+        the mesh's middle in edge hops, then vertices spread over it).
     weights : Tutte weights, ``"uniform"`` or ``"mean_value"``.
 
     Returns
@@ -145,17 +158,65 @@ def sphere_start(V, F, pole=None, weights="uniform"):
 
     Raises
     ------
-    MeshError : not a closed genus-0 manifold mesh, or no certified start (rounding on a
-        badly shaped mesh: remesh it).
+    MeshError : not a closed genus-0 manifold mesh, or no certified start from any pole tried
+        (rounding on a badly shaped mesh, or limbs so long that float64 cannot hold a flat map
+        of them: remesh more evenly or coarser along the limbs).
     """
     V = validate_vertices(V, "rest vertices", dim=3)
     n = len(V)
     F = as_faces(F, n)
     check_sphere(F, n)
-    if pole is None:
-        pole = int(np.argmax(np.bincount(F.ravel(), minlength=n)))
-    elif not (isinstance(pole, (int, np.integer)) and 0 <= pole < n):
-        raise ParameterError(f"pole must be a vertex index in [0, {n}), got {pole!r}")
+    if pole is not None and not (isinstance(pole, (int, np.integer)) and not isinstance(pole, bool)
+                                 and 0 <= pole < n):
+        raise ParameterError(f"pole must be a vertex index in [0, {n}) (0-based), got {pole!r}")
+    poles = [int(pole)] if pole is not None else candidate_poles(F, n)
+    for p in poles:
+        found = _start_at(V, F, n, p, weights)
+        if found is not None:
+            return found
+    tried = f"pole {poles[0]}" if len(poles) == 1 else f"poles {', '.join(map(str, poles))}"
+    raise MeshError(f"no certified start map onto the sphere from {tried} (every round of the start and "
+                    f"{MAX_HALVINGS} halvings of the stereographic scale left triangles degenerate in float64: "
+                    f"limbs too long and thin for a flat map, or badly shaped triangles); "
+                    f"{'try another pole, ' if pole is not None else ''}remesh more evenly, or coarser along "
+                    f"long limbs")
+
+
+def candidate_poles(F, n, count=None) -> list[int]:
+    """Up to ``count`` (default :data:`POLE_TRIES`) distinct poles for :func:`sphere_start`: a vertex
+    of highest degree; the middle of a longest shortest path in edge hops (double sweep: on a
+    body, the torso, whence no limb crowds more than its own length makes it); then each vertex
+    farthest in hops from those before (farthest-point sampling: the limbs' ends)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    count = POLE_TRIES if count is None else count
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    graph = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
+
+    def hops(v):
+        return dijkstra(graph, directed=False, indices=v, unweighted=True)
+
+    first = int(np.argmax(np.bincount(F.ravel(), minlength=n)))
+    a = int(np.argmax(hops(first)))
+    to_a = hops(a)
+    b = int(np.argmax(to_a))
+    to_b = hops(b)
+    on_path = np.flatnonzero(to_a + to_b == to_a[b])  # the vertices of shortest a-b paths
+    centre = int(on_path[np.argmin(np.abs(to_a[on_path] - to_b[on_path]))])
+    poles = [first] + ([centre] if centre != first else [])
+    nearest = np.minimum(hops(first), hops(centre))
+    while len(poles) < min(count, n):
+        far = int(np.argmax(nearest))
+        if nearest[far] == 0:
+            break
+        poles.append(far)
+        nearest = np.minimum(nearest, hops(far))
+    return poles[:count]
+
+
+def _start_at(V, F, n, pole, weights):
+    """``(x, details)`` of :func:`sphere_start` with the south pole at ``pole``, or None when no
+    round and no halving of the scale certifies."""
     rest, keep, loop = _disk_without(F, n, pole)
     A = triangle_areas(V[F])
     share = min(max(float(np.sum(A[np.any(F == pole, axis=1)])) / float(np.sum(A)), 1e-12), 0.5)
@@ -174,9 +235,7 @@ def sphere_start(V, F, pole=None, weights="uniform"):
         if cert.ok:
             return x, SphereDetails(x, int(pole), s, halvings, cert, 0)
         s *= 0.5
-    raise MeshError(f"no certified start map onto the sphere after {MAX_HALVINGS} halvings of the stereographic "
-                    f"scale (its triangles are too badly shaped for float64); remesh more evenly or try another "
-                    f"pole or weights")
+    return None
 
 
 def _on_sphere(P, s, keep, pole, n):
@@ -196,36 +255,66 @@ def _stereo_scale(P, rest, share):
 
 def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
     """``[(estimate, round, P, s)]``: the Tutte map of the disk (round 0) and the three best maps
-    of up to :data:`BALANCE_ROUNDS` rounds of stretch-minimising reweighting (Yoshizawa, Belyaev & Seidel
-    2004): each vertex's incoming weights divided by ``sigma ** BALANCE_POWER``, ``sigma`` its
-    area-weighted RMS length stretch of the sphere map against the rest triangles scaled to
-    ``4 pi``.  Positive weights keep every round flip-free in the plane (Floater 2003), and each
-    spreads what a harmonic map crowds exponentially (a long limb's far end).  ``estimate`` is
-    the area-weighted mean symmetric Dirichlet of the chord triangles; the rounds stop when
-    :data:`BALANCE_PATIENCE` of them do not lower it."""
+    of up to :data:`BALANCE_ROUNDS` rounds of stretch-minimising reweighting (Yoshizawa, Belyaev &
+    Seidel 2004): each vertex's incoming weights divided by ``sigma ** BALANCE_POWER``, ``sigma``
+    its area-weighted RMS length stretch of the sphere map against the rest triangles scaled to
+    ``4 pi``, kept within :data:`BALANCE_SPREAD` of its median.  Positive weights keep every round
+    flip-free in the plane (Floater 2003), and each spreads what a harmonic map crowds
+    exponentially (a long limb's far end).
+
+    ``estimate`` is ``(flat, mean)``: the planar triangles not positive in floating point
+    (:func:`_flat_in_plane`), then the area-weighted mean symmetric Dirichlet of the chord
+    triangles (inf where it is not finite), compared in that order.  The rounds stop after
+    :data:`BALANCE_ROUNDS` (:data:`BALANCE_ROUNDS_CROWDED` while every round leaves a flat
+    triangle), when :data:`BALANCE_PATIENCE` of them do not lower the estimate, when a stretch is
+    not finite or when the reweighted system is singular.  The weights are divided by their
+    largest after each round (the embedding does not change; a start collapsed near a point
+    multiplied every weight by ~1e-75 a round, which underflowed to 0 in round 5).  A harmonic
+    map crowds a long limb beyond float64 (its far end's triangles collinear or flipped in the
+    plane, their stretch 1e150 and more): the bounded update spreads it over rounds instead of
+    tearing the system apart in one."""
     n = len(V)
     P = weighted_embedding(W, loop, circle)
     A = triangle_areas(V[F])
     target = A * (4.0 * math.pi / A.sum())
     rest_tri = V[F] * math.sqrt(4.0 * math.pi / A.sum())
     rounds, history = [], []
-    for r in range(BALANCE_ROUNDS + 1):
+    for r in range(BALANCE_ROUNDS_CROWDED + 1):
         s = _stereo_scale(P, rest, share)
         x = _on_sphere(P, s, keep, pole, n)
         sd = triangle_symmetric_dirichlet(rest_tri, x[F])
         estimate = float(np.sum(target * sd) / np.sum(target))
-        history.append(estimate if np.isfinite(estimate) else math.inf)
+        history.append((_flat_in_plane(P, rest), estimate if np.isfinite(estimate) else math.inf))
         # round 0 and the three best others: a map per round kept would be 31 at 10^6 vertices
         rounds = rounds[:1] + sorted(rounds[1:] + [(history[-1], r, P, s)], key=lambda c: c[0])[:3]
-        if r == BALANCE_ROUNDS or (r >= BALANCE_PATIENCE and min(history[-BALANCE_PATIENCE:]) > min(history)):
+        # stop when the last rounds found nothing lower (none finite counts as none lower)
+        last = BALANCE_ROUNDS if min(history)[0] == 0 else BALANCE_ROUNDS_CROWDED  # more while every round is flat
+        if r >= last or (r >= BALANCE_PATIENCE and
+                                   not min(history[-BALANCE_PATIENCE:]) < min(history[:-BALANCE_PATIENCE])):
             break
         chord = triangle_areas(x[F])
         stretch2 = target / np.maximum(chord, 1e-300 * target)  # squared length stretch per triangle
         per_vertex = np.bincount(F.ravel(), np.repeat(target * stretch2, 3), minlength=n)
         sigma = np.sqrt(per_vertex / np.bincount(F.ravel(), np.repeat(target, 3), minlength=n))[keep]
+        if not (np.isfinite(sigma).all() and sigma.min() > 0):
+            break
+        middle = float(np.median(sigma))  # a round moves no weight by more than BALANCE_SPREAD ** BALANCE_POWER
+        sigma = np.clip(sigma, middle / BALANCE_SPREAD, middle * BALANCE_SPREAD)
         W = W @ sp.diags(sigma ** -BALANCE_POWER)
-        P = weighted_embedding(W, loop, circle)
+        W = W / W.max()  # the same embedding; weights that shrink every round would underflow to 0
+        try:
+            P = weighted_embedding(W, loop, circle)
+        except MeshError:  # rounding made the reweighted system singular: keep the rounds so far
+            break
     return rounds
+
+
+def _flat_in_plane(P, rest) -> int:
+    """How many planar triangles ``P[rest]`` (P (k, 2)) are not counter-clockwise in floating
+    point: crowded beyond float64 (a flip-free Tutte map has none in exact arithmetic)."""
+    a, b, c = (P[rest[:, k]] for k in range(3))
+    d = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    return int(np.count_nonzero(~(d > 0)))
 
 
 def given_start(problem, x0):

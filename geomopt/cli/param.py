@@ -46,6 +46,9 @@ def cmd_param(args) -> int:
     compile_seconds()  # starts counting JAX's compilation
     if args.sphere:
         return _param_sphere(args)
+    if getattr(args, "pole", None) is not None:
+        raise ParameterError("--pole goes with --sphere (the vertex a sphere map's start puts at the south pole); "
+                             "leave it out for a map into the plane")
     energy = get_energy(args.energy)
     solver = make_solver(args.solver, args.max_steps)
     pictures = []
@@ -154,15 +157,17 @@ def _param_sphere(args) -> int:
     output_paths(args.output, (".obj",), pictures, [args.input], getattr(args, "folder", None))
     with args.timing.phase("read"):
         V, F = io.read_mesh(args.input)
+    if args.pole is not None and args.pole >= len(V):
+        raise ParameterError(f"--pole {args.pole}: {args.input} has {len(V)} vertices, 0-based ids 0 to {len(V) - 1}")
     log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; onto the sphere, energy {args.energy}, L-BFGS")
     res = timed_solve(args.timing, lambda: sphere_map(V, F, energy=args.energy, solver=solver, progress=not args.quiet,
-                                                      options=SphereOptions(weights=args.weights)))
+                                                      options=SphereOptions(weights=args.weights, pole=args.pole)))
     st, cert, dist = res.stats, res.certificate, sphere_distortion(V, F, res.x)
     log(args, f"faces {len(F)}  iterations {st.iterations}  seconds {st.seconds:.2f}  mean energy "
               f"{res.mean_energy:.10g}  area ratio {dist['area_min']:.3g}..{dist['area_max']:.3g}  flips "
               f"{cert.inverted}  spherical area {cert.area:.12g} (4 pi = {4 * math.pi:.12g})  outcome {res.outcome.value}")
     report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F), sphere=True,
-           energy_name=args.energy, iterations=st.iterations, solve_seconds=round(st.seconds, 4),
+           energy_name=args.energy, pole=res.details.pole, iterations=st.iterations, solve_seconds=round(st.seconds, 4),
            mean_energy=res.mean_energy, flips=cert.inverted, spherical_area=cert.area, degree=cert.degree,
            area_ratio_min=dist["area_min"], area_ratio_max=dist["area_max"], injectivity=res.injectivity,
            outcome=res.outcome.value, message=res.message, **cache_summary())
@@ -250,7 +255,7 @@ def cmd_demo(args) -> int:
     data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, sphere=False, margin=0.005,
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, sphere=False, pole=None, margin=0.005,
                             uv_range="raw", json=args.json, summary=args.summary, timing=args.timing)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary

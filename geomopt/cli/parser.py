@@ -51,6 +51,16 @@ def _positive_int(text) -> int:
     return value
 
 
+def _vertex_id(text) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a 0-based vertex id (a whole number >= 0), got {text!r}")
+    return value
+
+
 def build_parser():
     from .._version import __version__
     from .._runtime.names import ENERGIES, SOLVERS
@@ -119,6 +129,9 @@ def _add_param(sub):
     sp.add_argument("--sphere", action="store_true",
                     help="map a closed genus-0 mesh onto the unit sphere instead (L-BFGS, certified bijective): "
                          "-o writes an .obj with the same (triangle) faces, its vertices on the sphere")
+    sp.add_argument("--pole", type=_vertex_id, default=None, metavar="N",
+                    help="--sphere: the vertex the start puts at the south pole, a 0-based id as in a handles "
+                         "file (default: one of highest degree, then others when its start does not certify)")
     _common_options(sp)
     sp.set_defaults(func=cmd_param)
 
@@ -147,7 +160,8 @@ def _add_untangle(sub):
     sp.add_argument("--start", default="auto", choices=["auto", "given", "harmonic"],
                     help="where untangling starts: the given map, the harmonic extension of the handles "
                          "(its free vertices moved), or auto (default: the harmonic extension for quads and "
-                         "hexahedra when it has fewer inverted corners, else the given map)")
+                         "hexahedra when it has fewer inverted corners, else the given map, and the harmonic extension "
+                         "again when the given map stalls)")
     sp.add_argument("--png", default=None,
                     help="also save a picture of the start and the result, inverted elements in red")
     where = sp.add_mutually_exclusive_group()

@@ -187,7 +187,8 @@ class UntangleDetails(Details):
     """What :func:`~geomopt.untangling.untangle` adds: ``theta`` and ``lam = theta / (1 - theta)``,
     the exact power-of-two ``map_scale`` and the ``rest_scale`` of its normalised frame, the
     elements that have a free vertex (``active_elements``), and the map the eps loop started
-    from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.untangling.start.choose_start`);
+    from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.untangling.start.choose_start`,
+    or ``"given, then harmonic"`` when ``start="auto"`` started again from the harmonic extension);
     the connected parts without a handle (``free_parts``), held at a certified map, ``rest_parts`` of
     them at their rest shape (see :func:`geomopt.untangling.start.hold_free_parts`)."""
 

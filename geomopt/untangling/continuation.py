@@ -67,6 +67,9 @@ class EpsContinuation(AbstractContinuation):
     initially : inverted elements of the start map;  solver : the inner solver (its search is
         made injective once nothing is inverted with ``injective_when_untangled``).
     stiff : the solver a stalled inner solve continues with (:func:`~geomopt.untangling.stiff_solver`), or None.
+    stall : stop (``Outcome.MAX_STEPS``, "stalled") once eps has been at its floor for this many
+        outer iterations with no fewer inverted elements than the best before them; None (the
+        default) never stops for that.  The driver sets it when it has another start to try.
 
     Notes
     -----
@@ -87,7 +90,8 @@ class EpsContinuation(AbstractContinuation):
     """
 
     def __init__(self, problem, scaled, full, objective, map_scale, xs, options, details, initially, solver,
-                 stiff=None, forced=None):
+                 stiff=None, forced=None, stall=None):
+        self.stall, self.at_floor = stall, 0  # outer iterations ended with eps at the floor
         self.problem, self.scaled, self.full, self.objective, self.solver = problem, scaled, full, objective, solver
         self.forced = forced  # the input's overlaps that the handles alone make (Problem.certify_fixed)
         self.probe = STIFF_AFTER_NEWTON if isinstance(stiff, Newton) else STIFF_AFTER
@@ -121,6 +125,15 @@ class EpsContinuation(AbstractContinuation):
         progressed = now < folds * start[0] and E < energy * min(start[1], self.E)
         self.window = (int(now), E)
         return progressed
+
+    def _stalled(self) -> bool:
+        """Whether the last :attr:`stall` outer iterations, all at the eps floor, left no fewer
+        inverted elements than the best before them (the outer iteration just recorded included)."""
+        self.at_floor = self.at_floor + 1 if self.eps <= self.floor else 0
+        k = self.stall
+        if k is None or self.at_floor < k or len(self.inverted) <= k:
+            return False
+        return min(self.inverted[-k:]) >= min(self.inverted[:-k])
 
     def start(self, state):
         self.E = next(iter(self._stats(state.x, state.params)))
@@ -159,6 +172,9 @@ class EpsContinuation(AbstractContinuation):
             # iterations cannot help
             return Decision.stop_with(Outcome.NOT_INJECTIVE, f"every corner is positive but {folded} hexahedra "
                                       f"fold inside (det J <= 0 between their corners, exact Bernstein test)", record)
+        if self._stalled():
+            return Decision.stop_with(Outcome.MAX_STEPS, f"stalled: eps at its floor for {self.stall} outer "
+                                      f"iterations and no fewer than {min(self.inverted)} inverted", record)
         if len(self.inverted) >= opts.max_outer:
             return Decision.stop_with(Outcome.MAX_STEPS, f"stopped at the outer-iteration limit (max_outer="
                                       f"{opts.max_outer}) before it settled", record)

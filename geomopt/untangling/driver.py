@@ -4,6 +4,7 @@ inner solver, normalises the problem and runs the eps continuation in the one lo
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 
 import jax
@@ -13,7 +14,7 @@ from .._runtime.errors import ParameterError, SolveError
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ..energies import garanzha
-from ..exact.predicates import box_scale
+from ..exact.predicates import box_scale, differing_rows
 from ..mesh.orientation import fixed_total_problem
 from ..mesh.problem import Problem
 from ..objective.objective import Objective
@@ -26,7 +27,11 @@ from .inner import default_solver, stiff_solver
 from .options import UntangleOptions, options_from
 from .rest import check_rest, equilateral_problem
 from .schedule import start_eps
-from .start import BOX, choose_start, hold_free_parts
+from .start import BOX, choose_start, harmonic_start, hold_free_parts
+
+#: outer iterations at the eps floor without fewer inverted elements after which ``start="auto"``
+#: gives up the given map and starts again from the harmonic extension of the handles
+STALL_OUTER = 20
 
 __all__ = ["UntangleResult", "untangle"]
 
@@ -112,6 +117,39 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
         return _early_result(problem, x0, initially, t_setup, throw, why)
     forced = problem.certify_fixed(x0)  # stars no free vertex changes (quads/hexahedra: their tangent cones)
     x_start, which = choose_start(problem, x0, opts.start)
+    may_fall_back = opts.start == "auto" and which != "harmonic" and len(problem.fixed) > 0
+    run = (problem, solver, opts, initially, forced, progress, throw)
+    result = _attempt(*run, t_setup, x_start, which, stall=STALL_OUTER if may_fall_back else None)
+    if may_fall_back and not (result.success or result.outcome is Outcome.CERTIFIED_EXCEPT_FIXED):
+        result = _fall_back(run, x0, x_start, result)
+    if throw and not result.success:
+        raise SolveError(f"untangling failed: {result.message}", result)
+    return result
+
+
+def _fall_back(run, x0, x_start, first) -> Result:
+    """The eps loop again from the harmonic extension of the handles (:func:`harmonic_start`)
+    after ``first``, the run from ``x_start``, ended uncertified; ``first`` when the extension
+    is undefined or is ``x_start``.  The result's stats add up both runs."""
+    problem, progress = run[0], run[5]
+    fallback = harmonic_start(problem, x0)
+    if fallback is None or not differing_rows(fallback, x_start).any():
+        return first
+    if progress is True:
+        print(f"untangling: the given map ended uncertified ({first.message}); again from the harmonic extension "
+              f"of the handles", file=sys.stderr, flush=True)
+    result = _attempt(*run, time.perf_counter(), fallback, "harmonic", stall=None)
+    a, b = first.stats, result.stats
+    stats = dataclasses.replace(b, setup_seconds=a.setup_seconds + b.setup_seconds, seconds=a.seconds + b.seconds,
+                                iterations=a.iterations + b.iterations, evaluations=a.evaluations + b.evaluations,
+                                outer_iterations=a.outer_iterations + b.outer_iterations)
+    return dataclasses.replace(result, stats=stats, details=dataclasses.replace(result.details,
+                                                                                start="given, then harmonic"))
+
+
+def _attempt(problem, solver, opts, initially, forced, progress, throw, t_setup, x_start, which, stall) -> Result:
+    """The eps loop from ``x_start`` (``which`` start, :func:`choose_start`) with the parts
+    without a handle held (:func:`hold_free_parts`); ``stall`` as :class:`EpsContinuation`'s."""
     parts = hold_free_parts(problem, x_start)  # parts without a handle: held at a certified map
     held = np.union1d(problem.fixed, parts.held)
     solving = problem.with_fixed(held, parts.x[held]) if len(parts.held) else problem
@@ -120,18 +158,16 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     details = UntangleDetails(theta, theta / (1.0 - theta), 1.0, 1.0, int(active.sum()), which,
                               parts.given + parts.rest + parts.pinned, parts.rest)
     if not active.any():  # nothing left to move: the map is certified as it is
-        result = _held_result(problem, parts.x, initially, forced, t_setup, details)
-    else:
-        before = time.perf_counter() - t_setup
-        result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress, throw)
-        result = dataclasses.replace(result, problem=problem, stats=dataclasses.replace(
-            result.stats, setup_seconds=result.stats.setup_seconds + before))
-    if throw and not result.success:
-        raise SolveError(f"untangling failed: {result.message}", result)
-    return result
+        return _held_result(problem, parts.x, initially, forced, t_setup, details)
+    before = time.perf_counter() - t_setup
+    result = _solve(problem, solving, parts.x, active, solver, opts, details, initially, forced, progress, throw,
+                    stall)
+    return dataclasses.replace(result, problem=problem, stats=dataclasses.replace(
+        result.stats, setup_seconds=result.stats.setup_seconds + before))
 
 
-def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress, throw) -> Result:
+def _solve(problem, solving, x_start, active, solver, opts, details, initially, forced, progress, throw,
+           stall=None) -> Result:
     """The eps loop on ``solving`` (``problem`` with its handle-free parts held) from ``x_start``."""
     t_setup = time.perf_counter()
     stiff = None  # the solver a stalling inner solve continues with (default L-BFGS only)
@@ -146,11 +182,11 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
     if opts.eps0 is None:
         opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
     details = dataclasses.replace(details, map_scale=k, rest_scale=s)
-    eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced)
+    eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced, stall)
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
-                     warn=not throw)  # raised by untangle with the whole set-up time
+                     warn=not throw and stall is None)  # raised by untangle (a stalled run is retried)
     return dataclasses.replace(result, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
 
