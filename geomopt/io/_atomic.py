@@ -23,6 +23,7 @@ except ImportError:  # Windows: temporaries are not locked, stale ones not remov
     fcntl = None
 
 from .._runtime.errors import GeomoptError, ParameterError
+from .._runtime.interrupt import raise_pending
 from ._files import file_kind, one_line
 
 __all__ = ["check_output_path", "atomic_path", "atomic_output", "atomic_write", "check_outputs", "create_output_folder",
@@ -229,8 +230,9 @@ def atomic_path(path, what="output"):
     renamed onto ``path`` with :func:`os.replace` (atomic on POSIX and Windows).  When the
     block raises (including ``KeyboardInterrupt`` and the exception the command line
     raises for SIGTERM/SIGHUP) the temporary file is deleted and ``path`` is left
-    untouched.  Use it for writers that open a file by name; :func:`atomic_output`
-    gives an open file instead.
+    untouched, and so it is when an interrupt was recorded and swallowed on the way
+    (:func:`geomopt._runtime.interrupt.raise_pending`).  Use it for writers that open a
+    file by name; :func:`atomic_output` gives an open file instead.
 
     Parameters
     ----------
@@ -262,6 +264,8 @@ def atomic_path(path, what="output"):
         problem = _output_problem(path, what)  # it may have changed while we wrote
         if problem:
             raise GeomoptError(problem)
+        held = _block_signals()
+        raise_pending()  # an interrupt swallowed on the way (a GC callback's) still stops the rename
         os.replace(tmp, path)
     except BaseException as exc:
         if tmp is not None:

@@ -38,6 +38,7 @@ import numpy as np
 
 from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
+from .._runtime.interrupt import raise_pending
 from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
@@ -257,6 +258,7 @@ def _phase(solver, state, guard, run):
     the phase."""
     rule, why = solver.termination, ""
     while True:
+        raise_pending()  # an interrupt swallowed since the last step (in a GC callback) ends the solve
         code = rule(state.stats)
         if code != RUNNING:
             return state, Outcome.of(code), ""
