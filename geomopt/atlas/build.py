@@ -208,6 +208,11 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     if not isinstance(options, AtlasOptions):
         raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
     check_progress(progress, "make_atlas")
+    settings = [k for k in energy_params if k in {f.name for f in dataclasses.fields(AtlasOptions)}]
+    if settings:  # not an energy parameter: say where it goes
+        given = ", ".join(f"{k}={energy_params[k]!r}" for k in settings)
+        are = "is an AtlasOptions field" if len(settings) == 1 else "are AtlasOptions fields"
+        raise ParameterError(f"make_atlas: {', '.join(settings)} {are}: pass options=AtlasOptions({given})")
     energy, energy_params = energy_spec(energy, energy_params, "make_atlas")
     check_scale_aware(energy, energy_params)
     V, F = check_atlas_input(*mesh_arrays(V, F))

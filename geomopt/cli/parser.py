@@ -104,7 +104,7 @@ def _add_param(sub):
     sp.add_argument("--atlas", action="store_true",
                     help="cut into charts and pack them (a texture atlas) even when the mesh is a disk; a "
                          "mesh that is not a disk (closed, several boundary loops or components) always is")
-    sp.add_argument("--margin", type=_margin, default=0.005,
+    sp.add_argument("--margin", type=_margin, default=None,
                     help="atlas: gap between packed charts, a fraction of the unit square (default 0.005)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],

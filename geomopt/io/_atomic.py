@@ -206,8 +206,10 @@ def check_output_path(path, extensions=None, what="output"):
 
     Raises
     ------
+    ParameterError
+        The extension is not allowed (a ``ValueError`` too).
     GeomoptError
-        The extension is not allowed, or ``path`` is not a regular file, names a folder,
+        ``path`` is not a regular file, names a folder,
         its folder does not exist or is not writable (permissions, read-only file system),
         or its name is too long for the file system.
     """
@@ -217,7 +219,7 @@ def check_output_path(path, extensions=None, what="output"):
     path = Path(path)
     if extensions is not None and path.suffix.lower() not in extensions:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"
-        raise GeomoptError(f"{what} {path} has {got}; supported: {', '.join(extensions)}")
+        raise ParameterError(f"{what} {path} has {got}; supported: {', '.join(extensions)}")
     return path
 
 
