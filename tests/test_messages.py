@@ -77,3 +77,44 @@ def test_untangle_refuses_a_mirrored_rest_mesh(tmp_path, cli, kind):
     code, _, err = cli("untangle", tangled, "--rest", rest, "-o", tmp_path / "out.vtk", "--quiet")
     assert code == 2 and not (tmp_path / "out.vtk").exists(), err
     one_error_line(err, f"the rest mesh's {len(S)} elements are negatively oriented")
+
+
+def pinched_obj(path):
+    """A closed surface pinched at one vertex: two octahedra sharing their vertex 1 (file's
+    numbering), edge-manifold everywhere, non-manifold at that vertex."""
+    import trimesh
+
+    a = trimesh.creation.icosphere(0)
+    V1, F1 = np.asarray(a.vertices), np.asarray(a.faces)
+    top = int(np.argmax(V1[:, 2]))
+    order = np.r_[top, np.delete(np.arange(len(V1)), top)]  # the shared vertex first (file's vertex 1)
+    V1, F1 = V1[order], np.argsort(order)[F1]
+    V2 = 2 * V1[0] - V1  # the point reflection through vertex 0: meets the first there only
+    F2 = np.where(F1 == 0, 0, F1 + len(V1) - 1)[:, [0, 2, 1]]
+    V = np.r_[V1, V2[1:]]
+    F = np.r_[F1, F2]
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    return V, F
+
+
+def test_a_pinched_vertex_split_by_an_atlas_is_said(tmp_path, cli):
+    V, F = pinched_obj(tmp_path / "pinched.obj")
+    atlas = geomopt.make_atlas(V, F, progress=False)
+    assert atlas.success and atlas.pinched.tolist() == [0]
+    code, _, err = cli("param", tmp_path / "pinched.obj", "-o", tmp_path / "out.obj", "--quiet")
+    assert code == 0, err
+    lines = [l for l in err.splitlines() if "pinched" in l]
+    assert len(lines) == 1 and "1 pinched" in lines[0] and "vertex 1 " in lines[0] + " ", err
+
+
+def test_a_mixed_tet_and_hex_file_is_refused_as_mixed(tmp_path, cli):
+    pts = "".join(f"{x} {y} {z}\n" for x, y, z in [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (0, 0, 1),
+                                                   (1, 0, 1), (0, 1, 1), (1, 1, 1), (0, 0, 2)])
+    (tmp_path / "mixed.vtk").write_text(
+        f"# vtk DataFile Version 2.0\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 9 double\n{pts}"
+        f"CELLS 3 19\n8 0 1 3 2 4 5 7 6\n4 4 5 6 8\n4 5 7 6 8\nCELL_TYPES 3\n12\n10\n10\n")
+    code, _, err = cli("untangle", tmp_path / "mixed.vtk", "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 2 and not (tmp_path / "out.vtk").exists()
+    line = one_error_line(err, "2 tetrahedra and 1 hexahedron", "one kind of element")
+    assert "only meshes of linear hexahedra" not in line
