@@ -85,6 +85,9 @@ class Atlas:
     certificate : the exact certificate of the packed atlas (``certify_atlas``).
     results : one :class:`~geomopt.solvers.Result` per chart (its flattening before packing).
     seconds : wall time of the whole call.
+    pinched : (p,) int64, the input's pinched (non-manifold, "bow-tie") vertices, sorted: vertices
+        whose faces form several fans, each split into one copy per fan before cutting (so the
+        atlas has at least one UV per fan there, even without a seam through them).
     """
 
     uv: np.ndarray
@@ -96,6 +99,7 @@ class Atlas:
     certificate: object
     results: tuple
     seconds: float
+    pinched: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def success(self) -> bool:
@@ -218,6 +222,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     V, F = check_atlas_input(*mesh_arrays(V, F))
     g0 = edge_graph(V, F)
     manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
+    pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
+    if len(pinched):
+        _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
     g = edge_graph(V[manifold.vertex], manifold.wedge)
     cost = edge_costs(g, options.crease, angle_defects(g.V, g.F))
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
@@ -245,7 +252,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     certificate = certify_atlas(uv, uv_faces, chart)
     metrics = atlas_metrics(V, F, uv, uv_faces)
     atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
-                  certificate, tuple(results), time.perf_counter() - t0)
+                  certificate, tuple(results), time.perf_counter() - t0, pinched)
     _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
          mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet, success=atlas.success)
     if not atlas.success:
