@@ -118,3 +118,21 @@ def test_a_mixed_tet_and_hex_file_is_refused_as_mixed(tmp_path, cli):
     assert code == 2 and not (tmp_path / "out.vtk").exists()
     line = one_error_line(err, "2 tetrahedra and 1 hexahedron", "one kind of element")
     assert "only meshes of linear hexahedra" not in line
+
+
+def test_a_tet_mesh_whose_free_boundary_folds_gets_3d_advice(tmp_path, cli):
+    """One handle leaves the boundary free: the tets all turn positive but the boundary surface
+    folds over an interior edge, which no flip-free motion undoes (with no handle at all the part
+    is held at the rest mesh, certified).  The advice is about surfaces, not polygons."""
+    V, T, t, tangled = tangled_tets(tmp_path)
+    rest = io.write_cells(tmp_path / "rest.msh", V, T, "tetra")
+    (tmp_path / "one.txt").write_text(f"{t.fixed[0]}\n")
+    code, _, err = cli("untangle", tangled, "--rest", rest, "--handles", tmp_path / "one.txt",
+                       "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 1, err
+    line = one_error_line(err, "boundary surface")
+    assert "polygon" not in line and "Tutte" not in line
+    (tmp_path / "none.txt").write_text("")
+    code, _, err = cli("untangle", tangled, "--rest", rest, "--handles", tmp_path / "none.txt",
+                       "-o", tmp_path / "out.vtk", "--quiet")
+    assert code == 0, err
