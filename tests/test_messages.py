@@ -136,3 +136,32 @@ def test_a_tet_mesh_whose_free_boundary_folds_gets_3d_advice(tmp_path, cli):
     code, _, err = cli("untangle", tangled, "--rest", rest, "--handles", tmp_path / "none.txt",
                        "-o", tmp_path / "out.vtk", "--quiet")
     assert code == 0, err
+
+
+def _text_outside(fig) -> list:
+    """The titles, axis labels and legends of ``fig`` that reach outside it once drawn."""
+    fig.canvas.draw()
+    r, W, H = fig.canvas.get_renderer(), fig.bbox.width, fig.bbox.height
+    arts = [t for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label) if t.get_text()]
+    arts += list(fig.legends)
+    return [a for a in arts if (lambda b: b.x0 < -1 or b.y0 < -1 or b.x1 > W + 1 or b.y1 > H + 1)(a.get_window_extent(r))]
+
+
+def test_compare_font_sizes_are_bounded_where_the_figure_fits(tmp_path, cli):
+    from geomopt.experiments.comparison import compare_meshes
+    from geomopt.experiments.options import MAX_FONT_SIZE, CompareOptions
+
+    V, F = bowl()
+    mesh = io.write_obj(tmp_path / "camelhead.obj", V, F)
+    code, out, err = cli("compare", mesh, "-o", tmp_path / "o", "--font-size", "72", "--layout", "column", "--quiet")
+    assert code == 2 and not (tmp_path / "o").exists()
+    one_error_line(err, "font_size", f"at most {MAX_FONT_SIZE['column']:g}")
+    with pytest.raises(geomopt.ParameterError, match="at most"):
+        CompareOptions(layout="wide", font_size=MAX_FONT_SIZE["wide"] + 1)
+    six = ["newton", "lbfgs", "aqp", "slim", "optx-ncg", "cm"]  # the legend of many solvers, two meshes
+    res = compare_meshes({"camelhead": mesh, "b": io.write_obj(tmp_path / "b.obj", 2 * V, F)}, solvers=six,
+                         options=CompareOptions(warmup=False, max_steps=20))
+    for layout, size in MAX_FONT_SIZE.items():
+        assert _text_outside(res.figure(layout=layout, font_size=size)) == [], (layout, size)
+        with pytest.raises(geomopt.ParameterError, match="at most"):
+            res.figure(layout=layout, font_size=size + 1)

@@ -218,7 +218,7 @@ def _add_compare(sub):
                     help="figure: three panels per mesh, 15 in wide (default), or column: the gap against "
                          "seconds alone, 3.4 in wide (one paper column)")
     sp.add_argument("--font-size", type=float, default=None,
-                    help="figure font size in points (default 10 wide, 8 column)")
+                    help="figure font size in points (default 10 wide, 8 column; at most 16 wide, 10 column)")
     _common_options(sp)
     sp.set_defaults(func=cmd_compare)
 
