@@ -4,6 +4,11 @@ Cut into disk charts (:mod:`geomopt.atlas.cutting`), flatten every chart flip-fr
 :func:`geomopt.parameterize` (free boundary; the bijective scaffold where a chart's boundary
 overlaps itself), pack the charts into the unit square (``pack_charts``), certify the whole
 atlas exactly (``certify_atlas``) and measure it (:mod:`geomopt.atlas.metrics`).
+
+A pinched vertex (non-manifold: its faces form several fans that meet only there, as where two
+parts of a surface touch at one point) is split into one vertex per fan before cutting, so the
+charts are disks; the atlas lists such vertices (:attr:`Atlas.pinched`), the progress says so
+and ``geomopt param`` prints one warning line with their count and the first one.
 """
 
 from __future__ import annotations
