@@ -140,3 +140,9 @@ def test_declared_minimum_versions_install_and_work(tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / "tests" / "install_floors.py"), "--venv", str(tmp_path / "venv")],
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+
+
+def test_ci_runs_the_floor_check():
+    """The floors stay true only if something runs them: CI's script does, after the suite."""
+    lines = [l.strip() for l in (ROOT / ".ci" / "run").read_text().splitlines() if not l.lstrip().startswith("#")]
+    assert any(l.endswith("tests/install_floors.py") or "tests/install_floors.py " in l for l in lines), lines

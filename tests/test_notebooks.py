@@ -36,3 +36,44 @@ def test_notebook_runs(path, tmp_path):
     nb = nbformat.read(path, as_version=4)
     nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
                             resources={"metadata": {"path": str(tmp_path)}}).execute()
+
+
+#: optional modules of geomopt's extras (pyproject.toml) a notebook may import
+EXTRAS = {"dask": "batch", "distributed": "batch", "optax": "optax", "polyscope": "view", "pyvista": "view",
+          "vtk": "view"}
+
+
+def _imports(nb):
+    src = "\n".join(c.source for c in nb.cells if c.cell_type == "code")
+    return set(re.findall(r"^\s*(?:from|import)\s+([A-Za-z_]\w*)", src, re.M))
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_a_notebook_that_needs_an_extra_says_so_in_its_first_cell(path):
+    nbformat = pytest.importorskip("nbformat")
+    nb = nbformat.read(path, as_version=4)
+    for extra in sorted({EXTRAS[m] for m in _imports(nb) if m in EXTRAS}):
+        assert f'pip install "geomopt[{extra}]"' in nb.cells[0].source, \
+            f"{path.name} imports a module of the [{extra}] extra: say so in its first cell"
+
+
+BATCH = [p for p in NOTEBOOKS if p.name.startswith("11_")]
+
+
+@pytest.mark.parametrize("path", BATCH, ids=[p.name for p in BATCH])
+def test_the_batch_notebook_runs_its_serial_path_without_dask(path, tmp_path, monkeypatch):
+    """Without the [batch] extra (Dask distributed) the sweep runs one task after another."""
+    import os
+
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    for name in ("dask", "distributed"):  # packages that fail to import, first on the kernel's path
+        (tmp_path / "blocked" / name).mkdir(parents=True)
+        (tmp_path / "blocked" / name / "__init__.py").write_text(
+            f"raise ModuleNotFoundError(\"No module named '{name}' (hidden by the test)\", name={name!r})\n")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path / "blocked"), os.environ.get("PYTHONPATH", "")]))
+    nb = nbformat.read(path, as_version=4)
+    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                            resources={"metadata": {"path": str(tmp_path)}}).execute()
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
+    assert "one after another" in text, text[-2000:]

@@ -4,6 +4,11 @@ Cut into disk charts (:mod:`geomopt.atlas.cutting`), flatten every chart flip-fr
 :func:`geomopt.parameterize` (free boundary; the bijective scaffold where a chart's boundary
 overlaps itself), pack the charts into the unit square (``pack_charts``), certify the whole
 atlas exactly (``certify_atlas``) and measure it (:mod:`geomopt.atlas.metrics`).
+
+A pinched vertex (non-manifold: its faces form several fans that meet only there, as where two
+parts of a surface touch at one point) is split into one vertex per fan before cutting, so the
+charts are disks; the atlas lists such vertices (:attr:`Atlas.pinched`), the progress says so
+and ``geomopt param`` prints one warning line with their count and the first one.
 """
 
 from __future__ import annotations
@@ -86,6 +91,9 @@ class Atlas:
     certificate : the exact certificate of the packed atlas (``certify_atlas``).
     results : one :class:`~geomopt.solvers.Result` per chart (its flattening before packing).
     seconds : wall time of the whole call.
+    pinched : (p,) int64, the input's pinched (non-manifold, "bow-tie") vertices, sorted: vertices
+        whose faces form several fans, each split into one copy per fan before cutting (so the
+        atlas has at least one UV per fan there, even without a seam through them).
     """
 
     uv: np.ndarray
@@ -97,6 +105,7 @@ class Atlas:
     certificate: object
     results: tuple
     seconds: float
+    pinched: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def success(self) -> bool:
@@ -211,11 +220,19 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     if not isinstance(options, AtlasOptions):
         raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
     check_progress(progress, "make_atlas")
+    settings = [k for k in energy_params if k in {f.name for f in dataclasses.fields(AtlasOptions)}]
+    if settings:  # not an energy parameter: say where it goes
+        given = ", ".join(f"{k}={energy_params[k]!r}" for k in settings)
+        are = "is an AtlasOptions field" if len(settings) == 1 else "are AtlasOptions fields"
+        raise ParameterError(f"make_atlas: {', '.join(settings)} {are}: pass options=AtlasOptions({given})")
     energy, energy_params = energy_spec(energy, energy_params, "make_atlas")
     check_scale_aware(energy, energy_params)
     V, F = check_atlas_input(*mesh_arrays(V, F))
     g0 = edge_graph(V, F)
     manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
+    pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
+    if len(pinched):
+        _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
     g = edge_graph(V[manifold.vertex], manifold.wedge)
     cost = edge_costs(g, options.crease, angle_defects(g.V, g.F))
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
@@ -243,7 +260,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     certificate = certify_atlas(uv, uv_faces, chart)
     metrics = atlas_metrics(V, F, uv, uv_faces)
     atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
-                  certificate, tuple(results), time.perf_counter() - t0)
+                  certificate, tuple(results), time.perf_counter() - t0, pinched)
     _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
          mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet, success=atlas.success)
     if not atlas.success:

@@ -5,6 +5,7 @@ atlas, write it as OBJ (the input's ``v`` lines and face order, one ``vt`` per c
 from __future__ import annotations
 
 import contextlib
+import sys
 from pathlib import Path
 
 from .._runtime.errors import MeshError, ParameterError
@@ -36,7 +37,7 @@ def param_atlas(args, V, F, energy, solver) -> int:
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
     atlas = make_atlas(V, F, energy=energy, solver=solver, progress=_progress(args),
-                       options=AtlasOptions(margin=args.margin))
+                       options=AtlasOptions() if args.margin is None else AtlasOptions(margin=args.margin))
     m = atlas.metrics
     log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
               f"{m.mean_symmetric_dirichlet:.6g}  worst {m.worst_symmetric_dirichlet:.6g}  efficiency "
@@ -49,6 +50,11 @@ def param_atlas(args, V, F, energy, solver) -> int:
            seconds=round(atlas.seconds, 4), message=atlas.message, **cache_summary())
     if not atlas.success:
         return fail(f"atlas not certified: {atlas.message}")
+    if len(atlas.pinched):  # said even with --quiet, in the file's own numbering
+        base = 1 if Path(args.input).suffix.lower() == ".obj" else 0
+        print(f"geomopt: warning: {len(atlas.pinched)} pinched vertex(es) (their faces form several fans) "
+              f"split, one copy per fan; first: vertex {int(atlas.pinched[0]) + base} of {args.input}",
+              file=sys.stderr, flush=True)
     folder = getattr(args, "folder", None)
     if folder is not None:
         io.create_output_folder(folder)

@@ -148,9 +148,9 @@ def _param_sphere(args) -> int:
     from .._runtime.errors import ParameterError
     from ..sphere import SphereOptions, default_solver, sphere_distortion, sphere_map
 
-    if args.bijective or args.atlas or args.init != "tutte" or args.uv_range != "raw":
+    if args.bijective or args.atlas or args.init != "tutte" or args.uv_range != "raw" or args.margin is not None:
         raise ParameterError("--sphere makes its own certified start and writes vertices, not UVs or charts: "
-                             "leave out --bijective, --atlas, --init and --uv-range")
+                             "leave out --bijective, --atlas, --margin, --init and --uv-range")
     # newton is the parser's default: the sphere's default L-BFGS then
     solver = make_solver(default_solver() if args.solver == "newton" else args.solver, args.max_steps)
     pictures = [("--png picture", args.png)] if args.png else []

@@ -116,7 +116,7 @@ def _add_param(sub):
     sp.add_argument("--atlas", action="store_true",
                     help="cut into charts and pack them (a texture atlas) even when the mesh is a disk; a "
                          "mesh that is not a disk (closed, several boundary loops or components) always is")
-    sp.add_argument("--margin", type=_margin, default=0.005,
+    sp.add_argument("--margin", type=_margin, default=None,
                     help="atlas: gap between packed charts, a fraction of the unit square (default 0.005)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
@@ -234,7 +234,7 @@ def _add_compare(sub):
                     help="figure: three panels per mesh, 15 in wide (default), or column: the gap against "
                          "seconds alone, 3.4 in wide (one paper column)")
     sp.add_argument("--font-size", type=float, default=None,
-                    help="figure font size in points (default 10 wide, 8 column)")
+                    help="figure font size in points (default 10 wide, 8 column; at most 16 wide, 10 column)")
     _common_options(sp)
     sp.set_defaults(func=cmd_compare)
 

@@ -1,5 +1,6 @@
-"""The ``geomopt`` process: :func:`main` parses the command line, runs the command with SIGTERM
-and SIGHUP raised as interrupts, geomopt's warnings gathered, and every failure turned into
+"""The ``geomopt`` process: :func:`main` parses the command line, runs the command with SIGINT,
+SIGTERM and SIGHUP recorded and raised as interrupts (:mod:`geomopt._runtime.interrupt`: one
+swallowed where Python ignores exceptions still ends the run), geomopt's warnings gathered, and every failure turned into
 one line and an exit status, then prints the ``--json`` summary; :func:`entry` is the console
 command, which exits quickly once the command has finished."""
 
@@ -22,39 +23,25 @@ from .parser import UsageError, build_parser
 __all__ = ["main", "entry"]
 
 
-class _Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised like Ctrl-C so that unfinished outputs are cleaned up."""
-
-    def __init__(self, signum):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _raise_interrupted(signum, frame):
-    raise _Interrupted(signum)
-
-
-@contextlib.contextmanager
-def _signals_raise():
-    """While the block runs, SIGTERM and SIGHUP raise :class:`_Interrupted` (SIGINT already raises
-    KeyboardInterrupt), so the atomic writers delete their temporary files; restored afterwards."""
-    previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
-        signum = getattr(signal, name, None)
-        if signum is None:
-            continue
-        try:
-            previous[signum] = signal.signal(signum, _raise_interrupted)
-        except ValueError:  # not the main thread: leave the handlers alone
-            break
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-
-
 def main(argv=None) -> int:
+    from .._runtime import interrupt
+
+    with interrupt.handled():  # from the start: an interrupt during parsing or the summary too
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:
+            return _interrupted(exc)
+
+
+def _interrupted(exc) -> int:
+    """Say which signal ended the run; its exit status (128 + the signal number)."""
+    signum = getattr(exc, "signum", signal.SIGINT)
+    print(f"geomopt: interrupted by {signal.Signals(signum).name}; unfinished outputs were removed",
+          file=sys.stderr, flush=True)
+    return 128 + signum
+
+
+def _main(argv) -> int:
     t0 = time.perf_counter()
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     try:
@@ -145,42 +132,47 @@ class _Warnings:
 
 
 def _run(args) -> int:
-    from .._runtime.errors import GeomoptError, GeomoptWarning, SolveError
+    from .._runtime import interrupt
+    from .._runtime.errors import GeomoptWarning
 
     if args.json:
         from .._runtime.cache import cache_stats
 
         cache_stats()  # count persistent-cache hits and misses from here on
     try:
-        with _signals_raise(), warnings.catch_warnings():
+        with warnings.catch_warnings():
             if not args.debug:  # errors are one line: no NumPy RuntimeWarning (overflow, 0/0...) on stderr
                 warnings.simplefilter("ignore", RuntimeWarning)
             warnings.simplefilter("always", GeomoptWarning)  # each run's own, deduplicated by _Warnings
             warnings.showwarning = said = _Warnings(warnings.showwarning)
             code = args.func(args)
+            interrupt.raise_pending()  # a swallowed interrupt ends the run even when nothing was written
             if code == EXIT_OK:
                 said.print()
             return code
-    except SolveError as exc:
+    except KeyboardInterrupt as exc:  # SIGINT, SIGTERM or SIGHUP (main's interrupt.handled)
+        return _interrupted(exc)
+    except Exception as exc:
+        if interrupt.pending() is not None:  # an interrupt that a library turned into its own error
+            return _interrupted(interrupt.Interrupted(interrupt.pending()))
         if args.debug:
             raise
+        return _failed(args, exc)
+
+
+def _failed(args, exc) -> int:
+    """Print and report the error ``exc`` that ended a command; its exit status."""
+    from .._runtime.errors import GeomoptError, SolveError
+
+    if isinstance(exc, SolveError):
         report(args, error=str(exc))
         return fail(str(exc))
-    except GeomoptError as exc:
-        if args.debug:
-            raise
+    if isinstance(exc, GeomoptError):
         report(args, error=str(exc))
         print(f"geomopt: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP through _signals_raise
-        signum = getattr(exc, "signum", signal.SIGINT)
-        print(f"geomopt: interrupted by {signal.Signals(signum).name}; unfinished outputs were removed",
-              file=sys.stderr)
-        return 128 + signum
-    except Exception as exc:  # an internal error: one line unless --debug
-        if args.debug:
-            raise
-        report(args, error=f"internal error: {type(exc).__name__}: {exc}")
-        print(f"geomopt: internal error: {type(exc).__name__}: {exc} (rerun with --debug and "
-              f"report it)", file=sys.stderr)
-        return EXIT_FAILED
+    # an internal error: one line unless --debug
+    report(args, error=f"internal error: {type(exc).__name__}: {exc}")
+    print(f"geomopt: internal error: {type(exc).__name__}: {exc} (rerun with --debug and "
+          f"report it)", file=sys.stderr)
+    return EXIT_FAILED

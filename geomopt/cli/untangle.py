@@ -132,6 +132,7 @@ def _untangle_mesh(args) -> int:
     cell_output(args, case, inputs, [("--png picture", args.png)] if args.png else [])
     with split.phase("setup"):
         problem = cell_problem(case)
+        _refuse_infeasible(problem, case)
         before = quality_summary(problem, case.start)
     res = timed_solve(split, lambda: untangle(problem, case.start, solver=args.solver, progress=not args.quiet,
                                                     options=UntangleOptions(start=args.start)))
@@ -158,6 +159,28 @@ def _untangle_mesh(args) -> int:
     return _written_untangled(args, res, lambda: write_certified(args.output, res.x, case, problem, forced=forced),
                               lambda png, fmt: _save_untangle_figure(png, case.start, res.x, problem.simplices,
                                                                      1, str(path), fmt))
+
+
+def _refuse_infeasible(problem, case) -> None:
+    """Bad input (exit 2) when no map with these handles can be injective
+    (:func:`geomopt.untangling.infeasible`), decided before solving; blamed on the rest mesh when
+    it was read negatively oriented (a mirror image of the tangled mesh)."""
+    import numpy as np
+
+    from .._runtime.errors import MeshError
+    from ..mesh.orientation import fixed_total_problem
+    from ..untangling import infeasible
+
+    why = infeasible(problem, case.start)
+    if why is None:
+        return
+    reversed_rest = not np.array_equal(problem.simplices if problem.elements is None else problem.elements,
+                                       case.elements)  # read negatively oriented: the elements were reversed
+    if case.rest is not None and reversed_rest and fixed_total_problem(problem, case.start):
+        raise MeshError(f"the rest mesh's {len(case.elements)} elements are negatively oriented, and the "
+                        f"handles of the tangled mesh enclose a positive volume: the rest mesh is a mirror "
+                        f"image of the tangled one; give the rest mesh unmirrored (negate one coordinate)")
+    raise MeshError(why)
 
 
 def _untangle_batch(args) -> int:

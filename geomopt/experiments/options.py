@@ -20,6 +20,20 @@ CLOCKS = ("wall", "cpu")
 #: figure formats :meth:`~geomopt.experiments.comparison.Comparison.write` writes (PDF / PS with TrueType fonts)
 FORMATS = ("png", "pdf", "svg", "eps", "ps")
 LAYOUTS = ("wide", "column")
+#: the largest font size (points) at which every title, axis label and the legend of six solvers
+#: stay inside each layout's figure (15 in and 3.4 in wide; tests/test_messages.py draws it)
+MAX_FONT_SIZE = {"wide": 16.0, "column": 10.0}
+
+
+def check_font_size(layout, font_size, where="CompareOptions"):
+    """ParameterError when ``font_size`` (points, or None: the layout's default) does not fit
+    ``layout``'s figure: not in [1, :data:`MAX_FONT_SIZE`]."""
+    if font_size is None:
+        return
+    top = MAX_FONT_SIZE[layout]
+    if not (isinstance(font_size, (int, float)) and not isinstance(font_size, bool) and 1.0 <= font_size <= top):
+        raise ParameterError(f"{where}: font_size must be a number of points in [1, {top:g}] for the {layout} "
+                             f"layout (at most {top:g}: larger text does not fit its figure), got {font_size!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,7 +61,8 @@ class CompareOptions:
     formats : figure formats written with ``out`` (:data:`FORMATS`).
     log_x : a logarithmic time axis in the figure.
     layout : ``"wide"`` or ``"column"`` (one panel, a paper column wide).
-    font_size : the figure's font size in points, in [1, 72], or None (the layout's).
+    font_size : the figure's font size in points, in [1, 16] (wide) or [1, 10] (column): where the
+        figure fits (:data:`MAX_FONT_SIZE`), or None (the layout's).
     """
 
     weights: str = "uniform"
@@ -67,6 +82,7 @@ class CompareOptions:
         validate(self, weights=OneOf(WEIGHTS), max_seconds=Maybe(Real(0.0, lo_open=True)), max_steps=Maybe(Int(1)),
                  repeat=Int(1), warmup=Instance(bool), clock=OneOf(CLOCKS), log_x=Instance(bool),
                  layout=OneOf(LAYOUTS), font_size=Maybe(Real(1.0, 72.0)))
+        check_font_size(self.layout, self.font_size)
         object.__setattr__(self, "reference", _reference(self.reference))
         object.__setattr__(self, "tolerances", _tolerances(self.tolerances))
         object.__setattr__(self, "formats", _formats(self.formats))

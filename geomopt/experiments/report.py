@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = ["solver_style", "comparison_figure", "save_figure", "latex_table", "text_table", "STYLES", "LAYOUTS", "PAPER_RC"]
 
-from .options import LAYOUTS  # three panels per mesh, 15 inches wide, or one panel (gap against solve
+from .options import LAYOUTS, check_font_size  # three panels per mesh, 15 inches wide, or one panel (gap against solve
 # seconds) per mesh, a paper column wide (3.4 in: ACM 3.33 in, IEEE 3.5 in)
 #: matplotlib settings every comparison figure is saved with: TrueType fonts in PDF / PS
 PAPER_RC = {"pdf.fonttype": 42, "ps.fonttype": 42}
@@ -65,6 +65,7 @@ def comparison_figure(comparisons: dict, log_x: bool = False, dpi: int = 100, la
 
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    check_font_size(layout, font_size, "comparison_figure")
     panels, height = (3, 4.0) if layout == "wide" else (1, 2.4)
     with rc_context(_font_rc(layout, font_size)):
         fig = Figure(figsize=(_WIDTH[layout], 0.6 + height * len(comparisons)), dpi=dpi, layout="constrained")

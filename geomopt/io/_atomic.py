@@ -23,6 +23,7 @@ except ImportError:  # Windows: temporaries are not locked, stale ones not remov
     fcntl = None
 
 from .._runtime.errors import GeomoptError, ParameterError
+from .._runtime.interrupt import raise_pending
 from ._files import file_kind, one_line
 
 __all__ = ["check_output_path", "atomic_path", "atomic_output", "atomic_write", "check_outputs", "create_output_folder",
@@ -205,8 +206,10 @@ def check_output_path(path, extensions=None, what="output"):
 
     Raises
     ------
+    ParameterError
+        The extension is not allowed (a ``ValueError`` too).
     GeomoptError
-        The extension is not allowed, or ``path`` is not a regular file, names a folder,
+        ``path`` is not a regular file, names a folder,
         its folder does not exist or is not writable (permissions, read-only file system),
         or its name is too long for the file system.
     """
@@ -216,7 +219,7 @@ def check_output_path(path, extensions=None, what="output"):
     path = Path(path)
     if extensions is not None and path.suffix.lower() not in extensions:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"
-        raise GeomoptError(f"{what} {path} has {got}; supported: {', '.join(extensions)}")
+        raise ParameterError(f"{what} {path} has {got}; supported: {', '.join(extensions)}")
     return path
 
 
@@ -229,8 +232,9 @@ def atomic_path(path, what="output"):
     renamed onto ``path`` with :func:`os.replace` (atomic on POSIX and Windows).  When the
     block raises (including ``KeyboardInterrupt`` and the exception the command line
     raises for SIGTERM/SIGHUP) the temporary file is deleted and ``path`` is left
-    untouched.  Use it for writers that open a file by name; :func:`atomic_output`
-    gives an open file instead.
+    untouched, and so it is when an interrupt was recorded and swallowed on the way
+    (:func:`geomopt._runtime.interrupt.raise_pending`).  Use it for writers that open a
+    file by name; :func:`atomic_output` gives an open file instead.
 
     Parameters
     ----------
@@ -262,6 +266,8 @@ def atomic_path(path, what="output"):
         problem = _output_problem(path, what)  # it may have changed while we wrote
         if problem:
             raise GeomoptError(problem)
+        held = _block_signals()
+        raise_pending()  # an interrupt swallowed on the way (a GC callback's) still stops the rename
         os.replace(tmp, path)
     except BaseException as exc:
         if tmp is not None:

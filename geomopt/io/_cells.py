@@ -150,6 +150,18 @@ def code_of(table, kind):
     return next(code for code, (name, _, nodes) in table.items() if name == kind and nodes == KINDS[kind][0])
 
 
+def _refuse_mixed_kinds(found, kind, others, path):
+    """MeshFormatError naming the counts when ``found`` holds ``kind`` beside other element kinds
+    geomopt reads (:data:`KINDS`): a mixed mesh, not a mesh of the wrong kind."""
+    count = {k: sum(len(c) for name, _, c in found.cells if name == k) for k in KINDS if k == kind or k in others}
+    mixed = [k for k in count if count[k]]
+    if len(mixed) < 2:
+        return
+    said = " and ".join(f"{count[k]} {WORDS[k][count[k] != 1]}" for k in mixed)
+    raise MeshFormatError(f"{path} mixes {said}; geomopt maps one kind of element per mesh: write each "
+                          f"kind to its own file, or split every element into one kind (e.g. hexahedra into tetrahedra)")
+
+
 def select_kind(found, kind, path, alone=False):
     """The ``(m, nodes)`` cells of ``kind`` (:data:`KINDS`) in file order; lower-dimensional cells
     beside them are skipped (refused too with ``alone``), other cells of its dimension or higher
@@ -165,6 +177,7 @@ def select_kind(found, kind, path, alone=False):
         raise MeshFormatError(f"{path} has no points")
     dim = KINDS[kind][1]
     others = sorted({name for name, d, _ in found.cells if (d >= dim or alone) and name != kind})
+    _refuse_mixed_kinds(found, kind, others, path)
     if others:
         raise MeshFormatError(f"{path} contains non-tetrahedral {'' if alone else 'volume '}cells "
                               f"({', '.join(others)}); only linear "

@@ -39,6 +39,7 @@ import numpy as np
 
 from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
+from .._runtime.interrupt import raise_pending
 from .._runtime.log import bar_wanted, in_notebook, iteration_logger, logger
 from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
@@ -279,6 +280,7 @@ def _phase(solver, state, guard, run):
     the phase."""
     rule, why = solver.termination, ""
     while True:
+        raise_pending()  # an interrupt swallowed since the last step (in a GC callback) ends the solve
         code = rule(state.stats)
         if code != RUNNING:
             return state, Outcome.of(code), ""

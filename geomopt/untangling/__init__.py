@@ -23,7 +23,7 @@ departures from the paper's code and the measurements behind them: ``docs/untang
 """
 
 from .continuation import EpsContinuation, UntangleRecord, judged
-from .driver import UntangleResult, untangle
+from .driver import UntangleResult, infeasible, untangle
 from .inner import (LAPLACIAN_FROM, LOCAL_TANGLE_SHARE, PROBE_PROGRESS, STIFF_AFTER, STIFF_AFTER_NEWTON, default_solver,
                     stiff_solver)
 from .options import UntangleOptions
@@ -31,7 +31,7 @@ from .rest import badly_shaped, check_rest, equilateral_rest
 from .schedule import EPS_FLOOR, START_RATIO, next_eps, start_eps
 from .start import BOX, STARTS, choose_start, harmonic_start, hold_free_parts
 
-__all__ = ["untangle", "UntangleOptions", "UntangleResult", "UntangleRecord", "EpsContinuation", "judged",
+__all__ = ["untangle", "infeasible", "UntangleOptions", "UntangleResult", "UntangleRecord", "EpsContinuation", "judged",
            "default_solver", "stiff_solver", "next_eps", "start_eps", "badly_shaped", "check_rest",
            "equilateral_rest", "STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "EPS_FLOOR",
            "START_RATIO", "LAPLACIAN_FROM", "LOCAL_TANGLE_SHARE", "STIFF_AFTER", "STIFF_AFTER_NEWTON",

@@ -229,8 +229,13 @@ def judged(problem, x, outcome, reason="", forced=None):
 
 def _local_reason(problem, cert) -> str:
     """Why a map with every element positive is not locally injective, with what to do."""
-    hint = ("the fixed boundary probably winds more than once or overlaps itself, check the handle "
-            "positions" if np.isin(problem.boundary_vertices(), problem.fixed).all()
-            else "flip-free motion cannot remove it; start from a map whose boundary is a simple "
-            "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
+    if np.isin(problem.boundary_vertices(), problem.fixed).all():
+        hint = "the fixed boundary probably winds more than once or overlaps itself, check the handle positions"
+    elif problem.dim == 2:
+        hint = ("flip-free motion cannot remove it; start from a map whose boundary is a simple "
+                "polygon (e.g. a Tutte embedding) or fix the boundary while untangling")
+    else:  # a free boundary surface folded over itself
+        hint = ("flip-free motion cannot remove it: the free boundary surface folds over itself; start from "
+                "a map whose boundary surface does not cross itself (the rest mesh moved rigidly onto the "
+                "handles, when they allow it) or fix the whole boundary surface while untangling")
     return f"no element is inverted, but {cert.message}; {hint}"

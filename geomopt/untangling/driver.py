@@ -33,7 +33,7 @@ from .start import BOX, choose_start, harmonic_start, hold_free_parts
 #: gives up the given map and starts again from the harmonic extension of the handles
 STALL_OUTER = 20
 
-__all__ = ["UntangleResult", "untangle"]
+__all__ = ["UntangleResult", "untangle", "infeasible"]
 
 
 #: what :func:`untangle` returns (one result type for every solve; kept as a name)
@@ -223,6 +223,16 @@ class _PhaseCallback:
 
     def phase(self, index, r, elapsed):
         self.fn(index, r.eps, r.mean_energy, r.min_det, r.inverted, r.inner, elapsed)
+
+
+def infeasible(problem: Problem, x0) -> str | None:
+    """Why no map of ``problem`` with its handles can be injective, decided from the start map
+    ``x0`` (n, dim) before any solve (a property of the input: :func:`untangle` returns it as a
+    not-injective result), or None: a whole fixed boundary enclosing a non-positive total
+    (:func:`geomopt.mesh.orientation.fixed_total_problem`), or an inverted element whose every
+    vertex is fixed."""
+    x0 = problem.check_map(x0)
+    return _refusal(problem, x0, problem.count_inverted(x0), problem.free_mask[problem.simplices].any(axis=1))
 
 
 def _refusal(problem, x0, initially, active) -> str | None:
