@@ -255,3 +255,26 @@ def test_hidden_costs_make_the_cut_of_a_mesh_less_visible_and_straighter():
     old, new = figures
     assert new.visibility < old.visibility - 0.1
     assert new.turning_degrees < old.turning_degrees
+
+
+def test_up_puts_the_seams_of_an_atlas_on_the_underside():
+    from geomopt.atlas import make_atlas
+
+    V, F = _icosphere(2)
+    V = V * [1.0, 1.0, 0.6] + 0.15 * np.sin(3 * V[:, [0]])  # no symmetry to tie the choices
+    heights = {}
+    for up in ("z", "-z"):
+        atlas = make_atlas(V, F, options=AtlasOptions(up=up), progress=False)
+        assert atlas.success
+        heights[up] = float(V[atlas.seams].mean(axis=(0, 1))[2])
+    assert heights["z"] < -0.2 < 0.2 < heights["-z"]
+
+
+def test_the_cli_takes_an_up_axis():
+    from geomopt.cli.parser import UsageError, build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["param", "a.off", "-o", "b.obj", "--up=-y"]).up == "-y"
+    assert parser.parse_args(["param", "a.off", "-o", "b.obj"]).up is None
+    with pytest.raises(UsageError, match="--up"):
+        parser.parse_args(["param", "a.off", "-o", "b.obj", "--up", "w"])

@@ -36,7 +36,7 @@ def param_atlas(args, V, F, energy, solver) -> int:
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
     atlas = make_atlas(V, F, energy=energy, solver=solver, progress=_progress(args),
-                       options=AtlasOptions(margin=args.margin))
+                       options=AtlasOptions(margin=args.margin, up=getattr(args, "up", None)))
     m = atlas.metrics
     log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
               f"{m.mean_symmetric_dirichlet:.6g}  worst {m.worst_symmetric_dirichlet:.6g}  efficiency "
