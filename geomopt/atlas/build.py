@@ -73,7 +73,7 @@ class AtlasOptions:
     crease: float = 2.0
     hide: float = 2.0
     up: str | None = None
-    straighten: float = 1.0
+    straighten: float = 3.0
     max_cuts: int = 200
     min_efficiency: float = 0.7
     split_gain: float = 0.01

@@ -412,6 +412,10 @@ def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.nda
     return path
 
 
+# a straightened path may cost (without its turning) at most this much more than the path it replaces
+_STRAIGHT_SLACK = 1.25
+
+
 def _turn_graph(g: EdgeGraph):
     """The line graph of ``g``'s half-edges: half-edge ``h`` runs ``E[h // 2]`` forward when
     ``h`` is even, backward when odd.  Returns ``(tail, head, a, b, angle)``: each half-edge's
@@ -452,10 +456,12 @@ def _disks(g: EdgeGraph, cut) -> tuple:
 def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.0) -> np.ndarray:
     """``cut`` with its paths straightened: each path of the seam graph between two of its
     nodes (ends, branches, boundary vertices) is replaced by the path between the same nodes
-    that is cheapest by ``cost`` plus ``turn`` times the median cost of an edge per radian of
-    turning at each vertex it passes through (a shortest path in the line graph, which knows
-    where a path came from), avoiding every other seam, when that is cheaper and every chart
-    stays a disk (same number of charts).  Edge paths on a triangle mesh zigzag where their
+    that is cheapest when each edge costs ``cost`` plus ``turn * angle`` times the geometric
+    mean of its cost and the median one, ``angle`` the turn (radians) from the edge before it
+    (:func:`_turn_price`; a shortest path in the line graph, which knows
+    where a path came from), avoiding every other seam, when that is cheaper, costs at most
+    ``_STRAIGHT_SLACK`` times as much by ``cost`` alone (a straight seam is no excuse for an
+    exposed one), and every chart stays a disk (same number of charts).  Edge paths on a triangle mesh zigzag where their
     direction is not an edge's; the turning charge trades a little length for straight runs."""
     from scipy.sparse.csgraph import dijkstra
 
@@ -464,7 +470,7 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         return cut
     tail, head, a, b, angle = _turn_graph(g)
     edge = np.arange(len(tail)) // 2
-    unit = turn * float(np.median(cost))
+    typical = float(np.median(cost))
     charts, disks = _disks(g, cut)
     for path in _key_paths(g, cut & ~g.boundary, np.zeros(len(g.V), dtype=bool)):
         if not cut[path].all():
@@ -485,9 +491,10 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         # node n: the source (half-edges leaving s); weights: the edge entered plus the turn
         rows = np.r_[a[use], np.full(np.count_nonzero(ok & (tail == s)), n)]
         cols = np.r_[b[use], np.flatnonzero(ok & (tail == s))]
-        weight = np.r_[cost[edge[b[use]]] + unit * angle[use], cost[edge[cols[np.count_nonzero(use):]]]]
+        weight = np.r_[_turn_price(cost[edge[b[use]]], angle[use], turn, typical),
+                       cost[edge[cols[np.count_nonzero(use):]]]]
         graph = sp.csr_matrix((weight + 1e-300, (rows, cols)), shape=(n + 1, n + 1))
-        old = _path_price(g, path, s, cost, unit)
+        old = _path_price(g, path, s, cost, turn, typical)
         dist, pred = dijkstra(graph, indices=n, return_predecessors=True, limit=old)
         arrive = np.flatnonzero((head == t) & np.isfinite(dist[:n]))
         if not len(arrive):
@@ -499,7 +506,7 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         while h != n:
             new.append(int(edge[h]))
             h = int(pred[h])
-        if len(set(new)) != len(new):
+        if len(set(new)) != len(new) or cost[new].sum() > _STRAIGHT_SLACK * cost[path].sum():
             continue
         trial = cut.copy()
         trial[path] = False
@@ -509,14 +516,21 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
     return cut
 
 
-def _path_price(g: EdgeGraph, path, s, cost, unit) -> float:
-    """The price :func:`straighten` puts on the edge path ``path`` (in order) from vertex ``s``:
-    its cost plus ``unit`` per radian of turning where it passes through a vertex."""
+def _turn_price(cost, angle, turn, typical):
+    """The price of entering edges of ``cost`` after turning by ``angle`` (radians): the cost
+    plus ``turn * angle`` times the geometric mean of the cost and the ``typical`` one (turning
+    charged by the local price, so that a cheap hidden place stays cheap, but not for nothing)."""
+    return cost + turn * angle * np.sqrt(cost * typical)
+
+
+def _path_price(g: EdgeGraph, path, s, cost, turn, typical) -> float:
+    """The price :func:`straighten` puts on the edge path ``path`` (in order) from vertex ``s``
+    (:func:`_turn_price`, no turn into the first edge)."""
     verts = [int(s)]
     for e in path:
         verts.append(int(g.E[e, 0] + g.E[e, 1] - verts[-1]))
     P = g.V[verts]
     d = np.diff(P, axis=0)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    turning = np.arccos(np.clip(np.sum(d[1:] * d[:-1], axis=1), -1.0, 1.0)).sum()
-    return float(cost[path].sum() + unit * turning)
+    angle = np.r_[0.0, np.arccos(np.clip(np.sum(d[1:] * d[:-1], axis=1), -1.0, 1.0))]
+    return float(np.sum(_turn_price(cost[path], angle, turn, typical)))
