@@ -252,7 +252,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
         return flatten_chart(Vc, Fc, energy, solver, energy_params, free=free, scaffold=scaffold)
 
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
-                                             options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info))
+                                             options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info),
+                                             turn=options.straighten)
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
