@@ -11,8 +11,11 @@ resident memory from ``os.wait4``):
 * geomopt **later run**: the same command again, the cache now filled; then xatlas again;
   ``--repeat`` such later rounds (medians reported).
 
-Per mesh: wall seconds, peak RSS and the ratio geomopt / xatlas for first and later runs, and
-geomopt's own ``--json`` timing split (import, read, cut, flatten, pack, write) of the later runs.
+Per mesh: wall seconds, peak RSS and the ratio geomopt / xatlas for first and later runs,
+geomopt's own ``--json`` timing split (import, read, cut, flatten, pack, write) of the later runs,
+and where each tool's seams run, read back from its first output OBJ
+(:func:`geomopt.atlas.seam_metrics`, in this process): the seams' ambient visibility relative to
+the average edge's (1: as exposed as a random cut) and their mean turning angle in degrees.
 Each process is checked: exit status 0, geomopt's atlas certified, the output written, the
 input file's bytes unchanged.  Outputs go to a temporary folder, removed at the end.
 
@@ -82,9 +85,35 @@ def geomopt_command():
     return [str(script)] if script.exists() else [sys.executable, "-m", "geomopt"]
 
 
-def checked(run, tool, mesh, output, digest):
-    """``run`` with its ``--json`` line parsed; raises when the process failed, wrote nothing,
-    changed the input or (geomopt) did not certify its atlas."""
+def obj_seams(mesh, output):
+    """:class:`geomopt.atlas.SeamMetrics` of the atlas OBJ ``output`` (``v``, ``vt``, ``f v/vt``;
+    xatlas repeats a vertex per UV) of the mesh file ``mesh``: its faces (both tools keep the
+    input's order) checked against the input's corner by corner, by position, and their ``vt``
+    ids taken as the per-corner UVs of the input's faces."""
+    import numpy as np
+
+    from geomopt.atlas import seam_metrics
+    from geomopt.atlas.metrics import seam_edges
+    from geomopt.io import read_mesh
+
+    V, F = (np.asarray(a) for a in read_mesh(mesh))
+    v, corners = [], []
+    for line in Path(output).read_text().splitlines():
+        if line.startswith("v "):
+            v.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            corners.append([[int(i) - 1 for i in c.split("/")[:2]] for c in line.split()[1:]])
+    C = np.asarray(corners)  # (m, 3, 2): vertex and vt ids
+    tol = 1e-6 * float(np.linalg.norm(np.ptp(V, axis=0)))  # the OBJ's digits may round the positions
+    if C.shape != (len(F), 3, 2) or np.abs(np.asarray(v)[C[:, :, 0]] - V[F]).max() > tol:
+        raise RuntimeError(f"{output}: its faces are not {mesh}'s, in order")
+    return seam_metrics(V, F, seam_edges(F, C[:, :, 1]))
+
+
+def checked(run, tool, mesh, output, digest, seams=False):
+    """``run`` with its ``--json`` line parsed (and, with ``seams``, the :func:`obj_seams` of its
+    output); raises when the process failed, wrote nothing, changed the input or (geomopt) did
+    not certify its atlas."""
     if run["rc"] != 0:
         raise RuntimeError(f"{tool} on {mesh} exited {run['rc']}: {run['stderr'][-1500:]}")
     if not Path(output).is_file() or Path(output).stat().st_size == 0:
@@ -94,6 +123,9 @@ def checked(run, tool, mesh, output, digest):
     run["summary"] = json.loads(run["stdout"].strip().splitlines()[-1])
     if tool == "geomopt" and not run["summary"].get("certified"):
         raise RuntimeError(f"geomopt's atlas of {mesh} is not certified: {run['summary'].get('message')}")
+    if seams:
+        m = obj_seams(mesh, output)
+        run["seams"] = {"visibility": m.visibility, "turning": m.turning_degrees}
     Path(output).unlink()
     return run
 
@@ -113,18 +145,18 @@ def measure(mesh, tmp, repeat):
     env.pop("PYTHONPATH", None)  # the installed package, not a checkout
     digest, out_g, out_x = sha256(mesh), tmp / "geomopt.obj", tmp / "xatlas.obj"
 
-    def geomopt():
+    def geomopt(first):
         cmd = [*geomopt_command(), "param", str(mesh), "-o", str(out_g), "--json", "--quiet"]
-        return checked(run_process(cmd, env), "geomopt", mesh, out_g, digest)
+        return checked(run_process(cmd, env), "geomopt", mesh, out_g, digest, first)
 
-    def xatlas():
+    def xatlas(first):
         return checked(run_process([sys.executable, "-c", XATLAS, str(mesh), str(out_x)], env),
-                       "xatlas", mesh, out_x, digest)
+                       "xatlas", mesh, out_x, digest, first)
 
     runs = {"geomopt": [], "xatlas": []}
     for i in range(1 + repeat):
         for tool, call in (("geomopt", geomopt), ("xatlas", xatlas)):
-            runs[tool].append(call())
+            runs[tool].append(call(i == 0))
             r = runs[tool][-1]
             log(f"  {'first' if i == 0 else 'later'} {tool}: {r['wall']:.2f} s, {r['peak_mb']:.0f} MB "
                 f"(load {r['load']:.2f})" + (f"; cache {cache_mb(cache):.0f} MB" if tool == "geomopt" else ""))
@@ -143,6 +175,7 @@ def summarise(name, runs):
     phases = [k for k in g[-1]["summary"].get("timing", {}) if k != "total"]
     return {"mesh": name, "faces": g[0]["summary"]["faces"], "xatlas_faces": x[0]["summary"]["faces"],
             "charts": g[0]["summary"]["charts"], "efficiency": g[0]["summary"]["efficiency"],
+            "seams": {t: runs[t][0]["seams"] for t in runs},
             "first": {t: {k: runs[t][0][k] for k in ("wall", "peak_mb")} for t in runs},
             "later": {t: {k: later(t, k) for k in ("wall", "peak_mb")} for t in runs},
             "split": {k: statistics.median(r["summary"]["timing"].get(k, 0.0) for r in g[1:]) for k in phases},
@@ -153,7 +186,8 @@ def summarise(name, runs):
 
 def table(rows):
     lines = ["| mesh | faces | charts | geomopt first s / MB | later s / MB | xatlas first s / MB | later s / MB "
-             "| ratio first: s, MB | ratio later: s, MB | load |", "|---" * 10 + "|"]
+             "| ratio first: s, MB | ratio later: s, MB | seam visibility geomopt / xatlas "
+             "| seam turning deg geomopt / xatlas | load |", "|---" * 12 + "|"]
     for r in rows:
         f, lt = r["first"], r["later"]
         cell = (lambda d: f"{d['wall']:.2f} / {d['peak_mb']:.0f}")
@@ -161,6 +195,8 @@ def table(rows):
                            f"{d['geomopt']['peak_mb'] / d['xatlas']['peak_mb']:.1f}")
         lines.append(f"| {r['mesh']} | {r['faces']} | {r['charts']} | {cell(f['geomopt'])} | {cell(lt['geomopt'])} | "
                      f"{cell(f['xatlas'])} | {cell(lt['xatlas'])} | {ratio(f)} | {ratio(lt)} | "
+                     f"{r['seams']['geomopt']['visibility']:.3f} / {r['seams']['xatlas']['visibility']:.3f} | "
+                     f"{r['seams']['geomopt']['turning']:.1f} / {r['seams']['xatlas']['turning']:.1f} | "
                      f"{min(r['load']):.1f}-{max(r['load']):.1f} |")
     phases = list(dict.fromkeys(k for r in rows for k in r["split"]))
     lines += ["", "geomopt's own `--json` split of the later runs, and xatlas's import and parametrize "

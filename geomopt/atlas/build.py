@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from .._runtime.config import Instance, Int, Real, keyword_only, validate
+from .._runtime.config import Instance, Int, Maybe, OneOf, Real, keyword_only, validate
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.log import logger
 from .._runtime.validate import validate_vertices
@@ -31,10 +31,15 @@ from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
+from .visibility import vertex_visibility
 from ._pack import packing_estimate
 from .split import split_to_pack
 
 __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
+
+# rays per vertex of the visibility that weights the seams' cost (the reported figure uses 96 per edge)
+_COST_RAYS = 32
+_AXES = {"x": 0, "y": 1, "z": 2}
 
 # the conformal estimate ran 0.3-0.45 above the flattened charts' mean symmetric Dirichlet on the
 # meshes tried; the first cut aims this much above the goal, and flatten_to corrects it by measurement
@@ -52,6 +57,14 @@ class AtlasOptions:
         :func:`~geomopt.atlas.cones.scale_estimate`, then checked by measurement,
         :func:`~geomopt.atlas.flatten.flatten_to`).  Lower: more seams.
     crease : how much cheaper a seam is along a crease (:func:`~geomopt.atlas.seams.edge_costs`).
+    hide : how much cheaper a seam is where the surface is occluded: an edge's cost is scaled by
+        its ambient visibility to this power (:func:`~geomopt.atlas.seams.exposure`; 0: seams
+        ignore visibility, and none is computed).
+    up : None, or the axis that points up ("x", "y", "z", "-x", "-y", "-z"): seams prefer the
+        underside (:func:`~geomopt.atlas.seams.underside`).
+    straighten : the price of a seam's turning, in median edge costs per radian where it passes
+        through a vertex: seam paths are rerouted to turn less (:func:`~geomopt.atlas.seams.straighten`;
+        0: not straightened).
     max_cuts : the most cone cuts.
     min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
         repack while the packing efficiency (chart area / unit square) is below this and each
@@ -64,6 +77,9 @@ class AtlasOptions:
 
     max_distortion: float = 4.15
     crease: float = 2.0
+    hide: float = 2.0
+    up: str | None = None
+    straighten: float = 3.0
     max_cuts: int = 200
     min_efficiency: float = 0.7
     split_gain: float = 0.01
@@ -72,6 +88,7 @@ class AtlasOptions:
 
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
+                 hide=Real(0.0), straighten=Real(0.0), up=Maybe(OneOf(("x", "y", "z", "-x", "-y", "-z"))),
                  min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Real(0.0, 0.25, hi_open=True), rotate=Instance(bool))
 
 
@@ -150,6 +167,17 @@ def check_atlas_input(V, F):
                         f"orient the faces consistently (e.g. trimesh.repair.fix_winding), or the surface "
                         f"is non-orientable")
     return V, F
+
+
+def _looks(g, options) -> dict:
+    """The keywords of :func:`~geomopt.atlas.seams.edge_costs` that hide the seams: each
+    vertex's visibility (when ``options.hide``) and the up axis (when ``options.up``)."""
+    up = None
+    if options.up is not None:
+        up = np.zeros(3)
+        up[_AXES[options.up[-1]]] = -1.0 if options.up.startswith("-") else 1.0
+    visibility = vertex_visibility(g.V, g.F, _COST_RAYS) if options.hide > 0 else None
+    return {"visibility": visibility, "hide": options.hide, "up": up}
 
 
 def _say(progress, stage, **info):
@@ -234,16 +262,18 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     if len(pinched):
         _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
     g = edge_graph(V[manifold.vertex], manifold.wedge)
-    cost = edge_costs(g, options.crease, angle_defects(g.V, g.F))
+    looks = _looks(g, options)
+    cost = edge_costs(g, options.crease, angle_defects(g.V, g.F), **looks)
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
-                                      tree_cost=edge_costs(g, options.crease))
+                                      tree_cost=edge_costs(g, options.crease, **looks), turn=options.straighten)
     _say(progress, "cut", seam_length=float(g.length[cut].sum()), cone_cuts=made, estimate=estimate)
 
     def solve(Vc, Fc, free=None, scaffold=True):
         return flatten_chart(Vc, Fc, energy, solver, energy_params, free=free, scaffold=scaffold)
 
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
-                                             options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info))
+                                             options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info),
+                                             turn=options.straighten)
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 

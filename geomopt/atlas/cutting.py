@@ -17,7 +17,8 @@ vertex to the boundary keeps a disk a disk, so every chart stays one.  When the 
 of the target, the later ones that did not pay for their seam are taken back (:func:`relieve`);
 the charts are then split into nearly developable pieces instead, by measurement
 (:func:`~geomopt.atlas.flatten.split_to_goal`).  :func:`cut_surface` makes the seam graph with
-and without (a') and keeps the shorter that reaches the target.
+and without (a') and keeps the shorter that reaches the target, then (d) straightens its paths
+(:func:`~geomopt.atlas.seams.straighten`): the same nodes joined by paths that turn less.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from ..mesh.quality import triangle_areas
 from .charts import split_charts
 from .cones import angle_defects, log_scale, scale_estimate
 from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
-                    steiner_tree)
+                    steiner_tree, straighten)
 
 __all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
 
@@ -242,7 +243,7 @@ def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
 
 
 def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cost=None,
-                levels=(None, np.pi / 4)):
+                levels=(None, np.pi / 4), turn: float = 0.0):
     """The interior edges of ``g`` to cut (module doc), as :func:`relieve` returns them.
 
     Parameters
@@ -255,6 +256,8 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cos
     levels : the least angle defects of the strong cones to try joining (None: none joined).
         Each seam graph is relieved (step c); the shortest one that reaches ``target`` is kept,
         or, when none does, the one with the lowest estimate.
+    turn : the price of turning of :func:`~geomopt.atlas.seams.straighten` (0: not straightened;
+        the estimate returned is the unstraightened seams').
     """
     labels, roots = _component_roots(g)
     tree_cost = cost if tree_cost is None else tree_cost
@@ -268,4 +271,5 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cos
         key = (estimate > target, estimate if estimate > target else float(g.length[cut].sum()))
         if best is None or key < best[0]:
             best = (key, (cut, estimate, made))
-    return best[1]
+    cut, estimate, made = best[1]
+    return straighten(g, cost, cut, turn), estimate, made

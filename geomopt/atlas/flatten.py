@@ -24,6 +24,7 @@ from .charts import split_charts
 from .cutting import relieve
 from .metrics import face_symmetric_dirichlet
 from .regions import normal_regions
+from .seams import straighten
 from .split import separate_overlaps
 
 __all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
@@ -122,7 +123,7 @@ def _flatten_all(g, cut, solve, known, say, goal):
     return cut, split, meshes, results, np.array(sd), np.array(area)
 
 
-def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
+def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3, turn=0.0):
     """Flatten the charts of ``cut`` and, while their area-weighted mean symmetric Dirichlet is
     above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.  A
     round of cuts that lowers the measured mean by less than ``_SPLIT_WORTH`` per unit of seam
@@ -150,6 +151,10 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
         ``(stage, **info)`` progress.
     rounds : int
         The most re-cutting rounds.
+    turn : float
+        At the end the seams are straightened (:func:`~geomopt.atlas.seams.straighten` with this
+        price of turning; 0: not) and the charts that changed flattened again; kept when no
+        more charts fail and the mean stays at most the goal or, above it, does not rise.
 
     Returns
     -------
@@ -174,8 +179,24 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3):
         if made == 0:
             break
     if _mean(state) > goal:
-        return split_to_goal(g, state[0], solve, say, goal, known)
-    return state[:4]
+        cut = split_to_goal(g, state[0], solve, say, goal, known)[0]
+        state = _flatten_all(g, cut, solve, known, say, goal)  # every chart known: nothing solved
+    return _straightened(g, cost, state, turn, solve, known, say, goal)[:4]
+
+
+def _straightened(g, cost, state, turn, solve, known, say, goal):
+    """``state`` (:func:`_flatten_all`'s tuple) with its seams straightened (see
+    :func:`flatten_to`), or ``state`` itself."""
+    if turn <= 0:
+        return state
+    cut = straighten(g, cost, state[0], turn)
+    if np.array_equal(cut, state[0]):
+        return state
+    trial = _flatten_all(g, cut, solve, known, say, goal)
+    if _failed(trial) <= _failed(state) and _mean(trial) <= max(goal, _mean(state)):
+        say("straightened", charts=trial[1].count, mean_symmetric_dirichlet=_mean(trial))
+        return trial
+    return state
 
 
 def _region_cuts(g, cut, mesh):

@@ -1,7 +1,8 @@
 """The figures an atlas is judged by, computed from per-corner UVs alone, so that any atlas
 (geomopt's or another tool's) is measured the same way: charts, seams and their 3D length,
 area-weighted mean symmetric Dirichlet (4 at an isometry) of the scale-normalised map, the
-worst triangle, packing efficiency and mirrored charts."""
+worst triangle, packing efficiency and mirrored charts; and where the seams run
+(:func:`seam_metrics`): how exposed they are and how much they turn."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import scipy.sparse as sp
 from ..exact.topology import unique_edges
 from ..mesh.quality import triangle_areas, triangle_symmetric_dirichlet
 
-__all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet"]
+__all__ = ["AtlasMetrics", "atlas_metrics", "uv_charts", "seam_edges", "face_symmetric_dirichlet",
+           "SeamMetrics", "seam_metrics", "seam_turning"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,3 +94,61 @@ def atlas_metrics(V, F, uv, uv_faces) -> AtlasMetrics:
         efficiency=float(np.abs(signed).sum() / side ** 2) if side > 0 else 0.0,
         mirrored_charts=int(np.count_nonzero(np.bincount(chart, signed, minlength=count) < 0)),
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class SeamMetrics:
+    """Where the seams of an atlas run (see :func:`seam_metrics`).
+
+    Attributes
+    ----------
+    visibility : the seam edges' length-weighted mean ambient visibility over that of all edges
+        (1: as exposed as the average edge, a random cut; lower: hidden); nan without seams.
+    turning_degrees : mean turning angle where a seam passes through a vertex (0: straight);
+        nan where no seam passes through a vertex.
+    """
+
+    visibility: float
+    turning_degrees: float
+
+
+def seam_turning(V, seams) -> float:
+    """Mean turning angle in degrees at the vertices where exactly two of the ``seams`` (s, 2)
+    meet (where a seam passes through): the angle between one seam edge's direction and the
+    next's, 0 on a straight seam; nan when there is no such vertex.  Seam ends and branch
+    vertices (one or three and more seam edges) do not count."""
+    V, S = np.asarray(V, dtype=np.float64), np.asarray(seams, dtype=np.int64).reshape(-1, 2)
+    degree = np.bincount(S.ravel(), minlength=len(V))
+    ends = S.ravel()
+    other = S[:, ::-1].ravel()
+    through = degree[ends] == 2
+    v, w = ends[through], other[through]
+    order = np.argsort(v, kind="stable")
+    v, w = v[order].reshape(-1, 2), w[order].reshape(-1, 2)  # each through vertex twice, in a row
+    if not len(v):
+        return float("nan")
+    a = V[v[:, 0]] - V[w[:, 0]]  # arriving from one neighbour
+    b = V[w[:, 1]] - V[v[:, 1]]  # leaving to the other
+    cos = np.sum(a * b, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).mean())
+
+
+def seam_metrics(V, F, seams, rays: int = 96) -> SeamMetrics:
+    """The :class:`SeamMetrics` of the ``seams`` (s, 2) (vertex pairs, e.g. :func:`seam_edges`)
+    of the mesh ``V`` (n, 3), ``F`` (m, 3).  Visibility: each edge's ambient visibility is the
+    fraction of ``rays`` rays from its midpoint over the hemisphere around the mean of its two
+    vertices' normals, from ``1e-5`` of the bounding box's diagonal off the surface, that leave
+    the mesh (:func:`~geomopt.atlas.visibility.edge_visibility`)."""
+    from .visibility import edge_visibility
+
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    S = np.sort(np.asarray(seams, dtype=np.int64).reshape(-1, 2), axis=1)
+    E, _, _ = unique_edges(F)
+    length = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+    n = len(V)
+    on = np.isin(E[:, 0] * n + E[:, 1], S[:, 0] * n + S[:, 1])
+    if not on.any():
+        return SeamMetrics(float("nan"), float("nan"))
+    vis = edge_visibility(V, F, E, rays)
+    ratio = (np.sum(length[on] * vis[on]) / length[on].sum()) / (np.sum(length * vis) / length.sum())
+    return SeamMetrics(float(ratio), seam_turning(V, S))

@@ -27,8 +27,8 @@ import scipy.sparse as sp
 
 from ..exact.topology import unique_edges
 
-__all__ = ["EdgeGraph", "edge_graph", "edge_costs", "topological_cut", "shortest_topological_cut",
-           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams"]
+__all__ = ["EdgeGraph", "edge_graph", "edge_costs", "exposure", "underside", "topological_cut", "shortest_topological_cut",
+           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,13 +85,18 @@ def edge_graph(V, F) -> EdgeGraph:
     return EdgeGraph(V, F, E, edge_of, faces, length)
 
 
-def edge_costs(g: EdgeGraph, crease: float = 2.0, defects=None) -> np.ndarray:
+def edge_costs(g: EdgeGraph, crease: float = 2.0, defects=None, visibility=None, hide: float = 2.0,
+               up=None) -> np.ndarray:
     """(k,) cost of cutting each edge: its length over ``1 + crease * sharpness`` (module doc).
 
     Boundary edges get their length (they are open already).  With ``defects`` (n,) (the angle
     defects), an edge costs ``1 + 4 max(0, -K)`` times more at each saddle end ``K < 0``: a seam
     bending at a saddle leaves one side more than a full turn, which no flip-free flattening
-    keeps from overlapping itself there."""
+    keeps from overlapping itself there.  With ``visibility`` (n,) (each vertex's ambient
+    visibility in ``[0, 1]``, :func:`~geomopt.atlas.visibility.ambient_visibility`), an interior
+    edge costs :func:`exposure` of its ends' mean times more: seams go where the surface is
+    occluded (cavities, the insides of limbs, concave creases).  With ``up`` (3,) a unit
+    vector, an interior edge whose normal points down costs less (:func:`underside`)."""
     N = np.cross(g.V[g.F[:, 1]] - g.V[g.F[:, 0]], g.V[g.F[:, 2]] - g.V[g.F[:, 0]])
     N /= np.linalg.norm(N, axis=1, keepdims=True)
     inner = ~g.boundary
@@ -103,10 +108,29 @@ def edge_costs(g: EdgeGraph, crease: float = 2.0, defects=None) -> np.ndarray:
     sharp = angle * np.where(concave, 1.5, 1.0)
     cost = g.length.copy()
     cost[inner] /= 1.0 + crease * sharp
+    if visibility is not None:
+        vis = np.asarray(visibility, dtype=np.float64)
+        cost[inner] *= exposure(0.5 * (vis[g.E[inner, 0]] + vis[g.E[inner, 1]]), hide)
+    if up is not None:
+        normal = N[f1] + N[f2]
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        cost[inner] *= underside(normal @ np.asarray(up, dtype=np.float64))
     if defects is not None:
         saddle = saddle_factor(defects)
         cost *= saddle[g.E[:, 0]] * saddle[g.E[:, 1]]
     return np.maximum(cost, 1e-12 * max(float(g.length.max()), 1e-300))
+
+
+def exposure(visibility, hide: float = 2.0) -> np.ndarray:
+    """How much more a seam costs where its ambient visibility is ``visibility`` (in [0, 1]):
+    ``max(visibility, 0.05) ** hide`` (1 where fully exposed; ``hide = 0``: no preference)."""
+    return np.maximum(np.asarray(visibility, dtype=np.float64), 0.05) ** hide
+
+
+def underside(height) -> np.ndarray:
+    """How much more a seam costs where its normal's component along the up axis is ``height``
+    (in [-1, 1]): from 1 facing up to 0.25 facing down."""
+    return 0.25 + 0.375 * (1.0 + np.asarray(height, dtype=np.float64))
 
 
 def saddle_factor(defects) -> np.ndarray:
@@ -386,3 +410,127 @@ def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.nda
         path.append(int(index(v, pred[v])))
         v = int(pred[v])
     return path
+
+
+# a straightened path may cost (without its turning) at most this much more than the path it replaces
+_STRAIGHT_SLACK = 1.25
+
+
+def _turn_graph(g: EdgeGraph):
+    """The line graph of ``g``'s half-edges: half-edge ``h`` runs ``E[h // 2]`` forward when
+    ``h`` is even, backward when odd.  Returns ``(tail, head, a, b, angle)``: each half-edge's
+    vertices and each pair ``a -> b`` of consecutive half-edges (``b`` leaving the vertex ``a``
+    enters, not back along ``a``) with the turning angle between them (radians, 0: straight)."""
+    tail = np.ravel(np.c_[g.E[:, 0], g.E[:, 1]])
+    head = np.ravel(np.c_[g.E[:, 1], g.E[:, 0]])
+    order = np.argsort(tail, kind="stable")
+    start = np.searchsorted(tail[order], np.arange(len(g.V) + 1))
+    count = start[head + 1] - start[head]
+    a = np.repeat(np.arange(len(tail)), count)
+    k = np.arange(len(a)) - np.repeat(np.cumsum(count) - count, count)
+    b = order[start[head[a]] + k]
+    keep = head[b] != tail[a]
+    a, b = a[keep], b[keep]
+    u = g.V[head] - g.V[tail]
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    angle = np.arccos(np.clip(np.sum(u[a] * u[b], axis=1), -1.0, 1.0))
+    return tail, head, a, b, angle
+
+
+def _disks(g: EdgeGraph, cut) -> tuple:
+    """``(count, all_disks)``: the charts of ``cut`` and whether each is a disk (Euler
+    characteristic 1 of a connected chart: wedges - edges + faces, its edges counted from its
+    faces' half-edges, each glued pair once)."""
+    from .charts import split_charts
+
+    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    faces = np.bincount(split.chart, minlength=split.count)
+    open_half = np.bincount(split.chart, (cut | g.boundary)[g.edge_of].sum(axis=1), minlength=split.count)
+    wedge_chart = np.zeros(split.wedge.max() + 1, dtype=np.int64)
+    wedge_chart[split.wedge.ravel()] = np.repeat(split.chart, 3)
+    wedges = np.bincount(wedge_chart, minlength=split.count)
+    chi = 2 * wedges - (3 * faces + open_half) + 2 * faces
+    return split.count, bool(np.all(chi == 2))
+
+
+def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.0) -> np.ndarray:
+    """``cut`` with its paths straightened: each path of the seam graph between two of its
+    nodes (ends, branches, boundary vertices) is replaced by the path between the same nodes
+    that is cheapest when each edge costs ``cost`` plus ``turn * angle`` times the geometric
+    mean of its cost and the median one, ``angle`` the turn (radians) from the edge before it
+    (:func:`_turn_price`; a shortest path in the line graph, which knows
+    where a path came from), avoiding every other seam, when that is cheaper, costs at most
+    ``_STRAIGHT_SLACK`` times as much by ``cost`` alone (a straight seam is no excuse for an
+    exposed one), and every chart stays a disk (same number of charts).  Edge paths on a triangle mesh zigzag where their
+    direction is not an edge's; the turning charge trades a little length for straight runs."""
+    from scipy.sparse.csgraph import dijkstra
+
+    cut = np.asarray(cut, dtype=bool).copy()
+    if turn <= 0 or not cut.any():
+        return cut
+    tail, head, a, b, angle = _turn_graph(g)
+    edge = np.arange(len(tail)) // 2
+    typical = float(np.median(cost))
+    charts, disks = _disks(g, cut)
+    for path in _key_paths(g, cut & ~g.boundary, np.zeros(len(g.V), dtype=bool)):
+        if not cut[path].all():
+            continue
+        count = np.bincount(g.E[path].ravel(), minlength=len(g.V))
+        ends = np.flatnonzero(count == 1)
+        if len(ends) != 2:
+            continue  # a loop through a single node
+        s, t = (int(v) for v in (ends if ends[0] in g.E[path[0]] else ends[::-1]))
+        on = np.zeros(len(g.V), dtype=bool)
+        rest = cut.copy()
+        rest[path] = False
+        on[g.E[rest | g.boundary].ravel()] = True
+        on[[s, t]] = False
+        ok = ~on[tail] & ~on[head] & (head != s) & (tail != t)
+        use = ok[a] & ok[b]
+        n = len(tail)
+        # node n: the source (half-edges leaving s); weights: the edge entered plus the turn
+        rows = np.r_[a[use], np.full(np.count_nonzero(ok & (tail == s)), n)]
+        cols = np.r_[b[use], np.flatnonzero(ok & (tail == s))]
+        weight = np.r_[_turn_price(cost[edge[b[use]]], angle[use], turn, typical),
+                       cost[edge[cols[np.count_nonzero(use):]]]]
+        graph = sp.csr_matrix((weight + 1e-300, (rows, cols)), shape=(n + 1, n + 1))
+        old = _path_price(g, path, s, cost, turn, typical)
+        dist, pred = dijkstra(graph, indices=n, return_predecessors=True, limit=old)
+        arrive = np.flatnonzero((head == t) & np.isfinite(dist[:n]))
+        if not len(arrive):
+            continue
+        h = int(arrive[np.argmin(dist[arrive])])
+        if dist[h] >= old * (1 - 1e-9):
+            continue
+        new = []
+        while h != n:
+            new.append(int(edge[h]))
+            h = int(pred[h])
+        if len(set(new)) != len(new) or cost[new].sum() > _STRAIGHT_SLACK * cost[path].sum():
+            continue
+        trial = cut.copy()
+        trial[path] = False
+        trial[new] = True
+        if _disks(g, trial) == (charts, disks):
+            cut = trial
+    return cut
+
+
+def _turn_price(cost, angle, turn, typical):
+    """The price of entering edges of ``cost`` after turning by ``angle`` (radians): the cost
+    plus ``turn * angle`` times the geometric mean of the cost and the ``typical`` one (turning
+    charged by the local price, so that a cheap hidden place stays cheap, but not for nothing)."""
+    return cost + turn * angle * np.sqrt(cost * typical)
+
+
+def _path_price(g: EdgeGraph, path, s, cost, turn, typical) -> float:
+    """The price :func:`straighten` puts on the edge path ``path`` (in order) from vertex ``s``
+    (:func:`_turn_price`, no turn into the first edge)."""
+    verts = [int(s)]
+    for e in path:
+        verts.append(int(g.E[e, 0] + g.E[e, 1] - verts[-1]))
+    P = g.V[verts]
+    d = np.diff(P, axis=0)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    angle = np.r_[0.0, np.arccos(np.clip(np.sum(d[1:] * d[:-1], axis=1), -1.0, 1.0))]
+    return float(np.sum(_turn_price(cost[path], angle, turn, typical)))

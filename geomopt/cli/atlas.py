@@ -37,7 +37,7 @@ def param_atlas(args, V, F, energy, solver) -> int:
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
     atlas = make_atlas(V, F, energy=energy, solver=solver, progress=_progress(args),
-                       options=AtlasOptions() if args.margin is None else AtlasOptions(margin=args.margin))
+                       options=AtlasOptions(**_atlas_settings(args)))
     m = atlas.metrics
     log(args, f"atlas: charts {m.charts}  seam length {m.seam_length:.6g}  mean symmetric Dirichlet "
               f"{m.mean_symmetric_dirichlet:.6g}  worst {m.worst_symmetric_dirichlet:.6g}  efficiency "
@@ -66,6 +66,12 @@ def param_atlas(args, V, F, energy, solver) -> int:
             io.write_mesh_with_uv(outputs.enter_context(io.atomic_path(args.output)), V, F, atlas.uv,
                                   format="obj", uv_faces=atlas.uv_faces)
     return EXIT_OK
+
+
+def _atlas_settings(args) -> dict:
+    """The :class:`~geomopt.atlas.AtlasOptions` fields the command line sets (the others: defaults)."""
+    given = {"margin": args.margin, "up": getattr(args, "up", None)}
+    return {name: value for name, value in given.items() if value is not None}
 
 
 def _progress(args):

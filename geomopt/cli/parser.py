@@ -118,6 +118,9 @@ def _add_param(sub):
                          "mesh that is not a disk (closed, several boundary loops or components) always is")
     sp.add_argument("--margin", type=_margin, default=None,
                     help="atlas: gap between packed charts, a fraction of the unit square (default 0.005)")
+    sp.add_argument("--up", default=None, choices=["x", "y", "z", "-x", "-y", "-z"],
+                    help="atlas: the axis that points up (--up=-y for a negative one); seams prefer the "
+                         "underside (default: none; seams always prefer occluded places and creases)")
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     sp.add_argument("--uv-range", default="raw", choices=["raw", "unit"],
                     help="UVs written as solved (raw, the default: a map of about the surface's own "

@@ -1,0 +1,178 @@
+"""How exposed a place on a surface is: the ambient visibility of points and edges, by exact ray
+casting against the triangles (the "ambient occlusion" of rendering, Zhukov, Iones & Kronin
+1998, counted with uniform weights over the hemisphere).
+
+A point's visibility is the fraction of ``rays`` rays over the hemisphere around its normal,
+from the point moved off the surface along that normal, that leave the mesh without hitting a
+triangle.  The rays are a fixed set: a Fibonacci lattice of ``rays`` directions on the upper
+half sphere (equal-area, González 2010) and their mirror images; of each mirrored pair
+``±h`` a point shoots the one on its normal's side, so every point shoots exactly ``rays``
+rays, spread evenly over its hemisphere, and all the points shooting along ``h`` or ``-h``
+share one parallel projection.  Along a direction ``d`` a ray is a point of the plane normal to
+``d``: it hits a triangle exactly when it lies in the triangle's projection and the triangle is
+ahead of it along ``d``.  The projected triangles are binned in a uniform grid, so each ray
+tests only the triangles of its cell (no bounding volume hierarchy, no per-ray traversal).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["hemisphere_directions", "ambient_visibility", "vertex_normals", "edge_visibility",
+           "vertex_visibility"]
+
+_GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
+_MAX_PAIRS = 1 << 22  # ray-triangle candidate pairs tested at once (memory bound)
+
+
+def hemisphere_directions(count: int = 96) -> np.ndarray:
+    """(count, 3) unit directions spread evenly over the half sphere ``z > 0`` (a Fibonacci
+    lattice: heights evenly spaced in ``(0, 1)``, so each direction stands for equal area)."""
+    if count < 1:
+        raise ValueError(f"count must be at least 1, got {count}")
+    z = 1.0 - (np.arange(count) + 0.5) / count
+    r = np.sqrt(1.0 - z * z)
+    phi = _GOLDEN * np.arange(count)
+    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
+
+
+def _plane_basis(d):
+    """(3, 2) an orthonormal basis of the plane normal to the unit vector ``d``."""
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    u = np.cross(d, a)
+    u /= np.linalg.norm(u)
+    return np.c_[u, np.cross(d, u)]
+
+
+def _triangle_grid(X, F, fine):
+    """A uniform grid over the projected triangles ``X[F]`` (X: (n, 2)): ``(lo, h, size,
+    start, tri)``, cell ``(i, j)`` (id ``i * size + j``) holding the triangles
+    ``tri[start[id]:start[id + 1]]`` whose bounding boxes meet it; ``fine`` cells span the
+    median triangle's box."""
+    P = X[F]
+    bmin, bmax = P.min(axis=1), P.max(axis=1)
+    lo, hi = bmin.min(axis=0), bmax.max(axis=0)
+    extent = float(np.max(hi - lo))
+    typical = float(np.median(np.max(bmax - bmin, axis=1)))
+    size = int(np.clip(np.ceil(fine * extent / max(typical, 1e-300)), 1, 4096))
+    h = max(extent / size, 1e-300)
+    i0 = np.clip(((bmin - lo) / h).astype(np.int64), 0, size - 1)
+    i1 = np.clip(((bmax - lo) / h).astype(np.int64), 0, size - 1)
+    span = i1 - i0 + 1
+    count = span[:, 0] * span[:, 1]
+    tri = np.repeat(np.arange(len(F)), count)
+    k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
+    ci = i0[tri, 0] + k % span[tri, 0]
+    cj = i0[tri, 1] + k // span[tri, 0]
+    cell = ci * size + cj
+    order = np.argsort(cell, kind="stable")
+    start = np.searchsorted(cell[order], np.arange(size * size + 1))
+    return lo, h, size, start, tri[order]
+
+
+def _hits_along(V, F, origins, sign, d, fine=2.0):
+    """(p,) bool: whether the ray from each of ``origins`` (p, 3) along ``sign * d`` (sign
+    (p,) of +-1, ``d`` a unit vector) hits a triangle of ``V[F]`` at a positive distance."""
+    B = _plane_basis(d)
+    X = V @ B
+    Q, zq = origins @ B, origins @ d
+    planes = _planes(X[F], (V @ d)[F])
+    lo, h, size, start, tri = _triangle_grid(X, F, fine)
+    cell_ij = np.floor((Q - lo) / h).astype(np.int64)
+    inside = np.all((cell_ij >= 0) & (cell_ij < size), axis=1)
+    cell = np.where(inside, cell_ij[:, 0] * size + cell_ij[:, 1], 0)
+    first = np.where(inside, start[cell], 0)
+    count = np.where(inside, start[cell + 1] - first, 0)
+    hit = np.zeros(len(origins), dtype=bool)
+    ends = np.cumsum(count)
+    lo_pt = 0
+    while lo_pt < len(origins):  # chunks of at most _MAX_PAIRS candidate pairs
+        base = ends[lo_pt - 1] if lo_pt else 0
+        hi_pt = max(int(np.searchsorted(ends, base + _MAX_PAIRS, side="right")), lo_pt + 1)
+        sel = np.arange(lo_pt, hi_pt)
+        pt = np.repeat(sel, count[sel])
+        k = np.arange(len(pt)) - np.repeat(ends[sel] - count[sel] - base, count[sel])
+        c = planes[tri[first[pt] + k]]
+        x, y = Q[pt, 0], Q[pt, 1]
+        ahead = ((c[:, 0] * x + c[:, 1] * y + c[:, 2] >= 0) & (c[:, 3] * x + c[:, 4] * y + c[:, 5] >= 0)
+                 & (c[:, 6] * x + c[:, 7] * y + c[:, 8] >= 0)
+                 & ((c[:, 9] * x + c[:, 10] * y + c[:, 11] - zq[pt]) * sign[pt] > 0))
+        hit[pt[ahead]] = True
+        lo_pt = hi_pt
+    return hit
+
+
+def _planes(P, Z):
+    """(m, 12) per projected triangle ``P`` (m, 3, 2) with depths ``Z`` (m, 3): three edge
+    functions ``a x + b y + c``, each at least 0 exactly on the triangle's side of its edge
+    (the edges included), and its depth plane ``z = a x + b y + c``; a triangle projecting to
+    a segment (zero area) gets edge functions that are negative everywhere."""
+    A, B, C = P[:, 0], P[:, 1], P[:, 2]
+    area = (B[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])
+    s = np.sign(area)
+    out = np.empty((len(P), 12))
+    for i, (a, b) in enumerate(((B, C), (C, A), (A, B))):
+        # (b - a) x (q - a) = -(b_y - a_y) q_x + (b_x - a_x) q_y + (b_y - a_y) a_x - (b_x - a_x) a_y
+        out[:, 3 * i] = -s * (b[:, 1] - a[:, 1])
+        out[:, 3 * i + 1] = s * (b[:, 0] - a[:, 0])
+        out[:, 3 * i + 2] = s * ((b[:, 1] - a[:, 1]) * a[:, 0] - (b[:, 0] - a[:, 0]) * a[:, 1])
+    out[area == 0, 2] = -1.0  # never inside
+    safe = np.where(area != 0, area, 1.0)
+    # barycentric weights w_i = (edge function i, unsigned) / area; z = sum w_i Z_i
+    for j in range(3):
+        out[:, 9 + j] = sum(s * out[:, 3 * i + j] * Z[:, i] for i in range(3)) / safe
+    return out
+
+
+def ambient_visibility(V, F, points, normals, rays: int = 96, offset: float = 1e-5) -> np.ndarray:
+    """(p,) the fraction of ``rays`` rays from each point, over the hemisphere around its normal,
+    that leave the mesh without hitting it (module doc).
+
+    Parameters
+    ----------
+    V : (n, 3) float;  F : (m, 3) int triangles (any orientation, any topology).
+    points : (p, 3) ray origins on the surface;  normals : (p, 3) unit normals there.
+    rays : rays per point;  offset : the origins move this fraction of the bounding box's
+        diagonal along their normals first (off the surface they lie on).
+    """
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    points, normals = np.asarray(points, dtype=np.float64), np.asarray(normals, dtype=np.float64)
+    diagonal = float(np.linalg.norm(np.ptp(V[F.ravel()], axis=0)))
+    origins = points + offset * diagonal * normals
+    H = hemisphere_directions(rays)
+    escaped = np.zeros(len(points))
+    for d in H:
+        side = normals @ d
+        sign = np.where(side >= 0, 1.0, -1.0)
+        escaped += ~_hits_along(V, F, origins, sign, d)
+    return escaped / rays
+
+
+def vertex_normals(V, F) -> np.ndarray:
+    """(n, 3) unit area-weighted vertex normals (zero at a vertex of no face)."""
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    out = np.zeros_like(V)
+    for c in range(3):
+        np.add.at(out, F[:, c], N)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
+
+
+def edge_visibility(V, F, E, rays: int = 96, offset: float = 1e-5) -> np.ndarray:
+    """(k,) :func:`ambient_visibility` of the edges ``E`` (k, 2) of ``V``, ``F``: from each
+    edge's midpoint, around the mean of its two vertices' normals (:func:`vertex_normals`)."""
+    V, E = np.asarray(V, dtype=np.float64), np.asarray(E, dtype=np.int64)
+    N = vertex_normals(V, F)
+    n = N[E[:, 0]] + N[E[:, 1]]
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+    return ambient_visibility(V, F, V[E].mean(axis=1), n, rays, offset)
+
+
+def vertex_visibility(V, F, rays: int = 32, offset: float = 1e-5) -> np.ndarray:
+    """(n,) :func:`ambient_visibility` of the vertices of ``V``, ``F`` around their normals
+    (:func:`vertex_normals`): the cheaper figure a seam's cost is weighted by (a third as many
+    points as edges, and fewer rays)."""
+    V = np.asarray(V, dtype=np.float64)
+    return ambient_visibility(V, F, V, vertex_normals(V, F), rays, offset)

@@ -1,0 +1,280 @@
+"""Hidden, smooth seams (issue 50): the ambient visibility of edges by exact ray casting, the
+turning of seams, cut costs that prefer occluded edges, creases and the underside, and seam
+paths straightened."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geomopt._runtime.errors import ParameterError
+from geomopt.atlas import AtlasOptions, seam_metrics
+from geomopt.atlas.charts import split_charts
+from geomopt.atlas.cones import angle_defects
+from geomopt.atlas.cutting import cut_surface
+from geomopt.atlas.metrics import seam_turning
+from geomopt.atlas.seams import edge_costs, edge_graph, straighten
+from geomopt.atlas.visibility import (ambient_visibility, edge_visibility, hemisphere_directions,
+                                      vertex_normals, vertex_visibility)
+from geomopt.exact.topology import unique_edges
+from geomopt.mesh.generators import square_mesh
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _grid(nx, ny, height=None):
+    """A grid over ``[0, nx] x [0, ny]`` (or over the coordinates ``nx``, ``ny`` when arrays; two
+    triangles a cell, upward normals), ``z = height(x, y)``."""
+    xs = np.arange(nx + 1.0) if np.isscalar(nx) else np.asarray(nx, dtype=float)
+    ys = np.arange(ny + 1.0) if np.isscalar(ny) else np.asarray(ny, dtype=float)
+    x, y = np.meshgrid(xs, ys, indexing="ij")
+    z = np.zeros_like(x) if height is None else height(x, y)
+    V = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    i, j = np.meshgrid(np.arange(len(xs) - 1), np.arange(len(ys) - 1), indexing="ij")
+    a = (i * len(ys) + j).ravel()
+    b, c, d = a + len(ys), a + len(ys) + 1, a + 1
+    return V, np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+
+
+# a groove 3 deep in a plane: walls nearly vertical at x = 5, 6 and y = 1, 5
+_XS = [0, 1, 2, 3, 4, 5, 5.001, 5.5, 5.999, 6, 7, 8, 9, 10, 11]
+_YS = [0, 1, 1.001, 2, 3, 4, 4.999, 5, 6]
+
+
+def _groove(x, y):
+    return np.where((x > 5) & (x < 6) & (y > 1) & (y < 5), -3.0, 0.0)
+
+
+def _icosphere(level=2):
+    """A unit icosphere (outward normals)."""
+    t = (1 + 5 ** 0.5) / 2
+    V = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+         [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
+    F = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11],
+         [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    V, F = np.array(V, dtype=float), np.array(F)
+    for _ in range(level):
+        E, _, edge_of = unique_edges(F)
+        mid = len(V) + edge_of
+        V = np.r_[V, V[E].mean(axis=1)]
+        F = np.r_[np.c_[F[:, 0], mid[:, 0], mid[:, 2]], np.c_[F[:, 1], mid[:, 1], mid[:, 0]],
+                  np.c_[F[:, 2], mid[:, 2], mid[:, 1]], mid]
+    return V / np.linalg.norm(V, axis=1, keepdims=True), F
+
+
+def _brute_visibility(V, F, points, normals, rays, offset=1e-5):
+    """Ambient visibility by Moller-Trumbore against every triangle (the same ray set)."""
+    origins = points + offset * np.linalg.norm(np.ptp(V, axis=0)) * normals
+    H = hemisphere_directions(rays)
+    P0, P1, P2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    e1, e2 = P1 - P0, P2 - P0
+    out = np.zeros(len(points))
+    for p, (o, n) in enumerate(zip(origins, normals)):
+        D = np.where((H @ n >= 0)[:, None], H, -H)  # (rays, 3)
+        pv = np.cross(D[:, None, :], e2[None])  # (rays, m, 3)
+        det = np.sum(e1[None] * pv, axis=2)
+        s = o - P0
+        u = np.sum(s[None] * pv, axis=2) / det
+        q = np.cross(s, e1)
+        v = np.sum(D[:, None, :] * q[None], axis=2) / det
+        t = np.sum(e2 * q, axis=1)[None] / det
+        hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (det != 0)
+        out[p] = np.mean(~hit.any(axis=1))
+    return out
+
+
+def test_hemisphere_directions_are_unit_upward_and_spread():
+    H = hemisphere_directions(96)
+    assert H.shape == (96, 3)
+    assert np.allclose(np.linalg.norm(H, axis=1), 1.0) and (H[:, 2] > 0).all()
+    assert abs(H[:, 2].mean() - 0.5) < 1e-12  # equal-area: heights uniform in (0, 1)
+    assert np.linalg.norm(H[:, :2].mean(axis=0)) < 0.05  # no side preferred
+
+
+def test_ray_casting_matches_brute_force_on_a_bumpy_closed_surface():
+    V, F = _icosphere(2)
+    rng = np.random.default_rng(3)
+    V = V * (1 + 0.35 * np.sin(5 * V[:, [0]]) * np.cos(4 * V[:, [1]]))  # concave dents
+    N = vertex_normals(V, F)
+    pick = rng.choice(len(V), 40, replace=False)
+    fast = ambient_visibility(V, F, V[pick], N[pick], rays=48)
+    slow = _brute_visibility(V, F, V[pick], N[pick], rays=48)
+    assert np.array_equal(fast, slow)
+    assert fast.min() < 0.9  # the dents occlude some rays: the test compares something
+
+
+def test_a_flat_plane_is_fully_visible_and_a_convex_surface_almost():
+    V, F = _grid(8, 8)
+    E, _, _ = unique_edges(F)
+    assert np.all(edge_visibility(V, F, E) == 1.0)
+    V, F = _icosphere(2)
+    E, _, _ = unique_edges(F)
+    vis = edge_visibility(V, F, E)
+    assert vis.mean() > 0.99 and vis.min() >= 0.97  # only rays grazing the facets hit
+
+
+def test_the_bottom_of_a_deep_narrow_groove_is_hidden():
+    V, F = _grid(_XS, _YS, _groove)
+    # the middle of the bottom sees the sky through the slot: |dx| < dz (0.5 / 3), |dy| < dz (2 / 3)
+    H = hemisphere_directions(96)
+    depth = 3 + 1e-5 * np.linalg.norm(np.ptp(V, axis=0))
+    expected = np.mean((np.abs(H[:, 0]) * depth < 0.5 * H[:, 2]) & (np.abs(H[:, 1]) * depth < 2 * H[:, 2]))
+    centre = ambient_visibility(V, F, [[5.5, 3.0, -3.0]], [[0.0, 0.0, 1.0]])
+    assert 0 < expected < 0.15 and centre[0] == expected
+    E, _, _ = unique_edges(F)
+    vis = edge_visibility(V, F, E)
+    mid = V[E].mean(axis=1)
+    bottom = (mid[:, 2] == -3.0) & (mid[:, 1] > 2) & (mid[:, 1] < 4)
+    top = (mid[:, 2] == 0.0) & ((mid[:, 0] < 3) | (mid[:, 0] > 8))
+    assert bottom.any() and top.any()
+    assert vis[bottom].max() < 0.2
+    assert vis[top].min() == 1.0
+
+
+def test_turning_of_straight_zigzag_and_branching_seams():
+    V = np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)]
+    straight = np.c_[np.arange(5), np.arange(1, 6)]
+    assert seam_turning(V, straight) == 0.0
+    Z = np.c_[np.arange(6.0), np.arange(6) % 2, np.zeros(6)]  # 45-degree zigzag: turns of 90 degrees
+    assert seam_turning(Z, straight) == pytest.approx(90.0)
+    T = np.r_[Z, [[2.0, -3.0, 0.0]]]  # a third seam edge at vertex 2: no longer passed through
+    turn = seam_turning(T, np.r_[straight, [[2, 6]]])
+    assert turn == pytest.approx(90.0)
+    assert np.isnan(seam_turning(V, straight[:1]))
+
+
+def _groove_box():
+    """A closed box whose top has the deep narrow groove of :func:`_groove`, normals outward."""
+    V, F = _grid(_XS, _YS, _groove)
+    nx, ny, n = len(_XS), len(_YS), len(V)
+    B = V.copy()
+    B[:, 2] = -5.0
+    vid = lambda i, j: i * ny + j  # noqa: E731
+    loop = ([vid(i, 0) for i in range(nx)] + [vid(nx - 1, j) for j in range(1, ny)]
+            + [vid(i, ny - 1) for i in range(nx - 2, -1, -1)] + [vid(0, j) for j in range(ny - 2, 0, -1)])
+    side = []
+    for a, b in zip(loop, loop[1:] + loop[:1]):
+        side += [[a, b + n, b], [a, a + n, b + n]]
+    return np.r_[V, B], np.r_[F, F[:, ::-1] + n, np.array(side)]
+
+
+def test_seam_visibility_ratio_of_hidden_and_exposed_seams():
+    V, F = _groove_box()
+    E, _, _ = unique_edges(F)
+    mid = V[E].mean(axis=1)
+    bottom = E[(mid[:, 2] == -3.0) & (mid[:, 1] > 2) & (mid[:, 1] < 4)]
+    exposed = E[(mid[:, 2] == 0.0) & (mid[:, 0] > 1) & (mid[:, 0] < 4) & (mid[:, 1] == 3)]
+    assert seam_metrics(V, F, bottom, rays=32).visibility < 0.5
+    assert seam_metrics(V, F, exposed, rays=32).visibility > 1.0
+    assert np.isnan(seam_metrics(V, F, np.zeros((0, 2), dtype=int)).visibility)
+
+
+def test_occluded_edges_concave_creases_and_the_underside_cost_less():
+    V, F = _groove_box()
+    g = edge_graph(V, F)
+    vis = vertex_visibility(g.V, g.F, 32)
+    mid = g.V[g.E].mean(axis=1)
+    flat = np.flatnonzero((mid[:, 2] == 0.0) & (mid[:, 0] > 1) & (mid[:, 0] < 4) & (mid[:, 1] > 1)
+                          & (mid[:, 1] < 5))
+    crease = np.flatnonzero((mid[:, 2] == -3.0) & (mid[:, 1] > 2) & (mid[:, 1] < 4)
+                            & ((mid[:, 0] == 5.001) | (mid[:, 0] == 5.999)))
+    bottom = np.flatnonzero((mid[:, 2] == -5.0) & (mid[:, 0] > 1) & (mid[:, 0] < 10) & (mid[:, 1] > 0.5)
+                            & (mid[:, 1] < 5.5))
+    plain = edge_costs(g, 0.0) / g.length
+    hidden = edge_costs(g, 0.0, visibility=vis) / g.length
+    assert np.allclose(plain[flat], 1.0) and np.allclose(hidden[flat], 1.0)  # exposed: full price
+    assert hidden[crease].max() < 0.2  # the groove's inner creases: occluded
+    creased = edge_costs(g, 2.0) / g.length
+    assert creased[crease].max() < 0.5 * creased[flat].min()
+    up = edge_costs(g, 0.0, up=[0.0, 0.0, 1.0]) / g.length
+    assert up[bottom].max() < 0.3 and up[flat].min() == pytest.approx(1.0)
+    down = edge_costs(g, 0.0, up=[0.0, 0.0, -1.0]) / g.length
+    assert down[flat].max() < 0.3
+
+
+def test_up_and_hide_options_are_checked():
+    assert AtlasOptions(up="-y").up == "-y"
+    with pytest.raises(ParameterError, match="up"):
+        AtlasOptions(up="w")
+    with pytest.raises(ParameterError, match="hide"):
+        AtlasOptions(hide=-1.0)
+    with pytest.raises(ParameterError, match="straighten"):
+        AtlasOptions(straighten=-1.0)
+
+
+def _zigzag_cut(g, nx, row):
+    """A staircase path of interior edges across a grid from (0, row) to (nx, row)."""
+    n = len(g.V)
+    keys = g.E[:, 0] * n + g.E[:, 1]
+    vid = lambda i, j: i * (nx + 1) + j  # noqa: E731 (the grid of square_mesh is not this one)
+    path, j = [], row
+    for i in range(nx):
+        a, b = vid(i, j), vid(i + 1, j)
+        path.append((a, b))
+        if i < nx - 2:  # an even number of steps: it ends on its starting row
+            step = 1 if i % 2 == 0 else -1
+            path.append((b, vid(i + 1, j + step)))
+            j += step
+    cut = np.zeros(len(g.E), dtype=bool)
+    for a, b in path:
+        cut[np.searchsorted(keys, min(a, b) * n + max(a, b))] = True
+    return cut
+
+
+def test_straighten_replaces_a_zigzag_by_a_straight_path_keeping_the_charts():
+    nx = 10
+    V, F = _grid(nx, nx)
+    g = edge_graph(V, F)
+    cut = _zigzag_cut(g, nx, 4)
+    cost = edge_costs(g, 2.0)
+    before = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    new = straighten(g, cost, cut, 1.0)
+    after = split_charts(g.F, g.edge_of, g.edge_faces, new)
+    assert before.count == after.count == 2
+    assert all(after.mesh(c).disk_loop() is not None for c in range(2))
+    assert seam_turning(g.V, g.E[cut]) > 40
+    assert seam_turning(g.V, g.E[new]) < 1e-9
+    assert np.array_equal(straighten(g, cost, cut, 0.0), cut)
+
+
+def test_hidden_costs_make_the_cut_of_a_mesh_less_visible_and_straighter():
+    """3holes, cut (topology, cone cuts) with the old costs and with visibility and straightening."""
+    from geomopt.io import read_mesh
+
+    V, F = read_mesh(REPO / "geomopt/data/3holes.off")
+    g = edge_graph(V, F)
+    K = angle_defects(g.V, g.F)
+    figures = []
+    for vis, turn in ((None, 0.0), (vertex_visibility(g.V, g.F, 32), 3.0)):
+        cost = edge_costs(g, 2.0, K, visibility=vis)
+        cut = cut_surface(g, cost, 4.5, tree_cost=edge_costs(g, 2.0, visibility=vis), turn=turn)[0]
+        figures.append(seam_metrics(g.V, g.F, g.E[cut], rays=32))
+    old, new = figures
+    assert new.visibility < old.visibility - 0.08
+    assert new.turning_degrees < old.turning_degrees
+
+
+def test_up_puts_the_seams_of_an_atlas_on_the_underside():
+    from geomopt.atlas import make_atlas
+
+    V, F = _icosphere(2)
+    V = V * [1.0, 1.0, 0.6] + 0.15 * np.sin(3 * V[:, [0]])  # no symmetry to tie the choices
+    heights = {}
+    for up in ("z", "-z"):
+        atlas = make_atlas(V, F, options=AtlasOptions(up=up), progress=False)
+        assert atlas.success
+        heights[up] = float(V[atlas.seams].mean(axis=(0, 1))[2])
+    assert heights["z"] < -0.2 < 0.2 < heights["-z"]
+
+
+def test_the_cli_takes_an_up_axis():
+    from geomopt.cli.parser import UsageError, build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["param", "a.off", "-o", "b.obj", "--up=-y"]).up == "-y"
+    assert parser.parse_args(["param", "a.off", "-o", "b.obj"]).up is None
+    with pytest.raises(UsageError, match="--up"):
+        parser.parse_args(["param", "a.off", "-o", "b.obj", "--up", "w"])
