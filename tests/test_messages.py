@@ -165,3 +165,17 @@ def test_compare_font_sizes_are_bounded_where_the_figure_fits(tmp_path, cli):
         assert _text_outside(res.figure(layout=layout, font_size=size)) == [], (layout, size)
         with pytest.raises(geomopt.ParameterError, match="at most"):
             res.figure(layout=layout, font_size=size + 1)
+
+
+def test_a_non_manifold_edge_is_named_in_the_files_own_terms(tmp_path, cli):
+    """Three fans of faces on one edge that only fan-triangulation made: the diagonal (1, 3) of
+    the quad on line 7 is also a side of two triangles: the file's own vertices (1-based) and
+    face lines are named, and that the edge is a diagonal the file does not have."""
+    text = ("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 0.5 1\nv 0.5 0.5 -1\n"
+            "f 1 2 3 4\n"  # fanned into (1 2 3) (1 3 4): the diagonal 1-3
+            "f 1 3 5\n")   # a third face on 1-3
+    (tmp_path / "m.obj").write_text(text)
+    code, _, err = cli("param", tmp_path / "m.obj", "-o", tmp_path / "out.obj", "--quiet")
+    assert code == 2 and not (tmp_path / "out.obj").exists()
+    line = one_error_line(err, "vertices 1 and 3", "lines 7 and 8", "diagonal")
+    assert "vertices 0 and 2" not in line

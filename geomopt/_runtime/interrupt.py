@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import signal
 
-__all__ = ["Interrupted", "handled", "raise_pending", "pending"]
+__all__ = ["Interrupted", "handled", "raise_pending", "pending", "deliberate"]
 
 #: the signals the command line turns into :class:`Interrupted`
 SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
@@ -79,3 +79,17 @@ def handled():
         for signum, handler in previous.items():
             signal.signal(signum, handler)
         _recorded.clear()
+
+
+@contextlib.contextmanager
+def deliberate():
+    """Inside the block, code that caught an interrupt writes what it still must (a batch's
+    summary of what finished): a recorded signal does not stop the atomic writers there; it is
+    recorded again afterwards, so the run still ends as interrupted.  A new signal inside the
+    block raises as ever."""
+    saved = list(_recorded)
+    _recorded.clear()
+    try:
+        yield
+    finally:
+        _recorded[:0] = saved

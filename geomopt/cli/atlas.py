@@ -35,6 +35,9 @@ def param_atlas(args, V, F, energy, solver) -> int:
                              f"name an .obj output")
     if args.init != "tutte":
         raise ParameterError(f"an atlas flattens each chart from its own Tutte map; drop --init {args.init}")
+    said = io.nonmanifold_edge_in_file(args.input, F)  # in the file's terms (make_atlas speaks of F's rows)
+    if said:
+        raise MeshError(said)
     log(args, f"{args.input}: {'--atlas' if args.atlas else 'not a disk'}: cutting it into charts")
     atlas = make_atlas(V, F, energy=energy, solver=solver, progress=_progress(args),
                        options=AtlasOptions(**_atlas_settings(args)))

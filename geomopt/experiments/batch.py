@@ -233,6 +233,7 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
     batch wrote before its row arrived); then it propagates.
     """
     from .. import io
+    from .._runtime import interrupt
 
     cases = [Path(c) for c in cases]
     outdir = Path(outdir)
@@ -255,7 +256,8 @@ def run_batch(cases, outdir, solver="lbfgs", workers=1, scheduler=None, bucket=T
             _run_dask(cases, outdir, solver, bucket, workers, scheduler, report, chunk, rows, start)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM/SIGHUP from the command line: say what finished
         if outdir.is_dir():
-            write_summary(summary, [row or _interrupted_row(c, outdir, started) for row, c in zip(rows, cases)])
+            with interrupt.deliberate():  # written although the interrupt is recorded
+                write_summary(summary, [row or _interrupted_row(c, outdir, started) for row, c in zip(rows, cases)])
         raise
     write_summary(summary, rows)
     return rows

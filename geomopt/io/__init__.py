@@ -39,7 +39,7 @@ from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, chec
                       create_output_folder)
 from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, write_obj_quads, write_obj_with_uv
 from ._ply import write_ply_with_uv
-from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, read_mesh, write_mesh_with_uv
+from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, nonmanifold_edge_in_file, read_mesh, write_mesh_with_uv
 from ._text import read_vertex_ids
 from ._volume import CELL_KINDS, CELL_WORDS, TET_FORMATS, read_cells, read_tets, read_vtk_tets, write_cells, write_tets
 from ._vtk import write_vtk_tets

@@ -7,12 +7,12 @@ from .._runtime.errors import GeomoptError, MeshFormatError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ._atomic import check_output_path
 from ._files import existing_file, read_input
-from ._obj import read_obj, write_obj_with_uv
+from ._obj import parse_obj, read_obj, write_obj_with_uv
 from ._off import read_off
 from ._ply import read_ply, write_ply_with_uv
 from ._stl import read_stl
 
-__all__ = ["MESH_EXTENSIONS", "UV_MESH_EXTENSIONS", "read_mesh", "write_mesh_with_uv"]
+__all__ = ["MESH_EXTENSIONS", "UV_MESH_EXTENSIONS", "read_mesh", "write_mesh_with_uv", "nonmanifold_edge_in_file"]
 
 #: The surface readers: extension -> ``reader(bytes, path) -> (V, F)``.
 _READERS = {".obj": read_obj, ".off": read_off, ".ply": read_ply, ".stl": read_stl}
@@ -140,3 +140,42 @@ def write_mesh_with_uv(path, V, F, UV, format=None, uv_faces=None):
                                f"PLY holds one UV per vertex")
         return write_obj_with_uv(path, V, F, UV, uv_faces)
     return _UV_WRITERS[format.lower()](path, V, F, UV)
+
+
+def nonmanifold_edge_in_file(path, F) -> str | None:
+    """Why the OBJ file ``path`` (read by :func:`read_mesh` into the triangles ``F`` (m, 3)) is
+    not edge-manifold, in the file's own terms, or None (manifold, or not an OBJ file).
+
+    Names the first edge of more than two triangles by its 1-based vertices and the lines of
+    the faces around it, and says when it is no edge of the file but a diagonal that
+    fan-triangulating a polygon added."""
+    import numpy as np
+
+    from ..exact.topology import unique_edges
+
+    path = existing_file(path, "mesh file")
+    E, count, _ = unique_edges(F)
+    bad = np.flatnonzero(count > 2)
+    if path.suffix.lower() != ".obj" or not bad.size:
+        return None
+    obj = parse_obj(read_input(path, "mesh file")[1], path)
+    counts, lines, corners = obj["counts"], obj["lines"], obj["corners"]
+    a, b = (int(i) for i in E[bad[0]])
+    owner = np.repeat(np.arange(counts.size), counts - 2)  # the polygon of each fan triangle
+    polygons = np.unique(owner[((F == a) | (F == b)).sum(axis=1) == 2])
+    starts = np.cumsum(counts) - counts
+    diagonal = [k for k in polygons.tolist() if not _is_side(corners[starts[k]:starts[k] + counts[k]], a, b)]
+    named = [str(int(lines[k])) for k in polygons[:5]] + (["..."] if len(polygons) > 5 else [])
+    said = ", ".join(named[:-1]) + " and " + named[-1] if len(named) > 1 else named[0]
+    why = (f"; it is no edge of the file but the diagonal that fan-triangulating the {int(counts[diagonal[0]])}-gon "
+           f"of line {int(lines[diagonal[0]])} adds: triangulate that polygon along its other diagonal"
+           if diagonal else "")
+    return (f"{path}: {bad.size} non-manifold edge(s) (in more than two faces); first: the edge of vertices "
+            f"{a + 1} and {b + 1}, in the faces of lines {said}{why}; a surface map needs an edge-manifold "
+            f"mesh: split or remove the extra faces")
+
+
+def _is_side(polygon, a, b) -> bool:
+    """Whether ``a``-``b`` is a side of the closed polygon of corners ``polygon``."""
+    nxt = list(polygon[1:]) + [polygon[0]]
+    return any({int(p), int(q)} == {a, b} for p, q in zip(polygon, nxt))
