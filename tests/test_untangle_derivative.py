@@ -75,3 +75,24 @@ def test_eager_and_traced_untangle_return_the_same_map(kind):
     assert eager.success
     traced = jax.jit(lambda V: geomopt.untangle(make(V, S, B, h), x0, progress=False).x)(V)
     np.testing.assert_allclose(np.asarray(traced), eager.x, rtol=0, atol=1e-12)
+
+
+def test_the_map_is_the_minimiser_at_the_final_eps_whatever_the_path():
+    """The tangled start (eps 1 -> floor) and an untangled one whose loop stops at eps = 2
+    (``energy_tol=0.9``) end at the same map: the polish runs at the constant final eps."""
+    from geomopt.untangling import UntangleOptions, final_eps
+
+    make, V, S, B, h, x0 = _case("tri", 1.0)
+    P = make(V, S, B, h)
+    tangled = geomopt.untangle(P, x0, progress=False)
+    start = generators.square_mesh(5)[0]
+    short = geomopt.untangle(P, start, progress=False, options=UntangleOptions(energy_tol=0.9, eps0=2.0))
+    assert tangled.success and short.success and tangled.details.polished and short.details.polished
+    assert short.trace.phases[0].eps == 2.0 and short.trace.phases[-1].eps == final_eps(2)
+    np.testing.assert_allclose(short.x, tangled.x, rtol=0, atol=1e-11)
+    plain = geomopt.untangle(P, x0, progress=False, options=UntangleOptions(polish=False))
+    assert plain.success and not plain.details.polished
+    assert len(plain.trace.phases) == len(tangled.trace.phases) - 1
+    with pytest.raises(geomopt.ParameterError, match="polish=True"):
+        jax.grad(lambda V: jnp.sum(geomopt.untangle(make(V, S, B, h), x0, progress=False,
+                                                    options=UntangleOptions(polish=False)).x))(V)

@@ -77,7 +77,7 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
         result = run(problem, np.asarray(x0), solver=solver, options=dataclasses.replace(options, theta=float(theta)),
                      progress=False)
         require_success(result, "geomopt.untangle")
-        if not result.details.polished:
+        if result.details.active_elements and not result.details.polished:
             raise SolveError("geomopt.untangle: the final Newton polish did not converge, so the map is no tight "
                              "optimum to differentiate", result)
         return result.x, np.float64(result.details.map_scale), badly_shaped(problem, max_aspect)
