@@ -10,7 +10,8 @@ in 50 lines of code", ACM Trans. Graph. 40(4), 2021.
 (:data:`geomopt.energies.garanzha`) at fixed ``eps`` with an inner solver, shrinks ``eps``
 from the worst determinant after each inner solve, and stops when every element is positively
 oriented and the energy settled; then Newton polishes the map at a constant eps
-(:func:`final_eps`; ``UntangleOptions(polish=False)`` skips it).  The result is certified exactly: no inverted element, and
+(:func:`final_eps`; ``UntangleOptions(polish=False)`` skips it).
+The result is certified exactly: no inverted element, and
 around every vertex (2D) or edge and vertex (3D) the elements cover a neighbourhood once or,
 on the boundary, without overlapping itself.
 

@@ -150,7 +150,8 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
                      warn=not throw)  # raised by untangle with the whole set-up time
-    return dataclasses.replace(result, stats=dataclasses.replace(
+    # result.solver: the inner solver, not the final polish's
+    return dataclasses.replace(result, solver=eps.solver, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
 
 
