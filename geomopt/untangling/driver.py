@@ -46,9 +46,9 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
 
     Differentiable: given a traced ``problem`` (rest vertices, handle positions) or a traced
     ``options.theta``, ``result.x`` is the untangled map as a function of them (the optimum of
-    the last eps, polished by Newton, differentiated by the implicit function theorem:
-    :func:`geomopt.untangling.implicit.untangle_map`); the start, the last eps and the map's
-    normalisation are constants of the solve.
+    the final eps, polished by Newton, differentiated by the implicit function theorem:
+    :func:`geomopt.untangling.implicit.untangle_map`), the same map as the plain call's;
+    the start and the map's power-of-two scale are constants of the solve.
 
     Parameters
     ----------
@@ -70,7 +70,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     ``problem.fixed_positions``; ``certificate`` the exact :class:`~geomopt.solvers.LocalCertificate`
     (inverted elements, 2D branch points, moved handles); ``stats.iterations`` the inner
     iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
-    :class:`~geomopt.untangling.UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
+    :class:`~geomopt.untangling.UntangleRecord` per outer iteration (the last one the final
+    polish, see :class:`UntangleOptions`); ``details`` the :class:`UntangleDetails`.
     ``energy`` and ``mean_energy`` are measured in the normalised frame.
 
     Stars whose every element has all its vertices fixed and that overlap in ``x0``
