@@ -159,7 +159,7 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
 
     def call(self, state, outcome):
         decision = real_call(self, state, outcome)
-        if decision.objective is not None:
+        if decision.objective is not None and not self.polishing:  # a switch, not the final polish
             switched.append((np.asarray(decision.x), np.asarray(state.x)))
         return decision
 

@@ -190,7 +190,9 @@ class UntangleDetails(Details):
     from (``start``: ``"given"``, ``"harmonic"`` or ``"mixed"``, see :func:`geomopt.untangling.start.choose_start`,
     or ``"given, then harmonic"`` when ``start="auto"`` started again from the harmonic extension);
     the connected parts without a handle (``free_parts``), held at a certified map, ``rest_parts`` of
-    them at their rest shape (see :func:`geomopt.untangling.start.hold_free_parts`)."""
+    them at their rest shape (see :func:`geomopt.untangling.start.hold_free_parts`); ``polished``
+    whether the final Newton polish converged (the map is then the minimiser of the energy at
+    :func:`geomopt.untangling.final_eps` to rounding, see :class:`~geomopt.untangling.UntangleOptions`)."""
 
     theta: float
     lam: float
@@ -200,6 +202,7 @@ class UntangleDetails(Details):
     start: str = "given"
     free_parts: int = 0
     rest_parts: int = 0
+    polished: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

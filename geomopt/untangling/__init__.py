@@ -9,7 +9,9 @@ in 50 lines of code", ACM Trans. Graph. 40(4), 2021.
 
 (:data:`geomopt.energies.garanzha`) at fixed ``eps`` with an inner solver, shrinks ``eps``
 from the worst determinant after each inner solve, and stops when every element is positively
-oriented and the energy settled.  The result is certified exactly: no inverted element, and
+oriented and the energy settled; then Newton polishes the map at a constant eps
+(:func:`final_eps`; ``UntangleOptions(polish=False)`` skips it).
+The result is certified exactly: no inverted element, and
 around every vertex (2D) or edge and vertex (3D) the elements cover a neighbourhood once or,
 on the boundary, without overlapping itself.
 
@@ -25,14 +27,14 @@ departures from the paper's code and the measurements behind them: ``docs/untang
 from .continuation import EpsContinuation, UntangleRecord, judged
 from .driver import UntangleResult, infeasible, untangle
 from .inner import (LAPLACIAN_FROM, LOCAL_TANGLE_SHARE, PROBE_PROGRESS, STIFF_AFTER, STIFF_AFTER_NEWTON, default_solver,
-                    stiff_solver)
+                    polish_solver, stiff_solver)
 from .options import UntangleOptions
 from .rest import badly_shaped, check_rest, equilateral_rest
-from .schedule import EPS_FLOOR, START_RATIO, next_eps, start_eps
+from .schedule import EPS_FLOOR, START_RATIO, final_eps, next_eps, start_eps
 from .start import BOX, STARTS, choose_start, harmonic_start, hold_free_parts
 
 __all__ = ["untangle", "infeasible", "UntangleOptions", "UntangleResult", "UntangleRecord", "EpsContinuation", "judged",
            "default_solver", "stiff_solver", "next_eps", "start_eps", "badly_shaped", "check_rest",
            "equilateral_rest", "STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "EPS_FLOOR",
            "START_RATIO", "LAPLACIAN_FROM", "LOCAL_TANGLE_SHARE", "STIFF_AFTER", "STIFF_AFTER_NEWTON",
-           "PROBE_PROGRESS"]
+           "PROBE_PROGRESS", "final_eps", "polish_solver"]

@@ -18,8 +18,8 @@ from ..exact.predicates import differing_rows
 from ..mesh.geometry import det
 from ..objective.objective import jacobians, total_energy
 from ..solvers import AbstractContinuation, Decision, Final, Newton, Outcome, local_certificate
-from .inner import PROBE_PROGRESS, STIFF_AFTER, STIFF_AFTER_NEWTON
-from .schedule import EPS_FLOOR, next_eps
+from .inner import PROBE_PROGRESS, STIFF_AFTER, STIFF_AFTER_NEWTON, polish_solver
+from .schedule import EPS_FLOOR, final_eps, next_eps
 
 __all__ = ["UntangleRecord", "EpsContinuation", "judged"]
 
@@ -54,7 +54,12 @@ class EpsContinuation(AbstractContinuation):
     """The eps schedule of :func:`~geomopt.untangling.untangle` as a continuation of
     :func:`~geomopt.solvers.iterate`: after each inner solve, measure the energy and worst
     ``det J`` over the whole (normalised) problem; stop when nothing is inverted and the
-    energy settled, else shrink eps (:func:`next_eps`) and go on.  ``finish`` maps the last
+    energy settled, else shrink eps (:func:`next_eps`) and go on.  Once untangled and settled,
+    with ``options.polish``, one more phase polishes the map by Newton
+    (:func:`~geomopt.untangling.polish_solver`, injective) at the constant :func:`final_eps`:
+    the map returned is then the minimiser of an energy whose parameters do not depend on the
+    path (the start, the eps schedule), a smooth function of the rest mesh and the handles
+    (:func:`geomopt.untangling.implicit.untangle_map` differentiates it).  ``finish`` maps the last
     iterate back to the input frame, writes the handles back bit for bit and certifies it.
 
     Parameters
@@ -102,6 +107,7 @@ class EpsContinuation(AbstractContinuation):
         self.eps = float(options.eps0)
         self.floor = EPS_FLOOR.get(problem.dim, 1e-10)
         self.injective = False
+        self.polishing = False
         self.inverted = []
         self.E = math.nan
 
@@ -140,6 +146,8 @@ class EpsContinuation(AbstractContinuation):
         self.x_solve = state.x  # where the current inner solve started
 
     def __call__(self, state, outcome) -> Decision:
+        if self.polishing:
+            return self._polished(state, outcome)
         if self.stiff is not None and outcome is Outcome.MAX_STEPS and state.iteration >= self.probe:
             if self._probe_progressed(state):  # still untangling locally: another probe, same solver
                 self.probed += state.iteration
@@ -166,7 +174,7 @@ class EpsContinuation(AbstractContinuation):
         folded = self.scaled.count_inverted(self.full.unpad_map(np.asarray(state.x))) if detmin > 0 and settled \
             else None
         if folded == 0:
-            return Decision.stop_with(Outcome.CONVERGED, record=record)
+            return self._polish(state, record) if opts.polish else Decision.stop_with(Outcome.CONVERGED, record=record)
         if folded and self.problem.elements is not None and self.eps <= self.floor:
             # hexahedra folded inside, every corner positive: the energy sees corners only, more
             # iterations cannot help
@@ -189,6 +197,24 @@ class EpsContinuation(AbstractContinuation):
         worse = len(self.inverted) > 1 and self.inverted[-1] > self.inverted[-2]
         self.x_solve = state.x
         return Decision.go(params, restart=not opts.keep_memory or worse, solver=self.phase_solver, record=record)
+
+    def _polish(self, state, record) -> Decision:
+        """Start the final polish (class notes) from the untangled, settled map."""
+        self.polishing, self.eps = True, final_eps(self.problem.dim)
+        params = self.objective.params(eps=self.eps)
+        self.E = next(iter(self._stats(state.x, params)))
+        return Decision.go(params, objective=self.objective, x=state.x, solver=polish_solver(), record=record)
+
+    def _polished(self, state, outcome) -> Decision:
+        """The end of the polish: CONVERGED (the exact certificate in :meth:`finish` judges the map),
+        ``details.polished`` whether Newton converged."""
+        E, detmin, nneg = self._stats(state.x, state.params)
+        self.E = E
+        record = UntangleRecord(self.eps, E, E / self.full.total_volume, detmin, int(nneg), state.iteration)
+        self.details = dataclasses.replace(self.details, polished=outcome is Outcome.CONVERGED)
+        if not (math.isfinite(E) and math.isfinite(detmin)):
+            return Decision.stop_with(Outcome.NONFINITE, record=record)
+        return Decision.stop_with(Outcome.CONVERGED, record=record)
 
     def finish(self, state, outcome, reason) -> Final:
         problem, k = self.problem, self.k

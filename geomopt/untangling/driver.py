@@ -51,9 +51,9 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
 
     Differentiable: given a traced ``problem`` (rest vertices, handle positions) or a traced
     ``options.theta``, ``result.x`` is the untangled map as a function of them (the optimum of
-    the last eps, polished by Newton, differentiated by the implicit function theorem:
-    :func:`geomopt.untangling.implicit.untangle_map`); the start, the last eps and the map's
-    normalisation are constants of the solve.
+    the final eps, polished by Newton, differentiated by the implicit function theorem:
+    :func:`geomopt.untangling.implicit.untangle_map`), the same map as the plain call's;
+    the start and the map's power-of-two scale are constants of the solve.
 
     Parameters
     ----------
@@ -76,7 +76,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     ``problem.fixed_positions``; ``certificate`` the exact :class:`~geomopt.solvers.LocalCertificate`
     (inverted elements, 2D branch points, moved handles); ``stats.iterations`` the inner
     iterations, ``stats.outer_iterations``, ``stats.inverted_at_start``; ``trace.phases`` one
-    :class:`~geomopt.untangling.UntangleRecord` per outer iteration; ``details`` the :class:`UntangleDetails`.
+    :class:`~geomopt.untangling.UntangleRecord` per outer iteration (the last one the final
+    polish, see :class:`UntangleOptions`); ``details`` the :class:`UntangleDetails`.
     ``energy`` and ``mean_energy`` are measured in the normalised frame.
 
     Stars whose every element has all its vertices fixed and that overlap in ``x0``
@@ -187,7 +188,8 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
                      warn=not throw and stall is None)  # raised by untangle (a stalled run is retried)
-    return dataclasses.replace(result, stats=dataclasses.replace(
+    # result.solver: the inner solver, not the final polish's
+    return dataclasses.replace(result, solver=eps.solver, stats=dataclasses.replace(
         result.stats, setup_seconds=result.stats.setup_seconds + setup))
 
 

@@ -1,6 +1,6 @@
 """Untangling as a differentiable function: the final map of :func:`~geomopt.untangling.untangle`
 as a function of the problem (rest vertices, handle positions) and ``theta``, by the implicit
-function theorem at the optimum of the last eps (:func:`geomopt.objective.adjoint.argmin`).
+function theorem at the polished optimum (:func:`geomopt.objective.adjoint.argmin`).
 :func:`~geomopt.untangling.untangle` calls it for traced inputs."""
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._runtime.errors import ParameterError, SolveError
 from .._runtime.x64 import float64
 from ..energies import garanzha
 from ..mesh.geometry import dets
 from ..mesh.problem import check_rest_values
 from ..objective.adjoint import argmin, host_constant, require_success
 from ..objective.objective import Objective
-from ..solvers import Newton, minimize as run_min
 from .options import UntangleOptions
 from .rest import badly_shaped, equilateral_rest
+from .schedule import final_eps
 
 __all__ = ["untangle_map"]
 
@@ -28,14 +29,15 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
     """:func:`~geomopt.untangling.untangle`'s final map as a differentiable function of the
     problem (its rest vertices and handle positions, traced or not) and ``theta``.
 
-    The untangled map minimises Garanzha et al.'s energy at the last ``eps`` of the outer loop,
-    on the rest mesh as untangling normalises it (scaled to the map's volume; in 2D, rest
-    triangles above ``max_aspect`` replaced by equilateral ones).  That energy, written in the
-    problem's units and made a function of the rest vertices (the normalisation included), is
-    minimised tightly by Newton from the untangled map (the *polished* map returned here,
-    flip-free, certified), and differentiated at it.  The last ``eps``, the power-of-two map
-    scale and which triangles were replaced are constants of the solve (zero derivative);
-    so is the start map.
+    The untangled map minimises Garanzha et al.'s energy at the constant
+    :func:`~geomopt.untangling.final_eps` on the rest mesh as untangling normalises it (scaled to
+    the map's volume; in 2D, rest triangles above ``max_aspect`` replaced by equilateral ones):
+    :func:`~geomopt.untangling.untangle` ends with a Newton polish there (``options.polish``).
+    That energy, written in the problem's units and made a function of the rest vertices (the
+    normalisation included), is differentiated at the polished map, refined by one exact
+    Newton step (:func:`geomopt.objective.adjoint.argmin`): the map returned is the plain call's
+    to rounding.  The power-of-two map scale, which triangles were replaced and the start map
+    are constants of the solve (zero derivative).
 
     Parameters
     ----------
@@ -46,6 +48,14 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
     solver, options : passed to :func:`geomopt.untangling.untangle` (``options`` an
         :class:`~geomopt.untangling.UntangleOptions` or None; its ``theta`` is replaced).
     adjoint : the linear solver of the adjoint (see :func:`geomopt.minimize`).
+
+    Raises
+    ------
+    ParameterError
+        ``options.polish`` is False (the map is then no optimum to differentiate).
+    SolveError
+        The untangling did not succeed, or its polish did not reach a tight optimum (under
+        ``jax.jit``: as ``jax.errors.JaxRuntimeError`` naming it).
     """
     from .driver import untangle as run
 
@@ -53,9 +63,12 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
     theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
     x0 = jnp.asarray(x0, jnp.float64)
     options = options or UntangleOptions()
+    if not options.polish:
+        raise ParameterError("differentiating untangle needs UntangleOptions(polish=True): without the polish the "
+                             "map is no optimum of a fixed energy")
     max_aspect = options.max_aspect
     m = problem.n_elements
-    shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((2,), jnp.float64),
+    shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((), jnp.float64),
               jax.ShapeDtypeStruct((m,), jnp.bool_))
 
     @float64
@@ -64,27 +77,28 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
         result = run(problem, np.asarray(x0), solver=solver, options=dataclasses.replace(options, theta=float(theta)),
                      progress=False)
         require_success(result, "geomopt.untangle")
-        bad = badly_shaped(problem, max_aspect)
-        return result.x, np.array([result.details.map_scale, result.trace.column("eps")[-1]]), bad
+        if result.details.active_elements and not result.details.polished:
+            raise SolveError("geomopt.untangle: the final Newton polish did not converge, so the map is no tight "
+                             "optimum to differentiate", result)
+        return result.x, np.float64(result.details.map_scale), badly_shaped(problem, max_aspect)
 
-    x1, (k, eps), bad = host_constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
-    final = _untangle_problem(problem, x0, k, bad)
+    x1, k, bad = host_constant(untangled, shapes, problem, jnp.asarray(theta, jnp.float64), x0)
+    final = _untangle_problem(problem, x0, k, bad, max_aspect)
     lam = theta / (1.0 - theta)
-    objective = Objective(final, garanzha)
-
-    def polish(obj, p, start):
-        result = run_min(obj, np.asarray(start), Newton(rtol=1e-12), p, progress=False)
-        require_success(result, "geomopt.untangle (polishing the untangled map)")
-        return result.x, {"objective": obj}
-
-    return argmin(objective, {"eps": eps, "lam": lam}, x1, polish, adjoint)
+    return argmin(Objective(final, garanzha), {"eps": final_eps(d), "lam": lam}, x1, _polished, adjoint)
 
 
-def _untangle_problem(problem, x0, k, bad):
+def _polished(objective, params, x):
+    """The solve of :func:`untangle_map`'s :func:`~geomopt.objective.adjoint.argmin`: the map
+    :func:`~geomopt.untangling.untangle` polished already (argmin checks its decrement)."""
+    return x, {"objective": objective}
+
+
+def _untangle_problem(problem, x0, k, bad, max_aspect):
     """The rest geometry of untangling's energy in the problem's units: ``J`` multiplied by
     ``k / s`` (the map scaled by ``k``, the rest by ``s = (map volume / rest volume)^(1/d)``,
-    ``x0``'s handle rows at the handle positions), ``bad`` triangles equilateral with their mean
-    edge length.  Traceable in the problem's arrays."""
+    ``x0``'s handle rows at the handle positions), ``bad`` (m,) triangles equilateral with
+    their mean edge length.  Traceable in the problem's arrays and in ``k`` and ``bad``."""
 
     d = problem.dim
     P = problem
@@ -92,5 +106,6 @@ def _untangle_problem(problem, x0, k, bad):
     map_vol = jnp.sum(dets(P.simplices, k * x)) / (2.0 if d == 2 else 6.0)
     rest_vol = jnp.sum(P.volumes)
     s = jnp.where(map_vol > 0, (jnp.abs(map_vol) / rest_vol) ** (1.0 / d), k)
-    rest_inv, vol = equilateral_rest(P, bad) if np.any(bad) else (P.rest_inv, P.volumes)
+    shaped = max_aspect is not None and d == 2 and P.elements is None  # else bad is all False
+    rest_inv, vol = equilateral_rest(P, bad) if shaped else (P.rest_inv, P.volumes)
     return dataclasses.replace(P, rest_inv=rest_inv * (k / s), volumes=vol)

@@ -7,9 +7,11 @@ import dataclasses
 
 from .._runtime.errors import ParameterError
 from ..solvers import LBFGS, AbstractSolver, Newton
+from ..objective.projection import Exact
 from ..solvers.linesearch import InjectiveSearch
 
-__all__ = ["LAPLACIAN_FROM", "LOCAL_TANGLE_SHARE", "STIFF_AFTER", "PROBE_PROGRESS", "STIFF_AFTER_NEWTON", "stiff_solver", "default_solver"]
+__all__ = ["LAPLACIAN_FROM", "LOCAL_TANGLE_SHARE", "STIFF_AFTER", "PROBE_PROGRESS", "STIFF_AFTER_NEWTON", "stiff_solver", "default_solver",
+           "polish_solver"]
 
 
 LAPLACIAN_FROM = 50_000  # active elements from which the default L-BFGS uses the Laplacian seed
@@ -99,3 +101,14 @@ def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = Fal
         return Newton(projection="clamp", rtol=1e-7, max_steps=100,
                       search=InjectiveSearch(injective=False))
     raise ParameterError(f"unknown untangling solver {name!r}; valid: 'lbfgs', 'newton' or a solver object")
+
+
+def polish_solver() -> Newton:
+    """The solver of untangling's final polish (:class:`~geomopt.untangling.EpsContinuation`):
+    Newton with its injective search (no element flips back) to a decrement of ``1e-12 |E|``,
+    whose last step leaves the map the energy's minimiser to rounding (the tight optimum the
+    implicit function theorem differentiates, :func:`geomopt.untangling.implicit.untangle_map`).
+    The exact Hessian (no projection; shifted where it does not factor): the inner solves end
+    near the minimum, where it converges quadratically from the first step (the twisted box of
+    10k tets: 2 iterations, against 3 with the adaptive projection's first clamped one)."""
+    return Newton(rtol=1e-12, max_steps=50, projection=Exact())

@@ -51,6 +51,12 @@ class UntangleOptions:
         ``"given, then harmonic"``, the stats summed over both runs).  Whatever ``start``, a connected
         part without a handle is held at a certified map, not solved
         (:func:`geomopt.untangling.start.hold_free_parts`).
+    polish : once untangled, polish the map by Newton at the constant
+        :func:`~geomopt.untangling.final_eps` (:func:`~geomopt.untangling.polish_solver`,
+        injective): the map returned is then the energy's minimiser to rounding, a smooth
+        function of the rest mesh, the handles and ``theta``, and the map a traced call
+        returns and differentiates.  False skips it (the map of the last inner solve, accurate
+        to its tolerance only; traced calls refuse it).
     """
 
     theta: float | None = None
@@ -64,6 +70,7 @@ class UntangleOptions:
     max_sigma: float = 0.5
     bucket: bool = False
     start: str = "auto"
+    polish: bool = True
 
     def __post_init__(self):
         validate(self, theta=Maybe(Traceable(Real(0.0, 1.0, lo_open=True, hi_open=True))), max_outer=Int(1),
@@ -71,7 +78,7 @@ class UntangleOptions:
                  max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
                  injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
                  max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool),
-                 start=OneOf(STARTS))
+                 start=OneOf(STARTS), polish=Instance(bool))
         if not self.min_sigma <= self.max_sigma:
             raise ParameterError(f"UntangleOptions: need min_sigma <= max_sigma, got {self.min_sigma} and "
                                  f"{self.max_sigma}")

@@ -10,10 +10,19 @@ import numpy as np
 from ..mesh.geometry import det, edge_rows
 from ..mesh.problem import Problem
 
-__all__ = ["EPS_FLOOR", "START_RATIO", "next_eps", "start_eps"]
+__all__ = ["EPS_FLOOR", "START_RATIO", "final_eps", "next_eps", "start_eps"]
 
 
+#: the smallest eps of the schedule, per dimension; also the eps of the final polish
 EPS_FLOOR = {2: 1e-9, 3: 1e-10}
+
+
+def final_eps(dim: int) -> float:
+    """The eps of untangling's final polish (:class:`~geomopt.untangling.EpsContinuation`): the
+    floor, a constant, so that the returned map is the minimiser of one energy whose
+    parameters do not depend on the inputs (at ``|det J| >> eps`` it is Garanzha et al.'s
+    ``f_0`` to rounding)."""
+    return EPS_FLOOR.get(dim, 1e-10)
 
 
 #: the largest median ``|det J| / eps`` of the start's elements at the first eps (:func:`start_eps`)

@@ -1,0 +1,98 @@
+"""Issue 48 item 1: ``jax.grad`` (eager and under ``jax.jit``) of a loss of
+``geomopt.untangle(problem, x0).x`` equals central differences of the plain (eager) call, with
+respect to the rest vertices and the handle positions; the traced and the eager call return
+the same map (the minimiser of the energy at the fixed polishing eps)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geomopt
+from geomopt import Objective, Problem
+from geomopt.mesh import generators
+from geomopt.objective.adjoint import argmin
+from geomopt.solvers import Newton, minimize as run_min
+
+RTOL = 1e-6
+
+
+def _case(kind, scale):
+    """(make, rest vertices jittered by 0.03 edge-ish units, simplices, handles, handle
+    positions (rest x scale), tangled start): a 5 x 5 square grid with its interior rotated by
+    100 degrees, or a 3 x 3 x 3 cube of tets with its interior vertices rotated by 70 degrees."""
+    if kind == "tri":
+        t = generators.rotated_interior(*generators.square_mesh(5), 100.0)
+        make = Problem.planar
+    else:
+        t = generators.rotated_interior(*generators.box_mesh(3, 3, 3), 70.0)
+        make = Problem.tets
+    V = t.rest + 0.03 * np.random.default_rng(0).standard_normal(t.rest.shape)
+    h = t.rest[t.fixed] * scale
+    x0 = t.x0.copy()
+    x0[t.fixed] = h
+    assert make(V, t.simplices, t.fixed, h).count_inverted(x0) > 0
+    return make, V, t.simplices, t.fixed, h, x0
+
+
+def _loss(make, S, B, x0, w):
+    def loss(V, h):
+        return jnp.sum(geomopt.untangle(make(V, S, B, h), x0, progress=False).x * w)
+    return loss
+
+
+def _central(loss, args, k, t, step=1e-6):
+    up, dn = list(args), list(args)
+    up[k], dn[k] = args[k] + step * t, args[k] - step * t
+    return (float(loss(*up)) - float(loss(*dn))) / (2 * step)
+
+
+@pytest.mark.parametrize("kind,scale", [("tri", 1.0), ("tri", 1.1), ("tet", 1.0)])
+def test_grad_of_untangle_matches_central_differences_of_eager_re_solves(kind, scale):
+    make, V, S, B, h, x0 = _case(kind, scale)
+    w = np.random.default_rng(1).standard_normal(x0.shape)
+    loss = _loss(make, S, B, x0, w)
+    g = jax.grad(loss, argnums=(0, 1))(V, h)
+    gj = jax.jit(jax.grad(loss, argnums=(0, 1)))(V, h)
+    rng = np.random.default_rng(2)
+    for k in (0, 1):
+        np.testing.assert_allclose(gj[k], g[k], rtol=1e-8, atol=1e-10 * np.abs(g[k]).max())
+        t = rng.standard_normal(g[k].shape)
+        fd, an = _central(loss, (V, h), k, t), float(np.sum(np.asarray(g[k]) * t))
+        assert abs(an - fd) <= RTOL * abs(fd), (k, an, fd)
+        # and a single coordinate (the issue's worst case was one coordinate)
+        i = np.unravel_index(np.argmax(np.abs(g[k])), g[k].shape)
+        e = np.zeros(g[k].shape)
+        e[i] = 1.0
+        fd = _central(loss, (V, h), k, e)
+        assert abs(float(g[k][i]) - fd) <= RTOL * abs(fd), (k, i, float(g[k][i]), fd)
+
+
+@pytest.mark.parametrize("kind", ["tri", "tet"])
+def test_eager_and_traced_untangle_return_the_same_map(kind):
+    make, V, S, B, h, x0 = _case(kind, 1.0)
+    eager = geomopt.untangle(make(V, S, B, h), x0, progress=False)
+    assert eager.success
+    traced = jax.jit(lambda V: geomopt.untangle(make(V, S, B, h), x0, progress=False).x)(V)
+    np.testing.assert_allclose(np.asarray(traced), eager.x, rtol=0, atol=1e-12)
+
+
+def test_the_map_is_the_minimiser_at_the_final_eps_whatever_the_path():
+    """The tangled start (eps 1 -> floor) and an untangled one whose loop stops at eps = 2
+    (``energy_tol=0.9``) end at the same map: the polish runs at the constant final eps."""
+    from geomopt.untangling import UntangleOptions, final_eps
+
+    make, V, S, B, h, x0 = _case("tri", 1.0)
+    P = make(V, S, B, h)
+    tangled = geomopt.untangle(P, x0, progress=False)
+    start = generators.square_mesh(5)[0]
+    short = geomopt.untangle(P, start, progress=False, options=UntangleOptions(energy_tol=0.9, eps0=2.0))
+    assert tangled.success and short.success and tangled.details.polished and short.details.polished
+    assert short.trace.phases[0].eps == 2.0 and short.trace.phases[-1].eps == final_eps(2)
+    np.testing.assert_allclose(short.x, tangled.x, rtol=0, atol=1e-11)
+    plain = geomopt.untangle(P, x0, progress=False, options=UntangleOptions(polish=False))
+    assert plain.success and not plain.details.polished
+    assert len(plain.trace.phases) == len(tangled.trace.phases) - 1
+    with pytest.raises(geomopt.ParameterError, match="polish=True"):
+        jax.grad(lambda V: jnp.sum(geomopt.untangle(make(V, S, B, h), x0, progress=False,
+                                                    options=UntangleOptions(polish=False)).x))(V)
