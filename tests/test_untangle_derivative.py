@@ -96,3 +96,27 @@ def test_the_map_is_the_minimiser_at_the_final_eps_whatever_the_path():
     with pytest.raises(geomopt.ParameterError, match="polish=True"):
         jax.grad(lambda V: jnp.sum(geomopt.untangle(make(V, S, B, h), x0, progress=False,
                                                     options=UntangleOptions(polish=False)).x))(V)
+
+
+def test_auto_polish_skips_large_eager_solves_but_never_a_traced_one(monkeypatch):
+    """``polish="auto"`` (the default) polishes an eager solve up to POLISH_UP_TO free
+    coordinates (a Newton step at 10^6 elements costs more than the untangling), and every
+    traced one whatever its size; ``polish=False`` is refused when differentiated."""
+    from geomopt.untangling import driver
+
+    make, V, S, B, h, x0 = _case("tri", 1.0)
+    problem = make(V, S, B, h)
+    assert geomopt.untangle(problem, x0, progress=False).details.polished
+    monkeypatch.setattr(driver, "POLISH_UP_TO", 0)
+    res = geomopt.untangle(problem, x0, progress=False)
+    assert res.success and not res.details.polished
+    forced = geomopt.untangle(problem, x0, progress=False, options=geomopt.UntangleOptions(polish=True))
+    assert forced.details.polished
+    w = np.random.default_rng(1).standard_normal(x0.shape)
+    g = jax.grad(_loss(make, S, B, x0, w))(V, h)  # traced: polished although above the size
+    assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
+    with pytest.raises(geomopt.ParameterError, match="polish"):
+        jax.grad(lambda V: jnp.sum(geomopt.untangle(make(V, S, B, h), x0, progress=False,
+                                                     options=geomopt.UntangleOptions(polish=False)).x))(V)
+    with pytest.raises(geomopt.ParameterError, match="polish must be"):
+        geomopt.UntangleOptions(polish="always")

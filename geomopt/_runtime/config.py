@@ -124,6 +124,21 @@ class Maybe:
 _NONE = object()  # what Maybe returns for None (validate stores None)
 
 
+@dataclasses.dataclass(frozen=True)
+class Either:
+    """A value that ``first`` or, failing it, ``second`` accepts."""
+
+    first: object
+    second: object
+
+    def __call__(self, value):
+        ok = self.first(value)
+        return self.second(value) if ok is None else ok
+
+    def __str__(self):
+        return f"{self.first} or {self.second}"
+
+
 def validate(obj, **rules):
     """Check the fields of the frozen dataclass ``obj``, one rule per named field, and store
     the normalised values; raise :class:`ParameterError` at the first invalid one."""

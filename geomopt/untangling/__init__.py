@@ -28,7 +28,7 @@ from .continuation import EpsContinuation, UntangleRecord, judged
 from .driver import UntangleResult, infeasible, untangle
 from .inner import (LAPLACIAN_FROM, LOCAL_TANGLE_SHARE, PROBE_PROGRESS, STIFF_AFTER, STIFF_AFTER_NEWTON, default_solver,
                     polish_solver, stiff_solver)
-from .options import UntangleOptions
+from .options import POLISH_UP_TO, UntangleOptions
 from .rest import badly_shaped, check_rest, equilateral_rest
 from .schedule import EPS_FLOOR, START_RATIO, final_eps, next_eps, start_eps
 from .start import BOX, STARTS, choose_start, harmonic_start, hold_free_parts
@@ -37,4 +37,4 @@ __all__ = ["untangle", "infeasible", "UntangleOptions", "UntangleResult", "Untan
            "default_solver", "stiff_solver", "next_eps", "start_eps", "badly_shaped", "check_rest",
            "equilateral_rest", "STARTS", "BOX", "harmonic_start", "choose_start", "hold_free_parts", "EPS_FLOOR",
            "START_RATIO", "LAPLACIAN_FROM", "LOCAL_TANGLE_SHARE", "STIFF_AFTER", "STIFF_AFTER_NEWTON",
-           "PROBE_PROGRESS", "final_eps", "polish_solver"]
+           "PROBE_PROGRESS", "final_eps", "polish_solver", "POLISH_UP_TO"]

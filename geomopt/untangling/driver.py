@@ -4,13 +4,13 @@ inner solver, normalises the problem and runs the eps continuation in the one lo
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 
 import jax
 import numpy as np
 
 from .._runtime.errors import ParameterError, SolveError
+from .._runtime.log import logger
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
 from ..energies import garanzha
@@ -24,7 +24,7 @@ from ..solvers._iterate import check_progress
 from .continuation import EpsContinuation, judged
 from .implicit import untangle_map
 from .inner import default_solver, stiff_solver
-from .options import UntangleOptions, options_from
+from .options import POLISH_UP_TO, UntangleOptions, options_from
 from .rest import check_rest, equilateral_problem
 from .schedule import start_eps
 from .start import BOX, choose_start, harmonic_start, hold_free_parts
@@ -137,8 +137,8 @@ def _fall_back(run, x0, x_start, first) -> Result:
     if fallback is None or not differing_rows(fallback, x_start).any():
         return first
     if progress is True:
-        print(f"untangling: the given map ended uncertified ({first.message}); again from the harmonic extension "
-              f"of the handles", file=sys.stderr, flush=True)
+        logger.info(f"untangling: the given map ended uncertified ({first.message}); again from the harmonic "
+                    f"extension of the handles")
     result = _attempt(*run, time.perf_counter(), fallback, "harmonic", stall=None)
     a, b = first.stats, result.stats
     stats = dataclasses.replace(b, setup_seconds=a.setup_seconds + b.setup_seconds, seconds=a.seconds + b.seconds,
@@ -182,6 +182,8 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
     obj = Objective(sub, energy, buckets=full.sizes if opts.bucket else False)
     if opts.eps0 is None:
         opts = dataclasses.replace(opts, eps0=start_eps(sub, xs))
+    if opts.polish == "auto":
+        opts = dataclasses.replace(opts, polish=int(solving.free_mask.sum()) * problem.dim <= POLISH_UP_TO)
     details = dataclasses.replace(details, map_scale=k, rest_scale=s)
     eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced, stall)
     setup = time.perf_counter() - t_setup

@@ -63,9 +63,10 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
     theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
     x0 = jnp.asarray(x0, jnp.float64)
     options = options or UntangleOptions()
-    if not options.polish:
-        raise ParameterError("differentiating untangle needs UntangleOptions(polish=True): without the polish the "
-                             "map is no optimum of a fixed energy")
+    if options.polish is False:
+        raise ParameterError("differentiating untangle needs UntangleOptions(polish=True or 'auto'): without the "
+                             "polish the map is no optimum of a fixed energy")
+    options = dataclasses.replace(options, polish=True)  # 'auto' polishes whatever the size when differentiated
     max_aspect = options.max_aspect
     m = problem.n_elements
     shapes = (jax.ShapeDtypeStruct(x0.shape, jnp.float64), jax.ShapeDtypeStruct((), jnp.float64),

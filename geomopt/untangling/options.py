@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 
-from .._runtime.config import Instance, Int, Maybe, OneOf, Real, Traceable, options_from, validate
+from .._runtime.config import Either, Instance, Int, Maybe, OneOf, Real, Traceable, options_from, validate
 from .._runtime.errors import ParameterError
 from .start import STARTS
 
-__all__ = ["UntangleOptions", "options_from"]
+__all__ = ["UntangleOptions", "POLISH_UP_TO", "options_from"]
+
+
+#: free coordinates (free vertices times the dimension) up to which ``polish="auto"`` polishes
+#: an untangled map that is not differentiated (:class:`UntangleOptions`)
+POLISH_UP_TO = 300_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,7 +61,9 @@ class UntangleOptions:
         injective): the map returned is then the energy's minimiser to rounding, a smooth
         function of the rest mesh, the handles and ``theta``, and the map a traced call
         returns and differentiates.  False skips it (the map of the last inner solve, accurate
-        to its tolerance only; traced calls refuse it).
+        to its tolerance only; traced calls refuse it); ``"auto"`` (default) polishes problems
+        of up to :data:`~geomopt.untangling.POLISH_UP_TO` free coordinates and every traced one
+        (a Newton step costs more than the whole untangling beyond, at 10^6 elements).
     """
 
     theta: float | None = None
@@ -70,7 +77,7 @@ class UntangleOptions:
     max_sigma: float = 0.5
     bucket: bool = False
     start: str = "auto"
-    polish: bool = True
+    polish: bool | str = "auto"
 
     def __post_init__(self):
         validate(self, theta=Maybe(Traceable(Real(0.0, 1.0, lo_open=True, hi_open=True))), max_outer=Int(1),
@@ -78,7 +85,7 @@ class UntangleOptions:
                  max_aspect=Maybe(Real(1.0)), keep_memory=Instance(bool),
                  injective_when_untangled=Instance(bool), min_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True),
                  max_sigma=Real(0.0, 1.0, lo_open=True, hi_open=True), bucket=Instance(bool),
-                 start=OneOf(STARTS), polish=Instance(bool))
+                 start=OneOf(STARTS), polish=Either(Instance(bool), OneOf(("auto",))))
         if not self.min_sigma <= self.max_sigma:
             raise ParameterError(f"UntangleOptions: need min_sigma <= max_sigma, got {self.min_sigma} and "
                                  f"{self.max_sigma}")
