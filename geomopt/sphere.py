@@ -71,8 +71,9 @@ POLE_TRIES = 5
 #: iterations to 569 and the arm from no certified map to 541)
 BALANCE_ROUNDS, BALANCE_POWER, BALANCE_PATIENCE = 30, 0.5, 3
 #: the most a vertex's stretch may differ from the median stretch in one round of balancing
-#: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150)
-BALANCE_SPREAD = 100.0
+#: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150;
+#: 1e4 leaves the starts of cow, bunny and cheburashka as they were, 1e2 changed cow's)
+BALANCE_SPREAD = 1e4
 #: most rounds of balancing while every round so far leaves triangles flat in the plane (a limb
 #: crowded past float64 needs its weights moved by more than BALANCE_ROUNDS bounded rounds move)
 BALANCE_ROUNDS_CROWDED = 100
