@@ -71,11 +71,15 @@ POLE_TRIES = 5
 #: iterations to 569 and the arm from no certified map to 541)
 BALANCE_ROUNDS, BALANCE_POWER, BALANCE_PATIENCE = 30, 0.5, 3
 #: the most a vertex's stretch may differ from the median stretch in one round of balancing
-#: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150)
-BALANCE_SPREAD = 100.0
-#: most rounds of balancing while every round so far leaves triangles flat in the plane (a limb
-#: crowded past float64 needs its weights moved by more than BALANCE_ROUNDS bounded rounds move)
-BALANCE_ROUNDS_CROWDED = 100
+#: (:func:`_balanced_rounds`; unbounded, a limb crowded beyond float64 gave stretches of 1e150;
+#: 1e4 leaves the starts of cow, bunny and cheburashka as they were, 1e2 changed cow's)
+BALANCE_SPREAD = 1e4
+#: most rounds of balancing while every round so far leaves triangles flat in the plane or has an
+#: estimate above CROWDED_ESTIMATE (a limb crowded past float64 needs its weights moved further than
+#: BALANCE_ROUNDS bounded rounds move them: a tail 100 times longer than thick had a certified start
+#: of mean symmetric Dirichlet 2.7e22 after 30 rounds, where L-BFGS failed its first line search,
+#: and 3.5e8 after 100, whence it converged)
+BALANCE_ROUNDS_CROWDED, CROWDED_ESTIMATE = 100, 1e6
 #: the spread of vertex lengths (largest / smallest) at which the map is put back on the sphere
 #: and L-BFGS restarted there, and the most such restarts (:func:`_radial_guard`)
 RESPHERE_SPREAD, MAX_RESPHERES = 2.0, 100
@@ -266,7 +270,7 @@ def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
     (:func:`_flat_in_plane`), then the area-weighted mean symmetric Dirichlet of the chord
     triangles (inf where it is not finite), compared in that order.  The rounds stop after
     :data:`BALANCE_ROUNDS` (:data:`BALANCE_ROUNDS_CROWDED` while every round leaves a flat
-    triangle), when :data:`BALANCE_PATIENCE` of them do not lower the estimate, when a stretch is
+    triangle or estimates above :data:`CROWDED_ESTIMATE`), when :data:`BALANCE_PATIENCE` of them do not lower the estimate, when a stretch is
     not finite or when the reweighted system is singular.  The weights are divided by their
     largest after each round (the embedding does not change; a start collapsed near a point
     multiplied every weight by ~1e-75 a round, which underflowed to 0 in round 5).  A harmonic
@@ -288,7 +292,8 @@ def _balanced_rounds(V, F, keep, rest, loop, W, circle, share, pole):
         # round 0 and the three best others: a map per round kept would be 31 at 10^6 vertices
         rounds = rounds[:1] + sorted(rounds[1:] + [(history[-1], r, P, s)], key=lambda c: c[0])[:3]
         # stop when the last rounds found nothing lower (none finite counts as none lower)
-        last = BALANCE_ROUNDS if min(history)[0] == 0 else BALANCE_ROUNDS_CROWDED  # more while every round is flat
+        flat, best = min(history)  # more rounds while every one is flat or still far from balanced
+        last = BALANCE_ROUNDS if flat == 0 and best <= CROWDED_ESTIMATE else BALANCE_ROUNDS_CROWDED
         if r >= last or (r >= BALANCE_PATIENCE and
                                    not min(history[-BALANCE_PATIENCE:]) < min(history[:-BALANCE_PATIENCE])):
             break

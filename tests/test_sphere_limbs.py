@@ -242,9 +242,19 @@ def test_sphere_map_is_not_a_success_when_its_final_certificate_fails(monkeypatc
 
 
 def test_a_tail_crowded_past_float64_gets_more_rounds():
-    """One limb 100 times longer than thick (6,080 triangles): with mean-value weights every one
-    of BALANCE_ROUNDS bounded rounds still leaves triangles flat in the plane at every pole;
+    """One limb 130 times longer than thick (7,520 triangles): with mean-value weights every one
+    of BALANCE_ROUNDS bounded rounds still leaves triangles flat in the plane; up to
     BALANCE_ROUNDS_CROWDED rounds spread it into a certified start."""
-    V, F = limbed_body([((0, 0, -1), 14, 30.0, 0.3)], subdivisions=3, rings=200)
+    V, F = limbed_body([((0, 0, -1), 14, 40.0, 0.3)], subdivisions=3, rings=260)
     x, details = sphere_start(V, F, weights="mean_value")
     assert certify_sphere(x, F).ok and details.balance_round > sphere.BALANCE_ROUNDS
+
+
+def test_a_start_far_from_balanced_gets_more_rounds():
+    """A tail 100 times longer than thick (6,080 triangles): after BALANCE_ROUNDS rounds its
+    certified start had a mean symmetric Dirichlet of 2.7e22 and L-BFGS failed its first line
+    search; rounds go on while the estimate is above CROWDED_ESTIMATE."""
+    V, F = limbed_body([((0, 0, -1), 14, 30.0, 0.3)], subdivisions=3, rings=200)
+    x, details = sphere_start(V, F)
+    assert details.balance_round > sphere.BALANCE_ROUNDS
+    assert sphere.sphere_distortion(V, F, x)["symmetric_dirichlet"] < 1e10

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 
 import jax
 import numpy as np
 
-from .._runtime.errors import ParameterError, SolveError
+from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
 from .._runtime.log import logger
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
@@ -122,7 +123,13 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     run = (problem, solver, opts, initially, forced, progress, throw)
     result = _attempt(*run, t_setup, x_start, which, stall=STALL_OUTER if may_fall_back else None)
     if may_fall_back and not (result.success or result.outcome is Outcome.CERTIFIED_EXCEPT_FIXED):
-        result = _fall_back(run, x0, x_start, result)
+        if result.stats.outer_iterations < opts.max_outer:  # not at the user's limit: the rest of it
+            rest = dataclasses.replace(opts, max_outer=opts.max_outer - result.stats.outer_iterations)
+            result = _fall_back((problem, solver, rest) + run[3:], x0, x_start, result)
+        if result.outcome is Outcome.MAX_STEPS and not throw and result.details.start == which:
+            warnings.warn(f"untangling: {result.reason}, after {result.stats.iterations} iterations and "
+                          f"{result.stats.seconds:.3g} s; the map returned is not converged (outcome max_steps): "
+                          f"raise that limit", MaxStepsWarning, stacklevel=2)  # the first run's, held back
     if throw and not result.success:
         raise SolveError(f"untangling failed: {result.message}", result)
     return result
@@ -130,8 +137,9 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
 
 def _fall_back(run, x0, x_start, first) -> Result:
     """The eps loop again from the harmonic extension of the handles (:func:`harmonic_start`)
-    after ``first``, the run from ``x_start``, ended uncertified; ``first`` when the extension
-    is undefined or is ``x_start``.  The result's stats add up both runs."""
+    after ``first``, the run from ``x_start``, ended uncertified before the outer-iteration limit
+    (``run``'s options hold what is left of it); ``first`` when the extension is undefined or is
+    ``x_start``.  The result's stats add up both runs."""
     problem, progress = run[0], run[5]
     fallback = harmonic_start(problem, x0)
     if fallback is None or not differing_rows(fallback, x_start).any():

@@ -50,10 +50,10 @@ class UntangleOptions:
         (:func:`~geomopt.untangling.harmonic_start`); ``"auto"`` (default) the harmonic extension for quads and
         hexahedra when it has fewer inverted corners than ``x0``, else ``x0`` (see
         :func:`~geomopt.untangling.choose_start`), decided per connected part; when the run from a start
-        that is not the harmonic extension ends uncertified, or stalls (eps at its floor for
+        that is not the harmonic extension ends uncertified before ``max_outer``, or stalls (eps at its floor for
         :data:`~geomopt.untangling.driver.STALL_OUTER` outer iterations with no fewer inverted
         elements), ``"auto"`` runs the eps loop again from the harmonic extension (``details.start``
-        ``"given, then harmonic"``, the stats summed over both runs).  Whatever ``start``, a connected
+        ``"given, then harmonic"``, the stats summed over both runs, ``max_outer`` shared).  Whatever ``start``, a connected
         part without a handle is held at a certified map, not solved
         (:func:`geomopt.untangling.start.hold_free_parts`).
     polish : once untangled, polish the map by Newton at the constant
