@@ -250,7 +250,8 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     else:
         target, free = _target(X0, topo, o, h)
     X, t = safe_step(X0, target, F, free)
-    X, rounds = remove_folds(X, topo, free) if before.inverted else (X, 0)
+    # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
+    X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)
     vol0, angle0, aspect0 = _measures(X0, topo)
     if o.preserve_volume:
         scaled = _rescaled(X, topo, vol0)
