@@ -110,16 +110,20 @@ def test_corner_signs_are_exact_near_degenerate_configurations(seed):
     """Faces nearly perpendicular to their vertex normals, perturbed by a few ulps: every sign
     equals the rational one (the float filter alone gets some of these wrong)."""
     rng = np.random.default_rng(seed)
-    # a fan around vertex 0 folded to a right angle: n_f . N_0 is zero before the perturbation
-    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, 1]], float)
-    F = np.array([[0, 1, 2], [0, 3, 1], [1, 4, 2], [1, 3, 5]])
-    for _ in range(20):
-        X = V * 3.1 + rng.integers(-2, 3, V.shape) * 2.0**-50
-        assert np.array_equal(corner_signs(X, F), _reference_signs(X, F))
-    E = np.array([[0, 1], [1, 2], [2, 3]])  # a polyline with a right angle
-    P = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
-    for _ in range(20):
-        X = P * 0.7 + rng.integers(-2, 3, P.shape) * 2.0**-52
+    # at vertex 0, n_1 = (0, 0, 1) and n_2 = (0, 1, -1): n_1 . (n_1 + n_2) = 0 before the perturbation
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 1, 1]], float)
+    F = np.array([[0, 1, 2], [0, 3, 1]])
+    signs = set()
+    for _ in range(40):
+        X = (V + rng.integers(-3, 4, V.shape) * 2.0**-52) * 3.1
+        got = corner_signs(X, F)
+        assert np.array_equal(got, _reference_signs(X, F))
+        signs.add(int(got[0, 0]))
+    assert {-1, 1} <= signs and corner_signs(V, F)[0, 0] == 0  # each side of the threshold, and on it
+    E = np.array([[0, 1], [1, 2], [2, 3]])  # a polyline folded back at vertex 1
+    P = np.array([[0, 0], [1, 0], [0, 0.4], [0, 1.4]], float)  # d_1 . (d_1 + d_2) = 1 - 1 = 0 at vertex 1
+    for _ in range(40):
+        X = (P + rng.integers(-3, 4, P.shape) * 2.0**-52) * 0.7
         assert np.array_equal(corner_signs(X, E), _reference_signs(X, E))
 
 
