@@ -365,3 +365,47 @@ def test_bad_options_and_meshes_raise_clear_errors():
         fair(np.zeros((4, 3)), np.zeros((2, 4), int))
     with pytest.raises(ParameterError, match="not differentiable"):
         smoothed(*icosphere(0), FairOptions(method="relax"))
+
+
+# -- the command line --------------------------------------------------------------------------
+
+def _write_off(path, V, F):
+    with open(path, "w") as fh:
+        fh.write(f"OFF\n{len(V)} {len(F)} 0\n")
+        fh.writelines(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
+        fh.writelines(f"3 {a} {b} {c}\n" for a, b, c in F)
+
+
+def test_cli_writes_a_certified_obj_and_exits_by_the_rules(cli, tmp_path):
+    import json
+
+    from geomopt import io
+
+    V, F = icosphere(2)
+    X0 = noisy(V, F, 0.4)
+    _write_off(tmp_path / "in.off", X0, F)
+    out = tmp_path / "out.obj"
+    code, stdout, _ = cli("fair", tmp_path / "in.off", "-o", out, "--method", "least_squares", "--weight", "0.5",
+                          "--json", "--quiet")
+    summary = json.loads(stdout)
+    W, G = io.read_mesh(out)
+    assert code == 0 and np.array_equal(G, F) and certify_folds(W, G).ok and summary["folded_after"] == 0
+    assert summary["method"] == "least_squares" and summary["folded_before"] > 0
+    # bad input: exit 2, nothing written
+    code, _, err = cli("fair", tmp_path / "in.off", "-o", tmp_path / "bad.obj", "--method", "taubin", "--mu", "-0.1")
+    assert code == 2 and "mu < -lam" in err and not (tmp_path / "bad.obj").exists()
+    with pytest.raises(SystemExit) as usage:  # argparse's refusal
+        cli("fair", tmp_path / "in.off", "-o", tmp_path / "bad.obj", "--method", "spectral", "--eigenvectors", "0")
+    assert usage.value.code == 2 and not (tmp_path / "bad.obj").exists()
+
+
+def test_cli_exits_1_and_writes_nothing_when_a_fold_cannot_be_removed(cli, tmp_path):
+    """Two triangles folded onto each other, every vertex on the (held) boundary."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.7, 1, 0.01]], float)
+    F = np.array([[0, 1, 2], [0, 3, 1]])
+    assert not certify_folds(V, F).ok
+    _write_off(tmp_path / "in.off", V, F)
+    code, _, err = cli("fair", tmp_path / "in.off", "-o", tmp_path / "out.obj")
+    assert code == 1 and "not certified" in err and not (tmp_path / "out.obj").exists()
+    with pytest.raises(Exception, match="could not all be removed"):
+        fair(V, F, throw=True)

@@ -16,10 +16,27 @@ One module per job: :mod:`~geomopt.fairing.operators` (Laplacians and masses),
 and :mod:`~geomopt.fairing.driver`; this package only re-exports.
 """
 
-from .certificate import FoldCertificate, certify_folds, safe_step
-from .driver import FairDetails, fair, remove_folds, smoothed
-from .energies import fairing_energy
 from .options import BOUNDARIES, METHODS, FairOptions
+
+# public name -> module (imported on first use, PEP 562: the options, which the command line's
+# parser reads, load without SciPy or JAX)
+_LAZY = {"fair": ".driver", "smoothed": ".driver", "FairDetails": ".driver", "remove_folds": ".driver",
+         "FoldCertificate": ".certificate", "certify_folds": ".certificate", "safe_step": ".certificate",
+         "fairing_energy": ".energies"}
 
 __all__ = ["fair", "smoothed", "FairOptions", "FairDetails", "FoldCertificate", "certify_folds", "safe_step",
            "remove_folds", "fairing_energy", "METHODS", "BOUNDARIES"]
+
+
+def __getattr__(name):
+    import importlib
+
+    if name not in _LAZY:
+        raise AttributeError(f"module 'geomopt.fairing' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -24,7 +24,6 @@ import time
 
 import numpy as np
 
-from .._runtime.config import keyword_only
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
@@ -195,8 +194,8 @@ def _rescaled(X, topo, target_volume):
     return c + (X - c) * (target_volume / now) ** (1.0 / 3.0)
 
 
-@keyword_only(3, ())
-def fair(V, F, method: str | None = None, *, options: FairOptions | None = None, throw: bool = False) -> Result:
+def fair(V, F, method: str | None = None, *, options: FairOptions | None = None, progress: bool = False,
+         throw: bool = False) -> Result:
     """Smooth a triangle surface or a polyline with no face folding (see the module notes).
 
     Parameters
@@ -206,6 +205,7 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
         (m, 2) polyline edges (closed or open).
     method : a name of :data:`~geomopt.fairing.options.METHODS`; overrides ``options.method``.
     options : :class:`FairOptions`.
+    progress : print a line on stderr after each phase (target, fold-safe step, fold removal).
     throw : raise :class:`SolveError` when the output is not certified (faces of a folded input
         that could not be unfolded).
 
@@ -249,14 +249,24 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
         free = topo.free_mask(o.boundary)
     else:
         target, free = _target(X0, topo, o, h)
+    _say(progress, f"fair: {o.method} target of {len(V)} vertices, {before.inverted} faces folded in the input")
     X, t = safe_step(X0, target, F, free)
+    _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
     X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)
+    _say(progress and rounds, f"fair: {rounds} rounds of fold removal")
     vol0, angle0, aspect0 = _measures(X0, topo)
     if o.preserve_volume:
         scaled = _rescaled(X, topo, vol0)
         X = scaled if certify_folds(scaled, F).inverted <= certify_folds(X, F).inverted else X
     return _result(V, X, target, t, free, before, rounds, topo, o, scale, (vol0, angle0, aspect0), t0, throw)
+
+
+def _say(progress, line):
+    if progress:
+        import sys
+
+        print(line, file=sys.stderr, flush=True)
 
 
 def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0, throw):
