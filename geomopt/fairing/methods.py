@@ -58,10 +58,11 @@ def explicit_steps(V, topo, free, o, h):
     move = xp.asarray(free, dtype=V.dtype)[:, None]
     factors = [o.lam] if o.method == "laplacian" else [o.lam, o.mu]
     p = V
+    A = normalized_laplacian(p, topo, o.laplacian)[0] if o.laplacian == "uniform" else None  # weights fixed
     for _ in range(o.steps):
         for f in factors:
-            A, _ = normalized_laplacian(p, topo, o.laplacian)
-            p = p + f * move * A.matvec(p)
+            step = A or normalized_laplacian(p, topo, o.laplacian)[0]
+            p = p + f * move * step.matvec(p)
     return p
 
 

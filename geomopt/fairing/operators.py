@@ -55,10 +55,13 @@ def xp_of(*arrays):
 
 def segment_sum(xp, values, ids, n):
     """``out[i] = sum of values[k] over ids[k] == i`` (n, ...)."""
-    if xp is np:
-        out = np.zeros((n,) + values.shape[1:], dtype=np.result_type(values, np.float64))
-        np.add.at(out, ids, values)
-        return out
+    if xp is np:  # a bincount per column: an order of magnitude faster than np.add.at
+        values = np.asarray(values, dtype=np.float64)
+        if values.ndim == 1:
+            return np.bincount(ids, weights=values, minlength=n)
+        flat = values.reshape(len(values), -1)
+        out = np.stack([np.bincount(ids, weights=flat[:, c], minlength=n) for c in range(flat.shape[1])], axis=1)
+        return out.reshape((n,) + values.shape[1:])
     import jax
 
     return jax.ops.segment_sum(values, ids, num_segments=n)

@@ -15,6 +15,8 @@ DEFAULT_LAPLACIAN = {"laplacian": "uniform", "taubin": "uniform", "implicit": "c
                      "least_squares": "uniform", "energy": "cotangent", "spectral": "cotangent",
                      "tangential": "cotangent", "relax": "uniform"}
 _DEFAULT_STEPS = {"laplacian": 10, "taubin": 10, "implicit": 1, "relax": 10}
+#: the data term's weight when ``weight`` is None (each method's is in its own units)
+_DEFAULT_WEIGHT = {"least_squares": 1.0, "energy": 10.0, "tangential": 1.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,7 +33,8 @@ class FairOptions:
     steps : explicit / implicit / relaxation steps (None: 10, 10, 1, 10; Taubin counts pairs).
     lam, mu : the step factors of ``laplacian`` and ``taubin`` (``0 < lam <= 1``, ``mu < -lam``).
     time : ``implicit``'s total time in units of ``h^2``.
-    weight : the data term's weight (``least_squares``, ``energy``, ``tangential``; > 0).
+    weight : the data term's weight (``least_squares``, ``energy``, ``tangential``; > 0; None:
+        1, 10 and 1).
         ``lam``, ``mu``, ``time`` and ``weight`` may be traced JAX scalars (differentiation through
         :func:`~geomopt.fairing.smoothed`).
     eigenvectors : ``spectral``'s basis size.
@@ -51,7 +54,7 @@ class FairOptions:
     lam: float = 0.5
     mu: float = -0.53
     time: float = 1.0
-    weight: float = 0.1
+    weight: float | None = None
     eigenvectors: int = 100
     boundary: str = "fixed"
     crease_angle: float | None = None
@@ -62,7 +65,7 @@ class FairOptions:
         validate(self, method=OneOf(METHODS), laplacian=Maybe(OneOf(("uniform", "cotangent"))),
                  steps=Maybe(Int(1)), lam=Traceable(Real(0.0, 1.0, lo_open=True)),
                  mu=Traceable(Real(-2.0, 0.0, hi_open=True)), time=Traceable(Real(0.0, lo_open=True)),
-                 weight=Traceable(Real(0.0, lo_open=True)), eigenvectors=Int(1),
+                 weight=Maybe(Traceable(Real(0.0, lo_open=True))), eigenvectors=Int(1),
                  boundary=OneOf(BOUNDARIES), crease_angle=Maybe(Real(0.0, 180.0)),
                  feature_weight=Real(1.0), preserve_volume=Instance(bool))
         from .._runtime.tracing import is_traced
@@ -74,6 +77,8 @@ class FairOptions:
                                  f"mu={self.mu}")
 
     def resolved(self) -> "FairOptions":
-        """These options with ``laplacian`` and ``steps`` set to the method's defaults where None."""
+        """These options with ``laplacian``, ``steps`` and ``weight`` set to the method's defaults
+        where None."""
         return dataclasses.replace(self, laplacian=self.laplacian or DEFAULT_LAPLACIAN[self.method],
-                                   steps=self.steps or _DEFAULT_STEPS.get(self.method, 1))
+                                   steps=self.steps or _DEFAULT_STEPS.get(self.method, 1),
+                                   weight=_DEFAULT_WEIGHT.get(self.method, 1.0) if self.weight is None else self.weight)

@@ -19,7 +19,7 @@ import numpy as np
 
 from .certificate import safe_step
 from .methods import crease_vertices, normalized_laplacian
-from .surface import closest_points
+from .surface import closest_points, surface_index
 
 __all__ = ["relax"]
 
@@ -40,7 +40,7 @@ def relax(V, topo, free, o):
     V = np.asarray(V, dtype=np.float64)
     F = topo.elements
     free = free & ~crease_vertices(V, topo, o.crease_angle)
-    X, moved = V.copy(), 0
+    X, moved, index = V.copy(), 0, surface_index(V, F)
     for _ in range(o.steps):
         A, _ = normalized_laplacian(X, topo, "uniform")
         d = A.matvec(X)
@@ -48,7 +48,7 @@ def relax(V, topo, free, o):
         d = d - np.sum(d * N, axis=1, keepdims=True) * N
         target = X.copy()
         idx = np.flatnonzero(free)
-        target[idx] = closest_points(X[idx] + o.lam * d[idx], V, F)[0]
+        target[idx] = closest_points(X[idx] + o.lam * d[idx], V, F, index=index)[0]
         X, t = safe_step(X, target, F, free, halvings=1)  # each vertex all the way or not at all
         moved += int(np.count_nonzero(t))
     return X, moved

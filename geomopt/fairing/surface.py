@@ -3,7 +3,7 @@
 :func:`closest_points` finds, for each query point, the closest point of a triangle mesh: the
 faces whose centroid lies within ``d + R`` of the point are candidates (``d`` the distance to the
 closest point among the faces of the ``k`` nearest centroids, ``R`` the largest centroid-to-corner
-distance), which contain the closest face, and the point-triangle distance is Ericson's
+distance of the faces' bucket: :func:`surface_index`), which contain the closest face, and the point-triangle distance is Ericson's
 (Real-Time Collision Detection, 2005, 5.1.5).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["closest_points", "point_triangle", "triangle_angles", "aspect_ratios", "volume"]
+__all__ = ["closest_points", "surface_index", "point_triangle", "triangle_angles", "aspect_ratios", "volume"]
 
 
 def point_triangle(P, A, B, C):
@@ -43,23 +43,43 @@ def point_triangle(P, A, B, C):
     return out
 
 
-def closest_points(P, V, F, k=8):
-    """``(Q, face)``: the closest points ``Q`` (p, 3) of the surface ``V, F`` to ``P`` (p, 3) and
-    the faces (p,) they lie on (exact candidate search, see the module notes)."""
+def surface_index(V, F):
+    """What :func:`closest_points` searches, built once per surface: ``(corners A, B, C (m, 3)
+    each, buckets)``; the faces are bucketed by their centroid-to-corner radius (powers of two),
+    each bucket a tree of its centroids with its largest radius, so that a few large faces do
+    not widen every search."""
     from scipy.spatial import cKDTree
 
-    P, V = np.asarray(P, dtype=np.float64), np.asarray(V, dtype=np.float64)
+    V = np.asarray(V, dtype=np.float64)
     A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     centroid = (A + B + C) / 3.0
-    R = float(np.sqrt(np.max(np.sum((np.stack([A, B, C]) - centroid) ** 2, axis=2))))
-    tree = cKDTree(centroid)
-    _, near = tree.query(P, k=min(k, len(F)))
-    near = near.reshape(len(P), -1)
-    best = _nearest_of(P, A, B, C, np.repeat(np.arange(len(P)), near.shape[1]), near.ravel(), len(P))[1]
-    lists = tree.query_ball_point(P, np.sqrt(best) * (1 + 1e-12) + R * (1 + 1e-12) + 1e-300)
-    who = np.repeat(np.arange(len(P)), [len(x) for x in lists])
-    faces = np.concatenate([np.asarray(x, np.int64) for x in lists]) if len(who) else np.zeros(0, np.int64)
-    face, _, Q = _nearest_of(P, A, B, C, who, faces, len(P))
+    radius = np.sqrt(np.max(np.sum((np.stack([A, B, C]) - centroid) ** 2, axis=2), axis=0))
+    level = np.floor(np.log2(np.maximum(radius, 1e-300))).astype(np.int64)
+    buckets = [(cKDTree(centroid[ids]), ids, float(radius[ids].max()))
+               for ids in (np.flatnonzero(level == v) for v in np.unique(level))]
+    return A, B, C, buckets
+
+
+def closest_points(P, V, F, k=8, index=None):
+    """``(Q, face)``: the closest points ``Q`` (p, 3) of the surface ``V, F`` to ``P`` (p, 3) and
+    the faces (p,) they lie on (exact candidate search, see the module notes); ``index``: the
+    surface's :func:`surface_index`, when the caller keeps one."""
+    P = np.asarray(P, dtype=np.float64)
+    A, B, C, buckets = index or surface_index(V, F)
+    who, faces = [], []
+    for tree, ids, _ in buckets:
+        _, near = tree.query(P, k=min(k, len(ids)))
+        near = ids[near.reshape(len(P), -1)]
+        who.append(np.repeat(np.arange(len(P)), near.shape[1]))
+        faces.append(near.ravel())
+    best = _nearest_of(P, A, B, C, np.concatenate(who), np.concatenate(faces), len(P))[1]
+    who, faces = [], []
+    for tree, ids, R in buckets:
+        lists = tree.query_ball_point(P, np.sqrt(best) * (1 + 1e-12) + R * (1 + 1e-12) + 1e-300)
+        who.append(np.repeat(np.arange(len(P)), [len(x) for x in lists]))
+        faces.append(ids[np.concatenate([np.asarray(x, np.int64) for x in lists])] if len(who[-1]) else
+                     np.zeros(0, np.int64))
+    face, _, Q = _nearest_of(P, A, B, C, np.concatenate(who), np.concatenate(faces), len(P))
     return Q, face
 
 
