@@ -222,11 +222,14 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
 
     Examples
     --------
-    >>> import numpy as np, trimesh
+    A noisy circle (a closed polyline) smoothed by Taubin's filter:
+
+    >>> import numpy as np
     >>> from geomopt.fairing import fair
-    >>> s = trimesh.creation.icosphere(3)
-    >>> V = s.vertices + 0.01 * np.random.default_rng(0).normal(size=s.vertices.shape)
-    >>> r = fair(V, s.faces, "taubin")
+    >>> a = np.linspace(0, 2 * np.pi, 100, endpoint=False)
+    >>> V = np.c_[np.cos(a), np.sin(a)] + 0.01 * np.random.default_rng(0).normal(size=(100, 2))
+    >>> E = np.c_[np.arange(100), (np.arange(100) + 1) % 100]
+    >>> r = fair(V, E, "taubin")
     >>> r.success, r.certificate.inverted
     (True, 0)
     """
