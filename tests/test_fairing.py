@@ -10,7 +10,7 @@ import pytest
 
 from geomopt import ParameterError
 from geomopt._runtime.errors import MeshError
-from geomopt.exact.normals import corner_signs
+from geomopt.exact.normals import corner_signs, normal_agreement
 from geomopt.fairing import FairOptions, certify_folds, fair, fairing_energy, safe_step, smoothed
 from geomopt.fairing.surface import closest_points, point_triangle, volume
 
@@ -150,6 +150,40 @@ def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
     X, t = safe_step(V, target, F, np.ones(len(V), bool))
     assert certify_folds(X, F).ok and 0 < t[5] < 1 and not np.array_equal(X[5], V[5])
     assert np.array_equal(np.delete(X, 5, 0), np.delete(V, 5, 0))
+
+
+def test_safe_step_keeps_every_face_within_90_degrees_of_its_input_normal():
+    """A rotation by 100 degrees folds nothing (a rigid motion), but turns faces beyond 90
+    degrees from their input normals: those steps are cut."""
+    V, F = icosphere(2)
+    c, s = np.cos(np.radians(100)), np.sin(np.radians(100))
+    target = V @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    assert certify_folds(target, F).ok and (normal_agreement(target, V, F) < 0).any()
+    X, t = safe_step(V, target, F, np.ones(len(V), bool))
+    assert certify_folds(X, F).ok and (normal_agreement(X, V, F) > 0).all() and (t < 1).any() and (t > 0).any()
+
+
+def test_normal_agreement_is_exact_at_right_angles():
+    rng = np.random.default_rng(0)
+    F = np.array([[0, 1, 2]])
+    X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)  # normal z
+    Y = np.array([[0, 0, 0], [0, 1, 0], [0, 0, 1]], float)  # normal x: exactly 90 degrees
+    assert normal_agreement(X, Y, F)[0] == 0
+    for _ in range(30):
+        Xp = (X + rng.integers(-3, 4, X.shape) * 2.0**-52) * 1.3
+        Yp = (Y + rng.integers(-3, 4, Y.shape) * 2.0**-52) * 0.9
+        want = _reference_dot(Xp, Yp)
+        assert normal_agreement(Xp, Yp, F)[0] == want
+
+
+def _reference_dot(X, Y):
+    def normal(P):
+        Q = [[Fraction(float(c)) for c in row] for row in P]
+        u = [Q[1][i] - Q[0][i] for i in range(3)]
+        v = [Q[2][i] - Q[0][i] for i in range(3)]
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+    d = sum(a * b for a, b in zip(normal(X), normal(Y)))
+    return (d > 0) - (d < 0)
 
 
 @pytest.mark.parametrize("method", METHODS)

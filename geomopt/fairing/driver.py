@@ -37,7 +37,7 @@ from .surface import aspect_ratios, closest_points, triangle_angles, volume
 __all__ = ["fair", "smoothed", "FairDetails", "remove_folds", "MAX_REMOVAL_ROUNDS"]
 
 #: rounds of :func:`remove_folds` before it gives up (each at least as folded-free as the last)
-MAX_REMOVAL_ROUNDS = 100
+MAX_REMOVAL_ROUNDS = 30
 
 
 @dataclasses.dataclass(frozen=True)
