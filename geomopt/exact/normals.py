@@ -25,7 +25,7 @@ from .._runtime.errors import MeshError
 from .._runtime.tracing import refuse_traced
 from .predicates import box_scale
 
-__all__ = ["corner_signs"]
+__all__ = ["corner_signs", "normal_agreement"]
 
 _EPS = 2.0**-53
 #: an absolute allowance for underflow: each of the few hundred roundings of a value may lose up to
@@ -147,3 +147,41 @@ def _exact(X, S, todo) -> np.ndarray:
     d, s = dirs[row[todo[:, 0]]], sums[S[todo[:, 0], todo[:, 1]]]
     value = (d * s).sum(axis=1)
     return np.array([(v > 0) - (v < 0) for v in value], dtype=np.int8)
+
+
+def normal_agreement(X, Y, F) -> np.ndarray:
+    """Exact sign of ``n_f(X) . n_f(Y)`` for each triangle: whether its normal on ``X`` is within
+    90 degrees of its normal on ``Y`` (both (n, 3); ``F`` (m, 3)).
+
+    Returns
+    -------
+    (m,) int8: +1 within 90 degrees, -1 beyond, 0 at exactly 90 degrees, on a degenerate
+    triangle or a non-finite coordinate.
+    """
+    X, S = _checked(X, F)
+    Y, _ = _checked(Y, F)
+    if S.shape[1] != 3:
+        raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
+    with np.errstate(all="ignore"):
+        nx, mx = _directions(X, S)
+        ny, my = _directions(Y, S)
+        value = np.sum(nx * ny, axis=1)
+        bound = np.sum(mx * my, axis=1) * (32.0 * _EPS) + _UNDERFLOW
+    sure = (np.abs(value) > bound) & np.isfinite(value)
+    out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
+    todo = np.flatnonzero(~sure & np.isfinite(X[S]).all(axis=(1, 2)) & np.isfinite(Y[S]).all(axis=(1, 2)))
+    if len(todo):
+        corners = np.concatenate([X[S[todo]], Y[S[todo]]], axis=1).reshape(-1, 3)
+        Q = _integers(corners).reshape(len(todo), 6, 3)  # one common power of two: signs kept
+        out[todo] = [_exact_normal_dot(q) for q in Q]
+    return out
+
+
+def _exact_normal_dot(q) -> int:
+    """The sign of ``n(q0, q1, q2) . n(q3, q4, q5)`` for integer points ``q`` (6, 3)."""
+    def normal(a, b, c):
+        u, v = b - a, c - a
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    d = sum(x * y for x, y in zip(normal(*q[:3]), normal(*q[3:])))
+    return (d > 0) - (d < 0)

@@ -6,7 +6,9 @@ area-weighted mean of the normals around ``v``, taken on the vertices being cert
 same for the edges of a polyline with length-weighted vertex tangents.
 
 :func:`safe_step` moves from a start ``X0`` towards a target ``X1`` as far as it can without a
-corner failing that did not fail at ``X0``: each vertex ``i`` goes to ``X0_i + t_i (X1_i - X0_i)``,
+corner failing that did not fail at ``X0``, and (surfaces) without a face's normal turning 90
+degrees or more from its normal at ``X0`` (:func:`geomopt.exact.normals.normal_agreement`; faces
+folded or degenerate at ``X0`` may turn, so that folds can be undone): each vertex ``i`` goes to ``X0_i + t_i (X1_i - X0_i)``,
 every ``t_i = 1`` first; where a corner fails, the ``t`` of the vertices its sign depends on (the
 face and the star of the corner's vertex) is halved, down to 0 after :data:`HALVINGS` halvings,
 and the signs are taken again.  Per-vertex fractions, rather than one for the whole step (the
@@ -20,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from ..exact.normals import corner_signs
+from ..exact.normals import corner_signs, normal_agreement
 
 __all__ = ["FoldCertificate", "certify_folds", "safe_step", "HALVINGS"]
 
@@ -95,18 +97,22 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS):
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
 
     ``X`` is ``X0`` where the step was cut to nothing; a corner failing at ``X0`` may fail or
-    succeed at ``X`` (so folds are removed, never added); every other corner is positive there
-    (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
+    succeed at ``X`` (so folds are removed, never added); every other corner is positive there,
+    and every face not folded at ``X0`` is within 90 degrees of its normal there (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
     moves all the way or not at all)."""
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
-    n = len(X0)
+    n, surface = len(X0), S.shape[1] == 3
     allowed = corner_signs(X0, S) <= 0
+    may_turn = (allowed.any(axis=1) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
     while True:
         X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
         X = np.where(t[:, None] == 0.0, X0, X)
-        failing = np.argwhere((corner_signs(X, S) <= 0) & ~allowed)
+        bad = (corner_signs(X, S) <= 0) & ~allowed
+        if surface:
+            bad |= ((normal_agreement(X, X0, S) <= 0) & ~may_turn)[:, None]
+        failing = np.argwhere(bad)
         if len(failing) == 0:
             return X, t
         cut = _dependents(S, failing, n) & (t > 0)
