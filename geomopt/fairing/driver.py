@@ -248,12 +248,15 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     h = mean_edge_length(X0, topo)
     before = certify_folds(X0, F)
     if o.method == "relax":
-        target, moved = relax(X0, topo, topo.free_mask(o.boundary), o)
+        target, _ = relax(X0, topo, topo.free_mask(o.boundary), o)
         free = topo.free_mask(o.boundary)
     else:
         target, free = _target(X0, topo, o, h)
     _say(progress, f"fair: {o.method} target of {len(V)} vertices, {before.inverted} faces folded in the input")
-    X, t = safe_step(X0, target, F, free)
+    if o.method == "relax":  # each round was a whole-vertex fold-safe step: a fraction would leave the surface
+        X, t = target, np.where(free, 1.0, 0.0)
+    else:
+        X, t = safe_step(X0, target, F, free)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
     X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)
