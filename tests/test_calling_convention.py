@@ -24,6 +24,7 @@ DRIVERS = {  # name -> (function, its positional parameters)
     "sphere_map": (geomopt.sphere_map, ("V", "F", "energy", "solver")),
     "make_atlas": (geomopt.make_atlas, ("V", "F", "energy", "solver")),
     "smooth": (geomopt.smooth, ("V", "E", "energy", "solver")),
+    "fair": (geomopt.fair, ("V", "F", "method")),
     "minimize": (geomopt.minimize, ("objective", "x0", "solver", "params")),
     "untangle": (geomopt.untangle, ("problem", "x0", "solver")),
     "compare": (geomopt.compare, ("mesh", "faces", "energy", "solvers")),

@@ -1,4 +1,4 @@
-"""Command line: geomopt param, geomopt untangle, geomopt smooth, geomopt compare, geomopt demo.
+"""Command line: geomopt param, geomopt untangle, geomopt smooth, geomopt fair, geomopt compare, geomopt demo.
 
 Every failure on bad input (unreadable or invalid mesh, unknown name, invalid value, output
 that cannot be written, a command line argparse refuses) prints one line ``geomopt: error:
@@ -16,7 +16,7 @@ status 128 + the signal number (a batch first writes the summary of what finishe
 The modules: :mod:`~geomopt.cli.run` (the process: :func:`main`, :func:`entry`, signals, warnings, the
 JSON summary, exit statuses), :mod:`~geomopt.cli.parser` (the argparse grammar), :mod:`~geomopt.cli.common` (what
 every command shares), and one per command: :mod:`~geomopt.cli.param` (with :mod:`~geomopt.cli.atlas`; ``demo``),
-:mod:`~geomopt.cli.untangle`, :mod:`~geomopt.cli.smooth`, :mod:`~geomopt.cli.compare`.  They parse, call the library and print.
+:mod:`~geomopt.cli.untangle`, :mod:`~geomopt.cli.smooth`, :mod:`~geomopt.cli.fair`, :mod:`~geomopt.cli.compare`.  They parse, call the library and print.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from __future__ import annotations
 from .._save import PICTURE_EXTENSIONS
 from .common import EXIT_EXCEPT_FIXED, EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from .compare import cmd_compare
+from .fair import cmd_fair
 from .param import cmd_demo, cmd_param
 from .parser import build_parser
 from .run import entry, main
@@ -31,6 +32,6 @@ from .smooth import cmd_smooth
 from .untangle import cmd_untangle
 
 __all__ = [
-    "main", "entry", "build_parser", "cmd_param", "cmd_untangle", "cmd_smooth", "cmd_compare", "cmd_demo", "EXIT_OK",
+    "main", "entry", "build_parser", "cmd_param", "cmd_untangle", "cmd_smooth", "cmd_fair", "cmd_compare", "cmd_demo", "EXIT_OK",
     "EXIT_FAILED", "EXIT_USAGE", "EXIT_EXCEPT_FIXED", "PICTURE_EXTENSIONS",
 ]

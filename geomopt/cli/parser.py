@@ -9,6 +9,7 @@ import argparse
 from .._runtime import formats
 
 from .compare import cmd_compare
+from .fair import cmd_fair
 from .param import cmd_demo, cmd_param
 from .smooth import cmd_smooth
 from .untangle import cmd_untangle
@@ -76,6 +77,7 @@ def build_parser():
     _add_param(sub)
     _add_untangle(sub)
     _add_smooth(sub)
+    _add_fair(sub)
     _add_compare(sub)
     _add_demo(sub)
     return p
@@ -195,6 +197,33 @@ def _add_smooth(sub):
     sp.add_argument("--max-steps", type=_positive_int, default=None, help="iteration limit (>= 1)")
     _common_options(sp)
     sp.set_defaults(func=cmd_smooth)
+
+
+def _add_fair(sub):
+    """The ``fair`` command's options (defaults: :class:`geomopt.fairing.FairOptions`'s)."""
+    from ..fairing.options import BOUNDARIES, METHODS
+
+    sp = sub.add_parser("fair", help="smooth a triangle surface (Laplacian, Taubin, implicit fairing, least "
+                                     "squares, spectral, tangential...) with no face ever folded")
+    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL): closed, with boundary or several components")
+    sp.add_argument("-o", "--output", required=True, help="output .obj, the same faces")
+    sp.add_argument("--method", default="taubin", choices=METHODS, help="smoothing method (default taubin)")
+    sp.add_argument("--laplacian", default=None, choices=["uniform", "cotangent"],
+                    help="Laplacian weights (default: the method's; cotangent weights are clamped to be >= 0)")
+    sp.add_argument("--steps", type=_positive_int, default=None, help="explicit / implicit / relaxation steps")
+    sp.add_argument("--lam", type=float, default=None, help="step factor of laplacian and taubin (0 < lam <= 1)")
+    sp.add_argument("--mu", type=float, default=None, help="taubin's second factor (mu < -lam)")
+    sp.add_argument("--time", type=float, default=None, help="implicit: time in mean edge lengths squared")
+    sp.add_argument("--weight", type=float, default=None,
+                    help="least_squares / energy / tangential: the data term's weight (> 0)")
+    sp.add_argument("--eigenvectors", type=_positive_int, default=None, help="spectral: basis size")
+    sp.add_argument("--boundary", default="fixed", choices=BOUNDARIES,
+                    help="boundary vertices held (default), moved freely, or smoothed as curves first")
+    sp.add_argument("--crease-angle", type=float, default=None,
+                    help="degrees: sharper edges are features (least_squares fits them, relax holds them)")
+    sp.add_argument("--preserve-volume", action="store_true", help="closed surfaces: keep the enclosed volume")
+    _common_options(sp)
+    sp.set_defaults(func=cmd_fair)
 
 
 def _add_compare(sub):

@@ -1,0 +1,187 @@
+"""Exact signs of each element's direction against its corners' vertex directions: the fold
+test of a surface (or a curve) that has no map to the plane.
+
+For a triangle surface, the normal of face ``f`` is ``n_f = (b - a) x (c - a)`` (twice its area
+times its unit normal) and the normal of vertex ``v`` is ``N_v = sum over the faces g around v of
+n_g``: the area-weighted mean of the incident faces' unit normals, up to a positive factor.  Face
+``f`` is *unfolded* at its corner ``v`` when ``n_f . N_v > 0``.  For a polyline, the direction of
+edge ``e = (a, b)`` is ``d_e = b - a`` and the tangent of vertex ``v`` is ``D_v = sum over the edges
+around v of d_e`` (the length-weighted mean of unit tangents); edge ``e`` is unfolded at its end
+``v`` when ``d_e . D_v > 0``.
+
+Each sign is first evaluated in float64 with an a-priori error bound (relative, for the
+products of degree 4 for triangles and 2 for edges, plus an absolute allowance for underflow;
+the coordinates are first scaled by an exact power of two to span about 1, so nothing
+overflows); those the bound does not certify (degenerate elements among them) are
+recomputed exactly with Python integers (every float64 is ``M * 2**E``; after scaling all the
+coordinates involved by one power of two they are integers, and so is the dot product).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._runtime.errors import MeshError
+from .._runtime.tracing import refuse_traced
+from .predicates import box_scale
+
+__all__ = ["corner_signs", "normal_agreement"]
+
+_EPS = 2.0**-53
+#: an absolute allowance for underflow: each of the few hundred roundings of a value may lose up to
+#: 2**-1074 below the normal range, where the relative bound alone fails
+_UNDERFLOW = 2.0**-900
+
+
+def _checked(X, S):
+    refuse_traced("exact fold signs", "they certify concrete vertices", X)
+    X, S = np.asarray(X), np.asarray(S)
+    if X.ndim != 2 or X.shape[1] not in (2, 3) or X.dtype.kind not in "fiub":
+        raise MeshError(f"vertices must be a real array of shape (n, 2) or (n, 3), got {X.dtype} {X.shape}")
+    if S.ndim != 2 or S.shape[1] not in (2, 3) or S.dtype.kind not in "iu":
+        raise MeshError(f"elements must be integer edges (m, 2) or triangles (m, 3), got {S.dtype} {S.shape}")
+    if S.shape[1] == 3 and X.shape[1] != 3:
+        raise MeshError(f"triangles need 3D vertices, got shape {X.shape}")
+    if S.size and (S.min() < 0 or S.max() >= len(X)):
+        raise MeshError(f"element vertex indices must lie in [0, {len(X)}), got [{S.min()}, {S.max()}]")
+    X = X.astype(np.float64)
+    return X * box_scale(X) if np.isfinite(X).all() else X, S.astype(np.int64)
+
+
+def _directions(X, S):
+    """``(dirs, bounds)``: each element's direction (m, d) (the triangle normal or the edge
+    vector) and, per component, the sum of the magnitudes of the products forming it (m, d)."""
+    if S.shape[1] == 2:
+        d = X[S[:, 1]] - X[S[:, 0]]
+        return d, np.abs(d)
+    u, v = X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]]
+    cols, mags = [], []
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        left, right = u[:, i] * v[:, j], u[:, j] * v[:, i]
+        cols.append(left - right)
+        mags.append(np.abs(left) + np.abs(right))
+    return np.stack(cols, axis=1), np.stack(mags, axis=1)
+
+
+def _vertex_sums(values, S, n):
+    """(n, d) the sum over the elements around each vertex of ``values`` (m, d)."""
+    out = np.zeros((n, values.shape[1]), dtype=values.dtype)
+    for k in range(S.shape[1]):
+        np.add.at(out, S[:, k], values)
+    return out
+
+
+def corner_signs(X, S) -> np.ndarray:
+    """Exact sign of each element's direction against the vertex direction at each corner.
+
+    Parameters
+    ----------
+    X : (n, 3) vertices of a triangle surface, or (n, 2) / (n, 3) vertices of a polyline.
+    S : (m, 3) triangles, or (m, 2) edges.
+
+    Returns
+    -------
+    (m, k) int8, ``k`` = 3 (triangles) or 2 (edges): the sign of ``n_f . N_{S[f, c]}`` (see the
+    module notes); 0 where it vanishes or a coordinate is not finite.  A surface or curve is
+    fold-free exactly when every sign is +1.
+    """
+    X, S = _checked(X, S)
+    m, k, n = len(S), S.shape[1], len(X)
+    if m == 0:
+        return np.zeros((0, k), np.int8)
+    with np.errstate(all="ignore"):
+        dirs, mags = _directions(X, S)
+        sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
+        degree = np.bincount(S.ravel(), minlength=n)
+        value = np.einsum("md,mkd->mk", dirs, sums[S])
+        bound = np.einsum("md,mkd->mk", mags, sum_mags[S]) * (2.0 * (degree[S] + 10) * _EPS) + _UNDERFLOW
+    finite = np.isfinite(X).all(axis=1)
+    sure = (np.abs(value) > bound) & np.isfinite(value)
+    out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
+    ok_corner = finite[S].all(axis=1, keepdims=True) & np.isfinite(sums[S]).all(axis=2)
+    todo = np.argwhere(~sure & ok_corner & _finite_stars(finite, S, n)[S])
+    if len(todo):
+        out[todo[:, 0], todo[:, 1]] = _exact(X, S, todo)
+    return out
+
+
+def _finite_stars(finite, S, n):
+    """(n,) bool: every element around the vertex has finite corners."""
+    bad = np.zeros(n, bool)
+    for k in range(S.shape[1]):
+        bad[S[:, k]] |= ~finite[S].all(axis=1)
+    return ~bad
+
+
+def _integers(X):
+    """``X`` (p, d) finite float64 as Python integers times one common power of two."""
+    mant, expo = np.frexp(X)
+    M = np.ldexp(mant, 53).astype(np.int64)
+    E = expo.astype(np.int64) - 53
+    nonzero = M != 0
+    emin = int(E[nonzero].min()) if nonzero.any() else 0
+    shift = np.where(nonzero, E - emin, 0)
+    return M.astype(object) << shift.astype(object)
+
+
+def _exact(X, S, todo) -> np.ndarray:
+    """The exact signs at the corners ``todo`` (k, 2) (element, corner) with Python integers."""
+    centres = np.unique(S[todo[:, 0], todo[:, 1]])
+    near = np.isin(S, centres).any(axis=1)
+    near[todo[:, 0]] = True
+    elements = np.flatnonzero(near)
+    used = np.unique(S[elements])
+    Q = np.zeros((len(X), X.shape[1]), dtype=object)
+    Q[used] = _integers(X[used])
+    sub = S[elements]
+    if S.shape[1] == 2:
+        dirs = Q[sub[:, 1]] - Q[sub[:, 0]]
+    else:
+        u, v = Q[sub[:, 1]] - Q[sub[:, 0]], Q[sub[:, 2]] - Q[sub[:, 0]]
+        dirs = np.stack([u[:, i] * v[:, j] - u[:, j] * v[:, i] for i, j in ((1, 2), (2, 0), (0, 1))], axis=1)
+    sums = np.zeros((len(X), dirs.shape[1]), dtype=object)
+    for k in range(S.shape[1]):
+        np.add.at(sums, sub[:, k], dirs)
+    row = np.full(len(S), -1, np.int64)
+    row[elements] = np.arange(len(elements))
+    d, s = dirs[row[todo[:, 0]]], sums[S[todo[:, 0], todo[:, 1]]]
+    value = (d * s).sum(axis=1)
+    return np.array([(v > 0) - (v < 0) for v in value], dtype=np.int8)
+
+
+def normal_agreement(X, Y, F) -> np.ndarray:
+    """Exact sign of ``n_f(X) . n_f(Y)`` for each triangle: whether its normal on ``X`` is within
+    90 degrees of its normal on ``Y`` (both (n, 3); ``F`` (m, 3)).
+
+    Returns
+    -------
+    (m,) int8: +1 within 90 degrees, -1 beyond, 0 at exactly 90 degrees, on a degenerate
+    triangle or a non-finite coordinate.
+    """
+    X, S = _checked(X, F)
+    Y, _ = _checked(Y, F)
+    if S.shape[1] != 3:
+        raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
+    with np.errstate(all="ignore"):
+        nx, mx = _directions(X, S)
+        ny, my = _directions(Y, S)
+        value = np.sum(nx * ny, axis=1)
+        bound = np.sum(mx * my, axis=1) * (32.0 * _EPS) + _UNDERFLOW
+    sure = (np.abs(value) > bound) & np.isfinite(value)
+    out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
+    todo = np.flatnonzero(~sure & np.isfinite(X[S]).all(axis=(1, 2)) & np.isfinite(Y[S]).all(axis=(1, 2)))
+    if len(todo):
+        corners = np.concatenate([X[S[todo]], Y[S[todo]]], axis=1).reshape(-1, 3)
+        Q = _integers(corners).reshape(len(todo), 6, 3)  # one common power of two: signs kept
+        out[todo] = [_exact_normal_dot(q) for q in Q]
+    return out
+
+
+def _exact_normal_dot(q) -> int:
+    """The sign of ``n(q0, q1, q2) . n(q3, q4, q5)`` for integer points ``q`` (6, 3)."""
+    def normal(a, b, c):
+        u, v = b - a, c - a
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    d = sum(x * y for x, y in zip(normal(*q[:3]), normal(*q[3:])))
+    return (d > 0) - (d < 0)

@@ -1,0 +1,121 @@
+"""The fold certificate of a smoothed surface or curve, and the step that keeps it.
+
+A face is *folded* when it is not positively oriented against the vertex normal at one of its
+corners (:func:`geomopt.exact.normals.corner_signs`: exact signs of ``n_f . N_v``, ``N_v`` the
+area-weighted mean of the normals around ``v``, taken on the vertices being certified).  The
+same for the edges of a polyline with length-weighted vertex tangents.
+
+:func:`safe_step` moves from a start ``X0`` towards a target ``X1`` as far as it can without a
+corner failing that did not fail at ``X0``, and (surfaces) without a face's normal turning 90
+degrees or more from its normal at ``X0`` (:func:`geomopt.exact.normals.normal_agreement`; faces
+folded or degenerate at ``X0`` may turn, so that folds can be undone): each vertex ``i`` goes to ``X0_i + t_i (X1_i - X0_i)``,
+every ``t_i = 1`` first; where a corner fails, the ``t`` of the vertices its sign depends on (the
+face and the star of the corner's vertex) is halved, down to 0 after :data:`HALVINGS` halvings,
+and the signs are taken again.  Per-vertex fractions, rather than one for the whole step (the
+injective line search of maps), keep one bad spot from freezing the whole surface.  It ends,
+because ``t = 0`` everywhere is ``X0``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..exact.normals import corner_signs, normal_agreement
+
+__all__ = ["FoldCertificate", "certify_folds", "safe_step", "HALVINGS"]
+
+#: halvings of a vertex's step fraction before it is set to 0 (its start position)
+HALVINGS = 20
+
+
+@dataclasses.dataclass(frozen=True)
+class FoldCertificate:
+    """Exact fold check of smoothed vertices (see the module notes).
+
+    Attributes
+    ----------
+    folded : (k,) int64, the faces (edges of a curve) with a corner not positive, sorted.
+    corners : (c, 2) int64, the (element, corner) pairs not positive.
+    elements : the element count.
+    """
+
+    folded: np.ndarray
+    corners: np.ndarray
+    elements: int
+
+    @property
+    def inverted(self) -> int:
+        """Folded faces (the name every certificate of a :class:`~geomopt.solvers.Result` has)."""
+        return int(len(self.folded))
+
+    @property
+    def ok(self) -> bool:
+        return len(self.folded) == 0
+
+    @property
+    def locally_injective(self) -> bool:
+        """No folded face (each positive against its corners' vertex normals)."""
+        return self.ok
+
+    @property
+    def globally_injective(self) -> bool:
+        """Not certified (self-intersections of distant parts are not checked)."""
+        return False
+
+    @property
+    def injectivity(self) -> str:
+        return "local" if self.ok else "none"
+
+    @property
+    def message(self) -> str:
+        return ("no folded face (exact)" if self.ok else
+                f"{self.inverted} of {self.elements} faces folded against their vertex normals (exact)")
+
+
+def certify_folds(X, S) -> FoldCertificate:
+    """The :class:`FoldCertificate` of vertices ``X`` (n, d) with elements ``S`` (m, 3) or (m, 2)."""
+    bad = np.argwhere(corner_signs(X, S) <= 0)
+    return FoldCertificate(np.unique(bad[:, 0]), bad, len(S))
+
+
+def _dependents(S, corners, n):
+    """(n,) bool: the vertices whose position enters the signs at ``corners`` (c, 2): the
+    element's and those of every element around the corner's vertex."""
+    centre = np.zeros(n, bool)
+    centre[S[corners[:, 0], corners[:, 1]]] = True
+    star = centre[S].any(axis=1)
+    star[corners[:, 0]] = True
+    out = np.zeros(n, bool)
+    out[S[star].ravel()] = True
+    return out
+
+
+def safe_step(X0, X1, S, free, halvings=HALVINGS):
+    """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
+    that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
+
+    ``X`` is ``X0`` where the step was cut to nothing; a corner failing at ``X0`` may fail or
+    succeed at ``X`` (so folds are removed, never added); every other corner is positive there,
+    and every face not folded at ``X0`` is within 90 degrees of its normal there (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
+    moves all the way or not at all)."""
+    X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
+    n, surface = len(X0), S.shape[1] == 3
+    allowed = corner_signs(X0, S) <= 0
+    may_turn = (allowed.any(axis=1) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
+    t = np.where(free, 1.0, 0.0)
+    halved = np.zeros(n, np.int64)
+    while True:
+        X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
+        X = np.where(t[:, None] == 0.0, X0, X)
+        bad = (corner_signs(X, S) <= 0) & ~allowed
+        if surface:
+            bad |= ((normal_agreement(X, X0, S) <= 0) & ~may_turn)[:, None]
+        failing = np.argwhere(bad)
+        if len(failing) == 0:
+            return X, t
+        cut = _dependents(S, failing, n) & (t > 0)
+        # (never empty: with t = 0 on all it depends on, a corner has its start's sign, positive)
+        halved[cut] += 1
+        t[cut] = np.where(halved[cut] >= halvings, 0.0, t[cut] * 0.5)

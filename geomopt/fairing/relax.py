@@ -1,0 +1,54 @@
+"""Tangential relaxation: better triangle shapes with every vertex kept on the input surface.
+
+Each of ``steps`` rounds moves every free vertex by ``lam`` times the tangential part of its
+uniform Laplacian (the offset to its neighbours' centroid less its component along the vertex
+normal), then projects it back onto the *input* surface (its closest point there,
+:func:`geomopt.fairing.surface.closest_points`), so that the vertices never leave it.  Boundary
+vertices and those on creases (``crease_angle``) are held, so boundaries and sharp edges stay
+where they are.  A vertex whose move would fold a face is not moved that round
+(:func:`geomopt.fairing.certificate.safe_step` with whole steps: a fraction of a move between two
+surface points would leave the surface).  After Botsch & Kobbelt, "A remeshing approach to
+multiresolution modeling", 2004 (tangential smoothing with back-projection).
+
+Host only (NumPy): the projection is piecewise, so this method is not differentiable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .certificate import safe_step
+from .methods import crease_vertices, normalized_laplacian
+from .surface import closest_points, surface_index
+
+__all__ = ["relax"]
+
+
+def _vertex_normals(X, F, n):
+    """(n, 3) area-weighted vertex normals, unit length (0 where undefined)."""
+    fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+    N = np.zeros((n, 3))
+    for k in range(3):
+        np.add.at(N, F[:, k], fn)
+    length = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.where(length > 0, N / np.where(length > 0, length, 1.0), 0.0)
+
+
+def relax(V, topo, free, o):
+    """``(X, moved)``: the relaxed vertices (n, 3), each on the surface ``V, topo.elements``, and
+    how many vertex moves were taken over all rounds (see the module notes)."""
+    V = np.asarray(V, dtype=np.float64)
+    F = topo.elements
+    free = free & ~crease_vertices(V, topo, o.crease_angle)
+    X, moved, index = V.copy(), 0, surface_index(V, F)
+    for _ in range(o.steps):
+        A, _ = normalized_laplacian(X, topo, "uniform")
+        d = A.matvec(X)
+        N = _vertex_normals(X, F, topo.n)
+        d = d - np.sum(d * N, axis=1, keepdims=True) * N
+        target = X.copy()
+        idx = np.flatnonzero(free)
+        target[idx] = closest_points(X[idx] + o.lam * d[idx], V, F, index=index)[0]
+        X, t = safe_step(X, target, F, free, halvings=1)  # each vertex all the way or not at all
+        moved += int(np.count_nonzero(t))
+    return X, moved

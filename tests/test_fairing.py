@@ -1,0 +1,457 @@
+"""Surface and curve smoothing (issue 52): the exact fold certificate, the fold-safe step, every
+method's derivatives, boundary modes, curves, volume preservation and tangential relaxation."""
+
+from fractions import Fraction
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from geomopt import ParameterError
+from geomopt._runtime.errors import MeshError
+from geomopt.exact.normals import corner_signs, normal_agreement
+from geomopt.fairing import FairOptions, certify_folds, fair, fairing_energy, safe_step, smoothed
+from geomopt.fairing.surface import closest_points, point_triangle, volume
+
+SOLVED = ("implicit", "least_squares", "energy", "tangential")
+METHODS = ("laplacian", "taubin", "implicit", "least_squares", "energy", "spectral", "tangential", "relax")
+
+
+def icosphere(level=2):
+    """The unit icosphere (outward faces), subdivided ``level`` times."""
+    t = (1.0 + 5 ** 0.5) / 2.0
+    V = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    F = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    for _ in range(level):
+        V, F = _subdivide(V, F)
+    return V / np.linalg.norm(V, axis=1, keepdims=True), F
+
+
+def _subdivide(V, F):
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+    mid = len(V) + inv.reshape(3, -1).T
+    V = np.vstack([V, (V[uniq[:, 0]] + V[uniq[:, 1]]) / 2])
+    a, b, c = F.T
+    ab, bc, ca = mid.T
+    return V, np.concatenate([np.stack(x, 1) for x in ([a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca])])
+
+
+def noisy(V, F, sigma, seed=0):
+    """``V`` plus Gaussian noise of ``sigma`` mean edge lengths."""
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    h = np.mean(np.linalg.norm(V[e[:, 1]] - V[e[:, 0]], axis=1))
+    return V + sigma * h * np.random.default_rng(seed).normal(size=V.shape)
+
+
+def cap():
+    """The icosphere's faces above z = -0.3: a disk with a boundary."""
+    V, F = icosphere(2)
+    keep = F[V[F].mean(axis=1)[:, 2] > -0.3]
+    used = np.unique(keep)
+    new = np.full(len(V), -1)
+    new[used] = np.arange(len(used))
+    return V[used], new[keep]
+
+
+def circle(n=60, noise=0.0, seed=0):
+    """A closed polyline (n, 2) around the unit circle, noisy."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    V = np.stack([np.cos(a), np.sin(a)], 1) + noise * np.random.default_rng(seed).normal(size=(n, 2))
+    return V, np.stack([np.arange(n), (np.arange(n) + 1) % n], 1)
+
+
+# -- the exact certificate ---------------------------------------------------------------------
+
+def _reference_signs(X, S):
+    """``corner_signs`` in rational arithmetic (slow, obviously right)."""
+    Q = [[Fraction(float(c)) for c in row] for row in X]
+
+    def sub(a, b):
+        return [x - y for x, y in zip(a, b)]
+
+    def direction(s):
+        if len(s) == 2:
+            return sub(Q[s[1]], Q[s[0]])
+        u, v = sub(Q[s[1]], Q[s[0]]), sub(Q[s[2]], Q[s[0]])
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    dirs = [direction(s) for s in S]
+    sums = [[Fraction(0)] * len(dirs[0]) for _ in Q]
+    for d, s in zip(dirs, S):
+        for v in s:
+            sums[v] = [a + b for a, b in zip(sums[v], d)]
+    out = np.zeros(S.shape, np.int8)
+    for f, s in enumerate(S):
+        for k, v in enumerate(s):
+            dot = sum(a * b for a, b in zip(dirs[f], sums[v]))
+            out[f, k] = (dot > 0) - (dot < 0)
+    return out
+
+
+def test_certificate_accepts_a_clean_sphere_and_catches_a_constructed_fold():
+    V, F = icosphere(1)
+    assert certify_folds(V, F).ok
+    # slide vertex 0 along the surface past its neighbour u: the faces beyond u turn over
+    X = V.copy()
+    u = F[F[:, 0] == 0][0, 1]
+    X[0] = X[0] + 1.6 * (X[u] - X[0])
+    cert = certify_folds(X, F)
+    assert not cert.ok and cert.inverted > 0 and np.any(np.isin(F[cert.folded], 0))
+    assert np.array_equal(corner_signs(X, F), _reference_signs(X, F))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_corner_signs_are_exact_near_degenerate_configurations(seed):
+    """Faces nearly perpendicular to their vertex normals, perturbed by a few ulps: every sign
+    equals the rational one (the float filter alone gets some of these wrong)."""
+    rng = np.random.default_rng(seed)
+    # at vertex 0, n_1 = (0, 0, 1) and n_2 = (0, 1, -1): n_1 . (n_1 + n_2) = 0 before the perturbation
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 1, 1]], float)
+    F = np.array([[0, 1, 2], [0, 3, 1]])
+    signs = set()
+    for _ in range(40):
+        X = (V + rng.integers(-3, 4, V.shape) * 2.0**-52) * 3.1
+        got = corner_signs(X, F)
+        assert np.array_equal(got, _reference_signs(X, F))
+        signs.add(int(got[0, 0]))
+    assert {-1, 1} <= signs and corner_signs(V, F)[0, 0] == 0  # each side of the threshold, and on it
+    E = np.array([[0, 1], [1, 2], [2, 3]])  # a polyline folded back at vertex 1
+    P = np.array([[0, 0], [1, 0], [0, 0.4], [0, 1.4]], float)  # d_1 . (d_1 + d_2) = 1 - 1 = 0 at vertex 1
+    for _ in range(40):
+        X = (P + rng.integers(-3, 4, P.shape) * 2.0**-52) * 0.7
+        assert np.array_equal(corner_signs(X, E), _reference_signs(X, E))
+
+
+def test_corner_signs_at_extreme_scales_and_non_finite():
+    V, F = icosphere(1)
+    X = V.copy()
+    X[0] = X[0] + 1.6 * (X[F[F[:, 0] == 0][0, 1]] - X[0])
+    want = corner_signs(X, F)
+    assert (want <= 0).any()
+    for s in (2.0**-1000, 1e-150, 1e200):
+        assert np.array_equal(corner_signs(X * s, F), want)
+    X[3] = np.nan
+    assert (corner_signs(X, F)[np.isin(F, 3).any(axis=1)] == 0).all()
+
+
+# -- the fold-safe step ------------------------------------------------------------------------
+
+def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
+    V, F = icosphere(2)
+    target = V.copy()
+    u = F[F[:, 0] == 5][0, 1]
+    target[5] = V[5] + 1.6 * (V[u] - V[5])  # past its neighbour: folds faces
+    assert not certify_folds(target, F).ok
+    X, t = safe_step(V, target, F, np.ones(len(V), bool))
+    assert certify_folds(X, F).ok and 0 < t[5] < 1 and not np.array_equal(X[5], V[5])
+    assert np.array_equal(np.delete(X, 5, 0), np.delete(V, 5, 0))
+
+
+def test_safe_step_keeps_every_face_within_90_degrees_of_its_input_normal():
+    """A rotation by 100 degrees folds nothing (a rigid motion), but turns faces beyond 90
+    degrees from their input normals: those steps are cut."""
+    V, F = icosphere(2)
+    c, s = np.cos(np.radians(100)), np.sin(np.radians(100))
+    target = V @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    assert certify_folds(target, F).ok and (normal_agreement(target, V, F) < 0).any()
+    X, t = safe_step(V, target, F, np.ones(len(V), bool))
+    assert certify_folds(X, F).ok and (normal_agreement(X, V, F) > 0).all() and (t < 1).any() and (t > 0).any()
+
+
+def test_normal_agreement_is_exact_at_right_angles():
+    rng = np.random.default_rng(0)
+    F = np.array([[0, 1, 2]])
+    X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)  # normal z
+    Y = np.array([[0, 0, 0], [0, 1, 0], [0, 0, 1]], float)  # normal x: exactly 90 degrees
+    assert normal_agreement(X, Y, F)[0] == 0
+    for _ in range(30):
+        Xp = (X + rng.integers(-3, 4, X.shape) * 2.0**-52) * 1.3
+        Yp = (Y + rng.integers(-3, 4, Y.shape) * 2.0**-52) * 0.9
+        want = _reference_dot(Xp, Yp)
+        assert normal_agreement(Xp, Yp, F)[0] == want
+
+
+def _reference_dot(X, Y):
+    def normal(P):
+        Q = [[Fraction(float(c)) for c in row] for row in P]
+        u = [Q[1][i] - Q[0][i] for i in range(3)]
+        v = [Q[2][i] - Q[0][i] for i in range(3)]
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+    d = sum(a * b for a, b in zip(normal(X), normal(Y)))
+    return (d > 0) - (d < 0)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_no_method_folds_heavy_noise_and_the_folds_are_removed(method):
+    V, F = icosphere(2)
+    X0 = noisy(V, F, 0.5)
+    before = corner_signs(X0, F) <= 0
+    assert before.any()  # the input is folded
+    r = fair(X0, F, method)
+    after = corner_signs(r.x, F) <= 0
+    assert not (after & ~before).any()  # never a fold added
+    assert r.success and r.certificate.inverted == 0 and r.details.folded_before > 0
+
+
+def test_a_huge_step_is_cut_not_taken():
+    """An unstable Taubin filter (mu far below -lam amplifies the noise) folds its target: the
+    steps are cut, the output is not folded."""
+    V, F = icosphere(2)
+    X0 = noisy(V, F, 0.1)
+    assert certify_folds(X0, F).ok
+    r = fair(X0, F, options=FairOptions(method="taubin", lam=0.9, mu=-1.9, steps=20))
+    assert r.success and certify_folds(r.x, F).ok and not np.array_equal(r.x, X0)
+    assert not certify_folds(r.details.target, F).ok and r.details.cut > 0
+
+
+# -- derivatives -------------------------------------------------------------------------------
+
+def _fd_check(f, x, direction, value=None, tol=1e-6):
+    """Central difference of ``f`` along ``direction`` against ``value`` (the AD derivative)."""
+    eps = 1e-6
+    fd = (f(x + eps * direction) - f(x - eps * direction)) / (2 * eps)
+    assert abs(fd - value) <= tol * max(1.0, abs(fd)), (fd, value)
+
+
+@pytest.mark.parametrize("method, laplacian", [("laplacian", "cotangent"), ("taubin", "uniform"),
+                                               ("implicit", "cotangent"), ("least_squares", "uniform"),
+                                               ("least_squares", "cotangent"), ("energy", "cotangent"),
+                                               ("tangential", None)])
+@pytest.mark.parametrize("surface", ["closed", "boundary"])
+def test_grad_through_the_smoothing_matches_finite_differences_of_re_solves(method, laplacian, surface):
+    V, F = icosphere(1) if surface == "closed" else cap()
+    V = noisy(V, F, 0.1, seed=3)
+    o = FairOptions(method=method, laplacian=laplacian, steps=3 if method != "implicit" else 2)
+    c = np.random.default_rng(1).normal(size=V.shape)
+
+    def loss(X):
+        return jnp.sum(jnp.sin(smoothed(X, F, o)) * c)
+
+    g = jax.grad(loss)(jnp.asarray(V))
+    d = np.random.default_rng(2).normal(size=V.shape)
+    _fd_check(lambda X: float(np.sum(np.sin(smoothed(X, F, o)) * c)), V, d, float(np.sum(np.asarray(g) * d)))
+
+
+@pytest.mark.parametrize("method, field", [("energy", "weight"), ("implicit", "time"), ("laplacian", "lam"),
+                                           ("least_squares", "weight"), ("tangential", "weight")])
+def test_grad_with_respect_to_the_weights(method, field):
+    V, F = cap()
+    V = noisy(V, F, 0.1)
+    c = np.random.default_rng(1).normal(size=V.shape)
+    base = {"weight": 0.3, "time": 0.7, "lam": 0.4}[field]
+
+    def loss(w):
+        return jnp.sum(smoothed(jnp.asarray(V), F, FairOptions(method=method, **{field: w})) * c)
+
+    g = float(jax.grad(loss)(jnp.asarray(base)))
+    _fd_check(lambda w: float(np.sum(smoothed(V, F, FairOptions(method=method, **{field: w})) * c)), base, 1.0, g)
+
+
+def test_grad_under_jit():
+    V, F = icosphere(1)
+    o = FairOptions(method="energy")
+    g = jax.jit(jax.grad(lambda X: jnp.sum(smoothed(X, F, o) ** 2)))(jnp.asarray(V))
+    assert np.isfinite(np.asarray(g)).all()
+
+
+@pytest.mark.parametrize("method", ["laplacian", "implicit", "least_squares", "energy", "tangential"])
+def test_energy_gradient_matches_finite_differences_and_vanishes_at_the_target(method):
+    V, F = icosphere(1)
+    V = noisy(V, F, 0.2)
+    o = FairOptions(method=method, crease_angle=30.0 if method == "least_squares" else None)
+    E = fairing_energy(V, F, o)
+    p = noisy(V, F, 0.3, seed=5)
+    g = np.asarray(jax.grad(E)(jnp.asarray(p)))
+    d = np.random.default_rng(4).normal(size=V.shape)
+    _fd_check(lambda q: float(E(q)), p, d, float(np.sum(g * d)))
+    if method != "laplacian":  # the solve's target is the energy's minimiser
+        target = smoothed(V, F, dataclasses_replace(o, boundary="free"))
+        assert np.abs(np.asarray(jax.grad(E)(jnp.asarray(target)))).max() < 1e-9 * max(1.0, np.abs(g).max())
+
+
+def dataclasses_replace(o, **kw):
+    import dataclasses
+
+    return dataclasses.replace(o, **kw)
+
+
+# -- boundaries, curves, volume, components ----------------------------------------------------
+
+def test_boundary_modes():
+    V, F = cap()
+    X0 = noisy(V, F, 0.2)
+    from geomopt.fairing.operators import Topology
+
+    b = Topology.of(F, len(V)).boundary
+    fixed = fair(X0, F, "taubin", options=FairOptions(boundary="fixed")).x
+    free = fair(X0, F, "taubin", options=FairOptions(boundary="free")).x
+    curve = fair(X0, F, "taubin", options=FairOptions(boundary="curve")).x
+    assert np.array_equal(fixed[b], X0[b]) and not np.allclose(free[b], X0[b]) and not np.allclose(curve[b], X0[b])
+
+    def roughness(X):  # the boundary loop's second differences
+        from geomopt.exact.topology import boundary_loops
+
+        loop = boundary_loops(F)[0]
+        P = X[loop]
+        return np.linalg.norm(np.roll(P, 1, 0) + np.roll(P, -1, 0) - 2 * P, axis=1).mean()
+
+    assert roughness(curve) < 0.5 * roughness(X0)
+
+
+def test_curves_closed_and_open():
+    V, E = circle(80, noise=0.02)
+    r = fair(V, E, options=FairOptions(method="taubin", steps=50))
+    rough = lambda X: np.linalg.norm(np.roll(X, 1, 0) + np.roll(X, -1, 0) - 2 * X, axis=1).mean()  # noqa: E731
+    assert r.success and rough(r.x) < 0.3 * rough(V)
+    open_ = E[:-1]
+    r = fair(V, open_, "laplacian")
+    assert r.success and np.array_equal(r.x[[0, 79]], V[[0, 79]])  # the ends held
+    r = fair(V, open_, "laplacian", options=FairOptions(boundary="free"))
+    assert not np.array_equal(r.x[[0, 79]], V[[0, 79]])
+    for method in ("implicit", "energy", "spectral", "least_squares"):
+        assert fair(np.c_[V, np.zeros(80)], E, method).success  # 3D curves too
+
+
+def test_laplacian_steps_shrink_a_curve_and_taubin_does_not():
+    V, E = circle(100)
+    area = lambda X: 0.5 * np.sum(X[:, 0] * np.roll(X[:, 1], -1) - np.roll(X[:, 0], -1) * X[:, 1])  # noqa: E731
+    lap = fair(V, E, options=FairOptions(method="laplacian", steps=50)).x
+    tau = fair(V, E, options=FairOptions(method="taubin", steps=50)).x
+    assert area(lap) < 0.95 * area(V) and abs(area(tau) - area(V)) < 0.1 * (area(V) - area(lap))
+
+
+def test_volume_preservation():
+    V, F = icosphere(2)
+    X0 = noisy(V, F, 0.2)
+    shrunk = fair(X0, F, "laplacian")
+    kept = fair(X0, F, "laplacian", options=FairOptions(preserve_volume=True))
+    v0 = volume(X0, F)
+    assert volume(shrunk.x, F) < 0.95 * v0 and abs(volume(kept.x, F) - v0) < 1e-9 * v0 and kept.success
+    with pytest.raises(ParameterError, match="closed"):
+        fair(*cap(), "laplacian", options=FairOptions(preserve_volume=True))
+
+
+def test_several_components_are_smoothed_each_on_its_own():
+    V, F = icosphere(2)
+    Y = noisy(V, F, 0.2)
+    r = fair(np.vstack([Y, Y + 4.0]), np.vstack([F, F + len(V)]), "energy")
+    one = fair(Y, F, "energy")
+    assert r.success and np.allclose(r.x[:len(V)], one.x, atol=1e-12)
+    assert np.allclose(r.x[len(V):], one.x + 4.0, atol=1e-12)
+
+
+def test_least_squares_feature_weights_keep_creases():
+    """A cube's edges and corners stay much closer with a crease angle than without."""
+    import trimesh
+
+    box = trimesh.creation.box().subdivide().subdivide()
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    X0 = noisy(V, F, 0.05)
+    corners = np.flatnonzero((np.abs(V) > 0.49).all(axis=1))
+    plain = fair(X0, F, "least_squares").x
+    sharp = fair(X0, F, "least_squares", options=FairOptions(crease_angle=45.0)).x
+    err = lambda X: np.linalg.norm(X[corners] - V[corners], axis=1).mean()  # noqa: E731
+    assert err(sharp) < 0.5 * err(plain)
+
+
+# -- tangential relaxation ---------------------------------------------------------------------
+
+def test_closest_points_match_brute_force():
+    V, F = cap()
+    P = np.random.default_rng(0).normal(size=(200, 3)) * 0.8
+    Q, face = closest_points(P, V, F)
+    for i in range(0, 200, 7):
+        all_q = point_triangle(np.repeat(P[i:i + 1], len(F), 0), V[F[:, 0]], V[F[:, 1]], V[F[:, 2]])
+        best = np.min(np.linalg.norm(all_q - P[i], axis=1))
+        assert abs(np.linalg.norm(Q[i] - P[i]) - best) < 1e-12
+
+
+def test_relax_keeps_a_real_mesh_on_its_surface():
+    """The camel head (folded in places by the certificate, slivers): every relaxed vertex on the
+    input exactly, no fold added, the smallest angles larger."""
+    import geomopt
+
+    V, F = geomopt.data.load("camelhead")
+    before = corner_signs(V, F) <= 0
+    r = fair(V, F, "relax", options=FairOptions(steps=10))
+    assert before.any() and r.details.distance <= 1e-12 and not ((corner_signs(r.x, F) <= 0) & ~before).any()
+    assert r.details.min_angle_after > r.details.min_angle_before
+
+
+def test_relax_improves_shapes_and_stays_on_the_input_surface():
+    V, F = cap()
+    rng = np.random.default_rng(0)
+    X0, _ = closest_points(V + 0.2 * np.mean(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1))
+                           * rng.normal(size=V.shape) * [1, 1, 0], V, F)  # irregular, on the surface
+    from geomopt.fairing.operators import Topology
+
+    b = Topology.of(F, len(V)).boundary
+    assert certify_folds(X0, F).ok
+    r = fair(X0, F, "relax", options=FairOptions(steps=20))
+    d = r.details
+    assert r.success and d.min_angle_after > d.min_angle_before + 5 and d.aspect_after < d.aspect_before
+    assert d.distance <= 1e-12 and np.array_equal(r.x[b], X0[b])
+
+
+# -- options and errors ------------------------------------------------------------------------
+
+def test_bad_options_and_meshes_raise_clear_errors():
+    with pytest.raises(ParameterError, match="method"):
+        FairOptions(method="bilateral")
+    with pytest.raises(ParameterError, match="mu < -lam"):
+        FairOptions(method="taubin", lam=0.5, mu=-0.4)
+    with pytest.raises(ParameterError, match="weight"):
+        FairOptions(weight=0.0)
+    with pytest.raises(MeshError, match="triangles"):
+        fair(np.zeros((4, 3)), np.zeros((2, 4), int))
+    with pytest.raises(ParameterError, match="not differentiable"):
+        smoothed(*icosphere(0), FairOptions(method="relax"))
+
+
+# -- the command line --------------------------------------------------------------------------
+
+def _write_off(path, V, F):
+    with open(path, "w") as fh:
+        fh.write(f"OFF\n{len(V)} {len(F)} 0\n")
+        fh.writelines(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
+        fh.writelines(f"3 {a} {b} {c}\n" for a, b, c in F)
+
+
+def test_cli_writes_a_certified_obj_and_exits_by_the_rules(cli, tmp_path):
+    import json
+
+    from geomopt import io
+
+    V, F = icosphere(2)
+    X0 = noisy(V, F, 0.4)
+    _write_off(tmp_path / "in.off", X0, F)
+    out = tmp_path / "out.obj"
+    code, stdout, _ = cli("fair", tmp_path / "in.off", "-o", out, "--method", "least_squares", "--weight", "0.5",
+                          "--json", "--quiet")
+    summary = json.loads(stdout)
+    W, G = io.read_mesh(out)
+    assert code == 0 and np.array_equal(G, F) and certify_folds(W, G).ok and summary["folded_after"] == 0
+    assert summary["method"] == "least_squares" and summary["folded_before"] > 0
+    # bad input: exit 2, nothing written
+    code, _, err = cli("fair", tmp_path / "in.off", "-o", tmp_path / "bad.obj", "--method", "taubin", "--mu", "-0.1")
+    assert code == 2 and "mu < -lam" in err and not (tmp_path / "bad.obj").exists()
+    with pytest.raises(SystemExit) as usage:  # argparse's refusal
+        cli("fair", tmp_path / "in.off", "-o", tmp_path / "bad.obj", "--method", "spectral", "--eigenvectors", "0")
+    assert usage.value.code == 2 and not (tmp_path / "bad.obj").exists()
+
+
+def test_cli_exits_1_and_writes_nothing_when_a_fold_cannot_be_removed(cli, tmp_path):
+    """Two triangles folded onto each other, every vertex on the (held) boundary."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.7, 1, 0.01]], float)
+    F = np.array([[0, 1, 2], [0, 3, 1]])
+    assert not certify_folds(V, F).ok
+    _write_off(tmp_path / "in.off", V, F)
+    code, _, err = cli("fair", tmp_path / "in.off", "-o", tmp_path / "out.obj")
+    assert code == 1 and "not certified" in err and not (tmp_path / "out.obj").exists()
+    with pytest.raises(Exception, match="could not all be removed"):
+        fair(V, F, throw=True)
