@@ -15,8 +15,9 @@ ranking the candidates and when deciding whether the best pays: among cuts that 
 the shortest wins (across a neck rather than along an arm), and a long cut must buy more packing.
 The cut that packs best is seldom the one across the principal axis at the median: it is where
 the outline has a notch or an arm.  A long chart (a needle: the flattened tube of a thin cylinder
-or torus) is also cut across its long axis into ``m`` bands of equal area at once, up to about
-the square root of its aspect ratio (pieces about square): halving a needle leaves each half a
+or torus, straight or curled) is also cut across into ``m`` bands of equal area at once, by the
+distance along it (shortest paths between faces), up to about the square root of its aspect
+ratio (pieces about square): halving a needle leaves each half a
 needle that decides the square alone, so no single cut after the first gains anything.  And a
 split that multiplies the efficiency (``_MULTIPLY``) pays, however small the first gain: a needle
 packs at a few thousandths, below any charge per chart.
@@ -90,6 +91,7 @@ class _Cutter:
         P = self.x[mesh.F]
         self.c, self.A = P.mean(axis=1), triangle_areas(P)
         self.a, self.b, edge, E, self.edge_of = face_pairs(mesh.F)
+        self.E = E
         self.nv, self.ne = len(self.x), len(E)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
         X = self.x if V is None else np.asarray(V)[mesh.vertices]
@@ -107,11 +109,30 @@ class _Cutter:
         return [self._without_slivers(_smoothed(self.mesh.F, t <= t[order][k], pairs=(self.a, self.b)))
                 for k in at]
 
+    def along(self):
+        """(m,) each face's distance along the chart from one end of it: the least over its
+        corners of their shortest-path distance along the chart's edges (in UV) from the vertex
+        farthest from vertex 0 (a double sweep: on a strip, straight or curled, one of its ends).
+        Faces are banded by their lowest corner, so a band's border runs along edges: across a
+        strip of quads, its rings, not a staircase of the quads' diagonals.  Also the chart's
+        length (the largest vertex distance) as ``self.length_along``."""
+        from scipy.sparse.csgraph import dijkstra
+
+        if not hasattr(self, "_along"):
+            E = self.E
+            w = np.linalg.norm(self.x[E[:, 1]] - self.x[E[:, 0]], axis=1) + 1e-300
+            graph = sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(self.nv, self.nv)).tocsr()
+            d = dijkstra(graph, directed=False, indices=int(self.mesh.F[0, 0]))
+            d = dijkstra(graph, directed=False, indices=int(np.argmax(np.where(np.isfinite(d), d, -1))))
+            d = np.where(np.isfinite(d), d, 0.0)
+            self._along, self.length_along = d[self.mesh.F].min(axis=1), float(d.max())
+        return self._along
+
     def bands(self, m: int):
-        """(m,) bool: the faces of the even ones of ``m`` bands of equal area across the longest
-        principal axis, smoothed and without slivers as :meth:`sides` makes them (each band a
-        connected piece of its side)."""
-        t = self.c @ self.axes[:, -1]
+        """(m,) bool: the faces of the even ones of ``m`` bands of equal area along the chart
+        (:meth:`along`: across a needle, straight or curled), smoothed and without slivers as
+        :meth:`sides` makes them (each band a connected piece of its side)."""
+        t = self.along()
         order = np.argsort(t)
         mid = (np.cumsum(self.A[order]) - 0.5 * self.A[order]) / self.A.sum()  # the area below each centroid
         band = np.empty(len(t), dtype=np.int64)
@@ -120,9 +141,10 @@ class _Cutter:
 
     def band_counts(self):
         """The band counts of :data:`_BANDS` up to ``_BAND_REACH`` times the square root of the
-        chart's aspect ratio (its extent along the principal axes)."""
-        extent = np.ptp(self.x @ self.axes, axis=0)
-        aspect = extent[-1] / max(extent[0], 1e-300 * extent[-1], 1e-300)
+        chart's aspect ratio, its length (:meth:`along`) squared over its area (about 1 for a
+        disk or a square, the length over the width for a strip)."""
+        self.along()
+        aspect = self.length_along ** 2 / max(float(self.A.sum()), 1e-300)
         return [m for m in _BANDS if m <= _BAND_REACH * np.sqrt(aspect)]
 
     def seam(self, low) -> float:
@@ -203,8 +225,8 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
     """Every distinct straight split of a flattened chart that leaves disks: across
     ``directions`` directions evenly spaced over half a turn from the longest principal axis,
     at each of ``quantiles`` of the area (:func:`split_flat_chart`'s cuts); and for a long chart
-    the cuts across its longest axis into bands of equal area (:meth:`_Cutter.band_counts`
-    bands, each a piece).  Returns a list of
+    the cuts across it into bands of equal area by the distance along it (:meth:`_Cutter.bands`,
+    :meth:`_Cutter.band_counts` of them, each a piece).  Returns a list of
     piece lists (each as :func:`split_flat_chart` returns it); with ``seams``, a list of
     ``(pieces, seam)``, ``seam`` the length of the cut (3D with the surface's vertices ``V``,
     which ``mesh.vertices`` index; else in UV)."""
