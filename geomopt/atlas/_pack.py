@@ -83,7 +83,7 @@ def _check_margin(margin, charts: int) -> float:
     if m is None:
         raise ParameterError(f"margin must be {MARGIN} (a fraction of the square's side), got {margin!r}")
     if m >= widest_margin(charts):
-        raise ParameterError(f"margin {m:g} cannot keep {charts} charts apart: {charts} charts fit in the unit "
+        raise ParameterError(f"margin {m!r} cannot keep {charts} charts apart: {charts} charts fit in the unit "
                              f"square only with a margin below {widest_margin(charts):.4g} "
                              f"({math.ceil(math.sqrt(charts)) - 1} gaps across it); use a smaller margin")
     return m
@@ -304,7 +304,7 @@ def _layout(U, Bs, bases, turns, area, margin, resolution, budget=_BUDGET):
         h = max(h, gap / max(1, resolution // _GAP_PIXELS))  # many pixels of gap: coarser pixels
         r = math.ceil(gap / h)
     widest = max(g / s for g, s in seen)
-    raise ParameterError(f"margin {margin:g} could not be kept between {len(U)} charts in {_MARGIN_LAYOUTS} "
+    raise ParameterError(f"margin {float(margin)!r} could not be kept between {len(U)} charts in {_MARGIN_LAYOUTS} "
                          f"layouts (their side grew with the gap about as fast as the margin does); the widest "
                          f"margin they were packed with is {widest:.4g} ({len(U)} charts fit only below "
                          f"{widest_margin(len(U)):.4g}): use a smaller margin")

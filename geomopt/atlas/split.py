@@ -94,7 +94,7 @@ class _Cutter:
         self.E = E
         self.nv, self.ne = len(self.x), len(E)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
-        X = self.x if V is None else np.asarray(V)[mesh.vertices]
+        X = self.X = self.x if V is None else np.asarray(V)[mesh.vertices]
         self.length = np.linalg.norm(X[E[edge, 1]] - X[E[edge, 0]], axis=1)
         mean = np.average(self.c, axis=0, weights=self.A)
         cov = ((self.c - mean) * self.A[:, None]).T @ (self.c - mean)
@@ -111,7 +111,8 @@ class _Cutter:
 
     def along(self):
         """(m,) each face's distance along the chart from one end of it: the least over its
-        corners of their shortest-path distance along the chart's edges (in UV) from the vertex
+        corners of their shortest-path distance along the chart's edges (3D with the surface's
+        vertices, else in UV: a flattening may curl a needle) from the vertex
         farthest from vertex 0 (a double sweep: on a strip, straight or curled, one of its ends).
         Faces are banded by their lowest corner, so a band's border runs along edges: across a
         strip of quads, its rings, not a staircase of the quads' diagonals.  Also the chart's
@@ -120,7 +121,7 @@ class _Cutter:
 
         if not hasattr(self, "_along"):
             E = self.E
-            w = np.linalg.norm(self.x[E[:, 1]] - self.x[E[:, 0]], axis=1) + 1e-300
+            w = np.linalg.norm(self.X[E[:, 1]] - self.X[E[:, 0]], axis=1) + 1e-300
             graph = sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(self.nv, self.nv)).tocsr()
             d = dijkstra(graph, directed=False, indices=int(self.mesh.F[0, 0]))
             d = dijkstra(graph, directed=False, indices=int(np.argmax(np.where(np.isfinite(d), d, -1))))
@@ -129,14 +130,22 @@ class _Cutter:
         return self._along
 
     def bands(self, m: int):
-        """(m,) bool: the faces of the even ones of ``m`` bands of equal area along the chart
-        (:meth:`along`: across a needle, straight or curled), smoothed and without slivers as
+        """(m,) bool: the faces of the even ones of ``m`` bands of about equal area along the chart
+        (:meth:`along`: across a needle, straight or curled; each cut at the widest gap between
+        the faces' distances within a quarter band of its place, so that a ring of faces at
+        about one distance is not split), smoothed and without slivers as
         :meth:`sides` makes them (each band a connected piece of its side)."""
         t = self.along()
-        order = np.argsort(t)
-        mid = (np.cumsum(self.A[order]) - 0.5 * self.A[order]) / self.A.sum()  # the area below each centroid
-        band = np.empty(len(t), dtype=np.int64)
-        band[order] = np.minimum((mid * m).astype(np.int64), m - 1)
+        order = np.argsort(t, kind="stable")
+        ts, below = t[order], np.cumsum(self.A[order]) / self.A.sum()  # area up to each face, in order
+        gap = np.diff(ts)
+        cuts = []
+        for k in range(1, m):  # each cut at the widest gap between the distances within a quarter band
+            near = np.flatnonzero(np.abs(below[:-1] - k / m) <= 0.25 / m)
+            if len(near):
+                i = near[np.argmax(gap[near])]
+                cuts.append(0.5 * (ts[i] + ts[i + 1]))
+        band = np.searchsorted(np.array(cuts), t)
         return self._without_slivers(_smoothed(self.mesh.F, band % 2 == 0, pairs=(self.a, self.b)))
 
     def band_counts(self):
