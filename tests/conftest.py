@@ -84,3 +84,55 @@ def cli(capsys):
         out, err = capsys.readouterr()
         return code, out, err
     return run
+
+
+# ------------------------------------------------------------------ forced failures of the atlas
+
+
+def _failed_certificate(cert):
+    """``cert`` (an AtlasCertificate) with charts 0 and 1 reported overlapping: not ok."""
+    import dataclasses
+
+    return dataclasses.replace(cert, ok=False, overlapping_pairs=np.array([[0, 1]], np.int64),
+                               message="atlas NOT certified: 1 overlapping chart pairs (first: (0, 1)) [forced]")
+
+
+@pytest.fixture
+def failing_certificate(monkeypatch):
+    """The final certificate of :func:`geomopt.make_atlas` fails (it reports charts 0 and 1
+    overlapping); the packer's own certificate is untouched.  Yields the list of certificates
+    made."""
+    import geomopt.atlas
+
+    made, certify = [], geomopt.atlas.certify_atlas
+
+    def fails(*args):
+        made.append(_failed_certificate(certify(*args)))
+        return made[-1]
+    monkeypatch.setattr(geomopt.atlas, "certify_atlas", fails)
+    return made
+
+
+@pytest.fixture
+def uncertified_packer(monkeypatch):
+    """:func:`geomopt.atlas.pack_charts`'s certificate fails its first ``fails[0]`` times (all
+    of them unless the test lowers it); ``resolutions`` records each layout's resolution.
+    Yields ``(fails, resolutions)``, both lists the test may read or change."""
+    from geomopt.atlas import _pack
+
+    fails, resolutions = [10**9], []
+    certify, layout = _pack.certify_atlas, _pack._layout
+
+    def certificate(*args):
+        cert = certify(*args)
+        if fails[0] > 0:
+            fails[0] -= 1
+            return _failed_certificate(cert)
+        return cert
+
+    def recorded(U, Bs, bases, turns, area, margin, resolution, *rest):
+        resolutions.append(resolution)
+        return layout(U, Bs, bases, turns, area, margin, resolution, *rest)
+    monkeypatch.setattr(_pack, "certify_atlas", certificate)
+    monkeypatch.setattr(_pack, "_layout", recorded)
+    return fails, resolutions

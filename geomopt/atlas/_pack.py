@@ -20,8 +20,13 @@ B. Lévy et al. 2002's "Tetris" packer), searching for the smallest square:
    in-between angles), within a budget of packings; the smallest true side wins.
 4. The placed charts are scaled so that their bounding square is ``[0, 1]^2``; a packing whose
    margin, after that scaling, fell short (the extent was under-estimated) is redone with a wider
-   margin in pixels, and the result is certified exactly (:func:`certify_atlas`): charts disjoint
+   gap (at most ``_MARGIN_LAYOUTS`` layouts: the gap jumps to where a line through the last two
+   layouts' sides says it covers the margin, with coarser pixels where it would pass
+   ``_GAP_PIXELS``), and the result is certified exactly (:func:`certify_atlas`): charts disjoint
    and inside the square; a failure is retried at a finer resolution and never returned.
+
+The margin is kept in the max-norm (rasters grown by squares), so ``k`` charts fit only below the
+margin :func:`widest_margin`; a wider one is refused before any packing.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import math
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from .._runtime.config import Real
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.validate import validate_simplices, validate_vertices
 from ..exact.predicates import orient2d
@@ -40,7 +46,7 @@ from ._certify import certify_atlas
 from ._place import smallest_square
 from ._raster import dilate, rasterize
 
-__all__ = ["Packing", "pack_charts", "packing_estimate", "smallest_square_angle"]
+__all__ = ["MARGIN", "Packing", "pack_charts", "packing_estimate", "smallest_square_angle", "widest_margin"]
 
 _QUARTER_TURNS = [np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([[0.0, -1.0], [1.0, 0.0]]),
                   np.array([[-1.0, 0.0], [0.0, -1.0]]), np.array([[0.0, 1.0], [-1.0, 0.0]])]
@@ -50,6 +56,37 @@ _TRIES = 4
 _LARGE, _STEPS = 0.1, 6  # a chart of over this fraction of the area is also tried every 90 / _STEPS degrees
 _BUDGET = 24  # square packings per layout (every strategy, bisection steps included)
 _LONG_SIDE = 4  # the longest chart spans at most this many times ``resolution`` pixels
+_MARGIN_LAYOUTS = 8  # layouts tried for a gap that covers the margin of the packed side
+_GAP_PIXELS = 4  # the gap spans at most ``resolution / _GAP_PIXELS`` pixels (coarser pixels beyond)
+
+MARGIN = Real(0.0, 0.25, hi_open=True)  # the margin's range, a fraction of the square's side
+
+
+def widest_margin(charts: int) -> float:
+    """The margin that ``charts`` charts packed by :func:`pack_charts` must stay below:
+    ``1 / (ceil(sqrt(charts)) - 1)`` (infinite for one chart).
+
+    The packer keeps charts apart in the max-norm (rasters grown by squares).  Points pairwise at
+    least ``m`` apart in the max-norm in the unit square number at most ``(floor(1 / m) + 1)^2``:
+    their half-open squares ``[p, p + m)^2`` are disjoint, each meets exactly one of the
+    ``floor(1 / m) + 1`` vertical lines ``x = j m`` (``0 <= j m <= 1``), and along each line their
+    ``y``-intervals are disjoint, so each line meets at most ``floor(1 / m) + 1`` of them.  With
+    ``n = ceil(sqrt(charts))`` that needs ``m <= 1 / (n - 1)``, and equality only for charts of
+    no size at the nodes of an ``n x n`` grid."""
+    n = math.ceil(math.sqrt(charts))
+    return math.inf if n <= 1 else 1.0 / (n - 1)
+
+
+def _check_margin(margin, charts: int) -> float:
+    """``margin`` as a float, or a ParameterError: outside :data:`MARGIN`, or too wide for ``charts``."""
+    m = MARGIN(margin)
+    if m is None:
+        raise ParameterError(f"margin must be {MARGIN} (a fraction of the square's side), got {margin!r}")
+    if m >= widest_margin(charts):
+        raise ParameterError(f"margin {m!r} cannot keep {charts} charts apart: {charts} charts fit in the unit "
+                             f"square only with a margin below {widest_margin(charts):.4g} "
+                             f"({math.ceil(math.sqrt(charts)) - 1} gaps across it); use a smaller margin")
+    return m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -248,22 +285,44 @@ def _search(U, shapes, h, r, passes):
 
 def _layout(U, Bs, bases, turns, area, margin, resolution, budget=_BUDGET):
     """Pack at a pixel size giving about ``resolution`` pixels a side; returns (rotations (k, 2, 2),
-    pixel translations (k, 2), pixel size h).  The margin in pixels is re-chosen until it covers
-    ``margin`` of the packed side (a finer margin than needed only costs space)."""
+    pixel translations (k, 2), pixel size h).  The gap between charts is widened until it covers
+    ``margin`` of the packed side (a finer margin than needed only costs space), in at most
+    ``_MARGIN_LAYOUTS`` layouts, else a ParameterError naming the widest margin reached."""
     h = math.sqrt(area / _FIRST_GUESS) / resolution
     # a chart far longer than that square (a thin strip) decides the side: pixels fine enough
     # for the area would make a bitmap of millions of pixels a side (a box 1000 x 1 x 1 hung)
     h = max(h, max(float(np.ptp(u, axis=0).max()) for u in U) / (_LONG_SIDE * resolution))
     r = math.ceil(margin * resolution * _MARGIN_SLACK)
-    tried = set()
-    while True:
-        tried.add(r)
+    seen = []  # per layout (gap, side) in chart units
+    for _ in range(_MARGIN_LAYOUTS):
         shapes = [_shapes(u, B, base, turns, h, r) for u, B, base in zip(U, Bs, bases)]
         placed, side = _search(U, shapes, h, r, budget)
-        want = math.ceil(margin * side)
-        if want <= r:
+        if math.ceil(margin * side) <= r:
             return np.array([p[0] for p in placed]), np.array([p[1] for p in placed]), h
-        r = max(tried) + 1 if want in tried else want
+        seen.append((r * h, side * h))
+        gap = max(_next_gap(seen, margin), (r + 1) * h)
+        h = max(h, gap / max(1, resolution // _GAP_PIXELS))  # many pixels of gap: coarser pixels
+        r = math.ceil(gap / h)
+    widest = max(g / s for g, s in seen)
+    raise ParameterError(f"margin {float(margin)!r} could not be kept between {len(U)} charts in {_MARGIN_LAYOUTS} "
+                         f"layouts (their side grew with the gap about as fast as the margin does); the widest "
+                         f"margin they were packed with is {widest:.4g} ({len(U)} charts fit only below "
+                         f"{widest_margin(len(U)):.4g}): use a smaller margin")
+
+
+def _next_gap(seen, margin) -> float:
+    """The gap (chart units) to try next from the layouts so far, ``seen`` = [(gap, side), ...]:
+    ``margin`` times the last side, or more where the line through the last two layouts (a
+    layout's side grows about linearly with its gap: so many gaps across it) reaches
+    ``gap = margin * side`` further on (creeping there one side at a time can take many layouts)."""
+    g1, s1 = seen[-1]
+    gap = margin * s1
+    if len(seen) > 1 and seen[-2][0] != g1:
+        g0, s0 = seen[-2]
+        slope = (s1 - s0) / (g1 - g0)
+        if 0 < margin * slope < 1:
+            gap = max(gap, margin * (s1 - slope * g1) / (1 - margin * slope))
+    return gap
 
 
 def _side(P) -> float:
@@ -322,6 +381,7 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     """
     U = [np.asarray(u, dtype=np.float64) for u in uvs]
     Fs = [np.asarray(f, dtype=np.int64) for f in faces]
+    margin = _check_margin(margin, len(U))
     U, _, area, Bs, bases, turns = _prepare(U, Fs, rotate, steps=1, Bs=boundaries)
     R, t, h = _layout(U, Bs, bases, turns, area, margin, max(16, int(resolution)), budget)
     return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
@@ -349,15 +409,16 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     MeshError
         A chart is malformed or has a triangle that is not positively oriented.
     ParameterError
-        ``margin`` not in [0, 0.25) or ``resolution`` below 16.
+        ``margin`` not in [0, 0.25) (:data:`MARGIN`), not below :func:`widest_margin` of the
+        number of charts, or not kept within a bounded number of layouts (the message names the
+        widest margin reached); ``resolution`` below 16.
     SolveError
         The packing could not be certified (not expected: the rasters are conservative).
     """
-    if not 0 <= margin < 0.25:
-        raise ParameterError(f"margin must be a fraction of the square in [0, 0.25), got {margin}")
     if int(resolution) < 16:
         raise ParameterError(f"resolution must be at least 16 pixels, got {resolution}")
     U, Fs = _check_charts(uvs, faces)
+    margin = _check_margin(margin, len(U))
     U, unit, area, Bs, bases, turns = _prepare(U, Fs, rotate)
     res = int(resolution)
     for _ in range(_TRIES):

@@ -32,7 +32,7 @@ from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
 from .visibility import vertex_visibility
-from ._pack import packing_estimate
+from ._pack import MARGIN, packing_estimate
 from .split import split_to_pack
 
 __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
@@ -89,7 +89,7 @@ class AtlasOptions:
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
                  hide=Real(0.0), straighten=Real(0.0), up=Maybe(OneOf(("x", "y", "z", "-x", "-y", "-z"))),
-                 min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Real(0.0, 0.25, hi_open=True), rotate=Instance(bool))
+                 min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=MARGIN, rotate=Instance(bool))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,7 +14,13 @@ per square root of the surface's area of seam it adds (3D length of the cut edge
 ranking the candidates and when deciding whether the best pays: among cuts that pack about alike
 the shortest wins (across a neck rather than along an arm), and a long cut must buy more packing.
 The cut that packs best is seldom the one across the principal axis at the median: it is where
-the outline has a notch or an arm.
+the outline has a notch or an arm.  A long chart (a needle: the flattened tube of a thin cylinder
+or torus, straight or curled) is also cut across into ``m`` bands of equal area at once, by the
+distance along it (shortest paths between faces), up to about the square root of its aspect
+ratio (pieces about square): halving a needle leaves each half a
+needle that decides the square alone, so no single cut after the first gains anything.  And a
+split that multiplies the efficiency (``_MULTIPLY``) pays, however small the first gain: a needle
+packs at a few thousandths, below any charge per chart.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .._runtime.errors import ParameterError
 from ..mesh.quality import triangle_areas
 from .charts import ChartMesh, face_pairs, patch_is_disk
 
@@ -33,6 +40,9 @@ _FINALISTS = 3  # the best screened splits packed with all the charts
 _SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
 _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
 _SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
+_MULTIPLY = 2.0  # a split that multiplies the efficiency by this pays, whatever its charge
+_BANDS = (3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # a long chart is also cut across into this many bands
+_BAND_REACH = 1.5  # ... up to this times the square root of its aspect ratio (pieces about square)
 
 
 def _compact(F, size):
@@ -81,9 +91,10 @@ class _Cutter:
         P = self.x[mesh.F]
         self.c, self.A = P.mean(axis=1), triangle_areas(P)
         self.a, self.b, edge, E, self.edge_of = face_pairs(mesh.F)
+        self.E = E
         self.nv, self.ne = len(self.x), len(E)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
-        X = self.x if V is None else np.asarray(V)[mesh.vertices]
+        X = self.X = self.x if V is None else np.asarray(V)[mesh.vertices]
         self.length = np.linalg.norm(X[E[edge, 1]] - X[E[edge, 0]], axis=1)
         mean = np.average(self.c, axis=0, weights=self.A)
         cov = ((self.c - mean) * self.A[:, None]).T @ (self.c - mean)
@@ -97,6 +108,53 @@ class _Cutter:
         at = np.minimum(np.searchsorted(np.cumsum(self.A[order]), np.asarray(quantiles) * self.A.sum()), len(t) - 1)
         return [self._without_slivers(_smoothed(self.mesh.F, t <= t[order][k], pairs=(self.a, self.b)))
                 for k in at]
+
+    def along(self):
+        """(m,) each face's distance along the chart from one end of it: the least over its
+        corners of their shortest-path distance along the chart's edges (3D with the surface's
+        vertices, else in UV: a flattening may curl a needle) from the vertex
+        farthest from vertex 0 (a double sweep: on a strip, straight or curled, one of its ends).
+        Faces are banded by their lowest corner, so a band's border runs along edges: across a
+        strip of quads, its rings, not a staircase of the quads' diagonals.  Also the chart's
+        length (the largest vertex distance) as ``self.length_along``."""
+        from scipy.sparse.csgraph import dijkstra
+
+        if not hasattr(self, "_along"):
+            E = self.E
+            w = np.linalg.norm(self.X[E[:, 1]] - self.X[E[:, 0]], axis=1) + 1e-300
+            graph = sp.coo_matrix((w, (E[:, 0], E[:, 1])), shape=(self.nv, self.nv)).tocsr()
+            d = dijkstra(graph, directed=False, indices=int(self.mesh.F[0, 0]))
+            d = dijkstra(graph, directed=False, indices=int(np.argmax(np.where(np.isfinite(d), d, -1))))
+            d = np.where(np.isfinite(d), d, 0.0)
+            self._along, self.length_along = d[self.mesh.F].min(axis=1), float(d.max())
+        return self._along
+
+    def bands(self, m: int):
+        """(m,) bool: the faces of the even ones of ``m`` bands of about equal area along the chart
+        (:meth:`along`: across a needle, straight or curled; each cut at the widest gap between
+        the faces' distances within a quarter band of its place, so that a ring of faces at
+        about one distance is not split), smoothed and without slivers as
+        :meth:`sides` makes them (each band a connected piece of its side)."""
+        t = self.along()
+        order = np.argsort(t, kind="stable")
+        ts, below = t[order], np.cumsum(self.A[order]) / self.A.sum()  # area up to each face, in order
+        gap = np.diff(ts)
+        cuts = []
+        for k in range(1, m):  # each cut at the widest gap between the distances within a quarter band
+            near = np.flatnonzero(np.abs(below[:-1] - k / m) <= 0.25 / m)
+            if len(near):
+                i = near[np.argmax(gap[near])]
+                cuts.append(0.5 * (ts[i] + ts[i + 1]))
+        band = np.searchsorted(np.array(cuts), t)
+        return self._without_slivers(_smoothed(self.mesh.F, band % 2 == 0, pairs=(self.a, self.b)))
+
+    def band_counts(self):
+        """The band counts of :data:`_BANDS` up to ``_BAND_REACH`` times the square root of the
+        chart's aspect ratio, its length (:meth:`along`) squared over its area (about 1 for a
+        disk or a square, the length over the width for a strip)."""
+        self.along()
+        aspect = self.length_along ** 2 / max(float(self.A.sum()), 1e-300)
+        return [m for m in _BANDS if m <= _BAND_REACH * np.sqrt(aspect)]
 
     def seam(self, low) -> float:
         """The length of the seam that cutting the chart between ``low`` and the rest adds."""
@@ -175,7 +233,9 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
                      seams: bool = False):
     """Every distinct straight split of a flattened chart that leaves disks: across
     ``directions`` directions evenly spaced over half a turn from the longest principal axis,
-    at each of ``quantiles`` of the area (:func:`split_flat_chart`'s cuts).  Returns a list of
+    at each of ``quantiles`` of the area (:func:`split_flat_chart`'s cuts); and for a long chart
+    the cuts across it into bands of equal area by the distance along it (:meth:`_Cutter.bands`,
+    :meth:`_Cutter.band_counts` of them, each a piece).  Returns a list of
     piece lists (each as :func:`split_flat_chart` returns it); with ``seams``, a list of
     ``(pieces, seam)``, ``seam`` the length of the cut (3D with the surface's vertices ``V``,
     which ``mesh.vertices`` index; else in UV)."""
@@ -184,16 +244,16 @@ def candidate_splits(mesh: ChartMesh, x, directions: int = _DIRECTIONS, quantile
     cutter = _Cutter(mesh, x, V)
     a0 = np.arctan2(cutter.axes[1, -1], cutter.axes[0, -1])
     seen, out = set(), []
-    for a in a0 + np.pi * np.arange(directions) / directions:
-        d = np.array([np.cos(a), np.sin(a)])
-        for low in cutter.sides(d, quantiles):
-            key = np.packbits(low ^ low[0]).tobytes()  # a partition, whichever side is low
-            if key in seen:
-                continue
-            seen.add(key)
-            pieces = cutter.pieces(low)
-            if pieces is not None:
-                out.append((pieces, cutter.seam(low)) if seams else pieces)
+    cuts = [low for a in a0 + np.pi * np.arange(directions) / directions
+            for low in cutter.sides(np.array([np.cos(a), np.sin(a)]), quantiles)]
+    for low in cuts + [cutter.bands(m) for m in cutter.band_counts()]:
+        key = np.packbits(low ^ low[0]).tobytes()  # a partition, whichever side is low
+        if key in seen:
+            continue
+        seen.add(key)
+        pieces = cutter.pieces(low)
+        if pieces is not None:
+            out.append((pieces, cutter.seam(low)) if seams else pieces)
     return out
 
 
@@ -221,20 +281,34 @@ def piece_boundaries(mesh: ChartMesh, splits):
 def _best_split(meshes, maps, i, pack, screen, charge, current):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
-    (the packing's efficiency rises above ``current`` by at least the charge): every candidate's
+    (the packing's efficiency rises above ``current`` by at least the charge, or to ``_MULTIPLY``
+    times ``current`` or more; a split that cannot be packed at the margin, ParameterError, pays
+    nothing): every candidate's
     pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
     with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
     pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
     bounds = piece_boundaries(meshes[i], [c for c, _ in cands])
-    est = [screen([p[1] for p in c], [p[0].F for p in c], B) - charge(c, seam) for (c, seam), B in zip(cands, bounds)]
+
+    def estimate(pieces, seam, B):
+        try:
+            return screen([p[1] for p in pieces], [p[0].F for p in pieces], B) - charge(pieces, seam)
+        except ParameterError:  # more pieces than the margin can keep apart
+            return -np.inf
+
+    est = [estimate(c, seam, B) for (c, seam), B in zip(cands, bounds)]
     best = None
     for j in np.argsort(est)[::-1][:_FINALISTS]:
+        if est[j] == -np.inf:
+            break
         pieces, seam = cands[j]
-        trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
-                     [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
+        try:
+            trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
+                         [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
+        except ParameterError:  # more charts than the margin can keep apart (pack_charts' widest_margin)
+            continue
         score = trial.efficiency - charge(pieces, seam)
-        if trial.efficiency <= current or score < current:
+        if trial.efficiency <= current or (score < current and trial.efficiency < _MULTIPLY * current):
             continue
         if best is None or score > best[0]:
             best = (score, pieces, trial)

@@ -119,7 +119,8 @@ def _add_param(sub):
                     help="cut into charts and pack them (a texture atlas) even when the mesh is a disk; a "
                          "mesh that is not a disk (closed, several boundary loops or components) always is")
     sp.add_argument("--margin", type=_margin, default=None,
-                    help="atlas: gap between packed charts, a fraction of the unit square (default 0.005)")
+                    help="atlas: gap between packed charts, a fraction of the unit square in [0, 0.25) (default "
+                         "0.005); k charts fit only below 1 / (ceil(sqrt k) - 1), a wider margin is refused")
     sp.add_argument("--up", default=None, choices=["x", "y", "z", "-x", "-y", "-z"],
                     help="atlas: the axis that points up (--up=-y for a negative one); seams prefer the "
                          "underside (default: none; seams always prefer occluded places and creases)")
