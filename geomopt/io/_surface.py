@@ -170,7 +170,7 @@ def nonmanifold_edge_in_file(path, F) -> str | None:
     why = (f"; it is no edge of the file but the diagonal that fan-triangulating the {int(counts[diagonal[0]])}-gon "
            f"of line {int(lines[diagonal[0]])} adds: triangulate that polygon along its other diagonal"
            if diagonal else "")
-    return (f"{path}: {bad.size} non-manifold edge(s) (in more than two faces); first: the edge of vertices "
+    return (f"{path}: {bad.size} non-manifold edges (in more than two faces); first: the edge of vertices "
             f"{a + 1} and {b + 1}, in the faces of lines {said}{why}; a surface map needs an edge-manifold "
             f"mesh: split or remove the extra faces")
 

@@ -139,7 +139,8 @@ def _fall_back(run, x0, x_start, first) -> Result:
     """The eps loop again from the harmonic extension of the handles (:func:`harmonic_start`)
     after ``first``, the run from ``x_start``, ended uncertified before the outer-iteration limit
     (``run``'s options hold what is left of it); ``first`` when the extension is undefined or is
-    ``x_start``.  The result's stats add up both runs."""
+    ``x_start``, or when its run ends uncertified with no fewer inverted elements.  The result's
+    stats add up both runs."""
     problem, progress = run[0], run[5]
     fallback = harmonic_start(problem, x0)
     if fallback is None or not differing_rows(fallback, x_start).any():
@@ -148,6 +149,8 @@ def _fall_back(run, x0, x_start, first) -> Result:
         logger.info(f"untangling: the given map ended uncertified ({first.message}); again from the harmonic "
                     f"extension of the handles")
     result = _attempt(*run, time.perf_counter(), fallback, "harmonic", stall=None)
+    if not result.success and result.certificate.inverted >= first.certificate.inverted:
+        return first  # the fallback got no further: the first run's map, and its reason, are the answer
     a, b = first.stats, result.stats
     stats = dataclasses.replace(b, setup_seconds=a.setup_seconds + b.setup_seconds, seconds=a.seconds + b.seconds,
                                 iterations=a.iterations + b.iterations, evaluations=a.evaluations + b.evaluations,
