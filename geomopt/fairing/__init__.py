@@ -16,7 +16,14 @@ One module per job: :mod:`~geomopt.fairing.operators` (Laplacians and masses),
 and :mod:`~geomopt.fairing.driver`; this package only re-exports.
 """
 
+from typing import TYPE_CHECKING
+
 from .options import BOUNDARIES, METHODS, FairOptions
+
+if TYPE_CHECKING:  # what the lazy names below are, for readers and the API site (griffe reads this)
+    from .certificate import FoldCertificate, certify_folds, safe_step
+    from .driver import FairDetails, fair, remove_folds, smoothed
+    from .energies import fairing_energy
 
 # public name -> module (imported on first use, PEP 562: the options, which the command line's
 # parser reads, load without SciPy or JAX)
