@@ -21,6 +21,27 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(cores, MAX_WORKERS))
 
 
+#: node ids of the long tests (tests/slow.txt): marked ``slow``, left out unless ``-m`` selects them
+SLOW = frozenset(line.strip() for line in (Path(__file__).parent / "slow.txt").read_text().splitlines()
+                 if line.strip() and not line.startswith("#"))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests of :data:`SLOW` (before ``-m`` deselects); a listed id that is not collected
+    in a whole-suite run is stale, and an error."""
+    ids = {item.nodeid for item in items}
+    for item in items:
+        if item.nodeid in SLOW:
+            item.add_marker(pytest.mark.slow)
+    whole = not config.args or [str(a) for a in config.args] == [str(Path(config.rootpath) / "tests")] or \
+        config.args == ["tests"]
+    stale = sorted(SLOW - ids) if whole and not config.getoption("keyword") else []
+    if stale:
+        raise pytest.UsageError(f"tests/slow.txt lists {len(stale)} test(s) that do not exist (first: {stale[0]}); "
+                                f"remove them")
+
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
