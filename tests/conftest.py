@@ -28,15 +28,17 @@ SLOW = frozenset(line.strip() for line in (Path(__file__).parent / "slow.txt").r
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    """Mark the tests of :data:`SLOW` (before ``-m`` deselects); a listed id that is not collected
-    in a whole-suite run is stale, and an error."""
+    """Mark the tests of :data:`SLOW` (before ``-m`` deselects); a listed id whose file is
+    missing, or whose file was collected without it, is stale, and an error."""
     ids = {item.nodeid for item in items}
     for item in items:
         if item.nodeid in SLOW:
             item.add_marker(pytest.mark.slow)
-    whole = not config.args or [str(a) for a in config.args] == [str(Path(config.rootpath) / "tests")] or \
-        config.args == ["tests"]
-    stale = sorted(SLOW - ids) if whole and not config.getoption("keyword") else []
+    if config.getoption("keyword"):
+        return
+    files = {nodeid.split("::")[0] for nodeid in ids}
+    root = Path(config.rootpath)
+    stale = sorted(i for i in SLOW - ids if i.split("::")[0] in files or not (root / i.split("::")[0]).exists())
     if stale:
         raise pytest.UsageError(f"tests/slow.txt lists {len(stale)} test(s) that do not exist (first: {stale[0]}); "
                                 f"remove them")
