@@ -29,7 +29,8 @@ SLOW = frozenset(line.strip() for line in (Path(__file__).parent / "slow.txt").r
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Mark the tests of :data:`SLOW` (before ``-m`` deselects); a listed id whose file is
-    missing, or whose file was collected without it, is stale, and an error."""
+    missing, or whose test function its collected file lacks, is stale, and an error (a
+    parameter that exists only with ../shared's data, such as a LIM case, is not)."""
     ids = {item.nodeid for item in items}
     for item in items:
         if item.nodeid in SLOW:
@@ -37,19 +38,36 @@ def pytest_collection_modifyitems(config, items):
     if config.getoption("keyword"):
         return
     files = {nodeid.split("::")[0] for nodeid in ids}
+    functions = {nodeid.split("[")[0] for nodeid in ids}
     root = Path(config.rootpath)
-    stale = sorted(i for i in SLOW - ids if i.split("::")[0] in files or not (root / i.split("::")[0]).exists())
+    stale = sorted(i for i in SLOW - ids if (i.split("::")[0] in files and i.split("[")[0] not in functions)
+                   or not (root / i.split("::")[0]).exists())
     if stale:
         raise pytest.UsageError(f"tests/slow.txt lists {len(stale)} test(s) that do not exist (first: {stale[0]}); "
                                 f"remove them")
 
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+#: the LIM cases: ../shared/data/lim where the project's shared folder is beside the clone (the 2D
+#: cases and a 3D one), else the 2D cases the repository carries (tests/data/SOURCES.md)
+LIM_ROOT = SHARED / "lim" if (SHARED / "lim" / "manifest.tsv").exists() else Path(__file__).resolve().parent / "data" / "lim"
+
+
+def mesh_path(name):
+    """A real surface: the copy bundled with geomopt (geomopt/data) when there is one, else
+    ../shared/data/meshes; skip the test with a clear message when neither has it."""
+    for folder in (Path(__file__).resolve().parents[1] / "geomopt" / "data", SHARED / "meshes"):
+        if (folder / name).exists():
+            return folder / name
+    pytest.skip(f"mesh {name} is not redistributable with the repository and ../shared/data/meshes is absent "
+                f"(clone the project next to its shared/ folder)")
 
 
 def shared_path(*parts):
-    """A file under ../shared/data, or skip the test with a clear message when it is absent."""
-    p = SHARED.joinpath(*parts)
+    """A file under ../shared/data (a LIM case may come from the repository's own copy), or skip
+    the test with a clear message when it is absent."""
+    root, rest = (LIM_ROOT, parts[1:]) if parts[:1] == ("lim",) else (SHARED, parts)
+    p = root.joinpath(*rest)
     if not p.exists():
         pytest.skip(f"shared data not found at {p} (clone the project next to its shared/ folder)")
     return p

@@ -27,7 +27,7 @@ from geomopt.io import (
 from geomopt.lim import LimCase
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared/data"
-LIM_ROOT = SHARED / "lim"
+from conftest import LIM_ROOT  # noqa: E402
 MESH_DIR = SHARED / "meshes"
 
 TET_VTK = (

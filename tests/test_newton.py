@@ -9,7 +9,7 @@ import geomopt
 from geomopt import Newton, Objective, Outcome, Problem, minimize, parameterize
 from geomopt.exact.predicates import count_inverted
 
-from conftest import grid, shared_path
+from conftest import grid, mesh_path
 from test_objective import cot_laplacian
 
 
@@ -93,7 +93,7 @@ def test_camelhead_parameterizes_flip_free():
 def test_bunny_cut_from_shared_data_flip_free():
     from geomopt.io import read_mesh
 
-    V, F = read_mesh(shared_path("meshes", "bunny_cut.obj"))
+    V, F = read_mesh(mesh_path("bunny_cut.obj"))
     res = parameterize(V, F, progress=False)
     assert res.certificate.inverted == 0  # flip-free, but with the boundary free nothing stops it folding
     # over itself: 4 boundary fans turn 1.006-1.15 times (issue 19 item 2: it was a success).

@@ -35,7 +35,9 @@ from geomopt.untangling import untangle
 
 from conftest import cube_tets, grid
 
-LIM_SQUARE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim" / "2D" / "Simple" / "square_rot90"
+from conftest import LIM_ROOT
+
+LIM_SQUARE = LIM_ROOT / "2D" / "Simple" / "square_rot90"
 
 
 def _bumpy(V):

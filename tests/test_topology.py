@@ -1,9 +1,9 @@
 """Tests for geomopt.exact.topology: edges, boundary loops, components and the disk check."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -11,7 +11,8 @@ from geomopt import MeshError
 from geomopt.exact.topology import (boundary_half_edges, boundary_loops, check_disk, connected_components,
     half_edges, unique_edges)
 
-MESHES = Path(__file__).resolve().parents[1].parent / "shared/data/meshes"
+from conftest import mesh_path
+
 
 
 def grid_disk(nx, ny):
@@ -224,9 +225,7 @@ def test_check_disk_checks_the_same_faces_once_and_changed_faces_again(monkeypat
     [("camelhead.off", 56), ("bunny_cut.obj", 744)],
 )
 def test_check_disk_real_meshes(name, expected):
-    path = MESHES / name
-    if not path.exists():
-        pytest.skip(f"test mesh {path} not found (shared/data/meshes next to the repo)")
+    path = mesh_path(name)
     trimesh = pytest.importorskip("trimesh")
     mesh = trimesh.load(path, process=False)
     loop = check_disk(np.asarray(mesh.faces), len(mesh.vertices))

@@ -1,9 +1,10 @@
 """Tests for geomopt.mesh.tutte: flip-free Tutte embeddings onto the unit circle."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+
+from conftest import mesh_path
 import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -13,7 +14,6 @@ from geomopt.exact.predicates import count_inverted, simplex_orientations
 from geomopt.exact.topology import boundary_loops, check_disk
 from geomopt.mesh.tutte import WEIGHTS, scale_to_area, tutte_embedding, tutte_weights
 
-MESHES = Path(__file__).resolve().parents[1].parent / "shared/data/meshes"
 
 
 def grid_disk(nx, ny, jitter=0.0, seed=0):
@@ -41,9 +41,7 @@ def signed_areas(UV, F):
 
 
 def load(name):
-    path = MESHES / name
-    if not path.exists():
-        pytest.skip(f"test mesh {path} not found (expected shared/data/meshes next to the repo)")
+    path = mesh_path(name)
     trimesh = pytest.importorskip("trimesh")
     mesh = trimesh.load(path, process=False)
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)

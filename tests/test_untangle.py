@@ -33,7 +33,7 @@ from geomopt.energies import chi
 from geomopt.untangling import default_solver, next_eps, untangle
 from test_objective import cot_laplacian
 
-LIM_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lim"
+from conftest import LIM_ROOT
 CASES = LimCase.cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
 
 

@@ -22,10 +22,9 @@ from geomopt.lim import LimCase, untangle_case
 from geomopt.untangling import UntangleOptions, untangle
 from geomopt.untangling import continuation
 
-from conftest import SHARED
+from conftest import LIM_ROOT
 
 ROOT = Path(__file__).resolve().parents[1]
-LIM_ROOT = SHARED / "lim"
 CASES = LimCase.cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
 #: cases whose handles alone make some star overlap (a property of the input: tests/test_untangle.py)
 EXCEPT_FIXED = {"armadillo-598"}
