@@ -73,14 +73,14 @@ def test_what_save_cannot_write_is_refused_before_anything_is_written(surface, t
 
 
 def test_a_picture_that_fails_leaves_no_map_either(surface, tmp_path, monkeypatch):
-    from geomopt import plot
+    from geomopt.plot import _figures
 
     V, F, res = surface
 
     def broken(*args, **kwargs):
         raise RuntimeError("drawing failed")
 
-    monkeypatch.setattr(plot, "save_param_figure", broken)
+    monkeypatch.setattr(_figures, "save_param_figure", broken)
     with pytest.raises(RuntimeError, match="drawing failed"):
         res.save(tmp_path / "m.obj", png=tmp_path / "m.png")
     assert list(tmp_path.iterdir()) == []

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from geomopt.objective import linsolve
+from geomopt.linalg import linsolve
 
 
 def _spd_lower(n=60, seed=0, shift=1.0):

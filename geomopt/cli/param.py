@@ -231,7 +231,7 @@ def convergence_path(png):
 def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     from .. import io, plot
-    from .._save import save_param_picture
+    from ..plot._save import save_param_picture
 
     obj = res.objective
     base, conv = Path(png), convergence_path(png)

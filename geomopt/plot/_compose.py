@@ -477,7 +477,7 @@ def save_png(image, target, dpi):
     if hasattr(target, "write"):
         image.save(target, **options)
         return
-    from .io import atomic_output
+    from ..io import atomic_output
 
     with atomic_output(target, "wb") as fh:
         image.save(fh, **options)

@@ -6,9 +6,6 @@ Each picture has a ``*_figure`` function returning a :class:`matplotlib.figure.F
 inline by Jupyter) and a ``save_*`` function that saves it to a path (atomically, in the
 format its extension names: ``.png``, ``.pdf``, ``.svg``) or into an open binary file (then
 ``format`` is required).
-
-:func:`show` draws a map in polyscope or pyvista instead (interactive, or a screenshot taken
-off-screen), when one of them is installed (``pip install "geomopt[view]"``).
 """
 
 from __future__ import annotations
@@ -17,12 +14,11 @@ import numpy as np
 
 from ._compose import SUPERSCRIPT
 from ._render import camera_rotation, project, rasterize, render_sphere_checker, render_surface, render_uv_checker
-from ._view import show
 
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
-    "atlas_figure", "save_atlas_figure", "show", "flat_tripcolor",
+    "atlas_figure", "save_atlas_figure", "flat_tripcolor",
     "INVERTED",
 ]
 
@@ -69,14 +65,14 @@ def save_figure(fig, target, format=None):
     """Save ``fig`` into the open binary file ``target`` or atomically to the path ``target``."""
     if hasattr(target, "write"):
         if format is None:
-            from ._runtime.errors import ParameterError
+            from .._runtime.errors import ParameterError
 
             raise ParameterError("saving a figure into an open file needs format= (e.g. 'png')")
         fig.savefig(target, format=format, **_encoder_options(format))
         return
     from pathlib import Path
 
-    from .io import atomic_output
+    from ..io import atomic_output
 
     format = format or Path(target).suffix[1:].lower()
     with atomic_output(target, "wb") as fh:
@@ -202,7 +198,7 @@ def sphere_figure(V, F, x, face_values=None, title="", label="log2 area ratio", 
 
     V, F, x = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(x, np.float64)
     if face_values is None:
-        from .sphere import sphere_distortion
+        from ..sphere import sphere_distortion
 
         face_values = np.log2(np.maximum(sphere_distortion(V, F, x)["area_ratio"], 1e-12))
     values = np.asarray(face_values, np.float64)
