@@ -16,7 +16,7 @@ from ..objective.objective import Objective
 from ..mesh.elements import element_type
 from ..mesh.problem import Problem
 from ..solvers import CM, get_solver
-from .comparison import DEFAULT_SOLVERS
+from .options import DEFAULT_SOLVERS
 
 __all__ = ["mesh_key", "comparison_problem", "comparison_solvers", "NAME"]
 
