@@ -241,7 +241,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     """
     from ..param import check_scale_aware, mesh_arrays
     from ..solvers._iterate import check_progress
-    from . import certify_atlas, pack_charts
+    from ._certify import certify_atlas
+    from ._pack import pack_charts
 
     t0 = time.perf_counter()
     options = AtlasOptions() if options is None else options
