@@ -133,7 +133,7 @@ def _distortion_colors(problem, x):
 
 def scene(obj, uv=None) -> Scene:
     """The :class:`Scene` of a :class:`~geomopt.solvers.Result` or a mesh (see :func:`show`)."""
-    from ..param import unit_square
+    from ..mesh.convert import unit_square
 
     problem = getattr(obj, "problem", None)
     if problem is None or not hasattr(obj, "x"):
