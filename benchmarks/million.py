@@ -321,7 +321,7 @@ def kernel_rows(dim, repeat):
     from geomopt import Objective, Problem
     from geomopt.energies import garanzha
     from geomopt.solvers.linesearch import InjectiveSearch, max_injective_step
-    from geomopt.objective.linsolve import SparseCholesky, repeated_solves_backend
+    from geomopt.linalg.linsolve import SparseCholesky, repeated_solves_backend
     from geomopt.solvers import rest_laplacian
 
     jax.config.update("jax_enable_x64", True)

@@ -19,7 +19,7 @@ is its own, and prints one JSON object per line on stdout with the keys
 * ``newton_iter_s``: one iteration of ``geomopt.solvers.Newton(projection="clamp")`` (its
   ``step``: Hessian, direction, injective line search, stopping test) with the linear solver
   that ``linear_solver="auto"`` picks here (``newton_pick``,
-  :func:`geomopt.objective.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
+  :func:`geomopt.linalg.linsolve.newton_linear_solver`): ``direct_iter_s`` (the fastest installed
   Cholesky, PARDISO; skipped with ``--no-direct``) or ``cg_iter_s`` (``--cg``:
   ``linear_solver="cg"``); the median of 3 iterations after the first, which is what a user
   pays per iteration; when the pick was not measured, the faster of the two;
@@ -103,7 +103,7 @@ def run_solves(obj, x0):
     that costs more) and the CG direction: warm seconds (the second of two runs), Newton
     iterations, final energy."""
     import geomopt
-    from geomopt.objective.linsolve import available_backends
+    from geomopt.linalg.linsolve import available_backends
     from geomopt.solvers import Newton
 
     out = {}
@@ -132,7 +132,7 @@ def run_one(elements: int, dim: int, repeat: int, cg: bool, direct: bool, untang
 
     from geomopt.mesh import generators as G
     from geomopt.objective.objective import Objective, hessian_pattern
-    from geomopt.objective.linsolve import available_backends, newton_linear_solver
+    from geomopt.linalg.linsolve import available_backends, newton_linear_solver
     from geomopt.mesh.problem import Problem
     from geomopt.solvers import Newton
 

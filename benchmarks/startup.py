@@ -146,7 +146,7 @@ def slim_to(V, F, x0, objective, targets, seconds):
 def backend_iteration_seconds(V, F):
     """Warm Newton seconds per iteration, default linear solver vs CHOLMOD (None if absent)."""
     import geomopt
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
 
     out = {}
     for backend in ("auto", "cholmod"):

@@ -30,7 +30,7 @@ _LAZY = {
     "Outcome": ".solvers", "Result": ".solvers", "minimize": ".solvers", "smooth": ".smoothing",
     "tutte_embedding": ".mesh.tutte", "compare": ".experiments.comparison", "Comparison": ".experiments.comparison",
     "compare_meshes": ".experiments.comparison", "ComparisonSet": ".experiments.comparison", "sphere_map": ".sphere",
-    "make_atlas": ".atlas", "untangle": ".untangling", "fair": ".fairing",
+    "make_atlas": ".atlas", "untangle": ".untangling", "fair": ".fairing", "save": ".plot._save",
     # the drivers' options (one calling convention: data by position, settings in these)
     "ParamOptions": ".param", "SphereOptions": ".sphere", "AtlasOptions": ".atlas", "UntangleOptions": ".untangling",
     "SmoothOptions": ".smoothing", "CompareOptions": ".experiments.options",
@@ -38,8 +38,8 @@ _LAZY = {
 }
 # public submodules reachable as attributes without an import of their own (imported on first use):
 # the layers from the bottom up, then the drivers and the outputs on top
-_SUBMODULES = ("exact", "io", "mesh", "energies", "objective", "solvers", "param", "untangling", "smoothing", "sphere",
-               "atlas", "fairing", "implicit", "lim", "experiments", "plot", "data", "cli")
+_SUBMODULES = ("exact", "io", "linalg", "mesh", "energies", "objective", "solvers", "param", "untangling", "smoothing",
+               "sphere", "atlas", "fairing", "implicit", "lim", "experiments", "plot", "data", "cli")
 
 
 def __getattr__(name):

@@ -36,8 +36,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, weights="
 
 def untangle(problem, x0, theta=None, *, solver="lbfgs", linear_solver: str = "auto", **options):
     """Deprecated: ``geomopt.untangle(problem, x0, solver, theta=theta, adjoint=linear_solver).x``."""
-    from .untangling import UntangleOptions
+    from .untangling import UntangleOptions, untangle as forward
     from .untangling.implicit import untangle_map
 
     _deprecated("untangle", "geomopt.untangle")
-    return untangle_map(problem, x0, theta, solver=solver, adjoint=linear_solver, options=UntangleOptions(**options))
+    return untangle_map(forward, problem, x0, theta, solver=solver, adjoint=linear_solver, options=UntangleOptions(**options))

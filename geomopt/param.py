@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 
 import numpy as np
 
@@ -11,9 +10,10 @@ from ._runtime.config import Instance, Maybe, OneOf, keyword_only, options_from,
 from ._runtime.errors import MeshError, ParameterError, SolveError
 from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
-from .objective.objective import Objective, jit
+from .objective.objective import Objective
 from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
-from .energies import energy_spec
+from .energies import energy_spec, get_energy
+from .mesh.convert import mesh_arrays
 from .mesh.problem import Problem
 from .scaffold import ScaffoldOptions, bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
@@ -22,10 +22,8 @@ from .exact.topology import check_disk
 from .untangling import UntangleOptions, untangle
 from .mesh.tutte import WEIGHTS as TUTTE_WEIGHTS, circle_boundary, optimal_scale, tutte_embedding
 
-__all__ = [
-    "parameterize", "parameterize_map", "unit_square", "start_map", "optimal_scale", "projection_map", "repair_map", "mesh_arrays",
-    "check_scale_aware", "ParamOptions",
-]
+__all__ = ["parameterize", "parameterize_map", "start_map", "optimal_scale", "projection_map", "repair_map",
+           "ParamOptions"]
 
 
 def _to_rest_area(problem: Problem, x0) -> np.ndarray:
@@ -122,57 +120,6 @@ def start_map(objective: Objective, x0=None, weights="uniform", progress=False, 
     x0 = _to_rest_area(problem, x0)
     s = optimal_scale(objective, x0)
     return s * x0, s, repaired
-
-
-def unit_square(uv) -> np.ndarray:
-    """``uv`` (n, 2) moved and scaled uniformly (aspect kept) so that its bounding box spans
-    [0, 1] along its longer side and starts at 0 along both: the range texture tools expect
-    (``geomopt param --uv-range unit``, the viewers' checkerboard)."""
-    uv = np.asarray(uv, np.float64)
-    lo = uv.min(axis=0)
-    return (uv - lo) / max(float(np.ptp(uv, axis=0).max()), 1e-300)
-
-
-def mesh_arrays(V, F=None):
-    """``(V, F)`` from a vertex array and a face array, or from one mesh object with
-    ``.vertices`` and ``.faces`` (a ``trimesh.Trimesh``, ...) given as ``V`` with ``F=None``."""
-    if F is None:
-        if hasattr(V, "vertices") and hasattr(V, "faces"):
-            return np.asarray(V.vertices), np.asarray(V.faces)
-        raise ParameterError(f"give the faces F with the vertices, or one mesh object with .vertices and "
-                             f".faces (e.g. a trimesh.Trimesh); got {type(V).__name__} and no faces")
-    return V, F
-
-
-@float64
-def check_scale_aware(energy, energy_params):
-    """Refuse an energy that a free boundary lets shrink the map to a point (e.g. Dirichlet):
-    its free-boundary problem has no minimiser, so any "solution" is a collapsed map.  Tested
-    on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
-    ``s = 1e-3`` (every scale-aware or scale-invariant distortion fails this test)."""
-    from .energies import get_energy
-
-    e = get_energy(energy)
-    # unknown or misplaced names are reported by the caller's own checks, with better advice
-    params = e.resolve_params(**{k: v for k, v in energy_params.items() if k in e.params})
-    # one kept program per density (no trace in a warm process) instead of dozens of eager operations;
-    # its argument a NumPy array: jnp.array would compile an eager conversion in every process
-    at = dict(zip((1.0, 1e-3), np.asarray(_density_at_scales(e.density, params, np.array([1.0, 1e-3]))).tolist()))
-    if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
-        raise ParameterError(
-            f"energy {e.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "
-            f"{at[1.0]:.3g} at rest), so a free-boundary parameterization would collapse to a point; "
-            "use a scale-aware energy (symmetric_dirichlet, arap, mips) or fix boundary vertices "
-            "(geomopt.minimize with a Problem that has handles)")
-
-
-@partial(jit, static_argnums=0)
-def _density_at_scales(density, params, scales):
-    """(k,) ``density(s I, params)`` for each 2D scale ``s`` of ``scales`` (k,)."""
-    import jax
-    import jax.numpy as jnp
-
-    return jax.vmap(lambda s: density(s * jnp.eye(2), params))(scales)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -290,7 +237,7 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
         x = parameterize_map(V, F, energy, solver, options.weights, x0, element_weights, adjoint, energy_params)
         return traced_result(x, solver=solver)
     V, F = mesh_arrays(V, F)
-    check_scale_aware(energy, energy_params)
+    get_energy(energy).check_scale_aware(energy_params)
     check_progress(progress, "parameterize")
     if options.bijective:
         if isinstance(x0, str) or element_weights is not None:

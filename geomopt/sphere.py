@@ -45,14 +45,15 @@ import scipy.sparse as sp
 
 from ._runtime.config import Instance, Int, Maybe, OneOf, keyword_only, split_options, validate
 from ._runtime.errors import MeshError, ParameterError
-from .objective.objective import Objective, element_densities
+from .objective.objective import Objective
 from ._runtime.tracing import refuse_traced
-from .energies import energy_spec
+from .energies import energy_spec, get_energy
 from ._runtime.validate import validate_vertices
 from ._runtime.x64 import float64
-from .exact.certify import SphereCertificate, certify_sphere, spherical_areas
-from .param import check_scale_aware, mesh_arrays
+from .exact.certify import SphereCertificate, certify_sphere
+from .mesh.convert import mesh_arrays
 from .mesh.problem import Problem
+from .objective.distortion import sphere_distortion
 from .solvers import LBFGS, AbstractContinuation, Decision, Details, Final, Outcome, get_solver, iterate
 from .solvers._iterate import check_progress
 from .exact.topology import as_faces, boundary_loops, check_sphere
@@ -477,7 +478,7 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options:
     refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
     V, F = mesh_arrays(V, F)
     check_progress(progress, "sphere_map")
-    check_scale_aware(energy, energy_params)
+    get_energy(energy).check_scale_aware(energy_params)
     solver = default_solver() if solver is None else get_solver(solver)
     if not isinstance(solver, LBFGS):
         raise ParameterError(f"sphere_map minimises with L-BFGS (value and gradient only: the map onto the sphere "
@@ -490,27 +491,3 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options:
     return iterate(solver, objective, objective.prepare_map(x0), objective.params(),
                    continuation=_OnTheSphere(objective, details, x0), guard=_radial_guard, progress=progress, trace=True,
                    throw=throw, label="sphere_map")
-
-
-@float64
-def sphere_distortion(V, F, x) -> dict:
-    """Distortion of a map ``x`` (n, 3) of the closed mesh ``V`` (n, 3), ``F`` (m, 3) onto the
-    unit sphere (``x`` need not be normalised, nor flip-free).
-
-    Returns
-    -------
-    dict: ``"symmetric_dirichlet"``, the area-weighted mean symmetric Dirichlet density of the
-    chord triangles (:meth:`geomopt.Problem.sphere`; 4 at an isometry); ``"area_ratio"`` (m,),
-    each triangle's signed spherical area over its rest area scaled to total ``4 pi`` (1 where
-    area is kept), and its ``"area_min"``, ``"area_max"`` and (unweighted) ``"area_mean"``; ``"inverted"``,
-    the triangles not positively oriented about the centre (exact).
-    """
-    problem = Problem.sphere(V, F)
-    objective = Objective(problem, "symmetric_dirichlet", buckets=True)  # one kernel per size bucket
-    x = np.asarray(x, dtype=np.float64)
-    density = np.asarray(element_densities(objective, x))
-    ratio = spherical_areas(x, problem.simplices) / problem.volumes
-    w = problem.volumes / problem.volumes.sum()
-    return {"symmetric_dirichlet": float(np.sum(w * density)), "area_ratio": ratio,
-            "area_min": float(ratio.min()), "area_max": float(ratio.max()), "area_mean": float(ratio.mean()),
-            "inverted": problem.count_inverted(x)}

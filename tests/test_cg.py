@@ -8,7 +8,7 @@ import pytest
 from geomopt.objective.cg import NewtonCG, cg_system, pcg
 from geomopt.objective.objective import Objective
 from geomopt.mesh.generators import boundary_vertices
-from geomopt.objective.linsolve import SparseCholesky
+from geomopt.linalg.linsolve import SparseCholesky
 from geomopt.mesh.problem import Problem
 
 from conftest import cube_tets, grid
@@ -194,7 +194,7 @@ def test_newton_with_cg_solves_like_the_direct_newton(kind):
 def test_auto_linear_solver_rule(monkeypatch):
     """``newton_linear_solver`` picks what its docstring says, and ``Newton`` follows it."""
     from geomopt import ParameterError
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
     from geomopt.solvers import SLIM, Newton
 
     rule = linsolve.newton_linear_solver

@@ -1,4 +1,4 @@
-"""PNG pictures composed without matplotlib (geomopt._compose): the param picture's panels hold
+"""PNG pictures composed without matplotlib (geomopt.plot._compose): the param picture's panels hold
 the rasterizer's renders where matplotlib's layout puts them, the layout's triangles have their
 values' viridis colours, the text is drawn, the ticks are the ones matplotlib picks, anything
 this module would draw differently falls back to matplotlib, and ``geomopt param --png`` never
@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from geomopt import _compose, plot
-from geomopt._render import render_uv_checker
+from geomopt import plot
+from geomopt.plot import _compose
+from geomopt.plot._render import render_uv_checker
 
 from test_cli import write_obj
 from test_compare import V3, F, png_size
@@ -220,7 +221,7 @@ def test_param_png_does_not_import_matplotlib(tmp_path):
     script = ("import sys, geomopt.cli\n"
               f"code = geomopt.cli.main(['param', {str(mesh)!r}, '-o', {str(tmp_path / 'uv.obj')!r}, '--png', "
               f"{str(tmp_path / 'uv.png')!r}, '--quiet'])\n"
-              "from geomopt.objective.linsolve import available_backends\n"
+              "from geomopt.linalg.linsolve import available_backends\n"
               "print(code, 'matplotlib' in sys.modules, 'scipy.optimize' in sys.modules,\n"
               "      available_backends()[0] != 'superlu' and any(m in sys.modules for m in\n"
               "      ('scipy.sparse.linalg', 'scipy.sparse.csgraph', 'scipy.linalg')))\n")

@@ -18,7 +18,7 @@ from geomopt.exact.topology import boundary_vertices
 from geomopt.mesh import generators
 from geomopt.param import parameterize_map
 from geomopt.solvers import ForwardCertificate
-from geomopt.untangling import UntangleOptions
+from geomopt.untangling import UntangleOptions, untangle
 from geomopt.untangling.implicit import untangle_map
 
 #: a plain re-solve stops by its energy rule, its map accurate to about 1e-9 relative: central
@@ -112,7 +112,7 @@ def test_grad_of_untangle_in_theta_and_handles_matches_re_solves():
         return x[inner[3], 0] + 2 * x[inner[7], 1]
 
     def resolve(h, theta):
-        x = untangle_map(Problem.planar(V, F, B, h), x0, theta)
+        x = untangle_map(untangle, Problem.planar(V, F, B, h), x0, theta)
         return x[inner[3], 0] + 2 * x[inner[7], 1]
 
     with jax.enable_x64(True):

@@ -10,7 +10,7 @@ import geomopt
 from geomopt import Objective, ParameterError, Problem, SolveError
 from geomopt.param import parameterize_map
 from geomopt.solvers import minimize_map
-from geomopt.untangling import UntangleOptions
+from geomopt.untangling import UntangleOptions, untangle
 from geomopt.untangling.implicit import untangle_map
 from geomopt.energies import Energy
 from geomopt.solvers import LBFGS, Newton
@@ -120,13 +120,13 @@ def test_untangled_map_derivative_matches_re_solves():
     assert Problem.planar(V, F, B, h0).count_inverted(x0) > 0
 
     def loss(h, theta):
-        x = untangle_map(Problem.planar(V, F, B, h), x0, theta)
+        x = untangle_map(untangle, Problem.planar(V, F, B, h), x0, theta)
         return x[inner[3], 0] + 2 * x[inner[7], 1]
 
     args = (h0, 0.1)
     g = jax.grad(loss, argnums=(0, 1))(*args)
     _directional_check(loss, args, g, rng, step=1e-6)
-    x = untangle_map(Problem.planar(V, F, B, h0), x0, 0.1)
+    x = untangle_map(untangle, Problem.planar(V, F, B, h0), x0, 0.1)
     assert Problem.planar(V, F, B, h0).count_inverted(np.asarray(x)) == 0
 
 
@@ -147,7 +147,7 @@ def test_untangled_map_derivative_through_equilateral_rest_triangles():
     rng = np.random.default_rng(4)
 
     def loss(V):
-        x = untangle_map(Problem.planar(V, F, B, x0[B]), x0, 0.1, options=UntangleOptions(max_aspect=2.0))
+        x = untangle_map(untangle, Problem.planar(V, F, B, x0[B]), x0, 0.1, options=UntangleOptions(max_aspect=2.0))
         return x[inner[2], 0] + 2 * x[inner[5], 1]
 
     _directional_check(loss, (V,), (jax.grad(loss)(V),), rng, step=1e-6)

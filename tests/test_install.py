@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geomopt.objective import objective as _objective, linsolve
+from geomopt.linalg import linsolve
+from geomopt.objective import objective as _objective
 from geomopt._runtime import programs as _programs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,7 +66,7 @@ def test_every_kept_program_compiles_with_the_xla_options(fresh_options):
     # untangling's by its module's own path: importing the old "geomopt.untangle" rebinds
     # geomopt.untangle to the moved module for the rest of the process (test_layers then failed)
     names = ("geomopt.solvers.lbfgs", "geomopt.solvers.linesearch", "geomopt.untangling.continuation",
-             "geomopt.objective.objective", "geomopt.param", "geomopt.objective.cg", "geomopt.implicit")
+             "geomopt.objective.objective", "geomopt.energies._energy", "geomopt.objective.cg", "geomopt.implicit")
     kinds = (_programs.Program, type(_objective.energy_kernel))  # a Program, or one made at first call
     programs = [p for n in names for p in vars(importlib.import_module(n)).values() if isinstance(p, kinds)]
     assert len(programs) >= 10
@@ -79,7 +80,7 @@ def pardiso_without_entry_point(monkeypatch):
     here the C library stands in for its extension."""
     import ctypes.util
 
-    from geomopt.objective import pardiso
+    from geomopt.linalg import pardiso
 
     fake = types.ModuleType("pymklpardiso._mkl_pardiso")
     fake.__file__ = ctypes.util.find_library("c") or "libc.so.6"
@@ -95,7 +96,7 @@ def pardiso_without_entry_point(monkeypatch):
 def test_pardiso_without_its_entry_point_goes_through_the_wheels_class(monkeypatch):
     """A build of py-mkl-pardiso whose library exports no ``PARDISO_64`` (e.g. a Windows DLL)
     but has its Python class: PARDISO still factors, in float64, through that class."""
-    from geomopt.objective import pardiso
+    from geomopt.linalg import pardiso
 
     if pardiso.entry_point() is None or not pardiso.available():
         pytest.skip("needs the py-mkl-pardiso wheel")

@@ -263,7 +263,7 @@ def test_only_a_problem_of_thousands_of_unknowns_loads_its_kernels_on_a_thread(m
     """A thread's start and join cost more than a small problem's loading (AHEAD_FROM): none is
     started there, nor for the symbolic analysis; from AHEAD_FROM free unknowns both are."""
     from geomopt._runtime.threads import AHEAD_FROM
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
     from geomopt.solvers import Newton
 
     analyses = []

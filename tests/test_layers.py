@@ -1,10 +1,13 @@
-"""The layers of geomopt are folders, and imports only point down (issue 32).
+"""The layers of geomopt are folders, imports only point down, and no import closes a circle
+(issues 32 and 49).
 
 Every ``import`` in every module of the package (at the top or inside a function: a lazy
 import is still a dependency) is read with :mod:`ast`; each module belongs to the first layer
-whose prefix it has, and no module may import one of a higher layer.  The layers, bottom up:
-the runtime plumbing, exact predicates and file formats, mesh problems, energies and the
-objective, the solvers, the drivers, and the outputs and tools on top."""
+whose prefix it has, and no module may import one of a higher layer, nor, through any chain of
+imports, itself.  The layers, bottom up: the runtime plumbing, exact predicates and file
+formats, linear algebra, mesh problems, energies and the objective, the solvers, the drivers,
+and the outputs and tools on top.  Only ``import geomopt`` (the package, whose ``__init__``
+re-exports lazily) may be named from below: ``Result.save`` forwards to ``geomopt.save``."""
 
 from __future__ import annotations
 
@@ -20,20 +23,18 @@ PACKAGE = Path(__file__).resolve().parents[1] / "geomopt"
 LAYERS = [
     ("runtime", ("geomopt._runtime", "geomopt._version")),
     ("exact and formats", ("geomopt.exact", "geomopt.io")),
+    ("linear algebra", ("geomopt.linalg",)),
     ("mesh", ("geomopt.mesh",)),
     ("objective", ("geomopt.energies", "geomopt.objective")),
     ("solvers", ("geomopt.solvers",)),
     ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
                  "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas", "geomopt.fairing")),
-    ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt._render", "geomopt._compose",
-                           "geomopt._view", "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__",
+    ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt.data", "geomopt.cli", "geomopt.__main__",
                            "geomopt")),
 ]
-#: the imports that point up, lazily, with why: ``Result.save`` is the convenience that hands a
-#: result to the writers (files and figures) on top; the Tutte map's symmetric system is factored
-#: by the sparse Cholesky the Newton step uses (``linsolve`` imports nothing of geomopt but the
-#: runtime's errors), not by SciPy's SuperLU, which is 3x slower and whose import costs 40 ms
-UPWARD_ALLOWED = {("geomopt.solvers._result", "geomopt._save"), ("geomopt.mesh.tutte", "geomopt.objective.linsolve")}
+DRIVERS = [name for name, _ in LAYERS].index("drivers")
+#: the imports allowed to point up, each with why: none
+UPWARD_ALLOWED: set = set()
 
 
 def module_name(path: Path) -> str:
@@ -79,6 +80,59 @@ def test_imports_only_point_down(path):
     assert not upward, f"{name} (layer {LAYERS[layer(name)][0]!r}) imports from a higher layer: {upward}"
 
 
+def import_graph(paths) -> dict:
+    """Module -> the geomopt modules it imports (:func:`imports`), for the modules at ``paths``."""
+    return {module_name(p): imports(p) for p in paths}
+
+
+def circle(graph: dict) -> list | None:
+    """One circle of imports in ``graph`` as ``[a, b, ..., a]`` (``a`` imports ``b``...), or None.
+    A depth-first walk; a package's ``__init__`` is a module like any other, so a module that
+    imports its own package's re-exports, which import it, is a circle."""
+    state = {}  # 1: on the current path, 2: every chain from it walked
+    for root in sorted(graph):
+        if root in state:
+            continue
+        path, stack, state[root] = [root], [iter(sorted(graph[root]))], 1
+        while stack:
+            for child in stack[-1]:
+                if child not in graph or state.get(child) == 2:
+                    continue
+                if state.get(child) == 1:
+                    return path[path.index(child):] + [child]
+                state[child] = 1
+                path.append(child)
+                stack.append(iter(sorted(graph[child])))
+                break
+            else:
+                state[path.pop()] = 2
+                stack.pop()
+    return None
+
+
+def test_no_import_closes_a_circle():
+    found = circle(import_graph(MODULES))
+    assert found is None, f"these modules import each other (lazily or not): {' -> '.join(found)}"
+
+
+def test_the_circle_check_sees_lazy_circles_through_packages():
+    """The checker itself: a lazy import that closes a circle, and a module importing its own
+    package's ``__init__`` that imports it, are caught; a chain that only meets again is not."""
+    assert circle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a", "b", "c", "a"]
+    assert circle({"a": {"b", "c"}, "b": {"d"}, "c": {"d"}, "d": set()}) is None
+    probe, package = PACKAGE / "exact" / "_circle_probe_tmp.py", PACKAGE / "exact" / "__init__.py"
+    try:
+        probe.write_text("def _probe():\n    from . import predicates\n    from .predicates import orient2d\n")
+        graph = import_graph(MODULES + [probe])
+        assert circle(graph) is None  # one-way
+        probe.write_text("def _probe():\n    from . import certify_bijective\n")  # a name the package re-exports
+        graph = import_graph(MODULES + [probe])
+        graph["geomopt.exact"] = graph["geomopt.exact"] | {"geomopt.exact._circle_probe_tmp"}  # as if it re-exported it
+        assert circle(graph) == ["geomopt.exact", "geomopt.exact._circle_probe_tmp", "geomopt.exact"]
+    finally:
+        probe.unlink()
+
+
 def test_the_walk_sees_lazy_and_relative_imports(tmp_path):
     """The checker itself: an upward import inside a function, written relative, is caught."""
     assert layer("geomopt.exact.predicates") < layer("geomopt.mesh.problem") < layer("geomopt.solvers._iterate")
@@ -96,11 +150,12 @@ def test_no_module_left_flat_but_the_drivers_and_outputs():
     """The infrastructure lives in folders: the flat modules are the drivers and outputs only."""
     flat = {p.stem for p in PACKAGE.glob("*.py")} - {"__init__", "__main__", "_version"}  # (read by the build)
     for stem in flat:
-        assert layer(f"geomopt.{stem}") >= 5, f"geomopt/{stem}.py is a lower layer's module: move it into its folder"
+        assert layer(f"geomopt.{stem}") >= DRIVERS, \
+            f"geomopt/{stem}.py is a lower layer's module: move it into its folder"
 
 
 @pytest.mark.parametrize("old, new", [("geomopt.predicates", "geomopt.exact.predicates"),
-                                      ("geomopt.linsolve", "geomopt.objective.linsolve"),
+                                      ("geomopt.linsolve", "geomopt.linalg.linsolve"),
                                       ("geomopt._objective", "geomopt.objective.objective")])
 def test_old_paths_still_import_with_a_deprecation_warning(old, new):
     import importlib

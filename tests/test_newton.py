@@ -71,7 +71,7 @@ def test_every_energy_runs_with_newton_and_a_user_density():
 def test_linear_solver_backends_agree():
     V, F = developable_patch(8)
     out = {}
-    for backend in geomopt.objective.linsolve.available_backends():
+    for backend in geomopt.linalg.linsolve.available_backends():
         out[backend] = parameterize(V, F, solver=Newton(linear_solver=backend), progress=False).energy
     vals = np.array(list(out.values()))
     assert np.allclose(vals, vals[0], rtol=1e-9), out
@@ -114,7 +114,7 @@ def _swirled_grid(n=6):
 
 
 def test_pcg_solves_spd_systems_and_refuses_the_rest():
-    from geomopt.objective.linsolve import pcg
+    from geomopt.linalg.linsolve import pcg
 
     rng = np.random.default_rng(0)
     B = rng.standard_normal((40, 40))
@@ -205,7 +205,7 @@ def test_a_failed_factorization_is_not_reused(monkeypatch):
     it factors again and the step goes on."""
     import dataclasses
 
-    from geomopt.objective.linsolve import NotPositiveDefinite
+    from geomopt.linalg.linsolve import NotPositiveDefinite
 
     obj, x0 = _swirled_grid(8)
     solver = Newton(projection="clamp", reuse_factor=True)
@@ -244,7 +244,7 @@ def test_newton_shares_the_meshs_symbolic_analysis():
     """Newton factors with the mesh's one Cholesky (one symbolic analysis and one factor in
     memory per mesh and backend, "auto" resolved), and a derivative that factored the same
     Cholesky before a later solve refactored it still gets its own matrix back."""
-    from geomopt.objective.linsolve import available_backends
+    from geomopt.linalg.linsolve import available_backends
 
     obj, x0 = _swirled_grid()
     backend = available_backends()[0]

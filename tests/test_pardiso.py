@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from geomopt.objective import linsolve, pardiso
+from geomopt.linalg import linsolve, pardiso
 
 pytestmark = pytest.mark.skipif(pardiso.entry_point() is None, reason="py-mkl-pardiso is not installed here")
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from geomopt import plot
-from geomopt._render import CHECKER_COLORS, camera_rotation, project, rasterize, render_uv_checker
+from geomopt.plot import _figures
+from geomopt.plot._render import CHECKER_COLORS, camera_rotation, project, rasterize, render_uv_checker
 
 from test_cli import read_uv_obj, write_obj
 from test_compare import V3, F, png_size
@@ -183,7 +184,7 @@ def test_a_pixel_centre_on_a_shared_edge_is_covered():
 def test_surface_pixels_have_their_triangle_colour_and_lambert_shading():
     """A unit square of two triangles tilted 60 degrees about the x axis, seen along z with a
     light along z: the pixels of each triangle have its colour times 0.3 + 0.7 cos 60."""
-    from geomopt._render import render_surface
+    from geomopt.plot._render import render_surface
 
     c, s = np.cos(np.radians(60)), np.sin(np.radians(60))
     V = SQUARE_V @ np.array([[1, 0, 0], [0, c, s], [0, -s, c]]).T
@@ -201,7 +202,7 @@ def test_flat_tripcolor_colours_each_face_flat():
     inside each triangle have its value's colour."""
     from matplotlib import colormaps
 
-    fig = plot._figure(2, 2, 100, layout=None)
+    fig = _figures._figure(2, 2, 100, layout=None)
     ax = fig.add_axes((0, 0, 1, 1))
     x = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     plot.flat_tripcolor(ax, x, SQUARE_F, [0.0, 1.0], cmap="viridis", vmin=0.0, vmax=1.0)
@@ -230,9 +231,9 @@ def test_checker_borders_are_anti_aliased_without_supersampling():
 def test_log_ticks_are_powers_of_ten_in_superscripts_not_mathtext():
     """The convergence plot's log-axis labels are plain text (no mathtext to parse): 10⁻² for
     a power of ten, 2×10⁻³ between them, as matplotlib's own labels read."""
-    assert plot.superscript_powers(r"$\mathdefault{10^{-12}}$") == "10\u207b\u00b9\u00b2"
-    assert plot.superscript_powers(r"$\mathdefault{2\times10^{3}}$") == "2\u00d710\u00b3"
-    assert plot.superscript_powers("0.5") == "0.5"
+    assert _figures.superscript_powers(r"$\mathdefault{10^{-12}}$") == "10\u207b\u00b9\u00b2"
+    assert _figures.superscript_powers(r"$\mathdefault{2\times10^{3}}$") == "2\u00d710\u00b3"
+    assert _figures.superscript_powers("0.5") == "0.5"
     e = 1.0 + np.logspace(0.0, -6.0, 8)
     fig = plot.convergence_figure({"a": (np.arange(8), e, np.logspace(1.0, -3.0, 8))})
     fig.canvas.draw()

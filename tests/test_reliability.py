@@ -285,7 +285,7 @@ def test_a_failed_solve_is_a_runtime_error_not_a_value_error():
     """`except ValueError` around a call (for its input checks) must not swallow a solve that
     failed: SolveError is a GeomoptError and a RuntimeError; bad input stays a ValueError."""
     from geomopt._runtime import errors as _errors
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
 
     assert issubclass(SolveError, GeomoptError) and issubclass(SolveError, RuntimeError)
     assert not issubclass(SolveError, ValueError) and not issubclass(GeomoptError, ValueError)

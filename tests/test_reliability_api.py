@@ -25,7 +25,7 @@ from geomopt import MeshError, Objective, Outcome, ParameterError, Problem, Solv
 from geomopt.mesh import generators as G
 from geomopt import minimize, parameterize
 from geomopt import param as param_module
-from geomopt.energies import REGISTRY, Energy, garanzha
+from geomopt.energies import REGISTRY, Energy, garanzha, get_energy
 from geomopt.solvers.linesearch import InjectiveSearch
 from geomopt.exact.predicates import count_inverted
 from geomopt.solvers import LBFGS, Adaptive, Newton
@@ -429,7 +429,21 @@ def test_free_boundary_parameterization_refuses_an_energy_that_shrinks_the_map(e
     with pytest.raises(ParameterError, match="decreases when the map shrinks"):
         geomopt_compare(V, F, energy=energy, solvers=["newton"])
     for fine in ("symmetric_dirichlet", "arap", "mips"):  # scale-aware or scale-invariant
-        param_module.check_scale_aware(fine, {})
+        get_energy(fine).check_scale_aware({})
+
+
+def test_the_scale_check_is_the_energys_own_and_reads_its_parameters():
+    """``Energy.check_scale_aware(params)``: the density at the given parameters decides (here
+    ``w = 0`` is Dirichlet, which collapses; ``w = 1`` adds a barrier); names the energy does not
+    have are left to the caller's checks."""
+    energy = Energy(lambda J, p: jnp.sum(J * J) + p["w"] / jnp.abs(jnp.linalg.det(J)), params={"w": 1.0},
+                    name="dirichlet_plus_barrier")
+    energy.check_scale_aware()
+    energy.check_scale_aware({"w": 1.0, "max_steps": 3})
+    with pytest.raises(ParameterError, match="'dirichlet_plus_barrier' decreases when the map shrinks"):
+        energy.check_scale_aware({"w": 0.0})
+    with pytest.raises(ParameterError, match="decreases when the map shrinks"):
+        get_energy("dirichlet").check_scale_aware()
 
 
 def geomopt_compare(*a, **k):

@@ -1,4 +1,5 @@
-"""``Result.save(path, png=None)`` (issue 33 item 5): the map file the command line would write,
+"""``geomopt.save(result, path, png=None)`` and its forward ``Result.save`` (issue 33 item 5, issue
+49: the writers live above the results): the map file the command line would write,
 read back bit for bit, the picture beside it, both or neither, never an input replaced."""
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ def surface():
 
 def test_a_surface_map_is_its_mesh_with_uvs_and_its_picture(surface, tmp_path):
     V, F, res = surface
-    written = res.save(tmp_path / "m.obj", png=tmp_path / "m.png")
+    written = geomopt.save(res, tmp_path / "m.obj", png=tmp_path / "m.png")
     assert written == (tmp_path / "m.obj", tmp_path / "m.png")
     V2, F2, uv = io.read_obj_uv(tmp_path / "m.obj")
     assert np.array_equal(V2, V) and np.array_equal(F2, F) and np.array_equal(uv, res.x)
@@ -73,14 +74,24 @@ def test_what_save_cannot_write_is_refused_before_anything_is_written(surface, t
 
 
 def test_a_picture_that_fails_leaves_no_map_either(surface, tmp_path, monkeypatch):
-    from geomopt import plot
+    from geomopt.plot import _figures
 
     V, F, res = surface
 
     def broken(*args, **kwargs):
         raise RuntimeError("drawing failed")
 
-    monkeypatch.setattr(plot, "save_param_figure", broken)
+    monkeypatch.setattr(_figures, "save_param_figure", broken)
     with pytest.raises(RuntimeError, match="drawing failed"):
         res.save(tmp_path / "m.obj", png=tmp_path / "m.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_result_save_is_a_forward_to_geomopt_save(surface, tmp_path, monkeypatch):
+    """``Result.save`` hands everything to ``geomopt.save`` (the one writer, on the output floor)."""
+    V, F, res = surface
+    calls = []
+    monkeypatch.setattr(geomopt, "save", lambda *a, **k: calls.append((a, k)) or ("written",))
+    assert res.save(tmp_path / "m.obj", tmp_path / "m.png", inputs=["mesh.obj"]) == ("written",)
+    assert calls == [((res, tmp_path / "m.obj", tmp_path / "m.png"), {"inputs": ["mesh.obj"]})]
     assert list(tmp_path.iterdir()) == []

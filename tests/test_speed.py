@@ -65,7 +65,7 @@ def test_a_solver_reinitialised_on_its_objective_shares_the_factored_laplacian(m
     triangles); another objective, or one whose states are gone, gets its own."""
     import gc
 
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
     from geomopt.solvers import LBFGS
 
     t = G.rotated_interior(*G.square_mesh(9), 90)

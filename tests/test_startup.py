@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from geomopt.objective import linsolve
+from geomopt.linalg import linsolve
 
 
 def _spd_lower(n=60, seed=0, shift=1.0):
@@ -157,14 +157,14 @@ def test_auto_backend_is_the_measured_winner_when_installed():
 
 
 def test_the_scale_awareness_check_does_not_trace_again_in_a_warm_process():
-    from geomopt.param import check_scale_aware
+    from geomopt.energies import get_energy
 
     traces = []
     jax.monitoring.register_event_duration_secs_listener(
         lambda event, duration, **kw: traces.append(event) if event.endswith("jaxpr_trace_duration") else None)
-    check_scale_aware("mips", {})
+    get_energy("mips").check_scale_aware({})
     traces.clear()
-    check_scale_aware("mips", {})
+    get_energy("mips").check_scale_aware({})
     assert traces == []
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from geomopt import ParameterError, Problem, plot
 from geomopt.mesh import generators
-from geomopt._view import BACKENDS, camera, inverted_rgb, scene
+from geomopt.plot._view import BACKENDS, camera, inverted_rgb, scene
 from geomopt.solvers import Outcome, Result
 
 from conftest import cube_tets

@@ -66,7 +66,7 @@ class SolveError(GeomoptError, RuntimeError):
 
 
 class NotPositiveDefinite(GeomoptError, ArithmeticError):
-    """A sparse factorization (:class:`geomopt.objective.linsolve.SparseCholesky`) failed or produced a
+    """A sparse factorization (:class:`geomopt.linalg.linsolve.SparseCholesky`) failed or produced a
     non-finite solution: the matrix is not positive definite (or not finite)."""
 
 

@@ -13,7 +13,10 @@ from __future__ import annotations
 import dataclasses
 import importlib
 
-__all__ = ["CellFormat", "CELL_FORMATS", "extensions", "listing", "resolve"]
+__all__ = ["CellFormat", "CELL_FORMATS", "PICTURE_EXTENSIONS", "extensions", "listing", "resolve"]
+
+#: Picture formats geomopt writes (matplotlib's own backends, no extra dependency).
+PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
 
 
 @dataclasses.dataclass(frozen=True)

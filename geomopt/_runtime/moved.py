@@ -28,7 +28,7 @@ MOVED = {
     "geomopt.tutte": "geomopt.mesh.tutte", "geomopt._geometry": "geomopt.mesh.geometry",
     "geomopt.quality": "geomopt.mesh.quality",
     "geomopt._objective": "geomopt.objective.objective", "geomopt._projection": "geomopt.objective.projection",
-    "geomopt._eigh": "geomopt.objective.eigh", "geomopt.linsolve": "geomopt.objective.linsolve",
+    "geomopt._eigh": "geomopt.linalg.eigh", "geomopt.linsolve": "geomopt.linalg.linsolve",
     "geomopt._cg": "geomopt.objective.cg", "geomopt._gauge": "geomopt.objective.gauge",
     "geomopt.linesearch": "geomopt.solvers.linesearch",
     "geomopt._compare": "geomopt.experiments.comparison", "geomopt._compare_report": "geomopt.experiments.report",

@@ -23,7 +23,7 @@ from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.log import logger
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
-from ..energies import energy_spec
+from ..energies import energy_spec, get_energy
 from ..exact.topology import as_faces, same_side_facets, unique_edges
 from .charts import split_charts
 from .cones import angle_defects
@@ -239,9 +239,10 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     >>> atlas.certificate.ok, atlas.uv_faces.shape
     (True, (4, 3))
     """
-    from ..param import check_scale_aware, mesh_arrays
+    from ..mesh.convert import mesh_arrays
     from ..solvers._iterate import check_progress
-    from . import certify_atlas, pack_charts
+    from ._certify import certify_atlas
+    from ._pack import pack_charts
 
     t0 = time.perf_counter()
     options = AtlasOptions() if options is None else options
@@ -254,7 +255,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
         are = "is an AtlasOptions field" if len(settings) == 1 else "are AtlasOptions fields"
         raise ParameterError(f"make_atlas: {', '.join(settings)} {are}: pass options=AtlasOptions({given})")
     energy, energy_params = energy_spec(energy, energy_params, "make_atlas")
-    check_scale_aware(energy, energy_params)
+    get_energy(energy).check_scale_aware(energy_params)
     V, F = check_atlas_input(*mesh_arrays(V, F))
     g0 = edge_graph(V, F)
     manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart

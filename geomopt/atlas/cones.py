@@ -59,7 +59,7 @@ def _solve(A, rhs):
     when round-off leaves it not quite positive definite (many obtuse triangles)."""
     from scipy.sparse.linalg import spsolve
 
-    from ..objective.linsolve import NotPositiveDefinite, spd_solve
+    from ..linalg.linsolve import NotPositiveDefinite, spd_solve
 
     try:
         return spd_solve(A, rhs)

@@ -21,7 +21,7 @@ every command shares), and one per command: :mod:`~geomopt.cli.param` (with :mod
 
 from __future__ import annotations
 
-from .._save import PICTURE_EXTENSIONS
+from .._runtime.formats import PICTURE_EXTENSIONS
 from .common import EXIT_EXCEPT_FIXED, EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from .compare import cmd_compare
 from .fair import cmd_fair

@@ -49,7 +49,7 @@ def output_paths(output, extensions, pictures=(), inputs=(), folder=None):
     and ``pictures`` (``(what, path)``, derived names included), in ``folder`` when the command was
     given an output folder.  Returns the output path."""
     from .. import io
-    from .._save import PICTURE_EXTENSIONS
+    from .._runtime.formats import PICTURE_EXTENSIONS
 
     files = [("-o output", output, extensions)] + [(what, p, PICTURE_EXTENSIONS) for what, p in pictures]
     return io.check_outputs(files, inputs, folder)[0]

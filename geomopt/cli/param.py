@@ -83,7 +83,7 @@ def _param_disk(args, V, F, energy, solve, folder) -> int:
     from .._runtime.errors import MeshError
     from .._runtime.memory import release_free_memory
     from .._runtime.timing import compile_seconds
-    from ..param import unit_square
+    from ..mesh.convert import unit_square
 
     split = args.timing
     t_solve, compiled = time.perf_counter(), compile_seconds()
@@ -146,7 +146,8 @@ def _param_sphere(args) -> int:
 
     from .. import io, plot
     from .._runtime.errors import ParameterError
-    from ..sphere import SphereOptions, default_solver, sphere_distortion, sphere_map
+    from ..objective.distortion import sphere_distortion
+    from ..sphere import SphereOptions, default_solver, sphere_map
 
     if args.bijective or args.atlas or args.init != "tutte" or args.uv_range != "raw" or args.margin is not None:
         raise ParameterError("--sphere makes its own certified start and writes vertices, not UVs or charts: "
@@ -231,7 +232,7 @@ def convergence_path(png):
 def _save_param_figures(res, V, F, uv, png, outputs, args):
     """Render the layout and convergence pictures into atomic temporaries registered on ``outputs``."""
     from .. import io, plot
-    from .._save import save_param_picture
+    from ..plot._save import save_param_picture
 
     obj = res.objective
     base, conv = Path(png), convergence_path(png)

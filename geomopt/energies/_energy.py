@@ -13,6 +13,7 @@ import numpy as np
 
 from .._runtime.config import deprecated_call
 from .._runtime import names as _names
+from .._runtime.programs import jit as programs_jit
 from .._runtime.errors import ParameterError
 from .._runtime.names import resolve
 from .._runtime.tracing import is_traced
@@ -109,6 +110,42 @@ class Energy:
     def value_at_rest(self, d: int):
         rv = self.rest_value
         return rv(d) if callable(rv) else rv
+
+    @float64
+    def check_scale_aware(self, params=None):
+        """Refuse this energy for a free boundary when it lets the map shrink to a point (e.g.
+        Dirichlet): that problem has no minimiser, so any "solution" is a collapsed map.  Tested
+        on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
+        ``s = 1e-3`` for 2x2 Jacobians (no scale-aware or scale-invariant distortion does that).
+
+        Parameters
+        ----------
+        params : mapping of str to float, optional
+            Overrides of the energy's parameters; names it does not have are ignored (the
+            caller's own checks report them, with better advice).
+
+        Raises
+        ------
+        ParameterError
+            The density decreases so when the map shrinks, saying which energies to use instead.
+        """
+        params = self.resolve_params(**{k: v for k, v in (params or {}).items() if k in self.params})
+        # one kept program per density (no trace in a warm process) instead of dozens of eager operations;
+        # its argument a NumPy array: jnp.array would compile an eager conversion in every process
+        values = np.asarray(_density_at_scales(self.density, params, np.array([1.0, 1e-3]))).tolist()
+        at = dict(zip((1.0, 1e-3), values))
+        if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
+            raise ParameterError(
+                f"energy {self.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "
+                f"{at[1.0]:.3g} at rest), so a free-boundary parameterization would collapse to a point; "
+                "use a scale-aware energy (symmetric_dirichlet, arap, mips) or fix boundary vertices "
+                "(geomopt.minimize with a Problem that has handles)")
+
+
+@functools.partial(programs_jit, static_argnums=0)
+def _density_at_scales(density, params, scales):
+    """(k,) ``density(s I, params)`` for each 2D scale ``s`` of ``scales`` (k,)."""
+    return jax.vmap(lambda s: density(s * jnp.eye(2), params))(scales)
 
 
 _DENSITY_RULE = ("a density must be a pure JAX function psi(J, params) of a (d, d) float64 array J "

@@ -56,32 +56,16 @@ from .._runtime.x64 import float64
 from ..energies import energy_spec
 from ..objective.objective import Objective
 from ..solvers import Newton, Outcome, Progress, iterate
-from .options import CLOCKS, FORMATS, TOLERANCES, WARMUP_STEPS, CompareOptions
+from .options import (CLOCKS, DEFAULT_SOLVERS, FORMATS, HISTORY_COLUMNS, TOLERANCES, WARMUP_STEPS, CompareOptions,
+                      summary_columns)
 
 __all__ = ["compare", "compare_meshes", "CompareOptions", "Comparison", "ComparisonSet", "SolverRun", "Reference", "DEFAULT_SOLVERS",
            "TOLERANCES", "HISTORY_COLUMNS", "summary_columns", "exit_status"]
 
-#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D).
-#: Not ``optx-lbfgs``: optimistix's L-BFGS seeds its inverse Hessian with the scalar
-#: ``s.y / y.y`` and has no preconditioner hook, and on 10^4-triangle meshes from the Tutte map
-#: it stalls (camelhead: gap 1.9 after 1,000 iterations; geomopt's L-BFGS with the same scalar
-#: seed 1.5, with its Laplacian seed converged in 265); name it to compare it.
-DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
-HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
-                   "grad_norm", "flips")
-_BASE_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
-                 "s_per_it", "energy", "mean_energy", "gap", "max_flips", "repeats")
 #: the ``reason`` of a solve the time limit stopped (outcome MAX_STEPS)
 TIME_LIMIT = "stopped at the time limit (max_seconds)"
 #: the reference solve of ``reference="auto"``
 REFERENCE_RTOL, REFERENCE_MAX_STEPS = 1e-14, 500
-
-
-def summary_columns(tolerances=TOLERANCES) -> tuple:
-    """The columns of ``summary.csv``: the run's totals, then per tolerance ``t`` the iteration
-    and the wall and CPU seconds to a gap of ``t`` (``it_to_1e-04``, ``wall_s_to_1e-04``,
-    ``cpu_s_to_1e-04``; empty when the gap never got there)."""
-    return _BASE_COLUMNS + tuple(f"{what}_to_{t:.0e}" for t in tolerances for what in ("it", "wall_s", "cpu_s"))
 
 
 def stopping_rule(solver) -> str:

@@ -16,7 +16,7 @@ from ..objective.objective import Objective
 from ..mesh.elements import element_type
 from ..mesh.problem import Problem
 from ..solvers import CM, get_solver
-from .comparison import DEFAULT_SOLVERS
+from .options import DEFAULT_SOLVERS
 
 __all__ = ["mesh_key", "comparison_problem", "comparison_solvers", "NAME"]
 
@@ -66,9 +66,7 @@ def comparison_problem(mesh, faces, energy, x0, weights, energy_params):
         label = "mesh"
     objective = Objective(problem, energy, **energy_params)
     if problem.fixed.size == 0 and problem.dim == 2:
-        from ..param import check_scale_aware
-
-        check_scale_aware(energy, energy_params)
+        objective.energy.check_scale_aware(energy_params)
     if x0 is None:
         if problem.fixed.size or problem.dim != 2 or problem.elements is not None:
             raise ParameterError(f"compare: a {problem.kind} problem with {problem.fixed.size} fixed "

@@ -63,7 +63,7 @@ def environment() -> dict:
     command line and the sparse Cholesky backends installed."""
     import jax
 
-    from ..objective.linsolve import available_backends
+    from ..linalg.linsolve import available_backends
 
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     try:

@@ -10,7 +10,8 @@ from .._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
 from .._runtime.errors import ParameterError
 from ..mesh.tutte import WEIGHTS
 
-__all__ = ["CompareOptions", "TOLERANCES", "CLOCKS", "FORMATS", "WARMUP_STEPS"]
+__all__ = ["CompareOptions", "TOLERANCES", "CLOCKS", "FORMATS", "WARMUP_STEPS", "DEFAULT_SOLVERS", "HISTORY_COLUMNS",
+           "summary_columns"]
 
 TOLERANCES = (1e-2, 1e-4, 1e-6)
 #: untimed iterations each solver runs before its timed runs when ``warmup`` is on
@@ -20,9 +21,26 @@ CLOCKS = ("wall", "cpu")
 #: figure formats :meth:`~geomopt.experiments.comparison.Comparison.write` writes (PDF / PS with TrueType fonts)
 FORMATS = ("png", "pdf", "svg", "eps", "ps")
 LAYOUTS = ("wide", "column")
+#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D).
+#: Not ``optx-lbfgs``: optimistix's L-BFGS seeds its inverse Hessian with the scalar
+#: ``s.y / y.y`` and has no preconditioner hook, and on 10^4-triangle meshes from the Tutte map
+#: it stalls (camelhead: gap 1.9 after 1,000 iterations; geomopt's L-BFGS with the same scalar
+#: seed 1.5, with its Laplacian seed converged in 265); name it to compare it.
+DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
+HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
+                   "grad_norm", "flips")
+_SUMMARY_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",
+                    "s_per_it", "energy", "mean_energy", "gap", "max_flips", "repeats")
 #: the largest font size (points) at which every title, axis label and the legend of six solvers
 #: stay inside each layout's figure (15 in and 3.4 in wide; tests/test_messages.py draws it)
 MAX_FONT_SIZE = {"wide": 16.0, "column": 10.0}
+
+
+def summary_columns(tolerances=TOLERANCES) -> tuple:
+    """The columns of ``summary.csv``: the run's totals, then per tolerance ``t`` the iteration
+    and the wall and CPU seconds to a gap of ``t`` (``it_to_1e-04``, ``wall_s_to_1e-04``,
+    ``cpu_s_to_1e-04``; empty when the gap never got there)."""
+    return _SUMMARY_COLUMNS + tuple(f"{what}_to_{t:.0e}" for t in tolerances for what in ("it", "wall_s", "cpu_s"))
 
 
 def check_font_size(layout, font_size, where="CompareOptions"):

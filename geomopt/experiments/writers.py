@@ -16,7 +16,7 @@ import numpy as np
 from . import manifest as _manifest
 from .. import io
 from ..mesh.elements import kind_of
-from .comparison import HISTORY_COLUMNS, summary_columns
+from .options import HISTORY_COLUMNS, summary_columns
 
 __all__ = ["common_names", "output_names", "set_output_names", "input_files", "prepare_folder", "write_csv",
            "write_common", "write_maps", "write_comparison", "write_set", "write_combined"]

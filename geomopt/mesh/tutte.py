@@ -196,7 +196,7 @@ def _solve(A, rhs, symmetric):
     component touches the boundary: PARDISO where installed, 3x faster than SuperLU, whose
     import also costs 40 ms), else SuperLU."""
     if symmetric:
-        from ..objective.linsolve import spd_solve  # the one up-pointing import of the mesh layer
+        from ..linalg.linsolve import spd_solve
 
         return spd_solve(A, rhs)
     import scipy.sparse.linalg as spla

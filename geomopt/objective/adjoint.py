@@ -26,7 +26,7 @@ derivatives are refused (SolveError).
 **One factorization per optimum.**  The numeric factor of a mesh is shared by every solve of it
 (its symbolic analysis too): a forward's adjoint system keeps its own matrix and refactors it
 when another solve (the next batch element under ``vmap``, a second solve in the same loss)
-refactored the shared factor since (:attr:`geomopt.objective.linsolve.SparseCholesky.generation`), so each
+refactored the shared factor since (:attr:`geomopt.linalg.linsolve.SparseCholesky.generation`), so each
 backward solves with the Hessian at its own optimum.
 
 **Conventions.**
@@ -59,7 +59,7 @@ backward solves with the Hessian at its own optimum.
   text ends with the class name and message, e.g. ``SolveError: implicit differentiation: ...``.
 
 **Linear solves.**  ``linear_solver="auto"`` solves as the forward Newton would
-(:func:`geomopt.objective.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.objective.linsolve`,
+(:func:`geomopt.linalg.linsolve.newton_linear_solver`): a sparse Cholesky (:mod:`geomopt.linalg.linsolve`,
 its symbolic analysis shared with every solve of the mesh, :meth:`~geomopt.Objective.cholesky`)
 or block-Jacobi CG (:mod:`geomopt.objective.cg`, whose positive-definiteness test only sees its Krylov
 space).  The forward's refinement factors the exact Hessian once; the adjoint reuses that
@@ -88,7 +88,7 @@ from .gauge import gauge_motions, gauge_pins
 from .objective import Objective, block_hessian, check_element_weights, jit
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64, pure_callback
-from .linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
+from ..linalg.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
 from ..mesh.problem import check_rest_values
 
 __all__ = ["argmin", "require_success", "host_constant", "gauge_motions", "DECREMENT_RTOL", "AdjointSystem"]
@@ -125,7 +125,7 @@ def argmin(objective: Objective, params, x0, solve, linear_solver: str = "auto")
         ``x`` (n, d) the optimum (raise :class:`~geomopt.SolveError` if there is none),
         ``context`` a dict that may hold ``objective`` (a concrete one to assemble Hessians
         with) or None.
-    linear_solver : ``"auto"``, a :data:`~geomopt.objective.linsolve.BACKENDS` name or ``"cg"``.
+    linear_solver : ``"auto"``, a :data:`~geomopt.linalg.linsolve.BACKENDS` name or ``"cg"``.
 
     Returns
     -------
@@ -337,7 +337,7 @@ class AdjointSystem:
             self._check_decrement()
 
     def _factor(self):
-        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.objective.linsolve.SparseCholesky`
+        """Factor :attr:`data` with the mesh's shared :class:`~geomopt.linalg.linsolve.SparseCholesky`
         (its symbolic analysis shared, its numeric factor refactored by any later solve of the
         mesh: :attr:`generation` is the factorization that holds this map's matrix)."""
         try:

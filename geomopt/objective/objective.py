@@ -40,7 +40,7 @@ from .._runtime.errors import ParameterError
 from .._runtime.tracing import StaticKey, is_traced, refuse_traced
 from ..energies import Energy, get_energy
 from .projection import as_projection, project_psd  # noqa: F401  (project_psd: re-exported)
-from .linsolve import SINGLE_FROM_ROWS, SparseCholesky, available_backends
+from ..linalg.linsolve import SINGLE_FROM_ROWS, SparseCholesky, available_backends
 from .pattern import HessianPattern, block_pairs, hessian_pattern, local_pairs  # noqa: F401  (re-exported)
 from ..mesh.problem import Problem
 
@@ -401,13 +401,13 @@ class Objective:
         return m.assembly[0], m.assembly[1], m.n_blocks_padded
 
     def cholesky(self, backend: str = "auto"):
-        """A :class:`~geomopt.objective.linsolve.SparseCholesky` on :attr:`pattern`, its symbolic analysis
+        """A :class:`~geomopt.linalg.linsolve.SparseCholesky` on :attr:`pattern`, its symbolic analysis
         done once per mesh and backend and shared by every copy of this objective."""
         return self._mesh.cholesky(backend)
 
     def free_factors(self) -> None:
         """Free the numeric factors of the mesh's sparse Cholesky factorizations, keeping
-        their symbolic analyses (:meth:`~geomopt.objective.linsolve.SparseCholesky.free_factor`):
+        their symbolic analyses (:meth:`~geomopt.linalg.linsolve.SparseCholesky.free_factor`):
         what a finished solve leaves that no later solve or derivative reuses (each refactors
         its own matrix)."""
         self._mesh.free_factors()

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from .._runtime.config import Real, validate
-from .eigh import eigh
+from ..linalg.eigh import eigh
 from .._runtime.errors import ParameterError
 
 __all__ = ["AbstractProjection", "Clamp", "Abs", "Exact", "SLIMProxy", "CMProxy", "Adaptive", "EigenFilter",

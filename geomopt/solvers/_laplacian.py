@@ -3,7 +3,7 @@
 
 Two ways to apply ``K^-1`` from jitted code (:func:`laplacian_solve`):
 
-* ``"host"``: ``K`` factored once by :class:`~geomopt.objective.linsolve.SparseCholesky` and applied on
+* ``"host"``: ``K`` factored once by :class:`~geomopt.linalg.linsolve.SparseCholesky` and applied on
   the host through an XLA FFI target (:mod:`geomopt._runtime.hostcall`, by an integer handle; unlike
   ``jax.pure_callback`` it leaves the calling programs cacheable).  Exact to float64, or to
   float32 where PARDISO factors it (:func:`_seed_factor`: a seed needs no more, and PARDISO's
@@ -31,8 +31,8 @@ import scipy.sparse as sp
 from .._runtime import hostcall as _hostcall
 from .._runtime.errors import ParameterError
 from .._runtime.threads import usable_cores
-from ..objective import pardiso
-from ..objective.linsolve import NotPositiveDefinite, SparseCholesky, repeated_solves_backend
+from ..linalg import pardiso
+from ..linalg.linsolve import NotPositiveDefinite, SparseCholesky, repeated_solves_backend
 from .._runtime.x64 import pure_callback
 
 #: where K^-1 is applied: see the module docstring
@@ -197,7 +197,7 @@ def _seed_factor(H, backend: str, columns: int = 1):
 
 class RestLaplacian:
     """``K^-1`` for the rest Dirichlet Hessian ``K`` of an objective's problem on its free DOFs,
-    factored by :class:`~geomopt.objective.linsolve.SparseCholesky`.
+    factored by :class:`~geomopt.linalg.linsolve.SparseCholesky`.
 
     The Dirichlet energy ``sum vol |J|^2`` with ``J = X^T G`` (``G`` the element's (d+1, d)
     matrix of barycentric gradients, from the rest inverse) has the Hessian ``K (x) I_d`` with

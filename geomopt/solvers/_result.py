@@ -301,54 +301,11 @@ class Result:
         return msg
 
     def save(self, path, png=None, *, inputs=()):
-        """Write the map to ``path`` and, with ``png``, its picture: both atomically, both or
-        neither.
+        """``geomopt.save(self, path, png, inputs=inputs)``: the map file and its picture, as the
+        command line writes them (:func:`geomopt.save`, which says what is written and raised)."""
+        import geomopt  # the writers live on the output floor, above the results
 
-        A surface or planar triangle map is written as the mesh with one UV per vertex
-        (``.obj`` or ``.ply``, :func:`geomopt.io.write_mesh_with_uv`), a sphere map as the mesh
-        on the sphere (``.obj``), a tet / quad / hex map as the mapped mesh (``.vtk``,
-        ``.vtu``, ``.msh``, ``.mesh``; ``.obj`` for quads), as the command line writes them;
-        full precision.  The picture (``.png``, ``.pdf`` or ``.svg``, triangle and sphere maps
-        only) is what ``geomopt param --png`` draws: the map as a checkerboard on the surface
-        beside the layout coloured by distortion.  The map is written as it is, certified or
-        not (check :attr:`success` first).
-
-        Parameters
-        ----------
-        path : str or os.PathLike
-            The map file.
-        png : str or os.PathLike, optional
-            The picture file.
-        inputs : iterable of str or os.PathLike
-            Files neither output may replace (e.g. the mesh read).
-
-        Returns
-        -------
-        tuple of pathlib.Path
-            The files written, ``(path,)`` or ``(path, png)``.
-
-        Raises
-        ------
-        ParameterError
-            The result does not know its mesh (no ``problem``), has no file or picture for its
-            kind of map, or an extension is not one of the above; nothing is written.
-        GeomoptError
-            An output cannot be written, the two are the same file, or one is an input
-            (:func:`geomopt.io.check_outputs`); nothing is written.
-
-        Examples
-        --------
-        >>> import geomopt
-        >>> V = [[0, 0, 0], [1, 0, 0], [1, 1, 0.2], [0, 1, 0]]
-        >>> result = geomopt.parameterize(V, [[0, 1, 2], [0, 2, 3]], progress=False)
-        >>> [str(p) for p in result.save("square.obj", png="square.png")]
-        ['square.obj', 'square.png']
-        >>> geomopt.io.read_obj_uv("square.obj")[2].shape
-        (4, 2)
-        """
-        from .._save import save_result
-
-        return save_result(self, path, png, inputs)
+        return geomopt.save(self, path, png, inputs=inputs)
 
 
 def traced_result(x, *, problem=None, objective=None, solver=None) -> Result:

@@ -24,8 +24,8 @@ from .._runtime.memory import release_free_memory
 from .._runtime.threads import AHEAD_FROM, ahead
 from ..objective.projection import Adaptive, AbstractProjection, Clamp, CMProxy, SLIMProxy, as_projection
 from .linesearch import InjectiveSearch
-from ..objective.krylov import pcg, symmetric_product
-from ..objective.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
+from ..linalg.krylov import pcg, symmetric_product
+from ..linalg.linsolve import BACKENDS, NotPositiveDefinite, newton_linear_solver
 from ._base import AbstractSolver, State, map_extent
 from ._termination import Termination
 
@@ -41,7 +41,7 @@ POLISH_ROUNDING = 1e-13
 MIN_REUSE_ITERS = 4
 
 #: the largest relative residual to which a direction is solved with a float32 factorization
-#: refined in float64 (:class:`~geomopt.objective.linsolve.SparseCholesky` ``single``)
+#: refined in float64 (:class:`~geomopt.linalg.linsolve.SparseCholesky` ``single``)
 REFINE_RTOL = 1e-6
 
 #: free DOFs from which ``reuse_factor="auto"`` reuses the factorization (see :class:`AbstractNewton`)
@@ -86,7 +86,7 @@ class Reuse(NamedTuple):
 class NewtonMemory(NamedTuple):
     """What a Newton-type solver keeps between steps.
 
-    factor : the :class:`~geomopt.objective.linsolve.SparseCholesky` (symbolic analysis done), or None
+    factor : the :class:`~geomopt.linalg.linsolve.SparseCholesky` (symbolic analysis done), or None
         on the CG path;  cg_op : the CG operator (:meth:`NewtonCG.prepare`), or None;
     grad_ref : the first gradient norm (CG's scale-free forcing term);
     cooldown : iterations left during which ``Adaptive`` clamps after an exact Hessian failed
@@ -114,11 +114,11 @@ class AbstractNewton(AbstractSolver):
         indefinite one (``Exact``, chosen by ``Adaptive`` near the minimum) the Hessian gets a
         Levenberg-Marquardt shift, relaxed after full steps and stiffened after cut ones; if
         it does not factor, clamping resumes for two iterations.
-    linear_solver : a :data:`~geomopt.objective.linsolve.BACKENDS` name (a sparse Cholesky), or
+    linear_solver : a :data:`~geomopt.linalg.linsolve.BACKENDS` name (a sparse Cholesky), or
         ``"cg"``: the direction by block-Jacobi preconditioned CG in JAX
         (:class:`geomopt.objective.cg.NewtonCG`, inexact Newton; eigenvalue projections only, not
         proxies).  ``"auto"`` picks by device, dimension and size
-        (:func:`geomopt.objective.linsolve.newton_linear_solver`: CG off the CPU and for large tet
+        (:func:`geomopt.linalg.linsolve.newton_linear_solver`: CG off the CPU and for large tet
         meshes, else the fastest Cholesky installed).
     rtol : stop when the Newton decrement ``-g.d/2`` or the energy decrease is below
         ``rtol * |E|`` (:attr:`termination`).
@@ -174,7 +174,7 @@ class AbstractNewton(AbstractSolver):
 
     def uses_cg(self, objective) -> bool:
         """Whether the direction comes from CG (``linear_solver="cg"``, or ``"auto"`` and
-        :func:`~geomopt.objective.linsolve.newton_linear_solver` says so) rather than a Cholesky."""
+        :func:`~geomopt.linalg.linsolve.newton_linear_solver` says so) rather than a Cholesky."""
         if self.projection.proxy:  # the proxies assemble for a factorization
             if self.linear_solver == "cg":
                 raise ParameterError(f"{type(self).__name__}: linear_solver='cg' needs an eigenvalue "
@@ -385,7 +385,7 @@ class Newton(AbstractNewton):
     ----------
     projection : ``Adaptive()`` (default), ``Clamp()``, ``Abs()`` or ``Exact()``: how each
         element Hessian is made positive semi-definite (:class:`AbstractNewton`).
-    linear_solver : ``"auto"`` (default; :func:`geomopt.objective.linsolve.newton_linear_solver`), a
+    linear_solver : ``"auto"`` (default; :func:`geomopt.linalg.linsolve.newton_linear_solver`), a
         sparse Cholesky backend (``"pardiso"``, ``"cholmod"``, ``"cholespy"``, ``"superlu"``) or
         ``"cg"`` (inexact Newton by block-Jacobi CG in JAX).
     rtol : 1e-10; stop when the Newton decrement or the energy decrease is below ``rtol * |E|``.

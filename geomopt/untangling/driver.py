@@ -104,7 +104,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     """
     opts = options_from(UntangleOptions, options, overrides, "untangle")
     if is_traced(problem, x0, opts.theta):  # differentiable: the implicit adjoint at the last eps's optimum
-        x = untangle_map(problem, x0, opts.theta, solver=solver, adjoint=adjoint,
+        x = untangle_map(untangle, problem, x0, opts.theta, solver=solver, adjoint=adjoint,
                          options=dataclasses.replace(opts, theta=None))
         return traced_result(x, problem=problem, solver=solver)
     if not isinstance(solver, (str, AbstractSolver)):

@@ -1,7 +1,8 @@
 """Untangling as a differentiable function: the final map of :func:`~geomopt.untangling.untangle`
 as a function of the problem (rest vertices, handle positions) and ``theta``, by the implicit
 function theorem at the polished optimum (:func:`geomopt.objective.adjoint.argmin`).
-:func:`~geomopt.untangling.untangle` calls it for traced inputs."""
+:func:`~geomopt.untangling.untangle` calls it for traced inputs, handing itself over as the
+forward solve (so this module does not import the driver that imports it)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from .schedule import final_eps
 __all__ = ["untangle_map"]
 
 
-def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "auto", options=None):
+def untangle_map(untangle, problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "auto", options=None):
     """:func:`~geomopt.untangling.untangle`'s final map as a differentiable function of the
     problem (its rest vertices and handle positions, traced or not) and ``theta``.
 
@@ -41,6 +42,8 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
 
     Parameters
     ----------
+    untangle : the forward solve, :func:`geomopt.untangling.untangle` (called on concrete
+        arrays, with ``progress=False``).
     problem : :class:`~geomopt.Problem` with handles (possibly built from traced arrays).
     x0 : (n, d) the tangled start.
     theta : shape/area balance in (0, 1) (``lam = theta / (1 - theta)``), may be traced;
@@ -57,8 +60,6 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
         The untangling did not succeed, or its polish did not reach a tight optimum (under
         ``jax.jit``: as ``jax.errors.JaxRuntimeError`` naming it).
     """
-    from .driver import untangle as run
-
     d = problem.dim
     theta = (1.0 / 128.0 if d == 2 else 0.5) if theta is None else theta
     x0 = jnp.asarray(x0, jnp.float64)
@@ -75,7 +76,7 @@ def untangle_map(problem, x0, theta=None, *, solver="lbfgs", adjoint: str = "aut
     @float64
     def untangled(problem, theta, x0):
         problem = check_rest_values(jax.tree_util.tree_map(np.asarray, problem))
-        result = run(problem, np.asarray(x0), solver=solver, options=dataclasses.replace(options, theta=float(theta)),
+        result = untangle(problem, np.asarray(x0), solver=solver, options=dataclasses.replace(options, theta=float(theta)),
                      progress=False)
         require_success(result, "geomopt.untangle")
         if result.details.active_elements and not result.details.polished:

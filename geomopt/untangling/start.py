@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._runtime.errors import ParameterError
-from ..objective.linsolve import NotPositiveDefinite, SparseCholesky
+from ..linalg.linsolve import NotPositiveDefinite, SparseCholesky
 from ..exact.predicates import box_scale
 from ..mesh.problem import Problem
 from ..solvers import rest_laplacian

@@ -6,9 +6,6 @@ Each picture has a ``*_figure`` function returning a :class:`matplotlib.figure.F
 inline by Jupyter) and a ``save_*`` function that saves it to a path (atomically, in the
 format its extension names: ``.png``, ``.pdf``, ``.svg``) or into an open binary file (then
 ``format`` is required).
-
-:func:`show` draws a map in polyscope or pyvista instead (interactive, or a screenshot taken
-off-screen), when one of them is installed (``pip install "geomopt[view]"``).
 """
 
 from __future__ import annotations
@@ -17,12 +14,11 @@ import numpy as np
 
 from ._compose import SUPERSCRIPT
 from ._render import camera_rotation, project, rasterize, render_sphere_checker, render_surface, render_uv_checker
-from ._view import show
 
 __all__ = [
     "distortion", "param_figure", "save_param_figure", "layout_figure", "save_layout", "untangle_figure",
     "save_untangle_figure", "convergence_figure", "save_convergence", "sphere_figure", "save_sphere_figure",
-    "atlas_figure", "save_atlas_figure", "show", "flat_tripcolor",
+    "atlas_figure", "save_atlas_figure", "flat_tripcolor",
     "INVERTED",
 ]
 
@@ -69,14 +65,14 @@ def save_figure(fig, target, format=None):
     """Save ``fig`` into the open binary file ``target`` or atomically to the path ``target``."""
     if hasattr(target, "write"):
         if format is None:
-            from ._runtime.errors import ParameterError
+            from .._runtime.errors import ParameterError
 
             raise ParameterError("saving a figure into an open file needs format= (e.g. 'png')")
         fig.savefig(target, format=format, **_encoder_options(format))
         return
     from pathlib import Path
 
-    from .io import atomic_output
+    from ..io import atomic_output
 
     format = format or Path(target).suffix[1:].lower()
     with atomic_output(target, "wb") as fh:
@@ -150,7 +146,7 @@ def param_figure(V, F, uv, face_values=None, title="", label="distortion", check
     """A UV map ``uv`` (n, 2) of the surface ``V`` (n, 3), ``F`` (m, 3), in two panels.
 
     Left (large): a ``checks`` x ``checks`` checkerboard texture through the UV map on the
-    surface, evaluated per pixel (:func:`geomopt._render.render_uv_checker`; squares that stay
+    surface, evaluated per pixel (:func:`geomopt.plot._render.render_uv_checker`; squares that stay
     square mean a conformal map, squares of one size an area-preserving one), seen from
     ``view`` = (elevation, azimuth) in degrees about the world axis ``up``; beside it, smaller,
     the opposite side.  Right: the UV layout, faces coloured by ``face_values`` (m,).  16 x 7.5
@@ -168,7 +164,7 @@ def param_figure(V, F, uv, face_values=None, title="", label="distortion", check
 def save_param_figure(path, V, F, uv, face_values=None, title="", label="distortion", checks=20, format=None,
                       view=(15.0, 30.0), up="y"):
     """Save :func:`param_figure` to ``path`` (110 dpi: 1760 x 825 pixels as PNG).  A PNG is
-    composed without matplotlib (:func:`geomopt._compose.param_picture`, the same panels) where
+    composed without matplotlib (:func:`geomopt.plot._compose.param_picture`, the same panels) where
     that can draw it; PDF and SVG, and the rest, are drawn by matplotlib."""
     if _is_png(path, format):
         from ._compose import param_picture, save_png
@@ -191,18 +187,18 @@ def sphere_figure(V, F, x, face_values=None, title="", label="log2 area ratio", 
                   up="y", dpi=100):
     """A map ``x`` (n, 3) of the closed surface ``V`` (n, 3), ``F`` (m, 3) onto the unit sphere,
     in three panels: the surface textured through the map with a latitude-longitude checkerboard
-    (:func:`geomopt._render.render_sphere_checker`), seen from ``view`` = (elevation, azimuth)
+    (:func:`geomopt.plot._render.render_sphere_checker`), seen from ``view`` = (elevation, azimuth)
     about ``up`` and, smaller, from the other side; and the sphere itself, its triangles coloured
     by ``face_values`` (m,) (default: ``log2`` of each triangle's spherical over its rest area,
-    both normalised to total ``4 pi``, :func:`geomopt.sphere.sphere_distortion`) on a symmetric
-    scale.  16 x 7.5 inches; ``title`` above all three."""
+    both normalised to total ``4 pi``, :func:`geomopt.objective.distortion.sphere_distortion`) on
+    a symmetric scale.  16 x 7.5 inches; ``title`` above all three."""
     from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
     V, F, x = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(x, np.float64)
     if face_values is None:
-        from .sphere import sphere_distortion
+        from ..objective.distortion import sphere_distortion
 
         face_values = np.log2(np.maximum(sphere_distortion(V, F, x)["area_ratio"], 1e-12))
     values = np.asarray(face_values, np.float64)
@@ -245,7 +241,7 @@ def _visible_seams(V, F, seams, rotation, size):
 
 def atlas_figure(V, F, uv, uv_faces, chart, seams, title="", checks=20, view=(15.0, 30.0), up="y", dpi=100):
     """A texture atlas in two panels: left, a ``checks`` x ``checks`` checkerboard through the
-    atlas on the surface (:func:`geomopt._render.render_uv_checker`), seen from ``view``, with
+    atlas on the surface (:func:`geomopt.plot._render.render_uv_checker`), seen from ``view``, with
     the visible seams drawn in red; right, the atlas in the unit square, charts coloured.
 
     Parameters
@@ -465,7 +461,7 @@ def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=10
 
 def save_convergence(path, series, ylabel="energy", title="", format=None, reference=None):
     """Save :func:`convergence_figure` to ``path`` (120 dpi).  A PNG is composed without
-    matplotlib (:func:`geomopt._compose.convergence_picture`) where that can draw it."""
+    matplotlib (:func:`geomopt.plot._compose.convergence_picture`) where that can draw it."""
     if _is_png(path, format):
         from ._compose import convergence_picture, save_png
 

@@ -4,7 +4,7 @@
 layout (:func:`param_picture`) and the convergence plot (:func:`convergence_picture`); drawn
 through matplotlib, importing it alone costs more than half a second and drawing as much
 again.  Here they are composed directly: the checkerboard renders and the layout's flat
-triangles come from the NumPy rasterizer (:mod:`geomopt._render`), the colour table is
+triangles come from the NumPy rasterizer (:mod:`geomopt.plot._render`), the colour table is
 viridis' 256 entries, and titles, tick labels and lines are drawn by Pillow with matplotlib's
 own font (DejaVu Sans, found in matplotlib's data folder without importing it).  The layout,
 panel sizes, tick choice and text sizes follow :mod:`geomopt.plot`'s figures at the same dpi.
@@ -248,7 +248,7 @@ def _image_panel(c, image, box, caption):
 def flat_triangles(xy, F, rgb, size, supersample=1):
     """(height, width, 3) uint8 image of the triangles ``F`` (m, 3) with the pixel
     coordinates ``xy`` (n, 2) (column, row from the top), each filled with its colour ``rgb``
-    (m, 3) uint8 over white, rasterised by :func:`geomopt._render.nearest_faces` (no depth: a
+    (m, 3) uint8 over white, rasterised by :func:`geomopt.plot._render.nearest_faces` (no depth: a
     later triangle wins a shared pixel).  ``supersample`` > 1 renders that many times larger
     and averages down (Pillow's ``reduce``) for an anti-aliased outline: for the demo's layout
     0.2 s at 2 where 1 takes 0.07 s, so the layout is drawn at 1 (steps of one pixel along
@@ -314,7 +314,7 @@ def _colorbar(c, box, vmin, vmax, label):
 def param_picture(V, F, uv, face_values, title="", label="distortion", checks=20, view=(15.0, 30.0), up="y",
                   dpi=110):
     """:func:`geomopt.plot.param_figure` composed as a Pillow RGB image (16 x 7.5 inches at
-    ``dpi``): the checkerboard renders of :func:`geomopt._render.render_uv_checker`
+    ``dpi``): the checkerboard renders of :func:`geomopt.plot._render.render_uv_checker`
     (:data:`RENDER_SCALE` times the pixels shown, downsampled), the layout by
     :func:`flat_triangles` with its colour bar, titles by Pillow.  None where matplotlib has to
     draw it: no ``face_values`` (a wireframe), values not finite or all equal, tick labels
@@ -477,7 +477,7 @@ def save_png(image, target, dpi):
     if hasattr(target, "write"):
         image.save(target, **options)
         return
-    from .io import atomic_output
+    from ..io import atomic_output
 
     with atomic_output(target, "wb") as fh:
         image.save(fh, **options)

@@ -198,7 +198,7 @@ class SparseCholesky:
         0.044 s analysis, factor and solve, 100k 0.44 against 0.61 s, 10^6 11.4 against 9.9 s;
         in 3D nested dissection wins from 30k rows: 0.44 against 0.63 s).
     single : PARDISO only (ignored by the other backends): factor in float32 and refine each
-        solve in float64 (:class:`geomopt.objective.pardiso.Refined`: half the factor's memory);
+        solve in float64 (:class:`geomopt.linalg.pardiso.Refined`: half the factor's memory);
         the values given to :meth:`factor` are then kept by reference and must not change
         while this factorization is used.
 

@@ -1,7 +1,7 @@
 """Conjugate gradients on the host (NumPy), for sparse systems whose preconditioner is a
 factorization held on the host: Newton's lagged factor (:class:`~geomopt.solvers.Newton`'s
 ``reuse_factor``) and the float64 refinement of a float32 factorization
-(:class:`~geomopt.objective.pardiso.Refined`).  The device version is
+(:class:`~geomopt.linalg.pardiso.Refined`).  The device version is
 :func:`geomopt.objective.cg.pcg`."""
 
 from __future__ import annotations

@@ -19,8 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._runtime.errors import ParameterError
-from .mesh.elements import ELEMENT_KINDS
+from .._runtime.errors import ParameterError
+from ..mesh.elements import ELEMENT_KINDS
 from ._render import CHECKER_COLORS, camera_rotation
 
 __all__ = ["show", "scene", "camera", "inverted_rgb", "Scene", "BACKENDS", "VIEW_EXTRA"]
@@ -100,7 +100,7 @@ def inverted_rgb():
     """:data:`geomopt.plot.INVERTED` as RGB in [0, 1]."""
     from matplotlib.colors import to_rgb
 
-    from .plot import INVERTED
+    from ._figures import INVERTED
 
     return to_rgb(INVERTED)
 
@@ -111,13 +111,13 @@ def _distortion_colors(problem, x):
     bool, the inverted elements (exact predicates), red."""
     from matplotlib import colormaps
 
-    from . import plot
-    from .mesh.elements import valid_elements
-    from .exact.predicates import cone_orientations, simplex_orientations
+    from ..mesh.elements import valid_elements
+    from ..exact.predicates import cone_orientations, simplex_orientations
+    from ._figures import distortion
 
     x = np.asarray(x, np.float64)
     k = 1 if problem.elements is None else problem.simplices.shape[0] // problem.elements.shape[0]
-    conformal = plot.distortion(problem, x)["conformal"].reshape(-1, k).max(axis=1)
+    conformal = distortion(problem, x)["conformal"].reshape(-1, k).max(axis=1)
     if problem.elements is not None:
         bad = ~valid_elements(x, problem.elements)
     elif problem.kind == "sphere":
@@ -133,7 +133,7 @@ def _distortion_colors(problem, x):
 
 def scene(obj, uv=None) -> Scene:
     """The :class:`Scene` of a :class:`~geomopt.solvers.Result` or a mesh (see :func:`show`)."""
-    from .param import unit_square
+    from ..mesh.convert import unit_square
 
     problem = getattr(obj, "problem", None)
     if problem is None or not hasattr(obj, "x"):
@@ -201,7 +201,7 @@ def _save(image, path):
 
     from PIL import Image
 
-    from .io import atomic_output
+    from ..io import atomic_output
 
     fmt = {"jpg": "JPEG", "jpeg": "JPEG"}.get(Path(path).suffix[1:].lower(), "PNG")
     with atomic_output(path, "wb") as fh:

@@ -1,5 +1,5 @@
-"""Writing a solve's map file and picture: :meth:`geomopt.Result.save` (and the pictures
-``geomopt param --png`` shares with it).
+"""Writing a solve's map file and picture: :func:`geomopt.save` (also :meth:`geomopt.Result.save`),
+and the pictures ``geomopt param --png`` shares with it.
 
 What is written depends on what the result's :class:`~geomopt.Problem` maps
 (:data:`MAP_FILES`): a triangle mesh with its per-vertex UV map (``.obj`` / ``.ply``, the
@@ -15,14 +15,11 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-from ._runtime.formats import extensions
+from .._runtime.formats import PICTURE_EXTENSIONS, extensions
 
-__all__ = ["MAP_FILES", "PICTURE_EXTENSIONS", "save_result", "save_param_picture"]
+__all__ = ["MAP_FILES", "save", "save_param_picture"]
 
-#: Picture formats geomopt writes (matplotlib's own backends, no extra dependency).
-PICTURE_EXTENSIONS = (".png", ".pdf", ".svg")
-
-#: ``Problem.kind`` -> the map file extensions :func:`save_result` writes for it.
+#: ``Problem.kind`` -> the map file extensions :func:`save` writes for it.
 MAP_FILES = {
     "surface": (".obj", ".ply"), "planar": (".obj", ".ply"), "sphere": (".obj",),
     "tet": extensions("tetra", writable=True), "hex": extensions("hexahedron", writable=True),
@@ -31,8 +28,15 @@ MAP_FILES = {
 _DRAWN = ("surface", "planar", "sphere")  # kinds whose result alone makes a picture
 
 
-def save_result(result, path, png=None, inputs=()):
-    """Write ``result``'s map to ``path`` and, with ``png``, its picture (see the module notes).
+def save(result, path, png=None, *, inputs=()):
+    """Write ``result``'s map to ``path`` and, with ``png``, its picture: both atomically, both
+    or neither (also :meth:`geomopt.Result.save`).
+
+    A surface or planar triangle map is written as the mesh with one UV per vertex (``.obj`` or
+    ``.ply``, :func:`geomopt.io.write_mesh_with_uv`), a sphere map as the mesh on the sphere
+    (``.obj``), a tet / quad / hex map as the mapped mesh (``.vtk``, ``.vtu``, ``.msh``,
+    ``.mesh``; ``.obj`` for quads), as the command line writes them (:data:`MAP_FILES`); full
+    precision.  The map is written as it is, certified or not (check ``result.success`` first).
 
     Parameters
     ----------
@@ -58,27 +62,38 @@ def save_result(result, path, png=None, inputs=()):
     ParameterError
         The result does not know its mesh, its kind of map has no file (a quad surface) or no
         picture (tets, quads, hexahedra: draw them with :func:`geomopt.plot.save_untangle_figure`,
-        which needs the start map too), or an extension is not one of those above.
+        which needs the start map too), or an extension is not one of those above; nothing is
+        written.
     GeomoptError
         An output is not writable, is the other output, or is one of ``inputs``
         (:func:`geomopt.io.check_outputs`); nothing is written then.
+
+    Examples
+    --------
+    >>> import geomopt
+    >>> V = [[0, 0, 0], [1, 0, 0], [1, 1, 0.2], [0, 1, 0]]
+    >>> result = geomopt.parameterize(V, [[0, 1, 2], [0, 2, 3]], progress=False)
+    >>> [str(p) for p in geomopt.save(result, "square.obj", png="square.png")]
+    ['square.obj', 'square.png']
+    >>> geomopt.io.read_obj_uv("square.obj")[2].shape
+    (4, 2)
     """
-    from . import io
-    from ._runtime.errors import ParameterError
+    from .. import io
+    from .._runtime.errors import ParameterError
 
     problem = getattr(result, "problem", None)
     if problem is None:
-        raise ParameterError("this Result does not know its mesh (result.problem is None), so Result.save cannot "
+        raise ParameterError("this Result does not know its mesh (result.problem is None), so geomopt.save cannot "
                              "write it; write result.x with geomopt.io (e.g. write_mesh_with_uv)")
     kind = problem.kind
     if kind not in MAP_FILES:
-        raise ParameterError(f"Result.save writes triangle, sphere, tet, quad and hex maps, not a {kind} map; write "
+        raise ParameterError(f"geomopt.save writes triangle, sphere, tet, quad and hex maps, not a {kind} map; write "
                              f"result.x (n, {problem.dim}) yourself")
     if png is not None and kind not in _DRAWN:
-        raise ParameterError(f"Result.save draws triangle and sphere maps only; a {kind} map's picture needs its "
+        raise ParameterError(f"geomopt.save draws triangle and sphere maps only; a {kind} map's picture needs its "
                              f"start map too: geomopt.plot.save_untangle_figure(path, start, result.x, ...)")
-    files = [("Result.save path", path, MAP_FILES[kind])]
-    files += [("Result.save png", png, PICTURE_EXTENSIONS)] if png is not None else []
+    files = [("geomopt.save path", path, MAP_FILES[kind])]
+    files += [("geomopt.save png", png, PICTURE_EXTENSIONS)] if png is not None else []
     io.check_outputs(files, inputs)
     with contextlib.ExitStack() as outputs:  # both renamed into place only when both are written
         if png is not None:
@@ -91,8 +106,8 @@ def _write_map(result, tmp, ext):
     """The map of ``result`` into the temporary file ``tmp`` in the format of extension ``ext``."""
     import numpy as np
 
-    from . import io
-    from .mesh.elements import kind_of
+    from .. import io
+    from ..mesh.elements import kind_of
 
     problem, x = result.problem, np.asarray(result.x, dtype=np.float64)
     if problem.kind in ("surface", "planar"):
@@ -115,12 +130,12 @@ def _rest_3d(problem):
 
 def _picture(result, target, format):
     """The picture of a triangle or sphere map into the open binary file ``target``."""
-    from . import plot
+    from ._figures import save_sphere_figure
 
     problem = result.problem
     V, F = _rest_3d(problem), problem.input_simplices
     if problem.kind == "sphere":
-        plot.save_sphere_figure(target, V, F, result.x, title=f"{len(F)} triangles onto the sphere, mean energy "
+        save_sphere_figure(target, V, F, result.x, title=f"{len(F)} triangles onto the sphere, mean energy "
                                 f"{result.mean_energy:.6g}, injective {result.injectivity}", format=format)
         return
     solver = type(result.solver).__name__ if result.solver is not None else "a solver"
@@ -136,17 +151,17 @@ def save_param_picture(target, result, V, F, uv, title, format=None):
     on a rescaled copy), by the conformal distortion (log10)."""
     import numpy as np
 
-    from . import plot
+    from ._figures import distortion, save_param_figure
 
     obj = result.objective
     if obj is None or obj.problem is not result.problem:
-        values = np.log10(plot.distortion(result.problem, result.x)["conformal"])
+        values = np.log10(distortion(result.problem, result.x)["conformal"])
         label = "log10 conformal distortion"
     else:
-        from .objective.objective import element_densities
+        from ..objective.objective import element_densities
 
         dens = np.asarray(element_densities(obj, result.x))
         rest = obj.energy.value_at_rest(2)
         values = np.log10(np.maximum(dens / rest, 1.0)) if rest else dens
         label = "log10(density / its isometric value)" if rest else f"{obj.energy.name} density"
-    plot.save_param_figure(target, V, F, uv, values, title=title, label=label, format=format)
+    save_param_figure(target, V, F, uv, values, title=title, label=label, format=format)
