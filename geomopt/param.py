@@ -15,7 +15,7 @@ from .objective.objective import Objective, jit
 from .exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from .energies import energy_spec
 from .mesh.problem import Problem
-from .scaffold import ScaffoldOptions, bijective_parameterize
+from .bijective import ScaffoldOptions, bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
@@ -184,11 +184,11 @@ class ParamOptions:
     ----------
     weights : Tutte weights of the start map, ``"uniform"`` or ``"mean_value"``.
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
-        :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
+        :func:`geomopt.bijective.bijective_parameterize`), so that the map is globally injective.
         Either way ``certificate`` is the exact global certificate
         (:func:`geomopt.exact.certify.certify_bijective`) and ``result.injectivity`` says
         ``"global"``, ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
-    scaffold : :class:`~geomopt.scaffold.ScaffoldOptions` of the bijective mode (None: its
+    scaffold : :class:`~geomopt.bijective.ScaffoldOptions` of the bijective mode (None: its
         defaults).
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every

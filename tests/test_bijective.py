@@ -11,7 +11,7 @@ from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.exact.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.exact.predicates import count_inverted, orient2d
 from geomopt.mesh.scaffold import build_scaffold, delaunay_flips, ear_clip, refine_scaffold
-from geomopt.scaffold import SimpleBoundary, bijective_parameterize
+from geomopt.bijective import SimpleBoundary, bijective_parameterize
 from geomopt.exact.topology import check_disk, unique_edges
 from geomopt.mesh.tutte import tutte_embedding
 

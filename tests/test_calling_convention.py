@@ -13,7 +13,7 @@ import geomopt
 from geomopt import ParameterError
 from geomopt.experiments.options import CompareOptions
 from geomopt.param import ParamOptions
-from geomopt.scaffold import ScaffoldOptions
+from geomopt.bijective import ScaffoldOptions
 from geomopt.smoothing import SmoothOptions
 from geomopt.sphere import SphereOptions
 

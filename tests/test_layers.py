@@ -23,7 +23,7 @@ LAYERS = [
     ("mesh", ("geomopt.mesh",)),
     ("objective", ("geomopt.energies", "geomopt.objective")),
     ("solvers", ("geomopt.solvers",)),
-    ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
+    ("drivers", ("geomopt.param", "geomopt.bijective", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
                  "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas", "geomopt.fairing")),
     ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt._render", "geomopt._compose",
                            "geomopt._view", "geomopt._save", "geomopt.data", "geomopt.cli", "geomopt.__main__",

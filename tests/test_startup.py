@@ -347,7 +347,7 @@ def test_a_bijective_solve_of_another_mesh_of_the_same_bucket_compiles_nothing(t
     to size buckets as parameterize's are: without them every triangle count compiled its own
     kernels (~2.3 s a count in every process), and an atlas's charts compiled one set each."""
     from geomopt.mesh.generators import spiral_strip
-    from geomopt.scaffold import bijective_parameterize
+    from geomopt.bijective import bijective_parameterize
 
     A = spiral_strip(turns=2.5, spacing=0.5, width=0.3, lift=1.5, n_across=2)
     B = spiral_strip(turns=2.4, spacing=0.5, width=0.3, lift=1.5, n_across=2)  # same size buckets

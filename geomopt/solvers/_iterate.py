@@ -12,13 +12,13 @@ Outer schemes are handed to it, never loops of their own:
   solver's memory dropped, a new objective (a new problem of the same shapes), or another
   solver; its record goes to the trace and the progress lines.  Untangling's eps schedule
   (:class:`geomopt.untangling.EpsContinuation`) and the scaffold's rebuilds
-  (:class:`geomopt.scaffold.ScaffoldContinuation`) are continuations.  Its ``finish`` maps the
+  (:class:`geomopt.bijective.ScaffoldContinuation`) are continuations.  Its ``finish`` maps the
   last state to the :class:`Final` map and certificate (back to the input frame);
 * a **guard** is called after every step with ``(solver, old, new)`` and returns the state to
   accept (``new``, or a shortened step, e.g. through ``solver.restart(new, x)``), or None to
   end the phase at ``old`` (the continuation then sees the outcome None).  The scaffold's
   scaffold-free phase keeps the boundary simple with one
-  (:class:`geomopt.scaffold.SimpleBoundary`);
+  (:class:`geomopt.bijective.SimpleBoundary`);
 * an **observer** ``observe(state, seconds)`` sees every iterate and may end the solve by
   returning a reason (a non-empty string; outcome MAX_STEPS).  Its time is not solve time.
 """
