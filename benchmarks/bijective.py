@@ -80,7 +80,7 @@ def timed(fn, repeat):
 def run_case(name, gen, repeat, args):
     import geomopt
     from geomopt.exact.certify import certify_bijective
-    from geomopt.bijective import bijective_parameterize
+    from geomopt.bijective import ScaffoldOptions, bijective_parameterize
 
     V, F, x0 = load(name, gen)
     log(f"{name}: {len(V)} vertices, {len(F)} triangles")
@@ -91,8 +91,9 @@ def run_case(name, gen, repeat, args):
         c = certify_bijective(plain.x, plain.problem.simplices)
         cert_times.append(c.seconds)
     cert_plain = c
-    opts = {k: v for k, v in (("scaffold_weight", args.weight), ("inner_steps", args.inner)) if v is not None}
-    t_bij, bij = timed(lambda: bijective_parameterize(V, F, x0=x0, progress=False, **opts), repeat)
+    opts = ScaffoldOptions(**{k: v for k, v in (("scaffold_weight", args.weight), ("inner_steps", args.inner))
+                              if v is not None})
+    t_bij, bij = timed(lambda: bijective_parameterize(V, F, x0=x0, options=opts, progress=False), repeat)
     cb = bij.certificate
     row = dict(
         case=name, faces=len(F), boundary=len(cb.loop),

@@ -32,7 +32,6 @@ from .exact.predicates import differing_rows
 from .mesh.orientation import fixed_total_problem
 from .mesh.problem import Problem
 from .untangling import UntangleOptions, untangle
-from .untangling.options import options_from
 
 __all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix", "read_lim_case", "lim_case_dim",
            "lim_cases"]
@@ -389,13 +388,14 @@ def _problem_3d(case) -> LimProblem:
     return LimProblem(problem, init, orientation, np.ones(3))
 
 
-def untangle_case(case, solver="lbfgs", progress=True, **options):
+def untangle_case(case, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True):
     """Untangle a LIM case (:meth:`LimCase.to_problem`, :func:`~geomopt.untangling.untangle`).
 
     Parameters
     ----------
     case : a :class:`LimCase`, or a case folder (read with :meth:`LimCase.read`).
-    solver, progress, options : passed to :func:`~geomopt.untangling.untangle`.
+    solver, options, progress : passed to :func:`~geomopt.untangling.untangle`
+        (``options`` an :class:`~geomopt.untangling.UntangleOptions` or None).
 
     Returns
     -------
@@ -404,8 +404,7 @@ def untangle_case(case, solver="lbfgs", progress=True, **options):
     """
     case = case if isinstance(case, LimCase) else LimCase.read(case)
     setup = case.to_problem()
-    opts = options_from(UntangleOptions, None, options, "untangle_case", deprecated=False)
-    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, options=opts)
+    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, options=options)
     if (setup.mirror < 0).any():
         result = dataclasses.replace(result, x=result.x * setup.mirror)  # negation is exact
     return case, result

@@ -19,7 +19,7 @@ from hypothesis.extra import numpy as hnp
 from geomopt import GeomoptError, MeshError, Objective, Outcome, ParameterError, Problem, SolveError
 from geomopt import minimize, parameterize
 from geomopt.energies import REGISTRY, Energy, get_energy
-from geomopt.mesh.problem import check_initial_orientation
+from geomopt.mesh.orientation import check_initial_orientation
 from geomopt.solvers import Newton
 
 from conftest import cube_tets, grid

@@ -37,7 +37,6 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
 from .._runtime.interrupt import raise_pending
 from .._runtime.log import bar_wanted, in_notebook, iteration_logger, logger
@@ -448,7 +447,6 @@ def _result(final: Final, solver, objective, state, run, setup, throw, label) ->
     return result
 
 
-@keyword_only(4, ("progress", "throw"))
 @float64
 def minimize(objective, x0, solver=None, params=None, *, progress: bool | Callable = True,
              throw: bool = False, adjoint: str = "auto") -> Result:
