@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import Objective, ParameterError, Problem
+from geomopt import Objective, ParamOptions, ParameterError, Problem
 from geomopt.exact.topology import boundary_vertices
 from geomopt.mesh import generators
 from geomopt.param import parameterize_map
@@ -155,7 +155,8 @@ def test_a_traced_call_that_does_not_succeed_raises_instead_of_returning():
 def test_bijective_is_refused_under_tracing():
     V, F = bumpy_disk(3)
     with jax.enable_x64(True), pytest.raises(ParameterError, match=r"bijective=True\) is not differentiable"):
-        jax.grad(lambda V: geomopt.parameterize(V, F, bijective=True, progress=False).x.sum())(jnp.asarray(V))
+        jax.grad(lambda V: geomopt.parameterize(V, F, options=ParamOptions(bijective=True), progress=False).x.sum())(
+            jnp.asarray(V))
 
 
 def test_energy_parameters_go_with_the_energy():

@@ -6,6 +6,7 @@ import pytest
 import scipy.sparse as sp
 
 from geomopt.objective import linsolve
+from geomopt import ParamOptions
 
 
 def _spd_lower(n=60, seed=0, shift=1.0):
@@ -274,7 +275,8 @@ def test_padding_changes_no_energy_gradient_hessian_or_dets():
 @pytest.mark.parametrize("solver", ["newton", "lbfgs", "slim", "aqp", "cm", "optx-bfgs"])
 def test_padding_changes_no_result_or_certificate(solver):
     V, F = bumpy(8)
-    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
+    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, options=ParamOptions(buckets=b))
+            for b in (False, True)]
     assert runs[1].objective.sizes.padded
     a, b = runs
     assert a.outcome == b.outcome and a.certificate.inverted == b.certificate.inverted == 0
