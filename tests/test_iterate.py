@@ -219,6 +219,47 @@ def test_lbfgs_advances_in_its_kernel_to_the_same_iterate_as_stepping():
     assert len(advanced.trace.energy) == 0 and len(stepped.trace.energy) == stepped.stats.iterations + 1
 
 
+@pytest.mark.parametrize("name", sorted(geomopt.solvers.SOLVERS))
+def test_every_solver_step_keeps_the_step_duties(name):
+    """Every built-in solver, stepped by the loop (trace=True: no multi-step kernel), passes
+    :func:`~geomopt.solvers._base.check_step` on every step (AbstractSolver.step's duties)."""
+    obj, V = _objective()
+    res = iterate(geomopt.solvers.get_solver(name), obj, obj.prepare_map(V), obj.params(), trace=True)
+    assert res.stats.iterations >= 1 and len(res.trace.energy) == res.stats.iterations + 1
+
+
+@dataclasses.dataclass(frozen=True)
+class _Forgetful(Newton):
+    """Newton whose step forgets one of its duties (``duty``)."""
+
+    duty: str = "iteration"
+
+    def step(self, state):
+        new = super().step(state)
+        if self.duty == "iteration":
+            return new.update(iteration=state.iteration)
+        if self.duty == "floor":
+            return new.update(floor=2 * state.stats.floor)
+        if self.duty == "grad":
+            return dataclasses.replace(new, grad=state.grad)
+        return new.stats  # not a State
+
+
+@pytest.mark.parametrize("duty, message", [
+    ("iteration", r"_Forgetful.step must set stats.iteration to 1 \(one more than the state's\), got 0"),
+    ("floor", r"_Forgetful.step changed stats.floor, which init sets and no step may change"),
+    ("grad", r"_Forgetful.step moved x but kept the old grad"),
+    ("type", r"_Forgetful.step returned a Stats, not a State"),
+])
+def test_a_step_that_forgets_a_duty_is_caught(duty, message):
+    """A solver's step that leaves ``iteration`` (the loop would never reach ``max_steps``),
+    changes a reference of the stopping rule, or moves ``x`` without its gradient is refused
+    at its first step, naming the solver and the duty."""
+    obj, V = _objective()
+    with pytest.raises(ParameterError, match=message):
+        iterate(_Forgetful(duty=duty), obj, obj.prepare_map(V), obj.params())
+
+
 # ------------------------------------------------------------------ Result
 
 

@@ -43,6 +43,7 @@ from .._runtime.log import bar_wanted, in_notebook, iteration_logger, logger
 from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
+from ._base import check_step
 from ._registry import get_solver
 from ._result import Result, RunStats, Trace, local_certificate, traced_result
 from ._termination import RUNNING, Outcome, Termination
@@ -292,6 +293,7 @@ def _phase(solver, state, guard, run):
             continue
         with run.clock():
             new = solver.step(state)
+            check_step(solver, state, new)
             if guard is not None:
                 new = guard(solver, state, new)
         if new is None:
