@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from functools import partial
 
 import numpy as np
 
 from ._runtime.config import Instance, Maybe, OneOf, options_or_default, validate
-from ._runtime.errors import MeshError, ParameterError, SolveError
+from ._runtime.errors import MaxStepsWarning, MeshError, ParameterError, SolveError
 from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
 from .objective.objective import Objective, jit
@@ -404,12 +405,15 @@ def repair_map(problem, x0, solver="lbfgs", *, options: UntangleOptions | None =
         boundaries.append(x0[loop])
     radius = 0.5 * float(np.max(x0.max(axis=0) - x0.min(axis=0)))  # a folded map's area means little
     boundaries.append(x0.mean(axis=0) + radius * circle_boundary(problem.rest_vertices, loop))
-    for B in boundaries:
-        start = x0.copy()
-        start[loop] = B
-        res = untangle(problem.with_fixed(loop, B), start, solver=solver, progress=progress, options=options)
-        if res.success:
-            break
+    with warnings.catch_warnings():
+        if throw:  # the SolveError below says it; no MaxStepsWarning before it
+            warnings.simplefilter("ignore", MaxStepsWarning)
+        for B in boundaries:
+            start = x0.copy()
+            start[loop] = B
+            res = untangle(problem.with_fixed(loop, B), start, solver=solver, progress=progress, options=options)
+            if res.success:
+                break
     # the inverted elements of the map given, not of the map with its boundary replaced
     res = dataclasses.replace(res, stats=dataclasses.replace(res.stats, inverted_at_start=problem.count_inverted(x0)))
     if throw and not res.success:

@@ -31,11 +31,12 @@ driver returns, with :class:`SmoothDetails`.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
 from ._runtime.config import Int, Maybe, OneOf, options_or_default, validate
-from ._runtime.errors import MeshError, ParameterError, SolveError
+from ._runtime.errors import MaxStepsWarning, MeshError, ParameterError, SolveError
 from ._runtime.validate import validate_indices
 from .mesh.elements import ELEMENT_KINDS, ElementCertificate, Quality, scaled_jacobian
 from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
@@ -194,8 +195,11 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
     if options.max_steps is not None:
         solver = dataclasses.replace(solver, max_steps=options.max_steps)
-    solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
-                                               params)
+    with warnings.catch_warnings():
+        if throw:  # the SolveError below says it; no MaxStepsWarning before it
+            warnings.simplefilter("ignore", MaxStepsWarning)
+        solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
+                                                   params)
     local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
     if not local.ok:  # a free boundary folded over itself: the input
         outcome, reason = Outcome.NOT_INJECTIVE, (f"the minimum is not locally injective ({local.message}); the "
