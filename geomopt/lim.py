@@ -33,8 +33,7 @@ from .mesh.orientation import fixed_total_problem
 from .mesh.problem import Problem
 from .untangling import UntangleOptions, untangle
 
-__all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix", "read_lim_case", "lim_case_dim",
-           "lim_cases"]
+__all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix"]
 
 
 class LimProblem(NamedTuple):
@@ -84,9 +83,9 @@ class LimCase(Mapping):
 
     Notes
     -----
-    For code written against the old dict (``read_lim_case``), a case also reads like a
-    read-only mapping with the keys ``dim``, ``path``, ``rest``, ``init``, ``faces`` (2D) or
-    ``tets`` (3D), ``handles`` and ``handles_file``; use the attributes in new code.
+    For code written against the old dict (of the former ``read_lim_case``), a case also reads
+    like a read-only mapping with the keys ``dim``, ``path``, ``rest``, ``init``, ``faces`` (2D)
+    or ``tets`` (3D), ``handles`` and ``handles_file``; use the attributes in new code.
     """
 
     dim: int
@@ -448,21 +447,3 @@ def _read_3d(folder):
                         f"they must share the same tetrahedra")
     return LimCase(dim=3, rest=rest, init=init, simplices=tets, handles=read_vertex_ids(handles_path, len(rest)),
                    path=folder, handles_file=handles_path)
-
-
-# ---------------------------------------------------------------------- old names
-
-
-def read_lim_case(folder):
-    """Deprecated: :meth:`LimCase.read`."""
-    return LimCase.read(folder)
-
-
-def lim_case_dim(folder):
-    """Deprecated: :meth:`LimCase.dim_of`."""
-    return LimCase.dim_of(folder)
-
-
-def lim_cases(root):
-    """Deprecated: :meth:`LimCase.cases`."""
-    return LimCase.cases(root)

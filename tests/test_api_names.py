@@ -85,3 +85,6 @@ def test_removed_names_stay_removed():
         with pytest.raises(AttributeError, match=f"no attribute '{name}'"):
             getattr(geomopt, name)
     assert not hasattr(geomopt.mesh.problem, "check_initial_orientation")  # geomopt.mesh.orientation's
+    import geomopt.lim
+
+    assert not any(hasattr(geomopt.lim, n) for n in ("read_lim_case", "lim_case_dim", "lim_cases"))  # LimCase's

@@ -1,6 +1,6 @@
 """One calling convention for the drivers: the data (and energy, solver) by position, every
 setting keyword-only, configuration in frozen validated options objects, energy parameters
-with the energy; the old forms (deprecated in 0.1, removed in 0.2) are refused."""
+with the energy; the old forms (deprecated, removed in 0.2.0) are refused."""
 
 import dataclasses
 import inspect
@@ -42,7 +42,7 @@ def test_every_driver_takes_data_by_position_and_settings_by_keyword(name):
 
 
 def test_positional_settings_are_refused():
-    """The former positional settings after the solver (deprecated in 0.1) are a TypeError."""
+    """The former positional settings after the solver (removed in 0.2.0) are a TypeError."""
     with pytest.raises(TypeError, match="positional argument"):
         geomopt.parameterize(V, F, "symmetric_dirichlet", None, "mean_value", None, False)
     with pytest.raises(TypeError, match="positional argument"):
@@ -51,7 +51,7 @@ def test_positional_settings_are_refused():
 
 @pytest.mark.parametrize("name", sorted(set(DRIVERS) - {"minimize"}))
 def test_settings_and_energy_parameters_as_keywords_are_refused(name):
-    """The former keyword settings and loose energy parameters (deprecated in 0.1): refused
+    """The former keyword settings and loose energy parameters (removed in 0.2.0): refused
     before any work, naming the keyword; a dict for ``options`` names the class to pass."""
     func, positional = DRIVERS[name]
     data = {"untangle": (None, None), "compare_meshes": ([],)}.get(name, (V, F))

@@ -161,7 +161,7 @@ def test_bijective_is_refused_under_tracing():
 
 def test_energy_parameters_go_with_the_energy():
     """Issue 32 item 3: every driver takes ``energy=(name, {parameter: value})``; the old loose
-    keywords (deprecated in 0.1) are refused since 0.2."""
+    keywords (deprecated, removed in 0.2.0) are refused."""
     V, F = bumpy_disk(4)
     with warnings.catch_warnings():
         warnings.simplefilter("error")

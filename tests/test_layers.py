@@ -100,7 +100,7 @@ def test_no_module_left_flat_but_the_drivers_and_outputs():
 @pytest.mark.parametrize("old", ["geomopt.predicates", "geomopt.linsolve", "geomopt._objective", "geomopt.untangle",
                                  "geomopt.implicit"])
 def test_the_old_module_paths_are_gone(old):
-    """The module paths before the layers became folders (deprecated in 0.1, removed in 0.2: the
+    """The module paths before the layers became folders (deprecated, removed in 0.2.0: the
     CHANGELOG lists the new ones) are not importable, and ``geomopt.untangle`` is the function."""
     import importlib
     import sys
