@@ -4,7 +4,7 @@ For every case both modes start from the same map and minimise symmetric Dirichl
 projected Newton:
 
 * plain: :func:`geomopt.parameterize` (locally injective only);
-* bijective: :func:`geomopt.scaffold.bijective_parameterize`.
+* bijective: :func:`geomopt.bijective.bijective_parameterize`.
 
 Cases: the shared meshes (``../shared/data/meshes`` from the repository root; Tutte start) and
 generated surfaces whose flattening may overlap (:mod:`geomopt.mesh.generators`: spiral strips from
@@ -80,7 +80,7 @@ def timed(fn, repeat):
 def run_case(name, gen, repeat, args):
     import geomopt
     from geomopt.exact.certify import certify_bijective
-    from geomopt.scaffold import bijective_parameterize
+    from geomopt.bijective import ScaffoldOptions, bijective_parameterize
 
     V, F, x0 = load(name, gen)
     log(f"{name}: {len(V)} vertices, {len(F)} triangles")
@@ -91,8 +91,9 @@ def run_case(name, gen, repeat, args):
         c = certify_bijective(plain.x, plain.problem.simplices)
         cert_times.append(c.seconds)
     cert_plain = c
-    opts = {k: v for k, v in (("scaffold_weight", args.weight), ("inner_steps", args.inner)) if v is not None}
-    t_bij, bij = timed(lambda: bijective_parameterize(V, F, x0=x0, progress=False, **opts), repeat)
+    opts = ScaffoldOptions(**{k: v for k, v in (("scaffold_weight", args.weight), ("inner_steps", args.inner))
+                              if v is not None})
+    t_bij, bij = timed(lambda: bijective_parameterize(V, F, x0=x0, options=opts, progress=False), repeat)
     cb = bij.certificate
     row = dict(
         case=name, faces=len(F), boundary=len(cb.loop),
@@ -164,7 +165,7 @@ def main(argv=None):
     ap.add_argument("--certificate-edges", type=int, default=10**6)
     args = ap.parse_args(argv)
     sys.path.insert(0, str(REPO))
-    from geomopt.scaffold import bijective_parameterize  # noqa: F401  (import check)
+    from geomopt.bijective import bijective_parameterize  # noqa: F401  (import check)
 
     gen = generated()
     cases = args.cases or [*gen, *[m for m in SHARED if m != "igea_cut"]]

@@ -83,7 +83,7 @@ jax.config.update("jax_enable_x64", True)
 from geomopt.mesh import generators as G  # noqa: E402
 from geomopt.mesh.elements import boundary_vertices, certify_elements, corner_simplices  # noqa: E402
 from geomopt.mesh.problem import Problem  # noqa: E402
-from geomopt.untangling import untangle  # noqa: E402
+from geomopt.untangling import UntangleOptions, untangle  # noqa: E402
 
 
 def _families(size):
@@ -118,7 +118,7 @@ def cmd_families(args):
             t = make()
             p = t.problem()
             t0 = time.perf_counter()
-            r = untangle(p, t.x0, progress=False, start=args.start)
+            r = untangle(p, t.x0, progress=False, options=UntangleOptions(start=args.start))
             wall = time.perf_counter() - t0
             c = certify_elements(r.x, p.elements)
             row = dict(case=name, elements=len(p.elements), inverted0=t.inverted(), start=r.details.start,
@@ -159,7 +159,7 @@ def _geomopt_run(p, x0, start):
     """untangle with the default solver from ``start`` ("auto": the user's default; "given": the
     tangled map the C++ gets)."""
     t0 = time.perf_counter()
-    r = untangle(p, x0, progress=False, start=start)
+    r = untangle(p, x0, progress=False, options=UntangleOptions(start=start))
     return r, time.perf_counter() - t0
 
 

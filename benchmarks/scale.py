@@ -231,12 +231,12 @@ def run_untangle_outer(V, S, fixed):
     """One outer iteration of :func:`geomopt.untangling.untangle` (default solver) on the mesh
     with its interior rotated by 90 degrees (2D) or its boundary twisted (3D)."""
     from geomopt.mesh import generators as G
-    from geomopt.untangling import untangle
+    from geomopt.untangling import UntangleOptions, untangle
 
     tangle = G.rotated_interior(V, S, 90.0) if V.shape[1] == 2 else \
         G.Tangle("twist", V, S, _twist(V, fixed), fixed)
     c = time.process_time()
-    res = untangle(tangle.problem(), tangle.x0, max_outer=1, progress=False)
+    res = untangle(tangle.problem(), tangle.x0, options=UntangleOptions(max_outer=1), progress=False)
     return {"untangle_outer_s": res.stats.seconds, "untangle_setup_s": res.stats.setup_seconds,
             "untangle_cpu_s": time.process_time() - c, "untangle_inner": int(res.stats.iterations),
             "untangle_inverted": [int(res.stats.inverted_at_start), int(res.certificate.inverted)],

@@ -14,10 +14,8 @@ first used.
 from ._version import __version__  # noqa: E402
 
 from ._runtime import cache as _cache  # noqa: E402
-from ._runtime import moved as _moved  # noqa: E402
 
 _cache.configure()
-_moved.install()
 
 from ._runtime.cache import cache_dir, cache_stats, set_cache_dir  # noqa: E402
 from ._runtime.errors import (GeomoptError, GeomoptWarning, MaxStepsWarning, MeshError, MeshFormatError,
@@ -39,7 +37,7 @@ _LAZY = {
 # public submodules reachable as attributes without an import of their own (imported on first use):
 # the layers from the bottom up, then the drivers and the outputs on top
 _SUBMODULES = ("exact", "io", "linalg", "mesh", "energies", "objective", "solvers", "param", "untangling", "smoothing",
-               "sphere", "atlas", "fairing", "implicit", "lim", "experiments", "plot", "data", "cli")
+               "sphere", "atlas", "fairing", "lim", "experiments", "plot", "data", "cli")
 
 
 def __getattr__(name):
@@ -49,8 +47,6 @@ def __getattr__(name):
         value = getattr(importlib.import_module(_LAZY[name], __name__), name)
     elif name in _SUBMODULES:
         value = importlib.import_module("." + name, __name__)
-    elif _moved.moved(name):
-        return importlib.import_module("." + name, __name__)  # the old path: warns, not cached here
     else:
         raise AttributeError(f"module 'geomopt' has no attribute {name!r}")
     globals()[name] = value

@@ -32,10 +32,8 @@ from .exact.predicates import differing_rows
 from .mesh.orientation import fixed_total_problem
 from .mesh.problem import Problem
 from .untangling import UntangleOptions, untangle
-from .untangling.options import options_from
 
-__all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix", "read_lim_case", "lim_case_dim",
-           "lim_cases"]
+__all__ = ["LimCase", "LimProblem", "untangle_case", "output_suffix"]
 
 
 class LimProblem(NamedTuple):
@@ -85,9 +83,9 @@ class LimCase(Mapping):
 
     Notes
     -----
-    For code written against the old dict (``read_lim_case``), a case also reads like a
-    read-only mapping with the keys ``dim``, ``path``, ``rest``, ``init``, ``faces`` (2D) or
-    ``tets`` (3D), ``handles`` and ``handles_file``; use the attributes in new code.
+    For code written against the old dict (of the former ``read_lim_case``), a case also reads
+    like a read-only mapping with the keys ``dim``, ``path``, ``rest``, ``init``, ``faces`` (2D)
+    or ``tets`` (3D), ``handles`` and ``handles_file``; use the attributes in new code.
     """
 
     dim: int
@@ -389,13 +387,14 @@ def _problem_3d(case) -> LimProblem:
     return LimProblem(problem, init, orientation, np.ones(3))
 
 
-def untangle_case(case, solver="lbfgs", progress=True, **options):
+def untangle_case(case, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True):
     """Untangle a LIM case (:meth:`LimCase.to_problem`, :func:`~geomopt.untangling.untangle`).
 
     Parameters
     ----------
     case : a :class:`LimCase`, or a case folder (read with :meth:`LimCase.read`).
-    solver, progress, options : passed to :func:`~geomopt.untangling.untangle`.
+    solver, options, progress : passed to :func:`~geomopt.untangling.untangle`
+        (``options`` an :class:`~geomopt.untangling.UntangleOptions` or None).
 
     Returns
     -------
@@ -404,8 +403,7 @@ def untangle_case(case, solver="lbfgs", progress=True, **options):
     """
     case = case if isinstance(case, LimCase) else LimCase.read(case)
     setup = case.to_problem()
-    opts = options_from(UntangleOptions, None, options, "untangle_case", deprecated=False)
-    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, options=opts)
+    result = untangle(setup.problem, setup.x0, solver=solver, progress=progress, options=options)
     if (setup.mirror < 0).any():
         result = dataclasses.replace(result, x=result.x * setup.mirror)  # negation is exact
     return case, result
@@ -449,21 +447,3 @@ def _read_3d(folder):
                         f"they must share the same tetrahedra")
     return LimCase(dim=3, rest=rest, init=init, simplices=tets, handles=read_vertex_ids(handles_path, len(rest)),
                    path=folder, handles_file=handles_path)
-
-
-# ---------------------------------------------------------------------- old names
-
-
-def read_lim_case(folder):
-    """Deprecated: :meth:`LimCase.read`."""
-    return LimCase.read(folder)
-
-
-def lim_case_dim(folder):
-    """Deprecated: :meth:`LimCase.dim_of`."""
-    return LimCase.dim_of(folder)
-
-
-def lim_cases(root):
-    """Deprecated: :meth:`LimCase.cases`."""
-    return LimCase.cases(root)

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
-from ._runtime.config import Instance, Maybe, OneOf, keyword_only, options_from, split_options, validate
-from ._runtime.errors import MeshError, ParameterError, SolveError
+from ._runtime.config import Instance, Maybe, OneOf, options_or_default, validate
+from ._runtime.errors import MaxStepsWarning, MeshError, ParameterError, SolveError
 from ._runtime.tracing import is_traced
 from ._runtime.x64 import float64
 from .objective.objective import Objective
@@ -15,7 +16,7 @@ from .exact.certify import certify_bijective, local_certificate, polygon_crossin
 from .energies import energy_spec, get_energy
 from .mesh.convert import mesh_arrays
 from .mesh.problem import Problem
-from .scaffold import ScaffoldOptions, bijective_parameterize
+from .bijective import ScaffoldOptions, bijective_parameterize
 from .solvers import Newton, Outcome, ParamDetails, Result, RunStats, get_solver, minimize, traced_result
 from .solvers._iterate import check_progress
 from .exact.topology import check_disk
@@ -131,11 +132,11 @@ class ParamOptions:
     ----------
     weights : Tutte weights of the start map, ``"uniform"`` or ``"mean_value"``.
     bijective : keep the boundary from crossing itself (a scaffold around the mesh, SCAF;
-        :func:`geomopt.scaffold.bijective_parameterize`), so that the map is globally injective.
+        :func:`geomopt.bijective.bijective_parameterize`), so that the map is globally injective.
         Either way ``certificate`` is the exact global certificate
         (:func:`geomopt.exact.certify.certify_bijective`) and ``result.injectivity`` says
         ``"global"``, ``"local"`` (flip-free but the boundary overlaps itself) or ``"none"``.
-    scaffold : :class:`~geomopt.scaffold.ScaffoldOptions` of the bijective mode (None: its
+    scaffold : :class:`~geomopt.bijective.ScaffoldOptions` of the bijective mode (None: its
         defaults).
     buckets : pad the mesh's arrays to size buckets (default True) so that compiled kernels,
         kept in the persistent compilation cache (:func:`geomopt.set_cache_dir`), serve every
@@ -152,20 +153,9 @@ class ParamOptions:
                  scaffold=Maybe(Instance(ScaffoldOptions)), buckets=Instance(bool))
 
 
-def param_options(options, deprecated: dict, where: str):
-    """``(ParamOptions, energy parameters)`` from :func:`parameterize`'s ``options`` and its
-    deprecated keywords: settings, scaffold settings and energy parameters (each warned)."""
-    options, rest = split_options(ParamOptions, options, deprecated, where)
-    scaffold, rest = split_options(ScaffoldOptions, options.scaffold, rest, where)
-    if scaffold != (options.scaffold or ScaffoldOptions()):
-        options = dataclasses.replace(options, scaffold=scaffold)
-    return options, rest
-
-
-@keyword_only(4, ("weights", "x0", "progress", "throw"))
 @float64
 def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, options: ParamOptions | None = None,
-                 x0=None, element_weights=None, progress=True, throw=False, adjoint="auto", **deprecated):
+                 x0=None, element_weights=None, progress=True, throw=False, adjoint="auto"):
     """Flatten a disk-topology surface to the plane with a free boundary, flip-free.
 
     Differentiable: given traced ``V``, ``element_weights`` or energy parameters (under
@@ -198,11 +188,6 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     element_weights : (m,) positive per-triangle weights of the energy (see
         :class:`~geomopt.Objective`), or None.  Not with ``options.bijective``.
     adjoint : the linear solver of the adjoint on traced inputs (see :func:`geomopt.minimize`).
-    deprecated : the former keywords ``weights``, ``bijective``, ``buckets`` (now
-        :class:`ParamOptions` fields), the scaffold's settings (``lazy``, ``inner_steps``...: now
-        ``ParamOptions(scaffold=ScaffoldOptions(...))``) and energy parameters (now with the
-        energy) work for one release with a DeprecationWarning; so do ``weights``, ``x0``,
-        ``progress``, ``throw`` given by position.
 
     Returns
     -------
@@ -228,8 +213,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
     >>> result.outcome.name, result.success, result.injectivity, result.x.shape
     ('CONVERGED', True, 'global', (5, 2))
     """
-    options, energy_params = param_options(options, deprecated, "parameterize")
-    energy, energy_params = energy_spec(energy, energy_params, "parameterize")
+    options = options_or_default(ParamOptions, options, "parameterize")
+    energy, energy_params = energy_spec(energy, where="parameterize")
     if is_traced(V, element_weights, energy_params):
         if options.bijective:
             raise ParameterError("parameterize: ParamOptions(bijective=True) is not differentiable (the scaffold is "
@@ -243,8 +228,8 @@ def parameterize(V, F=None, energy="symmetric_dirichlet", solver=None, *, option
         if isinstance(x0, str) or element_weights is not None:
             raise ParameterError("ParamOptions(bijective=True) starts from the Tutte map or a globally injective x0 "
                                  "array, with no element_weights")
-        return bijective_parameterize(V, F, energy=energy, solver=solver, weights=options.weights, x0=x0,
-                                      progress=progress, throw=throw, options=options.scaffold, **energy_params)
+        return bijective_parameterize(V, F, (energy, energy_params), solver, weights=options.weights, x0=x0,
+                                      options=options.scaffold, progress=progress, throw=throw)
     problem = Problem.surface(V, F)
     solver = Newton() if solver is None else get_solver(solver)
     _check_misplaced_settings(energy, solver, energy_params)
@@ -320,7 +305,8 @@ def projection_map(V, F) -> np.ndarray:
 
 
 @float64
-def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options):
+def repair_map(problem, x0, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True,
+               throw: bool = False) -> Result:
     """Repair a folded map: Garanzha et al.'s untangling with the boundary held on a simple
     polygon (the map's own boundary when it is one, else a circle), which is freed afterwards by
     the parameterization.
@@ -330,12 +316,21 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
     problem : :class:`~geomopt.Problem` (surface or planar) without fixed vertices, or ``(V, F)``.
     x0 : (n, 2) start map with folds.  A map mirrored as a whole (negative total signed area)
         is mirrored back first (``u -> -u``): a UV map's handedness is free.
-    theta : shape/area balance (see :func:`~geomopt.untangling.untangle`).
+    solver : the untangling's solver (see :func:`~geomopt.untangling.untangle`).
+    options : :class:`~geomopt.untangling.UntangleOptions` of the untangling (``theta``, the
+        shape/area balance, and the rest); None: the defaults.
+    progress, throw : see :func:`~geomopt.untangling.untangle`.
 
     Returns
     -------
     :class:`~geomopt.solvers.Result` of the untangling: ``x`` certified flip-free when ``success``.
+
+    Raises
+    ------
+    MeshError : not a disk, or a start map collapsed to a line or point.
+    SolveError : only with ``throw=True``, when no boundary polygon gives a certified map.
     """
+    options = options_or_default(UntangleOptions, options, "repair_map")
     if isinstance(problem, tuple):
         problem = Problem.surface(*problem)
     x0 = problem.check_map(x0, "start map x0")
@@ -357,13 +352,17 @@ def repair_map(problem, x0, theta=None, solver="lbfgs", progress=True, **options
         boundaries.append(x0[loop])
     radius = 0.5 * float(np.max(x0.max(axis=0) - x0.min(axis=0)))  # a folded map's area means little
     boundaries.append(x0.mean(axis=0) + radius * circle_boundary(problem.rest_vertices, loop))
-    for B in boundaries:
-        start = x0.copy()
-        start[loop] = B
-        res = untangle(problem.with_fixed(loop, B), start, solver=solver, progress=progress,
-                       options=options_from(UntangleOptions, None, {"theta": theta, **options}, "repair_map",
-                                            deprecated=False))
-        if res.success:
-            break
+    with warnings.catch_warnings():
+        if throw:  # the SolveError below says it; no MaxStepsWarning before it
+            warnings.simplefilter("ignore", MaxStepsWarning)
+        for B in boundaries:
+            start = x0.copy()
+            start[loop] = B
+            res = untangle(problem.with_fixed(loop, B), start, solver=solver, progress=progress, options=options)
+            if res.success:
+                break
     # the inverted elements of the map given, not of the map with its boundary replaced
-    return dataclasses.replace(res, stats=dataclasses.replace(res.stats, inverted_at_start=problem.count_inverted(x0)))
+    res = dataclasses.replace(res, stats=dataclasses.replace(res.stats, inverted_at_start=problem.count_inverted(x0)))
+    if throw and not res.success:
+        raise SolveError(f"repair_map failed: {res.message}", res)
+    return res

@@ -31,11 +31,12 @@ driver returns, with :class:`SmoothDetails`.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
-from ._runtime.config import Int, Maybe, OneOf, keyword_only, split_options, validate
-from ._runtime.errors import MeshError, ParameterError
+from ._runtime.config import Int, Maybe, OneOf, options_or_default, validate
+from ._runtime.errors import MaxStepsWarning, MeshError, ParameterError, SolveError
 from ._runtime.validate import validate_indices
 from .mesh.elements import ELEMENT_KINDS, ElementCertificate, Quality, scaled_jacobian
 from .solvers import Details, LocalCertificate, Outcome, Result, RunStats
@@ -131,9 +132,8 @@ class SmoothOptions:
         validate(self, rest=OneOf(("reference", "mesh")), max_steps=Maybe(Int(1)), max_rounds=Int(1))
 
 
-@keyword_only(4, ("fixed", "rest", "max_steps", "progress", "max_rounds"))
 def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: SmoothOptions | None = None,
-           progress=False, **deprecated) -> Result:
+           progress=False, throw: bool = False) -> Result:
     """Smooth a valid quad or hex mesh without inverting anything or worsening its worst element.
 
     Parameters
@@ -142,14 +142,13 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     E : (m, 4) quads or (m, 8) hexahedra (VTK order), every element valid on ``V`` (a positive
         Jacobian everywhere).
     energy : an energy name or object (default ``"winslow"``), or a pair ``(name, {parameter:
-        value})`` (:func:`geomopt.energies.energy_spec`); ``params``: deprecated keywords.
+        value})`` (:func:`geomopt.energies.energy_spec`).
     solver : a solver name or object with an injective search (default projected Newton).
     fixed : vertex ids held in place (default: the boundary vertices).
     options : :class:`SmoothOptions` (rest shape, iteration limits).
     progress : passed to :func:`~geomopt.solvers.minimize`.
-    deprecated : the former keywords ``rest``, ``max_steps``, ``max_rounds`` (now
-        :class:`SmoothOptions` fields) and energy parameters (now with the energy) work for one
-        release with a DeprecationWarning; so do the former positional arguments after ``solver``.
+    throw : raise :class:`~geomopt.SolveError` (carrying the result) unless it ``success``
+        (converged and certified); False: return it, whatever its outcome.
 
     Returns
     -------
@@ -166,6 +165,8 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
         vertex wound twice, a boundary fan overlapping itself: untangle it first).
     ParameterError
         The solver's line search is not injective, or an energy or solver is unknown.
+    SolveError
+        Only with ``throw=True``, when the result is not ``success``.
 
     Examples
     --------
@@ -182,8 +183,8 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     from .exact.predicates import box_scale
     from .solvers import get_solver
 
-    options, params = split_options(SmoothOptions, options, deprecated, "smooth")
-    energy, params = energy_spec(energy, params, "smooth")
+    options = options_or_default(SmoothOptions, options, "smooth")
+    energy, params = energy_spec(energy, where="smooth")
     V = np.asarray(V, dtype=np.float64)
     scale = box_scale(V) if V.ndim == 2 else 1.0  # exact: at 1e200 or 1e-150 as at 1
     problem = element_problem(V * scale, E, fixed, options.rest)
@@ -194,8 +195,11 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
     if options.max_steps is not None:
         solver = dataclasses.replace(solver, max_steps=options.max_steps)
-    solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
-                                               params)
+    with warnings.catch_warnings():
+        if throw:  # the SolveError below says it; no MaxStepsWarning before it
+            warnings.simplefilter("ignore", MaxStepsWarning)
+        solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
+                                                   params)
     local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
     if not local.ok:  # a free boundary folded over itself: the input
         outcome, reason = Outcome.NOT_INJECTIVE, (f"the minimum is not locally injective ({local.message}); the "
@@ -204,8 +208,11 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     before, after = start.elements.quality, local.elements.quality
     details = SmoothDetails(before, after, local.elements, held, scale,
                             local.ok and after.min >= before.min and not np.array_equal(x, V))
-    return Result(x / scale, outcome, _certificate(local, problem, x), _totals(solves, x), problem=problem,
-                  objective=solves[-1].objective, solver=solver, reason=reason, details=details)
+    result = Result(x / scale, outcome, _certificate(local, problem, x), _totals(solves, x), problem=problem,
+                    objective=solves[-1].objective, solver=solver, reason=reason, details=details)
+    if throw and not result.success:
+        raise SolveError(f"smooth failed: {result.message}", result)
+    return result
 
 
 def _rounds(problem, V, start, energy, solver, progress, max_rounds, params):

@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from ._runtime.config import Instance, Int, Maybe, OneOf, keyword_only, split_options, validate
+from ._runtime.config import Instance, Int, Maybe, OneOf, options_or_default, validate
 from ._runtime.errors import MeshError, ParameterError
 from .objective.objective import Objective
 from ._runtime.tracing import refuse_traced
@@ -420,10 +420,9 @@ class SphereOptions:
         validate(self, weights=OneOf(TUTTE_WEIGHTS), pole=Maybe(Int(0)), buckets=Instance(bool))
 
 
-@keyword_only(4, ("progress", "throw"))
 @float64
 def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options: SphereOptions | None = None,
-               x0=None, progress=True, throw=False, **deprecated):
+               x0=None, progress=True, throw=False):
     """Map a closed genus-0 triangle mesh bijectively onto the unit sphere, minimising distortion.
 
     Parameters
@@ -432,9 +431,10 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options:
         when ``F`` is None.
     F : (m, 3) int triangles, consistently oriented (the map keeps their orientation: outward
         normals map to triangles counter-clockwise seen from outside the sphere).
-    energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet), a density
-        of 2x2 Jacobians evaluated on the chord triangles against the rest triangles scaled to
-        total area ``4 pi`` (:meth:`geomopt.Problem.sphere`).
+    energy : name or :class:`~geomopt.energies.Energy` (default symmetric Dirichlet), or a pair
+        ``(name, {parameter: value})`` (:func:`geomopt.energies.energy_spec`): a density of 2x2
+        Jacobians evaluated on the chord triangles against the rest triangles scaled to total
+        area ``4 pi`` (:meth:`geomopt.Problem.sphere`).
     solver : ``None`` (:func:`default_solver`), ``"lbfgs"`` or an :class:`~geomopt.LBFGS` (the
         sphere map's Jacobians are not linear in ``x``, so no assembled-Hessian solver applies).
     options : :class:`SphereOptions` (the start's Tutte weights and pole, size buckets).
@@ -442,9 +442,6 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options:
         (directions: e.g. another method's sphere map), which must itself certify
         (:func:`geomopt.exact.certify.certify_sphere`).
     progress, throw : see :func:`~geomopt.solvers.minimize`.
-    deprecated : the former keywords ``pole``, ``weights``, ``buckets`` (now :class:`SphereOptions`
-        fields) and energy parameters (now with the energy) work for one release with a
-        DeprecationWarning; so do ``progress`` and ``throw`` given by position.
 
     Returns
     -------
@@ -473,8 +470,8 @@ def sphere_map(V, F=None, energy="symmetric_dirichlet", solver=None, *, options:
     >>> result.success, result.injectivity, bool(np.allclose(np.linalg.norm(result.x, axis=1), 1.0))
     (True, 'global', True)
     """
-    options, energy_params = split_options(SphereOptions, options, deprecated, "sphere_map")
-    energy, energy_params = energy_spec(energy, energy_params, "sphere_map")
+    options = options_or_default(SphereOptions, options, "sphere_map")
+    energy, energy_params = energy_spec(energy, where="sphere_map")
     refuse_traced("geomopt.sphere_map", "it certifies concrete maps", V, energy_params)
     V, F = mesh_arrays(V, F)
     check_progress(progress, "sphere_map")

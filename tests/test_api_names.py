@@ -32,7 +32,7 @@ def test_all_is_exactly_the_public_namespace_of_a_fresh_import():
     assert len(names) == len(set(names)), "a name is listed twice in geomopt.__all__"
     assert sorted(set(names) - {"__version__"}) == public
     assert "__version__" in names
-    assert loaded == ["geomopt._runtime", "geomopt._runtime.cache", "geomopt._runtime.errors", "geomopt._runtime.moved",
+    assert loaded == ["geomopt._runtime", "geomopt._runtime.cache", "geomopt._runtime.errors",
                       "geomopt._version"]  # the import stays cheap
 
 
@@ -79,3 +79,12 @@ def test_removed_names_stay_removed():
     assert "smoothing" in modules and "tetio" not in modules
     assert "smooth" not in modules  # the function's name is not also a module's (an import would rebind it)
     assert not hasattr(geomopt.smoothing, "SmoothResult") and "tetio" not in dir(geomopt)
+    # removed in 0.2 (the CHANGELOG says what to use): the implicit shim, the old module paths
+    assert "implicit" not in modules and "implicit" not in dir(geomopt) and "predicates" not in dir(geomopt)
+    for name in ("implicit", "predicates", "linsolve"):
+        with pytest.raises(AttributeError, match=f"no attribute '{name}'"):
+            getattr(geomopt, name)
+    assert not hasattr(geomopt.mesh.problem, "check_initial_orientation")  # geomopt.mesh.orientation's
+    import geomopt.lim
+
+    assert not any(hasattr(geomopt.lim, n) for n in ("read_lim_case", "lim_case_dim", "lim_cases"))  # LimCase's

@@ -15,7 +15,7 @@ import pytest
 
 import geomopt.cli
 from geomopt.mesh import generators as G
-from geomopt import ParameterError, io
+from geomopt import ParameterError, UntangleOptions, io
 from geomopt._runtime.padding import MAXIMUM_ELEMENTS, bucket_sizes
 from geomopt.experiments.batch import EXCEPT_FIXED, SUMMARY_COLUMNS, batch_cases, default_workers, run_batch, tally
 from geomopt.lim import LimCase, output_suffix
@@ -55,7 +55,7 @@ def test_padding_gives_the_same_map_up_to_the_rounding_of_sums(name):
     t = tangles()[name]
     assert t.inverted() > 0
     plain = untangle(t.problem(), t.x0, progress=False)
-    padded = untangle(t.problem(), t.x0, progress=False, bucket=True)
+    padded = untangle(t.problem(), t.x0, progress=False, options=UntangleOptions(bucket=True))
     assert plain.success and padded.success, (plain.message, padded.message)
     assert padded.x.shape == plain.x.shape
     assert (padded.stats.outer_iterations, padded.stats.iterations) == (plain.stats.outer_iterations, plain.stats.iterations)
@@ -70,11 +70,11 @@ def test_cases_of_one_bucket_share_the_compiled_kernels():
     from geomopt.solvers import lbfgs
 
     ts = tangles()
-    untangle(ts["square"].problem(), ts["square"].x0, progress=False, bucket=True)
+    untangle(ts["square"].problem(), ts["square"].x0, progress=False, options=UntangleOptions(bucket=True))
     kernels = [lbfgs._run_kernel, lbfgs._reparam_kernel, _outer_stats]
     before = [k._cache_size() for k in kernels]
     for name in ("star", "disk"):  # other shapes, the same bucket
-        assert untangle(ts[name].problem(), ts[name].x0, progress=False, bucket=True).success
+        assert untangle(ts[name].problem(), ts[name].x0, progress=False, options=UntangleOptions(bucket=True)).success
     assert [k._cache_size() for k in kernels] == before
 
 

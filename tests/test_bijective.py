@@ -11,7 +11,7 @@ from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.exact.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.exact.predicates import count_inverted, orient2d
 from geomopt.mesh.scaffold import build_scaffold, delaunay_flips, ear_clip, refine_scaffold
-from geomopt.scaffold import SimpleBoundary, bijective_parameterize
+from geomopt.bijective import ScaffoldOptions, SimpleBoundary, bijective_parameterize
 from geomopt.exact.topology import check_disk, unique_edges
 from geomopt.mesh.tutte import tutte_embedding
 
@@ -340,7 +340,7 @@ def test_bijective_matches_plain_where_plain_does_not_overlap():
     # (the start is normalised like parameterize's up to rounding)
     assert res.stats.iterations == plain.stats.iterations and abs(res.energy - plain.energy) <= 1e-9 * plain.energy
     # with the scaffold from the start: the same optimum
-    res = bijective_parameterize(V, F, progress=False, lazy=False)
+    res = bijective_parameterize(V, F, options=ScaffoldOptions(lazy=False), progress=False)
     assert res.success and res.injectivity == "global" and res.stats.outer_iterations > 0
     assert abs(res.energy - plain.energy) <= 1e-5 * plain.energy
 
@@ -352,8 +352,12 @@ def test_bijective_input_errors(spiral):
         bijective_parameterize(Vo, Fo, x0=Vo[:, :2], progress=False)
     for bad in (dict(scaffold_weight=0.0), dict(scaffold_weight=np.nan), dict(inner_steps=0),
                 dict(max_outer=True), dict(outer_rtol=-1.0), dict(ring_scale=1.0), dict(lazy=1)):
-        with pytest.raises(ParameterError):
-            bijective_parameterize(V, F, x0=V[:, :2], progress=False, **bad)
+        with pytest.raises(ParameterError, match=f"ScaffoldOptions: {next(iter(bad))} must be"):
+            ScaffoldOptions(**bad)
+    with pytest.raises(ParameterError, match="options must be a ScaffoldOptions or None, got dict"):
+        bijective_parameterize(V, F, x0=V[:, :2], options={"lazy": False}, progress=False)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'lazy'"):
+        bijective_parameterize(V, F, x0=V[:, :2], progress=False, lazy=False)
 
 
 def test_generators_validate_and_give_injective_projections():

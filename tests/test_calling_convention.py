@@ -1,10 +1,9 @@
 """One calling convention for the drivers: the data (and energy, solver) by position, every
-setting keyword-only, configuration in frozen validated options objects; the old forms work one
-release with a DeprecationWarning pointing at the caller's line."""
+setting keyword-only, configuration in frozen validated options objects, energy parameters
+with the energy; the old forms (deprecated, removed in 0.2.0) are refused."""
 
 import dataclasses
 import inspect
-import warnings
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ import geomopt
 from geomopt import ParameterError
 from geomopt.experiments.options import CompareOptions
 from geomopt.param import ParamOptions
-from geomopt.scaffold import ScaffoldOptions
+from geomopt.bijective import ScaffoldOptions
 from geomopt.smoothing import SmoothOptions
 from geomopt.sphere import SphereOptions
 
@@ -42,37 +41,26 @@ def test_every_driver_takes_data_by_position_and_settings_by_keyword(name):
     assert name == "minimize" or "options" in keyword  # minimize's settings are its solver's
 
 
-def _recorded(call):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        result = call()
-    return result, [w for w in caught if issubclass(w.category, DeprecationWarning)]
+def test_positional_settings_are_refused():
+    """The former positional settings after the solver (removed in 0.2.0) are a TypeError."""
+    with pytest.raises(TypeError, match="positional argument"):
+        geomopt.parameterize(V, F, "symmetric_dirichlet", None, "mean_value", None, False)
+    with pytest.raises(TypeError, match="positional argument"):
+        geomopt.minimize(None, None, None, None, False)
 
 
-def test_the_old_positional_form_still_works_and_warns_at_the_callers_line():
-    line = inspect.currentframe().f_lineno + 1
-    old, caught = _recorded(lambda: geomopt.parameterize(V, F, "symmetric_dirichlet", None, "mean_value", None, False))
-    new = geomopt.parameterize(V, F, options=ParamOptions(weights="mean_value"), progress=False)
-    np.testing.assert_array_equal(old.x, new.x)
-    assert any("by position" in str(w.message) and "weights, x0, progress" in str(w.message) for w in caught)
-    assert {(w.filename, w.lineno) for w in caught} == {(__file__, line)}
-    with pytest.raises(ParameterError, match="x0 given by position and by keyword"):
-        geomopt.parameterize(V, F, "symmetric_dirichlet", None, "uniform", None, x0=None)
-    with pytest.raises(ParameterError, match="at most 8 positional"):
-        geomopt.parameterize(V, F, "symmetric_dirichlet", None, "uniform", None, False, False, True)
-
-
-def test_settings_as_keywords_still_work_and_go_into_the_options():
-    V = [[0.4, 0.2, 0.5], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]  # off centre: the weights differ
-    old, caught = _recorded(lambda: geomopt.parameterize(V, F, weights="mean_value", progress=False))
-    new = geomopt.parameterize(V, F, options=ParamOptions(weights="mean_value"), progress=False)
-    np.testing.assert_array_equal(old.x, new.x)
-    assert [str(w.message) for w in caught] == [
-        "parameterize: settings as keywords (weights) are deprecated and will be removed in the next release: "
-        "pass options=ParamOptions(...)"]
-    np.testing.assert_array_equal(old.details.start, new.details.start)
-    plain = geomopt.parameterize(V, F, progress=False)
-    assert not np.allclose(plain.details.start, new.details.start)  # the weights reached the start map
+@pytest.mark.parametrize("name", sorted(set(DRIVERS) - {"minimize"}))
+def test_settings_and_energy_parameters_as_keywords_are_refused(name):
+    """The former keyword settings and loose energy parameters (removed in 0.2.0): refused
+    before any work, naming the keyword; a dict for ``options`` names the class to pass."""
+    func, positional = DRIVERS[name]
+    data = {"untangle": (None, None), "compare_meshes": ([],)}.get(name, (V, F))
+    for keyword in ("weights", "lam"):
+        with pytest.raises((TypeError, ParameterError), match=f"keyword argument.*'?{keyword}'?"):
+            func(*data, **{keyword: 1})
+    if name not in ("untangle", "fair"):  # (untangle: tests/test_differentiable.py; fair: not yet)
+        with pytest.raises(ParameterError, match=r"options must be a [\w.]+Options( or None)?, got dict"):
+            func(*data, options={"weights": "uniform"}, progress=False)
 
 
 def test_the_bijective_mode_and_its_scaffold_come_from_the_options():
@@ -81,8 +69,6 @@ def test_the_bijective_mode_and_its_scaffold_come_from_the_options():
     assert eager.success and eager.injectivity == "global" and eager.stats.outer_iterations >= 1
     plain = geomopt.parameterize(V, F, options=ParamOptions(bijective=True), progress=False)
     assert plain.stats.outer_iterations == 0  # lazy: no scaffold needed on a tent
-    old, caught = _recorded(lambda: geomopt.parameterize(V, F, bijective=True, lazy=False, progress=False))
-    assert old.stats.outer_iterations == eager.stats.outer_iterations and len(caught) == 2
 
 
 @pytest.mark.parametrize("cls, field, bad", [

@@ -16,7 +16,7 @@ import pytest
 
 import geomopt
 import geomopt.cli
-from geomopt import MeshError, ParameterError, Problem, io
+from geomopt import CompareOptions, MeshError, ParameterError, Problem, io
 from geomopt.experiments.comparison import HISTORY_COLUMNS, TOLERANCES, Comparison, summary_columns
 from geomopt.experiments.report import STYLES, latex_table
 from geomopt.experiments.manifest import array_hash
@@ -154,20 +154,21 @@ def test_api_result_agrees_with_the_files(tmp_path):
 
 
 def test_reference_best_given_and_auto():
-    best = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], reference="best")
+    best = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], options=CompareOptions(reference="best"))
     assert best.reference.source == "best" and min(best.gap(n)[-1] for n in best.results) == 0.0
     auto = geomopt.compare(V3, F, solvers=["newton", "lbfgs"])
     assert auto.reference.energy <= best.reference.energy
-    given = geomopt.compare(V3, F, solvers=["lbfgs"], reference=auto.reference_mean_energy * (1 - 1e-3))
+    given = geomopt.compare(V3, F, solvers=["lbfgs"],
+                            options=CompareOptions(reference=auto.reference_mean_energy * (1 - 1e-3)))
     assert given.reference.source == "given"
     assert given.gap("lbfgs")[-1] == pytest.approx(1e-3 / (1 - 1e-3), rel=1e-6)
     for bad in ("median", float("nan"), [1.0]):
         with pytest.raises(ParameterError, match="reference must be"):
-            geomopt.compare(V3, F, solvers=["lbfgs"], reference=bad)
+            geomopt.compare(V3, F, solvers=["lbfgs"], options=CompareOptions(reference=bad))
 
 
 def test_repeats_report_medians_and_keep_the_median_run():
-    res = geomopt.compare(V3, F, solvers=["newton"], repeat=3)
+    res = geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(repeat=3))
     runs = res.runs["newton"]
     assert len(runs) == 3 and len({r.iterations for r in runs}) == 1
     row = res.summary_rows()[0]
@@ -176,11 +177,11 @@ def test_repeats_report_medians_and_keep_the_median_run():
     assert row["cpu_s"] == np.median([r.cpu_seconds for r in runs])
     assert "medians of 3 runs" in res.report()
     with pytest.raises(ParameterError, match="repeat must be"):
-        geomopt.compare(V3, F, solvers=["newton"], repeat=0)
+        geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(repeat=0))
 
 
 def test_manifest_records_solvers_environment_and_hashes(tmp_path):
-    res = geomopt.compare(V3, F, solvers=["newton", "optx-lbfgs"], max_steps=3, out=tmp_path)
+    res = geomopt.compare(V3, F, solvers=["newton", "optx-lbfgs"], options=CompareOptions(max_steps=3), out=tmp_path)
     m = json.loads((tmp_path / "manifest.json").read_text())
     assert m["schema_version"] >= 2 and m["versions"]["geomopt"] == geomopt.__version__
     assert m["versions"]["jax"] and m["environment"]["logical_cpus"] >= 1 and m["environment"]["cpu"]
@@ -225,7 +226,8 @@ def test_several_meshes_formats_log_x_and_json(cli, tmp_path):
 
 def test_optimistix_progress_lines_show_no_nan(tmp_path, caplog):
     caplog.set_level(logging.DEBUG, logger="geomopt")
-    geomopt.compare(V3, F, solvers=["optx-lbfgs"], max_steps=60, progress=True, reference="best")
+    geomopt.compare(V3, F, solvers=["optx-lbfgs"], options=CompareOptions(max_steps=60, reference="best"),
+                    progress=True)
     err = "\n".join(r.getMessage() for r in caplog.records)
     lines = [line for line in err.splitlines() if "iter" in line]
     assert lines and not any("nan" in line or " inf" in line for line in lines), lines
@@ -360,7 +362,7 @@ def test_max_steps_is_honoured_and_exits_1(cli, tmp_path):
 
 
 def test_max_seconds_stops_each_solver_and_says_so():
-    res = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], max_seconds=1e-9)
+    res = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], options=CompareOptions(max_seconds=1e-9))
     for name, r in res.results.items():
         # the first iteration already takes longer than a nanosecond
         assert r.iterations == 1 and r.status == "max_seconds"
@@ -382,7 +384,8 @@ def no_type3(path):
 
 
 def test_pdf_and_postscript_figures_embed_truetype_fonts(tmp_path):
-    res = geomopt.compare(V3, F, solvers=["newton"], formats=("pdf", "eps", "png"), out=tmp_path / "o")
+    res = geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(formats=("pdf", "eps", "png")),
+                          out=tmp_path / "o")
     assert no_type3(tmp_path / "o" / "convergence.pdf") and no_type3(tmp_path / "o" / "convergence.eps")
     assert res.figure().texts or res.figure().legends  # the figure has text to embed
 
@@ -400,14 +403,14 @@ class _Clock:
 
 def test_clock_cpu_drives_the_limit_the_axis_the_table_and_the_median(monkeypatch, tmp_path):
     monkeypatch.setattr(time, "process_time", _Clock())  # the solve loop's clock (geomopt.solvers.iterate)
-    wall = geomopt.compare(V3, F, solvers=["newton"], max_seconds=5.0, warmup=False)
+    wall = geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(max_seconds=5.0, warmup=False))
     assert wall.clock == "wall" and wall.results["newton"].status == "converged"
     as_cpu, key = dataclasses.replace(wall, clock="cpu"), f"{TOLERANCES[0]:.0e}"
     row = as_cpu.summary_rows()[0]  # the table's seconds are the clock's: here 10 s per reading
     assert row[f"cpu_s_to_{key}"] > 5.0 and f" & {row[f'it_to_{key}']} & {row[f'cpu_s_to_{key}']:.2f} & " in \
         latex_table({"m": as_cpu})
-    cpu = geomopt.compare(V3, F, solvers=["newton", "lbfgs"], max_seconds=5.0, clock="cpu", warmup=False,
-                          repeat=3, out=tmp_path / "o")
+    cpu = geomopt.compare(V3, F, solvers=["newton", "lbfgs"],
+                          options=CompareOptions(max_seconds=5.0, clock="cpu", warmup=False, repeat=3), out=tmp_path / "o")
     for name, r in cpu.results.items():  # 20 "CPU seconds" per iteration: stopped at the first
         assert r.iterations == 1 and r.status == "max_seconds", name
         assert r.cpu_seconds > 5.0 > r.seconds
@@ -421,7 +424,7 @@ def test_clock_cpu_drives_the_limit_the_axis_the_table_and_the_median(monkeypatc
     runs = cpu.runs["lbfgs"]  # the median run is the one of median CPU time
     assert cpu.results["lbfgs"].cpu_seconds == np.median([r.cpu_seconds for r in runs])
     with pytest.raises(ParameterError, match="clock must be"):
-        geomopt.compare(V3, F, solvers=["newton"], clock="gpu")
+        geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(clock="gpu"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -441,7 +444,7 @@ LAZY = []
 @pytest.mark.parametrize("warmup", [True, False])
 def test_one_untimed_warmup_keeps_lazy_compilation_out_of_the_solve_time(warmup):
     LAZY.clear()
-    res = geomopt.compare(V3, F, solvers={"lazy": LazyLBFGS()}, warmup=warmup)
+    res = geomopt.compare(V3, F, solvers={"lazy": LazyLBFGS()}, options=CompareOptions(warmup=warmup))
     (run,) = res.runs["lazy"]
     assert LAZY and (run.seconds < 1.5 if warmup else run.seconds >= 1.5)
     assert res.warmup is warmup and ("untimed warm-up" if warmup else "cold") in res.report()
@@ -449,8 +452,8 @@ def test_one_untimed_warmup_keeps_lazy_compilation_out_of_the_solve_time(warmup)
 
 def test_column_figure_has_one_panel_per_mesh_and_the_font_size_asked(tmp_path):
     res = geomopt.experiments.comparison.compare_meshes({"a": write_obj(tmp_path / "a.obj", V3, F),
-                                           "b": write_obj(tmp_path / "b.obj", 2 * V3, F)},
-                                          solvers=["newton"], warmup=False)
+                                           "b": write_obj(tmp_path / "b.obj", 2 * V3, F)}, solvers=["newton"],
+                                          options=CompareOptions(warmup=False))
     fig = res.figure(layout="column", font_size=6.5)
     assert len(fig.axes) == 2 and fig.get_size_inches()[0] == pytest.approx(3.4)
     assert {ax.xaxis.label.get_fontsize() for ax in fig.axes} == {6.5}
@@ -460,7 +463,7 @@ def test_column_figure_has_one_panel_per_mesh_and_the_font_size_asked(tmp_path):
     assert wide.axes[0].xaxis.label.get_fontsize() == 10.0
     for bad in (dict(layout="tall"), dict(font_size=0), dict(font_size="big")):
         with pytest.raises(ParameterError, match="layout must be|font_size must be"):
-            geomopt.compare(V3, F, solvers=["newton"], **bad)
+            geomopt.compare(V3, F, solvers=["newton"], options=CompareOptions(**bad))
 
 
 def test_cli_clock_warmup_layout_font_size_and_truetype_pdf(cli, tmp_path):

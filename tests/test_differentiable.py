@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import Objective, ParameterError, Problem
+from geomopt import Objective, ParamOptions, ParameterError, Problem
 from geomopt.exact.topology import boundary_vertices
 from geomopt.mesh import generators
 from geomopt.param import parameterize_map
@@ -155,29 +155,20 @@ def test_a_traced_call_that_does_not_succeed_raises_instead_of_returning():
 def test_bijective_is_refused_under_tracing():
     V, F = bumpy_disk(3)
     with jax.enable_x64(True), pytest.raises(ParameterError, match=r"bijective=True\) is not differentiable"):
-        jax.grad(lambda V: geomopt.parameterize(V, F, bijective=True, progress=False).x.sum())(jnp.asarray(V))
+        jax.grad(lambda V: geomopt.parameterize(V, F, options=ParamOptions(bijective=True), progress=False).x.sum())(
+            jnp.asarray(V))
 
 
-def test_the_implicit_namespace_is_a_deprecated_alias():
-    V, F = bumpy_disk(3)
-    with pytest.warns(DeprecationWarning, match="geomopt.implicit.parameterize is deprecated"):
-        x = geomopt.implicit.parameterize(V, F)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        np.testing.assert_allclose(x, parameterize_map(V, F), rtol=0, atol=1e-12)
-
-
-def test_energy_parameters_go_with_the_energy_and_keywords_are_deprecated():
-    """Issue 32 item 3: every driver takes ``energy=(name, {parameter: value})``; the old
-    keywords still work for one release, with a DeprecationWarning, and give the same map."""
+def test_energy_parameters_go_with_the_energy():
+    """Issue 32 item 3: every driver takes ``energy=(name, {parameter: value})``; the old loose
+    keywords (deprecated, removed in 0.2.0) are refused."""
     V, F = bumpy_disk(4)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         new = geomopt.parameterize(V, F, ("garanzha", {"lam": 0.5, "eps": 0.1}), progress=False)
-    with pytest.warns(DeprecationWarning, match="parameterize: energy parameters as keywords \\(eps, lam\\)"):
-        old = geomopt.parameterize(V, F, "garanzha", progress=False, lam=0.5, eps=0.1)
-    assert new.success and np.array_equal(new.x, old.x)
-    assert new.objective.params()["lam"] == 0.5
+    assert new.success and new.objective.params()["lam"] == 0.5
+    with pytest.raises(TypeError, match="unexpected keyword argument 'lam'"):
+        geomopt.parameterize(V, F, "garanzha", progress=False, lam=0.5, eps=0.1)
     with pytest.raises(ParameterError, match="a pair \\(name, \\{parameter: value\\}\\)"):
         geomopt.parameterize(V, F, ("garanzha", 0.5, 0.1), progress=False)
     with jax.enable_x64(True):  # a traced parameter inside the pair is differentiable
@@ -186,13 +177,15 @@ def test_energy_parameters_go_with_the_energy_and_keywords_are_deprecated():
     assert np.isfinite(float(g)) and float(g) != 0.0
 
 
-def test_untangle_settings_go_in_the_options_object_and_keywords_are_deprecated():
+def test_untangle_settings_go_in_the_options_object():
     tangle = generators.rotated_interior(*generators.square_mesh(4), 180.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         new = geomopt.untangle(tangle.problem(), tangle.x0, options=UntangleOptions(theta=0.1), progress=False)
-    with pytest.warns(DeprecationWarning, match="untangle: settings as keywords \\(theta\\) are deprecated"):
-        old = geomopt.untangle(tangle.problem(), tangle.x0, theta=0.1, progress=False)
-    assert new.success and np.array_equal(new.x, old.x) and new.details.theta == 0.1
+    assert new.success and new.details.theta == 0.1
+    with pytest.raises(TypeError, match="unexpected keyword argument 'theta'"):
+        geomopt.untangle(tangle.problem(), tangle.x0, theta=0.1, progress=False)
+    with pytest.raises(ParameterError, match="untangle: options must be a UntangleOptions or None, got dict"):
+        geomopt.untangle(tangle.problem(), tangle.x0, options={"theta": 0.1}, progress=False)
     with pytest.raises(ParameterError, match="theta must be None or a finite number in \\(0, 1\\)"):
         UntangleOptions(theta=1.5)  # a concrete value is still checked (a traced one passes)

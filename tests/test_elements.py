@@ -11,7 +11,7 @@ import pytest
 
 import geomopt
 from geomopt.mesh import generators as G
-from geomopt import Outcome, smooth
+from geomopt import CompareOptions, Outcome, UntangleOptions, smooth
 from geomopt.smoothing import SmoothOptions
 from geomopt.exact import hexvalid
 from geomopt._runtime.errors import MeshError, ParameterError
@@ -301,7 +301,7 @@ def _untangled(tangle, start="given"):
     the boundary at rest the harmonic start of ``"auto"`` is the rest mesh)."""
     p = tangle.problem()
     assert tangle.inverted() > 0
-    r = untangle(p, tangle.x0, progress=False, start=start)
+    r = untangle(p, tangle.x0, progress=False, options=UntangleOptions(start=start))
     assert r.success, (tangle.name, r.message)
     assert r.details.start == ("given" if start == "given" else "harmonic")
     c = certify_elements(r.x, p.elements)
@@ -439,7 +439,7 @@ def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
     V, Q = G.sector_mesh(3, 6, perturb=0.3, seed=2)
     p = Problem.quads(V, Q, rest="reference")
     p = p.with_fixed(p.boundary_vertices(), V[p.boundary_vertices()])
-    cmp = geomopt.compare(p, x0=V, solvers=["newton", "lbfgs", "slim", "aqp", "cm"], max_steps=30,
+    cmp = geomopt.compare(p, x0=V, solvers=["newton", "lbfgs", "slim", "aqp", "cm"], options=CompareOptions(max_steps=30),
                           out=tmp_path / "q")
     for name, r in cmp.results.items():
         assert r.certificate.inverted == 0 and certify_elements(r.x, p.elements).certified, name
@@ -449,7 +449,8 @@ def test_every_solver_and_compare_take_quads_and_hexahedra(tmp_path):
     V3, H = G.sector_mesh(2, 3, 2, perturb=0.3, seed=2)
     p3 = Problem.hexes(V3, H, rest="reference")
     p3 = p3.with_fixed(p3.boundary_vertices(), V3[p3.boundary_vertices()])
-    cmp = geomopt.compare(p3, x0=V3, solvers=["newton", "lbfgs"], max_steps=30, out=tmp_path / "h")
+    cmp = geomopt.compare(p3, x0=V3, solvers=["newton", "lbfgs"], options=CompareOptions(max_steps=30),
+                          out=tmp_path / "h")
     for name, r in cmp.results.items():
         assert r.certificate.inverted == 0 and io.read_cells(tmp_path / "h" / f"{name}.vtk")[2] == "hexahedron"
 

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from geomopt.exact.certify import certify_bijective, local_certificate, polygon_crossings, polygon_orientation
 from geomopt.exact.predicates import normal_signs, orient2d, orient3d
+from geomopt import ParamOptions
 
 # powers of two: exact scalings of small-integer data, from the deepest subnormals to near overflow
 EXPONENTS = [-1074, -1070, -1060, -1040, -1030, -1022, -1000, -600, 0, 600, 1000, 1012]
@@ -217,7 +218,7 @@ def test_bijective_start_at_extreme_scales(scale, tmp_path):
     V, F = G.ruffled_disk(6)
     x0 = tutte_embedding(V, F) * scale
     for bijective in (False, True):
-        res = parameterize(V, F, x0=x0, bijective=bijective, progress=False)
+        res = parameterize(V, F, x0=x0, options=ParamOptions(bijective=bijective), progress=False)
         assert res.success and res.injectivity == "global", (bijective, res.message)
     src, out = tmp_path / "in.obj", tmp_path / "out.obj"
     write_obj_with_uv(src, V, F, x0)

@@ -3,11 +3,13 @@ API and the command line; every result certified by the exact predicate."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
 import geomopt.cli
-from geomopt import MeshFormatError, Problem, parameterize
+from geomopt import MaxStepsWarning, MeshFormatError, ParameterError, Problem, SolveError, UntangleOptions, parameterize
 from geomopt.mesh.generators import disk_mesh
 from geomopt.io import read_obj_uv, write_obj_with_uv
 from geomopt.param import projection_map, repair_map
@@ -59,6 +61,30 @@ def test_planar_free_boundary_and_a_mirrored_map():
     assert rep.success and P.count_inverted(rep.x) == 0
     with pytest.raises(Exception, match="collapsed"):
         repair_map(P, np.zeros_like(V), progress=False)
+
+
+def test_repair_map_reads_an_options_object_and_throws_on_request():
+    """``repair_map`` takes the untangling's settings as every driver does (issue 49): an
+    UntangleOptions (theta reaches the solve), no loose keywords, and ``throw``."""
+    V, F = grid(7)
+    P = Problem.planar(V, F)
+    x = V * [-1.0, 1.0]
+    x[10] += [0.3, 0.2]
+    rep = repair_map(P, x, options=UntangleOptions(theta=0.25), progress=False)
+    assert rep.success and rep.details.theta == 0.25
+    assert repair_map(P, x, progress=False, throw=True).success
+    with pytest.raises(ParameterError, match="repair_map: options must be a UntangleOptions or None, got dict"):
+        repair_map(P, x, options={"theta": 0.25}, progress=False)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'theta'"):
+        repair_map(P, x, theta=0.25, progress=False)
+    cut = UntangleOptions(max_outer=1, start="given")  # one outer iteration: not untangled yet
+    with pytest.warns(MaxStepsWarning):
+        assert not repair_map(P, x, options=cut, progress=False).success
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the error says it: no warning before it
+        with pytest.raises(SolveError, match="repair_map failed") as info:
+            repair_map(P, x, options=cut, progress=False, throw=True)
+    assert not info.value.result.success
 
 
 def test_cli_init_uv_and_projection(tmp_path):

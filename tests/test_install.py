@@ -63,10 +63,8 @@ def test_every_kept_program_compiles_with_the_xla_options(fresh_options):
     vectors passed 16,384 entries."""
     import importlib
 
-    # untangling's by its module's own path: importing the old "geomopt.untangle" rebinds
-    # geomopt.untangle to the moved module for the rest of the process (test_layers then failed)
     names = ("geomopt.solvers.lbfgs", "geomopt.solvers.linesearch", "geomopt.untangling.continuation",
-             "geomopt.objective.objective", "geomopt.energies._energy", "geomopt.objective.cg", "geomopt.implicit")
+             "geomopt.objective.objective", "geomopt.energies._energy", "geomopt.objective.cg", "geomopt.objective.adjoint")
     kinds = (_programs.Program, type(_objective.energy_kernel))  # a Program, or one made at first call
     programs = [p for n in names for p in vars(importlib.import_module(n)).values() if isinstance(p, kinds)]
     assert len(programs) >= 10

@@ -11,7 +11,7 @@ REPO = Path(__file__).resolve().parents[1]
 SCRIPT = """
 import jax
 jax.config.update("jax_enable_x64", True)
-from geomopt import generators as G
+from geomopt.mesh import generators as G
 from geomopt.untangling import untangle
 V, H = G.hex_mesh(3, 3, 3)
 t = G.rotated_interior(V, H, 90)
@@ -154,7 +154,8 @@ def test_swapped_energy_kernels_give_the_asked_energy(fresh_cache):
 
 RACE = """
 import numpy as np, geomopt
-from geomopt import _programs, generators as G
+from geomopt._runtime import programs as _programs
+from geomopt.mesh import generators as G
 V, F = G.square_mesh(5)
 print(float(geomopt.Objective(geomopt.Problem.planar(V, F), "symmetric_dirichlet").value(V * np.array([1.5, 0.5]))))
 print(_programs.stats["rejected"])

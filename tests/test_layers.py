@@ -12,8 +12,6 @@ re-exports lazily) may be named from below: ``Result.save`` forwards to ``geomop
 from __future__ import annotations
 
 import ast
-import types
-import warnings
 from pathlib import Path
 
 import pytest
@@ -27,8 +25,8 @@ LAYERS = [
     ("mesh", ("geomopt.mesh",)),
     ("objective", ("geomopt.energies", "geomopt.objective")),
     ("solvers", ("geomopt.solvers",)),
-    ("drivers", ("geomopt.param", "geomopt.scaffold", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
-                 "geomopt.implicit", "geomopt.optax", "geomopt.lim", "geomopt.atlas", "geomopt.fairing")),
+    ("drivers", ("geomopt.param", "geomopt.bijective", "geomopt.smoothing", "geomopt.sphere", "geomopt.untangling",
+                 "geomopt.optax", "geomopt.lim", "geomopt.atlas", "geomopt.fairing")),
     ("outputs and tools", ("geomopt.experiments", "geomopt.plot", "geomopt.data", "geomopt.cli", "geomopt.__main__",
                            "geomopt")),
 ]
@@ -154,45 +152,18 @@ def test_no_module_left_flat_but_the_drivers_and_outputs():
             f"geomopt/{stem}.py is a lower layer's module: move it into its folder"
 
 
-@pytest.mark.parametrize("old, new", [("geomopt.predicates", "geomopt.exact.predicates"),
-                                      ("geomopt.linsolve", "geomopt.linalg.linsolve"),
-                                      ("geomopt._objective", "geomopt.objective.objective")])
-def test_old_paths_still_import_with_a_deprecation_warning(old, new):
-    import importlib
-    import sys
-
-    import geomopt  # noqa: F401 (installs the redirect)
-
-    sys.modules.pop(old, None)
-    with pytest.warns(DeprecationWarning, match=f"{old} moved to {new}"):
-        module = importlib.import_module(old)
-    assert module is importlib.import_module(new) and module.__spec__.name == new
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        importlib.import_module(new)  # the new path is silent
-
-
-def test_the_old_untangle_module_path_stays_callable_as_the_function():
-    """``geomopt.untangle`` is the driver function; an old ``import geomopt.untangle`` (the
-    module, now :mod:`geomopt.untangling`) binds that attribute to the module, which then still
-    calls the function, and its names still resolve."""
+@pytest.mark.parametrize("old", ["geomopt.predicates", "geomopt.linsolve", "geomopt._objective", "geomopt.untangle",
+                                 "geomopt.implicit"])
+def test_the_old_module_paths_are_gone(old):
+    """The module paths before the layers became folders (deprecated, removed in 0.2.0: the
+    CHANGELOG lists the new ones) are not importable, and ``geomopt.untangle`` is the function."""
     import importlib
     import sys
 
     import geomopt
-    from geomopt.mesh import generators
 
+    sys.modules.pop(old, None)
+    with pytest.raises(ModuleNotFoundError, match=f"No module named '{old}'"):
+        importlib.import_module(old)
+    assert not any(type(f).__module__.startswith("geomopt") for f in sys.meta_path)
     assert callable(geomopt.untangle) and geomopt.untangle.__module__ == "geomopt.untangling.driver"
-    function = geomopt.untangle
-    sys.modules.pop("geomopt.untangle", None)
-    try:
-        with pytest.warns(DeprecationWarning, match="geomopt.untangle moved to geomopt.untangling"):
-            old = importlib.import_module("geomopt.untangle")
-        assert old is geomopt.untangling and old.UntangleOptions is geomopt.untangling.options.UntangleOptions
-        assert geomopt.untangle is old  # what the import bound
-        tangle = generators.rotated_interior(*generators.square_mesh(3), 180.0)
-        assert old(tangle.problem(), tangle.x0, progress=False).success
-    finally:  # the rest of this process sees the function again
-        sys.modules.pop("geomopt.untangle", None)
-        geomopt.untangling.__class__ = types.ModuleType
-        geomopt.untangle = function

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import geomopt
-from geomopt import SolveError, io
+from geomopt import CompareOptions, SolveError, io
 from geomopt.mesh import generators as G
 from geomopt.mesh.cells import read_cell_case, write_certified
 from geomopt.lim import LimCase
@@ -40,7 +40,7 @@ V3 = np.c_[V2, 0.3 * np.sin(3.0 * V2[:, 0]) * V2[:, 1]]  # test_compare's curved
 def test_compare_reference_is_the_lower_of_the_newton_reference_and_the_best_solver(monkeypatch):
     """Inverted, every gap in the table is measured to the wrong energy: to a solver's energy
     above the Newton reference, or to a reference above a solver's energy."""
-    early = geomopt.compare(V3, F, solvers=["lbfgs"], max_steps=3)  # stopped far above the optimum
+    early = geomopt.compare(V3, F, solvers=["lbfgs"], options=CompareOptions(max_steps=3))  # stopped far above the min
     ref = early.reference
     assert "lower" not in ref.detail and ref.energy == ref.detail["energy"]
     assert ref.energy < early.results["lbfgs"].energy and early.gap("lbfgs")[-1] > 0

@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from geomopt import GeomoptError, MeshError, Objective, Outcome, ParameterError, Problem, SolveError
+from geomopt import GeomoptError, MeshError, Objective, Outcome, ParamOptions, ParameterError, Problem, SolveError
 from geomopt import minimize, parameterize
 from geomopt.energies import REGISTRY, Energy, get_energy
-from geomopt.mesh.problem import check_initial_orientation
+from geomopt.mesh.orientation import check_initial_orientation
 from geomopt.solvers import Newton
 
 from conftest import cube_tets, grid
@@ -160,7 +160,7 @@ def test_unknown_names_list_the_valid_ones():
     with pytest.raises(ParameterError, match="valid solvers: .*newton"):
         parameterize(V3, F3, solver="gradient_descent", progress=False)
     with pytest.raises(ParameterError, match="'uniform', 'mean_value'"):
-        parameterize(V3, F3, weights="cotan", progress=False)
+        parameterize(V3, F3, options=ParamOptions(weights="cotan"), progress=False)
 
 
 def test_invalid_energy_parameters():
@@ -176,7 +176,7 @@ def test_invalid_energy_parameters():
         with pytest.raises(ParameterError, match=match):
             get_energy("garanzha", **kwargs)
         with pytest.raises(ParameterError, match=match):
-            parameterize(V3, F3, energy="garanzha", progress=False, **kwargs)
+            parameterize(V3, F3, energy=("garanzha", kwargs), progress=False)
         if "mu" not in kwargs:
             with pytest.raises(ParameterError, match=match):
                 Energy(dens, params={"eps": 1e-3, "lam": 1.0, **kwargs})

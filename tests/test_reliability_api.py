@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from geomopt import MeshError, Objective, Outcome, ParameterError, Problem, SolveError
+from geomopt import MeshError, Objective, Outcome, ParamOptions, ParameterError, Problem, SolveError, UntangleOptions
 from geomopt.mesh import generators as G
 from geomopt import minimize, parameterize
 from geomopt import param as param_module
@@ -381,13 +381,13 @@ def test_solver_settings_passed_to_parameterize_say_where_they_go():
     with pytest.raises(ParameterError, match=r"max_steps is a setting of the solver, not a parameter of "
                                              r"the energy 'symmetric_dirichlet': pass parameterize\(\.\.\., "
                                              r"solver=Newton\(max_steps=\.\.\.\)\)"):
-        parameterize(V3, F, max_steps=0, progress=False)
+        parameterize(V3, F, ("symmetric_dirichlet", {"max_steps": 0}), progress=False)
     with pytest.raises(ParameterError, match=r"solver=LBFGS\(rtol=\.\.\.\)"):
-        parameterize(V3, F, solver="lbfgs", rtol=1e-3, progress=False)
+        parameterize(V3, F, ("symmetric_dirichlet", {"rtol": 1e-3}), solver="lbfgs", progress=False)
     with pytest.raises(ParameterError, match=r"solver=Newton\(search=InjectiveSearch\(c1=\.\.\.\)\)"):
-        parameterize(V3, F, c1=0.1, progress=False)
+        parameterize(V3, F, ("symmetric_dirichlet", {"c1": 0.1}), progress=False)
     with pytest.raises(ParameterError, match=r"no parameter\(s\) \['lamm'\]"):
-        parameterize(V3, F, energy="garanzha", lamm=1.0, progress=False)
+        parameterize(V3, F, energy=("garanzha", {"lamm": 1.0}), progress=False)
 
 
 def test_inverted_tutte_start_message_has_no_api_only_remedy(monkeypatch):
@@ -406,7 +406,7 @@ def test_inverted_tutte_start_message_has_no_api_only_remedy(monkeypatch):
     msg = str(info.value)
     assert "the Tutte start map has" in msg and "mean_value Tutte weights" in msg and "x0" not in msg
     with pytest.raises(MeshError, match="try uniform Tutte weights"):
-        parameterize(V3, F, weights="mean_value", progress=False)
+        parameterize(V3, F, options=ParamOptions(weights="mean_value"), progress=False)
     # the API's own folded start map is repaired (free-boundary untangling), not refused
     assert parameterize(V3, F, x0=folded_tutte(V3, F, None, None), progress=False).success
 
@@ -488,8 +488,8 @@ def test_small_api_misuses_get_clear_errors():
     t = G.rotated_interior(V, F, 90)
     for bad in (float("nan"), 0.0, 2.0, "1e-5"):
         with pytest.raises(ParameterError, match="energy_tol"):
-            untangle(t.problem(), t.x0, energy_tol=bad, progress=False)
-    res = untangle(t.problem(), t.x0, max_outer=1, progress=False)  # cannot settle in one
+            untangle(t.problem(), t.x0, options=UntangleOptions(energy_tol=bad), progress=False)
+    res = untangle(t.problem(), t.x0, options=UntangleOptions(max_outer=1), progress=False)  # cannot settle in one
     assert not res.success and "outer-iteration limit (max_outer=1)" in res.message
 
 

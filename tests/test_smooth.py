@@ -6,10 +6,12 @@ as at size 1 (as untangling does)."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 
+import geomopt
 from geomopt import MeshError, io
 from geomopt.mesh import generators as G
 from geomopt.mesh.elements import certify_elements, quality
@@ -178,3 +180,22 @@ def test_the_command_line_says_a_solve_stopped_at_its_step_limit_in_one_line(cli
     assert json.loads(out)["outcome"] == "max_steps"  # a script reading --json sees it too
     code, out, err = cli("smooth", src, "-o", tmp_path / "out2.vtk", "--quiet", "--json")
     assert code == 0 and err == "" and json.loads(out)["outcome"] == "converged"
+
+
+def test_smooth_throws_on_request_like_every_driver():
+    """``throw=True`` raises SolveError (carrying the result) unless the result succeeds;
+    without it the same result is returned (issue 49)."""
+    from geomopt import SolveError
+    from geomopt.smoothing import SmoothOptions
+
+    V, Q = G.sector_mesh(2, 4, perturb=0.4, seed=1)
+    assert smooth(V, Q, throw=True).success
+    cut = SmoothOptions(max_steps=1)  # one Newton iteration: stopped at its limit, not converged
+    with pytest.warns(geomopt.MaxStepsWarning):
+        short = smooth(V, Q, options=cut)
+    assert not short.success and short.outcome.value == "max_steps"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the error says it: no warning before it
+        with pytest.raises(SolveError, match="smooth failed: stopped at the iteration limit") as info:
+            smooth(V, Q, options=cut, throw=True)
+    assert info.value.result.outcome.value == "max_steps" and info.value.result.certificate.ok

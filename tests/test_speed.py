@@ -17,6 +17,7 @@ from geomopt._runtime import cache as _cache, hostcall as _hostcall, programs as
 from geomopt.lim import LimCase
 from geomopt.mesh import generators as G
 from geomopt.solvers._laplacian import RestLaplacian, laplacian_solve
+from geomopt import UntangleOptions
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -170,7 +171,8 @@ def test_a_stalling_inner_solve_continues_with_the_laplacian_seed():
         untangle(rot.problem(), rot.x0, progress=False)
         assert len(switched) == 1 and np.array_equal(switched[0][0], starts[0])
         assert not np.array_equal(switched[0][1], starts[0])
-        untangle(bend.problem(), bend.x0, progress=False, start="given")  # hexahedra: L-BFGS's probe, Newton
+        # hexahedra: L-BFGS's probe, Newton
+        untangle(bend.problem(), bend.x0, progress=False, options=UntangleOptions(start="given"))
         assert len(switched) == 2 and np.array_equal(switched[1][0], switched[1][1])
         # a Laplacian-seeded probe (the mesh above LAPLACIAN_FROM) goes on from its own map
         import geomopt.untangling.inner as inner
@@ -190,7 +192,7 @@ def test_a_local_tangle_keeps_the_diagonal_seed_at_any_size(monkeypatch):
     """From LAPLACIAN_FROM elements the default L-BFGS starts with the Laplacian seed unless a
     quarter or more of the elements start inverted (noise, scattered vertices: a local tangle,
     where the diagonal seed is as fast per iteration count and half the cost per iteration)."""
-    import geomopt.untangle as U
+    import geomopt.untangling.inner as U
 
     assert U.default_solver("lbfgs", 2, 60_000).precondition == "laplacian"
     assert U.default_solver("lbfgs", 2, 60_000, inverted=15_000).precondition == "diagonal"
@@ -202,7 +204,7 @@ def test_a_local_tangle_keeps_the_diagonal_seed_at_any_size(monkeypatch):
     share = [t.problem().count_inverted(t.x0) / len(t.simplices) for t in (noise, rot)]
     assert share[0] >= 0.25 > share[1]
     for tangle, seed in ((noise, "diagonal"), (rot, "laplacian")):
-        r = U.untangle(tangle.problem(), tangle.x0, progress=False)
+        r = geomopt.untangle(tangle.problem(), tangle.x0, progress=False)
         assert r.success and r.solver.precondition == seed
 
 

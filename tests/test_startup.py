@@ -6,6 +6,7 @@ import pytest
 import scipy.sparse as sp
 
 from geomopt.linalg import linsolve
+from geomopt import ParamOptions
 
 
 def _spd_lower(n=60, seed=0, shift=1.0):
@@ -274,7 +275,8 @@ def test_padding_changes_no_energy_gradient_hessian_or_dets():
 @pytest.mark.parametrize("solver", ["newton", "lbfgs", "slim", "aqp", "cm", "optx-bfgs"])
 def test_padding_changes_no_result_or_certificate(solver):
     V, F = bumpy(8)
-    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, buckets=b) for b in (False, True)]
+    runs = [geomopt.parameterize(V, F, solver=solver, progress=False, options=ParamOptions(buckets=b))
+            for b in (False, True)]
     assert runs[1].objective.sizes.padded
     a, b = runs
     assert a.outcome == b.outcome and a.certificate.inverted == b.certificate.inverted == 0
@@ -347,7 +349,7 @@ def test_a_bijective_solve_of_another_mesh_of_the_same_bucket_compiles_nothing(t
     to size buckets as parameterize's are: without them every triangle count compiled its own
     kernels (~2.3 s a count in every process), and an atlas's charts compiled one set each."""
     from geomopt.mesh.generators import spiral_strip
-    from geomopt.scaffold import bijective_parameterize
+    from geomopt.bijective import bijective_parameterize
 
     A = spiral_strip(turns=2.5, spacing=0.5, width=0.3, lift=1.5, n_across=2)
     B = spiral_strip(turns=2.4, spacing=0.5, width=0.3, lift=1.5, n_across=2)  # same size buckets

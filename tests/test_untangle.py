@@ -32,6 +32,7 @@ from geomopt.untangling import continuation, driver, schedule
 from geomopt.energies import chi
 from geomopt.untangling import default_solver, next_eps, untangle
 from test_objective import cot_laplacian
+from geomopt import UntangleOptions
 
 from conftest import LIM_ROOT
 CASES = LimCase.cases(LIM_ROOT) if LIM_ROOT.is_dir() else []
@@ -247,7 +248,7 @@ def test_mirrored_fixed_boundary_refused_at_once(dim):
         untangle(problem, x0, progress=False, throw=True)
     # one boundary vertex free: the total is no longer fixed, so no refusal at setup
     free_one = make(V, S, bnd[1:], x0[bnd[1:]])
-    assert "mirrored" not in untangle(free_one, x0, progress=False, max_outer=1).message
+    assert "mirrored" not in untangle(free_one, x0, progress=False, options=UntangleOptions(max_outer=1)).message
 
 
 def test_boundary_winding_twice_is_not_success():
@@ -286,7 +287,7 @@ def test_bad_arguments():
     with pytest.raises(ParameterError):
         untangle(t.problem(), t.x0, solver="gradient-descent", progress=False)
     with pytest.raises(ParameterError):
-        untangle(t.problem(), t.x0, theta=1.5, progress=False)
+        untangle(t.problem(), t.x0, options=UntangleOptions(theta=1.5), progress=False)
     # no handles is no longer an error: a free boundary (tests/test_freeboundary.py); a tangled
     # mesh without any handle is one part without a handle: held at its rest shape moved onto
     # the given map (the eps loop ended flip-free around a branch vertex there, issue 30)
@@ -353,7 +354,7 @@ def test_random_interior_disk_needs_the_cap_while_inverted():
     solver = default_solver("lbfgs", 2)
     # the paper's eps0 = 1: from start_eps's (151 here) the first solve leaves 1,637 folds
     # instead of 12,335 and the loop untangles with or without the cap
-    result = untangle(t.problem(), t.x0, solver=solver, progress=False, max_outer=30, eps0=1.0)
+    result = untangle(t.problem(), t.x0, solver=solver, progress=False, options=UntangleOptions(max_outer=30, eps0=1.0))
     assert result.success, result.message
     assert result.trace.column("inverted", int)[0] > 0 and result.stats.outer_iterations <= 6
 
@@ -366,14 +367,15 @@ def test_start_eps_is_one_unless_the_start_is_scattered():
     V4, Q = G.quad_mesh(16, 16)
     for t in (G.rotated_interior(V, F, 180), G.noisy_interior(V, F, 2.0, seed=1), G.squashed_boundary(V4, Q, 0.7),
               G.noisy_interior(*G.box_mesh(5, 5, 5), 1.0, seed=1)):
-        assert untangle(t.problem(), t.x0, progress=False, max_outer=1, start="given").trace.column("eps")[0] == 1.0, \
-            t.name
+        given = UntangleOptions(max_outer=1, start="given")
+        assert untangle(t.problem(), t.x0, progress=False, options=given).trace.column("eps")[0] == 1.0, t.name
     t = G.random_interior(V4, Q, seed=1)  # quads: from the given map, not the harmonic start of "auto"
-    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, start="given").trace.column("eps")[0] > 1.0
-    assert untangle(t.problem(), t.x0, progress=False, max_outer=1, eps0=1.0, start="given").trace.column(
-        "eps")[0] == 1.0
+    given = UntangleOptions(max_outer=1, start="given")
+    assert untangle(t.problem(), t.x0, progress=False, options=given).trace.column("eps")[0] > 1.0
+    assert untangle(t.problem(), t.x0, progress=False, options=UntangleOptions(max_outer=1, eps0=1.0, start="given")
+                    ).trace.column("eps")[0] == 1.0
     with pytest.raises(ParameterError):
-        untangle(t.problem(), t.x0, progress=False, eps0=0.0)
+        untangle(t.problem(), t.x0, progress=False, options=UntangleOptions(eps0=0.0))
 
 
 @pytest.mark.parametrize("mesh", ["quads", "triangles"])
@@ -385,7 +387,8 @@ def test_scattered_start_first_solve_does_not_grow_with_the_mesh(mesh):
     inverted and the loop never untangled (issue 18); from start_eps these take 157 and 176."""
     V, S = G.quad_mesh(80, 80) if mesh == "quads" else G.square_mesh(81)
     t = G.random_interior(V, S, seed=1)
-    result = untangle(t.problem(), t.x0, progress=False, start="given")  # quads: not the harmonic start
+    # quads: not the harmonic start
+    result = untangle(t.problem(), t.x0, progress=False, options=UntangleOptions(start="given"))
     assert result.success, result.message
     assert result.trace.column("eps")[0] > 10.0
     assert result.stats.iterations < 250, result.stats.iterations

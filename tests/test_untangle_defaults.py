@@ -67,9 +67,10 @@ def test_auto_start_falls_back_to_the_harmonic_extension_when_the_given_map_stal
     case = LimCase.read(folder)
     # given: the run the CLI made (size buckets) stalls; auto stops it early and starts again
     with pytest.warns(Warning, match="outer-iteration limit"):
-        _, given = untangle_case(case, progress=False, bucket=True, start="given", max_outer=60)
+        _, given = untangle_case(case, options=UntangleOptions(bucket=True, start="given", max_outer=60),
+                                 progress=False)
     assert not given.success and given.certificate.inverted > 0
-    _, auto = untangle_case(case, progress=True, bucket=True)
+    _, auto = untangle_case(case, options=UntangleOptions(bucket=True), progress=True)
     assert auto.success, auto.message
     assert auto.details.start == "given, then harmonic"
     assert auto.stats.outer_iterations < 100  # the stall ended the first run long before max_outer

@@ -1,4 +1,4 @@
 """Runtime plumbing under every layer: errors, argument checks, 64-bit mode, tracing guards,
 the compilation cache and kept programs, host callbacks, timing, padding, options objects,
-the built-in names table, and the redirects of moved module paths.  Nothing here imports
+and the built-in names table.  Nothing here imports
 from the rest of geomopt."""

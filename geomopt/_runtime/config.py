@@ -9,10 +9,8 @@ class, the field, the accepted values and what was given.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import numbers
-import warnings
 
 from .errors import ParameterError
 
@@ -151,66 +149,11 @@ def validate(obj, **rules):
         object.__setattr__(obj, name, None if ok is _NONE else ok)
 
 
-def options_from(cls, options, overrides, where, deprecated: bool = True):
-    """``options`` (an instance of ``cls`` or None) with ``overrides`` (field names) applied;
-    ParameterError naming the unknown keywords.  With ``deprecated`` (a driver's keywords:
-    deprecated for one release) a ``DeprecationWarning`` says to pass ``options=cls(...)``."""
-    if options is not None and not isinstance(options, cls):
+def options_or_default(cls, options, where: str):
+    """``options`` (an instance of ``cls``), or ``cls()`` when it is None: a driver's settings.
+    Anything else is a one-line :class:`ParameterError` naming the class to pass."""
+    if options is None:
+        return cls()
+    if not isinstance(options, cls):
         raise ParameterError(f"{where}: options must be a {cls.__name__} or None, got {type(options).__name__}")
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ParameterError(f"{where}: unknown keyword argument(s) {unknown}; the options are {sorted(known)}")
-    if overrides and deprecated:
-        deprecated_call(f"{where}: settings as keywords ({', '.join(sorted(overrides))}) are deprecated and will be "
-                        f"removed in the next release: pass options={cls.__name__}(...)")
-    return dataclasses.replace(options or cls(), **overrides)
-
-
-def keyword_only(kept: int, moved: tuple):
-    """Decorate a driver whose parameters after the first ``kept`` are keyword-only: for one
-    release the old positional ``moved`` (their former order) still work, with a
-    ``DeprecationWarning`` naming them.  A name given both ways is a :class:`ParameterError`."""
-
-    def wrap(func):
-        @functools.wraps(func)
-        def call(*args, **kwargs):
-            extra = args[kept:]
-            if extra:
-                if len(extra) > len(moved):
-                    raise ParameterError(f"{func.__name__} takes at most {kept + len(moved)} positional arguments "
-                                         f"({kept} from the next release), got {len(args)}")
-                names = moved[:len(extra)]
-                twice = sorted(set(names) & set(kwargs))
-                if twice:
-                    raise ParameterError(f"{func.__name__}: {', '.join(twice)} given by position and by keyword")
-                deprecated_call(f"{func.__name__}: passing {', '.join(names)} by position is deprecated and will be "
-                                f"an error in the next release: pass {names[0]}=... by keyword")
-                kwargs.update(zip(names, extra))
-            return func(*args[:kept], **kwargs)
-
-        return call
-
-    return wrap
-
-
-def split_options(cls, options, kwargs: dict, where: str):
-    """``(options, rest)``: the deprecated setting keywords in ``kwargs`` that name fields of
-    ``cls`` applied to ``options`` (:func:`options_from`, with its warning), the other keywords
-    (e.g. deprecated energy parameters) returned for the caller to read."""
-    fields = {f.name for f in dataclasses.fields(cls)}
-    settings = {k: v for k, v in kwargs.items() if k in fields}
-    return options_from(cls, options, settings, where), {k: v for k, v in kwargs.items() if k not in fields}
-
-
-def deprecated_call(message: str) -> None:
-    """A ``DeprecationWarning`` attributed to the first caller outside geomopt (the line of user
-    code that used the deprecated form), however deep in geomopt it is found."""
-    import os
-    import sys
-
-    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
-    frame, level = sys._getframe(1), 2
-    while frame is not None and frame.f_code.co_filename.startswith(package):
-        frame, level = frame.f_back, level + 1
-    warnings.warn(message, DeprecationWarning, stacklevel=level)
+    return options

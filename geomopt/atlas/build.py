@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from .._runtime.config import Instance, Int, Maybe, OneOf, Real, keyword_only, validate
+from .._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from .._runtime.log import logger
 from .._runtime.validate import validate_vertices
@@ -201,7 +201,6 @@ def _assemble(n_faces, meshes, packed):
     return np.concatenate(uv), uv_faces, np.concatenate(vertex), chart
 
 
-@keyword_only(4, ("options", "progress", "throw"))
 @float64
 def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=None, progress=True,
                throw=False, **energy_params) -> Atlas:
@@ -213,7 +212,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     V : (n, 3) float vertices, or a mesh object with ``.vertices`` and ``.faces`` (``F=None``).
     F : (m, 3) int consistently oriented triangles.
     energy, solver : how each chart is flattened (see :func:`geomopt.parameterize`; ``energy``
-        a name, an Energy or ``(name, {parameter: value})``); ``energy_params``: deprecated keywords.
+        a name, an Energy or ``(name, {parameter: value})``); ``energy_params``: refused (they go with the energy).
     options : :class:`AtlasOptions` (cutting, margin, rotation).
     progress : True: one record per stage on the ``geomopt`` logger (INFO; see
         :mod:`geomopt._runtime.log`) and the charts' solves' progress; a callable gets

@@ -43,6 +43,7 @@ def _untangle_one(args, folder) -> int:
     from .._runtime.timing import compile_seconds
     from ..lim import LimCase, output_suffix, untangle_case
     from ..mesh.quality import element_quality
+    from ..untangling import UntangleOptions
 
     split = args.timing
     split.mark_imported()
@@ -56,7 +57,7 @@ def _untangle_one(args, folder) -> int:
         case = LimCase.read(folder)
         case.require_handles()
     case, res = timed_solve(split, lambda: untangle_case(case, solver=args.solver, progress=not args.quiet,
-                                                         bucket=True, start=args.start))
+                                                         options=UntangleOptions(bucket=True, start=args.start)))
     st = res.stats
     with split.phase("certify"):
         quality = element_quality(res.x, case.simplices, case.to_problem().orientation)

@@ -11,7 +11,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._runtime.config import deprecated_call
 from .._runtime import names as _names
 from .._runtime.programs import jit as programs_jit
 from .._runtime.errors import ParameterError
@@ -242,14 +241,15 @@ garanzha = Energy(
 REGISTRY: dict[str, Energy] = resolve(_names.ENERGIES)
 
 
-def energy_spec(energy, legacy=None, where: str = "") -> tuple:
+def energy_spec(energy, keywords=None, where: str = "") -> tuple:
     """A driver's ``energy`` argument as ``(name or Energy, params)``: the one way every driver
     takes an energy with its parameters.
 
     ``energy`` is a name, an :class:`Energy` (e.g. ``garanzha.with_params(lam=0.1)``), or a pair
     ``(name or Energy, {parameter: value})``, whose values may be traced (they reach the
-    objective as parameters, differentiable).  ``legacy``: parameters given to the driver as
-    keywords, the old way: merged, with a ``DeprecationWarning`` (removed in the next release).
+    objective as parameters, differentiable).  ``keywords``: loose keywords a driver received
+    (a dict, or None); any is refused with a one-line :class:`ParameterError` saying to pass
+    them with the energy.
     """
     params = {}
     if isinstance(energy, tuple):
@@ -257,10 +257,9 @@ def energy_spec(energy, legacy=None, where: str = "") -> tuple:
             raise ParameterError(f"{where}: energy must be a name, an Energy or a pair (name, {{parameter: value}}), "
                                  f"got a tuple of {len(energy)}")
         energy, params = energy[0], dict(energy[1])
-    if legacy:
-        deprecated_call(f"{where}: energy parameters as keywords ({', '.join(sorted(legacy))}) are deprecated and "
-                        f"will be removed in the next release: pass them with the energy, energy=(name, {{...}})")
-        params = {**params, **legacy}
+    if keywords:
+        raise ParameterError(f"{where}: unknown keyword argument(s) {', '.join(sorted(keywords))}; energy parameters "
+                             f"go with the energy, energy=(name, {{parameter: value}})")
     return energy, params
 
 

@@ -102,7 +102,10 @@ def _solve_lim_case(folder, outdir, solver, bucket, row, start="auto"):
     case = LimCase.read(folder)
     case.require_handles()
     row.update(dim=case.dim, vertices=len(case.rest), elements=len(case.simplices))
-    case, res = untangle_case(case, solver=solver, progress=False, bucket=bucket, start=start)
+    from ..untangling import UntangleOptions
+
+    case, res = untangle_case(case, solver=solver, options=UntangleOptions(bucket=bucket, start=start),
+                              progress=False)
     _solved(row, res)
     if res.success or res.outcome is Outcome.CERTIFIED_EXCEPT_FIXED:
         output = Path(outdir) / (folder.name + output_suffix(case.dim))

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from . import manifest as _manifest
-from .._runtime.config import split_options
+from .._runtime.config import options_or_default
 from .._runtime.errors import ParameterError
 from .._runtime.log import logger
 from .._runtime.x64 import float64
@@ -418,7 +418,7 @@ def _median(values) -> float:
 
 @float64
 def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=None,
-            options: CompareOptions | None = None, out=None, progress=False, **deprecated) -> Comparison:
+            options: CompareOptions | None = None, out=None, progress=False) -> Comparison:
     """Run several solvers on one problem from the same start map and trace each iteration.
 
     Parameters
@@ -449,9 +449,6 @@ def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=
         and the folder's parent must exist), the folder is created after solving.
     progress : True: each solve's progress (:class:`~geomopt.solvers.Progress`) and one record
         per run on the ``geomopt`` logger (INFO).
-    deprecated : the former keywords (``max_seconds``, ``repeat``, ``clock``... now
-        :class:`CompareOptions` fields) and energy parameters (now with the energy) work for one
-        release with a DeprecationWarning.
 
     Returns
     -------
@@ -477,8 +474,8 @@ def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=
     """
     from . import inputs, writers
 
-    settings, energy_params = split_options(CompareOptions, options, deprecated, "compare")
-    energy, energy_params = energy_spec(energy, energy_params, "compare")
+    settings = options_or_default(CompareOptions, options, "compare")
+    energy, energy_params = energy_spec(energy, where="compare")
     objective, start, mirror, label, source = inputs.comparison_problem(mesh, faces, energy, x0, settings.weights,
                                                                          energy_params)
     problem = objective.problem
@@ -503,18 +500,18 @@ def compare(mesh, faces=None, energy="symmetric_dirichlet", solvers=None, *, x0=
 
 
 def compare_meshes(meshes, energy="symmetric_dirichlet", solvers=None, *, options: CompareOptions | None = None,
-                   out=None, progress=False, **deprecated) -> ComparisonSet:
+                   out=None, progress=False) -> ComparisonSet:
     """:func:`compare` on each of several meshes (paths, or a dict name -> mesh) with the same
     ``energy``, ``solvers`` and ``options``; with ``out``, each comparison is written into
     ``out/<name>/`` (its outputs checked before it is solved) and the combined table, manifest
-    and figure into ``out``.  ``deprecated``: as :func:`compare`'s.
+    and figure into ``out``.
 
     Names are the file names without extension (folder names for LIM cases); they must differ.
     """
     from . import inputs, writers
 
-    options, energy_params = split_options(CompareOptions, options, deprecated, "compare_meshes")
-    energy, energy_params = energy_spec(energy, energy_params, "compare_meshes")
+    options = options_or_default(CompareOptions, options, "compare_meshes")
+    energy, energy_params = energy_spec(energy, where="compare_meshes")
     if not isinstance(meshes, dict):
         meshes = {inputs.mesh_key(m): m for m in meshes} if len({inputs.mesh_key(m) for m in meshes}) == len(meshes) else None
         if meshes is None:

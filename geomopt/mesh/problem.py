@@ -536,12 +536,3 @@ def _check_traced_rest(kind, V, vol):
     ``jax.jit`` the error reaches the caller as JAX's runtime error carrying this message)."""
     jax.debug.callback(functools.partial(_check_rest_arrays, kind), V, vol)
 
-
-def __getattr__(name):  # moved to geomopt.mesh.orientation: the old path works one release
-    if name in ("check_initial_orientation", "fixed_total_problem"):
-        from .._runtime.config import deprecated_call
-        from . import orientation
-
-        deprecated_call(f"geomopt.mesh.problem.{name} moved to geomopt.mesh.orientation.{name}")
-        return getattr(orientation, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""The scaffold of bijective parameterization (:mod:`geomopt.scaffold`) as a 2D mesh: built
+"""The scaffold of bijective parameterization (:mod:`geomopt.bijective`) as a 2D mesh: built
 around a simple boundary polygon and kept a valid triangulation as the map moves.
 
 Built and maintained without a triangulation library and with exact predicates only (:func:`geomopt.exact.predicates.orient2d`):

@@ -8,7 +8,8 @@ field (how far it goes).  Every solver has
 * ``init(objective, x0, params) -> State``: evaluate the start, build what the descent keeps
   (a factorization's symbolic analysis, curvature pairs...) and compile its kernels;
 * ``step(state) -> State``: one iteration; it reports what happened in ``state.stats``
-  (:class:`~geomopt.solvers.Stats`) and never decides to stop;
+  (:class:`~geomopt.solvers.Stats`) and never decides to stop (its duties:
+  :meth:`AbstractSolver.step`, checked after every step by :func:`check_step`);
 * ``termination``: its :class:`~geomopt.solvers.Termination` (the one stopping rule, with
   the solver's tolerances);
 * ``reparam(state, params) -> State``: the same map under new energy parameters (counters
@@ -35,6 +36,7 @@ import numpy as np
 
 from .._runtime.x64 import float64_methods
 from .._runtime.config import Instance, Int, Real, validate
+from .._runtime.errors import ParameterError
 from .linesearch import InjectiveSearch
 from ._termination import Stats, Termination
 
@@ -93,6 +95,34 @@ def reference_extent(objective, x0) -> float:
     return max(map_extent(x0), rest, 1e-300)
 
 
+#: the :class:`Stats` fields set by ``init`` that no step may change (:meth:`AbstractSolver.step`)
+_REFERENCES = ("extent0", "floor", "lower", "lower_tol", "grad_norm0")
+
+
+def _same(a, b) -> bool:
+    """``a == b`` for host scalars, NaN equal to NaN (a reference no solver set)."""
+    return bool(a == b) or bool(a != a and b != b)
+
+
+def check_step(solver, old: State, new: State) -> None:
+    """The duties of :meth:`AbstractSolver.step` that can be checked for free on ``new``, the
+    step of ``old``: one iteration further, the references kept, a moved map with its own
+    gradient.  Raises :class:`~geomopt.ParameterError` naming the solver's class and the duty."""
+    name = f"{type(solver).__name__}.step"
+    if not isinstance(new, State):
+        raise ParameterError(f"{name} returned a {type(new).__name__}, not a State (AbstractSolver.step)")
+    if new.stats.iteration != old.stats.iteration + 1:
+        raise ParameterError(f"{name} must set stats.iteration to {old.stats.iteration + 1} (one more than the "
+                             f"state's), got {new.stats.iteration} (AbstractSolver.step)")
+    changed = [k for k in _REFERENCES if not _same(getattr(new.stats, k), getattr(old.stats, k))]
+    if changed:
+        raise ParameterError(f"{name} changed stats.{', '.join(changed)}, which init sets and no step may change "
+                             f"(AbstractSolver.step)")
+    if new.x is not old.x and new.grad is old.grad:
+        raise ParameterError(f"{name} moved x but kept the old grad: set grad, value and extent at the new x "
+                             f"(AbstractSolver.step)")
+
+
 def start_stats(objective, x0, value: float, **fields) -> Stats:
     """The :class:`Stats` of a solve starting at ``x0`` with energy ``value``: the references
     of the relative and divergence tests (energy floor, extent, the energy's lower bound)."""
@@ -145,7 +175,39 @@ class AbstractSolver(abc.ABC):
         return None
 
     @abc.abstractmethod
-    def step(self, state: State) -> State: ...
+    def step(self, state: State) -> State:
+        """One iteration from ``state``: a new :class:`State` (``state`` itself unchanged).
+
+        May assume: ``self.termination`` judged ``state.stats`` RUNNING, so ``value`` is
+        finite, ``accepted`` is True, ``broken`` and ``done`` are False and ``iteration <
+        max_steps`` (:func:`~geomopt.solvers.iterate` steps no other state, and a new phase
+        starts from :meth:`reparam`, which resets them); ``state.grad`` is the gradient at
+        ``state.x`` under ``state.params``, zero on fixed DOFs; ``state.memory`` is what this
+        solver's ``init`` / ``step`` / ``reparam`` / ``restart`` left.
+
+        Must set in the returned ``stats`` (the facts :class:`~geomopt.solvers.Termination`
+        reads; it decides whether to stop, the step never does):
+
+        * ``iteration``: ``state.iteration + 1``, on every path (a step that leaves it
+          would loop until the wall clock);
+        * ``broken = True`` when no direction could be made (nothing else is then read);
+        * ``accepted = False`` when the search took no step; ``x``, ``value``, ``grad`` and
+          ``extent`` are then the state's;
+        * when ``x`` moves: ``value`` ``E(x)``, ``grad`` at ``x`` (a new array, zero on fixed
+          DOFs), ``extent`` (:func:`map_extent`) and ``evaluations`` (plus those made);
+        * ``decrement`` (>= 0, the decrease the direction promised) whenever the
+          termination's ``rtol`` is on, also when the search took no step (rule 2 tells a
+          stationary start from a failed search by it); left ``inf``, the decrement test is
+          off (a descent that reports ``done`` instead: :class:`~geomopt.solvers.Optimistix`);
+        * ``past_value``: the energy the stall test compares with (the value before the step,
+          or ``window`` steps back); left ``inf``, the stall test is off;
+        * ``grad_norm`` when the termination's ``gtol > 0`` (L-BFGS);
+        * ``done`` when the descent has its own convergence test.
+
+        ``step_size`` (nan when unknown) feeds the progress and trace only.  The references
+        set by ``init`` (:func:`start_stats`: ``extent0``, ``floor``, ``lower``, ``lower_tol``,
+        and ``grad_norm0``) stay as they are.
+        """
 
     def reparam(self, state: State, params) -> State:
         """``state`` re-evaluated under new energy parameters; counters restart."""

@@ -12,13 +12,13 @@ Outer schemes are handed to it, never loops of their own:
   solver's memory dropped, a new objective (a new problem of the same shapes), or another
   solver; its record goes to the trace and the progress lines.  Untangling's eps schedule
   (:class:`geomopt.untangling.EpsContinuation`) and the scaffold's rebuilds
-  (:class:`geomopt.scaffold.ScaffoldContinuation`) are continuations.  Its ``finish`` maps the
+  (:class:`geomopt.bijective.ScaffoldContinuation`) are continuations.  Its ``finish`` maps the
   last state to the :class:`Final` map and certificate (back to the input frame);
 * a **guard** is called after every step with ``(solver, old, new)`` and returns the state to
   accept (``new``, or a shortened step, e.g. through ``solver.restart(new, x)``), or None to
   end the phase at ``old`` (the continuation then sees the outcome None).  The scaffold's
   scaffold-free phase keeps the boundary simple with one
-  (:class:`geomopt.scaffold.SimpleBoundary`);
+  (:class:`geomopt.bijective.SimpleBoundary`);
 * an **observer** ``observe(state, seconds)`` sees every iterate and may end the solve by
   returning a reason (a non-empty string; outcome MAX_STEPS).  Its time is not solve time.
 """
@@ -37,13 +37,13 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from .._runtime.config import keyword_only
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
 from .._runtime.interrupt import raise_pending
 from .._runtime.log import bar_wanted, in_notebook, iteration_logger, logger
 from .._runtime.threads import single_blas_thread
 from .._runtime.tracing import is_traced
 from .._runtime.x64 import float64
+from ._base import check_step
 from ._registry import get_solver
 from ._result import Result, RunStats, Trace, local_certificate, traced_result
 from ._termination import RUNNING, Outcome, Termination
@@ -293,6 +293,7 @@ def _phase(solver, state, guard, run):
             continue
         with run.clock():
             new = solver.step(state)
+            check_step(solver, state, new)
             if guard is not None:
                 new = guard(solver, state, new)
         if new is None:
@@ -448,7 +449,6 @@ def _result(final: Final, solver, objective, state, run, setup, throw, label) ->
     return result
 
 
-@keyword_only(4, ("progress", "throw"))
 @float64
 def minimize(objective, x0, solver=None, params=None, *, progress: bool | Callable = True,
              throw: bool = False, adjoint: str = "auto") -> Result:

@@ -90,9 +90,8 @@ def _compact_direction(S, W, a, b, SY, YW, k, gamma, z):
     ``YW[i, j] = y_i . w_j``, all carried (slot order, newest at ``(k-1) % m``).
 
     The same direction as the two-loop recursion with that seed (tested), from two passes over
-    the buffers (matrix-vector products) instead of two dependent ones per pair: an untangling
-    iteration at 10^6 triangles 0.135 -> 0.126 s.  Slots not in use get unit rows of ``R`` and
-    no coefficients."""
+    the buffers (matrix-vector products) instead of two dependent ones per pair.  Slots not in
+    use get unit rows of ``R`` and no coefficients."""
     m = S.shape[0]
     used = jnp.minimum(k, m)
     order = (k - m + jnp.arange(m)) % m  # chronological: oldest possible slot first
@@ -272,9 +271,8 @@ class LBFGS(AbstractSolver):
     search : :class:`~geomopt.solvers.linesearch.InjectiveSearch`, default
         ``InjectiveSearch(c2=0.9, safety=0.25)``: weak Wolfe (``c2 = 0.9``),
         injective, first trial at most a quarter of the flip bound by default (as
-        :class:`~geomopt.AQP`'s: the Laplacian seed does not see the barrier; at the other
-        solvers' 0.9, camelhead from its Tutte map took 816 iterations to a 1e-4 gap, 164 at
-        0.25).  The untangling solver (:func:`geomopt.untangling.default_solver`) turns
+        :class:`~geomopt.AQP`'s: the Laplacian seed does not see the barrier; benchmarks/README.md,
+        "L-BFGS's defaults").  The untangling solver (:func:`geomopt.untangling.default_solver`) turns
         ``injective`` off: its energy is finite on inverted elements.
     precondition : ``"laplacian"`` (default); the initial inverse Hessian of the two-loop recursion: ``"scalar"``
         (``s.y / y.y`` times the identity), ``"diagonal"`` (the M1QN3 diagonal update), or
@@ -284,11 +282,8 @@ class LBFGS(AbstractSolver):
         ``gamma = s.y / y.K^-1 y`` (a Sobolev gradient, as in the Laplacian-preconditioned
         quasi-Newton methods of Zhu et al. 2018 and Kovalsky et al. 2016).  It makes
         L-BFGS's iteration count nearly independent of the mesh size on problems with large
-        global motions (one Laplacian solve per iteration).  The default: from a Tutte map the
-        scalar and diagonal seeds were still at a gap > 1 after 1,000 iterations on camelhead
-        and bunny_cut; on the saddle at 1.5k/6k/25k triangles the scalar seed took
-        125/253/630 iterations to 1e-4, the Laplacian one 13/15/16; on a twisted cube of
-        1.3k/6k/16k tets 17/32/51 against 7/7/8 to 1e-6 (``benchmarks/solvers.py``).
+        global motions (one Laplacian solve per iteration; the measurements behind the default
+        are in benchmarks/README.md, "L-BFGS's defaults").
     laplacian : ``"auto"`` (default); where ``"laplacian"`` applies ``K^-1``: ``"host"`` (sparse Cholesky on the
         host through an XLA FFI target, :mod:`geomopt._runtime.hostcall`; exact), ``"device"`` (Jacobi-preconditioned CG in
         JAX, warm-started from the previous iteration's solution, relative tolerance 1e-3: no

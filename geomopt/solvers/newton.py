@@ -342,7 +342,7 @@ class AbstractNewton(AbstractSolver):
         trim = x.size >= TRIM_FROM_DOFS  # (and before each Hessian: _direction)
         value, grad, dx, decrement, mem, exact = self._newton_direction(state, projection)
         if dx is None or not np.isfinite(value):
-            return state.update(broken=True)
+            return state.update(broken=True, iteration=state.iteration + 1)
         if trim:
             release_free_memory()
         t, xn, vn, gn, evals = self.search(obj, params, x, value, grad, dx)

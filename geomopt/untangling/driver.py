@@ -10,6 +10,7 @@ import warnings
 import jax
 import numpy as np
 
+from .._runtime.config import options_or_default
 from .._runtime.errors import MaxStepsWarning, ParameterError, SolveError
 from .._runtime.log import logger
 from .._runtime.tracing import is_traced
@@ -25,7 +26,7 @@ from ..solvers._iterate import check_progress
 from .continuation import EpsContinuation, judged
 from .implicit import untangle_map
 from .inner import default_solver, stiff_solver
-from .options import POLISH_UP_TO, UntangleOptions, options_from
+from .options import POLISH_UP_TO, UntangleOptions
 from .rest import check_rest, equilateral_problem
 from .schedule import start_eps
 from .start import BOX, choose_start, harmonic_start, hold_free_parts
@@ -43,7 +44,7 @@ UntangleResult = Result
 
 @float64
 def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions | None = None, progress=True,
-             throw: bool = False, adjoint: str = "auto", **overrides) -> Result:
+             throw: bool = False, adjoint: str = "auto") -> Result:
     """Untangle ``x0`` (n, d) with ``problem``'s handles fixed (Garanzha et al. 2021).
 
     With no handles (a free boundary, e.g. repairing a folded UV map) translation is pinned
@@ -63,8 +64,8 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     solver : ``"lbfgs"`` (default), ``"newton"`` (see :func:`default_solver`) or a solver object.
         Its line search should not be injective: the start is tangled.
     options : :class:`UntangleOptions` (theta, max_outer, energy_tol, eps0, max_aspect,
-        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket, start);
-        ``overrides`` (those names as keywords, deprecated) replace its fields.
+        keep_memory, injective_when_untangled, min_sigma, max_sigma, bucket, start); None: the
+        defaults.
     progress : True (one record per outer iteration on the ``geomopt`` logger, INFO: see
         :mod:`geomopt._runtime.log`), False, or a callable
         ``(outer, eps, energy, min_det, n_inverted, inner, seconds)``.
@@ -102,7 +103,7 @@ def untangle(problem: Problem, x0, solver="lbfgs", *, options: UntangleOptions |
     >>> tangle.inverted(), result.certificate.inverted, result.success
     (4, 0, True)
     """
-    opts = options_from(UntangleOptions, options, overrides, "untangle")
+    opts = options_or_default(UntangleOptions, options, "untangle")
     if is_traced(problem, x0, opts.theta):  # differentiable: the implicit adjoint at the last eps's optimum
         x = untangle_map(untangle, problem, x0, opts.theta, solver=solver, adjoint=adjoint,
                          options=dataclasses.replace(opts, theta=None))

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from .._runtime.config import Either, Instance, Int, Maybe, OneOf, Real, Traceable, options_from, validate
+from .._runtime.config import Either, Instance, Int, Maybe, OneOf, Real, Traceable, validate
 from .._runtime.errors import ParameterError
 from .start import STARTS
 
-__all__ = ["UntangleOptions", "POLISH_UP_TO", "options_from"]
+__all__ = ["UntangleOptions", "POLISH_UP_TO"]
 
 
 #: free coordinates (free vertices times the dimension) up to which ``polish="auto"`` polishes

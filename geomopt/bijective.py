@@ -30,10 +30,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._runtime.config import Instance, Int, Maybe, Real, validate
+from ._runtime.config import Instance, Int, Maybe, Real, options_or_default, validate
 from ._runtime.errors import MeshError, ParameterError, SolveError
 from .objective.objective import Objective
 from ._runtime.x64 import float64
+from .energies import energy_spec
 from .exact.certify import certify_bijective, polygon_crossings
 from .mesh.problem import Problem
 from .mesh.scaffold import build_scaffold, delaunay_flips, refine_scaffold, rest_inverse
@@ -306,9 +307,8 @@ def _bijective_start(problem, objective, x0, weights, loop):
 
 
 @float64
-def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weights="uniform",
-                           x0=None, progress=True, throw=False, *, options: ScaffoldOptions | None = None,
-                           **kwargs):
+def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, *, weights="uniform", x0=None,
+                           options: ScaffoldOptions | None = None, progress=True, throw=False):
     """Flatten a disk-topology surface to the plane with a free boundary, globally bijective.
 
     Solves the same problem as :func:`~geomopt.param.parameterize` with, around the mesh, a
@@ -328,15 +328,15 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     Parameters
     ----------
     V : (n, 3) float rest vertex positions;  F : (m, 3) int triangles of a topological disk.
-    energy, solver, weights, throw : as for :func:`~geomopt.param.parameterize`; the solver's
+    energy, solver, weights, throw : as for :func:`~geomopt.param.parameterize` (``energy`` a
+        name, an Energy or ``(name, {parameter: value})``); the solver's
         ``max_steps`` is replaced by ``inner_steps`` in the scaffold phase (a solver that is not
         a dataclass with ``max_steps`` is rejected).
     progress : bool, one record per phase on the ``geomopt`` logger (INFO).
     x0 : (n, 2) optional start map; it must be globally injective (the default, Tutte's
         embedding onto a circle, is).
-    options : :class:`ScaffoldOptions`; ``kwargs`` naming its fields (``scaffold_weight``,
-        ``ring_scale``, ``inner_steps``, ``max_outer``, ``outer_rtol``, ``lazy``) replace them,
-        the others are energy parameters.
+    options : :class:`ScaffoldOptions` (``scaffold_weight``, ``ring_scale``, ``inner_steps``,
+        ``max_outer``, ``outer_rtol``, ``lazy``); None: the defaults.
 
     Returns
     -------
@@ -356,12 +356,12 @@ def bijective_parameterize(V, F, energy="symmetric_dirichlet", solver=None, weig
     ParameterError : unknown energy/solver/weights name or an invalid parameter.
     SolveError : only with ``throw=True``, when the result is not converged and bijective.
     """
-    names = {f.name for f in dataclasses.fields(ScaffoldOptions)}
-    opts = dataclasses.replace(options or ScaffoldOptions(), **{k: kwargs.pop(k) for k in list(kwargs) if k in names})
+    opts = options_or_default(ScaffoldOptions, options, "bijective_parameterize")
+    energy, energy_params = energy_spec(energy, where="bijective_parameterize")
     check_progress(progress, "bijective_parameterize")
     t_start = time.perf_counter()
     problem = Problem.surface(V, F)
-    objective = Objective(problem, energy, buckets=True, **kwargs)
+    objective = Objective(problem, energy, buckets=True, **energy_params)
     named = solver is None or isinstance(solver, str)
     solver = get_solver("newton" if solver is None else solver)
     inner = _inner_solver(solver, opts, named)
