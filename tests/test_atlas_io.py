@@ -25,6 +25,16 @@ def quad_torus(n=12, m=6, R=2.0, r=0.7):
     return V, Q
 
 
+def twisted_quad_torus(n=8, m=8, R=2.0, r=0.7):
+    """A torus of parallelogram quads whose fan diagonals (corner 0 to corner 2) line up into
+    meridians, shorter than the quads' sides: the cheapest seams of a torus, were they allowed."""
+    V, Q = quad_torus(n, m, R, r)
+    i, j = np.meshgrid(np.arange(n), np.arange(m), indexing="ij")
+    a, b = 2 * np.pi * (i.ravel() - j.ravel()) / n, 2 * np.pi * j.ravel() / m
+    V = np.stack([(R + r * np.cos(b)) * np.cos(a), (R + r * np.cos(b)) * np.sin(a), r * np.sin(b)], 1)
+    return V, Q
+
+
 def triangles(Q):
     return np.r_[Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]]
 
@@ -166,7 +176,9 @@ def _read_atlas_obj(path):
 
 
 def test_quads_stay_quads_with_one_vt_per_corner():
-    V, Q = quad_torus()
+    V, Q = twisted_quad_torus()
+    E = np.linalg.norm(V[Q] - V[np.roll(Q, -1, axis=1)], axis=2)
+    assert np.linalg.norm(V[Q[:, 2]] - V[Q[:, 0]], axis=1).max() < E.min()  # the diagonals are the shortest edges
     result = make_atlas(V, Q, options=AtlasOptions(min_efficiency=0.0), progress=False)
     d = result.details
     assert result.success and len(d.split_polygons()) == 0  # no seam along a quad's diagonal
