@@ -121,7 +121,7 @@ def main(argv=None):
             print(f"| {name} | geomopt | refused: {exc} | | | | | | | |", flush=True)
             continue
         a, warm = run_geomopt(V, F)
-        print(row(name, "geomopt", a.metrics, a.success, cold, warm), flush=True)
+        print(row(name, "geomopt", a.details.metrics, a.success, cold, warm), flush=True)
 
 
 if __name__ == "__main__":

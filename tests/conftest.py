@@ -143,14 +143,14 @@ def failing_certificate(monkeypatch):
     """The final certificate of :func:`geomopt.make_atlas` fails (it reports charts 0 and 1
     overlapping); the packer's own certificate is untouched.  Yields the list of certificates
     made."""
-    import geomopt.atlas
+    import geomopt.atlas.build
 
-    made, certify = [], geomopt.atlas.certify_atlas
+    made, certify = [], geomopt.atlas.build.certify_atlas
 
     def fails(*args):
         made.append(_failed_certificate(certify(*args)))
         return made[-1]
-    monkeypatch.setattr(geomopt.atlas, "certify_atlas", fails)
+    monkeypatch.setattr(geomopt.atlas.build, "certify_atlas", fails)
     return made
 
 

@@ -60,19 +60,20 @@ CASES = {"tetrahedron": tetrahedron, "torus": torus, "genus2": genus2, "sphere":
 @pytest.fixture(scope="module", params=list(CASES))
 def made(request):
     V, F = CASES[request.param]()
-    return V, F, make_atlas(V, F, progress=False)
+    r = make_atlas(V, F, progress=False)
+    return V, F, r
 
 
 def test_every_chart_is_a_disk_and_the_atlas_is_certified(made):
     V, F, a = made
     assert a.success and a.certificate.ok, a.message
-    assert a.metrics.mirrored_charts == 0
-    assert np.all((a.uv >= 0) & (a.uv <= 1))
-    assert np.array_equal(a.vertex[a.uv_faces], F)  # every UV row maps back to its input vertex
-    for c in range(a.metrics.charts):
-        rows, local = np.unique(a.uv_faces[a.chart == c], return_inverse=True)
+    assert a.details.metrics.mirrored_charts == 0
+    assert np.all((a.x >= 0) & (a.x <= 1))
+    assert np.array_equal(a.details.vertex[a.details.uv_faces], F)  # every UV row maps back to its input vertex
+    for c in range(a.details.metrics.charts):
+        rows, local = np.unique(a.details.uv_faces[a.details.chart == c], return_inverse=True)
         check_disk(local.reshape(-1, 3), len(rows))  # raises unless a disk
-        Q = a.uv[a.uv_faces[a.chart == c]]
+        Q = a.x[a.details.uv_faces[a.details.chart == c]]
         signed = (Q[:, 1, 0] - Q[:, 0, 0]) * (Q[:, 2, 1] - Q[:, 0, 1]) - (Q[:, 1, 1] - Q[:, 0, 1]) * (Q[:, 2, 0] - Q[:, 0, 0])
         assert np.all(signed > 0)
 
@@ -82,26 +83,26 @@ def test_the_seams_are_exactly_the_cut_edges(made):
     uv_of = {}  # (face, input vertex) -> UV row
     for f in range(len(F)):
         for k in range(3):
-            uv_of[f, F[f, k]] = a.uv_faces[f, k]
+            uv_of[f, F[f, k]] = a.details.uv_faces[f, k]
     faces_of = {}
     for f in range(len(F)):
         for k in range(3):
             faces_of.setdefault(tuple(sorted((F[f, k], F[f, (k + 1) % 3]))), []).append(f)
     cut = {e for e, fs in faces_of.items() if len(fs) == 2
            and any(uv_of[fs[0], v] != uv_of[fs[1], v] for v in e)}
-    assert cut == {tuple(e) for e in a.seams.tolist()}
+    assert cut == {tuple(e) for e in a.details.seams.tolist()}
     # a seam separates the UVs of both its ends, and is a chart boundary edge on both sides
-    T = a.uv_faces
-    open_edges = {tuple(sorted(e)) for e in a.vertex[boundary_half_edges(T)].tolist()}
+    T = a.details.uv_faces
+    open_edges = {tuple(sorted(e)) for e in a.details.vertex[boundary_half_edges(T)].tolist()}
     input_boundary = {tuple(sorted(e)) for e in boundary_half_edges(F).tolist()}
     assert open_edges == cut | input_boundary
-    assert a.metrics.seam_length == pytest.approx(sum(np.linalg.norm(V[i] - V[j]) for i, j in cut))
+    assert a.details.metrics.seam_length == pytest.approx(sum(np.linalg.norm(V[i] - V[j]) for i, j in cut))
 
 
 def test_a_reversed_surface_still_has_no_mirrored_chart():
     V, F = torus()
     a = make_atlas(V, F[:, ::-1], progress=False)
-    assert a.success and a.metrics.mirrored_charts == 0
+    assert a.success and a.details.metrics.mirrored_charts == 0
 
 
 def test_bad_input_is_refused_with_one_line(cli, tmp_path):
@@ -156,7 +157,7 @@ def test_the_obj_keeps_the_v_lines_and_the_face_order(cli, tmp_path):
     assert np.array_equal(v, V) and np.array_equal(f[:, :, 0], F)
     assert len(vt) > len(V) and np.all((vt >= 0) & (vt <= 1))  # a closed surface needs seams
     a = make_atlas(V, F, progress=False)
-    assert np.array_equal(vt, a.uv) and np.array_equal(f[:, :, 1], a.uv_faces)
+    assert np.array_equal(vt, a.x) and np.array_equal(f[:, :, 1], a.details.uv_faces)
 
 
 def test_a_disk_keeps_one_chart_unless_atlas_is_asked(cli, tmp_path):
@@ -190,7 +191,7 @@ def test_a_split_made_for_the_packing_is_reported():
     events = []
     atlas = make_atlas(V, F, progress=lambda stage, info: events.append((stage, info)))
     stages = [s for s, _ in events]
-    charts = int(atlas.chart.max()) + 1
+    charts = int(atlas.details.chart.max()) + 1
     flattened = [info["charts"] for s, info in events if s == "flattened"]
     assert atlas.success and flattened and flattened[-1] < charts  # this plate is split to pack
     assert stages.index("split to pack") == len(stages) - 2 and events[-2][1]["charts"] == charts

@@ -14,8 +14,8 @@ from geomopt.atlas import AtlasOptions, seam_metrics
 from geomopt.atlas.charts import split_charts
 from geomopt.atlas.cones import angle_defects
 from geomopt.atlas.cutting import cut_surface
-from geomopt.atlas.metrics import seam_turning
-from geomopt.atlas.seams import edge_costs, edge_graph, straighten
+from geomopt.atlas.details.metrics import seam_turning
+from geomopt.atlas.details.seams import edge_costs, edge_graph, straighten
 from geomopt.atlas.visibility import (ambient_visibility, edge_visibility, hemisphere_directions,
                                       vertex_normals, vertex_visibility)
 from geomopt.exact.topology import unique_edges
@@ -266,7 +266,7 @@ def test_up_puts_the_seams_of_an_atlas_on_the_underside():
     for up in ("z", "-z"):
         atlas = make_atlas(V, F, options=AtlasOptions(up=up), progress=False)
         assert atlas.success
-        heights[up] = float(V[atlas.seams].mean(axis=(0, 1))[2])
+        heights[up] = float(V[atlas.details.seams].mean(axis=(0, 1))[2])
     assert heights["z"] < -0.2 < 0.2 < heights["-z"]
 
 

@@ -75,7 +75,7 @@ def test_a_thin_closed_surface_becomes_an_atlas_that_packs(surface):
     V, F = surface()
     atlas = make_atlas(V, F, progress=False)
     assert atlas.success, atlas.message
-    assert atlas.metrics.efficiency > 0.2, (atlas.metrics.efficiency, atlas.metrics.charts)
+    assert atlas.details.metrics.efficiency > 0.2, (atlas.details.metrics.efficiency, atlas.details.metrics.charts)
 
 
 class _Packed:

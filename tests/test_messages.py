@@ -22,11 +22,13 @@ def bowl(n=5):
     return np.c_[V2, 0.1 * V2[:, 0] ** 2], F
 
 
-def test_make_atlas_sends_an_atlas_setting_to_atlas_options():
+def test_make_atlas_takes_no_loose_keywords():
+    """An atlas setting or an energy parameter given as a keyword is an error (they go into
+    AtlasOptions and energy=(name, {...})), never read as something else."""
     V, F = bowl()
-    with pytest.raises(geomopt.ParameterError, match=r"margin is an AtlasOptions field: pass "
-                                                     r"options=AtlasOptions\(margin=0.01\)"):
-        geomopt.make_atlas(V, F, margin=0.01, progress=False)
+    for loose in ({"margin": 0.01}, {"eps": 0.1}, {"colour": "red"}):
+        with pytest.raises(TypeError, match=f"unexpected keyword argument '{next(iter(loose))}'"):
+            geomopt.make_atlas(V, F, progress=False, **loose)
 
 
 def test_param_sphere_refuses_margin(tmp_path, cli):
@@ -101,7 +103,7 @@ def pinched_obj(path):
 def test_a_pinched_vertex_split_by_an_atlas_is_said(tmp_path, cli):
     V, F = pinched_obj(tmp_path / "pinched.obj")
     atlas = geomopt.make_atlas(V, F, progress=False)
-    assert atlas.success and atlas.pinched.tolist() == [0]
+    assert atlas.success and atlas.details.pinched.tolist() == [0]
     code, _, err = cli("param", tmp_path / "pinched.obj", "-o", tmp_path / "out.obj", "--quiet")
     assert code == 0, err
     lines = [l for l in err.splitlines() if "pinched" in l]

@@ -51,8 +51,8 @@ class SolveError(GeomoptError, RuntimeError):
 
     Attributes
     ----------
-    result : the :class:`~geomopt.solvers.Result` (an :class:`~geomopt.atlas.Atlas` for
-        :func:`~geomopt.make_atlas`) that failed, or None where there is none.
+    result : the :class:`~geomopt.solvers.Result` that failed (:func:`~geomopt.make_atlas`'s
+        too), or None where there is none.
     outcome : ``result.outcome`` (:class:`~geomopt.solvers.Outcome`), or None.
     certificate : the certificate that failed: ``result.certificate``, the written file's, or
         the packing's; None where the failure is not a certificate's (the adjoint).

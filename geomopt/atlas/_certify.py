@@ -76,6 +76,17 @@ class AtlasCertificate:
     message: str
     seconds: float = 0.0
 
+    @property
+    def locally_injective(self) -> bool:
+        """The whole atlas is certified (as :attr:`ok`): what a :class:`~geomopt.solvers.Result` asks."""
+        return bool(self.ok)
+
+    @property
+    def injectivity(self) -> str:
+        """``"global"`` when certified (the atlas maps the surface one-to-one into the square),
+        ``"local"`` when only no face is inverted, else ``"none"``."""
+        return "global" if self.ok else ("local" if len(self.inverted) == 0 else "none")
+
 
 def chart_boundary_loops(uv_faces, chart):
     """Boundary loops of every chart of an atlas.

@@ -24,18 +24,21 @@ from .._runtime.log import logger
 from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..energies import energy_spec, get_energy
+from ..solvers import Details, Outcome, Result, RunStats
 from ..exact.topology import as_faces, same_side_facets, unique_edges
 from .charts import split_charts
 from .cones import angle_defects
 from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
+from .inputs import AtlasInput, atlas_input, polygon_uv_faces
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
 from .seams import edge_costs, edge_graph
 from .visibility import vertex_visibility
-from ._pack import MARGIN, packing_estimate
+from ._certify import certify_atlas
+from ._pack import MARGIN, pack_charts, packing_estimate, widest_margin
 from .split import split_to_pack
 
-__all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
+__all__ = ["make_atlas", "AtlasDetails", "AtlasPart", "AtlasOptions", "check_atlas_input"]
 
 # rays per vertex of the visibility that weights the seams' cost (the reported figure uses 96 per edge)
 _COST_RAYS = 32
@@ -44,6 +47,9 @@ _AXES = {"x": 0, "y": 1, "z": 2}
 # the conformal estimate ran 0.3-0.45 above the flattened charts' mean symmetric Dirichlet on the
 # meshes tried; the first cut aims this much above the goal, and flatten_to corrects it by measurement
 _ESTIMATE_GAP = 0.35
+_MARGIN = 0.005  # the default gap between charts, a fraction of the square's side
+_PADDING = 2.0  # texels between charts when a resolution is given without a padding
+_DIAGONAL = 1e4  # how much dearer a seam is along a polygon's diagonal (an edge of its fan only)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +77,15 @@ class AtlasOptions:
         split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
     split_gain : the least rise of the packing efficiency a split must buy per extra chart it
         makes; its seam is charged too, by length (:func:`~geomopt.atlas.split.split_to_pack`).
-    margin : gap between packed charts, as a fraction of the unit square.
+    margin : None, or the least distance between two packed charts, as a fraction of the unit
+        square's side (default 0.005; not with ``resolution``).
+    resolution : None, or the texture's side in texels ``N``: the charts are packed for an
+        ``N x N`` texture, every two charts at least ``padding`` texels apart (Euclidean distance
+        in UV, ``padding / N``: the room a baker needs to dilate each chart for bilinear
+        filtering and mip levels) and every chart at least ``padding / 2`` texels inside the
+        square (so also ``padding`` apart across the edges of a repeating texture).
+    padding : None, or the texels between charts with ``resolution`` (default 2); below
+        ``resolution / 5``.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
     """
 
@@ -83,58 +97,155 @@ class AtlasOptions:
     max_cuts: int = 200
     min_efficiency: float = 0.7
     split_gain: float = 0.01
-    margin: float = 0.005
+    margin: float | None = None
+    resolution: int | None = None
+    padding: float | None = None
     rotate: bool = True
 
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
                  hide=Real(0.0), straighten=Real(0.0), up=Maybe(OneOf(("x", "y", "z", "-x", "-y", "-z"))),
-                 min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=MARGIN, rotate=Instance(bool))
+                 min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Maybe(MARGIN),
+                 resolution=Maybe(Int(1)), padding=Maybe(Real(0.0)), rotate=Instance(bool))
+        if self.resolution is None and self.padding is not None:
+            raise ParameterError(f"AtlasOptions: padding ({self.padding!r} texels) needs the texture's resolution: "
+                                 f"give resolution=N too (or a margin, a fraction of the square)")
+        if self.resolution is not None and self.margin is not None:
+            raise ParameterError("AtlasOptions: give a margin (a fraction of the square) or a resolution with its "
+                                 "padding (texels), not both")
+        N, P = self.resolution, self.texels
+        if N is not None and not 5 * P < N:
+            raise ParameterError(f"AtlasOptions: padding {P!r} texels is too wide for a {N}-texel texture: keep it "
+                                 f"below resolution / 5 = {N / 5:g}")
+
+    @property
+    def texels(self) -> float | None:
+        """The padding in texels with a resolution (``padding``, or 2), else None."""
+        return None if self.resolution is None else (_PADDING if self.padding is None else self.padding)
+
+    def packing(self) -> tuple[float, float]:
+        """``(margin, inset)``: the charts are packed into the unit square ``margin`` apart, then
+        scaled by ``1 - 2 inset`` about its centre.  Without a resolution ``(margin, 0)``; with
+        ``N`` texels and a padding of ``P``, ``(P / (N - P), P / (2 N))``: after the scaling by
+        ``1 - P / N`` the charts are ``P / N`` apart and ``P / (2 N)`` inside the square."""
+        if self.resolution is None:
+            return (_MARGIN if self.margin is None else self.margin), 0.0
+        N, P = float(self.resolution), self.texels
+        return P / (N - P), P / (2.0 * N)
+
+
+class AtlasPart(tuple):
+    """One input mesh of an atlas, as written: ``(V (n, 3), faces, uv (k, 2), uv_faces)`` with
+    ``faces`` and ``uv_faces`` (m, 3) int64 arrays for a triangle mesh, else lists of each
+    face's corners and their UV rows (polygons, in input order)."""
+
+    __slots__ = ()
+
+    def __new__(cls, V, faces, uv, uv_faces):
+        return super().__new__(cls, (V, faces, uv, uv_faces))
+
+    V = property(lambda self: self[0])
+    faces = property(lambda self: self[1])
+    uv = property(lambda self: self[2])
+    uv_faces = property(lambda self: self[3])
 
 
 @dataclasses.dataclass(frozen=True)
-class Atlas:
-    """A texture atlas of a triangle mesh (``V`` (n, 3), ``F`` (m, 3)).
+class AtlasDetails(Details):
+    """What :func:`make_atlas` adds to its :class:`~geomopt.solvers.Result` (``result.details``):
+    the atlas of the triangle mesh ``vertices`` (n, 3), ``faces`` (m, 3) (every input mesh, mesh
+    after mesh, polygons fan-triangulated); ``result.x`` (k, 2) holds one UV per chart corner,
+    inside ``[0, 1]^2``.
 
     Attributes
     ----------
-    uv : (k, 2) float64, one UV per chart corner, inside ``[0, 1]^2``.
-    uv_faces : (m, 3) int64, the UV row of each face corner (faces in input order).
+    uv_faces : (m, 3) int64, the row of ``result.x`` of each face corner (faces in input order).
     chart : (m,) int64, the chart of each face.
-    vertex : (k,) int64, the input vertex of each UV row.
-    seams : (s, 2) int64, the cut edges as sorted input vertex pairs.
+    vertex : (k,) int64, the vertex (row of ``vertices``) of each UV row.
+    seams : (s, 2) int64, the cut edges as sorted vertex pairs.
     metrics : :class:`~geomopt.atlas.metrics.AtlasMetrics` (charts, seam length, mean and worst
         symmetric Dirichlet, packing efficiency, mirrored charts).
-    certificate : the exact certificate of the packed atlas (``certify_atlas``).
-    results : one :class:`~geomopt.solvers.Result` per chart (its flattening before packing).
+    charts : one :class:`~geomopt.solvers.Result` per chart (its flattening before packing).
     seconds : wall time of the whole call.
-    pinched : (p,) int64, the input's pinched (non-manifold, "bow-tie") vertices, sorted: vertices
-        whose faces form several fans, each split into one copy per fan before cutting (so the
-        atlas has at least one UV per fan there, even without a seam through them).
+    pinched : (p,) int64, the pinched (non-manifold, "bow-tie") vertices, sorted: vertices whose
+        faces form several fans, each split into one copy per fan before cutting (so the atlas
+        has at least one UV per fan there, even without a seam through them).
+    vertices, faces : the triangle mesh the atlas maps.
+    counts : (p,) int64, corners of each input face (3 for a triangle): the fan of face ``j``
+        is the ``counts[j] - 2`` consecutive rows of ``faces`` from ``sum(counts[:j] - 2)``.
+    vertex_offsets, face_offsets : (meshes + 1,) int64, input mesh ``i``'s vertices and faces
+        (polygons) as ranges of ``vertices`` and ``counts``.
+    margin : the least distance between two charts the packing kept (a fraction of the square);
+        with ``AtlasOptions.resolution`` ``N``: ``padding / N``.
     """
 
-    uv: np.ndarray
     uv_faces: np.ndarray
     chart: np.ndarray
     vertex: np.ndarray
     seams: np.ndarray
     metrics: AtlasMetrics
-    certificate: object
-    results: tuple
+    charts: tuple
     seconds: float
-    pinched: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    pinched: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    counts: np.ndarray
+    vertex_offsets: np.ndarray
+    face_offsets: np.ndarray
+    margin: float
 
     @property
-    def success(self) -> bool:
-        """Every chart flattened flip-free and the packed atlas certified."""
-        return bool(self.certificate.ok) and all(r.success for r in self.results)
+    def meshes(self) -> int:
+        """How many input meshes share the atlas."""
+        return len(self.vertex_offsets) - 1
 
-    @property
-    def message(self) -> str:
-        failed = [i for i, r in enumerate(self.results) if not r.success]
-        if failed:
-            return f"chart {failed[0]} ({len(failed)} chart(s)) not flattened: {self.results[failed[0]].message}"
-        return "certified" if self.certificate.ok else f"not certified: {self.certificate.message}"
+    def split_polygons(self) -> np.ndarray:
+        """(q,) int64 the input faces (rows of ``counts``) that a seam crosses: written as their
+        fan triangles (only a packing split through a polygon makes one)."""
+        return np.flatnonzero(~polygon_uv_faces(self.uv_faces, self.counts)[1])
+
+    def part(self, uv, i: int | None = None) -> AtlasPart:
+        """Input mesh ``i``'s :class:`AtlasPart` (every mesh as one with ``i=None``), its faces
+        as the input gave them (a polygon crossed by a seam, :meth:`split_polygons`, as its
+        fan triangles) and only the UV rows of ``uv`` (``result.x``) they use."""
+        k = self.meshes
+        lo, hi = (0, k) if i is None else (int(i), int(i) + 1)
+        if not 0 <= lo < hi <= k:
+            raise ParameterError(f"the atlas has {k} mesh(es), 0-based ids 0 to {k - 1}; got {i}")
+        n = self.counts - 2
+        f0, f1 = (int(np.sum(n[:self.face_offsets[j]])) for j in (lo, hi))
+        v0, v1 = int(self.vertex_offsets[lo]), int(self.vertex_offsets[hi])
+        counts, T = self.counts[self.face_offsets[lo]:self.face_offsets[hi]], self.uv_faces[f0:f1]
+        rows, T = np.unique(T, return_inverse=True)
+        T = T.reshape(-1, 3)
+        F = self.faces[f0:f1] - v0
+        if (counts == 3).all():
+            return AtlasPart(self.vertices[v0:v1], F, np.asarray(uv)[rows], T)
+        corners, whole = polygon_uv_faces(T, counts)
+        faces, uv_faces = _polygon_rows(F, T, counts, corners, whole)
+        return AtlasPart(self.vertices[v0:v1], faces, np.asarray(uv)[rows], uv_faces)
+
+
+def _polygon_rows(F, T, counts, corners, whole):
+    """Per written face its vertices and UV rows: a whole polygon's corners, else its fan triangles."""
+    fan = np.cumsum(counts - 2) - (counts - 2)
+    ends = np.cumsum(counts)
+    faces, uv_faces = [], []
+    for j, k in enumerate(counts.tolist()):
+        a = int(fan[j])
+        if whole[j]:
+            faces.append(_corner_vertices(F, a, k))
+            uv_faces.append(corners[ends[j] - k:ends[j]])
+        else:
+            faces.extend(F[a:a + k - 2])
+            uv_faces.extend(T[a:a + k - 2])
+    return faces, uv_faces
+
+
+def _corner_vertices(F, first, k):
+    """The corners ``c0 .. c(k-1)`` of the polygon whose fan is rows ``first ..`` of ``F``."""
+    fan = F[first:first + k - 2]
+    return np.r_[fan[0, 0], fan[:, 1], fan[-1, 2]]
 
 
 def check_atlas_input(V, F):
@@ -201,31 +312,57 @@ def _assemble(n_faces, meshes, packed):
     return np.concatenate(uv), uv_faces, np.concatenate(vertex), chart
 
 
+def _check_options(options, energy, progress, where="make_atlas"):
+    """The options (defaults for None) and the energy with its parameters, checked."""
+    from ..solvers._iterate import check_progress
+
+    options = AtlasOptions() if options is None else options
+    if not isinstance(options, AtlasOptions):
+        raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
+    check_progress(progress, where)
+    energy, energy_params = energy_spec(energy, None, where)
+    get_energy(energy).check_scale_aware(energy_params)
+    return options, energy, energy_params
+
+
 @float64
 def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=None, progress=True,
-               throw=False, **energy_params) -> Atlas:
-    """A certified texture atlas of any edge-manifold triangle mesh: closed of any genus, with
-    several boundary loops, with several components (module doc).
+               throw=False) -> Result:
+    """A certified texture atlas of any edge-manifold surface: closed of any genus, with several
+    boundary loops, with several components, of triangles or polygons, or of several meshes
+    sharing one UV square (module doc).
 
     Parameters
     ----------
-    V : (n, 3) float vertices, or a mesh object with ``.vertices`` and ``.faces`` (``F=None``).
-    F : (m, 3) int consistently oriented triangles.
+    V : (n, 3) float vertices; or a mesh object with ``.vertices`` and ``.faces`` (``F=None``);
+        or, with ``F=None``, a list of meshes (mesh objects or ``(V, F)`` pairs): one atlas
+        whose charts share the unit square (:meth:`AtlasDetails.part` gives each mesh's).
+    F : (m, 3) int consistently oriented triangles, (m, k) polygons of k corners, or a list of
+        polygons (convex, any number of corners): each is cut into a fan of triangles whose
+        diagonals no seam follows, so that it lies in one chart and keeps one UV per corner.
     energy, solver : how each chart is flattened (see :func:`geomopt.parameterize`; ``energy``
-        a name, an Energy or ``(name, {parameter: value})``); ``energy_params``: refused (they go with the energy).
-    options : :class:`AtlasOptions` (cutting, margin, rotation).
+        a name, an Energy or ``(name, {parameter: value})``).
+    options : :class:`AtlasOptions` (cutting, margin or resolution and padding, rotation).
     progress : True: one record per stage on the ``geomopt`` logger (INFO; see
         :mod:`geomopt._runtime.log`) and the charts' solves' progress; a callable gets
         ``(stage, info_dict)``.
-    throw : raise :class:`~geomopt.SolveError` (carrying the atlas) when it is not certified.
+    throw : raise :class:`~geomopt.SolveError` (carrying the result) when it is not certified.
 
     Returns
     -------
-    :class:`Atlas`
+    :class:`~geomopt.solvers.Result`: ``x`` (k, 2) one UV per chart corner in ``[0, 1]^2``;
+    ``certificate`` the exact :class:`~geomopt.atlas.AtlasCertificate` of the whole atlas;
+    ``success`` when every chart flattened and the atlas is certified; ``stats`` the charts'
+    iterations, their total energy before packing (``mean_energy`` over the total area) and
+    the call's seconds; ``details`` an :class:`AtlasDetails` (faces' UV rows, charts, seams,
+    metrics, the charts' own results).  ``result.save("atlas.obj", png="atlas.png")`` writes it
+    (:func:`geomopt.save`).
 
     Raises
     ------
     MeshError : invalid or non-manifold input (:func:`check_atlas_input`).
+    ParameterError : bad options or energy parameters, or more charts than the margin (padding)
+        can keep apart.
 
     Examples
     --------
@@ -234,38 +371,18 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     >>> import geomopt
     >>> V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
     >>> F = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
-    >>> atlas = geomopt.make_atlas(V, F, progress=False)
-    >>> atlas.certificate.ok, atlas.uv_faces.shape
+    >>> result = geomopt.make_atlas(V, F, progress=False)
+    >>> result.success, result.details.uv_faces.shape
     (True, (4, 3))
     """
-    from ..mesh.convert import mesh_arrays
-    from ..solvers._iterate import check_progress
-    from ._certify import certify_atlas
-    from ._pack import pack_charts
-
     t0 = time.perf_counter()
-    options = AtlasOptions() if options is None else options
-    if not isinstance(options, AtlasOptions):
-        raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
-    check_progress(progress, "make_atlas")
-    settings = [k for k in energy_params if k in {f.name for f in dataclasses.fields(AtlasOptions)}]
-    if settings:  # not an energy parameter: say where it goes
-        given = ", ".join(f"{k}={energy_params[k]!r}" for k in settings)
-        are = "is an AtlasOptions field" if len(settings) == 1 else "are AtlasOptions fields"
-        raise ParameterError(f"make_atlas: {', '.join(settings)} {are}: pass options=AtlasOptions({given})")
-    energy, energy_params = energy_spec(energy, energy_params, "make_atlas")
-    get_energy(energy).check_scale_aware(energy_params)
-    V, F = check_atlas_input(*mesh_arrays(V, F))
-    g0 = edge_graph(V, F)
-    manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
-    pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
-    if len(pinched):
-        _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
-    g = edge_graph(V[manifold.vertex], manifold.wedge)
-    looks = _looks(g, options)
-    cost = edge_costs(g, options.crease, angle_defects(g.V, g.F), **looks)
+    options, energy, energy_params = _check_options(options, energy, progress)
+    given = atlas_input(V, F)
+    V, F = check_atlas_input(given.V, given.F)
+    g, manifold, pinched = _manifold_graph(V, F, progress)
+    cost, tree_cost = _costs(g, given, options)
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
-                                      tree_cost=edge_costs(g, options.crease, **looks), turn=options.straighten)
+                                      tree_cost=tree_cost, turn=options.straighten)
     _say(progress, "cut", seam_length=float(g.length[cut].sum()), cone_cuts=made, estimate=estimate)
 
     def solve(Vc, Fc, free=None, scaffold=True):
@@ -274,27 +391,83 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
                                              options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info),
                                              turn=options.straighten)
+    margin, inset = options.packing()
+    _check_room(options, margin, len(meshes))
+
     def pack(maps, faces):
-        return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
+        return pack_charts(maps, faces, margin=margin, rotate=options.rotate)
 
     def screen(maps, faces, boundaries):
-        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, boundaries=boundaries)
+        return packing_estimate(maps, faces, margin=margin, rotate=options.rotate, boundaries=boundaries)
 
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
-                                                 min_gain=options.split_gain,
-                                                 screen=screen, V=g.V)
-    results = [results[i] for i in owner]
+                                                 min_gain=options.split_gain, screen=screen, V=g.V)
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
+    uv = inset + (1.0 - 2.0 * inset) * uv if inset else uv
     certificate = certify_atlas(uv, uv_faces, chart)
-    metrics = atlas_metrics(V, F, uv, uv_faces)
-    atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
-                  certificate, tuple(results), time.perf_counter() - t0, pinched)
-    _say(progress, "packed", efficiency=metrics.efficiency, certified=bool(certificate.ok),
-         mean_symmetric_dirichlet=metrics.mean_symmetric_dirichlet, success=atlas.success)
-    if not atlas.success:
-        _say(progress, "not successful", message=atlas.message)
-    if throw and not atlas.success:
-        raise SolveError(f"the atlas is not certified: {atlas.message}", atlas)
-    return atlas
+    details = AtlasDetails(uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), atlas_metrics(V, F, uv, uv_faces),
+                           tuple(results[i] for i in owner), 0.0, pinched, V, F, given.counts,
+                           given.vertex_offsets, given.face_offsets, margin * (1.0 - 2.0 * inset))
+    return _result(uv, certificate, details, results, solver, t0, progress, throw)
+
+
+def _manifold_graph(V, F, progress):
+    """The edge graph of the mesh with its pinched vertices split (one wedge per fan), the
+    split (:func:`~geomopt.atlas.charts.split_charts`) and the pinched vertices."""
+    g0 = edge_graph(V, F)
+    manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
+    pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
+    if len(pinched):
+        _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
+    return edge_graph(V[manifold.vertex], manifold.wedge), manifold, pinched
+
+
+def _costs(g, given: AtlasInput, options):
+    """The seams' edge costs and the strong cones' tree's, each ``_DIAGONAL`` times dearer along
+    a polygon's diagonal."""
+    looks = _looks(g, options)
+    cost = edge_costs(g, options.crease, angle_defects(g.V, g.F), **looks)
+    tree_cost = edge_costs(g, options.crease, **looks)
+    diagonal = np.unique(g.edge_of[given.diagonals()])
+    cost[diagonal] *= _DIAGONAL
+    tree_cost[diagonal] *= _DIAGONAL
+    return cost, tree_cost
+
+
+def _check_room(options, margin, charts):
+    """Refuse, in the options' own terms, a padding too wide for the charts made."""
+    if options.resolution is not None and margin >= widest_margin(charts):
+        P, N = options.texels, options.resolution
+        raise ParameterError(f"padding {P:g} texels cannot keep {charts} charts apart in a {N}-texel texture "
+                             f"(at most {widest_margin(charts) * N / (1 + widest_margin(charts)):.4g} texels "
+                             f"fit): use a smaller padding or a larger resolution")
+
+
+def _result(uv, certificate, details, results, solver, t0, progress, throw) -> Result:
+    """The atlas's :class:`Result` (see :func:`make_atlas`), said and, with ``throw``, raised."""
+    failed = [i for i, r in enumerate(results) if not r.success]
+    outcome, reason = Outcome.CONVERGED, ""
+    if failed:
+        first = results[failed[0]]
+        outcome = first.outcome if first.outcome is not Outcome.CONVERGED else Outcome.NOT_INJECTIVE
+        reason = f"chart {failed[0]} ({len(failed)} chart(s)) not flattened: {first.message}"
+    elif not certificate.ok:
+        reason = f"not certified: {certificate.message}"
+    seconds = time.perf_counter() - t0
+    stats = RunStats(iterations=sum(r.stats.iterations for r in results),
+                     evaluations=sum(r.stats.evaluations for r in results),
+                     outer_iterations=sum(r.stats.outer_iterations for r in results),
+                     seconds=seconds, energy=float(sum(r.stats.energy for r in results)),
+                     volume=float(sum(r.stats.volume for r in results)), certify_seconds=certificate.seconds)
+    result = Result(uv, outcome, certificate, stats, solver=solver, reason=reason,
+                    details=dataclasses.replace(details, seconds=seconds))
+    m = details.metrics
+    _say(progress, "packed", efficiency=m.efficiency, certified=bool(certificate.ok),
+         mean_symmetric_dirichlet=m.mean_symmetric_dirichlet, success=result.success)
+    if not result.success:
+        _say(progress, "not successful", message=result.message)
+        if throw:
+            raise SolveError(f"the atlas is not certified: {result.message}", result)
+    return result

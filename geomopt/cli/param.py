@@ -18,17 +18,20 @@ __all__ = ["cmd_param", "cmd_demo", "convergence_path"]
 
 
 def _param_input(args):
-    """``(V, F, x0, start)`` of ``geomopt param``: the mesh, the start map (an array, None for
-    Tutte's or ``"projection"``) and how the log names it."""
+    """``(V, F, x0, start, faces)`` of ``geomopt param``: the mesh, the start map (an array, None
+    for Tutte's or ``"projection"``), how the log names it, and an OBJ's own faces (polygons, as
+    :func:`geomopt.io.read_obj_polygons` reads them; else ``F``)."""
     from .. import io
 
     if args.init == "uv":
         V, F, x0 = io.read_obj_uv(args.input)
-        return V, F, x0, "its own UV start map"
-    V, F = io.read_mesh(args.input)
+        return V, F, x0, "its own UV start map", F
+    from .atlas import read_surface
+
+    V, F, faces = read_surface(args.input)
     if args.init == "tutte":
-        return V, F, None, f"{args.weights} Tutte start"
-    return V, F, args.init, "plane projection start"
+        return V, F, None, f"{args.weights} Tutte start", faces
+    return V, F, args.init, "plane projection start", faces
 
 
 def cmd_param(args) -> int:
@@ -44,6 +47,14 @@ def cmd_param(args) -> int:
     split = args.timing
     split.mark_imported()
     compile_seconds()  # starts counting JAX's compilation
+    inputs = args.input if isinstance(args.input, (list, tuple)) else [args.input]
+    if len(inputs) > 1:
+        from .atlas import param_atlases
+
+        return param_atlases(args, inputs, get_energy(args.energy), make_solver(args.solver, args.max_steps))
+    args.input = inputs[0]
+    if args.padding is not None and args.resolution is None:
+        raise ParameterError("--padding (texels) goes with --resolution N, the texture's side in texels; give both")
     if args.sphere:
         return _param_sphere(args)
     if getattr(args, "pole", None) is not None:
@@ -60,7 +71,7 @@ def cmd_param(args) -> int:
                              "injective --init uv map, not from --init projection; drop one of the two options")
     output_paths(args.output, io.UV_MESH_EXTENSIONS, pictures, [args.input], folder)  # before reading or solving
     with split.phase("read"):
-        V, F, x0, start = _param_input(args)
+        V, F, x0, start, faces = _param_input(args)
     log(args, f"{args.input}: {len(V)} vertices, {len(F)} faces; energy {energy.name}, "
               f"solver {args.solver}, {start}")
     if Path(args.input).suffix.lower() == ".stl":
@@ -68,8 +79,8 @@ def cmd_param(args) -> int:
                   f"{3 * len(F)} corners with bit-identical coordinates into {len(V)} vertices")
     from .atlas import is_disk, param_atlas
 
-    if args.atlas or not is_disk(F, len(V)):  # closed, several boundary loops or components: charts
-        return param_atlas(args, V, F, energy, solver)
+    if args.atlas or args.resolution is not None or not is_disk(F, len(V)):  # closed, holes, components: charts
+        return param_atlas(args, V, F, faces, energy, solver)
     options = ParamOptions(weights=args.weights, bijective=args.bijective)
     solve = functools.partial(parameterize, V, F, energy=energy, solver=solver, options=options, x0=x0,
                               progress=not args.quiet)
@@ -149,9 +160,11 @@ def _param_sphere(args) -> int:
     from ..objective.distortion import sphere_distortion
     from ..sphere import SphereOptions, default_solver, sphere_map
 
-    if args.bijective or args.atlas or args.init != "tutte" or args.uv_range != "raw" or args.margin is not None:
+    if (args.bijective or args.atlas or args.init != "tutte" or args.uv_range != "raw" or args.margin is not None
+            or args.resolution is not None or args.padding is not None):
         raise ParameterError("--sphere makes its own certified start and writes vertices, not UVs or charts: "
-                             "leave out --bijective, --atlas, --margin, --init and --uv-range")
+                             "leave out --bijective, --atlas, --margin, --resolution, --padding, --init and "
+                             "--uv-range")
     # newton is the parser's default: the sphere's default L-BFGS then
     solver = make_solver(default_solver() if args.solver == "newton" else args.solver, args.max_steps)
     pictures = [("--png picture", args.png)] if args.png else []
@@ -256,7 +269,8 @@ def cmd_demo(args) -> int:
     data = bundled("camelhead")
     ns = argparse.Namespace(input=str(data), output=str(out / "camelhead_uv.obj"), folder=out,
                             energy="symmetric_dirichlet", solver="newton", weights="uniform", init="tutte", bijective=False,
-                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, sphere=False, pole=None, margin=0.005,
+                            max_steps=None, quiet=args.quiet, png=str(out / "camelhead_uv.png"), atlas=False, sphere=False, pole=None, margin=None,
+                            resolution=None, padding=None,
                             uv_range="raw", json=args.json, summary=args.summary, timing=args.timing)
     code = cmd_param(ns)
     if code == EXIT_OK and not args.json:  # --json: stdout holds only the summary

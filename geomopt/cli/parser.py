@@ -42,6 +42,16 @@ def _margin(text) -> float:
     return value
 
 
+def _texels(text) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number of texels >= 0, got {text!r}")
+    return value
+
+
 def _positive_int(text) -> int:
     try:
         value = int(text)
@@ -97,11 +107,13 @@ def _add_param(sub):
 
     sp = sub.add_parser("param", help="parameterize a surface: a disk with a free boundary, any other "
                                       "surface as a certified atlas")
-    sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL; convex polygons are cut into fans of "
-                                  "triangles, which the outputs keep): a disk, or any edge-manifold surface "
-                                  "(an atlas)")
+    sp.add_argument("input", nargs="+",
+                    help="triangle mesh (OBJ/OFF/PLY/STL; convex polygons are cut into fans of triangles): a "
+                         "disk, or any edge-manifold surface (an atlas, whose OBJ keeps an OBJ input's polygons, "
+                         "one vt per corner); several meshes make one atlas that they share")
     sp.add_argument("-o", "--output", required=True,
-                    help="output .obj (one vt per vertex) or .ply (binary, double x y z u v)")
+                    help="output .obj (one vt per vertex, or per chart corner for an atlas) or .ply (binary, "
+                         "double x y z u v); with several inputs a folder, which gets <input name>.obj for each")
     sp.add_argument("--energy", default="symmetric_dirichlet", metavar="NAME",
                     help=f"one of {', '.join(ENERGIES)} (default symmetric_dirichlet)")
     sp.add_argument("--solver", default="newton", metavar="NAME",
@@ -121,6 +133,12 @@ def _add_param(sub):
     sp.add_argument("--margin", type=_margin, default=None,
                     help="atlas: gap between packed charts, a fraction of the unit square in [0, 0.25) (default "
                          "0.005); k charts fit only below 1 / (ceil(sqrt k) - 1), a wider margin is refused")
+    sp.add_argument("--resolution", type=_positive_int, default=None, metavar="N",
+                    help="atlas for an N x N texture (implies --atlas): charts at least --padding texels apart "
+                         "and half of it inside the square's edges; not with --margin")
+    sp.add_argument("--padding", type=_texels, default=None, metavar="P",
+                    help="with --resolution: texels between any two charts, for bilinear filtering and mip "
+                         "levels (default 2; below N / 5)")
     sp.add_argument("--up", default=None, choices=["x", "y", "z", "-x", "-y", "-z"],
                     help="atlas: the axis that points up (--up=-y for a negative one); seams prefer the "
                          "underside (default: none; seams always prefer occluded places and creases)")

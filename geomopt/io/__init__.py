@@ -37,7 +37,9 @@ module per format (``_obj``, ``_off``, ``_ply``, ``_stl``; ``_faces`` holds what
 from .._runtime.validate import validate_indices, validate_simplices, validate_vertices
 from ._atomic import (CASE_FILES, atomic_output, atomic_path, atomic_write, check_output_path, check_outputs,
                       create_output_folder)
-from ._obj import read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj, write_obj_quads, write_obj_with_uv
+from ._faces import fan as fan_triangulate
+from ._obj import (read_obj_polygons, read_obj_quads, read_obj_uv, read_obj_with_uv, write_obj,
+                   write_obj_polygons_with_uv, write_obj_quads, write_obj_with_uv)
 from ._ply import write_ply_with_uv
 from ._surface import MESH_EXTENSIONS, UV_MESH_EXTENSIONS, nonmanifold_edge_in_file, read_mesh, write_mesh_with_uv
 from ._text import read_vertex_ids
@@ -63,6 +65,8 @@ __all__ = [
     "validate_simplices",
     "validate_indices",
     "read_mesh",
+    "read_obj_polygons",
+    "fan_triangulate",
     "read_obj_uv",
     "read_obj_quads",
     "write_obj",
@@ -71,6 +75,7 @@ __all__ = [
     "read_vertex_ids",
     "write_mesh_with_uv",
     "write_obj_with_uv",
+    "write_obj_polygons_with_uv",
     "write_ply_with_uv",
     "read_vtk_tets",
     "write_vtk_tets",

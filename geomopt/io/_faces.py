@@ -17,7 +17,8 @@ def fan(indices, counts, V=None, path=None):
     Returns (sum(counts - 2), 3) int64: polygon ``c0 c1 .. ck`` gives ``(c0, ci, ci+1)``.  With
     the vertex positions ``V``, a polygon whose fan folds (a fan triangle facing against the
     polygon's Newell normal: a non-convex or twisted polygon) is refused, because the triangles
-    would not tile the polygon.
+    would not tile the polygon (``path``, the file read, starts the message).  Public as
+    :func:`geomopt.io.fan_triangulate`.
     """
     counts = np.asarray(counts, dtype=np.int64)
     if counts.size and (counts == 3).all():
@@ -45,8 +46,9 @@ def _check_fans(V, indices, counts, F, owner, path):
     bad = (np.einsum("ij,ij->i", tri, normal[owner]) <= 0) & (counts[owner] > 3)
     if bad.any():
         k = int(owner[np.flatnonzero(bad)[0]])
+        where = "" if path is None else f"{path}: "
         raise MeshFormatError(
-            f"{path}: face {k + 1} is a polygon of {counts[k]} corners that is not convex (or is twisted): "
+            f"{where}face {k + 1} is a polygon of {counts[k]} corners that is not convex (or is twisted): "
             f"cutting it into a fan of triangles folds it; triangulate the mesh before reading it")
 
 

@@ -19,8 +19,8 @@ from ._faces import fan, mesh_with_uv
 from ._files import existing_file, read_input
 from ._text import Tokens, gc_paused, ints, parse, ranges, show, text_data, uncomment, write_int_rows, write_rows
 
-__all__ = ["read_obj", "parse_obj", "read_obj_quads", "write_obj_cells", "read_obj_uv", "read_obj_with_uv", "write_obj",
-           "write_obj_quads", "write_obj_with_uv"]
+__all__ = ["read_obj", "parse_obj", "read_obj_polygons", "read_obj_quads", "write_obj_cells", "read_obj_uv", "read_obj_with_uv", "write_obj",
+           "write_obj_quads", "write_obj_with_uv", "write_obj_polygons_with_uv"]
 
 #: OBJ statements that carry no vertex position or face: read past.
 _IGNORED = frozenset(b"vt vn vp g o s mg usemtl mtllib usemap maplib lod bevel c_interp d_interp "
@@ -34,9 +34,10 @@ _ZERO_TEXTURE = re.compile(rb"(?<=[0-9])/-?0+(?=/|\s|$)")
 _V, _VT, _F = 1, 2, 3
 
 
-def read_obj(data, path):
-    """``(V, F)`` of an OBJ file (polygons fan-triangulated); see :func:`geomopt.io.read_mesh`."""
-    obj = parse_obj(data, path)
+def read_obj(data, path, obj=None):
+    """``(V, F)`` of an OBJ file (polygons fan-triangulated); see :func:`geomopt.io.read_mesh`
+    (``obj``: the file already parsed by :func:`parse_obj`)."""
+    obj = parse_obj(data, path) if obj is None else obj
     if not obj["v"].shape[0] and not obj["counts"].size:
         raise MeshFormatError(f"{path} contains no mesh (no 'v' or 'f' lines); is it really an OBJ file?")
     if not obj["counts"].size:
@@ -249,6 +250,32 @@ def read_obj_quads(path):
     return V, Q
 
 
+def read_obj_polygons(path):
+    """Read an OBJ surface keeping its faces as the file gives them: triangles, quads and larger
+    polygons, mixed (``v`` and ``f`` lines as :func:`~geomopt.io.read_mesh` reads them).
+
+    Returns
+    -------
+    V : (n, 3) float64;  faces : each face's 0-based corners in file order: an (m, k) int64
+    array when every face has ``k`` corners (a triangle or quad mesh), else a list of (k_j,)
+    int64 arrays.  ``fan_triangulate(corners, counts)`` of their corners and counts gives
+    :func:`~geomopt.io.read_mesh`'s triangles.
+
+    Raises
+    ------
+    MeshFormatError, MeshError
+        As :func:`~geomopt.io.read_mesh` (a non-convex polygon, whose fan folds, included).
+    """
+    path, obj = _read(path)
+    V, F = read_obj(b"", path, obj)
+    V = validate_vertices(V, f"{path.name}: vertices", dim=3)
+    validate_simplices(F, V.shape[0], 3, f"{path.name}: faces")
+    counts = obj["counts"]
+    if (counts == counts[0]).all():
+        return V, obj["corners"].reshape(-1, int(counts[0]))
+    return V, np.split(obj["corners"], np.cumsum(counts)[:-1])
+
+
 def read_obj_uv(path):
     """Read an OBJ mesh and its UV map (``vt``) as one map position per vertex.
 
@@ -395,6 +422,37 @@ def write_obj_quads(path, V, Q):
 def write_obj_cells(path, V, C, kind):
     """:func:`write_obj_quads` as a writer of the cell-format table (``kind`` is ``"quad"``)."""
     return write_obj_quads(path, V, C)
+
+
+def write_obj_polygons_with_uv(path, V, faces, UV, uv_faces):
+    """Write an atlas of a polygon mesh as OBJ: ``v`` lines, one ``vt`` per UV row, and one
+    ``f a/ta b/tb ...`` line per face with as many corners as it has.  Atomic.
+
+    Parameters
+    ----------
+    V : (n, 3) vertex positions.
+    faces : list of (k_j,) int 0-based corner vertices of each face (k_j >= 3).
+    UV : (k, 2) texture coordinates.
+    uv_faces : list of (k_j,) int the UV row of each face corner.
+    """
+    V = validate_vertices(V, "V", dim=3)
+    UV = validate_vertices(UV, "UV", dim=2)
+    counts = np.array([len(f) for f in faces], dtype=np.int64)
+    if len(uv_faces) != len(faces) or any(len(t) != k for t, k in zip(uv_faces, counts)):
+        raise MeshError("uv_faces must give one UV row per corner of every face")
+    corners = np.concatenate([np.asarray(f, dtype=np.int64) for f in faces])
+    texture = np.concatenate([np.asarray(t, dtype=np.int64) for t in uv_faces])
+    for name, I, n in (("faces", corners, len(V)), ("uv_faces", texture, len(UV))):
+        if I.size and (I.min() < 0 or I.max() >= n):
+            raise MeshError(f"{name} index rows outside 0..{n - 1}")
+
+    def write(fh):
+        write_rows(fh, "v ", V)
+        write_rows(fh, "vt ", UV)
+        fmt = "".join("f" + " %d/%d" * k + "\n" for k in counts.tolist())
+        fh.write(fmt % tuple(np.stack([corners + 1, texture + 1], axis=1).ravel().tolist()))
+
+    return atomic_write(path, write)
 
 
 def write_obj_with_uv(path, V, F, UV, uv_faces=None):

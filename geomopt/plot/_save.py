@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .._runtime.formats import PICTURE_EXTENSIONS, extensions
 
-__all__ = ["MAP_FILES", "save", "save_param_picture"]
+__all__ = ["MAP_FILES", "save", "save_param_picture", "write_atlas_part", "save_atlas_picture"]
 
 #: ``Problem.kind`` -> the map file extensions :func:`save` writes for it.
 MAP_FILES = {
@@ -81,6 +81,8 @@ def save(result, path, png=None, *, inputs=()):
     from .. import io
     from .._runtime.errors import ParameterError
 
+    if _is_atlas(result):
+        return _save_atlas(result, path, png, inputs)
     problem = getattr(result, "problem", None)
     if problem is None:
         raise ParameterError("this Result does not know its mesh (result.problem is None), so geomopt.save cannot "
@@ -100,6 +102,55 @@ def save(result, path, png=None, *, inputs=()):
             _picture(result, outputs.enter_context(io.atomic_output(png, "wb")), Path(png).suffix[1:].lower())
         _write_map(result, outputs.enter_context(io.atomic_path(path)), Path(path).suffix.lower())
     return (Path(path),) if png is None else (Path(path), Path(png))
+
+
+def _is_atlas(result) -> bool:
+    """Whether ``result`` is :func:`~geomopt.make_atlas`'s (its module is loaded if so)."""
+    import sys
+
+    build = sys.modules.get("geomopt.atlas.build")
+    return build is not None and isinstance(getattr(result, "details", None), build.AtlasDetails)
+
+
+def _save_atlas(result, path, png, inputs):
+    """An atlas as OBJ (one ``vt`` per chart corner, the input's polygons; every mesh of a shared
+    atlas in one file: write one each with :meth:`~geomopt.atlas.AtlasDetails.part`) and its picture."""
+    from .. import io
+
+    files = [("geomopt.save path", path, (".obj",))]
+    files += [("geomopt.save png", png, PICTURE_EXTENSIONS)] if png is not None else []
+    io.check_outputs(files, inputs)
+    with contextlib.ExitStack() as outputs:
+        if png is not None:
+            save_atlas_picture(outputs.enter_context(io.atomic_output(png, "wb")), result, "",
+                               Path(png).suffix[1:].lower())
+        write_atlas_part(outputs.enter_context(io.atomic_path(path)), result.details.part(result.x))
+    return (Path(path),) if png is None else (Path(path), Path(png))
+
+
+def write_atlas_part(path, part):
+    """An :class:`~geomopt.atlas.AtlasPart` as OBJ: ``f v/vt`` lines of triangles, or of each
+    face's own corners (:func:`geomopt.io.write_obj_polygons_with_uv`)."""
+    import numpy as np
+
+    from .. import io
+
+    if isinstance(part.faces, np.ndarray):
+        return io.write_obj_with_uv(path, part.V, part.faces, part.uv, part.uv_faces)
+    return io.write_obj_polygons_with_uv(path, part.V, part.faces, part.uv, part.uv_faces)
+
+
+def save_atlas_picture(target, result, name="", format=None):
+    """:func:`geomopt.plot.save_atlas_figure` of an atlas result (every mesh), titled with its
+    figures (``name``: what it is of, e.g. the file read)."""
+    from ._figures import save_atlas_figure
+
+    d, m = result.details, result.details.metrics
+    title = (f"{name + ': ' if name else ''}{len(d.faces)} triangles, {m.charts} charts, seam length "
+             f"{m.seam_length:.4g}, mean symmetric Dirichlet {m.mean_symmetric_dirichlet:.4g}, efficiency "
+             f"{m.efficiency:.3f}, {'certified' if result.success else 'not certified'}")
+    save_atlas_figure(target, d.vertices, d.faces, result.x, d.uv_faces, d.chart, d.seams, title=title,
+                           format=format)
 
 
 def _write_map(result, tmp, ext):

@@ -294,8 +294,9 @@ class Result:
             msg = self.reason
         else:
             msg = self.outcome.message + (f" ({self.reason})" if self.reason else "")
-        if cert.inverted:
-            msg += f"; {cert.inverted} inverted element(s)"
+        inverted = cert.inverted if np.ndim(cert.inverted) == 0 else len(cert.inverted)  # an atlas's: the faces
+        if inverted:
+            msg += f"; {inverted} inverted element(s)"
         if getattr(cert, "handles_moved", 0):
             msg += f"; {cert.handles_moved} handle(s) moved"
         return msg
