@@ -320,7 +320,7 @@ def _check_options(options, energy, progress, where="make_atlas"):
     if not isinstance(options, AtlasOptions):
         raise ParameterError(f"options must be a geomopt.atlas.AtlasOptions, got {type(options).__name__}")
     check_progress(progress, where)
-    energy, energy_params = energy_spec(energy, None, where)
+    energy, energy_params = energy_spec(energy, where)
     get_energy(energy).check_scale_aware(energy_params)
     return options, energy, energy_params
 

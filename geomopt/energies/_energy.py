@@ -241,15 +241,13 @@ garanzha = Energy(
 REGISTRY: dict[str, Energy] = resolve(_names.ENERGIES)
 
 
-def energy_spec(energy, keywords=None, where: str = "") -> tuple:
+def energy_spec(energy, where: str = "") -> tuple:
     """A driver's ``energy`` argument as ``(name or Energy, params)``: the one way every driver
     takes an energy with its parameters.
 
     ``energy`` is a name, an :class:`Energy` (e.g. ``garanzha.with_params(lam=0.1)``), or a pair
     ``(name or Energy, {parameter: value})``, whose values may be traced (they reach the
-    objective as parameters, differentiable).  ``keywords``: loose keywords a driver received
-    (a dict, or None); any is refused with a one-line :class:`ParameterError` saying to pass
-    them with the energy.
+    objective as parameters, differentiable).  ``where`` names the driver in messages.
     """
     params = {}
     if isinstance(energy, tuple):
@@ -257,9 +255,6 @@ def energy_spec(energy, keywords=None, where: str = "") -> tuple:
             raise ParameterError(f"{where}: energy must be a name, an Energy or a pair (name, {{parameter: value}}), "
                                  f"got a tuple of {len(energy)}")
         energy, params = energy[0], dict(energy[1])
-    if keywords:
-        raise ParameterError(f"{where}: unknown keyword argument(s) {', '.join(sorted(keywords))}; energy parameters "
-                             f"go with the energy, energy=(name, {{parameter: value}})")
     return energy, params
 
 
