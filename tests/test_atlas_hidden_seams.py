@@ -278,3 +278,61 @@ def test_the_cli_takes_an_up_axis():
     assert parser.parse_args(["param", "a.off", "-o", "b.obj"]).up is None
     with pytest.raises(UsageError, match="--up"):
         parser.parse_args(["param", "a.off", "-o", "b.obj", "--up", "w"])
+
+
+def _split_grid(nx, low_rows):
+    """A flat grid chart (its own flattening) split into two pieces: the faces whose centroid's
+    grid row ``y`` is below ``low_rows(x)`` (x the centroid's column)."""
+    from geomopt.atlas.charts import ChartMesh
+
+    V, F = _grid(nx, nx)
+    g = edge_graph(V, F)
+    mesh = ChartMesh(np.arange(len(F)), F, np.arange(len(V)), np.arange(len(V)))
+    c = V[F].mean(axis=1)
+    low = c[:, 1] < low_rows(c[:, 0])
+    pieces = [mesh.part(np.flatnonzero(side)) for side in (low, ~low)]
+    return g, mesh, V[:, :2], [(p, V[rows, :2]) for p, rows in pieces]
+
+
+def _border(mesh, pieces):
+    """The interior edges (vertex pairs) between the pieces of a chart."""
+    label = np.empty(len(mesh.F), dtype=np.int64)
+    for k, (p, _) in enumerate(pieces):
+        label[np.searchsorted(mesh.faces, p.faces)] = k
+    g = edge_graph(np.zeros((len(mesh.vertices), 3)), mesh.F)
+    inner = ~g.boundary
+    f1, f2 = g.edge_faces[inner, 0], g.edge_faces[inner, 1]
+    return mesh.vertices[g.E[inner][label[f1] != label[f2]]]
+
+
+def test_a_packing_split_is_straightened_along_the_surface_keeping_its_coordinates():
+    """A split across a flattened chart that zigzags (as a straight line in the plane does across
+    an irregular mesh) becomes a straight border; each piece keeps its faces' coordinates."""
+    from geomopt.atlas.seams import straighten_split
+
+    nx = 11
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: 4.0 + (np.floor(cx) % 2))  # rows 4 and 5 alternate
+    cost = edge_costs(g, 2.0)
+    assert seam_turning(g.V, _border(mesh, pieces)) > 40
+    new = straighten_split(g, cost, mesh, x, pieces, 1.0)
+    assert len(new) == 2 and all(p.disk_loop() is not None for p, _ in new)
+    assert sorted(np.r_[new[0][0].faces, new[1][0].faces].tolist()) == list(range(len(g.F)))
+    for p, xp in new:
+        assert np.array_equal(xp, x[p.vertices])  # the chart's own coordinates
+    assert seam_turning(g.V, _border(mesh, new)) < 1e-9
+    assert straighten_split(g, cost, mesh, x, pieces, 0.0) is pieces
+
+
+def test_a_packing_split_moves_to_the_hidden_row_of_the_surface():
+    """The seam cost decides where a split's border runs: with the edges of one grid row
+    occluded (cheap), the straight split two rows away moves onto it."""
+    from geomopt.atlas.seams import straighten_split
+
+    nx = 10
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: np.full_like(cx, 4.0))  # border on row 4
+    visibility = np.where(np.isclose(g.V[:, 1], 6.0), 0.2, 1.0)  # row 6 hidden
+    cost = edge_costs(g, 2.0, visibility=visibility, hide=2.0)
+    new = straighten_split(g, cost, mesh, x, pieces, 1.0)
+    border = _border(mesh, new)
+    assert len(border) and np.allclose(g.V[border][..., 1], 6.0)
+    assert len(new) == 2 and all(p.disk_loop() is not None for p, _ in new)

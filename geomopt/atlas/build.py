@@ -30,7 +30,7 @@ from .cones import angle_defects
 from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
 from .metrics import AtlasMetrics, atlas_metrics, seam_edges
-from .seams import edge_costs, edge_graph
+from .seams import edge_costs, edge_graph, straighten_split
 from .visibility import vertex_visibility
 from ._pack import MARGIN, packing_estimate
 from .split import split_to_pack
@@ -264,8 +264,9 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     g = edge_graph(V[manifold.vertex], manifold.wedge)
     looks = _looks(g, options)
     cost = edge_costs(g, options.crease, angle_defects(g.V, g.F), **looks)
+    seam_cost = edge_costs(g, options.crease, **looks)  # where a seam is seen, not how it flattens
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
-                                      tree_cost=edge_costs(g, options.crease, **looks), turn=options.straighten)
+                                      tree_cost=seam_cost, turn=options.straighten)
     _say(progress, "cut", seam_length=float(g.length[cut].sum()), cone_cuts=made, estimate=estimate)
 
     def solve(Vc, Fc, free=None, scaffold=True):
@@ -277,12 +278,15 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     def pack(maps, faces):
         return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
 
+    def refine(mesh, x, pieces):  # the packing splits' borders follow the seam cost too
+        return straighten_split(g, seam_cost, mesh, x, pieces, options.straighten)
+
     def screen(maps, faces, boundaries):
         return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, boundaries=boundaries)
 
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
                                                  min_gain=options.split_gain,
-                                                 screen=screen, V=g.V)
+                                                 screen=screen, V=g.V, refine=refine)
     results = [results[i] for i in owner]
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)

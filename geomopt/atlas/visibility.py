@@ -92,12 +92,13 @@ def _hits_along(V, F, origins, sign, d, fine=2.0):
         sel = np.arange(lo_pt, hi_pt)
         pt = np.repeat(sel, count[sel])
         k = np.arange(len(pt)) - np.repeat(ends[sel] - count[sel] - base, count[sel])
-        c = planes[tri[first[pt] + k]]
-        x, y = Q[pt, 0], Q[pt, 1]
-        ahead = ((c[:, 0] * x + c[:, 1] * y + c[:, 2] >= 0) & (c[:, 3] * x + c[:, 4] * y + c[:, 5] >= 0)
-                 & (c[:, 6] * x + c[:, 7] * y + c[:, 8] >= 0)
-                 & ((c[:, 9] * x + c[:, 10] * y + c[:, 11] - zq[pt]) * sign[pt] > 0))
-        hit[pt[ahead]] = True
+        t = tri[first[pt] + k]
+        for j in (0, 3, 6, 9):  # the edge tests one at a time, each on the pairs left (most fail early)
+            c = planes[t, j:j + 3]
+            value = c[:, 0] * Q[pt, 0] + c[:, 1] * Q[pt, 1] + c[:, 2]
+            keep = value >= 0 if j < 9 else (value - zq[pt]) * sign[pt] > 0
+            t, pt = t[keep], pt[keep]
+        hit[pt] = True
         lo_pt = hi_pt
     return hit
 
