@@ -336,3 +336,39 @@ def test_a_packing_split_moves_to_the_hidden_row_of_the_surface():
     border = _border(mesh, new)
     assert len(border) and np.allclose(g.V[border][..., 1], 6.0)
     assert len(new) == 2 and all(p.disk_loop() is not None for p, _ in new)
+
+
+def test_the_borders_of_every_split_chart_are_straightened_and_the_pieces_regrouped():
+    """straighten_splits: each chart's pieces together, in chart order, a zigzag border made
+    straight, a chart of one piece left as it is."""
+    from geomopt.atlas.seams import straighten_splits
+
+    nx = 11
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: 4.0 + (np.floor(cx) % 2))
+    whole = _split_grid(nx, lambda cx: np.full_like(cx, -1.0))[3]  # one piece: all faces
+    whole = [p for p in whole if len(p[0].faces)]
+    cost = edge_costs(g, 2.0)
+    out, owner, changed = straighten_splits(g, cost, [mesh, mesh], [x, x], [1, 0, 1],
+                                            [pieces[0], whole[0], pieces[1]], 1.0)
+    assert changed and owner == [0, 1, 1] and out[0] is whole[0]
+    assert seam_turning(g.V, _border(mesh, out[1:])) < 1e-9
+    same = straighten_splits(g, cost, [mesh], [x], [0, 0], pieces, 0.0)
+    assert not same[2] and same[0] == pieces
+
+
+def test_sampled_vertex_visibility_is_cast_from_an_independent_set_and_close_to_the_full_one():
+    from geomopt.atlas.visibility import independent_vertices
+
+    V, F = _icosphere(3)
+    V = V * (1 + 0.35 * np.sin(5 * V[:, [0]]) * np.cos(4 * V[:, [1]]))
+    E, _, _ = unique_edges(F)
+    chosen = independent_vertices(len(V), E)
+    assert not (chosen[E[:, 0]] & chosen[E[:, 1]]).any()  # independent
+    near = chosen.copy()
+    near[E[chosen[E[:, 0]], 1]] = near[E[chosen[E[:, 1]], 0]] = True
+    assert near.all()  # maximal: every vertex chosen or next to a chosen one
+    assert chosen.mean() < 0.35
+    full = vertex_visibility(V, F, 32)
+    sampled = vertex_visibility(V, F, 32, sampled=True)
+    assert np.array_equal(sampled[chosen], full[chosen])
+    assert full.min() < 0.8 and np.abs(sampled - full).mean() < 0.05

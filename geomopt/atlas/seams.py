@@ -29,7 +29,7 @@ from ..exact.topology import unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "exposure", "underside", "topological_cut", "shortest_topological_cut",
            "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten",
-           "straighten_split"]
+           "straighten_split", "straighten_splits"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -633,3 +633,32 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
         part, rows = mesh.part(np.flatnonzero(split.chart == c))
         out.append((part, np.asarray(x)[rows]))
     return out
+
+
+def straighten_splits(g: EdgeGraph, cost: np.ndarray, charts, maps, owner, pieces, turn: float = 1.0):
+    """:func:`straighten_split` for every chart that a later split cut into pieces (as
+    :func:`~geomopt.atlas.split.split_to_pack` does, keeping each piece's coordinates).
+
+    Parameters
+    ----------
+    g, cost : as :func:`straighten_split`.
+    charts : list of :class:`~geomopt.atlas.charts.ChartMesh`, the charts before the splits;
+    maps : their flattenings (nc, 2).
+    owner : (p,) int, the chart each piece came from.
+    pieces : list of ``(ChartMesh, x_piece)``, the pieces.
+
+    Returns
+    -------
+    ``(pieces, owner, changed)``: the pieces of each chart together (in the order of the charts),
+    each chart's borders straightened; the chart of each; whether a border moved.
+    """
+    owner = np.asarray(owner, dtype=np.int64)
+    out, out_owner, changed = [], [], False
+    for c, (mesh, x) in enumerate(zip(charts, maps)):
+        mine = [pieces[k] for k in np.flatnonzero(owner == c)]
+        if len(mine) > 1:
+            new = straighten_split(g, cost, mesh, x, mine, turn)
+            mine, changed = new, changed or new is not mine
+        out.extend(mine)
+        out_owner.extend([c] * len(mine))
+    return out, out_owner, changed

@@ -278,16 +278,15 @@ def piece_boundaries(mesh: ChartMesh, splits):
     return out
 
 
-def _best_split(meshes, maps, i, pack, screen, charge, current, refine=None):
+def _best_split(meshes, maps, i, pack, screen, charge, current):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
     (the packing's efficiency rises above ``current`` by at least the charge, or to ``_MULTIPLY``
     times ``current`` or more; a split that cannot be packed at the margin, ParameterError, pays
     nothing): every candidate's
     pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
-    with all the other charts by ``pack``, each after ``refine(mesh, x, pieces) -> pieces`` when
-    given (e.g. :func:`~geomopt.atlas.seams.straighten_split`).  Returns ``(pieces, packing)`` or
-    None when no split pays."""
+    with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
+    pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
     bounds = piece_boundaries(meshes[i], [c for c, _ in cands])
 
@@ -303,8 +302,6 @@ def _best_split(meshes, maps, i, pack, screen, charge, current, refine=None):
         if est[j] == -np.inf:
             break
         pieces, seam = cands[j]
-        if refine is not None:
-            pieces = refine(meshes[i], maps[i], pieces)
         try:
             trial = pack(maps[:i] + [p[1] for p in pieces] + maps[i + 1:],
                          [m.F for m in meshes[:i]] + [p[0].F for p in pieces] + [m.F for m in meshes[i + 1:]])
@@ -432,7 +429,7 @@ def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
 
 
 def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None, V=None,
-                  seam_cost=_SEAM_COST, refine=None):
+                  seam_cost=_SEAM_COST):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
     keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
     least its charge: ``min_gain`` per extra chart and ``seam_cost`` per unit of seam (a split
@@ -444,8 +441,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     (``boundaries``: each chart's boundary half-edges, :func:`piece_boundaries`; default:
     ``pack``'s efficiency).  The seam's unit is the square root of the charts' total area
     (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
-    charts' ``vertices`` index) when given, else in UV.  ``refine(mesh, x, pieces) -> pieces``
-    reshapes a finalist split before it is packed (:func:`_best_split`).
+    charts' ``vertices`` index) when given, else in UV.
 
     Returns
     -------
@@ -466,7 +462,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
         if area[i] < 0:
             break
         tried.add(i)
-        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency, refine)
+        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency)
         if best is None:
             failed += 1
             continue  # this chart stays whole; try the next largest
