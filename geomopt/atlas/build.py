@@ -39,8 +39,9 @@ __all__ = ["make_atlas", "Atlas", "AtlasOptions", "check_atlas_input"]
 
 # rays per vertex of the visibility that weights the seams' cost (the reported figure uses 96 per edge)
 _COST_RAYS = 32
-# above this many vertices the cost's visibility is cast from an independent set of them (about a fifth)
-_SAMPLED_ABOVE = 10000
+# above this many vertices the cost's visibility is cast from an independent set of them (about a fifth):
+# on beetle (20k vertices) the sampled field moved the cut (4 charts, seam 1.71, visibility 1.005 against 3, 0.99, 0.96)
+_SAMPLED_ABOVE = 100_000
 _AXES = {"x": 0, "y": 1, "z": 2}
 # the packing efficiency the straightened borders of the packing splits may lose (else they stay as cut)
 _STRAIGHT_LOSS = 0.005
