@@ -372,3 +372,61 @@ def test_sampled_vertex_visibility_is_cast_from_an_independent_set_and_close_to_
     sampled = vertex_visibility(V, F, 32, sampled=True)
     assert np.array_equal(sampled[chosen], full[chosen])
     assert full.min() < 0.8 and np.abs(sampled - full).mean() < 0.05
+
+
+def test_a_cone_cut_ends_at_the_candidate_cheapest_to_reach():
+    """cut_path_to_seams from several candidate cone vertices (those about as shrunk as the
+    most shrunk one) runs from the one the seam cost reaches most cheaply: with a hidden
+    (cheap) column, from the candidate on it, though a farther one by length."""
+    from geomopt.atlas.seams import cut_path_to_seams
+
+    V, F = _grid(8, 8)
+    g = edge_graph(V, F)
+    vid = lambda i, j: i * 9 + j  # noqa: E731
+    seams = np.array([vid(i, 0) for i in range(9)])  # the row y = 0
+    visibility = np.where(np.isclose(g.V[:, 0], 6.0), 0.1, 1.0)  # the column x = 6 hidden
+    cost = edge_costs(g, 0.0, visibility=visibility, hide=2.0)
+    near, hidden = vid(2, 4), vid(6, 5)
+    path = cut_path_to_seams(g, cost, [near, hidden], seams)
+    assert hidden in g.E[path] and near not in g.E[path]
+    assert np.allclose(g.V[g.E[path]][..., 0], 6.0)
+    assert cut_path_to_seams(g, cost, near, seams) == cut_path_to_seams(g, cost, [near], seams)
+
+
+def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most():
+    """chart_estimate's candidates: the most shrunk interior vertex and every interior vertex
+    whose log area scale is within _CONE_SLACK of it (a bump's top ring, not only its apex)."""
+    from geomopt.atlas import cutting
+    from geomopt.atlas.cones import log_scale, scale_estimate
+
+    ticks = np.linspace(0.0, 12.0, 37)
+    V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
+    g = edge_graph(V, F)
+    split = split_charts(g.F, g.edge_of, g.edge_faces, np.zeros(len(g.E), dtype=bool))
+    mesh = split.mesh(0)
+    mean, area, vertex, near = cutting.chart_estimate(g, mesh, g.boundary)
+    loop = np.unique(g.E[g.boundary])
+    log_area = scale_estimate(g.V, g.F, log_scale(g.V, g.F, loop))[1]
+    inner = np.setdiff1d(np.arange(len(g.V)), loop)
+    least = log_area[inner].min()
+    assert vertex == inner[np.argmin(log_area[inner])] and vertex in near
+    expected = inner[log_area[inner] <= least + cutting._CONE_SLACK]
+    assert 1 < len(near) < len(inner) and np.array_equal(np.sort(near), np.sort(mesh.vertices[np.searchsorted(
+        mesh.vertices, expected)]))
+
+
+def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex():
+    """relieve: on a bump whose apex is exposed and whose column beside it is hidden, the one
+    cone cut runs down the hidden column from the apex's neighbour (as shrunk, within
+    _CONE_SLACK), not from the apex."""
+    from geomopt.atlas.cutting import relieve
+
+    ticks = np.linspace(0.0, 12.0, 37)
+    V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
+    g = edge_graph(V, F)
+    column = np.isclose(g.V[:, 0], ticks[19]) & (g.V[:, 1] <= 6.0 + 1e-9)
+    cost = edge_costs(g, 0.0, visibility=np.where(column, 0.05, 1.0), hide=2.0)
+    cut, _, made = relieve(g, cost, np.zeros(len(g.E), dtype=bool), 4.0001, 1)
+    apex = int(np.argmax(g.V[:, 2]))
+    assert made == 1 and cut.any()
+    assert apex not in g.E[cut] and column[g.E[cut]].all()

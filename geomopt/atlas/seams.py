@@ -401,12 +401,14 @@ def dangling_paths(g: EdgeGraph, cut: np.ndarray) -> list:
     return paths
 
 
-def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.ndarray) -> list:
-    """Edges (rows of ``g.E``) of the cheapest path from vertex ``target`` to any vertex of
-    ``seams`` (a vertex id array), by ``cost``; empty when ``target`` is on the seams."""
+def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target, seams: np.ndarray) -> list:
+    """Edges (rows of ``g.E``) of the cheapest path from vertex ``target`` (or from the nearest,
+    by ``cost``, of the vertex ids ``target``) to any vertex of ``seams`` (a vertex id array),
+    by ``cost``; empty when ``target`` is on the seams."""
     dist, pred = _dijkstra(g.adjacency(cost), seams)
     index = _edge_index(g)
-    path, v = [], int(target)
+    target = np.atleast_1d(np.asarray(target, dtype=np.int64))
+    path, v = [], int(target[np.argmin(dist[target])])
     while pred[v] >= 0:
         path.append(int(index(v, pred[v])))
         v = int(pred[v])
