@@ -393,11 +393,13 @@ def test_a_cone_cut_ends_at_the_candidate_cheapest_to_reach():
     assert cut_path_to_seams(g, cost, near, seams) == cut_path_to_seams(g, cost, [near], seams)
 
 
-def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most():
+def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most(monkeypatch):
     """chart_estimate's candidates: the most shrunk interior vertex and every interior vertex
     whose log area scale is within _CONE_SLACK of it (a bump's top ring, not only its apex)."""
     from geomopt.atlas import cutting
     from geomopt.atlas.cones import log_scale, scale_estimate
+
+    monkeypatch.setattr(cutting, "_CONE_SLACK", 0.25)
 
     ticks = np.linspace(0.0, 12.0, 37)
     V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
@@ -415,12 +417,14 @@ def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most()
         mesh.vertices, expected)]))
 
 
-def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex():
+def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex(monkeypatch):
     """relieve: on a bump whose apex is exposed and whose column beside it is hidden, the one
     cone cut runs down the hidden column from the apex's neighbour (as shrunk, within
     _CONE_SLACK), not from the apex."""
+    from geomopt.atlas import cutting
     from geomopt.atlas.cutting import relieve
 
+    monkeypatch.setattr(cutting, "_CONE_SLACK", 0.25)
     ticks = np.linspace(0.0, 12.0, 37)
     V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
     g = edge_graph(V, F)
