@@ -278,3 +278,159 @@ def test_the_cli_takes_an_up_axis():
     assert parser.parse_args(["param", "a.off", "-o", "b.obj"]).up is None
     with pytest.raises(UsageError, match="--up"):
         parser.parse_args(["param", "a.off", "-o", "b.obj", "--up", "w"])
+
+
+def _split_grid(nx, low_rows):
+    """A flat grid chart (its own flattening) split into two pieces: the faces whose centroid's
+    grid row ``y`` is below ``low_rows(x)`` (x the centroid's column)."""
+    from geomopt.atlas.charts import ChartMesh
+
+    V, F = _grid(nx, nx)
+    g = edge_graph(V, F)
+    mesh = ChartMesh(np.arange(len(F)), F, np.arange(len(V)), np.arange(len(V)))
+    c = V[F].mean(axis=1)
+    low = c[:, 1] < low_rows(c[:, 0])
+    pieces = [mesh.part(np.flatnonzero(side)) for side in (low, ~low)]
+    return g, mesh, V[:, :2], [(p, V[rows, :2]) for p, rows in pieces]
+
+
+def _border(mesh, pieces):
+    """The interior edges (vertex pairs) between the pieces of a chart."""
+    label = np.empty(len(mesh.F), dtype=np.int64)
+    for k, (p, _) in enumerate(pieces):
+        label[np.searchsorted(mesh.faces, p.faces)] = k
+    g = edge_graph(np.zeros((len(mesh.vertices), 3)), mesh.F)
+    inner = ~g.boundary
+    f1, f2 = g.edge_faces[inner, 0], g.edge_faces[inner, 1]
+    return mesh.vertices[g.E[inner][label[f1] != label[f2]]]
+
+
+def test_a_packing_split_is_straightened_along_the_surface_keeping_its_coordinates():
+    """A split across a flattened chart that zigzags (as a straight line in the plane does across
+    an irregular mesh) becomes a straight border; each piece keeps its faces' coordinates."""
+    from geomopt.atlas.seams import straighten_split
+
+    nx = 11
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: 4.0 + (np.floor(cx) % 2))  # rows 4 and 5 alternate
+    cost = edge_costs(g, 2.0)
+    assert seam_turning(g.V, _border(mesh, pieces)) > 40
+    new = straighten_split(g, cost, mesh, x, pieces, 1.0)
+    assert len(new) == 2 and all(p.disk_loop() is not None for p, _ in new)
+    assert sorted(np.r_[new[0][0].faces, new[1][0].faces].tolist()) == list(range(len(g.F)))
+    for p, xp in new:
+        assert np.array_equal(xp, x[p.vertices])  # the chart's own coordinates
+    assert seam_turning(g.V, _border(mesh, new)) < 1e-9
+    assert straighten_split(g, cost, mesh, x, pieces, 0.0) is pieces
+
+
+def test_a_packing_split_moves_to_the_hidden_row_of_the_surface():
+    """The seam cost decides where a split's border runs: with the edges of one grid row
+    occluded (cheap), the straight split two rows away moves onto it."""
+    from geomopt.atlas.seams import straighten_split
+
+    nx = 10
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: np.full_like(cx, 4.0))  # border on row 4
+    visibility = np.where(np.isclose(g.V[:, 1], 6.0), 0.2, 1.0)  # row 6 hidden
+    cost = edge_costs(g, 2.0, visibility=visibility, hide=2.0)
+    new = straighten_split(g, cost, mesh, x, pieces, 1.0)
+    border = _border(mesh, new)
+    assert len(border) and np.allclose(g.V[border][..., 1], 6.0)
+    assert len(new) == 2 and all(p.disk_loop() is not None for p, _ in new)
+
+
+def test_the_borders_of_every_split_chart_are_straightened_and_the_pieces_regrouped():
+    """straighten_splits: each chart's pieces together, in chart order, a zigzag border made
+    straight, a chart of one piece left as it is."""
+    from geomopt.atlas.seams import straighten_splits
+
+    nx = 11
+    g, mesh, x, pieces = _split_grid(nx, lambda cx: 4.0 + (np.floor(cx) % 2))
+    whole = _split_grid(nx, lambda cx: np.full_like(cx, -1.0))[3]  # one piece: all faces
+    whole = [p for p in whole if len(p[0].faces)]
+    cost = edge_costs(g, 2.0)
+    out, owner, changed = straighten_splits(g, cost, [mesh, mesh], [x, x], [1, 0, 1],
+                                            [pieces[0], whole[0], pieces[1]], 1.0)
+    assert changed and owner == [0, 1, 1] and out[0] is whole[0]
+    assert seam_turning(g.V, _border(mesh, out[1:])) < 1e-9
+    same = straighten_splits(g, cost, [mesh], [x], [0, 0], pieces, 0.0)
+    assert not same[2] and same[0] == pieces
+
+
+def test_sampled_vertex_visibility_is_cast_from_an_independent_set_and_close_to_the_full_one():
+    from geomopt.atlas.visibility import independent_vertices
+
+    V, F = _icosphere(3)
+    V = V * (1 + 0.35 * np.sin(5 * V[:, [0]]) * np.cos(4 * V[:, [1]]))
+    E, _, _ = unique_edges(F)
+    chosen = independent_vertices(len(V), E)
+    assert not (chosen[E[:, 0]] & chosen[E[:, 1]]).any()  # independent
+    near = chosen.copy()
+    near[E[chosen[E[:, 0]], 1]] = near[E[chosen[E[:, 1]], 0]] = True
+    assert near.all()  # maximal: every vertex chosen or next to a chosen one
+    assert chosen.mean() < 0.35
+    full = vertex_visibility(V, F, 32)
+    sampled = vertex_visibility(V, F, 32, sampled=True)
+    assert np.array_equal(sampled[chosen], full[chosen])
+    assert full.min() < 0.8 and np.abs(sampled - full).mean() < 0.05
+
+
+def test_a_cone_cut_ends_at_the_candidate_cheapest_to_reach():
+    """cut_path_to_seams from several candidate cone vertices (those about as shrunk as the
+    most shrunk one) runs from the one the seam cost reaches most cheaply: with a hidden
+    (cheap) column, from the candidate on it, though a farther one by length."""
+    from geomopt.atlas.seams import cut_path_to_seams
+
+    V, F = _grid(8, 8)
+    g = edge_graph(V, F)
+    vid = lambda i, j: i * 9 + j  # noqa: E731
+    seams = np.array([vid(i, 0) for i in range(9)])  # the row y = 0
+    visibility = np.where(np.isclose(g.V[:, 0], 6.0), 0.1, 1.0)  # the column x = 6 hidden
+    cost = edge_costs(g, 0.0, visibility=visibility, hide=2.0)
+    near, hidden = vid(2, 4), vid(6, 5)
+    path = cut_path_to_seams(g, cost, [near, hidden], seams)
+    assert hidden in g.E[path] and near not in g.E[path]
+    assert np.allclose(g.V[g.E[path]][..., 0], 6.0)
+    assert cut_path_to_seams(g, cost, near, seams) == cut_path_to_seams(g, cost, [near], seams)
+
+
+def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most(monkeypatch):
+    """chart_estimate's candidates: the most shrunk interior vertex and every interior vertex
+    whose log area scale is within _CONE_SLACK of it (a bump's top ring, not only its apex)."""
+    from geomopt.atlas import cutting
+    from geomopt.atlas.cones import log_scale, scale_estimate
+
+    monkeypatch.setattr(cutting, "_CONE_SLACK", 0.25)
+
+    ticks = np.linspace(0.0, 12.0, 37)
+    V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
+    g = edge_graph(V, F)
+    split = split_charts(g.F, g.edge_of, g.edge_faces, np.zeros(len(g.E), dtype=bool))
+    mesh = split.mesh(0)
+    mean, area, vertex, near = cutting.chart_estimate(g, mesh, g.boundary)
+    loop = np.unique(g.E[g.boundary])
+    log_area = scale_estimate(g.V, g.F, log_scale(g.V, g.F, loop))[1]
+    inner = np.setdiff1d(np.arange(len(g.V)), loop)
+    least = log_area[inner].min()
+    assert vertex == inner[np.argmin(log_area[inner])] and vertex in near
+    expected = inner[log_area[inner] <= least + cutting._CONE_SLACK]
+    assert 1 < len(near) < len(inner) and np.array_equal(np.sort(near), np.sort(mesh.vertices[np.searchsorted(
+        mesh.vertices, expected)]))
+
+
+def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex(monkeypatch):
+    """relieve: on a bump whose apex is exposed and whose column beside it is hidden, the one
+    cone cut runs down the hidden column from the apex's neighbour (as shrunk, within
+    _CONE_SLACK), not from the apex."""
+    from geomopt.atlas import cutting
+    from geomopt.atlas.cutting import relieve
+
+    monkeypatch.setattr(cutting, "_CONE_SLACK", 0.25)
+    ticks = np.linspace(0.0, 12.0, 37)
+    V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
+    g = edge_graph(V, F)
+    column = np.isclose(g.V[:, 0], ticks[19]) & (g.V[:, 1] <= 6.0 + 1e-9)
+    cost = edge_costs(g, 0.0, visibility=np.where(column, 0.05, 1.0), hide=2.0)
+    cut, _, made = relieve(g, cost, np.zeros(len(g.E), dtype=bool), 4.0001, 1)
+    apex = int(np.argmax(g.V[:, 2]))
+    assert made == 1 and cut.any()
+    assert apex not in g.E[cut] and column[g.E[cut]].all()

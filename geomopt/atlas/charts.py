@@ -37,6 +37,13 @@ class ChartMesh:
     wedges: np.ndarray
     vertices: np.ndarray
 
+    def part(self, faces):
+        """The :class:`ChartMesh` of the chart's faces ``faces`` (rows of ``F``, sorted), and the
+        rows of the chart's local vertices it keeps (to take a flattening's part: ``x[rows]``)."""
+        faces = np.asarray(faces, dtype=np.int64)
+        rows, local = np.unique(self.F[faces], return_inverse=True)
+        return ChartMesh(self.faces[faces], local.reshape(-1, 3), self.wedges[rows], self.vertices[rows]), rows
+
     def disk_loop(self):
         """The boundary loop (k,) of the chart when it is a topological disk, else None."""
         try:

@@ -12,7 +12,8 @@ estimate of (c) can do without are then uncut (:func:`trim`); (b) a closed genus
 opened by one cheap path between its two points of most concentrated curvature, far apart; (c)
 distortion, greedy cone cuts: while the estimated mean symmetric Dirichlet
 (:func:`~geomopt.atlas.cones.scale_estimate`) is above the target, the chart with the most
-excess gets a cheapest cut from its most shrunk vertex to its boundary.  A cut from an interior
+excess gets a cheapest cut to its boundary from its most shrunk vertex (or, with ``_CONE_SLACK``
+above 0, from whichever vertex about as shrunk the seam cost reaches most cheaply).  A cut from an interior
 vertex to the boundary keeps a disk a disk, so every chart stays one.  When the cuts stall short
 of the target, the later ones that did not pay for their seam are taken back (:func:`relieve`);
 the charts are then split into nearly developable pieces instead, by measurement
@@ -36,6 +37,10 @@ __all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
 # a cone cut that the target was not reached with must lower the area-weighted estimate by this
 # much per unit of seam length (in units of the square root of the surface's area)
 _SEAM_WORTH = 0.5
+# a cone cut may end at any interior vertex whose log area scale is within this of the chart's least
+# (0: the most shrunk only; 0.25 hid bunny's seams but moved the later splits of cheburashka and
+# 3holes to longer seams: benchmarks/README.md)
+_CONE_SLACK = 0.0
 
 
 def _component_roots(g: EdgeGraph):
@@ -86,9 +91,11 @@ def _cheapest_edge_at(g: EdgeGraph, cost, v, other):
 
 
 def chart_estimate(g: EdgeGraph, chart, seams):
-    """``(mean, area, vertex)``: the estimated mean symmetric Dirichlet of a disk chart
-    (:class:`~geomopt.atlas.charts.ChartMesh` of a cut of ``g``), its 3D area, and its most shrunk
-    interior vertex (an input vertex id of ``g.V``, or -1 when it has none).  ``seams`` (k,) bool:
+    """``(mean, area, vertex, near)``: the estimated mean symmetric Dirichlet of a disk chart
+    (:class:`~geomopt.atlas.charts.ChartMesh` of a cut of ``g``), its 3D area, its most shrunk
+    interior vertex (an input vertex id of ``g.V``, or -1 when it has none), and the interior
+    vertices about as shrunk (log area scale within ``_CONE_SLACK`` of the least; input ids), among
+    which a cone cut starts where the seam cost reaches most cheaply.  ``seams`` (k,) bool:
     the cut and boundary edges of ``g``; the chart's boundary is where its faces meet them (no
     topology check: a connected, oriented manifold chart is a disk exactly when its Euler
     characteristic is 1, counted here)."""
@@ -103,7 +110,10 @@ def chart_estimate(g: EdgeGraph, chart, seams):
     inner = np.ones(len(Vc), dtype=bool)
     inner[loop] = False
     k = np.flatnonzero(inner)
-    return mean, area, (int(chart.vertices[k[np.argmin(log_area[k])]]) if len(k) else -1)
+    if not len(k):
+        return mean, area, -1, np.zeros(0, dtype=np.int64)
+    near = k[log_area[k] <= log_area[k].min() + _CONE_SLACK]
+    return mean, area, int(chart.vertices[k[np.argmin(log_area[k])]]), chart.vertices[near]
 
 
 def _stalled(history, window=10, gain=1e-3):
@@ -156,7 +166,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
         if not np.isfinite(excess[c]):
             break  # no chart has an interior vertex left to cut from
         seams = np.unique(g.E[cut | g.boundary].ravel())
-        path = cut_path_to_seams(g, cost, rows[c][2], seams)
+        path = cut_path_to_seams(g, cost, rows[c][3], seams)
         paths.append(np.asarray(path)[~cut[path]])
         cut[path] = True
         known.pop(int(first[c]))

@@ -28,7 +28,8 @@ import scipy.sparse as sp
 from ..exact.topology import unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "exposure", "underside", "topological_cut", "shortest_topological_cut",
-           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten"]
+           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten",
+           "straighten_split", "straighten_splits"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -400,12 +401,14 @@ def dangling_paths(g: EdgeGraph, cut: np.ndarray) -> list:
     return paths
 
 
-def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target: int, seams: np.ndarray) -> list:
-    """Edges (rows of ``g.E``) of the cheapest path from vertex ``target`` to any vertex of
-    ``seams`` (a vertex id array), by ``cost``; empty when ``target`` is on the seams."""
+def cut_path_to_seams(g: EdgeGraph, cost: np.ndarray, target, seams: np.ndarray) -> list:
+    """Edges (rows of ``g.E``) of the cheapest path from vertex ``target`` (or from the nearest,
+    by ``cost``, of the vertex ids ``target``) to any vertex of ``seams`` (a vertex id array),
+    by ``cost``; empty when ``target`` is on the seams."""
     dist, pred = _dijkstra(g.adjacency(cost), seams)
     index = _edge_index(g)
-    path, v = [], int(target)
+    target = np.atleast_1d(np.asarray(target, dtype=np.int64))
+    path, v = [], int(target[np.argmin(dist[target])])
     while pred[v] >= 0:
         path.append(int(index(v, pred[v])))
         v = int(pred[v])
@@ -453,7 +456,7 @@ def _disks(g: EdgeGraph, cut) -> tuple:
     return split.count, bool(np.all(chi == 2))
 
 
-def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.0) -> np.ndarray:
+def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.0, slide: float = 0.0) -> np.ndarray:
     """``cut`` with its paths straightened: each path of the seam graph between two of its
     nodes (ends, branches, boundary vertices) is replaced by the path between the same nodes
     that is cheapest when each edge costs ``cost`` plus ``turn * angle`` times the geometric
@@ -462,7 +465,10 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
     where a path came from), avoiding every other seam, when that is cheaper, costs at most
     ``_STRAIGHT_SLACK`` times as much by ``cost`` alone (a straight seam is no excuse for an
     exposed one), and every chart stays a disk (same number of charts).  Edge paths on a triangle mesh zigzag where their
-    direction is not an edge's; the turning charge trades a little length for straight runs."""
+    direction is not an edge's; the turning charge trades a little length for straight runs.
+    With ``slide`` > 0, an end of a path on the boundary where no other seam meets it may move
+    along the boundary, to any boundary vertex within ``slide`` times the distance between the
+    path's ends (:func:`_slid`)."""
     from scipy.sparse.csgraph import dijkstra
 
     cut = np.asarray(cut, dtype=bool).copy()
@@ -484,19 +490,20 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         rest = cut.copy()
         rest[path] = False
         on[g.E[rest | g.boundary].ravel()] = True
-        on[[s, t]] = False
-        ok = ~on[tail] & ~on[head] & (head != s) & (tail != t)
+        S, T = _slid(g, rest & ~g.boundary, s, t, slide)
+        on[S | T] = False
+        ok = ~on[tail] & ~on[head] & ~S[head] & ~T[tail] & ~g.boundary[edge]
         use = ok[a] & ok[b]
         n = len(tail)
-        # node n: the source (half-edges leaving s); weights: the edge entered plus the turn
-        rows = np.r_[a[use], np.full(np.count_nonzero(ok & (tail == s)), n)]
-        cols = np.r_[b[use], np.flatnonzero(ok & (tail == s))]
+        # node n: the source (half-edges leaving S); weights: the edge entered plus the turn
+        rows = np.r_[a[use], np.full(np.count_nonzero(ok & S[tail]), n)]
+        cols = np.r_[b[use], np.flatnonzero(ok & S[tail])]
         weight = np.r_[_turn_price(cost[edge[b[use]]], angle[use], turn, typical),
                        cost[edge[cols[np.count_nonzero(use):]]]]
         graph = sp.csr_matrix((weight + 1e-300, (rows, cols)), shape=(n + 1, n + 1))
         old = _path_price(g, path, s, cost, turn, typical)
         dist, pred = dijkstra(graph, indices=n, return_predecessors=True, limit=old)
-        arrive = np.flatnonzero((head == t) & np.isfinite(dist[:n]))
+        arrive = np.flatnonzero(T[head] & np.isfinite(dist[:n]))
         if not len(arrive):
             continue
         h = int(arrive[np.argmin(dist[arrive])])
@@ -514,6 +521,31 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         if _disks(g, trial) == (charts, disks):
             cut = trial
     return cut
+
+
+def _slid(g: EdgeGraph, others, s, t, slide):
+    """``(S, T)``, (n,) bool: the vertices a path from ``s`` to ``t`` may start and end at in
+    :func:`straighten`: ``s`` and ``t`` themselves, and, for an end on the boundary that no other
+    seam (``others``, (k,) bool interior edges) touches, the boundary vertices within ``slide``
+    times ``|s - t|`` of it that no other seam touches (both ends fixed when the two sets
+    would meet)."""
+    S, T = np.zeros(len(g.V), dtype=bool), np.zeros(len(g.V), dtype=bool)
+    S[s], T[t] = True, True
+    if slide <= 0:
+        return S, T
+    rim = np.zeros(len(g.V), dtype=bool)
+    rim[g.E[g.boundary].ravel()] = True
+    touched = np.zeros(len(g.V), dtype=bool)
+    touched[g.E[others].ravel()] = True
+    reach = slide * float(np.linalg.norm(g.V[t] - g.V[s]))
+    near = {v: rim & ~touched & (np.linalg.norm(g.V - g.V[v], axis=1) <= reach) for v in (s, t)}
+    for v, end in ((s, S), (t, T)):
+        if rim[v] and near[v][v]:
+            end |= near[v]
+    if (S & T).any():
+        S[:], T[:] = False, False
+        S[s], T[t] = True, True
+    return S, T
 
 
 def _turn_price(cost, angle, turn, typical):
@@ -534,3 +566,101 @@ def _path_price(g: EdgeGraph, path, s, cost, turn, typical) -> float:
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     angle = np.r_[0.0, np.arccos(np.clip(np.sum(d[1:] * d[:-1], axis=1), -1.0, 1.0))]
     return float(np.sum(_turn_price(cost[path], angle, turn, typical)))
+
+
+
+# a packing split's border ends may slide along the chart's boundary by this much of its length
+_SPLIT_SLIDE = 0.25
+
+
+def _kept_areas(before, after, area) -> bool:
+    """Whether each piece of ``after`` (m,) (labels of the faces) has between half and twice the
+    area (``area`` (m,)) of the piece of ``before`` it shares the most area with."""
+    joint = sp.coo_matrix((area, (after, before))).toarray()
+    own = np.bincount(before, area)[np.argmax(joint, axis=1)]
+    new = joint.sum(axis=1)
+    return bool(np.all((new >= 0.5 * own) & (new <= 2.0 * own)))
+
+
+def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: float = 1.0) -> list:
+    """The pieces of a flattened disk chart with the borders between them straightened.
+
+    A split of a flattened chart keeps its coordinates in every piece (a part of an injective
+    map is one) wherever the border runs, so the border can follow the surface: a border drawn
+    in the plane (a straight line across the flattening) zigzags along the surface's edges and
+    ignores where the surface is seen.  Each border path is rerouted as :func:`straighten`
+    reroutes seams, inside the chart, by the surface's seam ``cost`` and turning: the pieces stay
+    disks and keep their number, and each keeps its faces' coordinates.  A border's ends may slide
+    along the chart's boundary (``_SPLIT_SLIDE``, :func:`straighten`) while every piece keeps
+    between half and twice its area.
+
+    Parameters
+    ----------
+    g : the surface's :class:`EdgeGraph`, whose vertices ``mesh.vertices`` index;
+    cost : (k,) its edges' seam costs (:func:`edge_costs`).
+    mesh : the chart's :class:`~geomopt.atlas.charts.ChartMesh`;  x : (nc, 2) its flattening.
+    pieces : list of ``(ChartMesh, x_piece)``, a partition of the chart's faces into disks (as
+        :func:`~geomopt.atlas.split.split_flat_chart` returns it).
+    turn : the price of turning (:func:`straighten`; 0: the pieces as given).
+
+    Returns
+    -------
+    list of ``(ChartMesh, x_piece)``: the pieces given when no border changed.
+    """
+    from .charts import split_charts
+
+    if turn <= 0 or len(pieces) < 2:
+        return pieces
+    label = np.empty(len(mesh.F), dtype=np.int64)
+    for k, (piece, _) in enumerate(pieces):
+        label[np.searchsorted(mesh.faces, piece.faces)] = k
+    chart = edge_graph(g.V[mesh.vertices], mesh.F)  # the chart's own gluing: its slits are boundary
+    f1, f2 = chart.edge_faces[:, 0], np.maximum(chart.edge_faces[:, 1], 0)
+    border = ~chart.boundary & (label[f1] != label[f2])
+    index = _edge_index(g)
+    local_cost = cost[index(mesh.vertices[chart.E[:, 0]], mesh.vertices[chart.E[:, 1]])]
+    area = np.linalg.norm(np.cross(chart.V[chart.F[:, 1]] - chart.V[chart.F[:, 0]],
+                                   chart.V[chart.F[:, 2]] - chart.V[chart.F[:, 0]]), axis=1)
+    for slide in (_SPLIT_SLIDE, 0.0):
+        new = straighten(chart, local_cost, border, turn, slide)
+        split = split_charts(chart.F, chart.edge_of, chart.edge_faces, new)
+        if _kept_areas(label, split.chart, area):
+            break
+    else:
+        return pieces
+    if np.array_equal(new, border):
+        return pieces
+    out = []
+    for c in range(split.count):
+        part, rows = mesh.part(np.flatnonzero(split.chart == c))
+        out.append((part, np.asarray(x)[rows]))
+    return out
+
+
+def straighten_splits(g: EdgeGraph, cost: np.ndarray, charts, maps, owner, pieces, turn: float = 1.0):
+    """:func:`straighten_split` for every chart that a later split cut into pieces (as
+    :func:`~geomopt.atlas.split.split_to_pack` does, keeping each piece's coordinates).
+
+    Parameters
+    ----------
+    g, cost : as :func:`straighten_split`.
+    charts : list of :class:`~geomopt.atlas.charts.ChartMesh`, the charts before the splits;
+    maps : their flattenings (nc, 2).
+    owner : (p,) int, the chart each piece came from.
+    pieces : list of ``(ChartMesh, x_piece)``, the pieces.
+
+    Returns
+    -------
+    ``(pieces, owner, changed)``: the pieces of each chart together (in the order of the charts),
+    each chart's borders straightened; the chart of each; whether a border moved.
+    """
+    owner = np.asarray(owner, dtype=np.int64)
+    out, out_owner, changed = [], [], False
+    for c, (mesh, x) in enumerate(zip(charts, maps)):
+        mine = [pieces[k] for k in np.flatnonzero(owner == c)]
+        if len(mine) > 1:
+            new = straighten_split(g, cost, mesh, x, mine, turn)
+            mine, changed = new, changed or new is not mine
+        out.extend(mine)
+        out_owner.extend([c] * len(mine))
+    return out, out_owner, changed
