@@ -14,8 +14,8 @@ from geomopt.atlas import AtlasOptions, seam_metrics
 from geomopt.atlas.charts import split_charts
 from geomopt.atlas.cones import angle_defects
 from geomopt.atlas.cutting import cut_surface
-from geomopt.atlas.details.metrics import seam_turning
-from geomopt.atlas.details.seams import edge_costs, edge_graph, straighten
+from geomopt.atlas.metrics import seam_turning
+from geomopt.atlas.seams import edge_costs, edge_graph, straighten
 from geomopt.atlas.visibility import (ambient_visibility, edge_visibility, hemisphere_directions,
                                       vertex_normals, vertex_visibility)
 from geomopt.exact.topology import unique_edges
