@@ -620,5 +620,33 @@ def test_each_element_kind_is_one_table_row_that_the_library_reads():
     assert not valid.any() and (valid == corner_valid).all() and tests["corners"] == 4
     assert elements.count_invalid(X, Q) == 4 and elements.count_invalid(V, Q) == 0
     assert elements.ELEMENT_KINDS[4].validity(V, Q)[0].all()
+    unknown = max(elements.ELEMENT_KINDS) + 1  # a count no row has (a new row is not an error here)
     with pytest.raises(geomopt.MeshError, match="no known kind: quads have 4 vertices, hexahedra have 8"):
-        elements.kind_of(np.zeros((2, 6), int))
+        elements.kind_of(np.zeros((2, unknown), int))
+
+
+def test_element_kinds_agree_with_the_file_tables_and_what_is_derived_from_them():
+    """Issue 49 item 2: an element kind's row names its cell in the files (io name, node count,
+    dimension, words, VTK cell type) and its problems' kind; the case reader's kinds, the map
+    files ``geomopt.save`` writes and the viewer's cell types are derived from the rows, never
+    listed beside them (a new kind used to touch eight files)."""
+    from geomopt import io
+    from geomopt._runtime.formats import extensions
+    from geomopt.io._cells import VTK_CELLS
+    from geomopt.mesh import cells, elements
+    from geomopt.plot import _save, _view
+
+    for n, kind in elements.ELEMENT_KINDS.items():
+        assert io.CELL_KINDS[kind.word] == (n, kind.dim) and io.CELL_WORDS[kind.word][1] == kind.words
+        assert VTK_CELLS[kind.vtk][0] == kind.word and VTK_CELLS[kind.vtk][2] == n
+        Q = np.arange(n)[None]
+        assert geomopt.Problem.cells(kind.reference, Q).kind == kind.problem_kind
+        assert elements.kind_named(kind.problem_kind) is kind
+        assert _save.MAP_FILES[kind.problem_kind] == extensions(kind.word, writable=True)
+        assert kind.dim == 2 or _view._vtk_type(Q) == kind.vtk  # the volume cells the viewer draws
+        assert kind.word in cells.SMOOTH_KINDS and kind.word in cells.UNTANGLE_KINDS
+    assert elements.kind_named("tet") is None and _view._vtk_type(np.zeros((1, 4), int)) == 10
+    assert len(cells.SMOOTH_KINDS) == len(elements.ELEMENT_KINDS)
+    dims = [3 if k == "tetra" else elements.ELEMENT_KINDS[io.CELL_KINDS[k][0]].dim for k in cells.UNTANGLE_KINDS]
+    assert dims == sorted(dims, reverse=True) and "tetra" in cells.UNTANGLE_KINDS  # volume cells before quads
+    assert cells.UNTANGLE_KINDS.index("hexahedron") < cells.UNTANGLE_KINDS.index("tetra")  # hexes by priority

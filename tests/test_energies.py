@@ -112,10 +112,10 @@ def test_barrier_is_inf_with_finite_gradient(name, d):
     J = np.eye(d)
     J[0, 0] = -1.0  # inverted
     J = jnp.asarray(J)
-    assert float(e.density(J, {})) == np.inf
-    assert np.isfinite(np.asarray(jax.grad(e.density)(J, {}))).all()
-    assert np.isfinite(np.asarray(jax.hessian(e.density)(J, {}))).all()
-    assert float(e.density(jnp.zeros((d, d)), {})) == np.inf
+    assert float(e.density(J, e.params)) == np.inf  # with its own parameters: a row of the table may have some
+    assert np.isfinite(np.asarray(jax.grad(e.density)(J, e.params))).all()
+    assert np.isfinite(np.asarray(jax.hessian(e.density)(J, e.params))).all()
+    assert float(e.density(jnp.zeros((d, d)), e.params)) == np.inf
 
 
 def test_chi_is_cancellation_safe():

@@ -243,10 +243,24 @@ def test_a_probe_that_untangles_fast_keeps_the_diagonal_seed():
 
 
 def test_builtin_densities_trace_in_2d_and_3d_so_check_dim_may_skip_them():
-    from geomopt.energies import REGISTRY
-    from geomopt.energies._energy import _BUILTIN_DENSITIES, _density_dims
+    """The densities that skip tracing are the table's (geomopt._runtime.names.ENERGIES), never a
+    list kept beside it: every Energy the library defines is a row of the table, so that a new
+    energy is its module plus one row, and all of them trace for d = 2 and 3."""
+    import importlib
+    import pkgutil
 
-    assert {e.density for e in REGISTRY.values()} == set(_BUILTIN_DENSITIES)
+    import geomopt.energies
+    from geomopt._runtime import names
+    from geomopt.energies import REGISTRY, Energy
+    from geomopt.energies._energy import _builtin_densities, _density_dims, _library_density
+
+    assert _builtin_densities() == {e.density for e in REGISTRY.values()}
+    modules = {ref.split(":")[0] for ref in names.ENERGIES.values()}
+    modules |= {f"geomopt.energies.{m.name}" for m in pkgutil.iter_modules(geomopt.energies.__path__)}
+    defined = [v for m in sorted(modules) for v in vars(importlib.import_module(m)).values() if isinstance(v, Energy)]
+    assert defined and all(any(e is r for r in REGISTRY.values()) for e in defined), \
+        [e.name for e in defined if not any(e is r for r in REGISTRY.values())]
+    assert all(_library_density(e.density) for e in REGISTRY.values())
     for e in REGISTRY.values():
         assert _density_dims(e.name, e.density, tuple(sorted(e.params)))[0] == (2, 3), e.name
         e.check_dim(2), e.check_dim(3)

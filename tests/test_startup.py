@@ -462,6 +462,24 @@ def test_help_lists_exactly_the_registered_energies_and_solvers():
     assert set(_names.ENERGIES) == set(REGISTRY) and set(_names.SOLVERS) == set(SOLVERS)
 
 
+def test_compare_help_names_every_solver_of_the_table(monkeypatch):
+    """``compare --solvers``'s help and the comparison's default come from the solver table (it
+    used to list the optimistix solvers by hand, so a new solver was missing from it)."""
+    import argparse
+
+    from geomopt._runtime import names as _names
+    from geomopt.cli.parser import build_parser
+    from geomopt.experiments.options import DEFAULT_SOLVERS
+
+    monkeypatch.setitem(_names.SOLVERS, "gd", "geomopt.solvers.newton:Newton")
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    text = " ".join(next(a.help for a in sub.choices["compare"]._actions if "--solvers" in a.option_strings).split())
+    assert DEFAULT_SOLVERS == _names.COMPARED and set(DEFAULT_SOLVERS) <= set(_names.SOLVERS)
+    assert f"default {','.join(DEFAULT_SOLVERS)};" in text
+    rest = text.split("cm only in 2D; ")[1].removesuffix(" on request)").split(", ")
+    assert sorted(rest) == sorted(set(_names.SOLVERS) - set(DEFAULT_SOLVERS)), text
+
+
 def test_optimal_scale_matches_the_closed_form_for_symmetric_dirichlet():
     from geomopt.param import optimal_scale
 

@@ -29,6 +29,12 @@ SOLVERS = {
     "optx-ncg": "geomopt.solvers._registry:optx_ncg",
 }
 
+#: the solvers ``geomopt compare`` runs when none is named (``cm`` is left out in 3D); the others
+#: of :data:`SOLVERS` run when named.  Not ``optx-lbfgs``: optimistix's L-BFGS seeds its inverse
+#: Hessian with the scalar ``s.y / y.y`` and has no preconditioner hook, and from the Tutte map
+#: of a large mesh it stalls where geomopt's L-BFGS with its Laplacian seed converges.
+COMPARED = ("newton", "lbfgs", "slim", "aqp", "cm")
+
 
 def resolve(table: dict) -> dict:
     """``{name: definition}`` for a table of ``module:attribute`` references."""

@@ -247,6 +247,8 @@ def _add_fair(sub):
 
 def _add_compare(sub):
     """The ``compare`` command's options."""
+    from .._runtime.names import COMPARED, SOLVERS
+
     sp = sub.add_parser("compare", help="run several solvers from the same start on one or more meshes: "
                                          "traces, table, manifest and a figure")
     sp.add_argument("mesh", nargs="+", help="disk-topology mesh (free boundary, Tutte start) or a LIM case folder "
@@ -256,8 +258,8 @@ def _add_compare(sub):
                     help="output folder: history.csv, summary.csv, table.tex, manifest.json, <solver>.obj "
                          "(.vtk for tets), convergence.<format>")
     sp.add_argument("--solvers", default=None,
-                    help="comma-separated solver names (default newton,lbfgs,slim,aqp,cm; cm only in 2D; "
-                         "optx-lbfgs, optx-bfgs, optx-ncg on request)")
+                    help=f"comma-separated solver names (default {','.join(COMPARED)}; cm only in 2D; "
+                         f"{', '.join(s for s in SOLVERS if s not in COMPARED)} on request)")
     sp.add_argument("--energy", default="symmetric_dirichlet", help="energy name (default symmetric_dirichlet)")
     sp.add_argument("--weights", default="uniform", choices=["uniform", "mean_value"],
                     help="Tutte weights of the free-boundary start map")

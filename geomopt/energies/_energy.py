@@ -73,7 +73,7 @@ class Energy:
         if self.lower_bound is not None:
             lb = _finite(self.name, "lower_bound", self.lower_bound)
             object.__setattr__(self, "lower_bound", lb)
-        if self.density not in _BUILTIN_DENSITIES:  # the built-ins are checked on first use
+        if not _library_density(self.density):  # the library's are traced by its tests
             self.dims  # noqa: B018  (traces the density; raises ParameterError)
 
     @property
@@ -83,7 +83,7 @@ class Energy:
 
     def check_dim(self, d: int):
         """Raise ParameterError unless the density supports ``(d, d)`` Jacobians."""
-        if self.density in _BUILTIN_DENSITIES and d in (2, 3):
+        if self.density in _builtin_densities() and d in (2, 3):
             return  # traced in 2D and 3D by the tests: no tracing here (30-80 ms per process)
         dims, errors = _density_dims(self.name, self.density, tuple(sorted(self.params)))
         if d not in dims:
@@ -214,10 +214,19 @@ def _check_params(name, params) -> dict:
     return out
 
 
-# the built-in densities trace for d = 2 and 3 (tests/test_energies.py checks it), so
-# check_dim does not trace them
-_BUILTIN_DENSITIES = frozenset(
-    [_d.dirichlet, _d.symmetric_dirichlet, _d.mips, _d.winslow, _d.arap, _d.garanzha])
+def _library_density(density) -> bool:
+    """Whether ``density`` is defined in geomopt itself: every such density is a built-in
+    energy's (a row of :data:`geomopt._runtime.names.ENERGIES`), traced for d = 2 and 3 by the
+    tests, so constructing its :class:`Energy` does not trace it."""
+    return getattr(density, "__module__", "").split(".")[0] == "geomopt"
+
+
+@functools.lru_cache(maxsize=1)
+def _builtin_densities() -> frozenset:
+    """The densities of :data:`REGISTRY` (derived from the table, never listed by hand): traced
+    for d = 2 and 3 by the tests, so :meth:`Energy.check_dim` does not trace them."""
+    return frozenset(e.density for e in REGISTRY.values())
+
 
 # every built-in density is >= 0 (garanzha given eps > 0 and lam >= 0, which params enforce)
 dirichlet = Energy(_d.dirichlet, name="dirichlet", rest_value=lambda d: float(d), lower_bound=0.0)

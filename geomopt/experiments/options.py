@@ -8,6 +8,7 @@ import math
 
 from .._runtime.config import Instance, Int, Maybe, OneOf, Real, validate
 from .._runtime.errors import ParameterError
+from .._runtime.names import COMPARED
 from ..mesh.tutte import WEIGHTS
 
 __all__ = ["CompareOptions", "TOLERANCES", "CLOCKS", "FORMATS", "WARMUP_STEPS", "DEFAULT_SOLVERS", "HISTORY_COLUMNS",
@@ -21,12 +22,9 @@ CLOCKS = ("wall", "cpu")
 #: figure formats :meth:`~geomopt.experiments.comparison.Comparison.write` writes (PDF / PS with TrueType fonts)
 FORMATS = ("png", "pdf", "svg", "eps", "ps")
 LAYOUTS = ("wide", "column")
-#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D).
-#: Not ``optx-lbfgs``: optimistix's L-BFGS seeds its inverse Hessian with the scalar
-#: ``s.y / y.y`` and has no preconditioner hook, and on 10^4-triangle meshes from the Tutte map
-#: it stalls (camelhead: gap 1.9 after 1,000 iterations; geomopt's L-BFGS with the same scalar
-#: seed 1.5, with its Laplacian seed converged in 265); name it to compare it.
-DEFAULT_SOLVERS = ("newton", "lbfgs", "slim", "aqp", "cm")
+#: what ``geomopt compare`` runs when no ``--solvers`` is given (``cm`` is left out in 3D): the
+#: table's choice (:data:`geomopt._runtime.names.COMPARED`)
+DEFAULT_SOLVERS = COMPARED
 HISTORY_COLUMNS = ("solver", "repeat", "iteration", "wall_s", "cpu_s", "energy", "mean_energy", "gap",
                    "grad_norm", "flips")
 _SUMMARY_COLUMNS = ("solver", "outcome", "certified", "iterations", "wall_s", "cpu_s", "setup_s", "setup_cpu_s",

@@ -30,16 +30,19 @@ import numpy as np
 
 from .._runtime import formats
 from .._runtime.errors import GeomoptError, MeshError, MeshFormatError, ParameterError, SolveError
+from .elements import ELEMENT_KINDS
 
 __all__ = ["CellCase", "CELL_EXTENSIONS", "UNTANGLE_KINDS", "SMOOTH_KINDS", "is_cell_case", "read_cell_case", "cell_problem", "write_certified",
            "output_extensions", "case_inputs"]
 
 #: Files a tet / quad / hex mesh is read from (:data:`geomopt._runtime.formats.CELL_FORMATS`).
 CELL_EXTENSIONS = formats.extensions()
-#: The kinds of mesh untangled from one file, by priority (volume cells before quads).
-UNTANGLE_KINDS = ("hexahedron", "tetra", "quad")
-#: The kinds of mesh smoothed (and held in case folders).
-SMOOTH_KINDS = ("hexahedron", "quad")
+#: The kinds of mesh smoothed (and held in case folders): the element kinds
+#: (:data:`~geomopt.mesh.elements.ELEMENT_KINDS`), volume cells first.
+SMOOTH_KINDS = tuple(k.word for k in sorted(ELEMENT_KINDS.values(), key=lambda k: -k.dim))
+#: The kinds of mesh untangled from one file, by priority (volume cells, tetrahedra, then quads).
+UNTANGLE_KINDS = (tuple(k.word for k in ELEMENT_KINDS.values() if k.dim == 3) + ("tetra",)
+                  + tuple(k.word for k in ELEMENT_KINDS.values() if k.dim == 2))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -85,7 +88,7 @@ def is_cell_case(path) -> bool:
     path = Path(path)
     if path.is_dir():
         rest = path / "rest.vtk"
-        return rest.is_file() and _vtk_cell_type(rest) in (9, 12)
+        return rest.is_file() and _vtk_cell_type(rest) in {k.vtk for k in ELEMENT_KINDS.values()}
     return path.suffix.lower() in formats.extensions()
 
 

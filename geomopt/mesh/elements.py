@@ -54,7 +54,7 @@ from ..exact.certify import LocalCertificate, fixed_star_certificate, local_cert
 from ..exact.hexvalid import HEX_CORNERS, TESTS, hex_validity
 from ..exact.predicates import orient2d
 
-__all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementKind", "kind_of", "ElementCertificate", "Quality",
+__all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementKind", "kind_of", "kind_named", "ElementCertificate", "Quality",
            "validate_elements", "corner_simplices", "corner_edges", "rest_elements",
            "reference_rest", "check_element_facets", "boundary_vertices",
            "scaled_jacobian", "quality", "certify_elements", "count_invalid", "valid_elements", "element_type",
@@ -85,6 +85,10 @@ class ElementKind:
         hexahedra).
     constructor : the :class:`~geomopt.mesh.problem.Problem` class method that makes a
         problem of them (:meth:`~geomopt.mesh.problem.Problem.cells` dispatches on it).
+    problem_kind : the :attr:`~geomopt.mesh.problem.Problem.kind` of that problem (``"quad"``,
+        ``"hex"``): what the writers and the viewer look the kind up by.
+    vtk : its VTK cell type (9 quad, 12 hexahedron), the cell type of the files' readers and of
+        the viewer (pyvista's ``CellType`` is VTK's).
     validity : ``(X, E) -> (valid, corner_valid, tests)``: the exact test that each element
         has a positive Jacobian everywhere under ``X`` (and at its corners), with the count of
         each test of :data:`~geomopt.exact.hexvalid.TESTS` it ran.
@@ -101,6 +105,8 @@ class ElementKind:
     map_file: str
     constructor: str
     validity: Callable
+    problem_kind: str
+    vtk: int
 
     @property
     def n_vertices(self) -> int:
@@ -124,14 +130,20 @@ def _hex_validity(X, E):
 ELEMENT_KINDS = {
     4: ElementKind("quad", "quads", 2, QUAD_CORNERS, np.array([0, 3, 2, 1]),
                    np.array([[0, 1], [1, 2], [2, 3], [3, 0]]), np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
-                   np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64), ".obj", "quads", _quad_validity),
+                   np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64), ".obj", "quads", _quad_validity, "quad", 9),
     8: ElementKind("hexahedron", "hexahedra", 3, HEX_CORNERS, np.array([0, 3, 2, 1, 4, 7, 6, 5]),
                    np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
                    np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6],
                              [3, 7]]),
                    np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
-                            dtype=np.float64), ".vtk", "hexes", _hex_validity),
+                            dtype=np.float64), ".vtk", "hexes", _hex_validity, "hex", 12),
 }
+
+
+def kind_named(problem_kind) -> ElementKind | None:
+    """The :class:`ElementKind` whose problems have :attr:`~geomopt.mesh.problem.Problem.kind`
+    ``problem_kind`` (``"quad"``, ``"hex"``), None for a problem of simplices."""
+    return next((k for k in ELEMENT_KINDS.values() if k.problem_kind == problem_kind), None)
 
 
 def kind_of(E) -> ElementKind:

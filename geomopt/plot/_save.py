@@ -16,14 +16,16 @@ import contextlib
 from pathlib import Path
 
 from .._runtime.formats import PICTURE_EXTENSIONS, extensions
+from ..mesh.elements import ELEMENT_KINDS
 
 __all__ = ["MAP_FILES", "save", "save_param_picture", "write_atlas_part", "save_atlas_picture"]
 
-#: ``Problem.kind`` -> the map file extensions :func:`save` writes for it.
+#: ``Problem.kind`` -> the map file extensions :func:`save` writes for it (an element kind's: the
+#: writable formats of the format table that hold it).
 MAP_FILES = {
     "surface": (".obj", ".ply"), "planar": (".obj", ".ply"), "sphere": (".obj",),
-    "tet": extensions("tetra", writable=True), "hex": extensions("hexahedron", writable=True),
-    "quad": extensions("quad", writable=True),
+    "tet": extensions("tetra", writable=True),
+    **{k.problem_kind: extensions(k.word, writable=True) for k in ELEMENT_KINDS.values()},
 }
 _DRAWN = ("surface", "planar", "sphere")  # kinds whose result alone makes a picture
 
@@ -89,7 +91,7 @@ def save(result, path, png=None, *, inputs=()):
                              "write it; write result.x with geomopt.io (e.g. write_mesh_with_uv)")
     kind = problem.kind
     if kind not in MAP_FILES:
-        raise ParameterError(f"geomopt.save writes triangle, sphere, tet, quad and hex maps, not a {kind} map; write "
+        raise ParameterError(f"geomopt.save writes {', '.join(MAP_FILES)} maps, not a {kind} map; write "
                              f"result.x (n, {problem.dim}) yourself")
     if png is not None and kind not in _DRAWN:
         raise ParameterError(f"geomopt.save draws triangle and sphere maps only; a {kind} map's picture needs its "

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._runtime.errors import ParameterError
-from ..mesh.elements import ELEMENT_KINDS
+from ..mesh.elements import ELEMENT_KINDS, kind_named
 from ._render import CHECKER_COLORS, camera_rotation
 
 __all__ = ["show", "scene", "camera", "inverted_rgb", "Scene", "BACKENDS", "VIEW_EXTRA"]
@@ -62,10 +62,12 @@ def _mesh_cells(mesh):
     """``(V, cells, volume)`` of a mesh object: ``.vertices`` / ``.faces`` (trimesh), a
     meshio.Mesh (its hexahedra, tetrahedra, quads or triangles, in that preference) or a pair."""
     if hasattr(mesh, "points") and hasattr(mesh, "cells_dict"):
-        for name, volume in (("hexahedron", True), ("tetra", True), ("quad", False), ("triangle", False)):
+        volumes = [k.word for k in ELEMENT_KINDS.values() if k.dim == 3]
+        surfaces = [k.word for k in ELEMENT_KINDS.values() if k.dim == 2]
+        for name, volume in [(n, True) for n in volumes + ["tetra"]] + [(n, False) for n in surfaces + ["triangle"]]:
             if name in mesh.cells_dict:
                 return np.asarray(mesh.points), np.asarray(mesh.cells_dict[name]), volume
-        raise ParameterError(f"show: the meshio mesh has no triangle, quad, tetra or hexahedron cells "
+        raise ParameterError(f"show: the meshio mesh has no {', '.join(volumes + ['tetra'] + surfaces)} or triangle cells "
                              f"(it has {', '.join(mesh.cells_dict) or 'none'})")
     if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         V, C = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -153,7 +155,9 @@ def scene(obj, uv=None) -> Scene:
     rgb, bad = _distortion_colors(problem, x)
     if problem.kind == "sphere":
         x = x / np.linalg.norm(x, axis=1, keepdims=True)
-    return Scene(_as_3d(x), cells, problem.kind in ("tet", "hex"), None, rgb, bad, planar=problem.dim == 2)
+    kind = kind_named(problem.kind)
+    volume = problem.kind == "tet" or (kind is not None and kind.dim == 3)
+    return Scene(_as_3d(x), cells, volume, None, rgb, bad, planar=problem.dim == 2)
 
 
 def camera(points, view, up, planar, fov=45.0, aspect=1.0):
@@ -301,7 +305,7 @@ def _polyscope(ps, s, size, cam, up, checks, offscreen):
     ps.set_up_dir(f"{up}_up" if not s.planar else "y_up")
     edges = 1.0 if s.edges else 0.0
     if s.volume:
-        kw = {"hexes" if s.cells.shape[1] == 8 else "tets": s.cells}
+        kw = _polyscope_cells(s.cells)
         m = ps.register_volume_mesh("map", s.points, edge_width=edges, **kw)
     else:
         m = ps.register_surface_mesh("map", s.points, s.cells, edge_width=edges, smooth_shade=s.uv is not None)
@@ -317,7 +321,7 @@ def _polyscope(ps, s, size, cam, up, checks, offscreen):
     ps.set_transparency_mode("pretty" if translucent else "none")
     if translucent:
         m.set_transparency(0.3)
-        kw = {"hexes" if s.cells.shape[1] == 8 else "tets": s.cells[s.bad]}
+        kw = _polyscope_cells(s.cells[s.bad])
         ps.register_volume_mesh("inverted", s.points, color=inverted_rgb(), **kw)
     ps.look_at_dir(*cam)
     if not offscreen:
@@ -326,11 +330,25 @@ def _polyscope(ps, s, size, cam, up, checks, offscreen):
     return np.ascontiguousarray(ps.screenshot_to_buffer(transparent_bg=False)[..., :3])
 
 
+def _polyscope_cells(cells) -> dict:
+    """Volume cells (m, k) as polyscope's ``register_volume_mesh`` keyword: ``tets`` (VTK 10),
+    ``hexes`` (VTK 12, same vertex order); polyscope draws no other volume cell."""
+    vtk = _vtk_type(cells)
+    if vtk not in (10, 12):
+        raise ParameterError(f"show: polyscope draws tetrahedra and hexahedra, not {ELEMENT_KINDS[cells.shape[1]].words}; "
+                             f"pass backend=\"pyvista\"")
+    return {"tets" if vtk == 10 else "hexes": cells}
+
+
+def _vtk_type(cells) -> int:
+    """The VTK cell type of volume cells (m, k): a tetrahedron's (10) or the element kind's."""
+    return 10 if cells.shape[1] == 4 else ELEMENT_KINDS[cells.shape[1]].vtk
+
+
 def _pv_mesh(pv, s):
     """The scene's cells as a pyvista dataset (PolyData for faces, UnstructuredGrid for cells)."""
     if s.volume:
-        kind = pv.CellType.HEXAHEDRON if s.cells.shape[1] == 8 else pv.CellType.TETRA
-        return pv.UnstructuredGrid({kind: s.cells}, s.points)
+        return pv.UnstructuredGrid({pv.CellType(_vtk_type(s.cells)): s.cells}, s.points)
     k = s.cells.shape[1]
     return pv.PolyData(s.points, np.c_[np.full(len(s.cells), k), s.cells].ravel())
 
