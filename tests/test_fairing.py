@@ -198,6 +198,33 @@ def test_no_method_folds_heavy_noise_and_the_folds_are_removed(method):
     assert r.success and r.certificate.inverted == 0 and r.details.folded_before > 0
 
 
+@pytest.mark.parametrize("method", ["taubin", "least_squares"])
+def test_dense_folds_are_all_removed(method):
+    """Noise of a whole edge length folds more than half the faces of a 5k-face sphere, in
+    clusters: fold removal unfolds every one (a fold-safe step alone leaves most of them)."""
+    V, F = icosphere(4)
+    X0 = noisy(V, F, 1.0)
+    assert certify_folds(X0, F).inverted > 2500
+    r = fair(X0, F, method)
+    assert r.success and r.certificate.inverted == 0 and r.details.removal_rounds > 0
+
+
+def test_fold_removal_never_ends_with_more_folded_faces():
+    """A sliver-thin spike held at its boundary cannot be unfolded; removal returns no more
+    folded faces than it was given, and reports those it traded."""
+    from geomopt.fairing import remove_folds
+    from geomopt.fairing.operators import Topology
+
+    V, F = cap()
+    X0 = noisy(V, F, 1.5, seed=3)
+    topo = Topology.of(F, len(V))
+    free = topo.free_mask("fixed")
+    before = certify_folds(X0, F).inverted
+    X, rounds = remove_folds(X0, topo, free)
+    assert before > 0 and rounds > 0 and certify_folds(X, F).inverted <= before
+    assert np.array_equal(X[~free], X0[~free])
+
+
 def test_a_huge_step_is_cut_not_taken():
     """An unstable Taubin filter (mu far below -lam amplifies the noise) folds its target: the
     steps are cut, the output is not folded."""
