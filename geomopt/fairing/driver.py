@@ -33,7 +33,7 @@ from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, closest_points, triangle_angles, volume
+from .surface import aspect_ratios, face_distances, triangle_angles, volume
 from .unfold import remove_folds
 
 __all__ = ["fair", "smoothed", "FairDetails"]
@@ -55,7 +55,8 @@ class FairDetails(Details):
     aspect_before, aspect_after : the largest aspect ratio (1: equilateral; nan for curves).
     folds_added : faces folded in the output that were not folded in the input (0 unless the
         input was folded and fold removal traded them for more unfolded ones).
-    distance : ``relax``: the largest distance of an output vertex to the input surface, over
+    distance : ``relax``: the largest distance of an output face to the input surface (at a
+        grid of 28 points on each face, :func:`~geomopt.fairing.surface.face_distances`), over
         the input's bounding-box diagonal (nan for the other methods).
     scale : the power of two the input was multiplied by while smoothing (exact).
     """
@@ -265,9 +266,8 @@ def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0
     distance = float("nan")
     if o.method == "relax":
         Vs = V * scale
-        Q, _ = closest_points(X, Vs, topo.elements)
         diag = float(np.linalg.norm(Vs.max(axis=0) - Vs.min(axis=0)))
-        distance = float(np.max(np.linalg.norm(Q - X, axis=1))) / diag
+        distance = float(np.max(face_distances(X, topo.elements, Vs, topo.elements, order=6))) / diag
     details = FairDetails(o, target / scale, int(np.count_nonzero(free & (t < 1.0))), before.inverted, rounds,
                           measured0[0] / scale ** 3, vol1 / scale ** 3, measured0[1], angle1, measured0[2], aspect1,
                           distance, scale, len(np.setdiff1d(cert.folded, before.folded)))

@@ -19,7 +19,7 @@ import numpy as np
 
 from .certificate import safe_step
 from .methods import crease_vertices, normalized_laplacian
-from .surface import closest_points, surface_index
+from .surface import closest_points, face_distances, surface_index
 
 __all__ = ["relax"]
 
@@ -41,6 +41,7 @@ def relax(V, topo, free, o):
     F = topo.elements
     free = free & ~crease_vertices(V, topo, o.crease_angle)
     X, moved, index = V.copy(), 0, surface_index(V, F)
+    diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     for _ in range(o.steps):
         A, _ = normalized_laplacian(X, topo, "uniform")
         d = A.matvec(X)
@@ -49,6 +50,26 @@ def relax(V, topo, free, o):
         target = X.copy()
         idx = np.flatnonzero(free)
         target[idx] = closest_points(X[idx] + o.lam * d[idx], V, F, index=index)[0]
-        X, t = safe_step(X, target, F, free, halvings=1)  # each vertex all the way or not at all
+        X, t = _close_step(X, target, V, F, free, o.surface_tolerance * diag, index)
         moved += int(np.count_nonzero(t))
     return X, moved
+
+
+def _close_step(X, target, V, F, free, tol, index):
+    """``(Y, t)``: :func:`safe_step` from ``X`` towards ``target`` in whole vertex moves, with the
+    moves undone of every vertex of a new face farther than ``tol`` from the surface ``V, F``
+    (then the step retaken, until no face is; only faces with a vertex changed since the last
+    check are measured again)."""
+    target, last = target.copy(), X
+    while True:
+        Y, t = safe_step(X, target, F, free, halvings=1)  # each vertex all the way or not at all
+        changed = np.flatnonzero((Y != last).any(axis=1))
+        if len(changed) == 0:
+            return Y, t
+        near = np.flatnonzero(np.isin(F, changed).any(axis=1))
+        far = near[face_distances(Y, F[near], V, F, index=index) > tol]
+        if len(far) == 0:
+            return Y, t
+        undo = np.intersect1d(np.unique(F[far]), np.flatnonzero(t > 0))
+        target[undo] = X[undo]
+        last = Y
