@@ -195,6 +195,9 @@ def test_no_method_folds_heavy_noise_and_the_folds_are_removed(method):
     r = fair(X0, F, method)
     after = corner_signs(r.x, F) <= 0
     assert not (after & ~before).any()  # never a fold added
+    if method == "relax":  # the crumpled input *is* the surface it keeps to: its folds stay
+        assert r.details.distance <= 1e-6 and r.certificate.inverted <= r.details.folded_before
+        return
     assert r.success and r.certificate.inverted == 0 and r.details.folded_before > 0
 
 
@@ -442,7 +445,7 @@ def test_relax_on_a_creased_sheet_improves_shapes_within_the_bound():
     k = np.arange(12 * 13).reshape(12, 13)[:, :12].ravel()
     F = np.concatenate([np.stack([k, k + 13, k + 1], 1), np.stack([k + 1, k + 13, k + 14], 1)])
     crease = np.flatnonzero(np.isclose(u, 0.5))
-    r = fair(X0, F, "relax", options=FairOptions(steps=20, crease_angle=45.0))
+    r = fair(X0, F, "relax", options=FairOptions(steps=10, crease_angle=45.0))
     d = r.details
     assert r.success and d.distance <= 1e-6 and d.min_angle_after > d.min_angle_before + 5
     assert np.array_equal(r.x[crease], X0[crease])

@@ -34,14 +34,29 @@ def _vertex_normals(X, F, n):
     return np.where(length > 0, N / np.where(length > 0, length, 1.0), 0.0)
 
 
+def _flat(V, F, n, tol):
+    """(n,) bool: vertices whose input neighbours lie within ``tol`` of the plane through the
+    vertex along its normal; the others cannot move without a face leaving the surface by more
+    than about ``tol``, and are held (the check of each move's faces stays)."""
+    import scipy.sparse as sp
+
+    N = _vertex_normals(V, F, n)
+    ring = sp.csr_matrix((np.ones(3 * F.size), (np.repeat(F, 3, axis=1).ravel(), np.tile(F, 3).ravel())), shape=(n, n))
+    ring = ring.tocoo()
+    off = np.abs(np.sum(N[ring.row] * (V[ring.col] - V[ring.row]), axis=1))
+    worst = np.zeros(n)
+    np.maximum.at(worst, ring.row, off)
+    return (worst <= tol) & (np.linalg.norm(N, axis=1) > 0)
+
+
 def relax(V, topo, free, o):
     """``(X, moved)``: the relaxed vertices (n, 3), each on the surface ``V, topo.elements``, and
     how many vertex moves were taken over all rounds (see the module notes)."""
     V = np.asarray(V, dtype=np.float64)
     F = topo.elements
-    free = free & ~crease_vertices(V, topo, o.crease_angle)
-    X, moved, index = V.copy(), 0, surface_index(V, F)
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    free = free & ~crease_vertices(V, topo, o.crease_angle) & _flat(V, F, topo.n, o.surface_tolerance * diag)
+    X, moved, index = V.copy(), 0, surface_index(V, F)
     for _ in range(o.steps):
         A, _ = normalized_laplacian(X, topo, "uniform")
         d = A.matvec(X)
@@ -49,6 +64,8 @@ def relax(V, topo, free, o):
         d = d - np.sum(d * N, axis=1, keepdims=True) * N
         target = X.copy()
         idx = np.flatnonzero(free)
+        if len(idx) == 0:
+            break
         target[idx] = closest_points(X[idx] + o.lam * d[idx], V, F, index=index)[0]
         X, t = _close_step(X, target, V, F, free, o.surface_tolerance * diag, index)
         moved += int(np.count_nonzero(t))
