@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..exact.normals import corner_signs
 from .certificate import certify_folds
 
 __all__ = ["remove_folds", "MAX_RINGS", "MAX_ROUNDS"]
@@ -63,6 +64,20 @@ def _folded_mask(X, S):
     """(m,) bool: the folded faces of ``X``."""
     out = np.zeros(len(S), bool)
     out[certify_folds(X, S).folded] = True
+    return out
+
+
+def _refolded(Y, S, folded, moved):
+    """(m,) bool: the folded faces of ``Y``, which differs from the vertices whose folded faces
+    are ``folded`` only on ``moved`` (n,) bool: the signs of a face change only when a corner lies
+    within one ring of a moved vertex, and those are taken again (exactly, on the faces around
+    their corners), the rest kept."""
+    affected = _grow(moved, S, 1)[S].any(axis=1)
+    corners = np.zeros(len(moved), bool)
+    corners[S[affected].ravel()] = True
+    sub = corners[S].any(axis=1)  # every face around a corner of an affected face
+    out = folded.copy()
+    out[affected] = (corner_signs(Y, S[sub])[affected[sub]] <= 0).any(axis=1)
     return out
 
 
@@ -113,9 +128,9 @@ def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS):
         Y = X
         for _ in range(3 * rings):
             Y = np.where(region[:, None], 0.5 * (Y + A @ Y), Y)
-        folded_y, rounds = _folded_mask(Y, S), rounds + 1
+        folded_y, rounds = _refolded(Y, S, folded, region), rounds + 1
         Z = _partwise(X, Y, S, topo, region, folded, folded_y)
-        folded_z = _folded_mask(Z, S)
+        folded_z = _refolded(Z, S, folded, region)
         if folded_z.sum() >= folded.sum():
             Z, folded_z = Y, folded_y
         if folded_z.sum() < folded.sum():
