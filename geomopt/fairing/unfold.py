@@ -52,11 +52,13 @@ def _averaging(topo):
     return sp.diags(1.0 / np.where(degree > 0, degree, 1.0)) @ W
 
 
-def _grow(mask, S, rings):
-    """``mask`` (n,) bool grown by ``rings`` rings through the elements ``S``."""
+def _grow(mask, A, rings):
+    """``mask`` (n,) bool grown by ``rings`` rings through the edges (the pattern of ``A``, the
+    averaging operator: in a triangle surface or a polyline, vertices share an element exactly
+    when they share an edge)."""
     mask = mask.copy()
     for _ in range(rings):
-        mask[S[mask[S].any(axis=1)].ravel()] = True
+        mask |= (A @ mask.astype(np.float64)) > 0
     return mask
 
 
@@ -67,12 +69,12 @@ def _folded_mask(X, S):
     return out
 
 
-def _refolded(Y, S, folded, moved):
+def _refolded(Y, S, folded, moved, A):
     """(m,) bool: the folded faces of ``Y``, which differs from the vertices whose folded faces
     are ``folded`` only on ``moved`` (n,) bool: the signs of a face change only when a corner lies
     within one ring of a moved vertex, and those are taken again (exactly, on the faces around
     their corners), the rest kept."""
-    affected = _grow(moved, S, 1)[S].any(axis=1)
+    affected = _grow(moved, A, 1)[S].any(axis=1)
     corners = np.zeros(len(moved), bool)
     corners[S[affected].ravel()] = True
     sub = corners[S].any(axis=1)  # every face around a corner of an affected face
@@ -124,13 +126,16 @@ def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS):
     A = _averaging(topo)
     rings, rounds = 1, 0
     while folded.any() and rings <= MAX_RINGS and rounds < max_rounds:
-        region = _grow(np.isin(np.arange(topo.n), S[folded]), S, rings) & free
-        Y = X
+        seed = np.zeros(topo.n, bool)
+        seed[S[folded].ravel()] = True
+        region = _grow(seed, A, rings) & free
+        idx = np.flatnonzero(region)
+        rows, Y = A[idx], X.copy()  # only the region's rows of the operator
         for _ in range(3 * rings):
-            Y = np.where(region[:, None], 0.5 * (Y + A @ Y), Y)
-        folded_y, rounds = _refolded(Y, S, folded, region), rounds + 1
+            Y[idx] = 0.5 * (Y[idx] + rows @ Y)
+        folded_y, rounds = _refolded(Y, S, folded, region, A), rounds + 1
         Z = _partwise(X, Y, S, topo, region, folded, folded_y)
-        folded_z = _refolded(Z, S, folded, region)
+        folded_z = _refolded(Z, S, folded, region, A)
         if folded_z.sum() >= folded.sum():
             Z, folded_z = Y, folded_y
         if folded_z.sum() < folded.sum():
