@@ -36,7 +36,7 @@ def cmd_fair(args) -> int:
               f"Laplacian): {d.message}; {res.certificate.message}; {res.stats.seconds:.2f} s")
     report(args, input=str(args.input), output=str(args.output), vertices=len(V), faces=len(F),
            method=options.method, laplacian=d.options.laplacian, folded_before=d.folded_before,
-           folded_after=res.certificate.inverted, cut=d.cut, removal_rounds=d.removal_rounds,
+           folded_after=res.certificate.inverted, folds_added=d.folds_added, cut=d.cut, removal_rounds=d.removal_rounds,
            min_angle_before=d.min_angle_before, min_angle_after=d.min_angle_after,
            volume_before=d.volume_before, volume_after=d.volume_after, outcome=res.outcome.value,
            solve_seconds=round(res.stats.seconds, 4), message=d.message, **cache_summary())

@@ -64,11 +64,11 @@ def _directions(X, S):
 
 
 def _vertex_sums(values, S, n):
-    """(n, d) the sum over the elements around each vertex of ``values`` (m, d)."""
-    out = np.zeros((n, values.shape[1]), dtype=values.dtype)
-    for k in range(S.shape[1]):
-        np.add.at(out, S[:, k], values)
-    return out
+    """(n, d) the sum over the elements around each vertex of ``values`` (m, d) (a bincount per
+    column: the same float sums as ``np.add.at`` up to order, an order of magnitude faster)."""
+    ids = S.T.ravel()
+    return np.stack([np.bincount(ids, weights=np.tile(values[:, c], S.shape[1]), minlength=n)
+                     for c in range(values.shape[1])], axis=1)
 
 
 def corner_signs(X, S) -> np.ndarray:

@@ -11,7 +11,8 @@ differentiable with JAX; :func:`fairing_energy` is the energy it minimises, to c
 One module per job: :mod:`~geomopt.fairing.operators` (Laplacians and masses),
 :mod:`~geomopt.fairing.solve` (the differentiable sparse solve), :mod:`~geomopt.fairing.methods`
 (the methods), :mod:`~geomopt.fairing.energies` (the energies), :mod:`~geomopt.fairing.certificate`
-(the certificate and the fold-safe step), :mod:`~geomopt.fairing.relax` (tangential relaxation),
+(the certificate and the fold-safe step), :mod:`~geomopt.fairing.unfold` (fold removal),
+:mod:`~geomopt.fairing.relax` (tangential relaxation),
 :mod:`~geomopt.fairing.surface` (closest points and shape measures), :mod:`~geomopt.fairing.options`
 and :mod:`~geomopt.fairing.driver`; this package only re-exports.
 """
@@ -22,12 +23,13 @@ from .options import BOUNDARIES, METHODS, FairOptions
 
 if TYPE_CHECKING:  # what the lazy names below are, for readers and the API site (griffe reads this)
     from .certificate import FoldCertificate, certify_folds, safe_step
-    from .driver import FairDetails, fair, remove_folds, smoothed
+    from .driver import FairDetails, fair, smoothed
+    from .unfold import remove_folds
     from .energies import fairing_energy
 
 # public name -> module (imported on first use, PEP 562: the options, which the command line's
 # parser reads, load without SciPy or JAX)
-_LAZY = {"fair": ".driver", "smoothed": ".driver", "FairDetails": ".driver", "remove_folds": ".driver",
+_LAZY = {"fair": ".driver", "smoothed": ".driver", "FairDetails": ".driver", "remove_folds": ".unfold",
          "FoldCertificate": ".certificate", "certify_folds": ".certificate", "safe_step": ".certificate",
          "fairing_energy": ".energies"}
 

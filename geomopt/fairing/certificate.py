@@ -92,6 +92,24 @@ def _dependents(S, corners, n):
     return out
 
 
+def _failing(X, X0, S, moved, bad, allowed, may_turn):
+    """(m, k) bool: the corners failing at ``X`` (see :func:`safe_step`), taken again only on
+    the elements whose signs ``moved`` (n,) bool vertices can change (a corner within one ring of
+    one: its vertex normal sums the elements around it), the others kept from ``bad``."""
+    near = np.zeros(len(moved), bool)
+    near[S[moved[S].any(axis=1)].ravel()] = True
+    affected = near[S].any(axis=1)
+    corners = np.zeros(len(moved), bool)
+    corners[S[affected].ravel()] = True
+    sub = corners[S].any(axis=1)  # every element around a corner of an affected one
+    out = bad.copy()
+    out[affected] = (corner_signs(X, S[sub])[affected[sub]] <= 0) & ~allowed[affected]
+    if may_turn is not None:
+        idx = np.flatnonzero(affected)
+        out[idx] |= ((normal_agreement(X, X0, S[idx]) <= 0) & ~may_turn[idx])[:, None]
+    return out
+
+
 def safe_step(X0, X1, S, free, halvings=HALVINGS):
     """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
@@ -106,12 +124,13 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS):
     may_turn = (allowed.any(axis=1) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
+    bad, last = np.zeros(S.shape, bool), None
     while True:
         X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
         X = np.where(t[:, None] == 0.0, X0, X)
-        bad = (corner_signs(X, S) <= 0) & ~allowed
-        if surface:
-            bad |= ((normal_agreement(X, X0, S) <= 0) & ~may_turn)[:, None]
+        moved = np.ones(n, bool) if last is None else (X != last).any(axis=1)
+        bad = _failing(X, X0, S, moved, bad, allowed, may_turn)
+        last = X
         failing = np.argwhere(bad)
         if len(failing) == 0:
             return X, t

@@ -7,10 +7,11 @@ which gives target vertices ``p*``; then
 1. the **fold-safe step** (:func:`geomopt.fairing.certificate.safe_step`) goes from the input
    towards ``p*`` as far as each vertex can without a face folding that was not folded in the
    input (exact signs);
-2. where the input itself has folded faces (heavy noise), **fold removal** (:func:`remove_folds`)
-   pulls the vertices around them towards their neighbours' centroid, in fold-safe steps, over
-   a growing neighbourhood, until none is left or no round removes one: folds are removed,
-   never added;
+2. where the input itself has folded faces (heavy noise), **fold removal**
+   (:func:`geomopt.fairing.unfold.remove_folds`) smooths growing neighbourhoods of the folded
+   faces, keeping a round only where it folds fewer faces: the output never has more folded
+   faces than the input (a face the input had unfolded may end folded while many others
+   unfold: ``details.folds_added`` counts them; without fold removal it is 0);
 3. with ``preserve_volume`` (closed surfaces), the result is scaled about its centroid to the
    input's enclosed volume (kept only if it folds nothing);
 4. the **certificate** (:func:`geomopt.fairing.certificate.certify_folds`) of the output decides
@@ -28,16 +29,14 @@ from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
 from .certificate import certify_folds, safe_step
-from .methods import TARGETS, normalized_laplacian
+from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, closest_points, triangle_angles, volume
+from .surface import aspect_ratios, face_distances, triangle_angles, volume
+from .unfold import remove_folds
 
-__all__ = ["fair", "smoothed", "FairDetails", "remove_folds", "MAX_REMOVAL_ROUNDS"]
-
-#: rounds of :func:`remove_folds` before it gives up (each at least as folded-free as the last)
-MAX_REMOVAL_ROUNDS = 30
+__all__ = ["fair", "smoothed", "FairDetails"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +53,10 @@ class FairDetails(Details):
     volume_before, volume_after : enclosed volumes of a closed surface (nan otherwise).
     min_angle_before, min_angle_after : the smallest triangle angle, degrees (nan for curves).
     aspect_before, aspect_after : the largest aspect ratio (1: equilateral; nan for curves).
-    distance : ``relax``: the largest distance of an output vertex to the input surface, over
+    folds_added : faces folded in the output that were not folded in the input (0 unless the
+        input was folded and fold removal traded them for more unfolded ones).
+    distance : ``relax``: the largest distance of an output face to the input surface (at a
+        grid of 28 points on each face, :func:`~geomopt.fairing.surface.face_distances`), over
         the input's bounding-box diagonal (nan for the other methods).
     scale : the power of two the input was multiplied by while smoothing (exact).
     """
@@ -72,11 +74,14 @@ class FairDetails(Details):
     aspect_after: float
     distance: float = float("nan")
     scale: float = 1.0
+    folds_added: int = 0
 
     @property
     def message(self) -> str:
         """One line: the fold counts, cuts, and quality before and after."""
         text = f"folded faces {self.folded_before} in the input; {self.cut} vertex steps cut to keep faces unfolded"
+        if self.removal_rounds:
+            text += f"; {self.removal_rounds} rounds of fold removal ({self.folds_added} faces folded that were not)"
         if np.isfinite(self.min_angle_before):
             text += (f"; min angle {self.min_angle_before:.2f} -> {self.min_angle_after:.2f} deg, max aspect "
                      f"{self.aspect_before:.3g} -> {self.aspect_after:.3g}")
@@ -150,29 +155,6 @@ def smoothed(V, F, options: FairOptions | None = None):
         raise MeshError(f"smoothed needs triangles (m, 3) or polyline edges (m, 2), got shape {F.shape}")
     topo = Topology.of(F.astype(np.int64), len(V))
     return _target(V, topo, o, mean_edge_length(V, topo))[0]
-
-
-def remove_folds(X, topo, free, max_rounds=MAX_REMOVAL_ROUNDS):
-    """``(X, rounds)``: ``X`` (n, d) with folded faces removed where it can: each round moves the
-    free vertices within ``r`` rings of a folded face to their neighbours' centroid in a
-    fold-safe step (folds removed, never added), ``r`` growing by one after a round that removed
-    none; it stops when no face is folded, ``r`` reaches 8, or after ``max_rounds``."""
-    S, rings = topo.elements, 1
-    folded = certify_folds(X, S).folded
-    best, rounds = len(folded), 0
-    while len(folded) and rings <= 8 and rounds < max_rounds:
-        region = np.zeros(topo.n, bool)
-        region[S[folded].ravel()] = True
-        for _ in range(rings):
-            region[S[region[S].any(axis=1)].ravel()] = True
-        move = region & free
-        A, _ = normalized_laplacian(X, topo, "uniform")
-        X, _ = safe_step(X, X + np.where(move[:, None], A.matvec(X), 0.0), S, move)
-        folded, rounds = certify_folds(X, S).folded, rounds + 1
-        if len(folded) >= best:
-            rings += 1
-        best = min(best, len(folded))
-    return X, rounds
 
 
 def _measures(X, topo):
@@ -284,12 +266,11 @@ def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0
     distance = float("nan")
     if o.method == "relax":
         Vs = V * scale
-        Q, _ = closest_points(X, Vs, topo.elements)
         diag = float(np.linalg.norm(Vs.max(axis=0) - Vs.min(axis=0)))
-        distance = float(np.max(np.linalg.norm(Q - X, axis=1))) / diag
+        distance = float(np.max(face_distances(X, topo.elements, Vs, topo.elements, order=6))) / diag
     details = FairDetails(o, target / scale, int(np.count_nonzero(free & (t < 1.0))), before.inverted, rounds,
                           measured0[0] / scale ** 3, vol1 / scale ** 3, measured0[1], angle1, measured0[2], aspect1,
-                          distance, scale)
+                          distance, scale, len(np.setdiff1d(cert.folded, before.folded)))
     outcome = Outcome.CONVERGED if cert.ok else Outcome.NOT_INJECTIVE
     reason = "" if cert.ok else f"{cert.message}: the input's folds could not all be removed"
     if throw and not cert.ok:

@@ -46,6 +46,8 @@ class FairOptions:
     feature_weight : see ``crease_angle`` (>= 1).
     preserve_volume : closed surfaces: scale the result about its centroid to the input's
         enclosed volume.
+    surface_tolerance : ``relax``: how far an output face may leave the input surface, over the
+        input's bounding-box diagonal (a vertex move that would take a face farther is undone).
     """
 
     method: str = "taubin"
@@ -60,6 +62,7 @@ class FairOptions:
     crease_angle: float | None = None
     feature_weight: float = 10.0
     preserve_volume: bool = False
+    surface_tolerance: float = 1e-6
 
     def __post_init__(self):
         validate(self, method=OneOf(METHODS), laplacian=Maybe(OneOf(("uniform", "cotangent"))),
@@ -67,7 +70,8 @@ class FairOptions:
                  mu=Traceable(Real(-2.0, 0.0, hi_open=True)), time=Traceable(Real(0.0, lo_open=True)),
                  weight=Maybe(Traceable(Real(0.0, lo_open=True))), eigenvectors=Int(1),
                  boundary=OneOf(BOUNDARIES), crease_angle=Maybe(Real(0.0, 180.0)),
-                 feature_weight=Real(1.0), preserve_volume=Instance(bool))
+                 feature_weight=Real(1.0), preserve_volume=Instance(bool),
+                 surface_tolerance=Real(0.0))
         from .._runtime.tracing import is_traced
 
         if self.method == "taubin" and not is_traced(self.lam, self.mu) and not self.mu < -self.lam:

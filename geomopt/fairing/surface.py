@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["closest_points", "surface_index", "point_triangle", "triangle_angles", "aspect_ratios", "volume"]
+__all__ = ["closest_points", "surface_index", "point_triangle", "triangle_angles", "aspect_ratios", "volume",
+           "face_samples", "face_distances"]
 
 
 def point_triangle(P, A, B, C):
@@ -81,6 +82,23 @@ def closest_points(P, V, F, k=8, index=None):
                      np.zeros(0, np.int64))
     face, _, Q = _nearest_of(P, A, B, C, np.concatenate(who), np.concatenate(faces), len(P))
     return Q, face
+
+
+def face_samples(order):
+    """(s, 3) barycentric coordinates of the points ``(i, j, k) / order``, ``i + j + k = order``:
+    the corners, ``order - 1`` points along each edge, and the interior grid."""
+    ijk = [(i, j, order - i - j) for i in range(order + 1) for j in range(order + 1 - i)]
+    return np.asarray(ijk, dtype=np.float64) / order
+
+
+def face_distances(X, F, V, G, order=4, index=None):
+    """(m,) for each triangle ``F`` (m, 3) of the vertices ``X``: the largest distance of its
+    :func:`face_samples` points to the surface ``V, G`` (a lower bound of the face's one-sided
+    Hausdorff distance, exact at the samples); ``index``: ``V, G``'s :func:`surface_index`."""
+    B = face_samples(order)
+    P = np.einsum("sk,mkd->msd", B, np.asarray(X, dtype=np.float64)[F]).reshape(-1, 3)
+    Q, _ = closest_points(P, V, G, index=index)
+    return np.linalg.norm(Q - P, axis=1).reshape(len(F), len(B)).max(axis=1)
 
 
 def _nearest_of(P, A, B, C, who, faces, p):
