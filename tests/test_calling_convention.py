@@ -58,7 +58,7 @@ def test_settings_and_energy_parameters_as_keywords_are_refused(name):
     for keyword in ("weights", "lam"):
         with pytest.raises((TypeError, ParameterError), match=f"keyword argument.*'?{keyword}'?"):
             func(*data, **{keyword: 1})
-    if name not in ("untangle", "fair"):  # (untangle: tests/test_differentiable.py; fair: not yet)
+    if name != "untangle":  # (untangle: tests/test_differentiable.py)
         with pytest.raises(ParameterError, match=r"options must be a [\w.]+Options( or None)?, got dict"):
             func(*data, options={"weights": "uniform"}, progress=False)
 

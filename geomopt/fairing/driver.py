@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from .._runtime.config import options_or_default
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
@@ -216,7 +217,7 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     (True, 0)
     """
     t0 = time.perf_counter()
-    o = options or FairOptions()
+    o = options_or_default(FairOptions, options, "fair")
     if method is not None:
         o = dataclasses.replace(o, method=method)
     o = o.resolved()
