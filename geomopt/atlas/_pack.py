@@ -387,7 +387,8 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
 
 
-def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512) -> Packing:
+def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512,
+                certify: bool = True) -> Packing:
     """Pack flat charts into the unit square without overlap, each rotated (never mirrored).
 
     Parameters
@@ -398,11 +399,16 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     rotate : bool, whether charts may turn (to their minimum-area rectangle, then by quarter turns).
     resolution : int, pixels a side of the packing bitmap: higher packs tighter (smaller charts are
         drawn more finely) and takes longer (about quadratically).
+    certify : bool, certify the packing (and retry at finer resolutions until it certifies).
+        False: the first layout, *not certified* (conservative rasters make it disjoint, but
+        nothing checked it exactly): for trial packings whose chosen one the caller certifies
+        (as :func:`~geomopt.atlas.make_atlas` certifies its whole atlas), falling back to a
+        certified packing when that fails.
 
     Returns
     -------
-    :class:`Packing`; certified (:func:`certify_atlas`): no two charts meet, all inside [0, 1]^2,
-    each chart more than ``margin`` from the others.
+    :class:`Packing`; with ``certify``, certified (:func:`certify_atlas`): no two charts meet, all
+    inside [0, 1]^2, each chart more than ``margin`` from the others.
 
     Raises
     ------
@@ -424,8 +430,8 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     for _ in range(_TRIES):
         R, t, h = _layout(U, Bs, bases, turns, area, margin, res)
         out, scale, offsets = _to_unit_square(U, R, t, h)
-        cert = _certify_packed(out, Fs)
-        if cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):
+        cert = _certify_packed(out, Fs) if certify else None
+        if cert is None or cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):
             side = _side(out)
             angles = np.arctan2(R[:, 1, 0], R[:, 0, 0])
             efficiency = sum(_area(u, f) for u, f in zip(out, Fs)) / side**2

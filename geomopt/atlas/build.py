@@ -44,6 +44,9 @@ _AXES = {"x": 0, "y": 1, "z": 2}
 # the conformal estimate ran 0.3-0.45 above the flattened charts' mean symmetric Dirichlet on the
 # meshes tried; the first cut aims this much above the goal, and flatten_to corrects it by measurement
 _ESTIMATE_GAP = 0.35
+# the coarse screen of many packing splits (:func:`~geomopt.atlas.split.split_to_pack`): a coarser
+# bitmap and fewer square packings than packing_estimate's defaults (128 pixels, 12 packings)
+_COARSE_SCREEN = {"resolution": 64, "budget": 6}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,20 +277,26 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     cut, split, meshes, results = flatten_to(g, cost, cut, estimate, options.max_distortion, solve,
                                              options.max_cuts - made, lambda stage, **info: _say(progress, stage, **info),
                                              turn=options.straighten)
-    def pack(maps, faces):
-        return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate)
+    def pack(maps, faces, certify=False):  # trial packings: the chosen one is certified below
+        return pack_charts(maps, faces, margin=options.margin, rotate=options.rotate, certify=certify)
 
-    def screen(maps, faces, boundaries):
-        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, boundaries=boundaries)
+    def screen(maps, faces, boundaries, coarse=False):
+        return packing_estimate(maps, faces, margin=options.margin, rotate=options.rotate, boundaries=boundaries,
+                                **(_COARSE_SCREEN if coarse else {}))
 
     meshes, maps, packing, owner = split_to_pack(meshes, [r.x for r in results], pack, options.min_efficiency,
                                                  min_gain=options.split_gain,
-                                                 screen=screen, V=g.V)
+                                                 screen=screen, V=g.V,
+                                                 prescreen=lambda *a: screen(*a, coarse=True))
     results = [results[i] for i in owner]
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
-    certificate = certify_atlas(uv, uv_faces, chart)
+    certificate = certify_atlas(uv, uv_faces, chart)  # the one exact certificate of the packing
+    if len(certificate.overlapping_pairs) or certificate.out_of_range:  # not expected: rasters are conservative
+        packing = pack(maps, [m.F for m in meshes], certify=True)  # retried finer until certified
+        uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
+        certificate = certify_atlas(uv, uv_faces, chart)
     metrics = atlas_metrics(V, F, uv, uv_faces)
     atlas = Atlas(uv, uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), metrics,
                   certificate, tuple(results), time.perf_counter() - t0, pinched)
