@@ -836,3 +836,26 @@ def test_the_prescreen_shortlists_the_candidates_that_are_screened():
     assert run() == 1.0
     assert run(prescreen=lambda m, f, b: -score(m, f)) == 0.5  # the best ranked last: left out
     assert run(prescreen=score) == 1.0
+
+
+def test_the_support_vertex_of_a_convex_polygon_is_the_farthest_along_each_direction():
+    """``_support`` (a binary search over the hull's edge angles, so the minimum-area rectangle
+    costs O(h log h), not O(h^2)) returns a vertex whose projection is the largest, for random
+    directions and the edges' own directions and normals (the ties of the rectangle search), on
+    random hulls, some of them with collinear and grid-snapped points."""
+    from scipy.spatial import ConvexHull
+
+    from geomopt.atlas._pack import _support
+
+    rng = np.random.default_rng(3)
+    for t in range(300):
+        P = rng.normal(size=(int(rng.integers(3, 200)), 2)) * rng.uniform(0.1, 10.0, size=2)
+        if t % 3 == 0:
+            P = np.round(P * 4) / 4
+        hull = P[ConvexHull(P).vertices]
+        e = np.roll(hull, -1, axis=0) - hull
+        e /= np.linalg.norm(e, axis=1, keepdims=True)
+        d = np.r_[rng.normal(size=(20, 2)), e, -e, np.stack([-e[:, 1], e[:, 0]], 1)]
+        proj = d @ hull.T
+        got = proj[np.arange(len(d)), _support(e, d)]
+        assert np.all(got >= proj.max(axis=1) - 1e-12 * np.abs(proj).max()), t

@@ -154,9 +154,10 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
         return [(np.eye(2), False)]
     e = np.roll(hull, -1, axis=0) - hull
     e = e / np.linalg.norm(e, axis=1, keepdims=True)
-    # turning edge direction e onto +x: x' = e . p, y' = e_perp . p
-    xs, ys = e @ hull.T, np.stack([-e[:, 1], e[:, 0]], 1) @ hull.T
-    w, h = np.ptp(xs, axis=1), np.ptp(ys, axis=1)
+    # turning edge direction e onto +x: x' = e . p, y' = e_perp . p (extremes by _support: linear)
+    n = np.stack([-e[:, 1], e[:, 0]], 1)
+    w = np.einsum("ij,ij->i", e, hull[_support(e, e)] - hull[_support(e, -e)])
+    h = np.einsum("ij,ij->i", n, hull[_support(e, n)] - hull[_support(e, -n)])
     k = int(np.argmin(w * h))
     R = _rotation(e[k, 0], -e[k, 1])
     R = R if w[k] >= h[k] else _QUARTER_TURNS[1] @ R
@@ -167,6 +168,20 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
         if side < 0.98 * max(w[k], h[k]):
             out.append((_rotation(math.cos(a), math.sin(a)), False))
     return out
+
+
+def _support(e, d) -> np.ndarray:
+    """(k,) for each direction ``d`` (k, 2), the vertex of a convex polygon farthest along it,
+    from the polygon's unit edge vectors ``e`` (h, 2) (edge ``i`` from vertex ``i`` to ``i + 1``,
+    counter-clockwise, as ConvexHull lists them): the vertex where the edges turn from going
+    along ``d`` to going against it, i.e. the first edge at or past ``d``'s angle plus a quarter
+    turn.  The edges' angles increase around the polygon, so one sort and a binary search per
+    direction: O((h + k) log h), where projecting every vertex on every edge's direction (the
+    rotating-calipers minimum rectangle over all edges) would be quadratic."""
+    angle = np.arctan2(e[:, 1], e[:, 0])
+    order = np.argsort(angle, kind="stable")
+    target = np.mod(np.arctan2(d[:, 1], d[:, 0]) + 1.5 * np.pi, 2 * np.pi) - np.pi  # + pi/2, in [-pi, pi)
+    return order[np.searchsorted(angle[order], target) % len(e)]
 
 
 def _square_sides(P, a) -> np.ndarray:
