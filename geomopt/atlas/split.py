@@ -7,7 +7,9 @@ at a quantile of the chart's area along a direction, the sides smoothed; each si
 pieces keep their flattened coordinates (a part of a flip-free, injective map is one), so no
 chart is solved again.  :func:`split_to_pack` tries the largest chart not tried yet: every
 distinct cut of :func:`candidate_splits` (``_DIRECTIONS`` directions from the principal axis,
-``_QUANTILES`` positions) is screened by a cheap packing of its pieces, the ``_FINALISTS`` best
+``_QUANTILES`` positions) is screened by a cheap packing of its pieces (with a ``prescreen``,
+a cheaper packing of all of them ranks them first and only the ``_SHORTLIST`` best are screened:
+a guided rather than exhaustive search), the ``_FINALISTS`` best
 are packed with all the charts, and the best is kept when it pays, while the efficiency is below
 the goal.  A split is charged, in efficiency, ``min_gain`` per chart it adds and ``seam_cost``
 per square root of the surface's area of seam it adds (3D length of the cut edges), both when
