@@ -19,6 +19,11 @@ the average edge's (1: as exposed as a random cut) and their mean turning angle 
 Each process is checked: exit status 0, geomopt's atlas certified, the output written, the
 input file's bytes unchanged.  Outputs go to a temporary folder, removed at the end.
 
+``--stages``: instead, where the time goes: per mesh, one geomopt process that imports, reads,
+makes the atlas once (warming the process) and again timed by its progress stages (cut,
+flatten, split search + packing, the exact certificate) and writes the OBJ, beside the xatlas
+process, alternating, ``--repeat`` rounds (medians).
+
 Run it with the Python of the install being measured, as a user installs it::
 
     python3 -m venv /tmp/plainvenv && /tmp/plainvenv/bin/pip install . xatlas trimesh
@@ -51,12 +56,51 @@ import trimesh, xatlas
 t1 = time.perf_counter()
 mesh = trimesh.load(sys.argv[1], force="mesh", process=False)
 t2 = time.perf_counter()
+c2 = time.process_time()
 vmapping, indices, uvs = xatlas.parametrize(mesh.vertices, mesh.faces)
-t3 = time.perf_counter()
+t3, c3 = time.perf_counter(), time.process_time()
 xatlas.export(sys.argv[2], mesh.vertices[vmapping], indices, uvs)
 t4 = time.perf_counter()
 print(json.dumps({"vertices": len(mesh.vertices), "faces": len(mesh.faces), "uv_vertices": len(uvs),
-                  "timing": {"import": t1 - t0, "read": t2 - t1, "parametrize": t3 - t2, "write": t4 - t3}}))
+                  "timing": {"import": t1 - t0, "read": t2 - t1, "parametrize": t3 - t2, "write": t4 - t3},
+                  "cpu": {"parametrize": c3 - c2}}))
+"""
+
+
+#: geomopt's stages, in one process: import, read, then ``make_atlas`` twice (the first warms the
+#: process: its programs loaded or compiled), the second timed by its progress stages, the exact
+#: certificate's own seconds, and the write
+STAGES = """
+import json, sys, time
+clock = time.process_time if sys.argv[3] == "cpu" else time.perf_counter
+t0 = clock()
+import geomopt
+from geomopt import io
+from geomopt.atlas import make_atlas
+t1 = clock()
+V, F = io.read_mesh(sys.argv[1])
+t2 = clock()
+make_atlas(V, F, progress=False)
+mark, stages = [clock()], {"cut": 0.0, "flatten": 0.0, "split+pack": 0.0}
+
+def say(stage, info):
+    now = clock()
+    key = {"cut": "cut", "split to pack": "split+pack", "packed": "split+pack"}.get(stage, "flatten")
+    stages[key] += now - mark[0]
+    mark[0] = now
+
+t3 = clock()
+atlas = make_atlas(V, F, progress=say)
+t4 = clock()
+io.write_mesh_with_uv(sys.argv[2], V, F, atlas.uv, format="obj", uv_faces=atlas.uv_faces)
+t5 = clock()
+geomopt.atlas.certify_atlas(atlas.uv, atlas.uv_faces, atlas.chart)  # the atlas's certificate again, timed
+stages["certificate"] = clock() - t5
+stages["split+pack"] -= stages["certificate"]
+m = atlas.metrics
+print(json.dumps({"faces": len(F), "charts": m.charts, "efficiency": m.efficiency, "certified": atlas.success,
+                  "timing": {"import": t1 - t0, "read": t2 - t1, "first atlas": t3 - t2, **stages,
+                             "atlas": t4 - t3, "write": t5 - t4}}))
 """
 
 
@@ -65,7 +109,7 @@ def log(msg):
 
 
 def run_process(args, env=None):
-    """One process to its exit: wall seconds, peak resident MB (``os.wait4``), exit status,
+    """One process to its exit: wall and CPU seconds, peak resident MB (``os.wait4``), exit status,
     stdout, stderr, the 1-minute load average before it."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         load = os.getloadavg()[0]
@@ -75,7 +119,8 @@ def run_process(args, env=None):
         wall = time.perf_counter() - t
         p.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
         out.seek(0), err.seek(0)
-        return {"wall": wall, "peak_mb": usage.ru_maxrss / 1024.0, "rc": p.returncode, "load": load,
+        return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024.0,
+                "rc": p.returncode, "load": load,
                 "stdout": out.read().decode(errors="replace"), "stderr": err.read().decode(errors="replace")}
 
 
@@ -207,11 +252,44 @@ def table(rows):
     return "\n".join(lines)
 
 
+def stages(paths, repeat, clock="wall"):
+    """Per mesh, ``repeat`` rounds of geomopt's :data:`STAGES` process and the xatlas process,
+    alternating: medians of each stage beside xatlas's, as a markdown table; ``clock`` "wall"
+    (seconds) or "cpu" (the process's CPU seconds, all threads: steadier than wall time on a
+    loaded machine; xatlas's parametrize runs on all threads, so its CPU seconds exceed its
+    wall time on an idle machine)."""
+    rows = ["| mesh | faces | charts | import | read | cut | flatten | split search + packing | certificate "
+            "| write | atlas (warm) | xatlas parametrize | xatlas process | geomopt process (incl. first atlas) "
+            "| ratio atlas / xatlas parametrize |", "|---" * 15 + "|"]
+    with tempfile.TemporaryDirectory(prefix="atlas_stages-") as tmp:
+        for path in paths:
+            g, x = [], []
+            for _ in range(repeat):
+                g.append(checked(run_process([sys.executable, "-c", STAGES, str(path), f"{tmp}/g.obj", clock]), "geomopt",
+                                 path, f"{tmp}/g.obj", sha256(path)))
+                x.append(checked(run_process([sys.executable, "-c", XATLAS, str(path), f"{tmp}/x.obj"]), "xatlas",
+                                 path, f"{tmp}/x.obj", sha256(path)))
+                log(f"  {path.name}: geomopt {g[-1]['wall']:.1f} s, xatlas {x[-1]['wall']:.1f} s")
+            med = {k: statistics.median(r["summary"]["timing"][k] for r in g) for k in g[0]["summary"]["timing"]}
+            xp = statistics.median(r["summary"]["cpu" if clock == "cpu" else "timing"]["parametrize"] for r in x)
+            s = g[0]["summary"]
+            rows.append(f"| {path.stem} | {s['faces']} | {s['charts']} | " + " | ".join(
+                f"{med[k]:.2f}" for k in ("import", "read", "cut", "flatten", "split+pack", "certificate", "write",
+                                          "atlas")) + f" | {xp:.2f} | {statistics.median(r[clock] for r in x):.2f} | "
+                f"{statistics.median(r[clock] for r in g):.2f} | {med['atlas'] / xp:.2f} |")
+    return "\n".join(rows)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("meshes", nargs="*", help="mesh files (default: shared/data/closed/*.off)")
     ap.add_argument("--repeat", type=int, default=1, help="later rounds per mesh (medians; default 1)")
     ap.add_argument("--json", help="write the raw results here")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                    help="--stages: wall seconds, or the processes' CPU seconds (steadier on a loaded machine)")
+    ap.add_argument("--stages", action="store_true",
+                    help="instead: geomopt's stages in a warm process (cut, flatten, split search + packing, "
+                         "certificate, write) beside xatlas, --repeat rounds")
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: at least one later round")
@@ -220,6 +298,9 @@ def main(argv=None):
     paths = [Path(p) for p in args.meshes] or sorted(CLOSED.glob("*.off"))
     if not paths:
         sys.exit(f"no meshes given and none at {CLOSED}: name mesh files, or clone the project next to shared/")
+    if args.stages:
+        print(stages([p for p in paths if p.is_file()], args.repeat, args.clock))
+        return
     version = subprocess.run([*geomopt_command(), "--version"], capture_output=True, text=True).stdout.strip()
     log(f"{' '.join(geomopt_command())} ({version or 'no --version'}); load {os.getloadavg()}")
     rows, failed = [], {}

@@ -122,3 +122,25 @@ def test_a_chart_within_tolerance_of_a_pixel_border_is_rastered_across_it(kind):
     lo, hi = np.floor(q.min(axis=0) - _raster._EPS), np.floor(q.max(axis=0) + _raster._EPS)
     assert origin.tolist() == lo.astype(int).tolist()
     assert mask.shape == (hi[1] - lo[1] + 1, hi[0] - lo[0] + 1) and mask.all()
+
+
+def test_an_uncertified_trial_packing_that_fails_the_atlas_certificate_is_repacked_certified(monkeypatch):
+    """make_atlas packs its trials uncertified (``pack_charts(certify=False)``) and certifies the
+    whole atlas once; when that certificate finds the packing wrong (here a trial packing moved
+    off the square), the charts are packed again with the packer's own certificate and the
+    atlas ends certified."""
+    import dataclasses
+
+    import geomopt.atlas
+
+    calls, real = [], geomopt.atlas.pack_charts
+
+    def shifted(uvs, faces, **kw):
+        calls.append(kw.get("certify", True))
+        p = real(uvs, faces, **kw)
+        return p if kw.get("certify", True) else dataclasses.replace(p, uvs=[u + 2.0 for u in p.uvs])
+    monkeypatch.setattr(geomopt.atlas, "pack_charts", shifted)
+    atlas = make_atlas(*TET, progress=False)
+    assert atlas.success and atlas.certificate.ok
+    assert False in calls and calls[-1] is True  # trials uncertified, then one certified packing
+    assert ((atlas.uv >= 0) & (atlas.uv <= 1)).all()

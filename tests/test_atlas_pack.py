@@ -778,3 +778,84 @@ def test_a_thin_strip_is_packed_on_a_bitmap_of_bounded_size():
     assert np.ptp(U[0], axis=0).max() / h <= _pack._LONG_SIDE * 128 + 1
     packing = pack_charts([V * [1000.0, 1.0]], [F], resolution=128)
     assert certify_atlas(packing.uvs[0], F, np.zeros(len(F), int)).ok
+
+
+def test_split_sides_pieces_match_separate_connected_components():
+    """The pieces of both sides of a cut (one masked dual graph, ``_Dual.sides``) are the
+    connected components of each side's faces alone, numbered alike (by their first face), on
+    random sides of a grid with many pieces each."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    from geomopt.atlas.charts import face_pairs
+    from geomopt.atlas.split import _Dual, _face_components, _restrict
+
+    rng = np.random.default_rng(11)
+    V, F = g.square_mesh(9)
+    a, b = face_pairs(F)[:2]
+    dual = _Dual(a, b, len(F))
+    for _ in range(50):
+        low = rng.random(len(F)) < rng.uniform(0.2, 0.8)
+        both = dual.sides(low)
+        for side in (low, ~low):
+            if not side.any():
+                continue
+            idx = np.cumsum(side) - 1
+            keep = side[a] & side[b]
+            n = int(side.sum())
+            graph = sp.coo_matrix((np.ones(int(keep.sum())), (idx[a[keep]], idx[b[keep]])), shape=(n, n))
+            want = connected_components(graph.tocsr(), directed=False)[1]
+            assert np.array_equal(_restrict(both, side), want)
+            assert np.array_equal(_face_components(F, side), want)
+        assert len(np.unique(both)) > 2
+
+
+def test_the_prescreen_shortlists_the_candidates_that_are_screened():
+    """With a prescreen and more than ``_SHORTLIST`` candidates, only the prescreen's best
+    ``_SHORTLIST`` are screened: a prescreen that ranks the best split last keeps it out (a worse
+    one is kept), one that ranks it first lets it in; without a prescreen every candidate is
+    screened."""
+    from geomopt.atlas.split import _SHORTLIST, candidate_splits, split_to_pack
+
+    mesh, x = _shape_chart(lambda c: ((c[:, 0] < 1.0) & (c[:, 1] < 1.0)) | (c[:, 1] < 0.25), n=17, size=(2.0, 2.0))
+    cands = candidate_splits(mesh, x)
+    assert len(cands) > _SHORTLIST + 1
+    counts = [len(c[0][0].F) for c in cands]  # a split recognised by its first piece's face count
+    key = {next(n for n in counts if counts.count(n) == 1): 1.0}  # the best split: a distinct one
+
+    def score(maps, faces, boundaries=None):
+        return key.get(len(faces[0]), 0.5) if len(faces) > 1 else 0.4
+
+    class Packed:
+        def __init__(self, maps, faces):
+            self.efficiency = score(maps, faces)
+
+    pack = lambda maps, faces: Packed(maps, faces)
+    run = lambda **kw: split_to_pack([mesh], [x], pack, goal=0.99, max_splits=1, min_gain=0.0, seam_cost=0.0,
+                                     screen=score, **kw)[2].efficiency
+    assert run() == 1.0
+    assert run(prescreen=lambda m, f, b: -score(m, f)) == 0.5  # the best ranked last: left out
+    assert run(prescreen=score) == 1.0
+
+
+def test_the_support_vertex_of_a_convex_polygon_is_the_farthest_along_each_direction():
+    """``_support`` (a binary search over the hull's edge angles, so the minimum-area rectangle
+    costs O(h log h), not O(h^2)) returns a vertex whose projection is the largest, for random
+    directions and the edges' own directions and normals (the ties of the rectangle search), on
+    random hulls, some of them with collinear and grid-snapped points."""
+    from scipy.spatial import ConvexHull
+
+    from geomopt.atlas._pack import _support
+
+    rng = np.random.default_rng(3)
+    for t in range(300):
+        P = rng.normal(size=(int(rng.integers(3, 200)), 2)) * rng.uniform(0.1, 10.0, size=2)
+        if t % 3 == 0:
+            P = np.round(P * 4) / 4
+        hull = P[ConvexHull(P).vertices]
+        e = np.roll(hull, -1, axis=0) - hull
+        e /= np.linalg.norm(e, axis=1, keepdims=True)
+        d = np.r_[rng.normal(size=(20, 2)), e, -e, np.stack([-e[:, 1], e[:, 0]], 1)]
+        proj = d @ hull.T
+        got = proj[np.arange(len(d)), _support(e, d)]
+        assert np.all(got >= proj.max(axis=1) - 1e-12 * np.abs(proj).max()), t

@@ -154,9 +154,10 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
         return [(np.eye(2), False)]
     e = np.roll(hull, -1, axis=0) - hull
     e = e / np.linalg.norm(e, axis=1, keepdims=True)
-    # turning edge direction e onto +x: x' = e . p, y' = e_perp . p
-    xs, ys = e @ hull.T, np.stack([-e[:, 1], e[:, 0]], 1) @ hull.T
-    w, h = np.ptp(xs, axis=1), np.ptp(ys, axis=1)
+    # turning edge direction e onto +x: x' = e . p, y' = e_perp . p (extremes by _support: linear)
+    n = np.stack([-e[:, 1], e[:, 0]], 1)
+    w = np.einsum("ij,ij->i", e, hull[_support(e, e)] - hull[_support(e, -e)])
+    h = np.einsum("ij,ij->i", n, hull[_support(e, n)] - hull[_support(e, -n)])
     k = int(np.argmin(w * h))
     R = _rotation(e[k, 0], -e[k, 1])
     R = R if w[k] >= h[k] else _QUARTER_TURNS[1] @ R
@@ -167,6 +168,20 @@ def _base_rotations(u, big: bool, steps: int = 1) -> list[tuple[np.ndarray, bool
         if side < 0.98 * max(w[k], h[k]):
             out.append((_rotation(math.cos(a), math.sin(a)), False))
     return out
+
+
+def _support(e, d) -> np.ndarray:
+    """(k,) for each direction ``d`` (k, 2), the vertex of a convex polygon farthest along it,
+    from the polygon's unit edge vectors ``e`` (h, 2) (edge ``i`` from vertex ``i`` to ``i + 1``,
+    counter-clockwise, as ConvexHull lists them): the vertex where the edges turn from going
+    along ``d`` to going against it, i.e. the first edge at or past ``d``'s angle plus a quarter
+    turn.  The edges' angles increase around the polygon, so one sort and a binary search per
+    direction: O((h + k) log h), where projecting every vertex on every edge's direction (the
+    rotating-calipers minimum rectangle over all edges) would be quadratic."""
+    angle = np.arctan2(e[:, 1], e[:, 0])
+    order = np.argsort(angle, kind="stable")
+    target = np.mod(np.arctan2(d[:, 1], d[:, 0]) + 1.5 * np.pi, 2 * np.pi) - np.pi  # + pi/2, in [-pi, pi)
+    return order[np.searchsorted(angle[order], target) % len(e)]
 
 
 def _square_sides(P, a) -> np.ndarray:
@@ -387,7 +402,8 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
 
 
-def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512) -> Packing:
+def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512,
+                certify: bool = True) -> Packing:
     """Pack flat charts into the unit square without overlap, each rotated (never mirrored).
 
     Parameters
@@ -398,11 +414,16 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     rotate : bool, whether charts may turn (to their minimum-area rectangle, then by quarter turns).
     resolution : int, pixels a side of the packing bitmap: higher packs tighter (smaller charts are
         drawn more finely) and takes longer (about quadratically).
+    certify : bool, certify the packing (and retry at finer resolutions until it certifies).
+        False: the first layout, *not certified* (conservative rasters make it disjoint, but
+        nothing checked it exactly): for trial packings whose chosen one the caller certifies
+        (as :func:`~geomopt.atlas.make_atlas` certifies its whole atlas), falling back to a
+        certified packing when that fails.
 
     Returns
     -------
-    :class:`Packing`; certified (:func:`certify_atlas`): no two charts meet, all inside [0, 1]^2,
-    each chart more than ``margin`` from the others.
+    :class:`Packing`; with ``certify``, certified (:func:`certify_atlas`): no two charts meet, all
+    inside [0, 1]^2, each chart more than ``margin`` from the others.
 
     Raises
     ------
@@ -424,8 +445,8 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     for _ in range(_TRIES):
         R, t, h = _layout(U, Bs, bases, turns, area, margin, res)
         out, scale, offsets = _to_unit_square(U, R, t, h)
-        cert = _certify_packed(out, Fs)
-        if cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):
+        cert = _certify_packed(out, Fs) if certify else None
+        if cert is None or cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):
             side = _side(out)
             angles = np.arctan2(R[:, 1, 0], R[:, 0, 0])
             efficiency = sum(_area(u, f) for u, f in zip(out, Fs)) / side**2

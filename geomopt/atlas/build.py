@@ -55,6 +55,9 @@ _ESTIMATE_GAP = 0.35
 _MARGIN = 0.005  # the default gap between charts, a fraction of the square's side
 _PADDING = 2.0  # texels between charts when a resolution is given without a padding
 _DIAGONAL = 1e4  # how much dearer a seam is along a polygon's diagonal (an edge of its fan only)
+# the coarse screen of many packing splits (:func:`~geomopt.atlas.split.split_to_pack`): a coarser
+# bitmap and fewer square packings than packing_estimate's defaults (128 pixels, 12 packings)
+_COARSE_SCREEN = {"resolution": 64, "budget": 6}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -402,16 +405,18 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     margin, inset = options.packing()
     _check_room(options, margin, len(meshes))
 
-    def pack(maps, faces):
-        return pack_charts(maps, faces, margin=margin, rotate=options.rotate)
+    def pack(maps, faces, certify=False):  # trial packings: the chosen one is certified by _place
+        return pack_charts(maps, faces, margin=margin, rotate=options.rotate, certify=certify)
 
-    def screen(maps, faces, boundaries):
-        return packing_estimate(maps, faces, margin=margin, rotate=options.rotate, boundaries=boundaries)
+    def screen(maps, faces, boundaries, coarse=False):
+        return packing_estimate(maps, faces, margin=margin, rotate=options.rotate, boundaries=boundaries,
+                                **(_COARSE_SCREEN if coarse else {}))
 
     charts, flat = meshes, [r.x for r in results]
     meshes, maps, packing, owner = split_to_pack(charts, flat, pack, options.min_efficiency,
                                                  min_gain=options.split_gain,
-                                                 screen=screen, V=g.V)
+                                                 screen=screen, V=g.V,
+                                                 prescreen=lambda *a: screen(*a, coarse=True))
     if options.straighten > 0 and len(meshes) > len(charts):  # the splits' borders follow the seam cost too
         pieces, order, changed = straighten_splits(g, tree_cost, charts, flat, owner, list(zip(meshes, maps)),
                                                    options.straighten)
@@ -420,13 +425,23 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
             meshes, maps, packing, owner = [m for m, _ in pieces], [x for _, x in pieces], again, order
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
-    uv, uv_faces, wedge, chart = _assemble(len(F), meshes, packing.uvs)
-    uv = inset + (1.0 - 2.0 * inset) * uv if inset else uv
-    certificate = certify_atlas(uv, uv_faces, chart)
+    uv, uv_faces, wedge, chart, certificate = _place(len(F), meshes, maps, packing, pack, inset)
     details = AtlasDetails(uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), atlas_metrics(V, F, uv, uv_faces),
                            tuple(results[i] for i in owner), 0.0, pinched, V, F, given.counts,
                            given.vertex_offsets, given.face_offsets, margin * (1.0 - 2.0 * inset))
     return _result(uv, certificate, details, results, solver, t0, progress, throw)
+
+
+def _place(n_faces, meshes, maps, packing, pack, inset):
+    """The packed charts assembled (:func:`_assemble`), inset by ``inset`` from the square's
+    edges, with the one exact certificate of the packing; trial packings are uncertified, so a
+    packing that fails it (not expected: the rasters are conservative) is packed again, certified."""
+    uv, uv_faces, wedge, chart = _assemble(n_faces, meshes, packing.uvs)
+    uv = inset + (1.0 - 2.0 * inset) * uv if inset else uv
+    certificate = certify_atlas(uv, uv_faces, chart)
+    if pack is not None and (len(certificate.overlapping_pairs) or certificate.out_of_range):
+        return _place(n_faces, meshes, maps, pack(maps, [m.F for m in meshes], certify=True), None, inset)
+    return uv, uv_faces, wedge, chart, certificate
 
 
 def _manifold_graph(V, F, progress):

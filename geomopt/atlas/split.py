@@ -7,7 +7,9 @@ at a quantile of the chart's area along a direction, the sides smoothed; each si
 pieces keep their flattened coordinates (a part of a flip-free, injective map is one), so no
 chart is solved again.  :func:`split_to_pack` tries the largest chart not tried yet: every
 distinct cut of :func:`candidate_splits` (``_DIRECTIONS`` directions from the principal axis,
-``_QUANTILES`` positions) is screened by a cheap packing of its pieces, the ``_FINALISTS`` best
+``_QUANTILES`` positions) is screened by a cheap packing of its pieces (with a ``prescreen``,
+a cheaper packing of all of them ranks them first and only the ``_SHORTLIST`` best are screened:
+a guided rather than exhaustive search), the ``_FINALISTS`` best
 are packed with all the charts, and the best is kept when it pays, while the efficiency is below
 the goal.  A split is charged, in efficiency, ``min_gain`` per chart it adds and ``seam_cost``
 per square root of the surface's area of seam it adds (3D length of the cut edges), both when
@@ -37,6 +39,7 @@ __all__ = ["candidate_splits", "piece_boundaries", "split_flat_chart", "split_to
 _DIRECTIONS = 8  # straight cuts tried across this many directions over half a turn
 _QUANTILES = (0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9)  # at these fractions of the chart's area
 _FINALISTS = 3  # the best screened splits packed with all the charts
+_SHORTLIST = 16  # more candidates are screened coarsely first, and this many best again
 _SLIVER = 0.01  # a piece of a split under this fraction of the chart's area joins the other side
 _PATIENCE = 3  # split_to_pack stops after this many charts in a row that no split improved
 _SEAM_COST = 0.05  # efficiency a split must buy per sqrt(surface area) of seam it adds
@@ -56,14 +59,37 @@ def _compact(F, size):
 def _face_components(F, keep, pairs=None):
     """Labels (len(keep),) of the faces ``F[keep]`` joined across shared edges (``pairs``: the
     face pairs of ``F`` sharing an edge, :func:`~geomopt.atlas.charts.face_pairs`, when known)."""
-    from scipy.sparse.csgraph import connected_components
-
     a, b = face_pairs(F)[:2] if pairs is None else pairs
-    both = keep[a] & keep[b]
-    index = np.cumsum(keep) - 1
-    n = int(keep.sum())
-    graph = sp.coo_matrix((np.ones(int(both.sum())), (index[a[both]], index[b[both]])), shape=(n, n))
-    return connected_components(graph.tocsr(), directed=False)[1]
+    return _restrict(_Dual(a, b, len(F)).sides(keep), keep)
+
+
+def _restrict(labels, side):
+    """The labels of the faces ``side`` (m,) bool among ``labels`` (m,) (components that never
+    leave ``side``), renumbered 0, 1, ... by their first face, as ``connected_components``
+    numbers the faces of ``side`` alone."""
+    return np.unique(labels[side], return_inverse=True)[1].reshape(-1)
+
+
+class _Dual:
+    """The dual graph of a chart, faces ``a[k]``--``b[k]`` joined across the edge they share,
+    its adjacency sorted once: the pieces of both sides of any cut then cost one masked copy and
+    one :func:`scipy.sparse.csgraph.connected_components` (no sparse matrix assembled and sorted
+    per query)."""
+
+    def __init__(self, a, b, m: int):
+        order = np.argsort(a, kind="stable")
+        self.a, self.b, self.m = a[order], b[order], m
+
+    def sides(self, low):
+        """(m,) labels of the connected pieces of both sides of ``low`` (m,) bool: faces joined
+        across the pairs whose faces are on the same side; numbered by their first face."""
+        from scipy.sparse.csgraph import connected_components
+
+        use = low[self.a] == low[self.b]
+        indptr = np.zeros(self.m + 1, dtype=np.int64)
+        np.cumsum(np.bincount(self.a[use], minlength=self.m), out=indptr[1:])
+        graph = sp.csr_matrix((np.ones(int(indptr[-1]), np.int8), self.b[use], indptr), shape=(self.m, self.m))
+        return connected_components(graph, directed=False)[1]
 
 
 def _smoothed(F, side, rounds=3, pairs=None):
@@ -91,7 +117,7 @@ class _Cutter:
         P = self.x[mesh.F]
         self.c, self.A = P.mean(axis=1), triangle_areas(P)
         self.a, self.b, edge, E, self.edge_of = face_pairs(mesh.F)
-        self.E = E
+        self.E, self.dual = E, _Dual(self.a, self.b, len(mesh.F))
         self.nv, self.ne = len(self.x), len(E)
         # the length of the edge between each face pair: 3D when the surface is known, else in UV
         X = self.X = self.x if V is None else np.asarray(V)[mesh.vertices]
@@ -167,12 +193,8 @@ class _Cutter:
         crumbs, each of which would be a chart of its own."""
         low = low.copy()
         for _ in range(rounds):
-            flip = np.zeros(len(low), dtype=bool)
-            for side in (low, ~low):
-                faces = np.flatnonzero(side)
-                if len(faces):
-                    labels = _face_components(self.mesh.F, side, pairs=(self.a, self.b))
-                    flip[faces] = (np.bincount(labels, self.A[faces]) < _SLIVER * self.A.sum())[labels]
+            labels = self.dual.sides(low)  # the pieces of both sides
+            flip = (np.bincount(labels, self.A) < _SLIVER * self.A.sum())[labels]
             if not flip.any():
                 break
             low ^= flip
@@ -191,11 +213,12 @@ class _Cutter:
         bool, or None when a side is empty or a piece is not a disk or is under ``_SLIVER`` of
         the chart's area."""
         mesh, pieces = self.mesh, []
+        both = self.dual.sides(low)
         for side in (low, ~low):
             if not side.any():
                 return None
             faces = np.flatnonzero(side)
-            labels = _face_components(mesh.F, side, pairs=(self.a, self.b))
+            labels = _restrict(both, side)
             for k in range(labels.max() + 1):
                 sel = faces[labels == k]
                 if not self._is_disk(sel) or self.A[sel].sum() < _SLIVER * self.A.sum():
@@ -278,25 +301,33 @@ def piece_boundaries(mesh: ChartMesh, splits):
     return out
 
 
-def _best_split(meshes, maps, i, pack, screen, charge, current):
+def _best_split(meshes, maps, i, pack, screen, charge, current, prescreen=None):
     """The split of chart ``i`` (:func:`candidate_splits`) that packs best less its cost
     ``charge(pieces, seam)`` (in efficiency: its extra charts and its seam), among those that pay
     (the packing's efficiency rises above ``current`` by at least the charge, or to ``_MULTIPLY``
     times ``current`` or more; a split that cannot be packed at the margin, ParameterError, pays
     nothing): every candidate's
-    pieces are packed alone by ``screen`` (a cheap estimate), the ``_FINALISTS`` best are packed
-    with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
+    pieces are packed alone by ``screen`` (a cheap estimate; with ``prescreen``, a cheaper one,
+    and more than ``_SHORTLIST`` candidates, only the ``_SHORTLIST`` that ``prescreen`` ranks
+    best), the ``_FINALISTS`` best are packed with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
     pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
     bounds = piece_boundaries(meshes[i], [c for c, _ in cands])
 
-    def estimate(pieces, seam, B):
+    def estimate(k, screen):
+        (pieces, seam), B = cands[k], bounds[k]
         try:
             return screen([p[1] for p in pieces], [p[0].F for p in pieces], B) - charge(pieces, seam)
         except ParameterError:  # more pieces than the margin can keep apart
             return -np.inf
 
-    est = [estimate(c, seam, B) for (c, seam), B in zip(cands, bounds)]
+    short = range(len(cands))
+    if prescreen is not None and len(cands) > _SHORTLIST:  # the prescreen's shortlist; the others out
+        coarse = np.array([estimate(k, prescreen) for k in short])
+        short = [k for k in np.argsort(coarse, kind="stable")[::-1][:_SHORTLIST] if coarse[k] > -np.inf]
+    est = np.full(len(cands), -np.inf)
+    for k in short:
+        est[k] = estimate(k, screen)
     best = None
     for j in np.argsort(est)[::-1][:_FINALISTS]:
         if est[j] == -np.inf:
@@ -429,7 +460,7 @@ def separate_overlaps(mesh: ChartMesh, x, V, max_pieces: int = 16):
 
 
 def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen=None, V=None,
-                  seam_cost=_SEAM_COST):
+                  seam_cost=_SEAM_COST, prescreen=None):
     """Split the largest chart not tried yet and repack (``pack(maps, faces) -> Packing``),
     keeping the best split (:func:`_best_split`) when it raises the packing efficiency by at
     least its charge: ``min_gain`` per extra chart and ``seam_cost`` per unit of seam (a split
@@ -439,7 +470,9 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
     packing less).
     ``screen(maps, faces, boundaries) -> float`` estimates a packing's efficiency cheaply
     (``boundaries``: each chart's boundary half-edges, :func:`piece_boundaries`; default:
-    ``pack``'s efficiency).  The seam's unit is the square root of the charts' total area
+    ``pack``'s efficiency); ``prescreen``, the same call, cheaper still: when given, it ranks
+    the candidates of a chart with more than ``_SHORTLIST`` and ``screen`` only the best
+    ``_SHORTLIST`` (a guided search: most candidates pack far worse than the best).  The seam's unit is the square root of the charts' total area
     (:class:`_Charge`), seams and areas measured on the surface ``V`` (the vertices that the
     charts' ``vertices`` index) when given, else in UV.
 
@@ -462,7 +495,7 @@ def split_to_pack(meshes, maps, pack, goal, max_splits=16, min_gain=0.01, screen
         if area[i] < 0:
             break
         tried.add(i)
-        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency)
+        best = _best_split(meshes, maps, i, pack, screen, charge, packing.efficiency, prescreen)
         if best is None:
             failed += 1
             continue  # this chart stays whole; try the next largest
