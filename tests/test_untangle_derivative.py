@@ -120,3 +120,54 @@ def test_auto_polish_skips_large_eager_solves_but_never_a_traced_one(monkeypatch
                                                      options=geomopt.UntangleOptions(polish=False)).x))(V)
     with pytest.raises(geomopt.ParameterError, match="polish must be"):
         geomopt.UntangleOptions(polish="always")
+
+
+def test_the_polish_pattern_and_analysis_are_built_ahead_once_and_change_nothing(monkeypatch):
+    """From AHEAD_FROM free coordinates the polish's Hessian pattern and Cholesky analysis are
+    built on a thread while the eps loop runs (one thread, one analysis: the polish's Newton
+    finds them made); the map is the one built without the thread, bit for bit.  Nothing is
+    started without the polish or below AHEAD_FROM."""
+    from geomopt.objective import linsolve
+    from geomopt.untangling import continuation
+
+    started, made = [], []
+    real_ahead, real_init = continuation.ahead, linsolve.SparseCholesky.__init__
+
+    def recording_ahead(work):
+        started.append(work)
+        return real_ahead(work)
+
+    def counting_init(self, indptr, *args, **kwargs):
+        made.append(len(indptr) - 1)
+        return real_init(self, indptr, *args, **kwargs)
+
+    monkeypatch.setattr(continuation, "ahead", recording_ahead)
+    monkeypatch.setattr(linsolve.SparseCholesky, "__init__", counting_init)
+    t = generators.rotated_interior(*generators.square_mesh(50), 90.0)
+    problem = t.problem()
+    assert 2 * problem.free_mask.sum() >= continuation.AHEAD_FROM
+    res = geomopt.untangle(problem, t.x0, progress=False)
+    assert res.success and res.details.polished
+    assert len(started) == 1 and made.count(2 * int(problem.free_mask.sum())) == 1  # the polish's, once
+    monkeypatch.setattr(continuation, "AHEAD_FROM", 10**9)
+    plain = geomopt.untangle(problem, t.x0, progress=False)
+    assert len(started) == 1 and plain.details.polished
+    np.testing.assert_array_equal(res.x, plain.x)
+    monkeypatch.setattr(continuation, "AHEAD_FROM", 0)
+    geomopt.untangle(problem, t.x0, progress=False, options=geomopt.UntangleOptions(polish=False))
+    assert len(started) == 1
+
+
+def test_the_polish_tries_no_step_longer_than_newtons():
+    """The polish's Newton steps near the minimum take the full step at the first trial: one
+    energy evaluation a step (a doubling tried after it would cost another)."""
+    from geomopt.untangling import polish_solver
+    from geomopt.solvers import minimize
+
+    make, V, S, B, h, x0 = _case("tri", 1.0)
+    problem = make(V, S, B, h)
+    near = geomopt.untangle(problem, x0, progress=False, options=geomopt.UntangleOptions(polish=False))
+    obj = Objective(problem, "garanzha", eps=1e-9, lam=1.0 / 127.0)
+    res = minimize(obj, near.x, polish_solver(), progress=False)
+    assert res.success and res.stats.iterations >= 2
+    assert res.stats.evaluations <= res.stats.iterations + 1, (res.stats.evaluations, res.stats.iterations)

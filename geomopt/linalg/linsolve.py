@@ -19,6 +19,7 @@ the shared meshes; table in benchmarks/README.md):
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import threading
@@ -78,6 +79,7 @@ def _silence_c_output():
             os.close(copy)
 
 
+@functools.cache  # a missing module is looked for on every import attempt (1.5 ms each)
 def _have(module):
     try:
         __import__(module)

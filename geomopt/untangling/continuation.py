@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._runtime.programs import jit as programs_jit
+from .._runtime.threads import AHEAD_FROM, ahead
 from ..exact.predicates import differing_rows
 from ..mesh.geometry import det
 from ..objective.objective import jacobians, total_energy
@@ -108,6 +109,7 @@ class EpsContinuation(AbstractContinuation):
         self.floor = EPS_FLOOR.get(problem.dim, 1e-10)
         self.injective = False
         self.polishing = False
+        self._ahead = None  # the thread of prepare_polish
         self.inverted = []
         self.E = math.nan
 
@@ -198,11 +200,24 @@ class EpsContinuation(AbstractContinuation):
         self.x_solve = state.x
         return Decision.go(params, restart=not opts.keep_memory or worse, solver=self.phase_solver, record=record)
 
+    def prepare_polish(self) -> None:
+        """Build the polish's Hessian pattern and sparse Cholesky analysis on a thread
+        (:func:`~geomopt._runtime.threads.ahead`) while the eps loop runs, for problems of
+        :data:`~geomopt._runtime.threads.AHEAD_FROM` free coordinates or more (below, the
+        thread costs more than the work) whose polish factors (not CG's); :meth:`_polish`
+        waits for it.  Nothing is done without ``options.polish``."""
+        newton = polish_solver()
+        if (self.options.polish and int(np.count_nonzero(self.objective.free_dofs)) >= AHEAD_FROM
+                and not newton.uses_cg(self.objective)):
+            self._ahead = ahead(lambda: self.objective.cholesky(newton.linear_solver))
+
     def _polish(self, state, record) -> Decision:
-        """Start the final polish (class notes) from the untangled, settled map."""
+        """Start the final polish (class notes) from the untangled, settled map (its energy
+        is measured when the polish ends, :meth:`_polished`)."""
+        if self._ahead is not None:
+            self._ahead.join()
         self.polishing, self.eps = True, final_eps(self.problem.dim)
         params = self.objective.params(eps=self.eps)
-        self.E = next(iter(self._stats(state.x, params)))
         return Decision.go(params, objective=self.objective, x=state.x, solver=polish_solver(), record=record)
 
     def _polished(self, state, outcome) -> Decision:

@@ -198,6 +198,7 @@ def _solve(problem, solving, x_start, active, solver, opts, details, initially, 
         opts = dataclasses.replace(opts, polish=int(solving.free_mask.sum()) * problem.dim <= POLISH_UP_TO)
     details = dataclasses.replace(details, map_scale=k, rest_scale=s)
     eps = EpsContinuation(solving, scaled, full, obj, k, xs, opts, details, initially, solver, stiff, forced, stall)
+    eps.prepare_polish()
     setup = time.perf_counter() - t_setup
     result = iterate(eps.phase_solver, obj, jax.device_put(xs), obj.params(eps=float(opts.eps0)), continuation=eps,
                      progress=_phase_progress(progress), trace=False, throw=False, label="untangling",
