@@ -92,12 +92,13 @@ def say(stage, info):
 t3 = clock()
 atlas = make_atlas(V, F, progress=say)
 t4 = clock()
-io.write_mesh_with_uv(sys.argv[2], V, F, atlas.uv, format="obj", uv_faces=atlas.uv_faces)
+d = atlas.details
+io.write_mesh_with_uv(sys.argv[2], V, F, atlas.x, format="obj", uv_faces=d.uv_faces)
 t5 = clock()
-geomopt.atlas.certify_atlas(atlas.uv, atlas.uv_faces, atlas.chart)  # the atlas's certificate again, timed
+geomopt.atlas.certify_atlas(atlas.x, d.uv_faces, d.chart)  # the atlas's certificate again, timed
 stages["certificate"] = clock() - t5
 stages["split+pack"] -= stages["certificate"]
-m = atlas.metrics
+m = d.metrics
 print(json.dumps({"faces": len(F), "charts": m.charts, "efficiency": m.efficiency, "certified": atlas.success,
                   "timing": {"import": t1 - t0, "read": t2 - t1, "first atlas": t3 - t2, **stages,
                              "atlas": t4 - t3, "write": t5 - t4}}))
