@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from geomopt.atlas.cones import angle_defects
-from geomopt.atlas.charts import split_charts
+from geomopt.atlas.charts import charts_of_cut
 from geomopt.atlas.seams import edge_costs, edge_graph, shortest_topological_cut, topological_cut
 from geomopt.mesh.generators import holed_plate
 
@@ -32,7 +32,7 @@ def test_the_cheapest_root_opens_each_handle_body_into_one_disk_more_cheaply():
     roots = np.array([0, len(g.V) // 2])  # the first vertex of each plate: a corner, far from most holes
     old = topological_cut(g, cost, roots)
     new = shortest_topological_cut(g, cost, labels, roots)
-    split = split_charts(g.F, g.edge_of, g.edge_faces, new)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, new)
     assert split.count == 2
     assert all(split.mesh(c).disk_loop() is not None for c in range(2))
     comp = labels[g.E[:, 0]]
@@ -59,7 +59,7 @@ def test_strong_cones_joined_by_a_tree_open_a_cad_part_nearly_isometrically_with
     cut, estimate, _ = cut_surface(g, cost, 4.5, tree_cost=edge_costs(g, 2.0))
     assert estimate <= 4.5
     assert g.length[cut].sum() <= 50.0
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     assert all(split.mesh(c).disk_loop() is not None for c in range(split.count))
 
 
@@ -140,7 +140,7 @@ def test_trim_keeps_the_estimate_of_every_chart_at_the_target():
     for target in (4.5, 4.8):
         trimmed = trim(g, cut, target)
         assert trimmed.sum() < cut.sum()
-        split = split_charts(g.F, g.edge_of, g.edge_faces, trimmed)
+        split = charts_of_cut(g.F, g.edge_of, g.edge_faces, trimmed)
         rows = np.array([chart_estimate(g, split.mesh(c), trimmed | g.boundary)[:2] for c in range(split.count)])
         assert split.count == 2 and rows[:, 0] @ rows[:, 1] / rows[:, 1].sum() <= target + 1e-9
 
@@ -160,7 +160,7 @@ def test_a_charts_estimate_takes_its_boundary_from_the_seams_and_refuses_a_non_d
     cut = shortest_topological_cut(g, cost, labels, np.unique(labels, return_index=True)[1])
     cut, _, made = relieve(g, cost, cut, 4.0, 3)  # a slit or more inside the chart too
     assert made > 0
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     for c in range(split.count):
         mesh = split.mesh(c)
         Vc = g.V[mesh.vertices]
@@ -174,7 +174,7 @@ def test_a_charts_estimate_takes_its_boundary_from_the_seams_and_refuses_a_non_d
     a = edge_graph(np.c_[V[used], np.zeros(len(used))], F.reshape(-1, 3))
     none = np.zeros(len(a.E), dtype=bool)
     with pytest.raises(RuntimeError, match="not a disk"):
-        chart_estimate(a, split_charts(a.F, a.edge_of, a.edge_faces, none).mesh(0), a.boundary)
+        chart_estimate(a, charts_of_cut(a.F, a.edge_of, a.edge_faces, none).mesh(0), a.boundary)
 
 
 def test_a_level_that_starts_from_the_same_cut_is_not_relieved_again(monkeypatch):

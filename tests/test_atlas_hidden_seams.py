@@ -11,7 +11,7 @@ import pytest
 
 from geomopt._runtime.errors import ParameterError
 from geomopt.atlas import AtlasOptions, seam_metrics
-from geomopt.atlas.charts import split_charts
+from geomopt.atlas.charts import charts_of_cut
 from geomopt.atlas.cones import angle_defects
 from geomopt.atlas.cutting import cut_surface
 from geomopt.atlas.metrics import seam_turning
@@ -230,9 +230,9 @@ def test_straighten_replaces_a_zigzag_by_a_straight_path_keeping_the_charts():
     g = edge_graph(V, F)
     cut = _zigzag_cut(g, nx, 4)
     cost = edge_costs(g, 2.0)
-    before = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    before = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     new = straighten(g, cost, cut, 1.0)
-    after = split_charts(g.F, g.edge_of, g.edge_faces, new)
+    after = charts_of_cut(g.F, g.edge_of, g.edge_faces, new)
     assert before.count == after.count == 2
     assert all(after.mesh(c).disk_loop() is not None for c in range(2))
     assert seam_turning(g.V, g.E[cut]) > 40
@@ -404,7 +404,7 @@ def test_a_charts_cone_candidates_are_its_vertices_about_as_shrunk_as_the_most(m
     ticks = np.linspace(0.0, 12.0, 37)
     V, F = _grid(ticks, ticks, lambda x, y: 4.0 * np.exp(-((x - 6) ** 2 + (y - 6) ** 2) / 6.0))
     g = edge_graph(V, F)
-    split = split_charts(g.F, g.edge_of, g.edge_faces, np.zeros(len(g.E), dtype=bool))
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, np.zeros(len(g.E), dtype=bool))
     mesh = split.mesh(0)
     mean, area, vertex, near = cutting.chart_estimate(g, mesh, g.boundary)
     loop = np.unique(g.E[g.boundary])

@@ -13,7 +13,7 @@ from geomopt.atlas.charts import ChartMesh
 from geomopt.atlas.flatten import flatten_to
 from geomopt.atlas.metrics import face_symmetric_dirichlet
 from geomopt.atlas.seams import edge_costs, edge_graph
-from geomopt.atlas.split import separate_overlaps
+from geomopt.atlas.flat_splits import separate_overlaps
 from geomopt.exact.certify import certify_bijective
 from geomopt.exact.topology import check_disk
 from geomopt.solvers import Outcome

@@ -459,7 +459,7 @@ def test_a_packing_split_must_buy_at_least_min_gain_of_efficiency():
     """split_to_pack keeps a split only when the repacked efficiency rises by ``min_gain``: a
     seam and a chart are not spent on a marginal packing gain (issue 31: charts and seams)."""
     from geomopt.atlas.charts import ChartMesh
-    from geomopt.atlas.split import split_to_pack
+    from geomopt.atlas.flat_splits import split_to_pack
     from geomopt.mesh.generators import square_mesh
 
     V, F = square_mesh(8)
@@ -503,7 +503,7 @@ def test_a_split_that_pays_is_found_and_kept_with_the_real_packer():
     is neither across the principal axis at the median nor one of the old three quantiles:
     split_to_pack must find it among its candidates and keep it (two pieces: each extra chart
     must buy ``min_gain``)."""
-    from geomopt.atlas.split import split_to_pack
+    from geomopt.atlas.flat_splits import split_to_pack
 
     mesh, x = _shape_chart(lambda c: ((c[:, 0] < 1.0) & (c[:, 1] < 1.0)) | (c[:, 1] < 0.25), n=17, size=(2.0, 2.0))
     pack = lambda maps, faces: pack_charts(maps, faces)
@@ -520,7 +520,7 @@ def test_each_extra_chart_of_a_split_must_buy_min_gain():
     """A U-shaped chart has cuts into two pieces and cuts into three (across both arms).  With a
     packer that gains 1.2 points for two pieces and 1.8 for three, a charge of one point per extra
     chart prefers two pieces (0.2 net against -0.2), and refuses three when two are impossible."""
-    from geomopt.atlas.split import candidate_splits, split_to_pack
+    from geomopt.atlas.flat_splits import candidate_splits, split_to_pack
 
     mesh, x = _shape_chart(lambda c: ~((c[:, 0] > 1.0) & (c[:, 0] < 2.0) & (c[:, 1] > 1.0)))
     counts = {len(c) for c in candidate_splits(mesh, x)}
@@ -547,7 +547,7 @@ def test_the_fast_disk_test_of_split_pieces_agrees_with_check_disk():
     """The pieces of a split are tested for being disks by counting (Euler characteristic 1, two
     boundary edges at each boundary vertex); on random face subsets of a grid (holes, pinched
     vertices, plain disks) it must agree with the full check."""
-    from geomopt.atlas.split import _Cutter, _face_components
+    from geomopt.atlas.flat_splits import _Cutter, _face_components
 
     rng = np.random.default_rng(5)
     V, F = g.square_mesh(7)
@@ -612,7 +612,7 @@ def test_split_candidates_leave_no_crumbs():
     """A straight cut across a grid's diagonal or a ragged outline leaves single triangles
     joined to their side by a vertex only; each would become a chart.  Every piece of every
     candidate split keeps more than a sliver of the chart."""
-    from geomopt.atlas.split import _SLIVER, candidate_splits
+    from geomopt.atlas.flat_splits import _SLIVER, candidate_splits
 
     mesh, x = _shape_chart(lambda c: (c[:, 0] < 1.0) | (c[:, 1] < 0.2))
     total = _uv_area(x, mesh.F)
@@ -635,7 +635,7 @@ def test_among_splits_that_pack_alike_the_shortest_seam_in_3d_wins():
     five times across in 3D, the cut across the chart's length (3 long) is shorter there than
     the one across its width (1 in UV, 5 in 3D).  The seam is charged when deciding whether a
     split pays too: at a high enough price per length, the same split is refused."""
-    from geomopt.atlas.split import candidate_splits, split_to_pack
+    from geomopt.atlas.flat_splits import candidate_splits, split_to_pack
 
     mesh, x = _shape_chart(lambda c: c[:, 1] < 1.0, n=13, size=(3.0, 3.0))
     V = np.c_[x * [1.0, 5.0], np.zeros(len(x))]
@@ -713,7 +713,7 @@ def test_pack_search_reports_the_true_side_of_its_packing():
 def test_piece_boundaries_are_the_boundary_half_edges_of_the_pieces():
     """The screens' boundaries of split pieces, from the chart's edges counted once, are each
     piece's own boundary half-edges (the same rows in the same order), for pieces of pieces too."""
-    from geomopt.atlas.split import candidate_splits, piece_boundaries
+    from geomopt.atlas.flat_splits import candidate_splits, piece_boundaries
     from geomopt.exact.topology import boundary_half_edges
 
     mesh, x = _shape_chart(lambda c: (c[:, 1] < 1.0) | (c[:, 0] < 1.0), n=13, size=(3.0, 3.0))
@@ -788,7 +788,7 @@ def test_split_sides_pieces_match_separate_connected_components():
     from scipy.sparse.csgraph import connected_components
 
     from geomopt.atlas.charts import face_pairs
-    from geomopt.atlas.split import _Dual, _face_components, _restrict
+    from geomopt.atlas.flat_splits import _Dual, _face_components, _restrict
 
     rng = np.random.default_rng(11)
     V, F = g.square_mesh(9)
@@ -815,7 +815,7 @@ def test_the_prescreen_shortlists_the_candidates_that_are_screened():
     ``_SHORTLIST`` are screened: a prescreen that ranks the best split last keeps it out (a worse
     one is kept), one that ranks it first lets it in; without a prescreen every candidate is
     screened."""
-    from geomopt.atlas.split import _SHORTLIST, candidate_splits, split_to_pack
+    from geomopt.atlas.flat_splits import _SHORTLIST, candidate_splits, split_to_pack
 
     mesh, x = _shape_chart(lambda c: ((c[:, 0] < 1.0) & (c[:, 1] < 1.0)) | (c[:, 1] < 0.25), n=17, size=(2.0, 2.0))
     cands = candidate_splits(mesh, x)

@@ -58,7 +58,7 @@ def test_a_needle_chart_is_cut_across_into_pieces_that_pack(n_long, length):
     """A strip 300 (1000) times longer than wide packs at about 1 / 300 whole; a split in two
     gains only thousandths (below the charge of a chart), yet cutting across multiplies the
     efficiency: it must be allowed, and the strip cut into many pieces."""
-    from geomopt.atlas.split import split_to_pack
+    from geomopt.atlas.flat_splits import split_to_pack
 
     mesh, x = strip_chart(n_long, 2, length, 1.0)
     pack = lambda maps, faces: pack_charts(maps, faces, resolution=256)
@@ -89,7 +89,7 @@ class _Packed:
 def test_a_split_that_multiplies_a_tiny_efficiency_pays_below_its_charge(split, kept):
     """From 0.001 a split to 0.003 gains 0.002, far below the charge of a chart (0.01), but
     triples the efficiency: kept.  To 0.0019 (less than doubled) it is not."""
-    from geomopt.atlas.split import split_to_pack
+    from geomopt.atlas.flat_splits import split_to_pack
 
     mesh, x = strip_chart(12, 2, 6.0, 1.0)
     pack = lambda maps, faces: _Packed(0.001 if len(maps) == 1 else split)
@@ -103,7 +103,7 @@ def test_a_split_into_more_charts_than_the_margin_keeps_apart_is_skipped(screen_
     the charts, ParameterError), in the final packing and (or only) in the screen: no split is
     kept, and the whole chart's packing is returned."""
     from geomopt._runtime.errors import ParameterError
-    from geomopt.atlas.split import split_to_pack
+    from geomopt.atlas.flat_splits import split_to_pack
 
     def pack(maps, faces):
         if len(maps) > 1:
@@ -122,7 +122,7 @@ def test_a_needle_is_cut_across_into_equal_bands_along_its_rings(curl):
     """A strip 96 quads long and 6 across (straight, or curled into most of an annulus) has cut
     candidates into 3 .. 12 bands (up to 1.5 sqrt(aspect)): each band a piece of about equal
     area, each cut along a ring of edges (seam = the width, 1; curled, at most a step more), not through the quads' diagonals."""
-    from geomopt.atlas.split import candidate_splits
+    from geomopt.atlas.flat_splits import candidate_splits
 
     mesh, x = strip_chart(96, 6, 96.0, 1.0)
     if curl:  # the strip bent into 3/4 of an annulus of radii 20 and 21: a needle whose axis curls

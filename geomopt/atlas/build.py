@@ -26,7 +26,7 @@ from .._runtime.x64 import float64
 from ..energies import energy_spec, get_energy
 from ..solvers import Details, Outcome, Result, RunStats
 from ..exact.topology import as_faces, same_side_facets, unique_edges
-from .charts import split_charts
+from .charts import charts_of_cut
 from .cones import angle_defects
 from .cutting import cut_surface
 from .flatten import flatten_chart, flatten_to
@@ -36,7 +36,7 @@ from .seams import edge_costs, edge_graph, straighten_splits
 from .visibility import vertex_visibility
 from ._certify import certify_atlas
 from ._pack import MARGIN, pack_charts, packing_estimate, widest_margin
-from .split import split_to_pack
+from .flat_splits import split_to_pack
 
 __all__ = ["make_atlas", "AtlasDetails", "AtlasPart", "AtlasOptions", "check_atlas_input"]
 
@@ -55,7 +55,7 @@ _ESTIMATE_GAP = 0.35
 _MARGIN = 0.005  # the default gap between charts, a fraction of the square's side
 _PADDING = 2.0  # texels between charts when a resolution is given without a padding
 _DIAGONAL = 1e4  # how much dearer a seam is along a polygon's diagonal (an edge of its fan only)
-# the coarse screen of many packing splits (:func:`~geomopt.atlas.split.split_to_pack`): a coarser
+# the coarse screen of many packing splits (:func:`~geomopt.atlas.flat_splits.split_to_pack`): a coarser
 # bitmap and fewer square packings than packing_estimate's defaults (128 pixels, 12 packings)
 _COARSE_SCREEN = {"resolution": 64, "budget": 6}
 
@@ -84,9 +84,9 @@ class AtlasOptions:
     max_cuts : the most cone cuts.
     min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
         repack while the packing efficiency (chart area / unit square) is below this and each
-        split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.split.split_to_pack`).
+        split pays ``split_gain`` per chart it adds (:func:`~geomopt.atlas.flat_splits.split_to_pack`).
     split_gain : the least rise of the packing efficiency a split must buy per extra chart it
-        makes; its seam is charged too, by length (:func:`~geomopt.atlas.split.split_to_pack`).
+        makes; its seam is charged too, by length (:func:`~geomopt.atlas.flat_splits.split_to_pack`).
     margin : None, or the least distance between two packed charts, as a fraction of the unit
         square's side (default 0.005; not with ``resolution``).
     resolution : None, or the texture's side in texels ``N``: the charts are packed for an
@@ -446,9 +446,9 @@ def _place(n_faces, meshes, maps, packing, pack, inset):
 
 def _manifold_graph(V, F, progress):
     """The edge graph of the mesh with its pinched vertices split (one wedge per fan), the
-    split (:func:`~geomopt.atlas.charts.split_charts`) and the pinched vertices."""
+    split (:func:`~geomopt.atlas.charts.charts_of_cut`) and the pinched vertices."""
     g0 = edge_graph(V, F)
-    manifold = split_charts(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
+    manifold = charts_of_cut(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
     pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
     if len(pinched):
         _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))

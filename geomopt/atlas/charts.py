@@ -4,7 +4,7 @@ edges), and each chart its own mesh with local vertex ids mapping back to the in
 
 A vertex on a seam gets one wedge per side of the seam; a vertex whose faces form several fans
 (a non-manifold "bow-tie" vertex) one per fan even without seams, so cutting nothing splits such
-vertices (:func:`split_charts` with no cut is how the atlas builder makes its input manifold).
+vertices (:func:`charts_of_cut` with no cut is how the atlas builder makes its input manifold).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from .._runtime.errors import MeshError
 from ..exact.topology import check_disk
 
-__all__ = ["ChartSplit", "ChartMesh", "split_charts", "face_pairs", "patch_is_disk"]
+__all__ = ["ChartSplit", "ChartMesh", "charts_of_cut", "face_pairs", "patch_is_disk"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,7 +124,7 @@ def _components(n, i, j):
     return connected_components(graph, directed=False)
 
 
-def split_charts(F, edge_of, edge_faces, cut) -> ChartSplit:
+def charts_of_cut(F, edge_of, edge_faces, cut) -> ChartSplit:
     """Cut a mesh along the edges ``cut``.
 
     Parameters

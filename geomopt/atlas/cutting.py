@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..mesh.quality import triangle_areas
-from .charts import split_charts
+from .charts import charts_of_cut
 from .cones import angle_defects, log_scale, scale_estimate
 from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
                     steiner_tree, straighten)
@@ -146,7 +146,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
     cut = cut.copy()
     history, seam, paths = [], [], []
     for made in range(max_cuts + 1):
-        split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+        split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
         first = np.full(split.count, len(g.F))
         np.minimum.at(first, split.chart, np.arange(len(g.F)))
         rows = []
@@ -212,7 +212,7 @@ def _topological(g: EdgeGraph, cost, tree_cost, labels, roots, least, target):
 def _estimates(g: EdgeGraph, cut, known):
     """``(split, rows)``: the charts of ``cut`` and their :func:`chart_estimate` rows, reusing
     those in ``known`` (keyed by the chart's first face and face count)."""
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     rows = []
     for c in range(split.count):
         mesh = split.mesh(c)
@@ -240,7 +240,7 @@ def trim(g: EdgeGraph, cut, target, max_trials: int = 64):
             trial[path] = False
             face = g.edge_faces[path[0], 0]
             c = int(split.chart[face])
-            joined = split_charts(g.F, g.edge_of, g.edge_faces, trial)
+            joined = charts_of_cut(g.F, g.edge_of, g.edge_faces, trial)
             after = chart_estimate(g, joined.mesh(int(joined.chart[face])), trial | g.boundary)[0]
             if float(np.sum(mean * area) + (after - mean[c]) * area[c]) / area.sum() <= target:
                 cut = trial

@@ -2,7 +2,7 @@
 
 Each chart is flattened by :func:`geomopt.parameterize` (free boundary, flip-free).  When that
 map is flip-free but its boundary overlaps itself, the chart is cut between the overlapping
-sheets (:func:`~geomopt.atlas.split.separate_overlaps`) unless the bijective scaffold keeps the
+sheets (:func:`~geomopt.atlas.flat_splits.separate_overlaps`) unless the bijective scaffold keeps the
 sheets apart at little cost (its mean symmetric Dirichlet at most the goal's or the free map's):
 the pieces keep their nearly isometric coordinates, where the scaffold may squeeze a large chart
 with many seams to tens or thousands of times the distortion, or not converge.  The cone cuts are chosen by a
@@ -20,12 +20,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..mesh.quality import triangle_areas
-from .charts import split_charts
+from .charts import charts_of_cut
 from .cutting import relieve
 from .metrics import face_symmetric_dirichlet
 from .regions import normal_regions
 from .seams import straighten
-from .split import separate_overlaps
+from .flat_splits import separate_overlaps
 
 __all__ = ["flatten_chart", "flatten_to", "split_to_goal"]
 
@@ -67,7 +67,7 @@ def _mean_sd(Vc, Fc, x):
 
 def _separate(g, cut, mesh, res, known):
     """Cut the chart ``mesh`` of ``cut`` whose free flattening ``res`` is flip-free but overlaps
-    itself into injective pieces (:func:`~geomopt.atlas.split.separate_overlaps`): returns the
+    itself into injective pieces (:func:`~geomopt.atlas.flat_splits.separate_overlaps`): returns the
     seam graph with the new cuts and records each piece in ``known`` (its own coordinates and
     exact certificate); None when no such cut exists."""
     import dataclasses
@@ -81,7 +81,7 @@ def _separate(g, cut, mesh, res, known):
     f1, f2 = g.edge_faces[:, 0], np.maximum(g.edge_faces[:, 1], 0)
     new = ~g.boundary & (label[f1] >= 0) & (label[f1] != label[f2])
     cut = cut | new
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     for piece, x, cert in pieces:
         mesh = split.mesh(int(split.chart[piece.faces[0]]))  # same faces, in the same order
         xs = np.empty((len(mesh.wedges), 2))
@@ -97,7 +97,7 @@ def _flatten_all(g, cut, solve, known, say, goal):
     A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
     converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
     is cut instead (:func:`_separate`), so ``cut`` may grow."""
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)

@@ -444,9 +444,9 @@ def _disks(g: EdgeGraph, cut) -> tuple:
     """``(count, all_disks)``: the charts of ``cut`` and whether each is a disk (Euler
     characteristic 1 of a connected chart: wedges - edges + faces, its edges counted from its
     faces' half-edges, each glued pair once)."""
-    from .charts import split_charts
+    from .charts import charts_of_cut
 
-    split = split_charts(g.F, g.edge_of, g.edge_faces, cut)
+    split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     faces = np.bincount(split.chart, minlength=split.count)
     open_half = np.bincount(split.chart, (cut | g.boundary)[g.edge_of].sum(axis=1), minlength=split.count)
     wedge_chart = np.zeros(split.wedge.max() + 1, dtype=np.int64)
@@ -600,14 +600,14 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
     cost : (k,) its edges' seam costs (:func:`edge_costs`).
     mesh : the chart's :class:`~geomopt.atlas.charts.ChartMesh`;  x : (nc, 2) its flattening.
     pieces : list of ``(ChartMesh, x_piece)``, a partition of the chart's faces into disks (as
-        :func:`~geomopt.atlas.split.split_flat_chart` returns it).
+        :func:`~geomopt.atlas.flat_splits.split_flat_chart` returns it).
     turn : the price of turning (:func:`straighten`; 0: the pieces as given).
 
     Returns
     -------
     list of ``(ChartMesh, x_piece)``: the pieces given when no border changed.
     """
-    from .charts import split_charts
+    from .charts import charts_of_cut
 
     if turn <= 0 or len(pieces) < 2:
         return pieces
@@ -623,7 +623,7 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
                                    chart.V[chart.F[:, 2]] - chart.V[chart.F[:, 0]]), axis=1)
     for slide in (_SPLIT_SLIDE, 0.0):
         new = straighten(chart, local_cost, border, turn, slide)
-        split = split_charts(chart.F, chart.edge_of, chart.edge_faces, new)
+        split = charts_of_cut(chart.F, chart.edge_of, chart.edge_faces, new)
         if _kept_areas(label, split.chart, area):
             break
     else:
@@ -639,7 +639,7 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
 
 def straighten_splits(g: EdgeGraph, cost: np.ndarray, charts, maps, owner, pieces, turn: float = 1.0):
     """:func:`straighten_split` for every chart that a later split cut into pieces (as
-    :func:`~geomopt.atlas.split.split_to_pack` does, keeping each piece's coordinates).
+    :func:`~geomopt.atlas.flat_splits.split_to_pack` does, keeping each piece's coordinates).
 
     Parameters
     ----------
