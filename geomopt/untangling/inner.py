@@ -33,9 +33,8 @@ PROBE_PROGRESS = (0.9, 0.5)
 
 
 #: inner iterations after which the default L-BFGS on hexahedra's corners continues with Newton:
-#: a Newton iteration costs about a hundred L-BFGS ones there (hex22-rot180, 85k corners: 13
-#: Newton iterations took 13 s, compilation included, against 1.8 s for its 182 L-BFGS ones), so the probe is ten
-#: Newton iterations' worth
+#: a Newton iteration costs as much as many L-BFGS ones on corner problems, so the probe is set
+#: to cost about ten Newton iterations (measurements: benchmarks/README.md, issue 49 section)
 STIFF_AFTER_NEWTON = 1000
 
 
@@ -43,22 +42,18 @@ def stiff_solver(name: str, dim: int, corners: bool = False) -> AbstractSolver |
     """The solver an inner solve of :func:`default_solver` continues with when it has not
     converged after :data:`STIFF_AFTER` iterations (None: no switch).
 
-    ``"lbfgs"``: the Laplacian seed (Sobolev-preconditioned L-BFGS).  An inner solve that
-    needs more than a hundred iterations with the diagonal seed is a stiff, global one (the
-    first outer iteration of a large rotation): there the Laplacian seed's iteration count
-    does not grow with the mesh (disk 12.7k triangles rotated 180 degrees: 1,474 -> 50 inner
-    iterations, 2.2 -> 0.2 s; an irregular Delaunay disk 6,855 -> 1,259), while on local
-    tangles (noise) the diagonal seed converges within the probe at a third of the cost per
-    iteration and is kept.
+    ``"lbfgs"``: the Laplacian seed (Sobolev-preconditioned L-BFGS), because an inner solve
+    that outlasts the probe with the diagonal seed is a stiff, global one (the first outer
+    iteration of a large rotation), where the Laplacian seed's iteration count does not grow
+    with the mesh; on local tangles (noise) the diagonal seed converges within the probe, at a
+    lower cost per iteration, and is kept.
 
     ``corners`` in 3D (the corner tetrahedra of hexahedra): Newton (:func:`default_solver`
-    ``"newton"``).  No L-BFGS seed solves a stiff corner problem: on the hex rod of 9 x 9 x 108
-    bent by 180 degrees (69,984 corners; the tet rod of the same grid untangles in 1,565
-    Laplacian-seeded iterations) the first eps solve stalls with the Laplacian seed after 8,437
-    iterations at a mean energy of 567 with 26,627 corners inverted (6,304 at the start), with the
-    diagonal seed after 15,736 at 72 with 1,137; each later eps then stalls too and the loop never
-    untangles.  Newton reaches that eps's minimum (mean energy 4.31, every corner positive) in 73
-    iterations.  The switch comes after :data:`STIFF_AFTER_NEWTON` L-BFGS iterations."""
+    ``"newton"``), because no L-BFGS seed solves a stiff corner problem (the first eps solve
+    stalls with either seed, each later eps stalls too and the loop never untangles) while
+    Newton reaches that eps's minimum with every corner positive.  The switch comes after
+    :data:`STIFF_AFTER_NEWTON` L-BFGS iterations.  Any other ``name``: None.  Measurements:
+    benchmarks/README.md (issue 49 section)."""
     if str(name).strip().lower() != "lbfgs":
         return None
     if corners and dim == 3:
@@ -70,27 +65,26 @@ def default_solver(name: str, dim: int, n_elements: int = 0, corners: bool = Fal
                    inverted: int = 0) -> AbstractSolver:
     """The inner solver :func:`~geomopt.untangling.untangle` uses for ``"lbfgs"`` or ``"newton"``.
 
-    ``"lbfgs"``: M1QN3 diagonal seed below ``LAPLACIAN_FROM`` elements, the Laplacian seed
-    (:class:`~geomopt.solvers.LBFGS` ``precondition="laplacian"``) from there on.  Measured
-    (warm seconds, diagonal -> Laplacian): ~1e5 elements: rotated square 104 -> 58, Tutte
-    L / star 27 -> 11 / 19 -> 11, bent rod 43 -> 13, twisted cube 12.6 -> 6.1, noisy disk
-    1.3 -> 3.0; the LIM armadillo (24k tets) 0.66 -> 1.04 and 2D cases of ~1e4 triangles
-    were slower or even with it (its host solves cost more than the iterations they save).
+    ``"lbfgs"``: :class:`~geomopt.solvers.LBFGS` (history 10, the injective search without its
+    injectivity test) with the M1QN3 diagonal seed below :data:`LAPLACIAN_FROM` elements and the
+    Laplacian seed (``precondition="laplacian"``) from there on, because the Laplacian seed's
+    host solves cost more than the iterations they save on smaller problems and fewer on larger
+    ones.  At most 30000 steps per eps in 2D and on corners, 3000 on tetrahedra.
 
     A start with at least :data:`LOCAL_TANGLE_SHARE` of its ``n_elements`` ``inverted`` is a
     local tangle and keeps the diagonal seed at any size (simplices only; the stiff switch's
-    probe still hands a stalling solve to the Laplacian seed).  Global tangles invert a thin
-    band: rotations, bends and Tutte stars 0.7-10% of their elements, noise of two edge
-    lengths and scattered interiors 47-50%.  Measured at 6e4-1.4e5 elements (2-core box under
-    load, same run; inner iterations and seconds, Laplacian -> diagonal): structured disk
-    noise 83 / 1.32 -> 93 / 0.66, scattered disk 155 / 3.23 -> 142 / 1.69, Delaunay ball
-    noise 562 / 5.65 -> 387 / 3.55, cube noise 108 / 1.14 -> 99 / 1.13, Delaunay disk noise
-    925 / 13.3-13.8 -> 1,244 / 13.7-18.2 (even); a disk rotated by 180 degrees needs 739-874
-    iterations instead of 296 once ten or more diagonal steps came first.
+    probe still hands a stalling solve to the Laplacian seed), because global tangles
+    (rotations, bends, Tutte stars) invert a thin band of elements and local ones (noise,
+    scattered interiors) about half, and on local tangles the diagonal seed's cheaper
+    iterations finish first or even (while diagonal steps taken first slow a later Laplacian
+    solve of a global tangle).
 
     ``corners``: the problem's simplices are the corner tetrahedra of hexahedra, which need more
-    L-BFGS steps per eps than tets: 30000 as in 2D (a hex rod of 6 x 6 x 72 bent by 180 degrees
-    took 9942 in its first outer iteration; capped at 3000 it stalled with 67 hexahedra inverted)."""
+    L-BFGS steps per eps than tets, hence the 2D cap of 30000 (the tets' 3000 stalls).
+
+    ``"newton"``: :class:`~geomopt.solvers.Newton` with the clamped projection, ``rtol=1e-7``,
+    at most 100 steps.  Any other name raises :class:`~geomopt.ParameterError`.  Measurements
+    behind the threshold and the caps: benchmarks/README.md (issue 49 section)."""
     key = str(name).strip().lower()
     local = not corners and inverted >= LOCAL_TANGLE_SHARE * n_elements > 0
     if key == "lbfgs":
@@ -108,9 +102,9 @@ def polish_solver() -> Newton:
     Newton with its injective search (no element flips back) to a decrement of ``1e-12 |E|``,
     whose last step leaves the map the energy's minimiser to rounding (the tight optimum the
     implicit function theorem differentiates, :func:`geomopt.untangling.implicit.untangle_map`).
-    The exact Hessian (no projection; shifted where it does not factor): the inner solves end
-    near the minimum, where it converges quadratically from the first step (the twisted box of
-    10k tets: 2 iterations, against 3 with the adaptive projection's first clamped one).  Its
+    The exact Hessian (no projection; shifted where it does not factor), because the inner
+    solves end near the minimum, where it converges quadratically from the first step and a
+    projection's clamped first step only adds an iteration.  Its
     search tries no longer step than Newton's (``expand=0``): from there the full step is the
     right one, and each doubling tried costs an energy evaluation."""
     return Newton(rtol=1e-12, max_steps=50, projection=Exact(), search=InjectiveSearch(expand=0))
