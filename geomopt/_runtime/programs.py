@@ -1,10 +1,10 @@
 """Compiled programs kept on disk, so that a warm process neither traces nor compiles.
 
 JAX's persistent compilation cache (:mod:`geomopt._runtime.cache`) skips XLA's compilation, but a new
-process still traces and lowers every program to find the compiled one: 0.3-1 s per process
-for a Newton parameterization of 50k triangles (the projected Hessian kernel traces in
-0.15-0.5 s, the injective search in 0.2 s).  :class:`Program` is ``jax.jit`` whose compiled
-executables are also written with ``jax.experimental.serialize_executable`` under
+process still traces and lowers every program to find the compiled one, a cost that for the
+large kernels (the projected Hessian, the injective search) is a noticeable share of a warm
+run (measurements: benchmarks/README.md, issue 49 section).  :class:`Program` is ``jax.jit``
+whose compiled executables are also written with ``jax.experimental.serialize_executable`` under
 ``<cache folder>/programs``, keyed by everything the trace depends on:
 
 * the function (module and qualified name) and its static arguments (energy density,
@@ -66,20 +66,18 @@ stats = {"loaded": 0, "stored": 0, "plain": 0, "broken": 0, "rejected": 0}
 _programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
 
 #: XLA options of every program (unless it names its own).  XLA CPU wraps reductions and
-#: elementwise work over large arrays into YNNPACK library calls, which cuts its loop fusion:
-#: turning that off made energy + gradient of 10^6 triangles 1.45x faster (CPU time 0.076 ->
-#: 0.052 s), and L-BFGS's loop 1.9x faster per iteration once its vectors pass 16,384 entries
-#: (a 12,272-triangle disk padded to 10,240 vertices: 1.81 -> 0.94 ms; 135k triangles: 14.7
-#: -> 11.1 ms; below that size nothing changes).  It changes nothing else (the option exists
-#: for CPU only).  jaxlib before 0.8.1 does not know it and refuses to compile with it: see
-#: :func:`xla_options`.
+#: elementwise work over large arrays into YNNPACK library calls, which cuts its loop fusion;
+#: turning that off makes the energy, its gradient and L-BFGS's loop faster on large arrays
+#: and changes nothing below 16,384 entries (measurements: benchmarks/README.md, issue 49
+#: section).  It changes nothing else (the option exists for CPU only).  jaxlib before 0.8.1
+#: does not know it and refuses to compile with it: see :func:`xla_options`.
 XLA_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 
 @functools.cache
 def xla_options() -> dict:
     """:data:`XLA_OPTIONS` if the running jaxlib accepts them, else ``{}``: decided once per
-    process by compiling an identity (about 20 ms, at the first program call, not at import)."""
+    process by compiling an identity (at the first program call, not at import)."""
     try:
         jax.jit(lambda v: v, compiler_options=XLA_OPTIONS).lower(np.float64(0.0)).compile()
     except Exception:  # noqa: BLE001 -- the error type differs across jaxlib versions
@@ -163,8 +161,8 @@ def _calls_lapack(compiled) -> bool:
     """Whether a compiled program calls LAPACK (a custom call to a ``lapack_*`` target in its HLO;
     the text's metadata also names the caller's functions and files, so the target is what is
     matched; True when the text cannot be had): only then does loading it need
-    :func:`_lapack_ready`, whose lowering and import of ``scipy.linalg`` cost ~0.1 s of a warm
-    process."""
+    :func:`_lapack_ready`, whose lowering and import of ``scipy.linalg`` are a noticeable cost
+    in a warm process."""
     try:
         return 'custom_call_target="lapack_' in compiled.as_text()
     except Exception:  # noqa: BLE001 -- no text on this backend or jax version
@@ -196,8 +194,8 @@ class Program:
     @property
     def requested_options(self) -> dict:
         """The compiler options asked for (:data:`XLA_OPTIONS` unless given): the key of a kept
-        program, so that loading one needs no :func:`xla_options` probe (a compilation of ~30 ms
-        in every process); whether jaxlib accepts them follows from its version, in the key."""
+        program, so that loading one needs no :func:`xla_options` probe (a compilation in every
+        process); whether jaxlib accepts them follows from its version, in the key."""
         return XLA_OPTIONS if self._given is None else self._given
 
     @functools.cached_property

@@ -4,17 +4,16 @@ work started ahead of need on a thread (:func:`ahead`).
 A solve interleaves XLA's kernels (which use every core) with NumPy and SciPy calls on the host
 (gradient norms, dot products of the Newton and CG steps, certificates).  NumPy's OpenBLAS
 starts a thread per core for a vector of 10,000 or more values and keeps them spinning after the
-call, on the cores XLA needs for the next kernel: measured on a 2-core machine, a warm
-``sphere_map`` of the bunny took 1.8-3.2 s with OpenBLAS's threads and 1.4-1.7 s with one, and
-under load the demo's Newton solve 1.6-1.7 s against 0.86-0.97 s.  :func:`single_blas_thread`
-limits every loaded BLAS (OpenBLAS, MKL, BLIS, Accelerate: ``threadpoolctl``) to one thread for
-the loop and restores the caller's settings after it; nothing else in the process is changed.
-Finding the loaded libraries scans the process's shared objects (2 ms, a tenth of a small
-chart's solve in an atlas): it is done again only when modules were imported since.
+call, on the cores XLA needs for the next kernel, which slows the solve (measurements:
+benchmarks/README.md, issue 49 section).
+:func:`single_blas_thread` limits every loaded BLAS (OpenBLAS, MKL, BLIS, Accelerate:
+``threadpoolctl``) to one thread for the loop and restores the caller's settings after it;
+nothing else in the process is changed.  Finding the loaded libraries scans the process's
+shared objects, a cost not negligible beside a small chart's solve in an atlas: it is done again only
+when modules were imported since.
 
 Work ahead on a thread pays only for problems of :data:`AHEAD_FROM` unknowns or more: below
-that the thread's start and join cost more than the work it overlaps (a 36-vertex disk's
-``parameterize``, both threads and the scan: 19.6 -> 15.3 ms median; 400 vertices: 51 -> 43 ms).
+that the thread's start and join cost more than the work it overlaps.
 """
 
 from __future__ import annotations
