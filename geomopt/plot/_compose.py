@@ -2,11 +2,12 @@
 
 ``geomopt param --png`` (and ``demo``) draws two pictures, the checkerboard beside the UV
 layout (:func:`param_picture`) and the convergence plot (:func:`convergence_picture`); drawn
-through matplotlib, importing it alone costs more than half a second and drawing as much
-again.  Here they are composed directly: the checkerboard renders and the layout's flat
-triangles come from the NumPy rasterizer (:mod:`geomopt.plot._render`), the colour table is
-viridis' 256 entries, and titles, tick labels and lines are drawn by Pillow with matplotlib's
-own font (DejaVu Sans, found in matplotlib's data folder without importing it).  The layout,
+through matplotlib, its import and its drawing would take a large share of the command's
+time (measurements: benchmarks/README.md, issue 49 section).  Here they are composed directly:
+the checkerboard renders and the layout's flat triangles come from the NumPy rasterizer
+(:mod:`geomopt.plot._render`), the colour table is viridis' 256 entries, and titles, tick
+labels and lines are drawn by Pillow with matplotlib's own font (DejaVu Sans, found in
+matplotlib's data folder without importing it).  The layout,
 panel sizes, tick choice and text sizes follow :mod:`geomopt.plot`'s figures at the same dpi.
 
 Each ``*_picture`` returns a Pillow RGB image, or None when it cannot draw the picture the way
@@ -55,8 +56,8 @@ TAB10 = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e37
          "#17becf")
 
 #: the checkerboard renders have this many times the pixels they are shown at, smoothed by the
-#: downsampling (matplotlib's figure renders about 1.4x: 990 pixels for the demo's 695; 1.25x
-#: looks the same at 0.7 of the rasterizer's time, a quarter of the demo's drawing)
+#: downsampling: fewer than matplotlib's figure renders, because the result looks the same and
+#: the rasterizer's time grows with the pixels (measurements: benchmarks/README.md, issue 49)
 RENDER_SCALE = 1.25
 
 _GRID = (231, 231, 231)  # matplotlib's grid, #b0b0b0 at alpha 0.3, on white
@@ -250,9 +251,9 @@ def flat_triangles(xy, F, rgb, size, supersample=1):
     coordinates ``xy`` (n, 2) (column, row from the top), each filled with its colour ``rgb``
     (m, 3) uint8 over white, rasterised by :func:`geomopt.plot._render.nearest_faces` (no depth: a
     later triangle wins a shared pixel).  ``supersample`` > 1 renders that many times larger
-    and averages down (Pillow's ``reduce``) for an anti-aliased outline: for the demo's layout
-    0.2 s at 2 where 1 takes 0.07 s, so the layout is drawn at 1 (steps of one pixel along
-    its outline, no seams inside)."""
+    and averages down (Pillow's ``reduce``) for an anti-aliased outline, at a multiple of the
+    rasterizer's time, so the layout is drawn at 1 (steps of one pixel along its
+    outline, no seams inside)."""
     from PIL import Image
 
     from ._render import nearest_faces
@@ -471,8 +472,9 @@ def convergence_picture(series, ylabel="energy", title="", reference=None, dpi=1
 
 def save_png(image, target, dpi):
     """Write the Pillow ``image`` as PNG into the open binary file ``target`` or atomically to
-    the path ``target``: zlib level 1 with run-length matching only (``Z_RLE``), for the demo's
-    1760 x 825 picture 0.035 s and 460 kB where matplotlib's level 1 took 0.07 s for 625 kB."""
+    the path ``target`` (``dpi`` recorded in the file): zlib level 1 with run-length matching
+    only (``Z_RLE``), because on these flat-coloured pictures it encodes faster and smaller
+    than matplotlib's level 1 (measurements: benchmarks/README.md, issue 49 section)."""
     options = {"format": "PNG", "compress_level": 1, "compress_type": 3, "dpi": (dpi, dpi)}
     if hasattr(target, "write"):
         image.save(target, **options)

@@ -44,7 +44,7 @@ def distortion(problem, x) -> dict:
 def _figure(width, height, dpi=100, layout="constrained"):
     """A Figure on an Agg canvas, outside pyplot (nothing global to close; Jupyter shows it).
     ``layout=None`` for figures placed by hand (:func:`_margins`): matplotlib's constrained
-    layout measures every tick label at each draw, a second of CPU on the demo's figures."""
+    layout measures every tick label at each draw, a cost the hand-placed figures avoid."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -80,8 +80,9 @@ def save_figure(fig, target, format=None):
 
 
 def _encoder_options(format):
-    """PNG at zlib level 1: the same pixels, encoded 2.5-3x faster (0.07 s instead of 0.2 s for
-    the demo's 1760 x 825 figure) in a file about 40% larger (625 kB instead of 444 kB)."""
+    """``savefig`` keyword arguments for ``format``: PNG at zlib level 1 (the same pixels,
+    encoded faster in a somewhat larger file; measurements: benchmarks/README.md, issue 49
+    section), nothing for other formats."""
     return {"pil_kwargs": {"compress_level": 1}} if format.lower() == "png" else {}
 
 
@@ -89,7 +90,7 @@ def flat_tripcolor(ax, x, F, face_values, **kwargs):
     """``ax.tripcolor`` of the per-face ``face_values`` (m,) on the triangles ``F`` (m, 3) of
     the 2D points ``x`` (n, 2), drawn as Gouraud triangles whose three corners have their
     face's value: the same flat colours as ``facecolors=`` in one vectorised Agg call, where a
-    polygon collection builds a path per triangle (0.1 s per 20k triangles)."""
+    polygon collection builds a path per triangle."""
     F = np.asarray(F)
     corners = x[F].reshape(-1, 2)  # (3m, 2): no corner shared, so no colour interpolated
     return ax.tripcolor(corners[:, 0], corners[:, 1], np.arange(corners.shape[0]).reshape(-1, 3),
@@ -104,7 +105,7 @@ def _layout(fig, ax, x, F, face_values, title, label, vmin=None, vmax=None):
         fig.colorbar(tp, ax=ax, shrink=0.8, label=label)
     ax.set_aspect("equal")
     ax.set_axis_off()
-    ax.set_title(title, fontsize=11, y=1.0)  # y given: no search for tick labels above (0.1 s)
+    ax.set_title(title, fontsize=11, y=1.0)  # y given: no costly search for tick labels above
 
 
 def layout_figure(x, F, face_values=None, title="", label="distortion", vmin=None, vmax=None, dpi=100):
@@ -441,7 +442,7 @@ def convergence_figure(series, ylabel="energy", title="", reference=None, dpi=10
             axes[1].semilogy(it, np.asarray(s[2], np.float64), marker=".", ms=3, label=label)
     from matplotlib.ticker import MaxNLocator
 
-    for ax in axes:  # powers of ten as text with superscripts, not mathtext (0.1-0.3 s of parsing)
+    for ax in axes:  # powers of ten as text with superscripts: no mathtext parsing (costly)
         ax.yaxis.set_major_formatter(_superscript_log_formatter())
         ax.yaxis.set_minor_formatter(_superscript_log_formatter(labelOnlyBase=False))
     axes[0].set_ylabel("(E - E_ref) / |E_ref|")
