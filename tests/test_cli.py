@@ -127,7 +127,7 @@ def test_param_unreadable_file(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(Path, "read_bytes", deny)  # chmod does not stop root
     code, _, err = cli("param", mesh, "-o", tmp_path / "uv.obj", "--quiet")
     assert code == 2
-    one_error_line(err, "cannot read mesh file", "Permission denied", "check its permissions")
+    one_error_line(err, "cannot read OBJ file", "Permission denied", "check its permissions")
     assert not (tmp_path / "uv.obj").exists()
 
 

@@ -401,6 +401,18 @@ def test_closest_points_match_brute_force():
         assert abs(np.linalg.norm(Q[i] - P[i]) - best) < 1e-12
 
 
+def test_closest_points_in_batches_equal_one_batch(monkeypatch):
+    """The points are searched in batches of ``CHUNK`` (memory): the same answer as one batch."""
+    from geomopt.fairing import surface
+
+    V, F = cap()
+    P = np.random.default_rng(1).normal(size=(100, 3)) * 0.8
+    Q, face = closest_points(P, V, F)
+    monkeypatch.setattr(surface, "CHUNK", 7)
+    Q7, face7 = closest_points(P, V, F)
+    assert np.array_equal(Q, Q7) and np.array_equal(face, face7)
+
+
 def test_relax_keeps_a_real_mesh_on_its_surface():
     """The camel head (folded in places by the certificate, slivers): every face within 1e-6 of
     the input (so only its flat parts move), no fold added, no angle made smaller."""

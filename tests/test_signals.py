@@ -38,7 +38,15 @@ SWALLOWED = """
 import gc, os, signal, sys
 import geomopt.cli
 
+def importing():
+    f = sys._getframe()
+    while f is not None and not f.f_code.co_filename.startswith("<frozen importlib"):
+        f = f.f_back
+    return f is not None
+
 def swallow(phase, info):  # a SIGINT whose KeyboardInterrupt lands in a GC callback
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler or importing():
+        return  # (the command's handler not installed yet, or inside an import: only recorded there)
     gc.callbacks.remove(swallow)
     os.kill(os.getpid(), signal.SIGINT)
     for _ in range(10 ** 6):  # the handler runs here, its exception is ignored by the collector

@@ -127,7 +127,7 @@ def test_the_polish_pattern_and_analysis_are_built_ahead_once_and_change_nothing
     built on a thread while the eps loop runs (one thread, one analysis: the polish's Newton
     finds them made); the map is the one built without the thread, bit for bit.  Nothing is
     started without the polish or below AHEAD_FROM."""
-    from geomopt.objective import linsolve
+    from geomopt.linalg import linsolve
     from geomopt.untangling import continuation
 
     started, made = [], []

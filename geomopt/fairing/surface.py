@@ -61,12 +61,27 @@ def surface_index(V, F):
     return A, B, C, buckets
 
 
+#: query points per batch of :func:`closest_points`: its candidate arrays grow with the points
+#: times the candidates each, so batches bound its memory (tens of MB, not GB)
+CHUNK = 16384
+
+
 def closest_points(P, V, F, k=8, index=None):
     """``(Q, face)``: the closest points ``Q`` (p, 3) of the surface ``V, F`` to ``P`` (p, 3) and
     the faces (p,) they lie on (exact candidate search, see the module notes); ``index``: the
-    surface's :func:`surface_index`, when the caller keeps one."""
+    surface's :func:`surface_index`, when the caller keeps one.  Points are searched in batches
+    of :data:`CHUNK`."""
     P = np.asarray(P, dtype=np.float64)
-    A, B, C, buckets = index or surface_index(V, F)
+    index = index or surface_index(V, F)
+    if len(P) <= CHUNK:
+        return _closest_batch(P, index, k)
+    parts = [_closest_batch(P[i:i + CHUNK], index, k) for i in range(0, len(P), CHUNK)]
+    return np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
+
+
+def _closest_batch(P, index, k):
+    """:func:`closest_points` of one batch of points."""
+    A, B, C, buckets = index
     who, faces = [], []
     for tree, ids, _ in buckets:
         _, near = tree.query(P, k=min(k, len(ids)))

@@ -198,7 +198,7 @@ class AbstractSolver(abc.ABC):
         * ``decrement`` (>= 0, the decrease the direction promised) whenever the
           termination's ``rtol`` is on, also when the search took no step (rule 2 tells a
           stationary start from a failed search by it); left ``inf``, the decrement test is
-          off (a descent that reports ``done`` instead: :class:`~geomopt.solvers.Optimistix`);
+          off (a descent that reports ``done`` instead: :class:`~geomopt.solvers.optimistix.Optimistix`);
         * ``past_value``: the energy the stall test compares with (the value before the step,
           or ``window`` steps back); left ``inf``, the stall test is off;
         * ``grad_norm`` when the termination's ``gtol > 0`` (L-BFGS);
