@@ -69,7 +69,8 @@ def shared_path(*parts):
     root, rest = (LIM_ROOT, parts[1:]) if parts[:1] == ("lim",) else (SHARED, parts)
     p = root.joinpath(*rest)
     if not p.exists():
-        pytest.skip(f"shared data not found at {p} (clone the project next to its shared/ folder)")
+        pytest.skip(f"{'/'.join(parts)} is not in the data the repository carries (tests/data/SOURCES.md) and "
+                    f"{SHARED} is absent (clone the project next to its shared/ folder)")
     return p
 
 
