@@ -131,7 +131,9 @@ def _write_obj(path, V, F):
     return path
 
 
-def _obj(path):
+def read_obj_corners(path):
+    """``(v (n, 3), vt (t, 2), f (m, k, 2))``: an OBJ's vertices, texture coordinates and each face's
+    (vertex, vt) per corner, as written (no checks: the tests read what geomopt wrote)."""
     v, vt, f = [], [], []
     for line in path.read_text().splitlines():
         t = line.split()
@@ -153,7 +155,7 @@ def test_the_obj_keeps_the_v_lines_and_the_face_order(cli, tmp_path):
     stages = [summary["timing"][k] for k in ("cut", "flatten", "pack")]
     assert all(x > 0 for x in stages) and summary["timing"]["write"] > 0
     assert abs(sum(stages) - summary["seconds"]) < 0.05 * summary["seconds"] + 0.05
-    v, vt, f = _obj(tmp_path / "atlas.obj")
+    v, vt, f = read_obj_corners(tmp_path / "atlas.obj")
     assert np.array_equal(v, V) and np.array_equal(f[:, :, 0], F)
     assert len(vt) > len(V) and np.all((vt >= 0) & (vt <= 1))  # a closed surface needs seams
     a = make_atlas(V, F, progress=False)
@@ -166,12 +168,12 @@ def test_a_disk_keeps_one_chart_unless_atlas_is_asked(cli, tmp_path):
     mesh = _write_obj(tmp_path / "disk.obj", V, F)
     code, out, _ = cli("param", mesh, "-o", tmp_path / "one.obj", "--json", "--quiet")
     assert code == 0 and "atlas" not in json.loads(out)
-    v, vt, f = _obj(tmp_path / "one.obj")
+    v, vt, f = read_obj_corners(tmp_path / "one.obj")
     assert len(vt) == len(V) and np.array_equal(f[:, :, 1], f[:, :, 0])  # one vt per vertex: one chart
     code, out, _ = cli("param", mesh, "-o", tmp_path / "atlas.obj", "--atlas", "--margin", "0.02", "--json", "--quiet")
     summary = json.loads(out)
     assert code == 0 and summary["atlas"] is True and summary["certified"] is True
-    _, vt, _ = _obj(tmp_path / "atlas.obj")
+    _, vt, _ = read_obj_corners(tmp_path / "atlas.obj")
     assert np.all((vt >= 0.0) & (vt <= 1.0))
 
 

@@ -14,6 +14,8 @@ from geomopt import ParameterError
 from geomopt.atlas import AtlasOptions, certify_atlas, make_atlas
 from geomopt.exact.topology import boundary_half_edges
 
+from test_atlas import read_obj_corners  # (v, vt, f: vertex and vt per corner)
+
 
 def quad_torus(n=12, m=6, R=2.0, r=0.7):
     """A torus of n x m quads, (V (n m, 3), Q (n m, 4)) counter-clockwise seen from outside."""
@@ -146,7 +148,7 @@ def test_param_writes_one_obj_per_input_into_the_folder(cli, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["a.obj", "b.obj"] and (tmp_path / "atlas.png").stat().st_size
     uv, T = [], []
     for k, (path, V) in enumerate([(out / "a.obj", V1), (out / "b.obj", V2)]):
-        W, F, vt = _read_atlas_obj(path)
+        W, vt, F = read_obj_corners(path)
         assert np.allclose(W, V) and np.all((vt >= 0) & (vt <= 1))
         T.append(F[:, :, 1] + sum(len(u) for u in uv))
         uv.append(vt)
@@ -162,17 +164,6 @@ def _charts(T):
     A = coo_matrix((np.ones(2 * len(T)), (np.r_[T[:, 0], T[:, 1]], np.r_[T[:, 1], T[:, 2]])), shape=(n, n))
     return connected_components(A, directed=False)[1][T[:, 0]]
 
-
-def _read_atlas_obj(path):
-    """``(v (n, 3), f (m, k, 2) vertex and vt per corner, vt (t, 2))`` of an OBJ of faces of k corners."""
-    v, vt, f = [], [], []
-    for line in path.read_text().splitlines():
-        t = line.split()
-        if t and t[0] in ("v", "vt"):
-            (v if t[0] == "v" else vt).append([float(x) for x in t[1:]])
-        elif t and t[0] == "f":
-            f.append([[int(i) - 1 for i in c.split("/")] for c in t[1:]])
-    return np.array(v), np.array(f), np.array(vt)
 
 
 def test_quads_stay_quads_with_one_vt_per_corner():
@@ -226,7 +217,7 @@ def test_an_atlas_result_saves_as_every_map_does(tmp_path):
     assert isinstance(result, geomopt.Result) and result.injectivity == "global" and result.mean_energy >= 4.0
     assert result.message == "converged"
     assert result.save(tmp_path / "t.obj") == (tmp_path / "t.obj",)
-    v, f, vt = _read_atlas_obj(tmp_path / "t.obj")
+    v, vt, f = read_obj_corners(tmp_path / "t.obj")
     assert np.array_equal(v, V) and np.array_equal(f[:, :, 0], triangles(Q))
     assert np.array_equal(vt, result.x) and np.array_equal(f[:, :, 1], result.details.uv_faces)
     with pytest.raises(geomopt.GeomoptError, match="extension"):
