@@ -21,6 +21,35 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(cores, MAX_WORKERS))
 
 
+#: memory mappings (Linux's /proc/self/maps) above which a worker drops the executables it holds
+#: before its next test: each live executable maps three or more regions, a process may map
+#: 65,530 (vm.max_map_count), and a worker that had run ~1,000 tests crashed in XLA's compiler
+#: when its next mapping failed (CI, 2026-12-07).  JAX's own caches hold thousands of executables;
+#: geomopt's kept programs at most ``programs.HELD`` each
+MAPS_LIMIT = 30_000
+_MAPS = Path("/proc/self/maps")
+_tests_run = [0]
+
+
+@pytest.fixture(autouse=True)
+def _bounded_memory_mappings():
+    """Every 20th test, where the worker maps more than :data:`MAPS_LIMIT` regions, forget
+    the compiled programs held in memory (JAX's caches and geomopt's; the next calls load them
+    from the compilation cache on disk)."""
+    _tests_run[0] += 1
+    if _tests_run[0] % 20 == 0 and _MAPS.exists():
+        with _MAPS.open() as fh:
+            if sum(1 for _ in fh) > MAPS_LIMIT:
+                import gc
+
+                from geomopt._runtime import programs
+
+                jax.clear_caches()
+                programs.clear()
+                gc.collect()
+    yield
+
+
 #: node ids of the long tests (tests/slow.txt): marked ``slow``, left out unless ``-m`` selects them
 SLOW = frozenset(line.strip() for line in (Path(__file__).parent / "slow.txt").read_text().splitlines()
                  if line.strip() and not line.startswith("#"))
@@ -30,13 +59,14 @@ SLOW = frozenset(line.strip() for line in (Path(__file__).parent / "slow.txt").r
 def pytest_collection_modifyitems(config, items):
     """Mark the tests of :data:`SLOW` (before ``-m`` deselects); a listed id whose file is
     missing, or whose test function its collected file lacks, is stale, and an error (a
-    parameter that exists only with ../shared's data, such as a LIM case, is not)."""
+    parameter that exists only with ../shared's data, such as a LIM case, is not; nor is one left
+    out by -k or by naming tests)."""
     ids = {item.nodeid for item in items}
     for item in items:
         if item.nodeid in SLOW:
             item.add_marker(pytest.mark.slow)
-    if config.getoption("keyword"):
-        return
+    if config.getoption("keyword") or any("::" in arg for arg in config.args):
+        return  # a selection of tests: the rest of their files is not collected
     files = {nodeid.split("::")[0] for nodeid in ids}
     functions = {nodeid.split("[")[0] for nodeid in ids}
     root = Path(config.rootpath)

@@ -344,3 +344,38 @@ def test_kept_programs_are_keyed_on_every_source_file_of_geomopt():
         os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
         _programs._fingerprints.clear()
     assert _programs._source_fingerprint("geomopt") == before
+
+
+def _maps() -> int:
+    with open("/proc/self/maps") as fh:
+        return sum(1 for _ in fh)
+
+
+def test_a_program_keeps_at_most_held_executables_in_memory(fresh_cache, monkeypatch):
+    # each live executable maps three regions and a process may map 65,530: a test worker that
+    # had called thousands of shapes crashed in XLA's compiler; the least recently used go
+    monkeypatch.setattr(_programs, "HELD", 4)
+    program = _programs.jit(_scaled_sum, static_argnums=0)
+    for scale in (1.0, 2.0, 3.0, 4.0, 5.0, 6.0):
+        program(scale, X)
+        program(1.0, X)  # the most recently used stays
+    assert len(program._calls) == 4
+    assert {k[0][0] for k in program._calls} == {1.0, 4.0, 5.0, 6.0}
+    assert float(program(2.0, X)) == pytest.approx(2.0 * np.sum(X * X))  # a dropped one loads again
+    assert _programs.stats["loaded"] >= 1
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="counts memory mappings in Linux's /proc")
+def test_dropped_executables_give_their_memory_mappings_back(fresh_cache, monkeypatch):
+    program = _programs.jit(_scaled_sum, static_argnums=0)
+    scales = [float(s) for s in np.arange(1.0, 41.0)]
+    for scale in scales:  # compiled and kept on disk
+        program(scale, X)
+    jax.clear_caches()  # JAX's own caches hold what it compiled (up to its LRU sizes)
+    _programs.clear()
+    monkeypatch.setattr(_programs, "HELD", 2)
+    program(0.5, X)
+    before = _maps()
+    for scale in scales:  # loaded from disk, two held at a time
+        program(scale, X)
+    assert _maps() - before < 40, "40 shapes, 2 executables held: their mappings must not pile up"

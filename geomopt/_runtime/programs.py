@@ -33,6 +33,7 @@ others can write.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import functools
@@ -63,6 +64,12 @@ _fingerprints: dict = {}
 #: deleted, plain jax.jit instead), "rejected" (a file whose header is not the caller's key or
 #: whose bytes fail their checksum: never run, compiled afresh); for tests and benchmarks
 stats = {"loaded": 0, "stored": 0, "plain": 0, "broken": 0, "rejected": 0}
+#: executables one :class:`Program` keeps in memory; beyond, the least recently used is dropped
+#: (and loaded from disk again if asked for).  Each live executable maps three regions of
+#: memory (its code, constants and data) and Linux lets a process map 65,530 by default: a
+#: process that called thousands of shapes (a test worker, a long sweep) crashed in XLA's
+#: compiler when the next mapping failed
+HELD = 64
 _programs: "weakref.WeakSet[Program]" = weakref.WeakSet()
 
 #: XLA options of every program (unless it names its own).  XLA CPU wraps reductions and
@@ -180,7 +187,7 @@ class Program:
         self.fun = fun
         self.static = tuple(sorted(static_argnums if isinstance(static_argnums, tuple) else (static_argnums,)))
         self._given = None if compiler_options is None else dict(compiler_options)
-        self._calls: dict = {}
+        self._calls: collections.OrderedDict = collections.OrderedDict()  # key -> executable, oldest first
         self._unproven: dict = {}  # key -> file of a loaded executable not yet run
         self._loading = threading.RLock()
         functools.update_wrapper(self, fun)
@@ -219,11 +226,16 @@ class Program:
             call = self._calls.get(key, False)
         except (TypeError, AttributeError):  # unhashable static argument, a leaf without dtype
             return None, None, None
-        if call is False:
-            with self._loading:  # a load already under way on another thread is waited for
-                call = self._calls.get(key, False)
-                if call is False:
-                    call = self._calls[key] = self._load(args, statics, tree, key, folder)
+        if call is not False:
+            with contextlib.suppress(KeyError):  # dropped meanwhile by another thread
+                self._calls.move_to_end(key)
+            return call, dynamic, key
+        with self._loading:  # a load already under way on another thread is waited for
+            call = self._calls.get(key, False)
+            if call is False:
+                call = self._calls[key] = self._load(args, statics, tree, key, folder)
+                while len(self._calls) > HELD:  # the least recently used (see HELD)
+                    self._unproven.pop(self._calls.popitem(last=False)[0], None)
         return call, dynamic, key
 
     def _load(self, args, statics, tree, key, folder):
@@ -294,10 +306,10 @@ class Program:
         except Exception:  # noqa: BLE001 -- e.g. "Function ... not found" from a damaged file
             self._calls[key] = None
             stats["broken"] += 1
-            with contextlib.suppress(OSError):
-                os.remove(self._unproven.pop(key))
+            with contextlib.suppress(OSError, TypeError):  # TypeError: dropped meanwhile (HELD)
+                os.remove(self._unproven.pop(key, None))
             return self.plain(*args)
-        del self._unproven[key]
+        self._unproven.pop(key, None)
         return out
 
     def prepare(self, *args) -> None:
