@@ -67,6 +67,17 @@ def segment_sum(xp, values, ids, n):
     return jax.ops.segment_sum(values, ids, num_segments=n)
 
 
+def _unique_edges(pairs, n):
+    """``(edges (E, 2), inverse (k,), counts (E,))``: the unique undirected edges of the vertex
+    ``pairs`` (k, 2), each sorted, in lexicographic order, as ``np.unique(..., axis=0)`` gives
+    them (each edge encoded as the integer ``a n + b``: a one-dimensional unique, several times
+    faster than the row-wise one)."""
+    width = max(int(n), 1)
+    keys, inverse, counts = np.unique(pairs.min(axis=1) * width + pairs.max(axis=1), return_inverse=True,
+                                      return_counts=True)
+    return np.stack(np.divmod(keys, width), axis=1), inverse.reshape(-1), counts
+
+
 @dataclasses.dataclass(frozen=True)
 class Topology:
     """The connectivity of a triangle surface or a polyline (NumPy, concrete).
@@ -95,12 +106,11 @@ class Topology:
     def of(cls, S, n) -> "Topology":
         S = np.asarray(S, dtype=np.int64)
         if S.shape[1] == 2:
-            edges, inverse = np.unique(np.sort(S, axis=1), axis=0, return_inverse=True)
+            edges, inverse, _ = _unique_edges(S, n)
             degree = np.bincount(S.ravel(), minlength=n)
             return cls(S, n, edges, inverse.reshape(-1, 1), np.flatnonzero(degree == 1))
         opposite = np.stack([S[:, [1, 2]], S[:, [2, 0]], S[:, [0, 1]]], axis=1).reshape(-1, 2)
-        edges, inverse, counts = np.unique(np.sort(opposite, axis=1), axis=0, return_inverse=True,
-                                           return_counts=True)
+        edges, inverse, counts = _unique_edges(opposite, n)
         if counts.max(initial=0) > 2:
             raise MeshError(f"an edge is shared by {counts.max()} triangles: the surface must be edge-manifold")
         return cls(S, n, edges, inverse.reshape(-1, 3), np.unique(edges[counts == 1]))
