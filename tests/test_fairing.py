@@ -413,6 +413,58 @@ def test_closest_points_in_batches_equal_one_batch(monkeypatch):
     assert np.array_equal(Q, Q7) and np.array_equal(face, face7)
 
 
+def _brute_distances(P, V, F):
+    """(p,) each point's distance to every face, the least (no search)."""
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    return np.array([np.linalg.norm(point_triangle(np.repeat(p[None], len(F), 0), A, B, C) - p, axis=1).min()
+                     for p in P])
+
+
+def _awkward_surface():
+    """A thin, warped sphere: faces of sizes over about 50x (several radius buckets) and two
+    sides 0.04 apart, so a point's nearest vertex is often on the far side of its closest face."""
+    V, F = icosphere(3)
+    V = V * np.exp(2.0 * V[:, :1]) * [1.0, 1.0, 0.02]
+    return V, F
+
+
+@pytest.mark.parametrize("neighbours", [16, 1])
+def test_closest_points_are_exact_on_an_awkward_surface(monkeypatch, neighbours):
+    """Both stages of the search (the nearest vertex's faces, then every face within reach, by a
+    nearest-neighbour query or, past ``NEIGHBOURS`` centroids, a ball query) find the closest
+    face: the distance equals the brute-force one, for points on, near and far from the surface."""
+    from geomopt.fairing import surface
+
+    monkeypatch.setattr(surface, "NEIGHBOURS", neighbours)
+    V, F = _awkward_surface()
+    rng = np.random.default_rng(3)
+    on = surface._samples(V, F[rng.choice(len(F), 60)], 3)[::3]
+    P = np.concatenate([on, on + 0.03 * rng.normal(size=on.shape), rng.normal(size=(40, 3)) * 3.0])
+    Q, face = closest_points(P, V, F)
+    got = np.linalg.norm(Q - P, axis=1)
+    want = _brute_distances(P, V, F)
+    assert np.all(np.abs(got - want) <= 1e-14 * (1 + want))
+    back = point_triangle(P, V[F[face, 0]], V[F[face, 1]], V[F[face, 2]])  # Q lies on the face reported
+    assert np.allclose(back, Q, atol=1e-14)
+
+
+def test_face_distances_with_enough_decide_the_tolerance_as_the_exact_ones():
+    """``face_distances(..., enough=tol) > tol`` equals the exact decision (a face may get an
+    upper bound only when it is within ``tol``), and ``largest_face_distance`` is the exact max."""
+    from geomopt.fairing.surface import face_distances, largest_face_distance
+
+    V, F = _awkward_surface()
+    rng = np.random.default_rng(4)
+    X = V + 1e-3 * rng.normal(size=V.shape) * (rng.random((len(V), 1)) < 0.2)  # a few vertices off
+    exact = face_distances(X, F, V, F)
+    for tol in (1e-4, 1e-3, 3e-3):
+        quick = face_distances(X, F, V, F, enough=tol)
+        assert np.array_equal(quick > tol, exact > tol) and 0 < np.count_nonzero(exact > tol) < len(F)
+        assert np.array_equal(quick[exact > tol], exact[exact > tol])
+    assert largest_face_distance(X, F, V, F) == exact.max() > 0
+    assert largest_face_distance(V, F, V, F) == face_distances(V, F, V, F).max()
+
+
 def test_relax_keeps_a_real_mesh_on_its_surface():
     """The camel head (folded in places by the certificate, slivers): every face within 1e-6 of
     the input (so only its flat parts move), no fold added, no angle made smaller."""

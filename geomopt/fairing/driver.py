@@ -34,7 +34,7 @@ from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, face_distances, triangle_angles, volume
+from .surface import aspect_ratios, largest_face_distance, triangle_angles, volume
 from .unfold import remove_folds
 
 __all__ = ["fair", "smoothed", "FairDetails"]
@@ -57,7 +57,7 @@ class FairDetails(Details):
     folds_added : faces folded in the output that were not folded in the input (0 unless the
         input was folded and fold removal traded them for more unfolded ones).
     distance : ``relax``: the largest distance of an output face to the input surface (at a
-        grid of 28 points on each face, :func:`~geomopt.fairing.surface.face_distances`), over
+        grid of 28 points on each face, :func:`~geomopt.fairing.surface.largest_face_distance`), over
         the input's bounding-box diagonal (nan for the other methods).
     scale : the power of two the input was multiplied by while smoothing (exact).
     """
@@ -268,7 +268,7 @@ def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0
     if o.method == "relax":
         Vs = V * scale
         diag = float(np.linalg.norm(Vs.max(axis=0) - Vs.min(axis=0)))
-        distance = float(np.max(face_distances(X, topo.elements, Vs, topo.elements, order=6))) / diag
+        distance = largest_face_distance(X, topo.elements, Vs, topo.elements, order=6) / diag
     details = FairDetails(o, target / scale, int(np.count_nonzero(free & (t < 1.0))), before.inverted, rounds,
                           measured0[0] / scale ** 3, vol1 / scale ** 3, measured0[1], angle1, measured0[2], aspect1,
                           distance, scale, len(np.setdiff1d(cert.folded, before.folded)))

@@ -84,7 +84,7 @@ def _close_step(X, target, V, F, free, tol, index):
         if len(changed) == 0:
             return Y, t
         near = np.flatnonzero(np.isin(F, changed).any(axis=1))
-        far = near[face_distances(Y, F[near], V, F, index=index) > tol]
+        far = near[face_distances(Y, F[near], V, F, index=index, enough=tol) > tol]
         if len(far) == 0:
             return Y, t
         undo = np.intersect1d(np.unique(F[far]), np.flatnonzero(t > 0))
