@@ -141,6 +141,23 @@ def test_corner_signs_at_extreme_scales_and_non_finite():
 
 # -- the fold-safe step ------------------------------------------------------------------------
 
+def test_local_signs_equal_the_signs_on_all_vertices():
+    """The signs of a few faces, taken on the vertices they use only, are those of
+    ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""
+    from geomopt.fairing.certificate import local_signs
+
+    V, F = icosphere(3)
+    X = noisy(V, F, 0.6, seed=2)
+    X[5] = [1e30, 0, 0]
+    X[7] = np.nan
+    far = ~np.isin(F, [5, 7]).any(axis=1)
+    folded = np.unique(F[far][(corner_signs(X, F[far]) <= 0).any(axis=1)])
+    stars = F[far & np.isin(F, folded[::20]).any(axis=1)]  # whole stars of a few vertices
+    assert 3 * len(np.unique(stars)) < len(V) and (corner_signs(X, stars) <= 0).any()
+    for sub in (stars, F[far][:100], F):  # stars, a strip, all
+        assert np.array_equal(local_signs(X, sub), corner_signs(X, sub))
+
+
 def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
     V, F = icosphere(2)
     target = V.copy()
@@ -463,6 +480,18 @@ def test_face_distances_with_enough_decide_the_tolerance_as_the_exact_ones():
         assert np.array_equal(quick[exact > tol], exact[exact > tol])
     assert largest_face_distance(X, F, V, F) == exact.max() > 0
     assert largest_face_distance(V, F, V, F) == face_distances(V, F, V, F).max()
+
+
+def test_smallest_angles_are_the_least_of_the_three():
+    """``smallest_angles`` (the angle opposite the shortest edge only) equals the least of
+    ``triangle_angles``, on random, near-equilateral and sliver triangles."""
+    from geomopt.fairing.surface import smallest_angles, triangle_angles
+
+    rng = np.random.default_rng(5)
+    V = np.concatenate([rng.normal(size=(300, 3)), np.repeat([[0, 0, 0], [1, 0, 0], [0.5, 3 ** 0.5 / 2, 0]], 30, 0)
+                        + 1e-9 * rng.normal(size=(90, 3))])
+    F = np.concatenate([rng.integers(0, 300, (2000, 3)), np.arange(300, 390).reshape(-1, 3)])
+    assert np.allclose(smallest_angles(V, F), triangle_angles(V, F).min(axis=1), rtol=0, atol=1e-9)
 
 
 def test_relax_keeps_a_real_mesh_on_its_surface():

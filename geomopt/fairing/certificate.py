@@ -23,8 +23,9 @@ import dataclasses
 import numpy as np
 
 from ..exact.normals import corner_signs, normal_agreement
+from .operators import any_column
 
-__all__ = ["FoldCertificate", "certify_folds", "safe_step", "HALVINGS"]
+__all__ = ["FoldCertificate", "certify_folds", "safe_step", "local_signs", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -80,12 +81,37 @@ def certify_folds(X, S) -> FoldCertificate:
     return FoldCertificate(np.unique(bad[:, 0]), bad, len(S))
 
 
+def _compacted(S, n):
+    """``(used (n,) bool, S renumbered onto the used vertices)``, or None where the elements ``S``
+    use more than half of the ``n`` vertices (compacting would not pay)."""
+    used = np.zeros(n, bool)
+    used[S] = True
+    if 2 * np.count_nonzero(used) > n:
+        return None
+    return used, (np.cumsum(used) - 1)[S]
+
+
+def local_signs(X, S) -> np.ndarray:
+    """``corner_signs(X, S)`` (m, k), the same exact signs, reading only the vertices that the
+    elements ``S`` use: where they are few (the elements around a change), the other vertices'
+    coordinates are not copied, scaled and checked at every call."""
+    X = np.asarray(X)
+    small = _compacted(S, len(X))
+    return corner_signs(X, S) if small is None else corner_signs(X[small[0]], small[1])
+
+
+def _local_agreement(X, Y, F):
+    """``normal_agreement(X, Y, F)`` reading only the vertices that ``F`` uses (as :func:`local_signs`)."""
+    small = _compacted(F, len(X))
+    return normal_agreement(X, Y, F) if small is None else normal_agreement(X[small[0]], Y[small[0]], small[1])
+
+
 def _dependents(S, corners, n):
     """(n,) bool: the vertices whose position enters the signs at ``corners`` (c, 2): the
     element's and those of every element around the corner's vertex."""
     centre = np.zeros(n, bool)
     centre[S[corners[:, 0], corners[:, 1]]] = True
-    star = centre[S].any(axis=1)
+    star = any_column(centre[S])
     star[corners[:, 0]] = True
     out = np.zeros(n, bool)
     out[S[star].ravel()] = True
@@ -97,16 +123,16 @@ def _failing(X, X0, S, moved, bad, allowed, may_turn):
     the elements whose signs ``moved`` (n,) bool vertices can change (a corner within one ring of
     one: its vertex normal sums the elements around it), the others kept from ``bad``."""
     near = np.zeros(len(moved), bool)
-    near[S[moved[S].any(axis=1)].ravel()] = True
-    affected = near[S].any(axis=1)
+    near[S[any_column(moved[S])].ravel()] = True
+    affected = any_column(near[S])
     corners = np.zeros(len(moved), bool)
     corners[S[affected].ravel()] = True
-    sub = corners[S].any(axis=1)  # every element around a corner of an affected one
+    sub = any_column(corners[S])  # every element around a corner of an affected one
     out = bad.copy()
-    out[affected] = (corner_signs(X, S[sub])[affected[sub]] <= 0) & ~allowed[affected]
+    out[affected] = (local_signs(X, S[sub])[affected[sub]] <= 0) & ~allowed[affected]
     if may_turn is not None:
         idx = np.flatnonzero(affected)
-        out[idx] |= ((normal_agreement(X, X0, S[idx]) <= 0) & ~may_turn[idx])[:, None]
+        out[idx] |= ((_local_agreement(X, X0, S[idx]) <= 0) & ~may_turn[idx])[:, None]
     return out
 
 
@@ -121,14 +147,14 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS):
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
     n, surface = len(X0), S.shape[1] == 3
     allowed = corner_signs(X0, S) <= 0
-    may_turn = (allowed.any(axis=1) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
+    may_turn = (any_column(allowed) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
     bad, last = np.zeros(S.shape, bool), None
     while True:
         X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
         X = np.where(t[:, None] == 0.0, X0, X)
-        moved = np.ones(n, bool) if last is None else (X != last).any(axis=1)
+        moved = np.ones(n, bool) if last is None else any_column(X != last)
         bad = _failing(X, X0, S, moved, bad, allowed, may_turn)
         last = X
         failing = np.argwhere(bad)

@@ -34,7 +34,7 @@ from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, largest_face_distance, triangle_angles, volume
+from .surface import aspect_ratios, largest_face_distance, smallest_angles, volume
 from .unfold import remove_folds
 
 __all__ = ["fair", "smoothed", "FairDetails"]
@@ -164,7 +164,7 @@ def _measures(X, topo):
         return float("nan"), float("nan"), float("nan")
     closed = len(topo.boundary) == 0
     S = topo.elements
-    return (volume(X, S) if closed else float("nan"), float(triangle_angles(X, S).min()),
+    return (volume(X, S) if closed else float("nan"), float(smallest_angles(X, S).min(initial=np.inf)),
             float(aspect_ratios(X, S).max()))
 
 

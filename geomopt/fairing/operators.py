@@ -31,7 +31,7 @@ import numpy as np
 
 from .._runtime.errors import MeshError
 
-__all__ = ["Topology", "Sparse", "Diag", "Sum", "Product", "edge_weights", "masses", "mean_edge_length", "xp_of",
+__all__ = ["any_column", "Topology", "Sparse", "Diag", "Sum", "Product", "edge_weights", "masses", "mean_edge_length", "xp_of",
            "COT_MAX", "LAPLACIANS"]
 
 #: the largest cotangent kept (an angle of about 0.57 degrees): slivers get finite weights
@@ -65,6 +65,17 @@ def segment_sum(xp, values, ids, n):
     import jax
 
     return jax.ops.segment_sum(values, ids, num_segments=n)
+
+
+def any_column(a):
+    """(m,) bool: the rows of ``a`` (m, k) with a true (or nonzero) entry: ``a.any(axis=1)``
+    by ``k`` column ORs, several times faster for the two or three columns of elements and
+    coordinates (NumPy's row reduction is slow on short rows)."""
+    a = np.asarray(a)
+    out = a[:, 0].astype(bool)
+    for c in range(1, a.shape[1]):
+        out |= a[:, c].astype(bool, copy=False)
+    return out
 
 
 def _unique_edges(pairs, n):
