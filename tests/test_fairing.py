@@ -169,6 +169,19 @@ def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
     assert np.array_equal(np.delete(X, 5, 0), np.delete(V, 5, 0))
 
 
+def test_safe_step_from_a_folded_start_with_its_certificate_given():
+    """``start=certify_folds(X0)`` (the driver has it) steps exactly as when the signs at ``X0``
+    are taken again: its folded corners may stay folded, no other may fold."""
+    V, F = icosphere(3)
+    X0 = noisy(V, F, 0.5, seed=1)
+    before = certify_folds(X0, F)
+    assert before.inverted > 10
+    X1 = X0 + 0.3 * (V - X0) + 0.05 * np.random.default_rng(2).normal(size=V.shape)
+    X, t = safe_step(X0, X1, F, np.ones(len(V), bool))
+    Xs, ts = safe_step(X0, X1, F, np.ones(len(V), bool), start=before)
+    assert np.array_equal(X, Xs) and np.array_equal(t, ts) and 0 < np.count_nonzero(t < 1) < len(V)
+
+
 def test_safe_step_keeps_every_face_within_90_degrees_of_its_input_normal():
     """A rotation by 100 degrees folds nothing (a rigid motion), but turns faces beyond 90
     degrees from their input normals: those steps are cut."""

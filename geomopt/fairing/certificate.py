@@ -136,17 +136,22 @@ def _failing(X, X0, S, moved, bad, allowed, may_turn):
     return out
 
 
-def safe_step(X0, X1, S, free, halvings=HALVINGS):
+def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None):
     """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
 
     ``X`` is ``X0`` where the step was cut to nothing; a corner failing at ``X0`` may fail or
     succeed at ``X`` (so folds are removed, never added); every other corner is positive there,
     and every face not folded at ``X0`` is within 90 degrees of its normal there (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
-    moves all the way or not at all)."""
+    moves all the way or not at all); ``start``: :func:`certify_folds` of ``X0, S`` when the caller
+    has it (not taken again)."""
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
     n, surface = len(X0), S.shape[1] == 3
-    allowed = corner_signs(X0, S) <= 0
+    if start is None:
+        allowed = corner_signs(X0, S) <= 0
+    else:
+        allowed = np.zeros(S.shape, bool)
+        allowed[start.corners[:, 0], start.corners[:, 1]] = True
     may_turn = (any_column(allowed) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)

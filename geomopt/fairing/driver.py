@@ -239,7 +239,7 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     if o.method == "relax":  # each round was a whole-vertex fold-safe step: a fraction would leave the surface
         X, t = target, np.where(free, 1.0, 0.0)
     else:
-        X, t = safe_step(X0, target, F, free)
+        X, t = safe_step(X0, target, F, free, start=before)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
     X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)

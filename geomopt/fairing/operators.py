@@ -130,7 +130,7 @@ class Topology:
         """(n,) bool: the vertices a method moves (all but the boundary when ``boundary`` is
         ``"fixed"``; vertices in no element never move)."""
         free = np.zeros(self.n, bool)
-        free[np.unique(self.elements)] = True
+        free[self.elements] = True
         if boundary == "fixed":
             free[self.boundary] = False
         return free

@@ -269,11 +269,11 @@ def aspect_ratios(V, F) -> np.ndarray:
     """(m,) longest edge over the height on it, divided by that of the equilateral triangle
     (``2 / sqrt(3)``): 1 at best, growing without bound on slivers (inf when degenerate)."""
     V = np.asarray(V, dtype=np.float64)
-    e = np.stack([np.linalg.norm(V[F[:, (k + 1) % 3]] - V[F[:, k]], axis=1) for k in range(3)], axis=1)
-    area2 = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    longest = e.max(axis=1)
-    with np.errstate(divide="ignore"):
-        return longest * longest / area2 * (np.sqrt(3.0) / 2.0)
+    edges = [V[F[:, (k + 1) % 3]] - V[F[:, k]] for k in range(3)]
+    longest2 = np.maximum.reduce([np.einsum("ij,ij->i", e, e) for e in edges])
+    area2 = np.linalg.norm(np.cross(edges[0], -edges[2]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(area2 > 0, longest2 / area2 * (np.sqrt(3.0) / 2.0), np.inf)
 
 
 def volume(V, F) -> float:
