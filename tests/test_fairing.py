@@ -182,6 +182,19 @@ def test_safe_step_from_a_folded_start_with_its_certificate_given():
     assert np.array_equal(X, Xs) and np.array_equal(t, ts) and 0 < np.count_nonzero(t < 1) < len(V)
 
 
+def test_a_degenerate_start_face_has_a_failing_corner():
+    """The fold-safe step lets faces turn that have a failing corner at the start, and counts on
+    that to cover the degenerate ones (normal exactly 0, or a corner not finite): each of those
+    has a corner sign of 0."""
+    V, F = icosphere(2)
+    X = V.copy()
+    a, b, c = F[0]
+    X[c] = X[a] + 0.25 * (X[b] - X[a])  # collinear: a zero normal
+    X[F[40, 0]] = np.nan
+    degenerate = normal_agreement(X, X, F) <= 0
+    assert degenerate.sum() >= 2 and ((corner_signs(X, F) <= 0).any(axis=1) >= degenerate).all()
+
+
 def test_safe_step_keeps_every_face_within_90_degrees_of_its_input_normal():
     """A rotation by 100 degrees folds nothing (a rigid motion), but turns faces beyond 90
     degrees from their input normals: those steps are cut."""

@@ -152,7 +152,9 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     else:
         allowed = np.zeros(S.shape, bool)
         allowed[start.corners[:, 0], start.corners[:, 1]] = True
-    may_turn = (any_column(allowed) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
+    # faces with a corner failing at X0 may turn; so may degenerate ones (normal 0 or not finite
+    # at X0), which are among them: their corner signs are 0
+    may_turn = any_column(allowed) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
     bad, last = np.zeros(S.shape, bool), None
