@@ -206,19 +206,28 @@ def face_distances(X, F, V, G, order=4, index=None, enough=0.0):
 
 
 def largest_face_distance(X, F, V, G, order=4, index=None) -> float:
-    """``face_distances(X, F, V, G, order).max()`` (0 without faces), exact: the first stage of
-    :func:`closest_points` bounds every sample's distance from above, and only the samples whose
-    bound exceeds the largest exact distance found so far are searched exactly, the largest
-    bounds first."""
-    P = _samples(X, F, order)
+    """``face_distances(X, F, V, G, order).max()`` (0 without faces), from above and within
+    rounding: at least that max and at most ``1e-14`` of the coordinates' size more.
+
+    A face of ``F`` that is the same face of ``G`` (same corners, same positions) lies on the
+    surface: its samples' distances are rounding errors, below that margin, and are not searched.
+    For the others, the first stage of :func:`closest_points` bounds every sample's distance from
+    above; only the samples whose bound exceeds the largest exact distance found so far (by more
+    than the margin) are searched exactly, the largest bounds first."""
+    X, V, F = np.asarray(X, dtype=np.float64), np.asarray(V, dtype=np.float64), np.asarray(F)
     index = index or surface_index(V, G)
+    same = np.zeros(len(F), bool)
+    if np.shape(F) == np.shape(G) and np.array_equal(F, G):
+        same = (X[F] == V[F]).reshape(len(F), -1).all(axis=1)
+    P = _samples(X, F[~same], order)
+    margin = 1e-14 * (index.size + float(np.abs(X[F]).max(initial=0.0)))
     Q, _ = _batched(P, V, G, index, np.inf)
-    bound = np.linalg.norm(Q - P, axis=1)
-    done, best = np.zeros(len(P), bool), 0.0
+    bound = np.concatenate([np.linalg.norm(Q - P, axis=1), [margin] if same.any() else []])
+    done, best = np.zeros(len(bound), bool), 0.0
     while True:
-        todo = np.flatnonzero(~done & (bound > best))
+        todo = np.flatnonzero(~done & (bound > best + margin))
         if len(todo) == 0:
-            return best
+            return max(best, float(bound.max(initial=0.0)))
         if len(todo) > CHUNK:
             todo = todo[np.argpartition(-bound[todo], CHUNK)[:CHUNK]]
         Q, _ = _batched(P[todo], V, G, index, 0.0)
