@@ -178,8 +178,11 @@ def test_safe_step_from_a_folded_start_with_its_certificate_given():
     assert before.inverted > 10
     X1 = X0 + 0.3 * (V - X0) + 0.05 * np.random.default_rng(2).normal(size=V.shape)
     X, t = safe_step(X0, X1, F, np.ones(len(V), bool))
-    Xs, ts = safe_step(X0, X1, F, np.ones(len(V), bool), start=before)
+    Xs, ts, cert = safe_step(X0, X1, F, np.ones(len(V), bool), start=before, certify=True)
     assert np.array_equal(X, Xs) and np.array_equal(t, ts) and 0 < np.count_nonzero(t < 1) < len(V)
+    again = certify_folds(X, F)  # the certificate the step ended with is the one taken afresh
+    assert cert.inverted > 0 and np.array_equal(cert.folded, again.folded)
+    assert np.array_equal(cert.corners, again.corners)
 
 
 def test_a_degenerate_start_face_has_a_failing_corner():

@@ -118,25 +118,26 @@ def _dependents(S, corners, n):
     return out
 
 
-def _failing(X, X0, S, moved, bad, allowed, may_turn):
-    """(m, k) bool: the corners failing at ``X`` (see :func:`safe_step`), taken again only on
-    the elements whose signs ``moved`` (n,) bool vertices can change (a corner within one ring of
-    one: its vertex normal sums the elements around it), the others kept from ``bad``."""
+def _retaken(X, X0, S, moved, neg, turned):
+    """``(neg, turned)`` at ``X``: the corners (m, k) not positive and (surfaces; else None) the
+    faces (m,) turned 90 degrees or more from ``X0``, taken again only on the elements whose
+    signs ``moved`` (n,) bool vertices can change (a corner within one ring of one: its vertex
+    normal sums the elements around it), the others kept from ``neg`` and ``turned``."""
     near = np.zeros(len(moved), bool)
     near[S[any_column(moved[S])].ravel()] = True
     affected = any_column(near[S])
     corners = np.zeros(len(moved), bool)
     corners[S[affected].ravel()] = True
     sub = any_column(corners[S])  # every element around a corner of an affected one
-    out = bad.copy()
-    out[affected] = (local_signs(X, S[sub])[affected[sub]] <= 0) & ~allowed[affected]
-    if may_turn is not None:
-        idx = np.flatnonzero(affected)
-        out[idx] |= ((_local_agreement(X, X0, S[idx]) <= 0) & ~may_turn[idx])[:, None]
-    return out
+    neg = neg.copy()
+    neg[affected] = local_signs(X, S[sub])[affected[sub]] <= 0
+    if turned is not None:
+        turned = turned.copy()
+        turned[affected] = _local_agreement(X, X0, S[affected]) <= 0
+    return neg, turned
 
 
-def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None):
+def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None, certify: bool = False):
     """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
 
@@ -144,7 +145,9 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     succeed at ``X`` (so folds are removed, never added); every other corner is positive there,
     and every face not folded at ``X0`` is within 90 degrees of its normal there (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
     moves all the way or not at all); ``start``: :func:`certify_folds` of ``X0, S`` when the caller
-    has it (not taken again)."""
+    has it (not taken again); ``certify``: return ``(X, t, certificate)``, the
+    :class:`FoldCertificate` of ``X`` from the signs the step ended with (those of
+    :func:`certify_folds`, not taken again)."""
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
     n, surface = len(X0), S.shape[1] == 3
     if start is None:
@@ -157,16 +160,22 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     may_turn = any_column(allowed) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
-    bad, last = np.zeros(S.shape, bool), None
+    neg, turned, last = np.zeros(S.shape, bool), (np.zeros(len(S), bool) if surface else None), None
     while True:
         X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
         X = np.where(t[:, None] == 0.0, X0, X)
         moved = np.ones(n, bool) if last is None else any_column(X != last)
-        bad = _failing(X, X0, S, moved, bad, allowed, may_turn)
+        neg, turned = _retaken(X, X0, S, moved, neg, turned)
         last = X
+        bad = neg & ~allowed
+        if surface:
+            bad |= (turned & ~may_turn)[:, None]
         failing = np.argwhere(bad)
         if len(failing) == 0:
-            return X, t
+            if not certify:
+                return X, t
+            corners = np.argwhere(neg)
+            return X, t, FoldCertificate(np.unique(corners[:, 0]), corners, len(S))
         cut = _dependents(S, failing, n) & (t > 0)
         # (never empty: with t = 0 on all it depends on, a corner has its start's sign, positive)
         halved[cut] += 1

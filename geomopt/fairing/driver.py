@@ -237,12 +237,12 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
         target, free = _target(X0, topo, o, h)
     _say(progress, f"fair: {o.method} target of {len(V)} vertices, {before.inverted} faces folded in the input")
     if o.method == "relax":  # each round was a whole-vertex fold-safe step: a fraction would leave the surface
-        X, t = target, np.where(free, 1.0, 0.0)
+        X, t, after = target, np.where(free, 1.0, 0.0), None
     else:
-        X, t = safe_step(X0, target, F, free, start=before)
+        X, t, after = safe_step(X0, target, F, free, start=before, certify=True)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
-    X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)
+    X, rounds = remove_folds(X, topo, free, start=after) if before.inverted and o.method != "relax" else (X, 0)
     _say(progress and rounds, f"fair: {rounds} rounds of fold removal")
     vol0, angle0, aspect0 = _measures(X0, topo)
     if o.preserve_volume:

@@ -117,13 +117,18 @@ def _partwise(X, Y, S, topo, region, folded_x, folded_y):
     return np.where(take[:, None], Y, X)
 
 
-def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS):
+def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
     """``(X, rounds)``: ``X`` (n, d) with its folded faces (elements) removed where it can (see
     the module notes), never more of them folded than at the start; ``free`` (n,) bool the
-    vertices it may move; ``rounds``: the rounds taken."""
+    vertices it may move; ``rounds``: the rounds taken; ``start``: the
+    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it."""
     S = topo.elements
     X = np.asarray(X, dtype=np.float64)
-    folded = _folded_mask(X, S)
+    if start is None:
+        folded = _folded_mask(X, S)
+    else:
+        folded = np.zeros(len(S), bool)
+        folded[start.folded] = True
     A = _averaging(topo)
     rings, rounds = 1, 0
     while folded.any() and rings <= MAX_RINGS and rounds < max_rounds:
