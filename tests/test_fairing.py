@@ -141,6 +141,28 @@ def test_corner_signs_at_extreme_scales_and_non_finite():
 
 # -- the fold-safe step ------------------------------------------------------------------------
 
+@pytest.mark.parametrize("kind", ["spd", "indefinite", "unsymmetric"])
+def test_the_host_solve_equals_a_dense_solve(kind):
+    """A symmetric positive-definite free block goes to the Cholesky factorization, any other
+    (indefinite, unsymmetric) to LU: each equals the dense solve, the held rows kept."""
+    from geomopt.fairing.operators import Sparse
+    from geomopt.fairing.solve import linear_solve
+
+    rng = np.random.default_rng(6)
+    n = 300
+    R = (rng.random((n, n)) < 0.02) * rng.normal(size=(n, n))
+    K = {"spd": R @ R.T + n * 0.05 * np.eye(n), "indefinite": R + R.T + np.diag(rng.choice([-3.0, 3.0], n)),
+         "unsymmetric": R + 10.0 * np.eye(n)}[kind]  # (its lower triangle, mirrored, is positive definite)
+    rows, cols = np.nonzero(K)
+    A = Sparse(rows, cols, K[rows, cols], n)
+    free = rng.random(n) < 0.8
+    b, held = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    x = linear_solve(A, b, free, held)
+    F, H = np.flatnonzero(free), np.flatnonzero(~free)
+    want = np.linalg.solve(K[np.ix_(F, F)], b[F] - K[np.ix_(F, H)] @ held[H])
+    assert np.allclose(x[F], want, rtol=0, atol=1e-10 * np.abs(want).max()) and np.array_equal(x[H], held[H])
+
+
 def test_local_signs_equal_the_signs_on_all_vertices():
     """The signs of a few faces, taken on the vertices they use only, are those of
     ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""
