@@ -17,6 +17,16 @@ their defaults (10 iterations).
 ``--scale k`` subdivides the mesh ``k`` times (4^k as many faces) before the noise: the timing
 rows at 10^5 (cheburashka, k = 2) and 10^6 (k = 4) vertices.  ``relax`` rows also give the
 two-sided distance between the output and the input surface (at 45 points per face).
+
+    python benchmarks/fairing.py --timing --meshes cheburashka --scale 2 --noise 0.02 --repeat 3
+
+``--timing`` times instead each method of ``--methods`` (default taubin, implicit, least_squares)
+beside its anchor, in the same process and alternating, ``--repeat`` times after one cold round:
+trimesh's ``filter_taubin`` (10 iterations) and ``filter_laplacian``, and for the solved methods
+libigl's recipe with SciPy (cotangent and barycentric mass matrices, one ``spsolve`` of
+``(M - h^2 L) p = M p0``; the normal equations ``(A^T A + I) p = p0`` of the uniform ``A = D^-1 L
+- I``).  Wall and CPU seconds (``time.process_time``, all threads), medians, and the ratio of
+geomopt's CPU seconds to the anchor's.
 """
 
 from __future__ import annotations
@@ -93,6 +103,78 @@ def run(mesh, sigma, seed=0, methods=None, scale=0):
     return rows
 
 
+def _scipy_implicit(X, F):
+    """One implicit step with libigl's recipe in SciPy: ``(M - h^2 L) p = M p0``."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    n, rows, cols, vals = len(X), [], [], []
+    for k in range(3):
+        i, j, o = F[:, (k + 1) % 3], F[:, (k + 2) % 3], F[:, k]
+        u, v = X[i] - X[o], X[j] - X[o]
+        cot = 0.5 * np.sum(u * v, 1) / np.linalg.norm(np.cross(u, v), axis=1)
+        rows += [i, j]
+        cols += [j, i]
+        vals += [cot, cot]
+    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    L = W - sp.diags(np.asarray(W.sum(1)).ravel())
+    area = np.linalg.norm(np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]]), axis=1) / 2
+    m = np.bincount(F.ravel(), np.repeat(area / 3, 3), n)
+    h = np.mean(np.linalg.norm(X[F[:, 1]] - X[F[:, 0]], axis=1))
+    return spsolve((sp.diags(m) - h * h * L).tocsc(), m[:, None] * X)
+
+
+def _scipy_least_squares(X, F):
+    """Laplacian mesh optimization's normal equations in SciPy: ``(A^T A + I) p = p0``."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    n, e = len(X), np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    W = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+    W.data[:] = 1.0
+    A = sp.diags(1.0 / np.asarray(W.sum(1)).ravel()) @ W - sp.eye(n)
+    return spsolve((A.T @ A + sp.eye(n)).tocsc(), X)
+
+
+def _trimesh(name):
+    def run(X, F):
+        filt = getattr(trimesh.smoothing, name)
+        return filt(trimesh.Trimesh(X.copy(), F.copy(), process=False)).vertices
+    return run
+
+
+TIMING_ANCHORS = {"taubin": ("trimesh filter_taubin", _trimesh("filter_taubin")),
+                  "laplacian": ("trimesh filter_laplacian", _trimesh("filter_laplacian")),
+                  "implicit": ("scipy implicit step", _scipy_implicit),
+                  "least_squares": ("scipy least squares", _scipy_least_squares)}
+
+
+def timing(mesh, sigma, methods, scale, repeat):
+    """Rows ``(vertices, name, wall, cpu, ratio)``: each geomopt method beside its anchor (see
+    the module notes)."""
+    V, F = read_mesh(f"{DATA}/{mesh}.off")
+    for _ in range(scale):
+        V, F = subdivided(V, F)
+    h = np.mean(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1))
+    X0 = V + sigma * h * np.random.default_rng(0).normal(size=V.shape)
+    rows = []
+    for method in methods:
+        runs = {f"geomopt {method}": lambda X, F, m=method: fair(X, F, options=OURS[m]),
+                TIMING_ANCHORS[method][0]: TIMING_ANCHORS[method][1]}
+        seconds = {name: [] for name in runs}
+        for round_ in range(repeat + 1):  # the first round cold, not counted
+            for name, run_ in runs.items():
+                wall, cpu = time.perf_counter(), time.process_time()
+                run_(X0, F)
+                if round_:
+                    seconds[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+        ours = np.median([c for _, c in seconds[f"geomopt {method}"]])
+        for name, s in seconds.items():
+            cpu = float(np.median([c for _, c in s]))
+            rows.append((len(V), name, float(np.median([w for w, _ in s])), cpu, ours / cpu))
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", nargs="+", default=["cheburashka", "bunny", "cow"])
@@ -100,7 +182,17 @@ def main():
     ap.add_argument("--methods", nargs="+", default=None,
                     help="row names to run (ours, trimesh's, or 'anchors' for all three of trimesh's)")
     ap.add_argument("--scale", type=int, default=0, help="subdivide the mesh this many times first")
+    ap.add_argument("--timing", action="store_true", help="time each method beside its anchor instead")
+    ap.add_argument("--repeat", type=int, default=3, help="--timing: timed rounds after a cold one")
     args = ap.parse_args()
+    if args.timing:
+        print("| mesh | vertices | method | wall s | CPU s | geomopt CPU / this |\n|---|---|---|---|---|---|")
+        for mesh in args.meshes:
+            for sigma in args.noise:
+                for n, name, wall, cpu, ratio in timing(mesh, sigma, args.methods or ["taubin", "implicit",
+                                                        "least_squares"], args.scale, args.repeat):
+                    print(f"| {mesh} | {n:,} | {name} | {wall:.3f} | {cpu:.3f} | {ratio:.2f} |", flush=True)
+        return
     print("| mesh | noise | method | RMS / diag | volume change | folded (added) | opposing | min angle | s |")
     print("|---|---|---|---|---|---|---|---|---|")
     for mesh in args.meshes:

@@ -141,6 +141,45 @@ def test_corner_signs_at_extreme_scales_and_non_finite():
 
 # -- the fold-safe step ------------------------------------------------------------------------
 
+@pytest.mark.parametrize("kind", ["spd", "indefinite", "unsymmetric"])
+def test_the_host_solve_equals_a_dense_solve(kind):
+    """A symmetric positive-definite free block goes to the Cholesky factorization, any other
+    (indefinite, unsymmetric) to LU: each equals the dense solve, the held rows kept."""
+    from geomopt.fairing.operators import Sparse
+    from geomopt.fairing.solve import linear_solve
+
+    rng = np.random.default_rng(6)
+    n = 300
+    R = (rng.random((n, n)) < 0.02) * rng.normal(size=(n, n))
+    K = {"spd": R @ R.T + n * 0.05 * np.eye(n), "indefinite": R + R.T + np.diag(rng.choice([-3.0, 3.0], n)),
+         "unsymmetric": R + 10.0 * np.eye(n)}[kind]  # (its lower triangle, mirrored, is positive definite)
+    rows, cols = np.nonzero(K)
+    A = Sparse(rows, cols, K[rows, cols], n)
+    free = rng.random(n) < 0.8
+    b, held = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    x = linear_solve(A, b, free, held)
+    F, H = np.flatnonzero(free), np.flatnonzero(~free)
+    want = np.linalg.solve(K[np.ix_(F, F)], b[F] - K[np.ix_(F, H)] @ held[H])
+    assert np.allclose(x[F], want, rtol=0, atol=1e-10 * np.abs(want).max()) and np.array_equal(x[H], held[H])
+
+
+def test_local_signs_equal_the_signs_on_all_vertices():
+    """The signs of a few faces, taken on the vertices they use only, are those of
+    ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""
+    from geomopt.fairing.certificate import local_signs
+
+    V, F = icosphere(3)
+    X = noisy(V, F, 0.6, seed=2)
+    X[5] = [1e30, 0, 0]
+    X[7] = np.nan
+    far = ~np.isin(F, [5, 7]).any(axis=1)
+    folded = np.unique(F[far][(corner_signs(X, F[far]) <= 0).any(axis=1)])
+    stars = F[far & np.isin(F, folded[::20]).any(axis=1)]  # whole stars of a few vertices
+    assert 3 * len(np.unique(stars)) < len(V) and (corner_signs(X, stars) <= 0).any()
+    for sub in (stars, F[far][:100], F):  # stars, a strip, all
+        assert np.array_equal(local_signs(X, sub), corner_signs(X, sub))
+
+
 def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
     V, F = icosphere(2)
     target = V.copy()
@@ -150,6 +189,35 @@ def test_safe_step_cuts_a_step_that_would_fold_and_never_adds_a_fold():
     X, t = safe_step(V, target, F, np.ones(len(V), bool))
     assert certify_folds(X, F).ok and 0 < t[5] < 1 and not np.array_equal(X[5], V[5])
     assert np.array_equal(np.delete(X, 5, 0), np.delete(V, 5, 0))
+
+
+def test_safe_step_from_a_folded_start_with_its_certificate_given():
+    """``start=certify_folds(X0)`` (the driver has it) steps exactly as when the signs at ``X0``
+    are taken again: its folded corners may stay folded, no other may fold."""
+    V, F = icosphere(3)
+    X0 = noisy(V, F, 0.5, seed=1)
+    before = certify_folds(X0, F)
+    assert before.inverted > 10
+    X1 = X0 + 0.3 * (V - X0) + 0.05 * np.random.default_rng(2).normal(size=V.shape)
+    X, t = safe_step(X0, X1, F, np.ones(len(V), bool))
+    Xs, ts, cert = safe_step(X0, X1, F, np.ones(len(V), bool), start=before, certify=True)
+    assert np.array_equal(X, Xs) and np.array_equal(t, ts) and 0 < np.count_nonzero(t < 1) < len(V)
+    again = certify_folds(X, F)  # the certificate the step ended with is the one taken afresh
+    assert cert.inverted > 0 and np.array_equal(cert.folded, again.folded)
+    assert np.array_equal(cert.corners, again.corners)
+
+
+def test_a_degenerate_start_face_has_a_failing_corner():
+    """The fold-safe step lets faces turn that have a failing corner at the start, and counts on
+    that to cover the degenerate ones (normal exactly 0, or a corner not finite): each of those
+    has a corner sign of 0."""
+    V, F = icosphere(2)
+    X = V.copy()
+    a, b, c = F[0]
+    X[c] = X[a] + 0.25 * (X[b] - X[a])  # collinear: a zero normal
+    X[F[40, 0]] = np.nan
+    degenerate = normal_agreement(X, X, F) <= 0
+    assert degenerate.sum() >= 2 and ((corner_signs(X, F) <= 0).any(axis=1) >= degenerate).all()
 
 
 def test_safe_step_keeps_every_face_within_90_degrees_of_its_input_normal():
@@ -411,6 +479,72 @@ def test_closest_points_in_batches_equal_one_batch(monkeypatch):
     monkeypatch.setattr(surface, "CHUNK", 7)
     Q7, face7 = closest_points(P, V, F)
     assert np.array_equal(Q, Q7) and np.array_equal(face, face7)
+
+
+def _brute_distances(P, V, F):
+    """(p,) each point's distance to every face, the least (no search)."""
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    return np.array([np.linalg.norm(point_triangle(np.repeat(p[None], len(F), 0), A, B, C) - p, axis=1).min()
+                     for p in P])
+
+
+def _awkward_surface():
+    """A thin, warped sphere: faces of sizes over about 50x (several radius buckets) and two
+    sides 0.04 apart, so a point's nearest vertex is often on the far side of its closest face."""
+    V, F = icosphere(3)
+    V = V * np.exp(2.0 * V[:, :1]) * [1.0, 1.0, 0.02]
+    return V, F
+
+
+@pytest.mark.parametrize("neighbours", [16, 1])
+def test_closest_points_are_exact_on_an_awkward_surface(monkeypatch, neighbours):
+    """Both stages of the search (the nearest vertex's faces, then every face within reach, by a
+    nearest-neighbour query or, past ``NEIGHBOURS`` centroids, a ball query) find the closest
+    face: the distance equals the brute-force one, for points on, near and far from the surface."""
+    from geomopt.fairing import surface
+
+    monkeypatch.setattr(surface, "NEIGHBOURS", neighbours)
+    V, F = _awkward_surface()
+    rng = np.random.default_rng(3)
+    on = surface._samples(V, F[rng.choice(len(F), 60)], 3)[::3]
+    P = np.concatenate([on, on + 0.03 * rng.normal(size=on.shape), rng.normal(size=(40, 3)) * 3.0])
+    Q, face = closest_points(P, V, F)
+    got = np.linalg.norm(Q - P, axis=1)
+    want = _brute_distances(P, V, F)
+    assert np.all(np.abs(got - want) <= 1e-14 * (1 + want))
+    back = point_triangle(P, V[F[face, 0]], V[F[face, 1]], V[F[face, 2]])  # Q lies on the face reported
+    assert np.allclose(back, Q, atol=1e-14)
+
+
+def test_face_distances_with_enough_decide_the_tolerance_as_the_exact_ones():
+    """``face_distances(..., enough=tol) > tol`` equals the exact decision (a face may get an
+    upper bound only when it is within ``tol``), and ``largest_face_distance`` is the exact max."""
+    from geomopt.fairing.surface import face_distances, largest_face_distance
+
+    V, F = _awkward_surface()
+    rng = np.random.default_rng(4)
+    X = V + 1e-3 * rng.normal(size=V.shape) * (rng.random((len(V), 1)) < 0.2)  # a few vertices off
+    exact = face_distances(X, F, V, F)
+    for tol in (1e-4, 1e-3, 3e-3):
+        quick = face_distances(X, F, V, F, enough=tol)
+        assert np.array_equal(quick > tol, exact > tol) and 0 < np.count_nonzero(exact > tol) < len(F)
+        assert np.array_equal(quick[exact > tol], exact[exact > tol])
+    size = 1e-14 * 2 * np.abs(V).max()
+    assert exact.max() <= largest_face_distance(X, F, V, F) <= exact.max() + size and exact.max() > 1e-3
+    still = face_distances(V, F, V, F).max()  # rounding errors only
+    assert still <= largest_face_distance(V, F, V, F) <= still + size
+
+
+def test_smallest_angles_are_the_least_of_the_three():
+    """``smallest_angles`` (the angle opposite the shortest edge only) equals the least of
+    ``triangle_angles``, on random, near-equilateral and sliver triangles."""
+    from geomopt.fairing.surface import smallest_angles, triangle_angles
+
+    rng = np.random.default_rng(5)
+    V = np.concatenate([rng.normal(size=(300, 3)), np.repeat([[0, 0, 0], [1, 0, 0], [0.5, 3 ** 0.5 / 2, 0]], 30, 0)
+                        + 1e-9 * rng.normal(size=(90, 3))])
+    F = np.concatenate([rng.integers(0, 300, (2000, 3)), np.arange(300, 390).reshape(-1, 3)])
+    assert np.allclose(smallest_angles(V, F), triangle_angles(V, F).min(axis=1), rtol=0, atol=1e-9)
 
 
 def test_relax_keeps_a_real_mesh_on_its_surface():

@@ -23,8 +23,9 @@ import dataclasses
 import numpy as np
 
 from ..exact.normals import corner_signs, normal_agreement
+from .operators import any_column
 
-__all__ = ["FoldCertificate", "certify_folds", "safe_step", "HALVINGS"]
+__all__ = ["FoldCertificate", "certify_folds", "safe_step", "local_signs", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -80,60 +81,101 @@ def certify_folds(X, S) -> FoldCertificate:
     return FoldCertificate(np.unique(bad[:, 0]), bad, len(S))
 
 
+def _compacted(S, n):
+    """``(used (n,) bool, S renumbered onto the used vertices)``, or None where the elements ``S``
+    use more than half of the ``n`` vertices (compacting would not pay)."""
+    used = np.zeros(n, bool)
+    used[S] = True
+    if 2 * np.count_nonzero(used) > n:
+        return None
+    return used, (np.cumsum(used) - 1)[S]
+
+
+def local_signs(X, S) -> np.ndarray:
+    """``corner_signs(X, S)`` (m, k), the same exact signs, reading only the vertices that the
+    elements ``S`` use: where they are few (the elements around a change), the other vertices'
+    coordinates are not copied, scaled and checked at every call."""
+    X = np.asarray(X)
+    small = _compacted(S, len(X))
+    return corner_signs(X, S) if small is None else corner_signs(X[small[0]], small[1])
+
+
+def _local_agreement(X, Y, F):
+    """``normal_agreement(X, Y, F)`` reading only the vertices that ``F`` uses (as :func:`local_signs`)."""
+    small = _compacted(F, len(X))
+    return normal_agreement(X, Y, F) if small is None else normal_agreement(X[small[0]], Y[small[0]], small[1])
+
+
 def _dependents(S, corners, n):
     """(n,) bool: the vertices whose position enters the signs at ``corners`` (c, 2): the
     element's and those of every element around the corner's vertex."""
     centre = np.zeros(n, bool)
     centre[S[corners[:, 0], corners[:, 1]]] = True
-    star = centre[S].any(axis=1)
+    star = any_column(centre[S])
     star[corners[:, 0]] = True
     out = np.zeros(n, bool)
     out[S[star].ravel()] = True
     return out
 
 
-def _failing(X, X0, S, moved, bad, allowed, may_turn):
-    """(m, k) bool: the corners failing at ``X`` (see :func:`safe_step`), taken again only on
-    the elements whose signs ``moved`` (n,) bool vertices can change (a corner within one ring of
-    one: its vertex normal sums the elements around it), the others kept from ``bad``."""
+def _retaken(X, X0, S, moved, neg, turned):
+    """``(neg, turned)`` at ``X``: the corners (m, k) not positive and (surfaces; else None) the
+    faces (m,) turned 90 degrees or more from ``X0``, taken again only on the elements whose
+    signs ``moved`` (n,) bool vertices can change (a corner within one ring of one: its vertex
+    normal sums the elements around it), the others kept from ``neg`` and ``turned``."""
     near = np.zeros(len(moved), bool)
-    near[S[moved[S].any(axis=1)].ravel()] = True
-    affected = near[S].any(axis=1)
+    near[S[any_column(moved[S])].ravel()] = True
+    affected = any_column(near[S])
     corners = np.zeros(len(moved), bool)
     corners[S[affected].ravel()] = True
-    sub = corners[S].any(axis=1)  # every element around a corner of an affected one
-    out = bad.copy()
-    out[affected] = (corner_signs(X, S[sub])[affected[sub]] <= 0) & ~allowed[affected]
-    if may_turn is not None:
-        idx = np.flatnonzero(affected)
-        out[idx] |= ((normal_agreement(X, X0, S[idx]) <= 0) & ~may_turn[idx])[:, None]
-    return out
+    sub = any_column(corners[S])  # every element around a corner of an affected one
+    neg = neg.copy()
+    neg[affected] = local_signs(X, S[sub])[affected[sub]] <= 0
+    if turned is not None:
+        turned = turned.copy()
+        turned[affected] = _local_agreement(X, X0, S[affected]) <= 0
+    return neg, turned
 
 
-def safe_step(X0, X1, S, free, halvings=HALVINGS):
+def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None, certify: bool = False):
     """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
 
     ``X`` is ``X0`` where the step was cut to nothing; a corner failing at ``X0`` may fail or
     succeed at ``X`` (so folds are removed, never added); every other corner is positive there,
     and every face not folded at ``X0`` is within 90 degrees of its normal there (exact).  ``halvings``: of a vertex's fraction before it is set to 0 (1: every vertex
-    moves all the way or not at all)."""
+    moves all the way or not at all); ``start``: :func:`certify_folds` of ``X0, S`` when the caller
+    has it (not taken again); ``certify``: return ``(X, t, certificate)``, the
+    :class:`FoldCertificate` of ``X`` from the signs the step ended with (those of
+    :func:`certify_folds`, not taken again)."""
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
     n, surface = len(X0), S.shape[1] == 3
-    allowed = corner_signs(X0, S) <= 0
-    may_turn = (allowed.any(axis=1) | (normal_agreement(X0, X0, S) <= 0)) if surface else None
+    if start is None:
+        allowed = corner_signs(X0, S) <= 0
+    else:
+        allowed = np.zeros(S.shape, bool)
+        allowed[start.corners[:, 0], start.corners[:, 1]] = True
+    # faces with a corner failing at X0 may turn; so may degenerate ones (normal 0 or not finite
+    # at X0), which are among them: their corner signs are 0
+    may_turn = any_column(allowed) if surface else None
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
-    bad, last = np.zeros(S.shape, bool), None
+    neg, turned, last = np.zeros(S.shape, bool), (np.zeros(len(S), bool) if surface else None), None
     while True:
         X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
         X = np.where(t[:, None] == 0.0, X0, X)
-        moved = np.ones(n, bool) if last is None else (X != last).any(axis=1)
-        bad = _failing(X, X0, S, moved, bad, allowed, may_turn)
+        moved = np.ones(n, bool) if last is None else any_column(X != last)
+        neg, turned = _retaken(X, X0, S, moved, neg, turned)
         last = X
+        bad = neg & ~allowed
+        if surface:
+            bad |= (turned & ~may_turn)[:, None]
         failing = np.argwhere(bad)
         if len(failing) == 0:
-            return X, t
+            if not certify:
+                return X, t
+            corners = np.argwhere(neg)
+            return X, t, FoldCertificate(np.unique(corners[:, 0]), corners, len(S))
         cut = _dependents(S, failing, n) & (t > 0)
         # (never empty: with t = 0 on all it depends on, a corner has its start's sign, positive)
         halved[cut] += 1

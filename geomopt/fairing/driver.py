@@ -34,7 +34,7 @@ from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, face_distances, triangle_angles, volume
+from .surface import aspect_ratios, largest_face_distance, smallest_angles, volume
 from .unfold import remove_folds
 
 __all__ = ["fair", "smoothed", "FairDetails"]
@@ -57,7 +57,7 @@ class FairDetails(Details):
     folds_added : faces folded in the output that were not folded in the input (0 unless the
         input was folded and fold removal traded them for more unfolded ones).
     distance : ``relax``: the largest distance of an output face to the input surface (at a
-        grid of 28 points on each face, :func:`~geomopt.fairing.surface.face_distances`), over
+        grid of 28 points on each face, :func:`~geomopt.fairing.surface.largest_face_distance`), over
         the input's bounding-box diagonal (nan for the other methods).
     scale : the power of two the input was multiplied by while smoothing (exact).
     """
@@ -164,7 +164,7 @@ def _measures(X, topo):
         return float("nan"), float("nan"), float("nan")
     closed = len(topo.boundary) == 0
     S = topo.elements
-    return (volume(X, S) if closed else float("nan"), float(triangle_angles(X, S).min()),
+    return (volume(X, S) if closed else float("nan"), float(smallest_angles(X, S).min(initial=np.inf)),
             float(aspect_ratios(X, S).max()))
 
 
@@ -237,12 +237,12 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
         target, free = _target(X0, topo, o, h)
     _say(progress, f"fair: {o.method} target of {len(V)} vertices, {before.inverted} faces folded in the input")
     if o.method == "relax":  # each round was a whole-vertex fold-safe step: a fraction would leave the surface
-        X, t = target, np.where(free, 1.0, 0.0)
+        X, t, after = target, np.where(free, 1.0, 0.0), None
     else:
-        X, t = safe_step(X0, target, F, free)
+        X, t, after = safe_step(X0, target, F, free, start=before, certify=True)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
-    X, rounds = remove_folds(X, topo, free) if before.inverted and o.method != "relax" else (X, 0)
+    X, rounds = remove_folds(X, topo, free, start=after) if before.inverted and o.method != "relax" else (X, 0)
     _say(progress and rounds, f"fair: {rounds} rounds of fold removal")
     vol0, angle0, aspect0 = _measures(X0, topo)
     if o.preserve_volume:
@@ -268,7 +268,7 @@ def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0
     if o.method == "relax":
         Vs = V * scale
         diag = float(np.linalg.norm(Vs.max(axis=0) - Vs.min(axis=0)))
-        distance = float(np.max(face_distances(X, topo.elements, Vs, topo.elements, order=6))) / diag
+        distance = largest_face_distance(X, topo.elements, Vs, topo.elements, order=6) / diag
     details = FairDetails(o, target / scale, int(np.count_nonzero(free & (t < 1.0))), before.inverted, rounds,
                           measured0[0] / scale ** 3, vol1 / scale ** 3, measured0[1], angle1, measured0[2], aspect1,
                           distance, scale, len(np.setdiff1d(cert.folded, before.folded)))

@@ -19,6 +19,7 @@ import numpy as np
 
 from .certificate import safe_step
 from .methods import crease_vertices, normalized_laplacian
+from .operators import any_column
 from .surface import closest_points, face_distances, surface_index
 
 __all__ = ["relax"]
@@ -80,11 +81,11 @@ def _close_step(X, target, V, F, free, tol, index):
     target, last = target.copy(), X
     while True:
         Y, t = safe_step(X, target, F, free, halvings=1)  # each vertex all the way or not at all
-        changed = np.flatnonzero((Y != last).any(axis=1))
+        changed = np.flatnonzero(any_column(Y != last))
         if len(changed) == 0:
             return Y, t
         near = np.flatnonzero(np.isin(F, changed).any(axis=1))
-        far = near[face_distances(Y, F[near], V, F, index=index) > tol]
+        far = near[face_distances(Y, F[near], V, F, index=index, enough=tol) > tol]
         if len(far) == 0:
             return Y, t
         undo = np.intersect1d(np.unique(F[far]), np.flatnonzero(t > 0))

@@ -3,7 +3,9 @@ right-hand side and the held vertices.
 
 ``A p = b`` on the free vertices, the others held at ``x_held``: ``A_FF p_F = b_F - A_FH x_H``.
 On concrete arrays it is assembled (:meth:`~geomopt.fairing.operators.Sparse.csr`) and solved
-by SciPy's sparse LU.  On JAX values it is a ``jax.custom_vjp``: the forward solve runs on the host
+by a sparse Cholesky factorization (:func:`geomopt.linalg.linsolve.spd_solve`: PARDISO, CHOLMOD or
+cholespy where installed) when the free block is symmetric (every method's is, up to rounding) and
+positive definite, else by SciPy's sparse LU.  On JAX values it is a ``jax.custom_vjp``: the forward solve runs on the host
 (a callback), and the backward pass is the implicit function theorem at the solution, one
 solve with ``A_FF`` transposed: ``lam = A_FF^-T g_F`` and each input's cotangent is ``-lam``
 pulled back through the residual ``r(theta) = (A(theta) p - b(theta))_F`` (a JAX ``vjp`` of the
@@ -19,11 +21,38 @@ from .operators import xp_of
 __all__ = ["linear_solve"]
 
 
+#: relative asymmetry (largest ``|K - K^T|`` over largest ``|K|``) up to which a free block counts
+#: as symmetric and goes to the Cholesky factorization: products such as ``A^T W A`` are symmetric
+#: only up to rounding
+SYMMETRY_TOLERANCE = 1e-12
+
+
+def _is_symmetric(K):
+    """Whether the sparse ``K`` (k, k) equals its transpose to :data:`SYMMETRY_TOLERANCE`."""
+    if K.nnz == 0:
+        return True
+    gap = abs(K - K.T)
+    return gap.nnz == 0 or gap.max() <= SYMMETRY_TOLERANCE * abs(K).max()
+
+
+def _factored_solve(K, rhs):
+    """``K^-1 rhs`` for the sparse ``K`` (k, k): Cholesky where it is symmetric positive
+    definite, else LU."""
+    from scipy.sparse.linalg import splu
+
+    from ..linalg.linsolve import NotPositiveDefinite, spd_solve
+
+    if _is_symmetric(K):
+        try:
+            return spd_solve(K, rhs)
+        except NotPositiveDefinite:
+            pass  # indefinite or singular to the factorization: LU decides
+    return splu(K.tocsc()).solve(rhs)
+
+
 def _host_solve(A, b, free, x_held, transpose=False):
     """NumPy: the solution (n, d) with the held rows ``x_held``; ``transpose`` solves
     ``A_FF^T lam_F = b_F`` with zero held rows instead."""
-    from scipy.sparse.linalg import splu
-
     K = A.csr()
     if transpose:
         K = K.T.tocsr()
@@ -33,7 +62,7 @@ def _host_solve(A, b, free, x_held, transpose=False):
     if len(F) == 0:
         return x
     rhs = b[F] - (0 if transpose or len(H) == 0 else K[F][:, H] @ x[H])
-    x[F] = splu(K[F][:, F].tocsc()).solve(np.ascontiguousarray(rhs))
+    x[F] = _factored_solve(K[F][:, F].tocsr(), np.ascontiguousarray(rhs))
     return x
 
 

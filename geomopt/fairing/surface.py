@@ -1,18 +1,20 @@
 """Distances to a triangle surface, closest points on it, and triangle shape measures (NumPy).
 
-:func:`closest_points` finds, for each query point, the closest point of a triangle mesh: the
-faces whose centroid lies within ``d + R`` of the point are candidates (``d`` the distance to the
-closest point among the faces of the ``k`` nearest centroids, ``R`` the largest centroid-to-corner
-distance of the faces' bucket: :func:`surface_index`), which contain the closest face, and the point-triangle distance is Ericson's
-(Real-Time Collision Detection, 2005, 5.1.5).
+:func:`closest_points` finds, for each query point, the closest point of a triangle mesh by an
+exact candidate search (an upper bound of the distance from the faces around the nearest vertex,
+then every face that can come closer, found among the faces' centroids by radius:
+:func:`surface_index`); the point-triangle distance is Ericson's (Real-Time Collision Detection,
+2005, 5.1.5).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ["closest_points", "surface_index", "point_triangle", "triangle_angles", "aspect_ratios", "volume",
-           "face_samples", "face_distances"]
+__all__ = ["closest_points", "surface_index", "SurfaceIndex", "point_triangle", "triangle_angles", "smallest_angles", "aspect_ratios", "volume",
+           "face_samples", "face_distances", "largest_face_distance"]
 
 
 def point_triangle(P, A, B, C):
@@ -44,58 +46,138 @@ def point_triangle(P, A, B, C):
     return out
 
 
-def surface_index(V, F):
-    """What :func:`closest_points` searches, built once per surface: ``(corners A, B, C (m, 3)
-    each, buckets)``; the faces are bucketed by their centroid-to-corner radius (powers of two),
-    each bucket a tree of its centroids with its largest radius, so that a few large faces do
-    not widen every search."""
+class SurfaceIndex(NamedTuple):
+    """What :func:`closest_points` searches, built once per surface by :func:`surface_index`.
+
+    Attributes
+    ----------
+    A, B, C : (m, 3) the faces' corners.
+    radius : (m,) each face's largest centroid-to-corner distance.
+    centroids : (m, 3).
+    buckets : ``(tree, ids, R)`` per power of two of the radius: a ``cKDTree`` of the centroids of
+        the faces ``ids``, and their largest radius ``R`` (a few large faces do not widen every
+        search).
+    vertex_tree : a ``cKDTree`` of the vertices ``used`` (those of a face).
+    used : (u,) the vertices of ``vertex_tree``.
+    ring_start, ring_faces : the faces around vertex ``v``: ``ring_faces[ring_start[v]:ring_start[v + 1]]``.
+    size : the largest coordinate magnitude (the scale of rounding errors).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    radius: np.ndarray
+    centroids: np.ndarray
+    buckets: list
+    vertex_tree: object
+    used: np.ndarray
+    ring_start: np.ndarray
+    ring_faces: np.ndarray
+    size: float
+
+
+def surface_index(V, F) -> SurfaceIndex:
+    """The :class:`SurfaceIndex` of the triangle surface ``V`` (n, 3), ``F`` (m, 3)."""
     from scipy.spatial import cKDTree
 
-    V = np.asarray(V, dtype=np.float64)
+    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
     A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     centroid = (A + B + C) / 3.0
     radius = np.sqrt(np.max(np.sum((np.stack([A, B, C]) - centroid) ** 2, axis=2), axis=0))
     level = np.floor(np.log2(np.maximum(radius, 1e-300))).astype(np.int64)
     buckets = [(cKDTree(centroid[ids]), ids, float(radius[ids].max()))
                for ids in (np.flatnonzero(level == v) for v in np.unique(level))]
-    return A, B, C, buckets
+    used = np.unique(F)
+    order = np.argsort(F.ravel(), kind="stable")
+    start = np.concatenate([[0], np.cumsum(np.bincount(F.ravel(), minlength=len(V)))])
+    return SurfaceIndex(A, B, C, radius, centroid, buckets, cKDTree(V[used]), used, start, order // 3,
+                        float(np.abs(V[used]).max(initial=0.0)))
 
 
 #: query points per batch of :func:`closest_points`: its candidate arrays grow with the points
 #: times the candidates each, so batches bound its memory (tens of MB, not GB)
 CHUNK = 16384
+#: centroids per bucket that :func:`closest_points` takes from a nearest-neighbour query before
+#: it falls back, for the points that have more within reach, to a ball query
+NEIGHBOURS = 16
 
 
-def closest_points(P, V, F, k=8, index=None):
+def closest_points(P, V, F, index=None):
     """``(Q, face)``: the closest points ``Q`` (p, 3) of the surface ``V, F`` to ``P`` (p, 3) and
-    the faces (p,) they lie on (exact candidate search, see the module notes); ``index``: the
-    surface's :func:`surface_index`, when the caller keeps one.  Points are searched in batches
-    of :data:`CHUNK`."""
+    the faces (p,) they lie on; ``index``: the surface's :func:`surface_index`, when the caller
+    keeps one.  Points are searched in batches of :data:`CHUNK`.
+
+    Exact candidate search, in two stages: (1) an upper bound ``d`` of each point's distance,
+    from the faces around its nearest vertex; (2) every face whose centroid lies within ``d + R``
+    of the point (``R`` the largest centroid-to-corner radius of the face's bucket), kept when
+    its centroid is within ``d`` plus its own radius: these contain the closest face.  The
+    point-triangle distance is Ericson's (Real-Time Collision Detection, 2005, 5.1.5)."""
+    return _batched(P, V, F, index, 0.0)
+
+
+def _batched(P, V, F, index, enough):
+    """:func:`closest_points`, where a point found within ``enough`` of the surface by the first
+    stage keeps that stage's point (then not necessarily the closest)."""
     P = np.asarray(P, dtype=np.float64)
     index = index or surface_index(V, F)
     if len(P) <= CHUNK:
-        return _closest_batch(P, index, k)
-    parts = [_closest_batch(P[i:i + CHUNK], index, k) for i in range(0, len(P), CHUNK)]
+        return _closest_batch(P, index, enough)
+    parts = [_closest_batch(P[i:i + CHUNK], index, enough) for i in range(0, len(P), CHUNK)]
     return np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
 
 
-def _closest_batch(P, index, k):
-    """:func:`closest_points` of one batch of points."""
-    A, B, C, buckets = index
+def _ring_candidates(P, index):
+    """``(who, faces)``: the faces around each point's nearest vertex (p points)."""
+    _, j = index.vertex_tree.query(P)
+    v = index.used[j]
+    lo, count = index.ring_start[v], index.ring_start[v + 1] - index.ring_start[v]
+    who = np.repeat(np.arange(len(P)), count)
+    first = np.cumsum(count) - count
+    return who, index.ring_faces[np.repeat(lo - first, count) + np.arange(len(who))]
+
+
+def _reach_candidates(P, index, reach):
+    """``(who, faces)``: for each point, the faces whose centroid lies within ``reach`` (p,) plus
+    the face's own radius (every face that can come closer than ``reach``), with a margin for
+    the rounding of centroids, radii and distances (relative 1e-12, absolute 1e-13 of the
+    coordinates' size)."""
+    slack = 1e-13 * (np.abs(P).max(axis=1) + index.size) + 1e-300
+    reach = reach * (1 + 1e-12) + slack
     who, faces = [], []
-    for tree, ids, _ in buckets:
-        _, near = tree.query(P, k=min(k, len(ids)))
-        near = ids[near.reshape(len(P), -1)]
-        who.append(np.repeat(np.arange(len(P)), near.shape[1]))
-        faces.append(near.ravel())
-    best = _nearest_of(P, A, B, C, np.concatenate(who), np.concatenate(faces), len(P))[1]
-    who, faces = [], []
-    for tree, ids, R in buckets:
-        lists = tree.query_ball_point(P, np.sqrt(best) * (1 + 1e-12) + R * (1 + 1e-12) + 1e-300)
-        who.append(np.repeat(np.arange(len(P)), [len(x) for x in lists]))
-        faces.append(ids[np.concatenate([np.asarray(x, np.int64) for x in lists])] if len(who[-1]) else
-                     np.zeros(0, np.int64))
-    face, _, Q = _nearest_of(P, A, B, C, np.concatenate(who), np.concatenate(faces), len(P))
+    for tree, ids, R in index.buckets:
+        bound = reach + R * (1 + 1e-12)
+        k = min(NEIGHBOURS, len(ids))
+        dist, near = tree.query(P, k=k, distance_upper_bound=float(bound.max()))
+        dist, near = dist.reshape(len(P), k), near.reshape(len(P), k)
+        full = np.flatnonzero(dist[:, -1] <= bound) if k < len(ids) else np.zeros(0, np.int64)
+        keep = dist <= bound[:, None]
+        keep[full] = False  # more than k within reach: a ball query below
+        w, c = np.nonzero(keep)
+        who.append(w)
+        faces.append(ids[near[w, c]])
+        if len(full):
+            lists = tree.query_ball_point(P[full], bound[full])
+            who.append(np.repeat(full, [len(x) for x in lists]))
+            faces.append(ids[np.concatenate([np.asarray(x, np.int64) for x in lists])])
+    who, faces = np.concatenate(who), np.concatenate(faces)
+    gap = np.linalg.norm(P[who] - index.centroids[faces], axis=1) - index.radius[faces] * (1 + 1e-12)
+    take = gap <= reach[who]  # (a face farther than its centroid's distance less its radius is farther)
+    return who[take], faces[take]
+
+
+def _closest_batch(P, index, enough=0.0):
+    """:func:`_batched` of one batch of points."""
+    who, faces = _ring_candidates(P, index)
+    face, best, Q = _nearest_of(P, index, who, faces, len(P))
+    far = np.flatnonzero(~(best <= enough * enough))  # (nan: searched too)
+    if len(far) == 0:
+        return Q, face
+    keep = np.zeros(len(P), np.int64)
+    keep[far] = np.arange(len(far))
+    sub = np.isin(who, far) if len(far) < len(P) else np.ones(len(who), bool)
+    more_who, more_faces = _reach_candidates(P[far], index, np.sqrt(best[far]))
+    face[far], _, Q[far] = _nearest_of(P[far], index, np.concatenate([keep[who[sub]], more_who]),
+                                       np.concatenate([faces[sub], more_faces]), len(far))
     return Q, face
 
 
@@ -106,25 +188,66 @@ def face_samples(order):
     return np.asarray(ijk, dtype=np.float64) / order
 
 
-def face_distances(X, F, V, G, order=4, index=None):
+def _samples(X, F, order):
+    """(m * s, 3) the :func:`face_samples` points of each face, face by face."""
+    return np.einsum("sk,mkd->msd", face_samples(order), np.asarray(X, dtype=np.float64)[F]).reshape(-1, 3)
+
+
+def face_distances(X, F, V, G, order=4, index=None, enough=0.0):
     """(m,) for each triangle ``F`` (m, 3) of the vertices ``X``: the largest distance of its
     :func:`face_samples` points to the surface ``V, G`` (a lower bound of the face's one-sided
-    Hausdorff distance, exact at the samples); ``index``: ``V, G``'s :func:`surface_index`."""
-    B = face_samples(order)
-    P = np.einsum("sk,mkd->msd", B, np.asarray(X, dtype=np.float64)[F]).reshape(-1, 3)
-    Q, _ = closest_points(P, V, G, index=index)
-    return np.linalg.norm(Q - P, axis=1).reshape(len(F), len(B)).max(axis=1)
+    Hausdorff distance, exact at the samples); ``index``: ``V, G``'s :func:`surface_index`.
+    ``enough``: a face whose distance is at most ``enough`` may get any value up to ``enough``
+    (a point found that near by the first stage of :func:`closest_points` is not searched
+    further): ``face_distances(..., enough=tol) > tol`` is exact, and faster."""
+    P = _samples(X, F, order)
+    Q, _ = _batched(P, V, G, index, enough)
+    return np.linalg.norm(Q - P, axis=1).reshape(len(F), -1).max(axis=1)
 
 
-def _nearest_of(P, A, B, C, who, faces, p):
+def largest_face_distance(X, F, V, G, order=4, index=None) -> float:
+    """``face_distances(X, F, V, G, order).max()`` (0 without faces), from above and within
+    rounding: at least that max and at most ``1e-14`` of the coordinates' size more.
+
+    A face of ``F`` that is the same face of ``G`` (same corners, same positions) lies on the
+    surface: its samples' distances are rounding errors, below that margin, and are not searched.
+    For the others, the first stage of :func:`closest_points` bounds every sample's distance from
+    above; only the samples whose bound exceeds the largest exact distance found so far (by more
+    than the margin) are searched exactly, the largest bounds first."""
+    X, V, F = np.asarray(X, dtype=np.float64), np.asarray(V, dtype=np.float64), np.asarray(F)
+    index = index or surface_index(V, G)
+    same = np.zeros(len(F), bool)
+    if np.shape(F) == np.shape(G) and np.array_equal(F, G):
+        same = (X[F] == V[F]).reshape(len(F), -1).all(axis=1)
+    P = _samples(X, F[~same], order)
+    margin = 1e-14 * (index.size + float(np.abs(X[F]).max(initial=0.0)))
+    Q, _ = _batched(P, V, G, index, np.inf)
+    bound = np.concatenate([np.linalg.norm(Q - P, axis=1), [margin] if same.any() else []])
+    done, best = np.zeros(len(bound), bool), 0.0
+    while True:
+        todo = np.flatnonzero(~done & (bound > best + margin))
+        if len(todo) == 0:
+            return max(best, float(bound.max(initial=0.0)))
+        if len(todo) > CHUNK:
+            todo = todo[np.argpartition(-bound[todo], CHUNK)[:CHUNK]]
+        Q, _ = _batched(P[todo], V, G, index, 0.0)
+        bound[todo], done[todo] = np.linalg.norm(Q - P[todo], axis=1), True
+        best = max(best, float(bound[todo].max()))
+
+
+def _nearest_of(P, index, who, faces, p):
     """For each point the nearest of its candidate ``faces`` (listed with their point ``who``):
     ``(face, squared distance, closest point)``."""
-    Q = point_triangle(P[who], A[faces], B[faces], C[faces])
+    Q = point_triangle(P[who], index.A[faces], index.B[faces], index.C[faces])
     d = np.sum((Q - P[who]) ** 2, axis=1)
-    order = np.lexsort((d, who))
-    first = order[np.r_[True, who[order][1:] != who[order][:-1]]]
-    face, dist, point = np.zeros(p, np.int64), np.full(p, np.inf), P.copy()
-    face[who[first]], dist[who[first]], point[who[first]] = faces[first], d[first], Q[first]
+    dist = np.full(p, np.inf)
+    np.minimum.at(dist, who, d)
+    hit = np.flatnonzero(d <= dist[who])  # (the first candidate of the least distance, as a stable sort's)
+    first = np.full(p, len(who))
+    np.minimum.at(first, who[hit], hit)
+    has = first < len(who)
+    face, point = np.zeros(p, np.int64), P.copy()
+    face[has], point[has] = faces[first[has]], Q[first[has]]
     return face, dist, point
 
 
@@ -138,15 +261,28 @@ def triangle_angles(V, F) -> np.ndarray:
     return np.stack(out, axis=1)
 
 
+def smallest_angles(V, F) -> np.ndarray:
+    """(m,) each triangle's smallest interior angle (degrees): the one opposite its shortest
+    edge, by :func:`triangle_angles`' formula at that corner alone (a third of the work)."""
+    V = np.asarray(V, dtype=np.float64)
+    P = V[F]  # (m, 3, 3)
+    edge = [P[:, (k + 2) % 3] - P[:, (k + 1) % 3] for k in range(3)]  # opposite corner k
+    k = np.argmin(np.stack([np.einsum("ij,ij->i", e, e) for e in edge], axis=1), axis=1)
+    rows = np.arange(len(F))
+    corner, u, v = P[rows, k], P[rows, (k + 1) % 3], P[rows, (k + 2) % 3]
+    u, v = u - corner, v - corner
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.sum(u * v, axis=1)))
+
+
 def aspect_ratios(V, F) -> np.ndarray:
     """(m,) longest edge over the height on it, divided by that of the equilateral triangle
     (``2 / sqrt(3)``): 1 at best, growing without bound on slivers (inf when degenerate)."""
     V = np.asarray(V, dtype=np.float64)
-    e = np.stack([np.linalg.norm(V[F[:, (k + 1) % 3]] - V[F[:, k]], axis=1) for k in range(3)], axis=1)
-    area2 = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    longest = e.max(axis=1)
-    with np.errstate(divide="ignore"):
-        return longest * longest / area2 * (np.sqrt(3.0) / 2.0)
+    edges = [V[F[:, (k + 1) % 3]] - V[F[:, k]] for k in range(3)]
+    longest2 = np.maximum.reduce([np.einsum("ij,ij->i", e, e) for e in edges])
+    area2 = np.linalg.norm(np.cross(edges[0], -edges[2]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(area2 > 0, longest2 / area2 * (np.sqrt(3.0) / 2.0), np.inf)
 
 
 def volume(V, F) -> float:

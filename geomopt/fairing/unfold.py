@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..exact.normals import corner_signs
-from .certificate import certify_folds
+from .certificate import certify_folds, local_signs
+from .operators import any_column
 
 __all__ = ["remove_folds", "MAX_RINGS", "MAX_ROUNDS"]
 
@@ -74,12 +74,12 @@ def _refolded(Y, S, folded, moved, A):
     are ``folded`` only on ``moved`` (n,) bool: the signs of a face change only when a corner lies
     within one ring of a moved vertex, and those are taken again (exactly, on the faces around
     their corners), the rest kept."""
-    affected = _grow(moved, A, 1)[S].any(axis=1)
+    affected = any_column(_grow(moved, A, 1)[S])
     corners = np.zeros(len(moved), bool)
     corners[S[affected].ravel()] = True
-    sub = corners[S].any(axis=1)  # every face around a corner of an affected face
+    sub = any_column(corners[S])  # every face around a corner of an affected face
     out = folded.copy()
-    out[affected] = (corner_signs(Y, S[sub])[affected[sub]] <= 0).any(axis=1)
+    out[affected] = any_column(local_signs(Y, S[sub])[affected[sub]] <= 0)
     return out
 
 
@@ -89,7 +89,7 @@ def _partwise(X, Y, S, topo, region, folded_x, folded_y):
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    e = topo.edges[region[topo.edges].all(axis=1)]
+    e = topo.edges[region[topo.edges[:, 0]] & region[topo.edges[:, 1]]]
     graph = csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(topo.n, topo.n))
     _, label = connected_components(graph, directed=False)
     label = np.where(region, label, -1)
@@ -98,16 +98,17 @@ def _partwise(X, Y, S, topo, region, folded_x, folded_y):
     for _ in range(2):  # spread each part's label two rings out; a vertex reached by two parts: -2
         spread = owner.copy()
         c = S.shape[1]
+        T = S[any_column(owner[S] >= 0)]  # (the elements with no labelled corner spread nothing)
         for k in range(c):
             for j in (j for j in range(c) if j != k):
-                src, dst = owner[S[:, k]], S[:, j]
+                src, dst = owner[T[:, k]], T[:, j]
                 take = (src >= 0) & (spread[dst] == -1)
                 spread[dst[take]] = src[take]
                 clash = (src >= 0) & (spread[dst] >= 0) & (spread[dst] != src)
                 spread[dst[clash]] = -2
         owner = spread
     labels = owner[S]  # the part each element is near (within two rings); -1: none or several
-    near = np.where((labels == labels[:, :1]).all(axis=1), labels[:, 0], -1)
+    near = np.where(~any_column(labels != labels[:, :1]), labels[:, 0], -1)
     parts = np.unique(near[near >= 0])
     before = np.bincount(near[near >= 0], weights=folded_x[near >= 0], minlength=parts.max(initial=-1) + 1)
     after = np.bincount(near[near >= 0], weights=folded_y[near >= 0], minlength=parts.max(initial=-1) + 1)
@@ -116,13 +117,18 @@ def _partwise(X, Y, S, topo, region, folded_x, folded_y):
     return np.where(take[:, None], Y, X)
 
 
-def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS):
+def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
     """``(X, rounds)``: ``X`` (n, d) with its folded faces (elements) removed where it can (see
     the module notes), never more of them folded than at the start; ``free`` (n,) bool the
-    vertices it may move; ``rounds``: the rounds taken."""
+    vertices it may move; ``rounds``: the rounds taken; ``start``: the
+    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it."""
     S = topo.elements
     X = np.asarray(X, dtype=np.float64)
-    folded = _folded_mask(X, S)
+    if start is None:
+        folded = _folded_mask(X, S)
+    else:
+        folded = np.zeros(len(S), bool)
+        folded[start.folded] = True
     A = _averaging(topo)
     rings, rounds = 1, 0
     while folded.any() and rings <= MAX_RINGS and rounds < max_rounds:
