@@ -632,7 +632,7 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
         return pieces
     out = []
     for c in range(split.count):
-        part, rows = mesh.part(np.flatnonzero(split.chart == c))
+        part, rows = mesh.part(split.faces_of(c))
         out.append((part, np.asarray(x)[rows]))
     return out
 
