@@ -34,3 +34,42 @@ def test_every_chart_mesh_of_a_split_costs_one_pass_over_the_faces_not_one_per_c
     for c, mesh in enumerate(meshes):
         np.testing.assert_array_equal(mesh.faces, np.flatnonzero(np.asarray(chart) == c))
         np.testing.assert_array_equal(mesh.vertices[mesh.F], F[mesh.faces])
+
+
+def _charts(k, seed):
+    """``k`` flip-free disk charts (fine grids, most vertices inside), turned and moved."""
+    rng = np.random.default_rng(seed)
+    uvs, faces = [], []
+    for _ in range(k):
+        V, F = square_mesh(int(rng.integers(12, 30)))
+        V = V * rng.uniform(0.2, 2.0, size=2)
+        a = rng.uniform(0, 2 * np.pi)
+        uvs.append(V @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T + rng.normal(size=2))
+        faces.append(F)
+    return uvs, faces
+
+
+def test_packing_layouts_see_only_the_charts_boundaries_and_pack_as_with_every_vertex(monkeypatch):
+    from geomopt.atlas import _pack, pack_charts
+    from geomopt.exact.topology import boundary_half_edges
+
+    uvs, faces = _charts(7, 3)
+    seen = []
+    layout = _pack._layout
+
+    def counted(U, *args, **kwargs):
+        seen.append(sum(len(u) for u in U))
+        return layout(U, *args, **kwargs)
+
+    monkeypatch.setattr(_pack, "_layout", counted)
+    packed = pack_charts(uvs, faces, margin=0.01)
+    boundary = sum(len(np.unique(boundary_half_edges(f))) for f in faces)
+    assert packed.efficiency > 0.3 and seen and set(seen) == {boundary}  # far fewer than every vertex
+    assert boundary < sum(len(u) for u in uvs) / 3
+    # the same layout as from every vertex: the boundary holds every extreme of a flip-free chart
+    monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
+    whole = pack_charts(uvs, faces, margin=0.01)
+    assert whole.efficiency == packed.efficiency
+    np.testing.assert_array_equal(whole.angles, packed.angles)
+    for a, b in zip(whole.uvs, packed.uvs):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
