@@ -73,3 +73,24 @@ def test_packing_layouts_see_only_the_charts_boundaries_and_pack_as_with_every_v
     np.testing.assert_array_equal(whole.angles, packed.angles)
     for a, b in zip(whole.uvs, packed.uvs):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_a_short_seam_paths_straightening_search_gathers_only_its_neighbourhood(monkeypatch):
+    from geomopt.atlas import seams
+    from geomopt.atlas.seams import edge_graph, _TurnGraph
+
+    V, F = square_mesh(61)  # 7200 triangles
+    g = edge_graph(np.c_[V, np.zeros(len(V))], F)
+    cost = g.length.copy()
+    lines = _TurnGraph(g, cost, 3.0)
+    gathered = []
+    ranges = seams._ranges
+    monkeypatch.setattr(seams, "_ranges", lambda start, idx: gathered.append(len(idx)) or ranges(start, idx))
+    s, t = 30 * 61 + 28, 30 * 61 + 33  # five edges apart along a row, mid-square
+    S, T = np.zeros(len(g.V), dtype=bool), np.zeros(len(g.V), dtype=bool)
+    S[s], T[t] = True, True
+    new = lines.cheapest(S, T, np.zeros(len(g.V), dtype=bool), 5.5 * float(cost.min()) * 1.0001)
+    assert new is not None and len(new) == 5 and set(g.E[new].ravel()) == set(range(s, t + 1))
+    assert sum(gathered) < 0.02 * (len(lines.tail) + len(g.V))  # not the whole surface's half-edges
+    gathered.clear()
+    assert lines.cheapest(S, T, np.zeros(len(g.V), dtype=bool), 4.9 * float(cost.min())) is None  # priced above
