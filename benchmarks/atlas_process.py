@@ -22,7 +22,10 @@ input file's bytes unchanged.  Outputs go to a temporary folder, removed at the 
 ``--stages``: instead, where the time goes: per mesh, one geomopt process that imports, reads,
 makes the atlas once (warming the process) and again timed by its progress stages (cut,
 flatten, split search + packing, the exact certificate) and writes the OBJ, beside the xatlas
-process, alternating, ``--repeat`` rounds (medians).
+process, alternating, ``--repeat`` rounds (medians; peak resident memory, the largest).
+
+``--subdivide K``: the meshes after ``K`` Loop subdivisions (4^K times the faces: cow's 5,520
+become 353,280 at ``K = 3``), for the atlas at scan sizes.
 
 Run it with the Python of the install being measured, as a user installs it::
 
@@ -261,7 +264,7 @@ def stages(paths, repeat, clock="wall"):
     wall time on an idle machine)."""
     rows = ["| mesh | faces | charts | import | read | cut | flatten | split search + packing | certificate "
             "| write | atlas (warm) | xatlas parametrize | xatlas process | geomopt process (incl. first atlas) "
-            "| ratio atlas / xatlas parametrize |", "|---" * 15 + "|"]
+            "| ratio atlas / xatlas parametrize | peak MB geomopt / xatlas |", "|---" * 16 + "|"]
     with tempfile.TemporaryDirectory(prefix="atlas_stages-") as tmp:
         for path in paths:
             g, x = [], []
@@ -277,28 +280,27 @@ def stages(paths, repeat, clock="wall"):
             rows.append(f"| {path.stem} | {s['faces']} | {s['charts']} | " + " | ".join(
                 f"{med[k]:.2f}" for k in ("import", "read", "cut", "flatten", "split+pack", "certificate", "write",
                                           "atlas")) + f" | {xp:.2f} | {statistics.median(r[clock] for r in x):.2f} | "
-                f"{statistics.median(r[clock] for r in g):.2f} | {med['atlas'] / xp:.2f} |")
+                f"{statistics.median(r[clock] for r in g):.2f} | {med['atlas'] / xp:.2f} | "
+                f"{max(r['peak_mb'] for r in g):.0f} / {max(r['peak_mb'] for r in x):.0f} |")
     return "\n".join(rows)
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("meshes", nargs="*", help="mesh files (default: shared/data/closed/*.off)")
-    ap.add_argument("--repeat", type=int, default=1, help="later rounds per mesh (medians; default 1)")
-    ap.add_argument("--json", help="write the raw results here")
-    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                    help="--stages: wall seconds, or the processes' CPU seconds (steadier on a loaded machine)")
-    ap.add_argument("--stages", action="store_true",
-                    help="instead: geomopt's stages in a warm process (cut, flatten, split search + packing, "
-                         "certificate, write) beside xatlas, --repeat rounds")
-    args = ap.parse_args(argv)
-    if args.repeat < 1:
-        ap.error("--repeat: at least one later round")
-    if importlib.util.find_spec("xatlas") is None:
-        ap.exit(2, "atlas_process.py: xatlas is not installed; install the benchmark extra: pip install \".[bench]\"\n")
-    paths = [Path(p) for p in args.meshes] or sorted(CLOSED.glob("*.off"))
-    if not paths:
-        sys.exit(f"no meshes given and none at {CLOSED}: name mesh files, or clone the project next to shared/")
+def subdivided(path, k, folder):
+    """``path``'s mesh after ``k`` Loop subdivisions, as an OFF file in ``folder``."""
+    import trimesh
+
+    mesh = trimesh.load(path, force="mesh", process=False)
+    V, F = mesh.vertices, mesh.faces
+    for _ in range(k):
+        V, F = trimesh.remesh.subdivide_loop(V, F)
+    out = folder / f"{Path(path).stem}-x{4 ** k}.off"
+    trimesh.Trimesh(V, F, process=False).export(out)
+    log(f"{out.name}: {len(F)} faces")
+    return out
+
+
+def report(args, paths):
+    """The table of ``args`` (``--stages`` or the processes) on the mesh files ``paths``."""
     if args.stages:
         print(stages([p for p in paths if p.is_file()], args.repeat, args.clock))
         return
@@ -321,6 +323,35 @@ def main(argv=None):
         print(f"failed {name}: {why.strip().splitlines()[0]}")
     if args.json:
         Path(args.json).write_text(json.dumps({"rows": rows, "failed": failed, "geomopt": version}, indent=1))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("meshes", nargs="*", help="mesh files (default: shared/data/closed/*.off)")
+    ap.add_argument("--repeat", type=int, default=1, help="later rounds per mesh (medians; default 1)")
+    ap.add_argument("--json", help="write the raw results here")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                    help="--stages: wall seconds, or the processes' CPU seconds (steadier on a loaded machine)")
+    ap.add_argument("--subdivide", type=int, default=0, metavar="K",
+                    help="run on each mesh after K Loop subdivisions (trimesh.remesh.subdivide_loop: 4^K times "
+                         "the faces; e.g. cow at K=3: 353k faces), written to a temporary folder")
+    ap.add_argument("--stages", action="store_true",
+                    help="instead: geomopt's stages in a warm process (cut, flatten, split search + packing, "
+                         "certificate, write) beside xatlas, --repeat rounds")
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat: at least one later round")
+    if args.subdivide < 0:
+        ap.error("--subdivide: a number of subdivisions, 0 or more")
+    if importlib.util.find_spec("xatlas") is None:
+        ap.exit(2, "atlas_process.py: xatlas is not installed; install the benchmark extra: pip install \".[bench]\"\n")
+    paths = [Path(p) for p in args.meshes] or sorted(CLOSED.glob("*.off"))
+    if not paths:
+        sys.exit(f"no meshes given and none at {CLOSED}: name mesh files, or clone the project next to shared/")
+    with tempfile.TemporaryDirectory(prefix="atlas_subdivided-") as folder:
+        if args.subdivide > 0:
+            paths = [subdivided(p, args.subdivide, Path(folder)) for p in paths if p.is_file()]
+        report(args, paths)
 
 
 if __name__ == "__main__":

@@ -358,6 +358,20 @@ def _to_unit_square(U, R, t, h):
     return uvs, scale, offsets
 
 
+def _outlines(U, Bs):
+    """``(Ub, Bb)``: each chart's boundary vertices ``u[rows]`` and its boundary edges ``B`` in
+    them.  A layout needs nothing else: the rasters are drawn from the boundary, and a flip-free
+    chart's extremes in any direction lie on its boundary (its interior maps into the interior of
+    its image), so its boxes are its boundary's; a layout's work is then in the boundary
+    vertices, not in every vertex of every chart at every orientation tried."""
+    Ub, Bb = [], []
+    for u, B in zip(U, Bs):
+        rows, local = np.unique(B, return_inverse=True)
+        Ub.append(u[rows])
+        Bb.append(local.reshape(B.shape))
+    return Ub, Bb
+
+
 def _prepare(U, Fs, rotate, steps=_STEPS, Bs=None):
     """The charts ``U`` rescaled near 1 by a power of two (``unit``), their total ``area``,
     boundary edges ``Bs`` (found when not given) and the rotations to try (``bases``, ``turns``)."""
@@ -398,8 +412,9 @@ def packing_estimate(uvs, faces, *, margin: float = 0.005, rotate: bool = True, 
     Fs = [np.asarray(f, dtype=np.int64) for f in faces]
     margin = _check_margin(margin, len(U))
     U, _, area, Bs, bases, turns = _prepare(U, Fs, rotate, steps=1, Bs=boundaries)
-    R, t, h = _layout(U, Bs, bases, turns, area, margin, max(16, int(resolution)), budget)
-    return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(U, R, t)])) ** 2
+    Ub, Bb = _outlines(U, Bs)
+    R, t, h = _layout(Ub, Bb, bases, turns, area, margin, max(16, int(resolution)), budget)
+    return area / (h * _side([(u @ Ri.T) / h + ti for u, Ri, ti in zip(Ub, R, t)])) ** 2
 
 
 def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resolution: int = 512,
@@ -442,8 +457,9 @@ def pack_charts(uvs, faces, *, margin: float = 0.005, rotate: bool = True, resol
     margin = _check_margin(margin, len(U))
     U, unit, area, Bs, bases, turns = _prepare(U, Fs, rotate)
     res = int(resolution)
+    Ub, Bb = _outlines(U, Bs)
     for _ in range(_TRIES):
-        R, t, h = _layout(U, Bs, bases, turns, area, margin, res)
+        R, t, h = _layout(Ub, Bb, bases, turns, area, margin, res)
         out, scale, offsets = _to_unit_square(U, R, t, h)
         cert = _certify_packed(out, Fs) if certify else None
         if cert is None or cert.ok or not (len(cert.overlapping_pairs) or cert.out_of_range or len(cert.inverted)):

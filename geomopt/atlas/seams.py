@@ -469,20 +469,16 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
     With ``slide`` > 0, an end of a path on the boundary where no other seam meets it may move
     along the boundary, to any boundary vertex within ``slide`` times the distance between the
     path's ends (:func:`_slid`)."""
-    from scipy.sparse.csgraph import dijkstra
-
     cut = np.asarray(cut, dtype=bool).copy()
     if turn <= 0 or not cut.any():
         return cut
-    tail, head, a, b, angle = _turn_graph(g)
-    edge = np.arange(len(tail)) // 2
-    typical = float(np.median(cost))
+    lines = _TurnGraph(g, cost, turn)
     charts, disks = _disks(g, cut)
     for path in _key_paths(g, cut & ~g.boundary, np.zeros(len(g.V), dtype=bool)):
         if not cut[path].all():
             continue
-        count = np.bincount(g.E[path].ravel(), minlength=len(g.V))
-        ends = np.flatnonzero(count == 1)
+        verts, count = np.unique(g.E[path].ravel(), return_counts=True)
+        ends = verts[count == 1]
         if len(ends) != 2:
             continue  # a loop through a single node
         s, t = (int(v) for v in (ends if ends[0] in g.E[path[0]] else ends[::-1]))
@@ -492,28 +488,9 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         on[g.E[rest | g.boundary].ravel()] = True
         S, T = _slid(g, rest & ~g.boundary, s, t, slide)
         on[S | T] = False
-        ok = ~on[tail] & ~on[head] & ~S[head] & ~T[tail] & ~g.boundary[edge]
-        use = ok[a] & ok[b]
-        n = len(tail)
-        # node n: the source (half-edges leaving S); weights: the edge entered plus the turn
-        rows = np.r_[a[use], np.full(np.count_nonzero(ok & S[tail]), n)]
-        cols = np.r_[b[use], np.flatnonzero(ok & S[tail])]
-        weight = np.r_[_turn_price(cost[edge[b[use]]], angle[use], turn, typical),
-                       cost[edge[cols[np.count_nonzero(use):]]]]
-        graph = sp.csr_matrix((weight + 1e-300, (rows, cols)), shape=(n + 1, n + 1))
-        old = _path_price(g, path, s, cost, turn, typical)
-        dist, pred = dijkstra(graph, indices=n, return_predecessors=True, limit=old)
-        arrive = np.flatnonzero(T[head] & np.isfinite(dist[:n]))
-        if not len(arrive):
-            continue
-        h = int(arrive[np.argmin(dist[arrive])])
-        if dist[h] >= old * (1 - 1e-9):
-            continue
-        new = []
-        while h != n:
-            new.append(int(edge[h]))
-            h = int(pred[h])
-        if len(set(new)) != len(new) or cost[new].sum() > _STRAIGHT_SLACK * cost[path].sum():
+        old = _path_price(g, path, s, cost, turn, lines.typical)
+        new = lines.cheapest(S, T, on, old)
+        if new is None or len(set(new)) != len(new) or cost[new].sum() > _STRAIGHT_SLACK * cost[path].sum():
             continue
         trial = cut.copy()
         trial[path] = False
@@ -521,6 +498,70 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
         if _disks(g, trial) == (charts, disks):
             cut = trial
     return cut
+
+
+def _ranges(start, idx) -> np.ndarray:
+    """The positions ``start[i] .. start[i + 1] - 1`` of every ``i`` in ``idx``, end to end."""
+    first, count = start[idx], start[idx + 1] - start[idx]
+    return np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+
+
+class _TurnGraph:
+    """The line graph of :func:`_turn_graph` priced as :func:`straighten` prices it, indexed so
+    that the part of it a search can reach is gathered in time proportional to that part: a
+    path's search (:meth:`cheapest`) then costs the neighbourhood the path's own price reaches,
+    not the whole surface again for every seam path."""
+
+    def __init__(self, g: EdgeGraph, cost, turn):
+        self.g, self.cost = g, cost
+        self.tail, self.head, self.a, self.b, angle = _turn_graph(g)
+        self.edge = np.arange(len(self.tail)) // 2
+        self.typical = float(np.median(cost))
+        self.price = _turn_price(cost[self.edge[self.b]], angle, turn, self.typical)
+        self.leaving = np.argsort(self.tail, kind="stable")  # half-edges by tail vertex
+        self.leaving_start = np.searchsorted(self.tail[self.leaving], np.arange(len(g.V) + 1))
+        self.pair_start = np.searchsorted(self.a, np.arange(len(self.tail) + 1))  # pairs by first half-edge
+        self.adjacency = g.adjacency(cost)
+
+    def _out_of(self, vertices):
+        return np.sort(self.leaving[_ranges(self.leaving_start, vertices)])
+
+    def cheapest(self, S, T, on, limit):
+        """Edges (rows of ``g.E``, in order from ``T`` back to ``S``) of the cheapest priced path
+        from a vertex of ``S`` to one of ``T`` ((n,) bool each) through no vertex of ``on`` nor
+        along the boundary, entering no vertex of ``S`` and leaving none of ``T``, when one is
+        priced below ``limit`` (else None).  A path priced at most ``limit`` costs at most that
+        by ``cost`` alone, so it runs among the vertices within ``limit`` of ``S`` along the edges
+        (one Dijkstra stopped at ``limit``): only the pairs of half-edges there are gathered."""
+        from scipy.sparse.csgraph import dijkstra
+
+        g, tail, head, a, b, edge = self.g, self.tail, self.head, self.a, self.b, self.edge
+        reach = np.isfinite(dijkstra(self.adjacency, indices=np.flatnonzero(S), min_only=True, limit=limit))
+        near = self._out_of(np.flatnonzero(reach))
+        p = _ranges(self.pair_start, near[reach[head[near]]])
+        p = p[reach[head[b[p]]]]
+
+        def ok(h):
+            return ~on[tail[h]] & ~on[head[h]] & ~S[head[h]] & ~T[tail[h]] & ~g.boundary[edge[h]]
+
+        p = p[ok(a[p]) & ok(b[p])]
+        start = self._out_of(np.flatnonzero(S))
+        start = start[ok(start)]
+        n = len(tail)  # node n: the source; weights: the edge entered plus the turn
+        graph = sp.csr_matrix((np.r_[self.price[p], self.cost[edge[start]]] + 1e-300,
+                               (np.r_[a[p], np.full(len(start), n)], np.r_[b[p], start])), shape=(n + 1, n + 1))
+        dist, pred = dijkstra(graph, indices=n, return_predecessors=True, limit=limit)
+        arrive = np.flatnonzero(T[head] & np.isfinite(dist[:n]))
+        if not len(arrive):
+            return None
+        h = int(arrive[np.argmin(dist[arrive])])
+        if dist[h] >= limit * (1 - 1e-9):
+            return None
+        new = []
+        while h != n:
+            new.append(int(edge[h]))
+            h = int(pred[h])
+        return new
 
 
 def _slid(g: EdgeGraph, others, s, t, slide):
@@ -632,7 +673,7 @@ def straighten_split(g: EdgeGraph, cost: np.ndarray, mesh, x, pieces, turn: floa
         return pieces
     out = []
     for c in range(split.count):
-        part, rows = mesh.part(np.flatnonzero(split.chart == c))
+        part, rows = mesh.part(split.faces_of(c))
         out.append((part, np.asarray(x)[rows]))
     return out
 

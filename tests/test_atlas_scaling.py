@@ -1,0 +1,96 @@
+"""The atlas's stages stay near-linear in the mesh (issue 50): work that is done per chart, per
+seam path or per split touches that chart's or path's part, not the whole mesh again.  Counted
+(operations on whole-mesh arrays), not timed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geomopt.atlas.charts import ChartSplit
+from geomopt.mesh.generators import square_mesh
+
+
+class _Counted(np.ndarray):
+    """An array that counts the ufuncs (comparisons, arithmetic) applied to it whole."""
+
+    calls = 0
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        type(self).calls += 1
+        inputs = tuple(np.asarray(x) if isinstance(x, _Counted) else x for x in inputs)
+        return getattr(ufunc, method)(*inputs, **kwargs)
+
+
+def test_every_chart_mesh_of_a_split_costs_one_pass_over_the_faces_not_one_per_chart():
+    _, F = square_mesh(24)  # 1058 triangles, in 46 charts of 23 faces
+    F = np.asarray(F)
+    chart = (np.arange(len(F)) // 23).astype(np.int64)
+    rng = np.random.default_rng(0)
+    chart = rng.permutation(chart.max() + 1)[chart]  # charts not in face order
+    split = ChartSplit(chart.view(_Counted), np.arange(F.size).reshape(F.shape), F.ravel().copy(), int(chart.max()) + 1)
+    _Counted.calls = 0
+    meshes = [split.mesh(c) for c in range(split.count)]
+    assert _Counted.calls <= 2  # a scan of the whole chart array per chart would be 46
+    for c, mesh in enumerate(meshes):
+        np.testing.assert_array_equal(mesh.faces, np.flatnonzero(np.asarray(chart) == c))
+        np.testing.assert_array_equal(mesh.vertices[mesh.F], F[mesh.faces])
+
+
+def _charts(k, seed):
+    """``k`` flip-free disk charts (fine grids, most vertices inside), turned and moved."""
+    rng = np.random.default_rng(seed)
+    uvs, faces = [], []
+    for _ in range(k):
+        V, F = square_mesh(int(rng.integers(12, 30)))
+        V = V * rng.uniform(0.2, 2.0, size=2)
+        a = rng.uniform(0, 2 * np.pi)
+        uvs.append(V @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T + rng.normal(size=2))
+        faces.append(F)
+    return uvs, faces
+
+
+def test_packing_layouts_see_only_the_charts_boundaries_and_pack_as_with_every_vertex(monkeypatch):
+    from geomopt.atlas import _pack, pack_charts
+    from geomopt.exact.topology import boundary_half_edges
+
+    uvs, faces = _charts(7, 3)
+    seen = []
+    layout = _pack._layout
+
+    def counted(U, *args, **kwargs):
+        seen.append(sum(len(u) for u in U))
+        return layout(U, *args, **kwargs)
+
+    monkeypatch.setattr(_pack, "_layout", counted)
+    packed = pack_charts(uvs, faces, margin=0.01)
+    boundary = sum(len(np.unique(boundary_half_edges(f))) for f in faces)
+    assert packed.efficiency > 0.3 and seen and set(seen) == {boundary}  # far fewer than every vertex
+    assert boundary < sum(len(u) for u in uvs) / 3
+    # the same layout as from every vertex: the boundary holds every extreme of a flip-free chart
+    monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
+    whole = pack_charts(uvs, faces, margin=0.01)
+    assert whole.efficiency == packed.efficiency
+    np.testing.assert_array_equal(whole.angles, packed.angles)
+    for a, b in zip(whole.uvs, packed.uvs):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_a_short_seam_paths_straightening_search_gathers_only_its_neighbourhood(monkeypatch):
+    from geomopt.atlas import seams
+    from geomopt.atlas.seams import edge_graph, _TurnGraph
+
+    V, F = square_mesh(61)  # 7200 triangles
+    g = edge_graph(np.c_[V, np.zeros(len(V))], F)
+    cost = g.length.copy()
+    lines = _TurnGraph(g, cost, 3.0)
+    gathered = []
+    ranges = seams._ranges
+    monkeypatch.setattr(seams, "_ranges", lambda start, idx: gathered.append(len(idx)) or ranges(start, idx))
+    s, t = 30 * 61 + 28, 30 * 61 + 33  # five edges apart along a row, mid-square
+    S, T = np.zeros(len(g.V), dtype=bool), np.zeros(len(g.V), dtype=bool)
+    S[s], T[t] = True, True
+    new = lines.cheapest(S, T, np.zeros(len(g.V), dtype=bool), 5.5 * float(cost.min()) * 1.0001)
+    assert new is not None and len(new) == 5 and set(g.E[new].ravel()) == set(range(s, t + 1))
+    assert sum(gathered) < 0.02 * (len(lines.tail) + len(g.V))  # not the whole surface's half-edges
+    gathered.clear()
+    assert lines.cheapest(S, T, np.zeros(len(g.V), dtype=bool), 4.9 * float(cost.min())) is None  # priced above
