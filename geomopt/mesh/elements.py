@@ -53,6 +53,7 @@ from .._runtime.validate import validate_simplices
 from ..exact.certify import LocalCertificate, fixed_star_certificate, local_certificate
 from ..exact.hexvalid import HEX_CORNERS, TESTS, hex_validity
 from ..exact.predicates import orient2d
+from ..io import CELL_WORDS
 
 __all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementKind", "kind_of", "kind_named", "ElementCertificate", "Quality",
            "validate_elements", "corner_simplices", "corner_edges", "rest_elements",
@@ -72,8 +73,8 @@ class ElementKind:
 
     Attributes
     ----------
-    word, words : its name, singular and plural (messages); ``word`` is also its cell name in
-        the files (:data:`geomopt.io.CELL_KINDS`).
+    word : its cell name in the files (:data:`geomopt.io.CELL_KINDS`) and in messages;
+        :attr:`words`, the plural, is the files' table's (:data:`geomopt.io.CELL_WORDS`).
     dim : the dimension of its map (2: quads, 3: hexahedra); corner simplices have ``dim + 1``
         vertices.
     corners : (k, dim + 1) its corner simplices, as vertex positions in the element.
@@ -95,7 +96,6 @@ class ElementKind:
     """
 
     word: str
-    words: str
     dim: int
     corners: np.ndarray
     reverse: np.ndarray
@@ -111,6 +111,11 @@ class ElementKind:
     @property
     def n_vertices(self) -> int:
         return len(self.reference)
+
+    @property
+    def words(self) -> str:
+        """Its name in the plural (messages), from :data:`geomopt.io.CELL_WORDS`."""
+        return CELL_WORDS[self.word][1]
 
 
 def _quad_validity(X, E):
@@ -128,10 +133,10 @@ def _hex_validity(X, E):
 
 #: vertices per element -> its :class:`ElementKind`
 ELEMENT_KINDS = {
-    4: ElementKind("quad", "quads", 2, QUAD_CORNERS, np.array([0, 3, 2, 1]),
+    4: ElementKind("quad", 2, QUAD_CORNERS, np.array([0, 3, 2, 1]),
                    np.array([[0, 1], [1, 2], [2, 3], [3, 0]]), np.array([[0, 1], [1, 2], [2, 3], [3, 0]]),
                    np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64), ".obj", "quads", _quad_validity, "quad", 9),
-    8: ElementKind("hexahedron", "hexahedra", 3, HEX_CORNERS, np.array([0, 3, 2, 1, 4, 7, 6, 5]),
+    8: ElementKind("hexahedron", 3, HEX_CORNERS, np.array([0, 3, 2, 1, 4, 7, 6, 5]),
                    np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
                    np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6],
                              [3, 7]]),
