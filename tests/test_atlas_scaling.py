@@ -165,3 +165,31 @@ def _path_price_of(lines, path, S):
         k = np.flatnonzero((lines.a == h0) & (lines.b == h1))
         price += float(lines.price[k[0]]) + 1e-300
     return price + 1e-300
+
+
+def _frame(n, seed):
+    """A flip-free square frame chart (a grid with a square hole: two boundary loops, most
+    vertices inside), turned and moved."""
+    V, F = square_mesh(n)
+    c = V[F].mean(axis=1)
+    F = F[np.abs(c - 0.5).max(axis=1) > 0.2]
+    used, F = np.unique(F, return_inverse=True)
+    a = np.random.default_rng(seed).uniform(0, 2 * np.pi)
+    return V[used] @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T, F.reshape(-1, 3)
+
+
+def test_packing_charts_with_holes_from_their_boundaries_packs_as_with_every_vertex(monkeypatch):
+    """Charts with several boundary loops (frames, turned to their minimum-area rectangle and by
+    quarter turns), small ones fitting in a large one's hole: the outer loop holds every
+    extreme, the holes are drawn from their loops."""
+    from geomopt.atlas import _pack, pack_charts
+
+    charts = [_frame(n, n) for n in (26, 9, 9, 9)]  # the small frames fit in the large one's hole
+    uvs, faces = [u * (1.0 if i == 0 else 0.3) for i, (u, _) in enumerate(charts)], [f for _, f in charts]
+    packed = pack_charts(uvs, faces, margin=0.01)
+    monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
+    whole = pack_charts(uvs, faces, margin=0.01)
+    assert whole.efficiency == packed.efficiency
+    np.testing.assert_array_equal(whole.angles, packed.angles)
+    for a, b in zip(whole.uvs, packed.uvs):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
