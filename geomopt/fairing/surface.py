@@ -22,19 +22,38 @@ __all__ = ["closest_points", "surface_index", "SurfaceIndex", "point_triangle", 
 def point_triangle(P, A, B, C):
     """(k, 3) the closest points of triangles ``A, B, C`` (k, 3) to the points ``P`` (k, 3).
 
-    The region tests take products of four coordinate differences: each row's differences are
-    scaled by a power of two (exactly) to magnitude about 1 first, so that they neither
-    overflow (coordinates near 1e+80 and above) nor underflow (near 1e-80 and below)."""
-    ab, ac, ap = B - A, C - A, P - A
-    size = np.max(np.abs(np.concatenate([ab, ac, ap], axis=1)), axis=1, initial=0.0)
-    unit = np.ldexp(1.0, np.minimum(-np.frexp(size)[1], 1020))[:, None]
-    ab_, ac_, ap_, bp, cp = ab * unit, ac * unit, ap * unit, (P - B) * unit, (P - C) * unit
-    d1, d2 = np.sum(ab_ * ap_, 1), np.sum(ac_ * ap_, 1)
-    d3, d4 = np.sum(ab_ * bp, 1), np.sum(ac_ * bp, 1)
-    d5, d6 = np.sum(ab_ * cp, 1), np.sum(ac_ * cp, 1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    The region tests multiply four coordinate differences: a row where they overflow (differences
+    near 1e+77 and above) or all underflow (near 1e-77 and below) is taken again with its
+    differences from ``A`` scaled by a power of two (exactly) to magnitude about 1."""
+    out, unsafe = _point_triangle(P, A, B, C)
+    if unsafe.any():
+        A0, diff = A[unsafe], [X[unsafe] - A[unsafe] for X in (P, B, C)]
+        size = np.max(np.abs(np.concatenate(diff, axis=1)), axis=1)
+        e = np.maximum(np.frexp(size)[1], -1020)[:, None]
+        scaled, _ = _point_triangle(*(np.ldexp(X, -e) for X in (diff[0], np.zeros_like(A0), diff[1], diff[2])))
+        out[unsafe] = A0 + np.ldexp(scaled, e)
+    bad = ~np.isfinite(out).all(axis=1)  # a degenerate face: its nearest corner
+    if bad.any():
+        corners = np.stack([A[bad], B[bad], C[bad]], axis=1)
+        k = np.argmin(np.sum((corners - P[bad, None]) ** 2, axis=2), axis=1)
+        out[bad] = corners[np.arange(len(k)), k]
+    return out
+
+
+def _point_triangle(P, A, B, C):
+    """``(Q, unsafe)``: Ericson's closest points (non-finite on degenerate faces) and the rows
+    (k,) whose products of differences overflowed or all underflowed (not to be trusted)."""
     with np.errstate(all="ignore"):
+        ab, ac, ap = B - A, C - A, P - A
+        d1, d2 = np.sum(ab * ap, 1), np.sum(ac * ap, 1)
+        bp, cp = P - B, P - C
+        d3, d4 = np.sum(ab * bp, 1), np.sum(ac * bp, 1)
+        d5, d6 = np.sum(ab * cp, 1), np.sum(ac * cp, 1)
+        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
         denom = va + vb + vc
+        tiny = 2.0 ** -500  # below it, products of two such dot products underflow
+        unsafe = ~np.isfinite(denom) | ((np.abs(d1) < tiny) & (np.abs(d2) < tiny) & (np.abs(d3) < tiny)
+                                        & (np.abs(d4) < tiny) & (np.abs(d5) < tiny) & (np.abs(d6) < tiny))
         v, w = vb / denom, vc / denom
         out = A + ab * v[:, None] + ac * w[:, None]  # inside the face
         cases = [  # (where, point), the later ones overriding: edges, then vertices
@@ -46,12 +65,7 @@ def point_triangle(P, A, B, C):
         ]
     for where, point in cases:
         out = np.where(where[:, None], point, out)
-    bad = ~np.isfinite(out).all(axis=1)  # a degenerate face: its nearest corner
-    if bad.any():
-        corners = np.stack([A[bad], B[bad], C[bad]], axis=1)
-        k = np.argmin(np.sum((corners - P[bad, None]) ** 2, axis=2), axis=1)
-        out[bad] = corners[np.arange(len(k)), k]
-    return out
+    return out, unsafe
 
 
 class SurfaceIndex(NamedTuple):
