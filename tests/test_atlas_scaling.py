@@ -94,3 +94,102 @@ def test_a_short_seam_paths_straightening_search_gathers_only_its_neighbourhood(
     assert sum(gathered) < 0.02 * (len(lines.tail) + len(g.V))  # not the whole surface's half-edges
     gathered.clear()
     assert lines.cheapest(S, T, np.zeros(len(g.V), dtype=bool), 4.9 * float(cost.min())) is None  # priced above
+
+
+def _cheapest_unbounded(lines, S, T, on, limit):
+    """The price of :meth:`_TurnGraph.cheapest`'s path searched over the whole line graph (no
+    neighbourhood gathered first), or None: the reference the bounded search must equal."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import dijkstra
+
+    g, tail, head, a, b, edge = lines.g, lines.tail, lines.head, lines.a, lines.b, lines.edge
+    ok = ~on[tail] & ~on[head] & ~S[head] & ~T[tail] & ~g.boundary[edge]
+    use, start = ok[a] & ok[b], np.flatnonzero(ok & S[tail])
+    n = len(tail)
+    graph = sp.csr_matrix((np.r_[lines.price[use], lines.cost[edge[start]]] + 1e-300,
+                           (np.r_[a[use], np.full(len(start), n)], np.r_[b[use], start])), shape=(n + 1, n + 1))
+    dist = dijkstra(graph, indices=n, limit=limit)[:n]
+    arrive = np.flatnonzero(T[head] & np.isfinite(dist))
+    best = dist[arrive].min(initial=np.inf)
+    return None if best >= limit * (1 - 1e-9) else best
+
+
+def test_the_bounded_straightening_search_finds_what_the_unbounded_one_finds():
+    """Gathering only what lies within the price limit of ``S`` (by cost alone) loses no path
+    priced below the limit: turns only add to the price.  Costs over six decades, a strong turn
+    price, start and end sets of several vertices, vertices to avoid, and limits from tight (no
+    path) to loose: the same verdict and the same price as a search over the whole line graph."""
+    from geomopt.atlas.seams import _TurnGraph, edge_graph
+
+    rng = np.random.default_rng(7)
+    V, F = square_mesh(14)
+    g = edge_graph(np.c_[V, 0.05 * rng.normal(size=len(V))], F)
+    cost = g.length * 10.0 ** rng.uniform(-3, 3, size=len(g.length))
+    found = missed = 0
+    for turn in (0.01, 4.0):
+        lines = _TurnGraph(g, cost, turn)
+        for _ in range(30):
+            S, T, on = (np.zeros(len(g.V), dtype=bool) for _ in range(3))
+            S[rng.choice(len(g.V), rng.integers(1, 4), replace=False)] = True
+            T[rng.choice(np.flatnonzero(~S), rng.integers(1, 4), replace=False)] = True
+            on[rng.choice(np.flatnonzero(~S & ~T), 20, replace=False)] = True
+            best = _cheapest_unbounded(lines, S, T, on, np.inf)
+            if best is None:
+                continue
+            limit = best * rng.uniform(0.9, 1.1)  # the cheapest path priced just under or over it
+            want = _cheapest_unbounded(lines, S, T, on, limit)
+            got = lines.cheapest(S, T, on, limit)
+            assert (got is None) == (want is None)
+            if got is not None:
+                assert abs(_path_price_of(lines, got[::-1], S) - want) <= 1e-12 * want
+                found += 1
+            else:
+                missed += 1
+    assert found >= 10 and missed >= 10  # both verdicts exercised
+
+
+def _path_price_of(lines, path, S):
+    """The line graph's price of the edge path ``path`` (rows of ``g.E``, from ``S``): the first
+    edge's cost, then each pair's price."""
+    g = lines.g
+    s = next(v for v in g.E[path[0]] if S[v]) if len(path) > 1 else None
+    if s is None:
+        return float(lines.cost[path[0]])
+    halves, v = [], s
+    for e in path:
+        h = 2 * e if g.E[e, 0] == v else 2 * e + 1
+        halves.append(h)
+        v = lines.head[h]
+    price = float(lines.cost[path[0]])
+    for h0, h1 in zip(halves, halves[1:]):
+        k = np.flatnonzero((lines.a == h0) & (lines.b == h1))
+        price += float(lines.price[k[0]]) + 1e-300
+    return price + 1e-300
+
+
+def _frame(n, seed):
+    """A flip-free square frame chart (a grid with a square hole: two boundary loops, most
+    vertices inside), turned and moved."""
+    V, F = square_mesh(n)
+    c = V[F].mean(axis=1)
+    F = F[np.abs(c - 0.5).max(axis=1) > 0.2]
+    used, F = np.unique(F, return_inverse=True)
+    a = np.random.default_rng(seed).uniform(0, 2 * np.pi)
+    return V[used] @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T, F.reshape(-1, 3)
+
+
+def test_packing_charts_with_holes_from_their_boundaries_packs_as_with_every_vertex(monkeypatch):
+    """Charts with several boundary loops (frames, turned to their minimum-area rectangle and by
+    quarter turns), small ones fitting in a large one's hole: the outer loop holds every
+    extreme, the holes are drawn from their loops."""
+    from geomopt.atlas import _pack, pack_charts
+
+    charts = [_frame(n, n) for n in (26, 9, 9, 9)]  # the small frames fit in the large one's hole
+    uvs, faces = [u * (1.0 if i == 0 else 0.3) for i, (u, _) in enumerate(charts)], [f for _, f in charts]
+    packed = pack_charts(uvs, faces, margin=0.01)
+    monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
+    whole = pack_charts(uvs, faces, margin=0.01)
+    assert whole.efficiency == packed.efficiency
+    np.testing.assert_array_equal(whole.angles, packed.angles)
+    for a, b in zip(whole.uvs, packed.uvs):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)

@@ -516,6 +516,52 @@ def test_closest_points_are_exact_on_an_awkward_surface(monkeypatch, neighbours)
     assert np.allclose(back, Q, atol=1e-14)
 
 
+@pytest.mark.parametrize("scale", [1e-200, 1e-150, 1e150, 1e200])
+def test_point_triangle_is_scale_free(scale):
+    """The region tests multiply four coordinate differences: at coordinates near 1e-150 they
+    underflow and near 1e+150 overflow unless each row is scaled first; the closest points
+    scale with the inputs (relative rounding only), in every region (faces, edges, corners)."""
+    rng = np.random.default_rng(5)
+    P, A, B, C = (rng.normal(size=(500, 3)) * (2.0 if k == 0 else 1.0) for k in range(4))
+    want = point_triangle(P, A, B, C) * scale
+    got = point_triangle(P * scale, A * scale, B * scale, C * scale)
+    assert np.all(np.abs(got - want) <= 1e-13 * scale)
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e200])
+def test_closest_points_and_face_distances_are_scale_free(scale):
+    """The search's squared distances neither underflow nor overflow at tiny or huge coordinates:
+    closest points, face distances and the largest one scale with the inputs."""
+    from geomopt.fairing.surface import face_distances, largest_face_distance
+
+    V, F = _awkward_surface()
+    rng = np.random.default_rng(6)
+    P = rng.normal(size=(100, 3))
+    X = V + 1e-3 * rng.normal(size=V.shape)
+    Q, face = closest_points(P, V, F)
+    Qs, faces = closest_points(P * scale, V * scale, F)
+    assert np.all(np.abs(Qs - Q * scale) <= 1e-13 * scale)
+    want = face_distances(X, F, V, F)
+    assert np.all(np.abs(face_distances(X * scale, F, V * scale, F) - want * scale) <= 1e-13 * scale)
+    assert abs(largest_face_distance(X * scale, F, V * scale, F) - want.max() * scale) <= 1e-13 * scale
+
+
+def test_closest_points_refuse_non_finite_points_and_empty_surfaces():
+    """NaN or infinite query points or surface vertices, and a surface without faces, are refused
+    with a ParameterError (not a silently wrong point, nor an IndexError deep in the search)."""
+    V, F = icosphere(1)
+    for P in ([[np.nan, 0.0, 0.0]], [[0.0, np.inf, 0.0]]):
+        with pytest.raises(ParameterError, match="finite"):
+            closest_points(np.array(P), V, F)
+    bad = V.copy()
+    bad[F[0, 0]] = np.nan
+    with pytest.raises(ParameterError, match="finite"):
+        closest_points(V[:3], bad, F)
+    with pytest.raises(ParameterError, match="face"):
+        closest_points(V[:3], V, np.zeros((0, 3), np.int64))
+    assert closest_points(np.zeros((0, 3)), V, F)[0].shape == (0, 3)
+
+
 def test_face_distances_with_enough_decide_the_tolerance_as_the_exact_ones():
     """``face_distances(..., enough=tol) > tol`` equals the exact decision (a face may get an
     upper bound only when it is within ``tol``), and ``largest_face_distance`` is the exact max."""

@@ -13,20 +13,47 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._runtime.errors import ParameterError
+
 __all__ = ["closest_points", "surface_index", "SurfaceIndex", "point_triangle", "triangle_angles", "smallest_angles", "aspect_ratios", "volume",
            "face_samples", "face_distances", "largest_face_distance"]
 
 
 def point_triangle(P, A, B, C):
-    """(k, 3) the closest points of triangles ``A, B, C`` (k, 3) to the points ``P`` (k, 3)."""
-    ab, ac, ap = B - A, C - A, P - A
-    d1, d2 = np.sum(ab * ap, 1), np.sum(ac * ap, 1)
-    bp, cp = P - B, P - C
-    d3, d4 = np.sum(ab * bp, 1), np.sum(ac * bp, 1)
-    d5, d6 = np.sum(ab * cp, 1), np.sum(ac * cp, 1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    """(k, 3) the closest points of triangles ``A, B, C`` (k, 3) to the points ``P`` (k, 3).
+
+    The region tests multiply four coordinate differences: a row where they overflow (differences
+    near 1e+77 and above) or all underflow (near 1e-77 and below) is taken again with its
+    differences from ``A`` scaled by a power of two (exactly) to magnitude about 1."""
+    out, unsafe = _point_triangle(P, A, B, C)
+    if unsafe.any():
+        A0, diff = A[unsafe], [X[unsafe] - A[unsafe] for X in (P, B, C)]
+        size = np.max(np.abs(np.concatenate(diff, axis=1)), axis=1)
+        e = np.maximum(np.frexp(size)[1], -1020)[:, None]
+        scaled, _ = _point_triangle(*(np.ldexp(X, -e) for X in (diff[0], np.zeros_like(A0), diff[1], diff[2])))
+        out[unsafe] = A0 + np.ldexp(scaled, e)
+    bad = ~np.isfinite(out).all(axis=1)  # a degenerate face: its nearest corner
+    if bad.any():
+        corners = np.stack([A[bad], B[bad], C[bad]], axis=1)
+        k = np.argmin(np.sum((corners - P[bad, None]) ** 2, axis=2), axis=1)
+        out[bad] = corners[np.arange(len(k)), k]
+    return out
+
+
+def _point_triangle(P, A, B, C):
+    """``(Q, unsafe)``: Ericson's closest points (non-finite on degenerate faces) and the rows
+    (k,) whose products of differences overflowed or all underflowed (not to be trusted)."""
     with np.errstate(all="ignore"):
+        ab, ac, ap = B - A, C - A, P - A
+        d1, d2 = np.sum(ab * ap, 1), np.sum(ac * ap, 1)
+        bp, cp = P - B, P - C
+        d3, d4 = np.sum(ab * bp, 1), np.sum(ac * bp, 1)
+        d5, d6 = np.sum(ab * cp, 1), np.sum(ac * cp, 1)
+        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
         denom = va + vb + vc
+        tiny = 2.0 ** -500  # below it, products of two such dot products underflow
+        unsafe = ~np.isfinite(denom) | ((np.abs(d1) < tiny) & (np.abs(d2) < tiny) & (np.abs(d3) < tiny)
+                                        & (np.abs(d4) < tiny) & (np.abs(d5) < tiny) & (np.abs(d6) < tiny))
         v, w = vb / denom, vc / denom
         out = A + ab * v[:, None] + ac * w[:, None]  # inside the face
         cases = [  # (where, point), the later ones overriding: edges, then vertices
@@ -38,12 +65,7 @@ def point_triangle(P, A, B, C):
         ]
     for where, point in cases:
         out = np.where(where[:, None], point, out)
-    bad = ~np.isfinite(out).all(axis=1)  # a degenerate face: its nearest corner
-    if bad.any():
-        corners = np.stack([A[bad], B[bad], C[bad]], axis=1)
-        k = np.argmin(np.sum((corners - P[bad, None]) ** 2, axis=2), axis=1)
-        out[bad] = corners[np.arange(len(k)), k]
-    return out
+    return out, unsafe
 
 
 class SurfaceIndex(NamedTuple):
@@ -61,6 +83,8 @@ class SurfaceIndex(NamedTuple):
     used : (u,) the vertices of ``vertex_tree``.
     ring_start, ring_faces : the faces around vertex ``v``: ``ring_faces[ring_start[v]:ring_start[v + 1]]``.
     size : the largest coordinate magnitude (the scale of rounding errors).
+    exponent : the power of two that every array above but ``size`` is divided by (exactly), so
+        that their coordinates are below 1 and squared distances neither overflow nor underflow.
     """
 
     A: np.ndarray
@@ -74,13 +98,21 @@ class SurfaceIndex(NamedTuple):
     ring_start: np.ndarray
     ring_faces: np.ndarray
     size: float
+    exponent: int
 
 
 def surface_index(V, F) -> SurfaceIndex:
-    """The :class:`SurfaceIndex` of the triangle surface ``V`` (n, 3), ``F`` (m, 3)."""
+    """The :class:`SurfaceIndex` of the triangle surface ``V`` (n, 3), ``F`` (m, 3): at least one
+    face, and finite coordinates at the vertices of the faces (else :class:`ParameterError`)."""
     from scipy.spatial import cKDTree
 
     V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+    if len(F) == 0 or not np.isfinite(V[F]).all():
+        raise ParameterError("the surface to measure distances to needs at least one face and finite "
+                             "vertex coordinates; give a mesh without NaN or infinite vertices")
+    size = float(np.abs(V[F]).max())
+    exponent = int(np.frexp(size)[1])
+    V = np.ldexp(V, -exponent)
     A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     centroid = (A + B + C) / 3.0
     radius = np.sqrt(np.max(np.sum((np.stack([A, B, C]) - centroid) ** 2, axis=2), axis=0))
@@ -91,7 +123,7 @@ def surface_index(V, F) -> SurfaceIndex:
     order = np.argsort(F.ravel(), kind="stable")
     start = np.concatenate([[0], np.cumsum(np.bincount(F.ravel(), minlength=len(V)))])
     return SurfaceIndex(A, B, C, radius, centroid, buckets, cKDTree(V[used]), used, start, order // 3,
-                        float(np.abs(V[used]).max(initial=0.0)))
+                        size, exponent)
 
 
 #: query points per batch of :func:`closest_points`: its candidate arrays grow with the points
@@ -112,18 +144,21 @@ def closest_points(P, V, F, index=None):
     of the point (``R`` the largest centroid-to-corner radius of the face's bucket), kept when
     its centroid is within ``d`` plus its own radius: these contain the closest face.  The
     point-triangle distance is Ericson's (Real-Time Collision Detection, 2005, 5.1.5)."""
-    return _batched(P, V, F, index, 0.0)
+    return _batched(P, V, F, index, 0.0)[:2]
 
 
 def _batched(P, V, F, index, enough):
-    """:func:`closest_points`, where a point found within ``enough`` of the surface by the first
-    stage keeps that stage's point (then not necessarily the closest)."""
-    P = np.asarray(P, dtype=np.float64)
+    """:func:`closest_points` and the distances (p,), where a point found within ``enough`` of the
+    surface by the first stage keeps that stage's point (then not necessarily the closest)."""
     index = index or surface_index(V, F)
-    if len(P) <= CHUNK:
-        return _closest_batch(P, index, enough)
-    parts = [_closest_batch(P[i:i + CHUNK], index, enough) for i in range(0, len(P), CHUNK)]
-    return np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
+    P = np.asarray(P, dtype=np.float64)
+    if not np.isfinite(P).all():
+        raise ParameterError("closest points: the query points must be finite (no NaN or infinity)")
+    P, enough = np.ldexp(P, -index.exponent), np.ldexp(enough, -index.exponent)
+    parts = [_closest_batch(P[i:i + CHUNK], index, enough) for i in range(0, max(len(P), 1), CHUNK)]
+    Q, face = np.concatenate([q for q, _ in parts]), np.concatenate([f for _, f in parts])
+    dist = np.sqrt(np.sum((Q - P) ** 2, axis=1))
+    return np.ldexp(Q, index.exponent), face, np.ldexp(dist, index.exponent)
 
 
 def _ring_candidates(P, index):
@@ -141,7 +176,7 @@ def _reach_candidates(P, index, reach):
     the face's own radius (every face that can come closer than ``reach``), with a margin for
     the rounding of centroids, radii and distances (relative 1e-12, absolute 1e-13 of the
     coordinates' size)."""
-    slack = 1e-13 * (np.abs(P).max(axis=1) + index.size) + 1e-300
+    slack = 1e-13 * (np.abs(P).max(axis=1) + np.ldexp(index.size, -index.exponent)) + 1e-300
     reach = reach * (1 + 1e-12) + slack
     who, faces = [], []
     for tree, ids, R in index.buckets:
@@ -201,8 +236,7 @@ def face_distances(X, F, V, G, order=4, index=None, enough=0.0):
     (a point found that near by the first stage of :func:`closest_points` is not searched
     further): ``face_distances(..., enough=tol) > tol`` is exact, and faster."""
     P = _samples(X, F, order)
-    Q, _ = _batched(P, V, G, index, enough)
-    return np.linalg.norm(Q - P, axis=1).reshape(len(F), -1).max(axis=1)
+    return _batched(P, V, G, index, enough)[2].reshape(len(F), -1).max(axis=1)
 
 
 def largest_face_distance(X, F, V, G, order=4, index=None) -> float:
@@ -221,8 +255,7 @@ def largest_face_distance(X, F, V, G, order=4, index=None) -> float:
         same = (X[F] == V[F]).reshape(len(F), -1).all(axis=1)
     P = _samples(X, F[~same], order)
     margin = 1e-14 * (index.size + float(np.abs(X[F]).max(initial=0.0)))
-    Q, _ = _batched(P, V, G, index, np.inf)
-    bound = np.concatenate([np.linalg.norm(Q - P, axis=1), [margin] if same.any() else []])
+    bound = np.concatenate([_batched(P, V, G, index, np.inf)[2], [margin] if same.any() else []])
     done, best = np.zeros(len(bound), bool), 0.0
     while True:
         todo = np.flatnonzero(~done & (bound > best + margin))
@@ -230,8 +263,7 @@ def largest_face_distance(X, F, V, G, order=4, index=None) -> float:
             return max(best, float(bound.max(initial=0.0)))
         if len(todo) > CHUNK:
             todo = todo[np.argpartition(-bound[todo], CHUNK)[:CHUNK]]
-        Q, _ = _batched(P[todo], V, G, index, 0.0)
-        bound[todo], done[todo] = np.linalg.norm(Q - P[todo], axis=1), True
+        bound[todo], done[todo] = _batched(P[todo], V, G, index, 0.0)[2], True
         best = max(best, float(bound[todo].max()))
 
 
