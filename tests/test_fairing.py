@@ -207,6 +207,39 @@ def test_safe_step_from_a_folded_start_with_its_certificate_given():
     assert np.array_equal(cert.corners, again.corners)
 
 
+def test_recertified_is_the_certificate_taken_afresh():
+    """``recertified`` (the driver's output certificate after fold removal) takes the signs
+    again only around the moved vertices: the same folded faces and corners as a fresh
+    certificate, where the moves fold and unfold faces, and the base itself where nothing moved."""
+    from geomopt.fairing.certificate import recertified
+
+    V, F = icosphere(3)
+    X0 = noisy(V, F, 0.4, seed=3)
+    base = certify_folds(X0, F)
+    rng = np.random.default_rng(4)
+    for moved in (np.flatnonzero(V[:, 2] > 0.6), rng.choice(len(V), 5, replace=False)):
+        X = X0.copy()
+        X[moved] = V[moved] + 0.3 * rng.normal(size=(len(moved), 3)) * 0.1
+        fresh = recertified(X, F, base, X0)
+        again = certify_folds(X, F)
+        assert not np.array_equal(again.corners, base.corners) and fresh.elements == len(F)
+        assert np.array_equal(fresh.folded, again.folded) and np.array_equal(fresh.corners, again.corners)
+    assert recertified(X0.copy(), F, base, X0) is base
+
+
+def test_shape_measures_are_the_separate_measures():
+    """``shape_measures`` (one gather) gives exactly ``volume``, the least ``smallest_angles``
+    and the largest ``aspect_ratios``; the angle is the least of ``triangle_angles``."""
+    from geomopt.fairing.surface import aspect_ratios, shape_measures, smallest_angles, triangle_angles
+
+    V, F = icosphere(2)
+    X = noisy(V, F, 0.3, seed=6)
+    vol, angle, aspect = shape_measures(X, F)
+    assert (vol, angle, aspect) == (volume(X, F), smallest_angles(X, F).min(), aspect_ratios(X, F).max())
+    assert angle == pytest.approx(triangle_angles(X, F).min(), abs=1e-9) and 0.5 < vol / (4 * np.pi / 3) < 1
+    assert np.isnan(shape_measures(X, F, closed=False)[0]) and shape_measures(X, F, closed=False)[1:] == (angle, aspect)
+
+
 def test_a_degenerate_start_face_has_a_failing_corner():
     """The fold-safe step lets faces turn that have a failing corner at the start, and counts on
     that to cover the degenerate ones (normal exactly 0, or a corner not finite): each of those

@@ -9,12 +9,29 @@ edge ``e = (a, b)`` is ``d_e = b - a`` and the tangent of vertex ``v`` is ``D_v 
 around v of d_e`` (the length-weighted mean of unit tangents); edge ``e`` is unfolded at its end
 ``v`` when ``d_e . D_v > 0``.
 
-Each sign is first evaluated in float64 with an a-priori error bound (relative, for the
-products of degree 4 for triangles and 2 for edges, plus an absolute allowance for underflow;
-the coordinates are first scaled by an exact power of two to span about 1, so nothing
-overflows); those the bound does not certify (degenerate elements among them) are
+Each sign is first evaluated in float64 with an a-priori error bound (a static filter in the
+manner of Shewchuk, "Adaptive precision floating-point arithmetic and fast robust geometric
+predicates", 1997); those the bound does not certify (degenerate elements among them) are
 recomputed exactly with Python integers (every float64 is ``M * 2**E``; after scaling all the
 coordinates involved by one power of two they are integers, and so is the dot product).
+
+The bound (``eps = 2**-53``, ``gamma_k = k eps / (1 - k eps)``, Higham's notation; the
+coordinates are first scaled by an exact power of two to span about 1, so nothing overflows).
+A triangle's normal component ``u_i v_j - u_j v_i`` is computed from rounded differences
+``u = fl(b - a)`` (one rounding each), two rounded products and one rounded subtraction: its
+error is at most ``gamma_4 (|u_i v_j| + |u_j v_i|)``, the *magnitude* ``mag`` of the component.
+A vertex sum of ``deg`` such components adds ``gamma_{deg - 1}`` times the sum of their
+magnitudes, and the dot product of three terms ``gamma_3`` of the sum of the products'
+magnitudes.  So ``|fl(n_f . N_v) - n_f . N_v| <= gamma_{deg + 10} sum_d mag_f[d] MAG_v[d]``
+(``MAG_v`` the vertex sum of the magnitudes) up to second order terms; the filter uses twice
+that first order factor, ``2 (deg + 10) eps``, which covers the second order terms and the
+rounding of the bound's own evaluation (a few relative ``eps``).  Edges (degree 2) are the
+same with fewer roundings.  That model holds while no intermediate result underflows; below the
+normal range each of the few hundred roundings loses at most ``2**-1075`` absolutely, which the
+absolute allowance ``2**-900`` covers.  A sign is taken from float64 only where ``|value|``
+exceeds the bound (and ``value`` is finite); ``normal_agreement`` likewise with ``32 eps``
+(two normals of ``gamma_4`` each and a dot product of ``gamma_3``).  tests/test_normals_filter.py
+checks every reported sign against rational arithmetic on inputs that float64 alone gets wrong.
 """
 
 from __future__ import annotations
@@ -49,26 +66,37 @@ def _checked(X, S):
 
 
 def _directions(X, S):
-    """``(dirs, bounds)``: each element's direction (m, d) (the triangle normal or the edge
-    vector) and, per component, the sum of the magnitudes of the products forming it (m, d)."""
+    """``(dirs, bounds)``: each element's direction (d, m) (the triangle normal or the edge
+    vector), coordinate-major, and, per component, the sum of the magnitudes of the products
+    forming it (d, m)."""
+    Xt = np.ascontiguousarray(X.T)  # (d, n): each coordinate gathered and combined contiguously
     if S.shape[1] == 2:
-        d = X[S[:, 1]] - X[S[:, 0]]
+        d = Xt[:, S[:, 1]] - Xt[:, S[:, 0]]
         return d, np.abs(d)
-    u, v = X[S[:, 1]] - X[S[:, 0]], X[S[:, 2]] - X[S[:, 0]]
-    cols, mags = [], []
-    for i, j in ((1, 2), (2, 0), (0, 1)):
-        left, right = u[:, i] * v[:, j], u[:, j] * v[:, i]
-        cols.append(left - right)
-        mags.append(np.abs(left) + np.abs(right))
-    return np.stack(cols, axis=1), np.stack(mags, axis=1)
+    a = Xt[:, S[:, 0]]
+    u, v = Xt[:, S[:, 1]] - a, Xt[:, S[:, 2]] - a
+    au, av = np.abs(u), np.abs(v)
+    cols, mags = np.empty_like(u), np.empty_like(u)
+    for c, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.subtract(u[i] * v[j], u[j] * v[i], out=cols[c])
+        np.add(au[i] * av[j], au[j] * av[i], out=mags[c])
+    return cols, mags
 
 
 def _vertex_sums(values, S, n):
-    """(n, d) the sum over the elements around each vertex of ``values`` (m, d) (a bincount per
-    column: the same float sums as ``np.add.at`` up to order, an order of magnitude faster)."""
+    """(d, n) the sum over the elements around each vertex of ``values`` (d, m) (a bincount per
+    coordinate: the same float sums as ``np.add.at`` up to order, an order of magnitude faster)."""
     ids = S.T.ravel()
-    return np.stack([np.bincount(ids, weights=np.tile(values[:, c], S.shape[1]), minlength=n)
-                     for c in range(values.shape[1])], axis=1)
+    return np.stack([np.bincount(ids, weights=np.tile(row, S.shape[1]), minlength=n) for row in values])
+
+
+def _corner_dots(dirs, sums, S):
+    """(m, k) ``dirs[:, f] . sums[:, S[f, c]]``: each element's direction (d, m) against the
+    vertex sums (d, n) at its corners."""
+    out = dirs[0][:, None] * sums[0][S]
+    for c in range(1, len(dirs)):
+        out += dirs[c][:, None] * sums[c][S]
+    return out
 
 
 def corner_signs(X, S) -> np.ndarray:
@@ -93,12 +121,14 @@ def corner_signs(X, S) -> np.ndarray:
         dirs, mags = _directions(X, S)
         sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
         degree = np.bincount(S.ravel(), minlength=n)
-        value = np.einsum("md,mkd->mk", dirs, sums[S])
-        bound = np.einsum("md,mkd->mk", mags, sum_mags[S]) * (2.0 * (degree[S] + 10) * _EPS) + _UNDERFLOW
-    finite = np.isfinite(X).all(axis=1)
+        value = _corner_dots(dirs, sums, S)
+        bound = _corner_dots(mags, sum_mags, S) * (2.0 * (degree[S] + 10) * _EPS) + _UNDERFLOW
     sure = (np.abs(value) > bound) & np.isfinite(value)
     out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
-    ok_corner = finite[S].all(axis=1, keepdims=True) & np.isfinite(sums[S]).all(axis=2)
+    if sure.all():
+        return out
+    finite = np.isfinite(X).all(axis=1)
+    ok_corner = finite[S].all(axis=1, keepdims=True) & np.isfinite(sums).all(axis=0)[S]
     todo = np.argwhere(~sure & ok_corner & _finite_stars(finite, S, n)[S])
     if len(todo):
         out[todo[:, 0], todo[:, 1]] = _exact(X, S, todo)
@@ -165,11 +195,14 @@ def normal_agreement(X, Y, F) -> np.ndarray:
     with np.errstate(all="ignore"):
         nx, mx = _directions(X, S)
         ny, my = _directions(Y, S)
-        value = np.sum(nx * ny, axis=1)
-        bound = np.sum(mx * my, axis=1) * (32.0 * _EPS) + _UNDERFLOW
+        value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
+        bound = (mx[0] * my[0] + mx[1] * my[1] + mx[2] * my[2]) * (32.0 * _EPS) + _UNDERFLOW
     sure = (np.abs(value) > bound) & np.isfinite(value)
     out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
-    todo = np.flatnonzero(~sure & np.isfinite(X[S]).all(axis=(1, 2)) & np.isfinite(Y[S]).all(axis=(1, 2)))
+    if sure.all():
+        return out
+    finite = np.isfinite(X).all(axis=1) & np.isfinite(Y).all(axis=1)
+    todo = np.flatnonzero(~sure & finite[S].all(axis=1))
     if len(todo):
         corners = np.concatenate([X[S[todo]], Y[S[todo]]], axis=1).reshape(-1, 3)
         Q = _integers(corners).reshape(len(todo), 6, 3)  # one common power of two: signs kept

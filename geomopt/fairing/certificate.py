@@ -25,7 +25,7 @@ import numpy as np
 from ..exact.normals import corner_signs, normal_agreement
 from .operators import any_column
 
-__all__ = ["FoldCertificate", "certify_folds", "safe_step", "local_signs", "HALVINGS"]
+__all__ = ["FoldCertificate", "certify_folds", "recertified", "safe_step", "local_signs", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -77,8 +77,27 @@ class FoldCertificate:
 
 def certify_folds(X, S) -> FoldCertificate:
     """The :class:`FoldCertificate` of vertices ``X`` (n, d) with elements ``S`` (m, 3) or (m, 2)."""
-    bad = np.argwhere(corner_signs(X, S) <= 0)
-    return FoldCertificate(np.unique(bad[:, 0]), bad, len(S))
+    return _from_signs(corner_signs(X, S) <= 0, len(S))
+
+
+def _from_signs(neg, m) -> FoldCertificate:
+    """The :class:`FoldCertificate` of the corners ``neg`` (m, k) bool not positive."""
+    corners = np.argwhere(neg)
+    return FoldCertificate(np.unique(corners[:, 0]), corners, m)
+
+
+def recertified(X, S, base: FoldCertificate, X_base) -> FoldCertificate:
+    """``certify_folds(X, S)``, given ``base = certify_folds(X_base, S)``: the same certificate
+    (exact signs), taken again only at the corners within one ring of a vertex where ``X``
+    (n, d) differs from ``X_base`` (the others' signs cannot differ); ``base`` itself where no
+    vertex differs."""
+    X, X_base = np.asarray(X, dtype=np.float64), np.asarray(X_base, dtype=np.float64)
+    moved = any_column(X != X_base)
+    if not moved.any():
+        return base
+    neg = np.zeros(S.shape, bool)
+    neg[base.corners[:, 0], base.corners[:, 1]] = True
+    return _from_signs(_retaken(X, X_base, S, moved, neg, None)[0], len(S))
 
 
 def _compacted(S, n):
@@ -174,8 +193,7 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
         if len(failing) == 0:
             if not certify:
                 return X, t
-            corners = np.argwhere(neg)
-            return X, t, FoldCertificate(np.unique(corners[:, 0]), corners, len(S))
+            return X, t, _from_signs(neg, len(S))
         cut = _dependents(S, failing, n) & (t > 0)
         # (never empty: with t = 0 on all it depends on, a corner has its start's sign, positive)
         halved[cut] += 1

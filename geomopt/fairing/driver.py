@@ -29,12 +29,12 @@ from .._runtime.config import options_or_default
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
-from .certificate import certify_folds, safe_step
+from .certificate import certify_folds, recertified, safe_step
 from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
 from .relax import relax
-from .surface import aspect_ratios, largest_face_distance, smallest_angles, volume
+from .surface import largest_face_distance, shape_measures, volume
 from .unfold import remove_folds
 
 __all__ = ["fair", "smoothed", "FairDetails"]
@@ -162,10 +162,7 @@ def _measures(X, topo):
     """``(volume, min angle, max aspect)`` of ``X``; nan where they do not apply."""
     if topo.is_curve:
         return float("nan"), float("nan"), float("nan")
-    closed = len(topo.boundary) == 0
-    S = topo.elements
-    return (volume(X, S) if closed else float("nan"), float(smallest_angles(X, S).min(initial=np.inf)),
-            float(aspect_ratios(X, S).max()))
+    return shape_measures(X, topo.elements, closed=len(topo.boundary) == 0)
 
 
 def _rescaled(X, topo, target_volume):
@@ -242,13 +239,19 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
         X, t, after = safe_step(X0, target, F, free, start=before, certify=True)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
+    stepped = X
     X, rounds = remove_folds(X, topo, free, start=after) if before.inverted and o.method != "relax" else (X, 0)
     _say(progress and rounds, f"fair: {rounds} rounds of fold removal")
-    vol0, angle0, aspect0 = _measures(X0, topo)
+    measured0 = _measures(X0, topo)
+    t1 = time.perf_counter()
+    # the output's certificate: the step's, taken again only around the vertices fold removal moved
+    cert = certify_folds(X, F) if after is None else recertified(X, F, after, stepped)
     if o.preserve_volume:
-        scaled = _rescaled(X, topo, vol0)
-        X = scaled if certify_folds(scaled, F).inverted <= certify_folds(X, F).inverted else X
-    return _result(V, X, target, t, free, before, rounds, topo, o, scale, (vol0, angle0, aspect0), t0, throw)
+        scaled = _rescaled(X, topo, measured0[0])
+        scaled_cert = certify_folds(scaled, F)
+        X, cert = (scaled, scaled_cert) if scaled_cert.inverted <= cert.inverted else (X, cert)
+    certified = (t1, time.perf_counter())
+    return _result(V, X, cert, target, t, free, before, rounds, topo, o, scale, measured0, (t0,) + certified, throw)
 
 
 def _say(progress, line):
@@ -258,11 +261,10 @@ def _say(progress, line):
         print(line, file=sys.stderr, flush=True)
 
 
-def _result(V, X, target, t, free, before, rounds, topo, o, scale, measured0, t0, throw):
-    """:func:`fair`'s :class:`Result` of the smoothed ``X`` (in the frame scaled by ``scale``)."""
-    t1 = time.perf_counter()
-    cert = certify_folds(X, topo.elements)
-    t2 = time.perf_counter()
+def _result(V, X, cert, target, t, free, before, rounds, topo, o, scale, measured0, times, throw):
+    """:func:`fair`'s :class:`Result` of the smoothed ``X`` (in the frame scaled by ``scale``)
+    and its certificate ``cert``; ``times``: ``(start, certificate begun, certificate done)``."""
+    t0, t1, t2 = times
     vol1, angle1, aspect1 = _measures(X, topo)
     distance = float("nan")
     if o.method == "relax":

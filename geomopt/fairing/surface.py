@@ -16,6 +16,7 @@ import numpy as np
 from .._runtime.errors import ParameterError
 
 __all__ = ["closest_points", "surface_index", "SurfaceIndex", "point_triangle", "triangle_angles", "smallest_angles", "aspect_ratios", "volume",
+           "shape_measures",
            "face_samples", "face_distances", "largest_face_distance"]
 
 
@@ -293,31 +294,60 @@ def triangle_angles(V, F) -> np.ndarray:
     return np.stack(out, axis=1)
 
 
-def smallest_angles(V, F) -> np.ndarray:
-    """(m,) each triangle's smallest interior angle (degrees): the one opposite its shortest
-    edge, by :func:`triangle_angles`' formula at that corner alone (a third of the work)."""
-    V = np.asarray(V, dtype=np.float64)
-    P = V[F]  # (m, 3, 3)
-    edge = [P[:, (k + 2) % 3] - P[:, (k + 1) % 3] for k in range(3)]  # opposite corner k
-    k = np.argmin(np.stack([np.einsum("ij,ij->i", e, e) for e in edge], axis=1), axis=1)
-    rows = np.arange(len(F))
+def _edges(P):
+    """``(edges, squared)``: the edge vectors ``P[:, k + 1] - P[:, k]`` (3 of (m, 3)) of the
+    triangles' corners ``P`` (m, 3, 3), and their squared lengths (3 of (m,))."""
+    edges = [P[:, (k + 1) % 3] - P[:, k] for k in range(3)]
+    return edges, [np.einsum("ij,ij->i", e, e) for e in edges]
+
+
+def _smallest_angles_of(P, squared):
+    """:func:`smallest_angles` of the corners ``P`` (m, 3, 3) with :func:`_edges`' ``squared``."""
+    k = np.argmin(np.stack([squared[(c + 1) % 3] for c in range(3)], axis=1), axis=1)  # opposite corner c
+    rows = np.arange(len(P))
     corner, u, v = P[rows, k], P[rows, (k + 1) % 3], P[rows, (k + 2) % 3]
     u, v = u - corner, v - corner
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.sum(u * v, axis=1)))
 
 
-def aspect_ratios(V, F) -> np.ndarray:
-    """(m,) longest edge over the height on it, divided by that of the equilateral triangle
-    (``2 / sqrt(3)``): 1 at best, growing without bound on slivers (inf when degenerate)."""
-    V = np.asarray(V, dtype=np.float64)
-    edges = [V[F[:, (k + 1) % 3]] - V[F[:, k]] for k in range(3)]
-    longest2 = np.maximum.reduce([np.einsum("ij,ij->i", e, e) for e in edges])
+def _aspect_ratios_of(edges, squared):
+    """:func:`aspect_ratios` from :func:`_edges`' ``edges`` and ``squared``."""
+    longest2 = np.maximum.reduce(squared)
     area2 = np.linalg.norm(np.cross(edges[0], -edges[2]), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(area2 > 0, longest2 / area2 * (np.sqrt(3.0) / 2.0), np.inf)
 
 
+def _volume_of(P):
+    """:func:`volume` of the corners ``P`` (m, 3, 3)."""
+    return float(np.sum(np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2]))) / 6.0)
+
+
+def smallest_angles(V, F) -> np.ndarray:
+    """(m,) each triangle's smallest interior angle (degrees): the one opposite its shortest
+    edge, by :func:`triangle_angles`' formula at that corner alone (a third of the work)."""
+    P = np.asarray(V, dtype=np.float64)[F]
+    return _smallest_angles_of(P, _edges(P)[1])
+
+
+def aspect_ratios(V, F) -> np.ndarray:
+    """(m,) longest edge over the height on it, divided by that of the equilateral triangle
+    (``2 / sqrt(3)``): 1 at best, growing without bound on slivers (inf when degenerate)."""
+    return _aspect_ratios_of(*_edges(np.asarray(V, dtype=np.float64)[F]))
+
+
 def volume(V, F) -> float:
     """The signed volume enclosed by a closed, outward-oriented triangle surface."""
-    V = np.asarray(V, dtype=np.float64)
-    return float(np.sum(np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6.0)
+    return _volume_of(np.asarray(V, dtype=np.float64)[F])
+
+
+def shape_measures(V, F, closed=True):
+    """``(volume, smallest angle, largest aspect ratio)`` of the triangles ``F`` (m, 3) on ``V``
+    (n, 3): :func:`volume` (nan unless ``closed``), the least of :func:`smallest_angles` (inf
+    without triangles) and the largest of :func:`aspect_ratios` (nan without triangles), the
+    same values, from one gather of the corners."""
+    P = np.asarray(V, dtype=np.float64)[F]
+    edges, squared = _edges(P)
+    aspect = _aspect_ratios_of(edges, squared)
+    return (_volume_of(P) if closed else float("nan"), float(_smallest_angles_of(P, squared).min(initial=np.inf)),
+            float(aspect.max()) if len(aspect) else float("nan"))
