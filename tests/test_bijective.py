@@ -10,7 +10,7 @@ from geomopt.mesh import generators as g
 from geomopt._runtime.errors import MeshError, ParameterError
 from geomopt.exact.certify import certify_bijective, polygon_crossings, polygon_orientation
 from geomopt.exact.predicates import count_inverted, orient2d
-from geomopt.mesh.scaffold import build_scaffold, delaunay_flips, ear_clip, refine_scaffold
+from geomopt.mesh.scaffold import build_scaffold, delaunay_flips, ear_clip, interior_pairs, refine_scaffold
 from geomopt.bijective import ScaffoldOptions, SimpleBoundary, bijective_parameterize
 from geomopt.exact.topology import check_disk, unique_edges
 from geomopt.mesh.tutte import tutte_embedding
@@ -212,6 +212,29 @@ def test_refined_scaffold_is_a_graded_conforming_triangulation(shape):
     L = np.linalg.norm(X[T] - X[np.roll(T, -1, axis=1)], axis=2).max(axis=1)
     touching = (T < k).any(axis=1)
     assert L[touching].max() <= 4 * edge and L[~touching].max() > 10 * edge
+
+
+def test_interior_pairs_are_the_twin_half_edges_of_edges_with_two_triangles():
+    # a grid's triangles shuffled (boundary edges: one triangle), plus a fin on an interior edge
+    # (three triangles: not an interior pair) and a repeated triangle (its edges: more than two)
+    rng = np.random.default_rng(3)
+    T = np.asarray(g.square_mesh(5)[1])
+    T = T[rng.permutation(len(T))]
+    n = int(T.max()) + 1
+    e = T[0, :2]
+    T = np.concatenate([T, [[e[1], e[0], n]], T[[5]]])
+    h1, h2 = interior_pairs(T)
+    E, count, edge_of = unique_edges(T)  # the reference: one edge's half-edges by edge row
+    he = edge_of.ravel()
+    hs = np.flatnonzero(count[he] == 2)
+    hs = hs[np.argsort(he[hs], kind="stable")]
+    assert np.array_equal(h1, hs[0::2]) and np.array_equal(h2, hs[1::2])
+    assert np.all(h1 < h2) and len(h1) > 10
+    H = T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    assert np.array_equal(H[h1], H[h2][:, ::-1])  # twins run the other way
+    fin = {tuple(sorted(H[h])) for h in np.r_[h1, h2]}
+    assert tuple(sorted(e)) not in fin and tuple(sorted(T[5, :2])) not in fin  # three or four triangles
+    assert len(interior_pairs(np.zeros((0, 3), dtype=np.int64))[0]) == 0
 
 
 def test_scaffold_rejects_a_clockwise_polygon():

@@ -26,9 +26,9 @@ import numpy as np
 
 from .._runtime.errors import MeshError, ParameterError
 from ..exact.predicates import orient2d
-from ..exact.topology import unique_edges
 
-__all__ = ["Scaffold", "build_scaffold", "refine_scaffold", "delaunay_flips", "ear_clip", "rest_inverse"]
+__all__ = ["Scaffold", "build_scaffold", "refine_scaffold", "delaunay_flips", "ear_clip", "interior_pairs",
+           "rest_inverse"]
 
 
 _CCW_ERR = (3.0 + 16.0 * 2.0**-53) * 2.0**-53  # Shewchuk's orient2d stage-A bound
@@ -203,6 +203,26 @@ def build_scaffold(P, ring_scale: float = 3.0) -> Scaffold:
     return Scaffold(outer, T)
 
 
+def interior_pairs(T):
+    """``(h1, h2)``: the two half-edges (``3 f + c`` runs ``T[f, c] -> T[f, c + 1]``) of every
+    edge used by exactly two triangles of ``T`` (t, 3), ``h1 < h2``, the edges in the order of
+    their vertex pairs ``(min, max)`` (the row order of
+    :func:`~geomopt.exact.topology.unique_edges`).  One stable sort of the edge keys: this runs
+    once per flip or split round, hundreds of times per scaffold."""
+    T = np.asarray(T, dtype=np.int64).reshape(-1, 3)
+    if len(T) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    a, b = T.ravel(), T[:, [1, 2, 0]].ravel()
+    keys = np.minimum(a, b) * (int(T.max()) + 1) + np.maximum(a, b)
+    order = np.argsort(keys, kind="stable")
+    k = keys[order]
+    same = k[1:] == k[:-1]  # positions i, i + 1 of one edge
+    # exactly two: a run of length 2 (neither neighbour pair of the same edge)
+    two = same & np.r_[True, ~same[:-1]] & np.r_[~same[1:], True]
+    i = np.flatnonzero(two)
+    return order[i], order[i + 1]
+
+
 def _opposite_angles_cot(X, a, b, c):
     """cot of the angle at ``c`` in triangles ``(a, b, c)`` (vectorised)."""
     u, v = X[a] - X[c], X[b] - X[c]
@@ -234,12 +254,7 @@ def delaunay_flips(X, T, max_rounds: int = 200, tol: float = 1e-9):
     T = np.array(T, dtype=np.int64)
     flips = 0
     for _ in range(max_rounds):
-        E, count, edge_of = unique_edges(T)
-        he = edge_of.ravel()  # half-edge 3 f + c runs T[f, c] -> T[f, c+1]; opposite T[f, c+2]
-        shared = count[he] == 2
-        hs = np.flatnonzero(shared)
-        hs = hs[np.argsort(he[hs], kind="stable")]
-        h1, h2 = hs[0::2], hs[1::2]  # the two half-edges of every interior edge
+        h1, h2 = interior_pairs(T)  # half-edge 3 f + c runs T[f, c] -> T[f, c+1]; opposite T[f, c+2]
         f1, c1, f2, c2 = h1 // 3, h1 % 3, h2 // 3, h2 % 3
         a, b = T[f1, c1], T[f1, (c1 + 1) % 3]
         c, d = T[f1, (c1 + 2) % 3], T[f2, (c2 + 2) % 3]
@@ -340,7 +355,6 @@ def refine_scaffold(X, T, k, grading=1.0, ratio=1.5, max_points=None, max_rounds
 def _split_round(X, T, k, size, ratio, budget):
     """One round of :func:`refine_scaffold`: ``(X, T, added)`` after splitting an independent
     set of the (at most ``budget``) triangles most over size at their longest edges."""
-    _, count, edge_of = unique_edges(T)
     A, B, C = X[T[:, 0]], X[T[:, 1]], X[T[:, 2]]
     L = np.stack([np.linalg.norm(B - A, axis=1), np.linalg.norm(C - B, axis=1),
                   np.linalg.norm(A - C, axis=1)], axis=1)  # edge c runs T[c] -> T[c + 1]
@@ -351,11 +365,9 @@ def _split_round(X, T, k, size, ratio, budget):
     if cand.size == 0:
         return X, T, 0
     cand = cand[np.argsort(-over[cand], kind="stable")][:budget]
-    he = edge_of.ravel()
     other = np.full(len(T) * 3, -1, dtype=np.int64)  # twin half-edge, -1 on a constrained edge
-    hs = np.flatnonzero(count[he] == 2)
-    hs = hs[np.argsort(he[hs], kind="stable")]
-    other[hs[0::2]], other[hs[1::2]] = hs[1::2], hs[0::2]
+    h1, h2 = interior_pairs(T)
+    other[h1], other[h2] = h2, h1
     c = longest[cand]
     h = other[3 * cand + c]
     splittable = (h >= 0) | (T[cand, c] >= k) | (T[cand, (c + 1) % 3] >= k)  # not a mesh edge
