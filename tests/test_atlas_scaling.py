@@ -67,6 +67,13 @@ def test_packing_layouts_see_only_the_charts_boundaries_and_pack_as_with_every_v
     assert packed.efficiency > 0.3 and seen and set(seen) == {boundary}  # far fewer than every vertex
     assert boundary < sum(len(u) for u in uvs) / 3
     # the same layout as from every vertex: the boundary holds every extreme of a flip-free chart
+    _packs_as_from_every_vertex(monkeypatch, uvs, faces, packed)
+
+
+def _packs_as_from_every_vertex(monkeypatch, uvs, faces, packed):
+    """``packed`` equals the packing whose layouts are drawn from every vertex of the charts."""
+    from geomopt.atlas import _pack, pack_charts
+
     monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
     whole = pack_charts(uvs, faces, margin=0.01)
     assert whole.efficiency == packed.efficiency
@@ -182,14 +189,8 @@ def test_packing_charts_with_holes_from_their_boundaries_packs_as_with_every_ver
     """Charts with several boundary loops (frames, turned to their minimum-area rectangle and by
     quarter turns), small ones fitting in a large one's hole: the outer loop holds every
     extreme, the holes are drawn from their loops."""
-    from geomopt.atlas import _pack, pack_charts
+    from geomopt.atlas import pack_charts
 
     charts = [_frame(n, n) for n in (26, 9, 9, 9)]  # the small frames fit in the large one's hole
     uvs, faces = [u * (1.0 if i == 0 else 0.3) for i, (u, _) in enumerate(charts)], [f for _, f in charts]
-    packed = pack_charts(uvs, faces, margin=0.01)
-    monkeypatch.setattr(_pack, "_outlines", lambda U, Bs: (U, Bs))
-    whole = pack_charts(uvs, faces, margin=0.01)
-    assert whole.efficiency == packed.efficiency
-    np.testing.assert_array_equal(whole.angles, packed.angles)
-    for a, b in zip(whole.uvs, packed.uvs):
-        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    _packs_as_from_every_vertex(monkeypatch, uvs, faces, pack_charts(uvs, faces, margin=0.01))
