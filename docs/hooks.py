@@ -12,10 +12,12 @@ import importlib
 import inspect
 from pathlib import Path
 
+from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "geomopt"
+NOTEBOOKS = ROOT / "notebooks"
 
 
 def public_modules() -> list[str]:
@@ -73,16 +75,30 @@ def _page(name: str) -> str:
     return "api/" + name.replace(".", "/") + ".md" if name != "geomopt" else "api/index.md"
 
 
+def notebooks() -> list[Path]:
+    """The notebooks of ``notebooks/``, each a page of the site (rendered by mkdocs-jupyter)."""
+    return sorted(NOTEBOOKS.glob("*.ipynb"))
+
+
+def _title(path: Path) -> str:
+    return path.stem.split("_", 1)[-1].replace("_", " ").capitalize()
+
+
 def on_config(config):
     api = [{name: _page(name)} for name in public_modules()]
-    config["nav"] = [{"Home": "index.md"}, {"API reference": api}, {"References": "references.md"},
-                     {"Untangling: design notes": "untangling.md"}, {"Changelog": "changelog.md"}]
+    gallery = [{_title(p): "notebooks/" + p.name} for p in notebooks()]
+    config["nav"] = [{"Home": "index.md"}, {"Notebooks": gallery}, {"API reference": api},
+                     {"References": "references.md"}, {"Untangling: design notes": "untangling.md"},
+                     {"Changelog": "changelog.md"}]
     return config
 
 
+@event_priority(50)  # before mkdocs-jupyter's on_files, which turns the notebooks into pages
 def on_files(files, config):
     importlib.invalidate_caches()
     for name in public_modules():
         content = _top_level_page() if name == "geomopt" else _module_page(name)
         files.append(File.generated(config, _page(name), content=content))
+    for path in notebooks():
+        files.append(File("notebooks/" + path.name, str(ROOT), config["site_dir"], config["use_directory_urls"]))
     return files

@@ -123,14 +123,14 @@ def test_bundled_data_has_its_attribution():
 def test_api_site_builds_strict(tmp_path):
     """``mkdocs build --strict``: a docstring that does not parse, a cross-reference that does
     not resolve, or a module that does not import fails the build."""
-    for module in ("mkdocs", "material", "mkdocstrings_handlers.python"):
+    for module in ("mkdocs", "material", "mkdocstrings_handlers.python", "mkdocs_jupyter"):
         if importlib.util.find_spec(module.split(".")[0]) is None:
             pytest.skip(f"{module} is not installed: pip install '.[docs]' to build the API docs")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
                NO_MKDOCS_2_WARNING="1")
     proc = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"),
                            "-d", str(tmp_path / "site")], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=1200)
     assert proc.returncode == 0, f"mkdocs build --strict failed:\n{proc.stdout}\n{proc.stderr}"
     site = tmp_path / "site"
     pages = {p.relative_to(site).as_posix() for p in site.rglob("index.html")}
@@ -141,3 +141,8 @@ def test_api_site_builds_strict(tmp_path):
     assert ":func:`" not in api and ":class:`" not in api  # Sphinx roles became links
     assert 'href="../solvers/#geomopt.solvers.Result"' in api  # ... that resolve
     assert "Rabinovich" in (site / "references" / "index.html").read_text(encoding="utf-8")
+    for notebook in sorted((ROOT / "notebooks").glob("*.ipynb")):  # each a page, with its figures
+        page = (site / "notebooks" / notebook.stem / "index.html").read_text(encoding="utf-8")
+        assert "data:image/png" in page, f"the docs page of {notebook.name} shows no figure"
+    # the fairing notebook is executed by the build itself (issue 52): the log says so
+    assert re.search(r"Converting notebook \(execute=True\): \S*14_fairing\.ipynb", proc.stdout + proc.stderr)
