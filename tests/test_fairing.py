@@ -240,6 +240,44 @@ def test_shape_measures_are_the_separate_measures():
     assert np.isnan(shape_measures(X, F, closed=False)[0]) and shape_measures(X, F, closed=False)[1:] == (angle, aspect)
 
 
+def _row_major_measures(V, F):
+    """The shape measures by the plain row-major NumPy forms (``V[F]``, ``np.cross``,
+    ``np.linalg.norm``, ``np.einsum``): ``(smallest angles (m,), aspect ratios (m,), volume)``."""
+    P = np.asarray(V, dtype=np.float64)[F]
+    edges = [P[:, (k + 1) % 3] - P[:, k] for k in range(3)]
+    squared = [np.einsum("ij,ij->i", e, e) for e in edges]
+    k = np.argmin(np.stack([squared[(c + 1) % 3] for c in range(3)], axis=1), axis=1)
+    rows = np.arange(len(P))
+    u, v = P[rows, (k + 1) % 3] - P[rows, k], P[rows, (k + 2) % 3] - P[rows, k]
+    angles = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.sum(u * v, axis=1)))
+    area2 = np.linalg.norm(np.cross(edges[0], -edges[2]), axis=1)
+    aspect = np.where(area2 > 0, np.maximum.reduce(squared) / area2 * (np.sqrt(3.0) / 2.0), np.inf)
+    return angles, aspect, float(np.sum(np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2]))) / 6.0)
+
+
+def test_shape_measures_are_the_row_major_forms_bitwise():
+    """The coordinate-major shape measures (one-dimensional gathers) give the very floats of the
+    row-major forms, on random triangles of any scale, with ties, coincident corners and signed
+    zeros (``arctan2(0, -0)`` is 180 degrees: the dot product must be +0 as ``np.sum``'s)."""
+    from geomopt.fairing.surface import aspect_ratios, smallest_angles
+
+    rng = np.random.default_rng(3)
+    for trial in range(24):
+        V = rng.normal(size=(40, 3)) * 10.0 ** rng.integers(-6, 6)
+        F = rng.integers(0, 40, size=(300, 3))
+        if trial % 3 == 0:
+            V = np.round(V * 4 / np.abs(V).max()) / 4  # ties and zero coordinates
+        if trial % 4 == 1:
+            V[F[::5, 1]] = V[F[::5, 0]]  # coincident corners
+        if trial % 4 == 2:
+            V[:20] = np.copysign(0.0, rng.normal(size=(20, 3)))  # faces of signed zeros
+        with np.errstate(all="ignore"):
+            angles, aspect, vol = _row_major_measures(V, F)
+            assert np.array_equal(smallest_angles(V, F), angles, equal_nan=True)
+            assert np.array_equal(aspect_ratios(V, F), aspect, equal_nan=True)
+            assert volume(V, F) == vol or (np.isnan(vol) and np.isnan(volume(V, F)))
+
+
 def test_a_degenerate_start_face_has_a_failing_corner():
     """The fold-safe step lets faces turn that have a failing corner at the start, and counts on
     that to cover the degenerate ones (normal exactly 0, or a corner not finite): each of those
