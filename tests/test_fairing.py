@@ -207,6 +207,50 @@ def test_safe_step_from_a_folded_start_with_its_certificate_given():
     assert np.array_equal(cert.corners, again.corners)
 
 
+def _whole_mesh_safe_step(X0, X1, S, free, halvings=20):
+    """The fold-safe step by its definition, every sign taken on every element at every round."""
+    allowed = corner_signs(X0, S) <= 0
+    may_turn = allowed.any(axis=1) if S.shape[1] == 3 else np.zeros(len(S), bool)
+    t, halved = np.where(free, 1.0, 0.0), np.zeros(len(X0), int)
+    while True:
+        X = np.where(t[:, None] == 1.0, X1, np.where(t[:, None] == 0.0, X0, X0 + t[:, None] * (X1 - X0)))
+        bad = (corner_signs(X, S) <= 0) & ~allowed
+        if S.shape[1] == 3:
+            bad |= ((normal_agreement(X, X0, S) <= 0) & ~may_turn)[:, None]
+        if not bad.any():
+            return X, t
+        centre = np.zeros(len(X0), bool)
+        centre[S[bad.nonzero()]] = True
+        star = centre[S].any(axis=1) | bad.any(axis=1)
+        cut = np.zeros(len(X0), bool)
+        cut[S[star]] = True
+        cut &= t > 0
+        halved[cut] += 1
+        t[cut] = np.where(halved[cut] >= halvings, 0.0, t[cut] * 0.5)
+
+
+@pytest.mark.parametrize("case", ["sphere", "folded", "boundary", "curve"])
+def test_safe_step_equals_its_whole_mesh_definition(case):
+    """The fold-safe step re-takes the signs only around the vertices each cut moved (through
+    the vertex stars): the same vertices and fractions, bitwise, as taking every sign at every
+    round, on steps that fold many faces, from folded starts, with held vertices, on curves."""
+    rng = np.random.default_rng(len(case))
+    if case == "curve":
+        V, F = circle(200, noise=0.02, seed=3)
+    else:
+        V, F = icosphere(3)
+    if case == "boundary":
+        F = F[V[F].mean(axis=1)[:, 2] < 0.5]
+    X0 = noisy(V, F, 0.4, seed=4) if case == "folded" else V
+    h = np.mean(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1))
+    X1 = X0 + (0.1 if case == "folded" else 0.4) * h * rng.normal(size=V.shape)  # folds many corners
+    free = rng.random(len(V)) > 0.1
+    X, t = safe_step(X0, X1, F, free)
+    Xr, tr = _whole_mesh_safe_step(X0, X1, F, free)
+    assert np.array_equal(X, Xr) and np.array_equal(t, tr)
+    assert 10 < np.count_nonzero(free & (t < 1)) < np.count_nonzero(free) - 10  # many cut, many not
+
+
 def test_recertified_is_the_certificate_taken_afresh():
     """``recertified`` (the driver's output certificate after fold removal) takes the signs
     again only around the moved vertices: the same folded faces and corners as a fresh
