@@ -215,7 +215,7 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
         Xc = np.where(tc == 0.0, X0[cut], X0[cut] + tc * (X1[cut] - X0[cut]))
         moved = cut[any_column(Xc != X[cut])]
         X[cut] = Xc
-        _retaken(X, X0, S, moved, neg, turned, stars) if len(moved) else rows  # MUT
+        rows = np.union1d(rows, _retaken(X, X0, S, moved, neg, turned, stars)) if len(moved) else rows
 
 
 def _bad(neg, allowed, turned, may_turn, rows):
