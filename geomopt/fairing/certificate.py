@@ -25,7 +25,7 @@ import numpy as np
 from ..exact.normals import corner_signs, normal_agreement
 from .operators import any_column
 
-__all__ = ["FoldCertificate", "Stars", "certify_folds", "recertified", "safe_step", "local_signs", "HALVINGS"]
+__all__ = ["FoldCertificate", "Stars", "certify_folds", "recertified", "safe_step", "local_signs", "signs_near", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -152,15 +152,23 @@ def _dependents(S, corners, stars):
     return np.unique(S[star])
 
 
-def _retaken(X, X0, S, moved, neg, turned, stars):
-    """The elements (sorted) whose signs ``moved`` (p,) int vertices can change (a corner within
-    one ring of one: its vertex normal sums the elements around it), and, there, ``neg`` (m, k)
-    the corners not positive at ``X`` and (surfaces; else None) ``turned`` (m,) the faces turned
-    90 degrees or more from ``X0``, taken again (in place)."""
-    near = np.unique(S[stars.around(moved)])
-    affected = stars.around(near)
+def signs_near(X, S, moved, stars: Stars):
+    """``(affected, neg)``: the elements (e,), sorted, whose corner signs a move of the vertices
+    ``moved`` (p,) int can change (those with a corner within one ring of one: its vertex normal
+    sums the elements around it), and their corners not positive at ``X`` (e, k) bool (exact,
+    :func:`certify_folds`' signs, read from the elements around those corners only)."""
+    affected = stars.around(np.unique(S[stars.around(moved)]))
     sub = stars.around(np.unique(S[affected]))  # every element around a corner of an affected one
-    neg[affected] = local_signs(X, S[sub])[np.searchsorted(sub, affected)] <= 0
+    return affected, local_signs(X, S[sub])[np.searchsorted(sub, affected)] <= 0
+
+
+def _retaken(X, X0, S, moved, neg, turned, stars):
+    """The elements (sorted) whose signs ``moved`` (p,) int vertices can change
+    (:func:`signs_near`), and, there, ``neg`` (m, k) the corners not positive at ``X`` and
+    (surfaces; else None) ``turned`` (m,) the faces turned 90 degrees or more from ``X0``, taken
+    again (in place)."""
+    affected, negative = signs_near(X, S, moved, stars)
+    neg[affected] = negative
     if turned is not None:
         turned[affected] = _local_agreement(X, X0, S[affected]) <= 0
     return affected
