@@ -87,28 +87,28 @@ def _from_signs(neg, m) -> FoldCertificate:
 
 
 class Stars:
-    """The elements around each vertex: ``elements[start[v]:start[v + 1]]``, ascending (the
-    vertex-element incidence in CSR form, built in linear time), so that the checks after a
-    local change gather only the elements near it instead of whole-mesh arrays.
-
-    Attributes
-    ----------
-    start : (n + 1,) offsets into ``elements``.
-    elements : (k m,) element indices.
-    """
+    """The elements around each vertex of the elements ``S`` (m, k) on ``n`` vertices, for the
+    checks after a local change to gather only the elements near it instead of whole-mesh
+    arrays: the vertex-element incidence in CSR form, built in linear time on the first
+    :meth:`around` (so that a caller may make one to share before knowing it is needed)."""
 
     def __init__(self, S, n):
-        import scipy.sparse as sp
-
-        m, k = S.shape
-        incidence = sp.csr_matrix((np.ones(m * k, bool), (S.ravel(), np.repeat(np.arange(m), k))), shape=(n, m))
-        self.start, self.elements = incidence.indptr, incidence.indices  # (rows ascending: S read in order)
+        self.S, self.n, self._csr = S, n, None
 
     def around(self, vertices) -> np.ndarray:
         """(e,) the sorted elements with a corner among ``vertices`` (p,) int."""
-        lo, count = self.start[vertices], self.start[np.asarray(vertices) + 1] - self.start[vertices]
+        if self._csr is None:
+            import scipy.sparse as sp
+
+            m, k = self.S.shape
+            incidence = sp.csr_matrix((np.ones(m * k, bool), (self.S.ravel(), np.repeat(np.arange(m), k))),
+                                      shape=(self.n, m))
+            self._csr = incidence.indptr, incidence.indices  # (each row ascending: S is read in order)
+        start, elements = self._csr
+        vertices = np.asarray(vertices, dtype=np.int64)
+        lo, count = start[vertices], start[vertices + 1] - start[vertices]
         first = np.cumsum(count) - count
-        return np.unique(self.elements[np.repeat(lo - first, count) + np.arange(int(count.sum()))])
+        return np.unique(elements[np.repeat(lo - first, count) + np.arange(int(count.sum()))])
 
 
 def recertified(X, S, base: FoldCertificate, X_base, stars: Stars | None = None) -> FoldCertificate:
@@ -198,6 +198,7 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     # faces with a corner failing at X0 may turn; so may degenerate ones (normal 0 or not finite
     # at X0), which are among them: their corner signs are 0
     may_turn = any_column(allowed) if surface else None
+    stars = stars or Stars(S, n)
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
     X = np.where(free[:, None], X1, X0)
@@ -212,7 +213,6 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
         failing = np.argwhere(neg[rows] & ~allowed[rows] | (turned[rows] & ~may_turn[rows])[:, None]
                               if surface else neg[rows] & ~allowed[rows])
         failing[:, 0] = rows[failing[:, 0]]
-        stars = stars or Stars(S, n)
         cut = _dependents(S, failing, stars)
         cut = cut[t[cut] > 0]
         if len(cut) == 0:  # with t = 0 on all it depends on, a corner has its start's sign: positive

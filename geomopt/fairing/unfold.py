@@ -137,12 +137,14 @@ def _partwise(X, Y, S, region, A, stars, folded_x, folded_y):
     return Z
 
 
-def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
+def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None, stars: Stars | None = None):
     """``(X, rounds)``: ``X`` (n, d) with its folded faces (elements) removed where it can (see
     the module notes), never more of them folded than at the start; ``free`` (n,) bool the
     vertices it may move; ``rounds``: the rounds taken; ``start``: the
-    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it.  Each
-    round reads only its region's neighbourhood (through the vertex stars and the edges)."""
+    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it;
+    ``stars``: the :class:`~geomopt.fairing.certificate.Stars` of ``topo.elements``, when the
+    caller has them.  Each round reads only its region's neighbourhood (through the vertex stars
+    and the edges)."""
     S = topo.elements
     X = np.asarray(X, dtype=np.float64)
     if start is None:
@@ -150,10 +152,9 @@ def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
     else:
         folded = np.zeros(len(S), bool)
         folded[start.folded] = True
-    A, stars = _averaging(topo), None
+    A, stars = _averaging(topo), stars or Stars(S, topo.n)
     rings, rounds, count = 1, 0, int(np.count_nonzero(folded))
     while count and rings <= MAX_RINGS and rounds < max_rounds:
-        stars = stars or Stars(S, topo.n)
         region = _grow(np.unique(S[folded]), A, rings)
         region = region[free[region]]
         rows, Y = A[region], X.copy()  # only the region's rows of the operator
