@@ -163,6 +163,28 @@ def test_the_host_solve_equals_a_dense_solve(kind):
     assert np.allclose(x[F], want, rtol=0, atol=1e-10 * np.abs(want).max()) and np.array_equal(x[H], held[H])
 
 
+@pytest.mark.parametrize("corners", [3, 2])
+def test_the_edge_table_is_numpys_unique_rows(corners):
+    """``Topology``'s edges (its own sort of integer keys) are ``np.unique`` of the sorted
+    vertex pairs, each element's edges index them, and the boundary is the edges used once."""
+    from geomopt.fairing.operators import Topology
+
+    rng = np.random.default_rng(corners)
+    if corners == 3:
+        V, F = icosphere(2)
+        F = F[rng.random(len(F)) > 0.2]  # holes: edges used once
+        pairs = np.stack([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]], axis=1).reshape(-1, 2)
+    else:
+        F = np.unique(np.sort(rng.integers(0, 500, size=(900, 2)), axis=1), axis=0)
+        F = F[F[:, 0] != F[:, 1]]
+        pairs = F
+    topo = Topology.of(F, int(F.max()) + 3)
+    edges, inverse, counts = np.unique(np.sort(pairs, axis=1), axis=0, return_inverse=True, return_counts=True)
+    assert np.array_equal(topo.edges, edges) and np.array_equal(topo.element_edges.ravel(), inverse.ravel())
+    if corners == 3:
+        assert np.array_equal(topo.boundary, np.unique(edges[counts == 1]))
+
+
 def test_local_signs_equal_the_signs_on_all_vertices():
     """The signs of a few faces, taken on the vertices they use only, are those of
     ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""
@@ -842,6 +864,14 @@ def test_bad_options_and_meshes_raise_clear_errors():
         fair(np.zeros((4, 3)), np.zeros((2, 4), int))
     with pytest.raises(ParameterError, match="not differentiable"):
         smoothed(*icosphere(0), FairOptions(method="relax"))
+    V, F = icosphere(0)
+    for k in range(3):  # a triangle that repeats a vertex, at each pair of corners
+        G = F.copy()
+        G[5, k] = G[5, (k + 1) % 3]
+        with pytest.raises(MeshError, match="repeats a vertex"):
+            fair(V, G)
+    with pytest.raises(MeshError, match="repeats a vertex"):
+        fair(np.zeros((4, 2)), np.array([[0, 1], [2, 2]]))
 
 
 # -- the command line --------------------------------------------------------------------------

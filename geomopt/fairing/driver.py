@@ -103,7 +103,8 @@ def _checked(V, F):
     F = as_faces(F, len(V), corners=F.shape[1], name="elements")
     if F.max() >= len(V):
         raise MeshError(f"elements index vertex {F.max()}, but there are {len(V)} vertices")
-    if np.any(np.sort(F, axis=1)[:, 1:] == np.sort(F, axis=1)[:, :-1]):
+    k = F.shape[1]
+    if any(np.any(F[:, i] == F[:, j]) for i in range(k) for j in range(i + 1, k)):
         raise MeshError("an element repeats a vertex: remove degenerate elements first")
     return V, F, Topology.of(F, len(V))
 
