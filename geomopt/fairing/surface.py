@@ -315,7 +315,10 @@ def _dot(a, b):
 
 def _cross(a, b):
     """(3, m) the cross products of ``a, b`` (3, m), by ``np.cross``'s formulas."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    out = np.empty_like(a)
+    for c, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.subtract(a[i] * b[j], a[j] * b[i], out=out[c])
+    return out
 
 
 def _length(a):
@@ -333,9 +336,15 @@ def _edges(P):
 def _smallest_angles_of(P, squared):
     """:func:`smallest_angles` of the corners ``P`` (3, 3, m) with :func:`_edges`' ``squared``."""
     k = np.argmin(np.stack([squared[(c + 1) % 3] for c in range(3)]), axis=0)  # opposite corner c
-    corner = np.stack([np.choose(k, P[:, c]) for c in range(3)])
-    u = np.stack([np.choose(k, P[[1, 2, 0], c]) for c in range(3)]) - corner
-    v = np.stack([np.choose(k, P[[2, 0, 1], c]) for c in range(3)]) - corner
+    m = P.shape[2]
+    flat, rows = P.reshape(-1), np.arange(m)
+
+    def at(j):  # (3, m) the coordinates of each triangle's corner j (m,) (P[j[f], :, f])
+        base = j * (3 * m) + rows
+        return np.stack([flat.take(base + c * m) for c in range(3)])
+
+    corner = at(k)
+    u, v = at((k + 1) % 3) - corner, at((k + 2) % 3) - corner
     dot = (u[0] * v[0] + u[1] * v[1]) + u[2] * v[2]
     dot += 0.0  # np.sum's over a row of three, which starts from +0: never -0 (arctan2 tells them apart)
     return np.degrees(np.arctan2(_length(_cross(u, v)), dot))
