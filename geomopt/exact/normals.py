@@ -42,7 +42,7 @@ from .._runtime.errors import MeshError
 from .._runtime.tracing import refuse_traced
 from .predicates import box_scale
 
-__all__ = ["corner_signs", "normal_agreement"]
+__all__ = ["corner_signs", "normal_agreement", "signs_and_agreement"]
 
 _EPS = 2.0**-53
 #: an absolute allowance for underflow: each of the few hundred roundings of a value may lose up to
@@ -119,20 +119,40 @@ def corner_signs(X, S) -> np.ndarray:
     fold-free exactly when every sign is +1.
     """
     X, S = _checked(X, S)
-    m, k, n = len(S), S.shape[1], len(X)
-    if m == 0:
-        return np.zeros((0, k), np.int8)
+    if len(S) == 0:
+        return np.zeros((0, S.shape[1]), np.int8)
     with np.errstate(all="ignore"):
-        dirs, mags = _directions(X, S)
-        sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
-        St = np.ascontiguousarray(S.T)
-        factor = (2.0 * _EPS) * (np.bincount(St.ravel(), minlength=n) + 10.0)  # (n,) per vertex degree
-        value = _corner_dots(dirs, sums, St)
-        bound = _corner_dots(mags, sum_mags, St)
-        bound *= factor.take(St)
-        bound += _UNDERFLOW
-        sure = np.abs(value) > bound
-        sure &= np.isfinite(value)
+        return _corner_signs(X, S, _directions(X, S))
+
+
+def signs_and_agreement(X, Y, F):
+    """``(corner_signs(X, F), normal_agreement(X, Y, F))``, the same exact signs, with the
+    float directions of ``X`` computed once for both (the fold-safe step's first check)."""
+    X, S = _checked(X, F)
+    Y, _ = _checked(Y, F)
+    if S.shape[1] != 3:
+        raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
+    if len(S) == 0:
+        return np.zeros((0, 3), np.int8), np.zeros(0, np.int8)
+    with np.errstate(all="ignore"):
+        dirs = _directions(X, S)
+        return _corner_signs(X, S, dirs), _agreement(X, Y, S, dirs, _directions(Y, S))
+
+
+def _corner_signs(X, S, directions):
+    """:func:`corner_signs` of the scaled ``X`` (:func:`_checked`) from its ``directions``
+    (:func:`_directions`)."""
+    n = len(X)
+    dirs, mags = directions
+    sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
+    St = np.ascontiguousarray(S.T)
+    factor = (2.0 * _EPS) * (np.bincount(St.ravel(), minlength=n) + 10.0)  # (n,) per vertex degree
+    value = _corner_dots(dirs, sums, St)
+    bound = _corner_dots(mags, sum_mags, St)
+    bound *= factor.take(St)
+    bound += _UNDERFLOW
+    sure = np.abs(value) > bound
+    sure &= np.isfinite(value)
     out = np.ascontiguousarray(_signs(value, sure).T)
     if sure.all():
         return out
@@ -211,10 +231,14 @@ def normal_agreement(X, Y, F) -> np.ndarray:
     if S.shape[1] != 3:
         raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
     with np.errstate(all="ignore"):
-        nx, mx = _directions(X, S)
-        ny, my = _directions(Y, S)
-        value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
-        bound = (mx[0] * my[0] + mx[1] * my[1] + mx[2] * my[2]) * (32.0 * _EPS) + _UNDERFLOW
+        return _agreement(X, Y, S, _directions(X, S), _directions(Y, S))
+
+
+def _agreement(X, Y, S, x_directions, y_directions):
+    """:func:`normal_agreement` of the scaled ``X, Y`` from their :func:`_directions`."""
+    (nx, mx), (ny, my) = x_directions, y_directions
+    value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
+    bound = (mx[0] * my[0] + mx[1] * my[1] + mx[2] * my[2]) * (32.0 * _EPS) + _UNDERFLOW
     sure = (np.abs(value) > bound) & np.isfinite(value)
     out = _signs(value, sure)
     if sure.all():

@@ -22,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from ..exact.normals import corner_signs, normal_agreement
+from ..exact.normals import corner_signs, normal_agreement, signs_and_agreement
 from .operators import any_column
 
 __all__ = ["FoldCertificate", "Stars", "certify_folds", "recertified", "safe_step", "local_signs", "signs_near", "HALVINGS"]
@@ -202,8 +202,11 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
     X = np.where(free[:, None], X1, X0)
-    neg = corner_signs(X, S) <= 0
-    turned = normal_agreement(X, X0, S) <= 0 if surface else None
+    if surface:
+        signs, agreement = signs_and_agreement(X, X0, S)
+        neg, turned = signs <= 0, agreement <= 0
+    else:
+        neg, turned = corner_signs(X, S) <= 0, None
     rows = np.flatnonzero(_bad(neg, allowed, turned, may_turn, slice(None)))  # the elements that may fail
     while True:
         bad = _bad(neg, allowed, turned, may_turn, rows)
