@@ -185,6 +185,23 @@ def test_the_edge_table_is_numpys_unique_rows(corners):
         assert np.array_equal(topo.boundary, np.unique(edges[counts == 1]))
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_mean_edge_length_is_the_row_form_bitwise(dim):
+    """The mean edge length of NumPy vertices (coordinate rows) is the very float of the row form
+    that JAX vertices take (``V[b] - V[a]``, then the norm), and equals the JAX value."""
+    from geomopt.fairing.operators import Topology, mean_edge_length
+
+    rng = np.random.default_rng(dim)
+    V0, F = (icosphere(0) if dim == 3 else circle(12, noise=0.1))
+    topo = Topology.of(F, len(V0))
+    for _ in range(20):  # (few edges, of comparable coordinates: a change in rounding shows in the mean)
+        V = V0 * rng.uniform(0.5, 2.0, size=V0.shape)
+        V[F[::7, 1]] = V[F[::7, 0]]  # zero-length edges
+        d = V[topo.edges[:, 1]] - V[topo.edges[:, 0]]
+        assert mean_edge_length(V, topo) == float(np.mean(np.sqrt(np.sum(d * d, axis=-1))))
+    assert mean_edge_length(V, topo) == pytest.approx(float(mean_edge_length(jnp.asarray(V), topo)), rel=1e-15)
+
+
 def test_local_signs_equal_the_signs_on_all_vertices():
     """The signs of a few faces, taken on the vertices they use only, are those of
     ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""

@@ -158,8 +158,14 @@ def mean_edge_length(V, topo: Topology):
     e = topo.edges
     if len(e) == 0:
         return 1.0
-    h = xp.mean(_norm(xp, V[e[:, 1]] - V[e[:, 0]]))
-    return float(h) if xp is np else h
+    if xp is np:  # coordinate rows gathered one-dimensionally: the same floats as the row form below
+        Vt, et = np.ascontiguousarray(np.asarray(V).T), np.ascontiguousarray(e.T)
+        d = [x.take(et[1]) - x.take(et[0]) for x in Vt]
+        squared = d[0] * d[0]
+        for c in range(1, len(d)):
+            squared += d[c] * d[c]
+        return float(np.mean(np.where(squared > 0, np.sqrt(squared), 0.0)))
+    return xp.mean(_norm(xp, V[e[:, 1]] - V[e[:, 0]]))
 
 
 def edge_weights(V, topo: Topology, laplacian: str):
