@@ -23,14 +23,17 @@ error is at most ``gamma_4 (|u_i v_j| + |u_j v_i|)``, the *magnitude* ``mag`` of
 A vertex sum of ``deg`` such components adds ``gamma_{deg - 1}`` times the sum of their
 magnitudes, and the dot product of three terms ``gamma_3`` of the sum of the products'
 magnitudes.  So ``|fl(n_f . N_v) - n_f . N_v| <= gamma_{deg + 10} sum_d mag_f[d] MAG_v[d]``
-(``MAG_v`` the vertex sum of the magnitudes) up to second order terms; the filter uses twice
-that first order factor, ``2 (deg + 10) eps``, which covers the second order terms and the
-rounding of the bound's own evaluation (a few relative ``eps``).  Edges (degree 2) are the
-same with fewer roundings.  That model holds while no intermediate result underflows; below the
+(``MAG_v`` the vertex sum of the magnitudes) up to second order terms.  The filter bounds every
+component's magnitude of a face by one number, ``m_f = 2 max_i |u_i| max_j |v_j|`` (one pass
+instead of three products per component, and one vertex sum ``M_v`` of them instead of three),
+which only loosens the bound: ``sum_d mag_f[d] MAG_v[d] <= 3 m_f M_v``; it uses twice the first
+order factor, ``2 (deg + 10) eps``, which covers the second order terms and the rounding of the
+bound's own evaluation (a few relative ``eps``).  Edges (degree 2) are the same with fewer
+roundings and ``m_e = max_i |d_i|`` (times the dimension ``d`` in place of 3).  That model holds while no intermediate result underflows; below the
 normal range each of the few hundred roundings loses at most ``2**-1075`` absolutely, which the
 absolute allowance ``2**-900`` covers.  A sign is taken from float64 only where ``|value|``
 exceeds the bound (and ``value`` is finite); ``normal_agreement`` likewise with ``32 eps``
-(two normals of ``gamma_4`` each and a dot product of ``gamma_3``).  tests/test_normals_filter.py
+(two normals of ``gamma_4`` each and a dot product of ``gamma_3``) times ``3 m_f(X) m_f(Y)``.  tests/test_normals_filter.py
 checks every reported sign against rational arithmetic on inputs that float64 alone gets wrong.
 """
 
@@ -66,25 +69,37 @@ def _checked(X, S):
 
 
 def _directions(X, S):
-    """``(dirs, bounds)``: each element's direction (d, m) (the triangle normal or the edge
-    vector), coordinate-major, and, per component, the sum of the magnitudes of the products
-    forming it (d, m).  Every gather is one-dimensional (a coordinate row taken at a row of
-    corner indices): several times faster than NumPy's gathers of rows of a 2-D array."""
+    """``(dirs, mag)``: each element's direction (d, m) (the triangle normal or the edge vector),
+    coordinate-major, and a bound (m,) of every component's magnitude (see the module notes:
+    ``2 max_i |u_i| max_j |v_j|`` for a triangle, ``max_i |d_i|`` for an edge).  Every gather is
+    one-dimensional (a coordinate row taken at a row of corner indices): several times faster
+    than NumPy's gathers of rows of a 2-D array."""
     Xt, St = np.ascontiguousarray(X.T), np.ascontiguousarray(S.T)  # (d, n), (k, m)
     if S.shape[1] == 2:
         d = np.stack([x.take(St[1]) - x.take(St[0]) for x in Xt])
-        return d, np.abs(d)
+        return d, _largest(d)
     u, v = np.empty((3, len(S))), np.empty((3, len(S)))
     for x, ui, vi in zip(Xt, u, v):
         a = x.take(St[0])
         np.subtract(x.take(St[1]), a, out=ui)
         np.subtract(x.take(St[2]), a, out=vi)
-    au, av = np.abs(u), np.abs(v)
-    cols, mags = np.empty_like(u), np.empty_like(u)
+    cols, other = np.empty_like(u), np.empty(len(S))
     for c, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        np.subtract(u[i] * v[j], u[j] * v[i], out=cols[c])
-        np.add(au[i] * av[j], au[j] * av[i], out=mags[c])
-    return cols, mags
+        np.multiply(u[i], v[j], out=cols[c])
+        np.multiply(u[j], v[i], out=other)
+        cols[c] -= other
+    mag = _largest(u)
+    mag *= _largest(v)
+    mag *= 2.0
+    return cols, mag
+
+
+def _largest(a):
+    """(m,) the largest magnitude in each column of ``a`` (d, m)."""
+    out = np.abs(a[0])
+    for row in a[1:]:
+        np.maximum(out, np.abs(row), out=out)
+    return out
 
 
 def _vertex_sums(values, S, n):
@@ -143,13 +158,14 @@ def _corner_signs(X, S, directions):
     """:func:`corner_signs` of the scaled ``X`` (:func:`_checked`) from its ``directions``
     (:func:`_directions`)."""
     n = len(X)
-    dirs, mags = directions
-    sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
+    dirs, mag = directions
+    sums, sum_mag = _vertex_sums(dirs, S, n), _vertex_sums(mag[None], S, n)[0]
     St = np.ascontiguousarray(S.T)
-    factor = (2.0 * _EPS) * (np.bincount(St.ravel(), minlength=n) + 10.0)  # (n,) per vertex degree
+    # (n,) per vertex: its magnitude sum times 2 (deg + 10) eps, times the dimension
+    factor = (2.0 * _EPS * len(dirs)) * (np.bincount(St.ravel(), minlength=n) + 10.0) * sum_mag
     value = _corner_dots(dirs, sums, St)
-    bound = _corner_dots(mags, sum_mags, St)
-    bound *= factor.take(St)
+    bound = factor.take(St)
+    bound *= mag
     bound += _UNDERFLOW
     sure = np.abs(value) > bound
     sure &= np.isfinite(value)
@@ -238,7 +254,7 @@ def _agreement(X, Y, S, x_directions, y_directions):
     """:func:`normal_agreement` of the scaled ``X, Y`` from their :func:`_directions`."""
     (nx, mx), (ny, my) = x_directions, y_directions
     value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
-    bound = (mx[0] * my[0] + mx[1] * my[1] + mx[2] * my[2]) * (32.0 * _EPS) + _UNDERFLOW
+    bound = mx * my * (3 * 32.0 * _EPS) + _UNDERFLOW
     sure = (np.abs(value) > bound) & np.isfinite(value)
     out = _signs(value, sure)
     if sure.all():
