@@ -310,11 +310,15 @@ def test_recertified_is_the_certificate_taken_afresh():
     assert recertified(X0.copy(), F, base, X0) is base
 
 
-def test_shape_measures_are_the_separate_measures():
-    """``shape_measures`` (one gather) gives exactly ``volume``, the least ``smallest_angles``
-    and the largest ``aspect_ratios``; the angle is the least of ``triangle_angles``."""
+@pytest.mark.parametrize("batch", [1 << 15, 7])
+def test_shape_measures_are_the_separate_measures(batch, monkeypatch):
+    """``shape_measures`` (one gather, in batches of triangles) gives exactly ``volume``, the
+    least ``smallest_angles`` and the largest ``aspect_ratios``, whatever the batch size; the
+    angle is the least of ``triangle_angles``."""
+    from geomopt.fairing import surface
     from geomopt.fairing.surface import aspect_ratios, shape_measures, smallest_angles, triangle_angles
 
+    monkeypatch.setattr(surface, "BATCH", batch)
     V, F = icosphere(2)
     X = noisy(V, F, 0.3, seed=6)
     vol, angle, aspect = shape_measures(X, F)

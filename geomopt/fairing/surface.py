@@ -298,8 +298,12 @@ def _corners(V, F):
     """(3, 3, m): ``P[k, c]`` the coordinate ``c`` of corner ``k`` of each triangle ``F`` (m, 3)
     on ``V`` (n, 3), coordinate-major (one-dimensional gathers: several times faster than
     ``V[F]``, and every later product runs along contiguous rows)."""
-    Vt = np.ascontiguousarray(np.asarray(V, dtype=np.float64).T)
-    Ft = np.ascontiguousarray(np.asarray(F, dtype=np.int64).T)
+    return _gathered(np.ascontiguousarray(np.asarray(V, dtype=np.float64).T), np.asarray(F, dtype=np.int64))
+
+
+def _gathered(Vt, F):
+    """:func:`_corners` from the coordinate rows ``Vt`` (3, n)."""
+    Ft = np.ascontiguousarray(F.T)
     P = np.empty((3, 3, Ft.shape[1]))
     for k in range(3):
         for c in range(3):
@@ -385,9 +389,20 @@ def shape_measures(V, F, closed=True):
     """``(volume, smallest angle, largest aspect ratio)`` of the triangles ``F`` (m, 3) on ``V``
     (n, 3): :func:`volume` (nan unless ``closed``), the least of :func:`smallest_angles` (inf
     without triangles) and the largest of :func:`aspect_ratios` (nan without triangles), the
-    same values, from one gather of the corners."""
-    P = _corners(V, F)
-    edges, squared = _edges(P)
-    aspect = _aspect_ratios_of(edges, squared)
-    return (_volume_of(P) if closed else float("nan"), float(_smallest_angles_of(P, squared).min(initial=np.inf)),
-            float(aspect.max()) if len(aspect) else float("nan"))
+    same values, from one gather of the corners, in batches of :data:`BATCH` triangles."""
+    Vt, F = np.ascontiguousarray(np.asarray(V, dtype=np.float64).T), np.asarray(F, dtype=np.int64)
+    volumes, angle, aspect = np.empty(len(F)), [np.inf], []
+    for i in range(0, len(F), BATCH):
+        P = _gathered(Vt, F[i:i + BATCH])
+        edges, squared = _edges(P)
+        aspect.append(_aspect_ratios_of(edges, squared).max())
+        angle.append(_smallest_angles_of(P, squared).min())
+        if closed:
+            volumes[i:i + BATCH] = _dot(P[0], _cross(P[1], P[2]))
+    return (float(np.sum(volumes) / 6.0) if closed else float("nan"), float(np.min(angle)),
+            float(np.max(aspect)) if aspect else float("nan"))
+
+
+#: triangles per batch of :func:`shape_measures`: its temporaries stay small (cached, and their
+#: memory reused instead of newly mapped for each)
+BATCH = 1 << 15
