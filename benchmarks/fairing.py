@@ -27,6 +27,12 @@ libigl's recipe with SciPy (cotangent and barycentric mass matrices, one ``spsol
 ``(M - h^2 L) p = M p0``; the normal equations ``(A^T A + I) p = p0`` of the uniform ``A = D^-1 L
 - I``).  Wall and CPU seconds (``time.process_time``, all threads), medians, and the ratio of
 geomopt's CPU seconds to the anchor's.
+
+    python benchmarks/fairing.py --stages --meshes cheburashka --scale 2 --noise 0.02 --repeat 3
+
+``--stages`` gives instead the CPU seconds of each stage of a warm ``fair`` call (topology, the
+method's target, the input and output certificates, the fold-safe step, fold removal, the shape
+measures, the rest) beside trimesh's ``filter_taubin``.
 """
 
 from __future__ import annotations
@@ -175,6 +181,67 @@ def timing(mesh, sigma, methods, scale, repeat):
     return rows
 
 
+#: the stages of a ``fair`` call that ``--stages`` times: (label, names in geomopt.fairing.driver)
+STAGES = [("topology (edge table)", ("Topology.of",)), ("method target", ("TARGETS",)),
+          ("certificates (input + output)", ("certify_folds", "recertified")), ("fold-safe step", ("safe_step",)),
+          ("fold removal", ("remove_folds",)), ("shape measures (input + output)", ("shape_measures",))]
+
+
+def stages(mesh, sigma, method, scale, repeat):
+    """Rows ``(label, CPU seconds per round)``: where a warm ``fair`` call spends its time, each
+    stage's function wrapped in the driver's namespace (medians of ``repeat`` rounds after a cold
+    one), the rest of the call ("other": input checks, the vertex stars, the result), the whole
+    call, and trimesh's ``filter_taubin`` beside it."""
+    import geomopt.fairing.driver as driver
+
+    V, F = read_mesh(f"{DATA}/{mesh}.off")
+    for _ in range(scale):
+        V, F = subdivided(V, F)
+    h = np.mean(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1))
+    X0 = V + sigma * h * np.random.default_rng(0).normal(size=V.shape)
+    spent = {}
+
+    def timed(label, f):
+        def run_(*a, **k):
+            cpu = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                spent[label] = spent.get(label, 0.0) + time.process_time() - cpu
+        return run_
+
+    saved = {"Topology.of": driver.Topology.__dict__["of"], "TARGETS": dict(driver.TARGETS)}
+    saved.update({name: getattr(driver, name) for _, names in STAGES for name in names if name not in saved})
+    driver.Topology.of = classmethod(timed(STAGES[0][0], saved["Topology.of"].__func__))
+    driver.TARGETS[method] = timed(STAGES[1][0], saved["TARGETS"][method])
+    for label, names in STAGES[2:]:
+        for name in names:
+            setattr(driver, name, timed(label, saved[name]))
+    rounds = []
+    try:
+        for round_ in range(repeat + 1):  # the first round cold, not counted
+            spent.clear()
+            cpu = time.process_time()
+            fair(X0, F, method)
+            total = time.process_time() - cpu
+            anchor = time.process_time()
+            _trimesh("filter_taubin")(X0, F)
+            if round_:
+                rest = total - sum(spent.values())
+                rounds.append(dict(spent, total=total, rest=rest, trimesh=time.process_time() - anchor))
+    finally:
+        driver.Topology.of = saved["Topology.of"]
+        driver.TARGETS.update(saved["TARGETS"])
+        for _, names in STAGES[2:]:
+            for name in names:
+                setattr(driver, name, saved[name])
+    median = {key: float(np.median([r.get(key, 0.0) for r in rounds])) for key in rounds[0]}
+    rows = [(label, median.get(label, 0.0)) for label, _ in STAGES]
+    rows.append(("other (input checks, vertex stars, result)", median["rest"]))
+    return [(len(V), label, t) for label, t in rows + [("whole call", median["total"]),
+                                                         ("trimesh filter_taubin", median["trimesh"])]]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", nargs="+", default=["cheburashka", "bunny", "cow"])
@@ -184,7 +251,16 @@ def main():
     ap.add_argument("--scale", type=int, default=0, help="subdivide the mesh this many times first")
     ap.add_argument("--timing", action="store_true", help="time each method beside its anchor instead")
     ap.add_argument("--repeat", type=int, default=3, help="--timing: timed rounds after a cold one")
+    ap.add_argument("--stages", action="store_true",
+                    help="CPU seconds per stage of one method (the first of --methods, default taubin) instead")
     args = ap.parse_args()
+    if args.stages:
+        print("| mesh | noise | vertices | stage | CPU s |\n|---|---|---|---|---|")
+        for mesh in args.meshes:
+            for sigma in args.noise:
+                for n, label, cpu in stages(mesh, sigma, (args.methods or ["taubin"])[0], args.scale, args.repeat):
+                    print(f"| {mesh} | {sigma:.1%} | {n:,} | {label} | {cpu:.3f} |", flush=True)
+        return
     if args.timing:
         print("| mesh | vertices | method | wall s | CPU s | geomopt CPU / this |\n|---|---|---|---|---|---|")
         for mesh in args.meshes:

@@ -163,6 +163,45 @@ def test_the_host_solve_equals_a_dense_solve(kind):
     assert np.allclose(x[F], want, rtol=0, atol=1e-10 * np.abs(want).max()) and np.array_equal(x[H], held[H])
 
 
+@pytest.mark.parametrize("corners", [3, 2])
+def test_the_edge_table_is_numpys_unique_rows(corners):
+    """``Topology``'s edges (its own sort of integer keys) are ``np.unique`` of the sorted
+    vertex pairs, each element's edges index them, and the boundary is the edges used once."""
+    from geomopt.fairing.operators import Topology
+
+    rng = np.random.default_rng(corners)
+    if corners == 3:
+        V, F = icosphere(2)
+        F = F[rng.random(len(F)) > 0.2]  # holes: edges used once
+        pairs = np.stack([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]], axis=1).reshape(-1, 2)
+    else:
+        F = np.unique(np.sort(rng.integers(0, 500, size=(900, 2)), axis=1), axis=0)
+        F = F[F[:, 0] != F[:, 1]]
+        pairs = F
+    topo = Topology.of(F, int(F.max()) + 3)
+    edges, inverse, counts = np.unique(np.sort(pairs, axis=1), axis=0, return_inverse=True, return_counts=True)
+    assert np.array_equal(topo.edges, edges) and np.array_equal(topo.element_edges.ravel(), inverse.ravel())
+    if corners == 3:
+        assert np.array_equal(topo.boundary, np.unique(edges[counts == 1]))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_mean_edge_length_is_the_row_form_bitwise(dim):
+    """The mean edge length of NumPy vertices (coordinate rows) is the very float of the row form
+    that JAX vertices take (``V[b] - V[a]``, then the norm), and equals the JAX value."""
+    from geomopt.fairing.operators import Topology, mean_edge_length
+
+    rng = np.random.default_rng(dim)
+    V0, F = (icosphere(0) if dim == 3 else circle(12, noise=0.1))
+    topo = Topology.of(F, len(V0))
+    for _ in range(20):  # (few edges, of comparable coordinates: a change in rounding shows in the mean)
+        V = V0 * rng.uniform(0.5, 2.0, size=V0.shape)
+        V[F[::7, 1]] = V[F[::7, 0]]  # zero-length edges
+        d = V[topo.edges[:, 1]] - V[topo.edges[:, 0]]
+        assert mean_edge_length(V, topo) == float(np.mean(np.sqrt(np.sum(d * d, axis=-1))))
+    assert mean_edge_length(V, topo) == pytest.approx(float(mean_edge_length(jnp.asarray(V), topo)), rel=1e-15)
+
+
 def test_local_signs_equal_the_signs_on_all_vertices():
     """The signs of a few faces, taken on the vertices they use only, are those of
     ``corner_signs`` on the whole surface (whose far vertices may be huge or not finite)."""
@@ -207,6 +246,50 @@ def test_safe_step_from_a_folded_start_with_its_certificate_given():
     assert np.array_equal(cert.corners, again.corners)
 
 
+def _whole_mesh_safe_step(X0, X1, S, free, halvings=20):
+    """The fold-safe step by its definition, every sign taken on every element at every round."""
+    allowed = corner_signs(X0, S) <= 0
+    may_turn = allowed.any(axis=1) if S.shape[1] == 3 else np.zeros(len(S), bool)
+    t, halved = np.where(free, 1.0, 0.0), np.zeros(len(X0), int)
+    while True:
+        X = np.where(t[:, None] == 1.0, X1, np.where(t[:, None] == 0.0, X0, X0 + t[:, None] * (X1 - X0)))
+        bad = (corner_signs(X, S) <= 0) & ~allowed
+        if S.shape[1] == 3:
+            bad |= ((normal_agreement(X, X0, S) <= 0) & ~may_turn)[:, None]
+        if not bad.any():
+            return X, t
+        centre = np.zeros(len(X0), bool)
+        centre[S[bad.nonzero()]] = True
+        star = centre[S].any(axis=1) | bad.any(axis=1)
+        cut = np.zeros(len(X0), bool)
+        cut[S[star]] = True
+        cut &= t > 0
+        halved[cut] += 1
+        t[cut] = np.where(halved[cut] >= halvings, 0.0, t[cut] * 0.5)
+
+
+@pytest.mark.parametrize("case", ["sphere", "folded", "boundary", "curve"])
+def test_safe_step_equals_its_whole_mesh_definition(case):
+    """The fold-safe step re-takes the signs only around the vertices each cut moved (through
+    the vertex stars): the same vertices and fractions, bitwise, as taking every sign at every
+    round, on steps that fold many faces, from folded starts, with held vertices, on curves."""
+    rng = np.random.default_rng(len(case))
+    if case == "curve":
+        V, F = circle(200, noise=0.02, seed=3)
+    else:
+        V, F = icosphere(3)
+    if case == "boundary":
+        F = F[V[F].mean(axis=1)[:, 2] < 0.5]
+    X0 = noisy(V, F, 0.4, seed=4) if case == "folded" else V
+    h = np.mean(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1))
+    X1 = X0 + (0.1 if case == "folded" else 0.4) * h * rng.normal(size=V.shape)  # folds many corners
+    free = rng.random(len(V)) > 0.1
+    X, t = safe_step(X0, X1, F, free)
+    Xr, tr = _whole_mesh_safe_step(X0, X1, F, free)
+    assert np.array_equal(X, Xr) and np.array_equal(t, tr)
+    assert 10 < np.count_nonzero(free & (t < 1)) < np.count_nonzero(free) - 10  # many cut, many not
+
+
 def test_recertified_is_the_certificate_taken_afresh():
     """``recertified`` (the driver's output certificate after fold removal) takes the signs
     again only around the moved vertices: the same folded faces and corners as a fresh
@@ -227,17 +310,59 @@ def test_recertified_is_the_certificate_taken_afresh():
     assert recertified(X0.copy(), F, base, X0) is base
 
 
-def test_shape_measures_are_the_separate_measures():
-    """``shape_measures`` (one gather) gives exactly ``volume``, the least ``smallest_angles``
-    and the largest ``aspect_ratios``; the angle is the least of ``triangle_angles``."""
+@pytest.mark.parametrize("batch", [1 << 15, 7])
+def test_shape_measures_are_the_separate_measures(batch, monkeypatch):
+    """``shape_measures`` (one gather, in batches of triangles) gives exactly ``volume``, the
+    least ``smallest_angles`` and the largest ``aspect_ratios``, whatever the batch size; the
+    angle is the least of ``triangle_angles``."""
+    from geomopt.fairing import surface
     from geomopt.fairing.surface import aspect_ratios, shape_measures, smallest_angles, triangle_angles
 
+    monkeypatch.setattr(surface, "BATCH", batch)
     V, F = icosphere(2)
     X = noisy(V, F, 0.3, seed=6)
     vol, angle, aspect = shape_measures(X, F)
     assert (vol, angle, aspect) == (volume(X, F), smallest_angles(X, F).min(), aspect_ratios(X, F).max())
     assert angle == pytest.approx(triangle_angles(X, F).min(), abs=1e-9) and 0.5 < vol / (4 * np.pi / 3) < 1
     assert np.isnan(shape_measures(X, F, closed=False)[0]) and shape_measures(X, F, closed=False)[1:] == (angle, aspect)
+
+
+def _row_major_measures(V, F):
+    """The shape measures by the plain row-major NumPy forms (``V[F]``, ``np.cross``,
+    ``np.linalg.norm``, ``np.einsum``): ``(smallest angles (m,), aspect ratios (m,), volume)``."""
+    P = np.asarray(V, dtype=np.float64)[F]
+    edges = [P[:, (k + 1) % 3] - P[:, k] for k in range(3)]
+    squared = [np.einsum("ij,ij->i", e, e) for e in edges]
+    k = np.argmin(np.stack([squared[(c + 1) % 3] for c in range(3)], axis=1), axis=1)
+    rows = np.arange(len(P))
+    u, v = P[rows, (k + 1) % 3] - P[rows, k], P[rows, (k + 2) % 3] - P[rows, k]
+    angles = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.sum(u * v, axis=1)))
+    area2 = np.linalg.norm(np.cross(edges[0], -edges[2]), axis=1)
+    aspect = np.where(area2 > 0, np.maximum.reduce(squared) / area2 * (np.sqrt(3.0) / 2.0), np.inf)
+    return angles, aspect, float(np.sum(np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2]))) / 6.0)
+
+
+def test_shape_measures_are_the_row_major_forms_bitwise():
+    """The coordinate-major shape measures (one-dimensional gathers) give the very floats of the
+    row-major forms, on random triangles of any scale, with ties, coincident corners and signed
+    zeros (``arctan2(0, -0)`` is 180 degrees: the dot product must be +0 as ``np.sum``'s)."""
+    from geomopt.fairing.surface import aspect_ratios, smallest_angles
+
+    rng = np.random.default_rng(3)
+    for trial in range(24):
+        V = rng.normal(size=(40, 3)) * 10.0 ** rng.integers(-6, 6)
+        F = rng.integers(0, 40, size=(300, 3))
+        if trial % 3 == 0:
+            V = np.round(V * 4 / np.abs(V).max()) / 4  # ties and zero coordinates
+        if trial % 4 == 1:
+            V[F[::5, 1]] = V[F[::5, 0]]  # coincident corners
+        if trial % 4 == 2:
+            V[:20] = np.copysign(0.0, rng.normal(size=(20, 3)))  # faces of signed zeros
+        with np.errstate(all="ignore"):
+            angles, aspect, vol = _row_major_measures(V, F)
+            assert np.array_equal(smallest_angles(V, F), angles, equal_nan=True)
+            assert np.array_equal(aspect_ratios(V, F), aspect, equal_nan=True)
+            assert volume(V, F) == vol or (np.isnan(vol) and np.isnan(volume(V, F)))
 
 
 def test_a_degenerate_start_face_has_a_failing_corner():
@@ -327,6 +452,77 @@ def test_fold_removal_never_ends_with_more_folded_faces():
     X, rounds = remove_folds(X0, topo, free)
     assert before > 0 and rounds > 0 and certify_folds(X, F).inverted <= before
     assert np.array_equal(X[~free], X0[~free])
+
+
+def _whole_mesh_removal(X, topo, free, max_rounds=200):
+    """Fold removal by its definition (geomopt.fairing.unfold's notes), every count taken on the
+    whole mesh: grow, smooth, keep the parts that fold fewer faces near them, else the whole
+    region, else nothing."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    S, n = topo.elements, topo.n
+    e = topo.edges
+    W = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+    A = sp.diags(1.0 / np.maximum(np.asarray(W.sum(axis=1)).ravel(), 1)) @ W
+
+    def grow(mask, rings):
+        for _ in range(rings):
+            mask = mask | ((W @ mask.astype(float)) > 0)
+        return mask
+
+    folded_of = lambda Y: (corner_signs(Y, S) <= 0).any(axis=1)
+    folded, rings, rounds = folded_of(X), 1, 0
+    while folded.any() and rings <= 16 and rounds < max_rounds:
+        seed = np.zeros(n, bool)
+        seed[S[folded]] = True
+        region = grow(seed, rings) & free
+        idx, Y, rounds = np.flatnonzero(region), X.copy(), rounds + 1
+        for _ in range(3 * rings):
+            Y[idx] = 0.5 * (Y[idx] + A[idx] @ Y)
+        inner = sp.csr_matrix(W.multiply(np.outer(region, region)))
+        inner.eliminate_zeros()  # (csgraph takes stored zeros for edges)
+        label = connected_components(inner, directed=False)[1]
+        owner = np.where(region, label, -1)
+        for _ in range(2):  # a vertex takes the one part among its own and its neighbours'; -2: several
+            seen = [set() for _ in range(n)]
+            for v in range(n):
+                if owner[v] >= 0:
+                    seen[v].add(owner[v])
+                    for u in W.indices[W.indptr[v]:W.indptr[v + 1]]:
+                        seen[u].add(owner[v])
+            owner = np.array([-2 if owner[v] == -2 or len(seen[v]) > 1 else (seen[v] or {-1}).pop() for v in range(n)])
+        near = owner[S]  # per part: the faces all of whose corners it owns
+        better = [p for p in np.unique(label[region]) if
+                  folded_of(Y)[(near == p).all(axis=1)].sum() < folded[(near == p).all(axis=1)].sum()]
+        Z = np.where((region & np.isin(label, better))[:, None], Y, X)
+        for W_ in (Z, Y):
+            if folded_of(W_).sum() < folded.sum():
+                X, folded, rings = W_, folded_of(W_), max(1, rings - 1)
+                break
+        else:
+            rings += 1
+    return X, rounds
+
+
+@pytest.mark.parametrize("sigma, boundary", [(3.0, "free"), (1.0, "fixed"), (2.0, "fixed")])
+def test_fold_removal_equals_its_whole_mesh_definition(sigma, boundary):
+    """Fold removal reads only each round's neighbourhood (vertex stars, region-local parts):
+    the same vertices, bitwise, and the same rounds as the whole-mesh definition, on surfaces
+    folded in many places (several parts per round), with held vertices."""
+    from geomopt.fairing import remove_folds
+    from geomopt.fairing.operators import Topology
+
+    V, F = icosphere(3)
+    if boundary == "fixed":
+        F = F[V[F].mean(axis=1)[:, 2] < 0.5]
+    X0 = noisy(V, F, sigma, seed=7)
+    topo = Topology.of(F, len(V))
+    free = topo.free_mask(boundary)
+    X, rounds = remove_folds(X0, topo, free)
+    Xr, rounds_r = _whole_mesh_removal(X0, topo, free)
+    assert certify_folds(X0, F).inverted > 20 and rounds > 2
+    assert rounds == rounds_r and np.array_equal(X, Xr)
 
 
 def test_a_huge_step_is_cut_not_taken():
@@ -689,6 +885,14 @@ def test_bad_options_and_meshes_raise_clear_errors():
         fair(np.zeros((4, 3)), np.zeros((2, 4), int))
     with pytest.raises(ParameterError, match="not differentiable"):
         smoothed(*icosphere(0), FairOptions(method="relax"))
+    V, F = icosphere(0)
+    for k in range(3):  # a triangle that repeats a vertex, at each pair of corners
+        G = F.copy()
+        G[5, k] = G[5, (k + 1) % 3]
+        with pytest.raises(MeshError, match="repeats a vertex"):
+            fair(V, G)
+    with pytest.raises(MeshError, match="repeats a vertex"):
+        fair(np.zeros((4, 2)), np.array([[0, 1], [2, 2]]))
 
 
 # -- the command line --------------------------------------------------------------------------

@@ -117,3 +117,22 @@ def test_normal_agreement_equals_the_rational_signs(scale):
                                             _direction([[Fraction(float(c)) for c in Y[i]] for i in f]))))
             for f in F]
     assert np.array_equal(normal_agreement(X, Y, F), want)
+
+
+@pytest.mark.parametrize("place", sorted(PLACES))
+@pytest.mark.parametrize("case", ["random triangles", "folded fans", "folded fans, exact fold"])
+def test_signs_and_agreement_share_the_first_directions(case, place):
+    """``signs_and_agreement`` (one float pass over ``X``'s normals for both) gives the rational
+    corner signs of ``X`` and the rational agreement of its normals with ``Y``'s, where ``Y`` is
+    ``X`` moved in its last bits (near-degenerate agreement) or turned over."""
+    from geomopt.exact.normals import signs_and_agreement
+
+    rng = np.random.default_rng(11)
+    X, S = CASES[case](rng, PLACES[place])
+    for Y in (X * (1 + 1e-15 * rng.normal(size=X.shape)), X[:, ::-1].copy()):
+        signs, agreement = signs_and_agreement(X, Y, S)
+        assert np.array_equal(signs, reference_corner_signs(X, S))
+        want = [_sign(sum(a * b for a, b in zip(_direction([[Fraction(float(c)) for c in X[i]] for i in f]),
+                                                _direction([[Fraction(float(c)) for c in Y[i]] for i in f]))))
+                for f in S]
+        assert np.array_equal(agreement, want) and np.array_equal(agreement, normal_agreement(X, Y, S))

@@ -23,14 +23,17 @@ error is at most ``gamma_4 (|u_i v_j| + |u_j v_i|)``, the *magnitude* ``mag`` of
 A vertex sum of ``deg`` such components adds ``gamma_{deg - 1}`` times the sum of their
 magnitudes, and the dot product of three terms ``gamma_3`` of the sum of the products'
 magnitudes.  So ``|fl(n_f . N_v) - n_f . N_v| <= gamma_{deg + 10} sum_d mag_f[d] MAG_v[d]``
-(``MAG_v`` the vertex sum of the magnitudes) up to second order terms; the filter uses twice
-that first order factor, ``2 (deg + 10) eps``, which covers the second order terms and the
-rounding of the bound's own evaluation (a few relative ``eps``).  Edges (degree 2) are the
-same with fewer roundings.  That model holds while no intermediate result underflows; below the
+(``MAG_v`` the vertex sum of the magnitudes) up to second order terms.  The filter bounds every
+component's magnitude of a face by one number, ``m_f = 2 max_i |u_i| max_j |v_j|`` (one pass
+instead of three products per component, and one vertex sum ``M_v`` of them instead of three),
+which only loosens the bound: ``sum_d mag_f[d] MAG_v[d] <= 3 m_f M_v``; it uses twice the first
+order factor, ``2 (deg + 10) eps``, which covers the second order terms and the rounding of the
+bound's own evaluation (a few relative ``eps``).  Edges (degree 2) are the same with fewer
+roundings and ``m_e = max_i |d_i|`` (times the dimension ``d`` in place of 3).  That model holds while no intermediate result underflows; below the
 normal range each of the few hundred roundings loses at most ``2**-1075`` absolutely, which the
 absolute allowance ``2**-900`` covers.  A sign is taken from float64 only where ``|value|``
 exceeds the bound (and ``value`` is finite); ``normal_agreement`` likewise with ``32 eps``
-(two normals of ``gamma_4`` each and a dot product of ``gamma_3``).  tests/test_normals_filter.py
+(two normals of ``gamma_4`` each and a dot product of ``gamma_3``) times ``3 m_f(X) m_f(Y)``.  tests/test_normals_filter.py
 checks every reported sign against rational arithmetic on inputs that float64 alone gets wrong.
 """
 
@@ -42,7 +45,7 @@ from .._runtime.errors import MeshError
 from .._runtime.tracing import refuse_traced
 from .predicates import box_scale
 
-__all__ = ["corner_signs", "normal_agreement"]
+__all__ = ["corner_signs", "normal_agreement", "signs_and_agreement"]
 
 _EPS = 2.0**-53
 #: an absolute allowance for underflow: each of the few hundred roundings of a value may lose up to
@@ -66,21 +69,37 @@ def _checked(X, S):
 
 
 def _directions(X, S):
-    """``(dirs, bounds)``: each element's direction (d, m) (the triangle normal or the edge
-    vector), coordinate-major, and, per component, the sum of the magnitudes of the products
-    forming it (d, m)."""
-    Xt = np.ascontiguousarray(X.T)  # (d, n): each coordinate gathered and combined contiguously
+    """``(dirs, mag)``: each element's direction (d, m) (the triangle normal or the edge vector),
+    coordinate-major, and a bound (m,) of every component's magnitude (see the module notes:
+    ``2 max_i |u_i| max_j |v_j|`` for a triangle, ``max_i |d_i|`` for an edge).  Every gather is
+    one-dimensional (a coordinate row taken at a row of corner indices): several times faster
+    than NumPy's gathers of rows of a 2-D array."""
+    Xt, St = np.ascontiguousarray(X.T), np.ascontiguousarray(S.T)  # (d, n), (k, m)
     if S.shape[1] == 2:
-        d = Xt[:, S[:, 1]] - Xt[:, S[:, 0]]
-        return d, np.abs(d)
-    a = Xt[:, S[:, 0]]
-    u, v = Xt[:, S[:, 1]] - a, Xt[:, S[:, 2]] - a
-    au, av = np.abs(u), np.abs(v)
-    cols, mags = np.empty_like(u), np.empty_like(u)
+        d = np.stack([x.take(St[1]) - x.take(St[0]) for x in Xt])
+        return d, _largest(d)
+    u, v = np.empty((3, len(S))), np.empty((3, len(S)))
+    for x, ui, vi in zip(Xt, u, v):
+        a = x.take(St[0])
+        np.subtract(x.take(St[1]), a, out=ui)
+        np.subtract(x.take(St[2]), a, out=vi)
+    cols, other = np.empty_like(u), np.empty(len(S))
     for c, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        np.subtract(u[i] * v[j], u[j] * v[i], out=cols[c])
-        np.add(au[i] * av[j], au[j] * av[i], out=mags[c])
-    return cols, mags
+        np.multiply(u[i], v[j], out=cols[c])
+        np.multiply(u[j], v[i], out=other)
+        cols[c] -= other
+    mag = _largest(u)
+    mag *= _largest(v)
+    mag *= 2.0
+    return cols, mag
+
+
+def _largest(a):
+    """(m,) the largest magnitude in each column of ``a`` (d, m)."""
+    out = np.abs(a[0])
+    for row in a[1:]:
+        np.maximum(out, np.abs(row), out=out)
+    return out
 
 
 def _vertex_sums(values, S, n):
@@ -90,12 +109,13 @@ def _vertex_sums(values, S, n):
     return np.stack([np.bincount(ids, weights=np.tile(row, S.shape[1]), minlength=n) for row in values])
 
 
-def _corner_dots(dirs, sums, S):
-    """(m, k) ``dirs[:, f] . sums[:, S[f, c]]``: each element's direction (d, m) against the
-    vertex sums (d, n) at its corners."""
-    out = dirs[0][:, None] * sums[0][S]
+def _corner_dots(dirs, sums, St):
+    """(k, m) ``dirs[:, f] . sums[:, St[c, f]]``: each element's direction (d, m) against the
+    vertex sums (d, n) at its corners ``St`` (k, m) (corner-major, so every product runs along
+    contiguous rows)."""
+    out = dirs[0] * sums[0].take(St)
     for c in range(1, len(dirs)):
-        out += dirs[c][:, None] * sums[c][S]
+        out += dirs[c] * sums[c].take(St)
     return out
 
 
@@ -114,19 +134,45 @@ def corner_signs(X, S) -> np.ndarray:
     fold-free exactly when every sign is +1.
     """
     X, S = _checked(X, S)
-    m, k, n = len(S), S.shape[1], len(X)
-    if m == 0:
-        return np.zeros((0, k), np.int8)
+    if len(S) == 0:
+        return np.zeros((0, S.shape[1]), np.int8)
     with np.errstate(all="ignore"):
-        dirs, mags = _directions(X, S)
-        sums, sum_mags = _vertex_sums(dirs, S, n), _vertex_sums(mags, S, n)
-        degree = np.bincount(S.ravel(), minlength=n)
-        value = _corner_dots(dirs, sums, S)
-        bound = _corner_dots(mags, sum_mags, S) * (2.0 * (degree[S] + 10) * _EPS) + _UNDERFLOW
-    sure = (np.abs(value) > bound) & np.isfinite(value)
-    out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
+        return _corner_signs(X, S, _directions(X, S))
+
+
+def signs_and_agreement(X, Y, F):
+    """``(corner_signs(X, F), normal_agreement(X, Y, F))``, the same exact signs, with the
+    float directions of ``X`` computed once for both (the fold-safe step's first check)."""
+    X, S = _checked(X, F)
+    Y, _ = _checked(Y, F)
+    if S.shape[1] != 3:
+        raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
+    if len(S) == 0:
+        return np.zeros((0, 3), np.int8), np.zeros(0, np.int8)
+    with np.errstate(all="ignore"):
+        dirs = _directions(X, S)
+        return _corner_signs(X, S, dirs), _agreement(X, Y, S, dirs, _directions(Y, S))
+
+
+def _corner_signs(X, S, directions):
+    """:func:`corner_signs` of the scaled ``X`` (:func:`_checked`) from its ``directions``
+    (:func:`_directions`)."""
+    n = len(X)
+    dirs, mag = directions
+    sums, sum_mag = _vertex_sums(dirs, S, n), _vertex_sums(mag[None], S, n)[0]
+    St = np.ascontiguousarray(S.T)
+    # (n,) per vertex: its magnitude sum times 2 (deg + 10) eps, times the dimension
+    factor = (2.0 * _EPS * len(dirs)) * (np.bincount(St.ravel(), minlength=n) + 10.0) * sum_mag
+    value = _corner_dots(dirs, sums, St)
+    bound = factor.take(St)
+    bound *= mag
+    bound += _UNDERFLOW
+    sure = np.abs(value) > bound
+    sure &= np.isfinite(value)
+    out = np.ascontiguousarray(_signs(value, sure).T)
     if sure.all():
         return out
+    sure = sure.T
     finite = np.isfinite(X).all(axis=1)
     ok_corner = finite[S].all(axis=1, keepdims=True) & np.isfinite(sums).all(axis=0)[S]
     todo = np.argwhere(~sure & ok_corner & _finite_stars(finite, S, n)[S])
@@ -179,6 +225,14 @@ def _exact(X, S, todo) -> np.ndarray:
     return np.array([(v > 0) - (v < 0) for v in value], dtype=np.int8)
 
 
+def _signs(value, sure):
+    """int8 like ``value``: its sign where ``sure``, 0 elsewhere."""
+    out = np.zeros(value.shape, np.int8)
+    out[sure & (value > 0)] = 1
+    out[sure & (value < 0)] = -1
+    return out
+
+
 def normal_agreement(X, Y, F) -> np.ndarray:
     """Exact sign of ``n_f(X) . n_f(Y)`` for each triangle: whether its normal on ``X`` is within
     90 degrees of its normal on ``Y`` (both (n, 3); ``F`` (m, 3)).
@@ -193,12 +247,16 @@ def normal_agreement(X, Y, F) -> np.ndarray:
     if S.shape[1] != 3:
         raise MeshError(f"normal_agreement needs triangles (m, 3), got shape {S.shape}")
     with np.errstate(all="ignore"):
-        nx, mx = _directions(X, S)
-        ny, my = _directions(Y, S)
-        value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
-        bound = (mx[0] * my[0] + mx[1] * my[1] + mx[2] * my[2]) * (32.0 * _EPS) + _UNDERFLOW
+        return _agreement(X, Y, S, _directions(X, S), _directions(Y, S))
+
+
+def _agreement(X, Y, S, x_directions, y_directions):
+    """:func:`normal_agreement` of the scaled ``X, Y`` from their :func:`_directions`."""
+    (nx, mx), (ny, my) = x_directions, y_directions
+    value = nx[0] * ny[0] + nx[1] * ny[1] + nx[2] * ny[2]
+    bound = mx * my * (3 * 32.0 * _EPS) + _UNDERFLOW
     sure = (np.abs(value) > bound) & np.isfinite(value)
-    out = (np.where(sure, value, 0.0) > 0).astype(np.int8) - (np.where(sure, value, 0.0) < 0).astype(np.int8)
+    out = _signs(value, sure)
     if sure.all():
         return out
     finite = np.isfinite(X).all(axis=1) & np.isfinite(Y).all(axis=1)

@@ -22,10 +22,10 @@ import dataclasses
 
 import numpy as np
 
-from ..exact.normals import corner_signs, normal_agreement
+from ..exact.normals import corner_signs, normal_agreement, signs_and_agreement
 from .operators import any_column
 
-__all__ = ["FoldCertificate", "certify_folds", "recertified", "safe_step", "local_signs", "HALVINGS"]
+__all__ = ["FoldCertificate", "Stars", "certify_folds", "recertified", "safe_step", "local_signs", "signs_near", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -86,28 +86,44 @@ def _from_signs(neg, m) -> FoldCertificate:
     return FoldCertificate(np.unique(corners[:, 0]), corners, m)
 
 
-def recertified(X, S, base: FoldCertificate, X_base) -> FoldCertificate:
+class Stars:
+    """The elements around each vertex of the elements ``S`` (m, k) on ``n`` vertices, for the
+    checks after a local change to gather only the elements near it instead of whole-mesh
+    arrays: the vertex-element incidence in CSR form, built in linear time on the first
+    :meth:`around` (so that a caller may make one to share before knowing it is needed)."""
+
+    def __init__(self, S, n):
+        self.S, self.n, self._csr = S, n, None
+
+    def around(self, vertices) -> np.ndarray:
+        """(e,) the sorted elements with a corner among ``vertices`` (p,) int."""
+        if self._csr is None:
+            import scipy.sparse as sp
+
+            m, k = self.S.shape
+            incidence = sp.csr_matrix((np.ones(m * k, bool), (self.S.ravel(), np.repeat(np.arange(m), k))),
+                                      shape=(self.n, m))
+            self._csr = incidence.indptr, incidence.indices  # (each row ascending: S is read in order)
+        start, elements = self._csr
+        vertices = np.asarray(vertices, dtype=np.int64)
+        lo, count = start[vertices], start[vertices + 1] - start[vertices]
+        first = np.cumsum(count) - count
+        return np.unique(elements[np.repeat(lo - first, count) + np.arange(int(count.sum()))])
+
+
+def recertified(X, S, base: FoldCertificate, X_base, stars: Stars | None = None) -> FoldCertificate:
     """``certify_folds(X, S)``, given ``base = certify_folds(X_base, S)``: the same certificate
     (exact signs), taken again only at the corners within one ring of a vertex where ``X``
     (n, d) differs from ``X_base`` (the others' signs cannot differ); ``base`` itself where no
-    vertex differs."""
+    vertex differs.  ``stars``: the :class:`Stars` of ``S`` when the caller has them."""
     X, X_base = np.asarray(X, dtype=np.float64), np.asarray(X_base, dtype=np.float64)
-    moved = any_column(X != X_base)
-    if not moved.any():
+    moved = np.flatnonzero(any_column(X != X_base))
+    if len(moved) == 0:
         return base
     neg = np.zeros(S.shape, bool)
     neg[base.corners[:, 0], base.corners[:, 1]] = True
-    return _from_signs(_retaken(X, X_base, S, moved, neg, None)[0], len(S))
-
-
-def _compacted(S, n):
-    """``(used (n,) bool, S renumbered onto the used vertices)``, or None where the elements ``S``
-    use more than half of the ``n`` vertices (compacting would not pay)."""
-    used = np.zeros(n, bool)
-    used[S] = True
-    if 2 * np.count_nonzero(used) > n:
-        return None
-    return used, (np.cumsum(used) - 1)[S]
+    _retaken(X, X_base, S, moved, neg, None, stars or Stars(S, len(X)))
+    return _from_signs(neg, len(S))
 
 
 def local_signs(X, S) -> np.ndarray:
@@ -115,48 +131,51 @@ def local_signs(X, S) -> np.ndarray:
     elements ``S`` use: where they are few (the elements around a change), the other vertices'
     coordinates are not copied, scaled and checked at every call."""
     X = np.asarray(X)
-    small = _compacted(S, len(X))
-    return corner_signs(X, S) if small is None else corner_signs(X[small[0]], small[1])
+    if 2 * S.size > len(X):
+        return corner_signs(X, S)
+    used, inverse = np.unique(S, return_inverse=True)
+    return corner_signs(X[used], inverse.reshape(S.shape))
 
 
 def _local_agreement(X, Y, F):
     """``normal_agreement(X, Y, F)`` reading only the vertices that ``F`` uses (as :func:`local_signs`)."""
-    small = _compacted(F, len(X))
-    return normal_agreement(X, Y, F) if small is None else normal_agreement(X[small[0]], Y[small[0]], small[1])
+    if 2 * F.size > len(X):
+        return normal_agreement(X, Y, F)
+    used, inverse = np.unique(F, return_inverse=True)
+    return normal_agreement(X[used], Y[used], inverse.reshape(F.shape))
 
 
-def _dependents(S, corners, n):
-    """(n,) bool: the vertices whose position enters the signs at ``corners`` (c, 2): the
+def _dependents(S, corners, stars):
+    """(p,) the vertices, sorted, whose position enters the signs at ``corners`` (c, 2): the
     element's and those of every element around the corner's vertex."""
-    centre = np.zeros(n, bool)
-    centre[S[corners[:, 0], corners[:, 1]]] = True
-    star = any_column(centre[S])
-    star[corners[:, 0]] = True
-    out = np.zeros(n, bool)
-    out[S[star].ravel()] = True
-    return out
+    star = np.union1d(stars.around(np.unique(S[corners[:, 0], corners[:, 1]])), corners[:, 0])
+    return np.unique(S[star])
 
 
-def _retaken(X, X0, S, moved, neg, turned):
-    """``(neg, turned)`` at ``X``: the corners (m, k) not positive and (surfaces; else None) the
-    faces (m,) turned 90 degrees or more from ``X0``, taken again only on the elements whose
-    signs ``moved`` (n,) bool vertices can change (a corner within one ring of one: its vertex
-    normal sums the elements around it), the others kept from ``neg`` and ``turned``."""
-    near = np.zeros(len(moved), bool)
-    near[S[any_column(moved[S])].ravel()] = True
-    affected = any_column(near[S])
-    corners = np.zeros(len(moved), bool)
-    corners[S[affected].ravel()] = True
-    sub = any_column(corners[S])  # every element around a corner of an affected one
-    neg = neg.copy()
-    neg[affected] = local_signs(X, S[sub])[affected[sub]] <= 0
+def signs_near(X, S, moved, stars: Stars):
+    """``(affected, neg)``: the elements (e,), sorted, whose corner signs a move of the vertices
+    ``moved`` (p,) int can change (those with a corner within one ring of one: its vertex normal
+    sums the elements around it), and their corners not positive at ``X`` (e, k) bool (exact,
+    :func:`certify_folds`' signs, read from the elements around those corners only)."""
+    affected = stars.around(np.unique(S[stars.around(moved)]))
+    sub = stars.around(np.unique(S[affected]))  # every element around a corner of an affected one
+    return affected, local_signs(X, S[sub])[np.searchsorted(sub, affected)] <= 0
+
+
+def _retaken(X, X0, S, moved, neg, turned, stars):
+    """The elements (sorted) whose signs ``moved`` (p,) int vertices can change
+    (:func:`signs_near`), and, there, ``neg`` (m, k) the corners not positive at ``X`` and
+    (surfaces; else None) ``turned`` (m,) the faces turned 90 degrees or more from ``X0``, taken
+    again (in place)."""
+    affected, negative = signs_near(X, S, moved, stars)
+    neg[affected] = negative
     if turned is not None:
-        turned = turned.copy()
         turned[affected] = _local_agreement(X, X0, S[affected]) <= 0
-    return neg, turned
+    return affected
 
 
-def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None, certify: bool = False):
+def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None = None, certify: bool = False,
+              stars: Stars | None = None):
     """``(X, t)``: the vertices reached from ``X0`` towards ``X1`` (n, d) with no corner failing
     that did not fail at ``X0``, and the fractions ``t`` (n,) taken (0 on vertices not ``free``).
 
@@ -166,7 +185,9 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     moves all the way or not at all); ``start``: :func:`certify_folds` of ``X0, S`` when the caller
     has it (not taken again); ``certify``: return ``(X, t, certificate)``, the
     :class:`FoldCertificate` of ``X`` from the signs the step ended with (those of
-    :func:`certify_folds`, not taken again)."""
+    :func:`certify_folds`, not taken again); ``stars``: the :class:`Stars` of ``S`` when the
+    caller has them.  The signs are taken on every element once, then after each cut only
+    around the vertices it moved."""
     X0, X1 = np.asarray(X0, dtype=np.float64), np.asarray(X1, dtype=np.float64)
     n, surface = len(X0), S.shape[1] == 3
     if start is None:
@@ -177,24 +198,40 @@ def safe_step(X0, X1, S, free, halvings=HALVINGS, start: FoldCertificate | None 
     # faces with a corner failing at X0 may turn; so may degenerate ones (normal 0 or not finite
     # at X0), which are among them: their corner signs are 0
     may_turn = any_column(allowed) if surface else None
+    stars = stars or Stars(S, n)
     t = np.where(free, 1.0, 0.0)
     halved = np.zeros(n, np.int64)
-    neg, turned, last = np.zeros(S.shape, bool), (np.zeros(len(S), bool) if surface else None), None
+    X = np.where(free[:, None], X1, X0)
+    if surface:
+        signs, agreement = signs_and_agreement(X, X0, S)
+        neg, turned = signs <= 0, agreement <= 0
+    else:
+        neg, turned = corner_signs(X, S) <= 0, None
+    rows = np.flatnonzero(_bad(neg, allowed, turned, may_turn, slice(None)))  # the elements that may fail
     while True:
-        X = np.where(t[:, None] == 1.0, X1, X0 + t[:, None] * (X1 - X0))
-        X = np.where(t[:, None] == 0.0, X0, X)
-        moved = np.ones(n, bool) if last is None else any_column(X != last)
-        neg, turned = _retaken(X, X0, S, moved, neg, turned)
-        last = X
-        bad = neg & ~allowed
-        if surface:
-            bad |= (turned & ~may_turn)[:, None]
-        failing = np.argwhere(bad)
-        if len(failing) == 0:
-            if not certify:
-                return X, t
-            return X, t, _from_signs(neg, len(S))
-        cut = _dependents(S, failing, n) & (t > 0)
-        # (never empty: with t = 0 on all it depends on, a corner has its start's sign, positive)
+        bad = _bad(neg, allowed, turned, may_turn, rows)
+        rows = rows[bad]
+        if len(rows) == 0:
+            return (X, t) if not certify else (X, t, _from_signs(neg, len(S)))
+        failing = np.argwhere(neg[rows] & ~allowed[rows] | (turned[rows] & ~may_turn[rows])[:, None]
+                              if surface else neg[rows] & ~allowed[rows])
+        failing[:, 0] = rows[failing[:, 0]]
+        cut = _dependents(S, failing, stars)
+        cut = cut[t[cut] > 0]
+        if len(cut) == 0:  # with t = 0 on all it depends on, a corner has its start's sign: positive
+            raise RuntimeError("safe_step: a corner fails at the start positions (internal error)")
         halved[cut] += 1
         t[cut] = np.where(halved[cut] >= halvings, 0.0, t[cut] * 0.5)
+        tc = t[cut][:, None]
+        Xc = np.where(tc == 0.0, X0[cut], X0[cut] + tc * (X1[cut] - X0[cut]))
+        moved = cut[any_column(Xc != X[cut])]
+        X[cut] = Xc
+        rows = np.union1d(rows, _retaken(X, X0, S, moved, neg, turned, stars)) if len(moved) else rows
+
+
+def _bad(neg, allowed, turned, may_turn, rows):
+    """(r,) bool: the elements ``rows`` with a corner failing that may not fail."""
+    bad = any_column(neg[rows] & ~allowed[rows])
+    if turned is not None:
+        bad |= turned[rows] & ~may_turn[rows]
+    return bad

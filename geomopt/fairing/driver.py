@@ -29,7 +29,7 @@ from .._runtime.config import options_or_default
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
-from .certificate import certify_folds, recertified, safe_step
+from .certificate import Stars, certify_folds, recertified, safe_step
 from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
@@ -103,7 +103,8 @@ def _checked(V, F):
     F = as_faces(F, len(V), corners=F.shape[1], name="elements")
     if F.max() >= len(V):
         raise MeshError(f"elements index vertex {F.max()}, but there are {len(V)} vertices")
-    if np.any(np.sort(F, axis=1)[:, 1:] == np.sort(F, axis=1)[:, :-1]):
+    k = F.shape[1]
+    if any(np.any(F[:, i] == F[:, j]) for i in range(k) for j in range(i + 1, k)):
         raise MeshError("an element repeats a vertex: remove degenerate elements first")
     return V, F, Topology.of(F, len(V))
 
@@ -227,6 +228,7 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     X0 = V * scale  # exact: sizes near 1 whatever the input's
     h = mean_edge_length(X0, topo)
     before = certify_folds(X0, F)
+    stars = Stars(topo.elements, topo.n)  # (built on first use, then shared by the step, fold removal and the certificate)
     if o.method == "relax":
         target, _ = relax(X0, topo, topo.free_mask(o.boundary), o)
         free = topo.free_mask(o.boundary)
@@ -236,16 +238,17 @@ def fair(V, F, method: str | None = None, *, options: FairOptions | None = None,
     if o.method == "relax":  # each round was a whole-vertex fold-safe step: a fraction would leave the surface
         X, t, after = target, np.where(free, 1.0, 0.0), None
     else:
-        X, t, after = safe_step(X0, target, F, free, start=before, certify=True)
+        X, t, after = safe_step(X0, target, F, free, start=before, certify=True, stars=stars)
     _say(progress, f"fair: fold-safe step, {int(np.count_nonzero(free & (t < 1)))} vertex steps cut")
     # (relax keeps its vertices on the input surface: the centroid moves of fold removal would not)
     stepped = X
-    X, rounds = remove_folds(X, topo, free, start=after) if before.inverted and o.method != "relax" else (X, 0)
+    X, rounds = (remove_folds(X, topo, free, start=after, stars=stars) if before.inverted and o.method != "relax"
+                 else (X, 0))
     _say(progress and rounds, f"fair: {rounds} rounds of fold removal")
     measured0 = _measures(X0, topo)
     t1 = time.perf_counter()
     # the output's certificate: the step's, taken again only around the vertices fold removal moved
-    cert = certify_folds(X, F) if after is None else recertified(X, F, after, stepped)
+    cert = certify_folds(X, F) if after is None else recertified(X, F, after, stepped, stars)
     if o.preserve_volume:
         scaled = _rescaled(X, topo, measured0[0])
         scaled_cert = certify_folds(scaled, F)

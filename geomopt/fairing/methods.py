@@ -64,10 +64,16 @@ def explicit_steps(V, topo, free, o, h):
         apply = K.dot
     else:
         apply = A.matvec if A is not None else None
+    scaled = [f * move for f in factors]  # (f * move * step(p), evaluated left to right)
     for _ in range(o.steps):
-        for f in factors:
+        for f in scaled:
             step = apply or normalized_laplacian(p, topo, o.laplacian)[0].matvec
-            p = p + f * move * step(p)
+            if xp is np:  # in place: one temporary fewer per step, the same floats
+                change = step(p)
+                change *= f
+                p = p + change
+            else:
+                p = p + f * step(p)
     return p
 
 

@@ -84,9 +84,17 @@ def _unique_edges(pairs, n):
     them (each edge encoded as the integer ``a n + b``: a one-dimensional unique, several times
     faster than the row-wise one)."""
     width = max(int(n), 1)
-    keys, inverse, counts = np.unique(pairs.min(axis=1) * width + pairs.max(axis=1), return_inverse=True,
-                                      return_counts=True)
-    return np.stack(np.divmod(keys, width), axis=1), inverse.reshape(-1), counts
+    a, b = pairs[:, 0], pairs[:, 1]
+    keys = np.minimum(a, b) * width + np.maximum(a, b)
+    order = np.argsort(keys, kind="stable")  # (NumPy's stable sort of integers is the faster here)
+    ordered = keys[order]
+    first = np.empty(len(keys), bool)
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(len(keys), np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    counts = np.diff(np.append(np.flatnonzero(first), len(keys)))
+    return np.stack(np.divmod(ordered[first], width), axis=1), inverse, counts
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,8 +158,14 @@ def mean_edge_length(V, topo: Topology):
     e = topo.edges
     if len(e) == 0:
         return 1.0
-    h = xp.mean(_norm(xp, V[e[:, 1]] - V[e[:, 0]]))
-    return float(h) if xp is np else h
+    if xp is np:  # coordinate rows gathered one-dimensionally: the same floats as the row form below
+        Vt, et = np.ascontiguousarray(np.asarray(V).T), np.ascontiguousarray(e.T)
+        d = [x.take(et[1]) - x.take(et[0]) for x in Vt]
+        squared = d[0] * d[0]
+        for c in range(1, len(d)):
+            squared += d[c] * d[c]
+        return float(np.mean(np.where(squared > 0, np.sqrt(squared), 0.0)))
+    return xp.mean(_norm(xp, V[e[:, 1]] - V[e[:, 0]]))
 
 
 def edge_weights(V, topo: Topology, laplacian: str):

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .certificate import certify_folds, local_signs
+from .certificate import Stars, certify_folds, signs_near
 from .operators import any_column
 
 __all__ = ["remove_folds", "MAX_RINGS", "MAX_ROUNDS"]
@@ -52,14 +52,20 @@ def _averaging(topo):
     return sp.diags(1.0 / np.where(degree > 0, degree, 1.0)) @ W
 
 
-def _grow(mask, A, rings):
-    """``mask`` (n,) bool grown by ``rings`` rings through the edges (the pattern of ``A``, the
-    averaging operator: in a triangle surface or a polyline, vertices share an element exactly
-    when they share an edge)."""
-    mask = mask.copy()
+def _grow(vertices, A, rings):
+    """(p,) sorted: the ``vertices`` (sorted int) and those within ``rings`` rings through the
+    edges (the pattern of ``A``, the averaging operator: in a triangle surface or a polyline,
+    vertices share an element exactly when they share an edge)."""
     for _ in range(rings):
-        mask |= (A @ mask.astype(np.float64)) > 0
-    return mask
+        vertices = np.union1d(vertices, _rows(A.indptr, A.indices, vertices))
+    return vertices
+
+
+def _rows(start, items, rows):
+    """(k,) the ``items[start[r]:start[r + 1]]`` of every row of ``rows``, concatenated."""
+    lo, count = start[rows], start[rows + 1] - start[rows]
+    first = np.cumsum(count) - count
+    return items[np.repeat(lo - first, count) + np.arange(int(count.sum()))]
 
 
 def _folded_mask(X, S):
@@ -69,36 +75,45 @@ def _folded_mask(X, S):
     return out
 
 
-def _refolded(Y, S, folded, moved, A):
+def _refolded(Y, S, folded, moved, stars):
     """(m,) bool: the folded faces of ``Y``, which differs from the vertices whose folded faces
-    are ``folded`` only on ``moved`` (n,) bool: the signs of a face change only when a corner lies
+    are ``folded`` only on ``moved`` (p,) int: the signs of a face change only when a corner lies
     within one ring of a moved vertex, and those are taken again (exactly, on the faces around
     their corners), the rest kept."""
-    affected = any_column(_grow(moved, A, 1)[S])
-    corners = np.zeros(len(moved), bool)
-    corners[S[affected].ravel()] = True
-    sub = any_column(corners[S])  # every face around a corner of an affected face
+    affected, neg = signs_near(Y, S, moved, stars)
     out = folded.copy()
-    out[affected] = any_column(local_signs(Y, S[sub])[affected[sub]] <= 0)
+    out[affected] = any_column(neg)
     return out
 
 
-def _partwise(X, Y, S, topo, region, folded_x, folded_y):
-    """``X`` with the smoothed ``Y`` taken on each connected part of ``region`` that folds fewer
-    faces within two rings of it (see the module notes)."""
+def _parts(region, A):
+    """(r,) a label per vertex of ``region`` (r,) sorted: its connected part through the edges
+    between region vertices."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    e = topo.edges[region[topo.edges[:, 0]] & region[topo.edges[:, 1]]]
-    graph = csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(topo.n, topo.n))
-    _, label = connected_components(graph, directed=False)
-    label = np.where(region, label, -1)
-    owner = np.full(topo.n, -1)
-    owner[region] = label[region]
+    if len(region) == 0:
+        return np.zeros(0, np.int64)
+    count = A.indptr[region + 1] - A.indptr[region]
+    j = _rows(A.indptr, A.indices, region)
+    i = np.repeat(np.arange(len(region)), count)
+    at = np.minimum(np.searchsorted(region, j), len(region) - 1)
+    inside = region[at] == j
+    graph = csr_matrix((np.ones(np.count_nonzero(inside)), (i[inside], at[inside])), shape=(len(region),) * 2)
+    return connected_components(graph, directed=False)[1]
+
+
+def _partwise(X, Y, S, region, A, stars, folded_x, folded_y):
+    """``X`` with the smoothed ``Y`` taken on each connected part of ``region`` (p,) sorted that
+    folds fewer faces within two rings of it (see the module notes)."""
+    label = _parts(region, A)
+    owner = np.full(len(X), -1)
+    owner[region] = label
+    labelled = region
     for _ in range(2):  # spread each part's label two rings out; a vertex reached by two parts: -2
         spread = owner.copy()
         c = S.shape[1]
-        T = S[any_column(owner[S] >= 0)]  # (the elements with no labelled corner spread nothing)
+        T = S[stars.around(labelled)]  # (the elements with no labelled corner spread nothing)
         for k in range(c):
             for j in (j for j in range(c) if j != k):
                 src, dst = owner[T[:, k]], T[:, j]
@@ -107,21 +122,29 @@ def _partwise(X, Y, S, topo, region, folded_x, folded_y):
                 clash = (src >= 0) & (spread[dst] >= 0) & (spread[dst] != src)
                 spread[dst[clash]] = -2
         owner = spread
-    labels = owner[S]  # the part each element is near (within two rings); -1: none or several
+        labelled = np.unique(T)
+        labelled = labelled[owner[labelled] >= 0]
+    faces = stars.around(labelled)  # the others have a corner with no label or several
+    labels = owner[S[faces]]  # the part each element is near (within two rings); -1: none or several
     near = np.where(~any_column(labels != labels[:, :1]), labels[:, 0], -1)
-    parts = np.unique(near[near >= 0])
-    before = np.bincount(near[near >= 0], weights=folded_x[near >= 0], minlength=parts.max(initial=-1) + 1)
-    after = np.bincount(near[near >= 0], weights=folded_y[near >= 0], minlength=parts.max(initial=-1) + 1)
-    better = np.flatnonzero(after < before)
-    take = region & np.isin(label, better)
-    return np.where(take[:, None], Y, X)
+    keep = near >= 0
+    count = label.max(initial=-1) + 1
+    before = np.bincount(near[keep], weights=folded_x[faces[keep]], minlength=count)
+    after = np.bincount(near[keep], weights=folded_y[faces[keep]], minlength=count)
+    take = region[(after < before)[label]]
+    Z = X.copy()
+    Z[take] = Y[take]
+    return Z
 
 
-def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
+def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None, stars: Stars | None = None):
     """``(X, rounds)``: ``X`` (n, d) with its folded faces (elements) removed where it can (see
     the module notes), never more of them folded than at the start; ``free`` (n,) bool the
     vertices it may move; ``rounds``: the rounds taken; ``start``: the
-    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it."""
+    :func:`~geomopt.fairing.certificate.certify_folds` of ``X`` when the caller has it;
+    ``stars``: the :class:`~geomopt.fairing.certificate.Stars` of ``topo.elements``, when the
+    caller has them.  Each round reads only its region's neighbourhood (through the vertex stars
+    and the edges)."""
     S = topo.elements
     X = np.asarray(X, dtype=np.float64)
     if start is None:
@@ -129,23 +152,21 @@ def remove_folds(X, topo, free, max_rounds=MAX_ROUNDS, start=None):
     else:
         folded = np.zeros(len(S), bool)
         folded[start.folded] = True
-    A = _averaging(topo)
-    rings, rounds = 1, 0
-    while folded.any() and rings <= MAX_RINGS and rounds < max_rounds:
-        seed = np.zeros(topo.n, bool)
-        seed[S[folded].ravel()] = True
-        region = _grow(seed, A, rings) & free
-        idx = np.flatnonzero(region)
-        rows, Y = A[idx], X.copy()  # only the region's rows of the operator
+    A, stars = _averaging(topo), stars or Stars(S, topo.n)
+    rings, rounds, count = 1, 0, int(np.count_nonzero(folded))
+    while count and rings <= MAX_RINGS and rounds < max_rounds:
+        region = _grow(np.unique(S[folded]), A, rings)
+        region = region[free[region]]
+        rows, Y = A[region], X.copy()  # only the region's rows of the operator
         for _ in range(3 * rings):
-            Y[idx] = 0.5 * (Y[idx] + rows @ Y)
-        folded_y, rounds = _refolded(Y, S, folded, region, A), rounds + 1
-        Z = _partwise(X, Y, S, topo, region, folded, folded_y)
-        folded_z = _refolded(Z, S, folded, region, A)
-        if folded_z.sum() >= folded.sum():
+            Y[region] = 0.5 * (Y[region] + rows @ Y)
+        folded_y, rounds = _refolded(Y, S, folded, region, stars), rounds + 1
+        Z = _partwise(X, Y, S, region, A, stars, folded, folded_y)
+        folded_z = _refolded(Z, S, folded, region, stars)
+        if np.count_nonzero(folded_z) >= count:
             Z, folded_z = Y, folded_y
-        if folded_z.sum() < folded.sum():
-            X, folded, rings = Z, folded_z, max(1, rings - 1)
+        if np.count_nonzero(folded_z) < count:
+            X, folded, rings, count = Z, folded_z, max(1, rings - 1), int(np.count_nonzero(folded_z))
         else:
             rings += 1
     return X, rounds
