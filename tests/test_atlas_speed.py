@@ -1,0 +1,99 @@
+"""The atlas's fast paths equal the plain ones they replace (issue 50): the compiled spanning
+forest and the layered pruning of the topological cut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geomopt.atlas import seams
+from geomopt.atlas.seams import edge_costs, edge_graph, topological_cut
+from geomopt.mesh.generators import holed_plate
+
+
+def _kruskal(n_nodes, a, b, weight):
+    """The plain Kruskal the compiled forest replaces: edges by decreasing weight, ties in order."""
+    parent = list(range(n_nodes))
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    keep = np.zeros(len(a), dtype=bool)
+    for e in np.argsort(-weight, kind="stable").tolist():
+        ra, rb = find(int(a[e])), find(int(b[e]))
+        if ra != rb:
+            parent[ra] = rb
+            keep[e] = True
+    return keep
+
+
+def _strip(g, cut, kept=None):
+    """The plain pruning the layered one replaces: one dangling edge at a time, from a stack."""
+    cut = cut.copy()
+    on = cut | g.boundary | (False if kept is None else kept)
+    degree = np.bincount(g.E[on].ravel(), minlength=len(g.V))
+    incident = [[] for _ in range(len(g.V))]
+    for e in np.flatnonzero(cut).tolist():
+        incident[g.E[e, 0]].append(e)
+        incident[g.E[e, 1]].append(e)
+    stack = [v for v in range(len(g.V)) if degree[v] == 1]
+    while stack:
+        v = stack.pop()
+        for e in incident[v]:
+            if cut[e]:
+                cut[e] = False
+                for w in g.E[e].tolist():
+                    degree[w] -= 1
+                    if degree[w] == 1:
+                        stack.append(w)
+                break
+    return cut
+
+
+def _plate():
+    V, F = holed_plate(3, cells=3)
+    return edge_graph(V, F)
+
+
+@pytest.mark.parametrize("levels", [3, 1000])
+def test_the_compiled_spanning_forest_is_kruskals_ties_parallel_edges_and_loops_included(levels):
+    """Few weight levels make many ties (broken by the edges' order, as Kruskal's stable sort
+    does); repeated pairs and a loop are mixed in."""
+    rng = np.random.default_rng(levels)
+    n = 300
+    a, b = rng.integers(0, n, 2000), rng.integers(0, n, 2000)
+    a[:50], b[:50] = b[50:100], a[50:100]  # parallel edges, either way round
+    b[100] = a[100]  # a loop
+    w = rng.integers(0, levels, len(a)).astype(np.float64)
+    keep = seams._max_spanning_forest(n, a, b, w)
+    assert np.array_equal(keep, _kruskal(n, a, b, w))
+    assert keep.sum() == n - 1 or keep.sum() < n - 1  # a forest: never more than n - 1 edges
+
+
+def test_the_spanning_forest_of_a_disconnected_graph_spans_each_part():
+    a, b = np.array([0, 1, 0, 3, 4]), np.array([1, 2, 2, 4, 5])
+    keep = seams._max_spanning_forest(7, a, b, np.array([1.0, 1.0, 5.0, 2.0, 2.0]))
+    assert keep.tolist() == [True, False, True, True, True]
+
+
+def test_layered_pruning_drops_exactly_the_dangling_edges_the_plain_one_drops():
+    g = _plate()
+    rng = np.random.default_rng(1)
+    for p in (0.2, 0.5, 0.8):
+        cut = (rng.random(len(g.E)) < p) & ~g.boundary
+        kept = (rng.random(len(g.E)) < 0.05) & ~g.boundary & ~cut
+        for k in (None, kept):
+            assert np.array_equal(seams._prune(g, cut, k), _strip(g, cut, k))
+
+
+def test_the_topological_cut_is_unchanged_by_the_fast_paths(monkeypatch):
+    g = _plate()
+    cost = edge_costs(g, 2.0)
+    fast = topological_cut(g, cost, [0])
+    monkeypatch.setattr(seams, "_max_spanning_forest", _kruskal)
+    monkeypatch.setattr(seams, "_prune", _strip)
+    assert np.array_equal(fast, topological_cut(g, cost, [0]))
+    assert fast.sum() > 0
