@@ -97,3 +97,19 @@ def test_the_topological_cut_is_unchanged_by_the_fast_paths(monkeypatch):
     monkeypatch.setattr(seams, "_prune", _strip)
     assert np.array_equal(fast, topological_cut(g, cost, [0]))
     assert fast.sum() > 0
+
+
+def test_the_ray_grid_lists_only_the_cells_that_hold_a_ray():
+    """Ray casting joins the triangles' grid cells to the rays' (visibility._grid_join): one ray
+    pairs only with the triangles whose boxes meet its own cell, not every triangle's cells."""
+    from geomopt.atlas import visibility
+
+    V, F = holed_plate(3, cells=3)
+    P = V[:, :2][F]
+    Q = V[:1, :2] + 1e-3
+    tri, first, many, points = visibility._grid_join(P, Q, 2.0)
+    assert len(tri) == many.sum() and np.all(points[first] == 0)
+    lo, hi = P.min(axis=1), P.max(axis=1)
+    around = np.all((lo <= Q[0] + 1.0) & (hi >= Q[0] - 1.0), axis=1)  # boxes within a wide reach of the ray
+    assert 0 < len(tri) <= around.sum() < len(F) // 4
+    assert set(tri.tolist()) >= set(np.flatnonzero(np.all((lo <= Q[0]) & (hi >= Q[0]), axis=1)).tolist())
