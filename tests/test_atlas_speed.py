@@ -113,3 +113,81 @@ def test_the_ray_grid_lists_only_the_cells_that_hold_a_ray():
     around = np.all((lo <= Q[0] + 1.0) & (hi >= Q[0] - 1.0), axis=1)  # boxes within a wide reach of the ray
     assert 0 < len(tri) <= around.sum() < len(F) // 4
     assert set(tri.tolist()) >= set(np.flatnonzero(np.all((lo <= Q[0]) & (hi >= Q[0]), axis=1)).tolist())
+
+
+def _bumpy_disk(n=24):
+    from geomopt.mesh.generators import square_mesh
+
+    X, F = square_mesh(n)
+    z = 0.4 * np.exp(-20 * ((X[:, 0] - 0.4) ** 2 + (X[:, 1] - 0.6) ** 2)) - 0.3 * np.exp(
+        -30 * ((X[:, 0] - 0.7) ** 2 + (X[:, 1] - 0.3) ** 2))
+    V = np.c_[X, z]
+    rim = np.flatnonzero((X.min(axis=1) == 0) | (X.max(axis=1) == 1))
+    return V, F, rim
+
+
+def _counting(monkeypatch):
+    """The number of sparse Cholesky objects made (each a symbolic analysis) while counted."""
+    from geomopt.linalg import linsolve
+
+    made = []
+
+    class Counted(linsolve.SparseCholesky):
+        def __init__(self, *args, **kwargs):
+            made.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(linsolve, "SparseCholesky", Counted)
+    return made
+
+
+def test_a_charts_conformal_scale_across_cone_cuts_is_log_scales_with_one_analysis(monkeypatch):
+    """ChartScale: the cone cuts fix more vertices of the same faces; each later solve equals a
+    fresh log_scale (to rounding), and only the first call analyses (makes a factorization)."""
+    from geomopt.atlas.cones import ChartScale, log_scale
+
+    V, F, rim = _bumpy_disk()
+    ids, faces = np.arange(len(V)), np.arange(len(F))
+    made = _counting(monkeypatch)
+    scale = ChartScale()
+    rng = np.random.default_rng(0)
+    inner = np.setdiff1d(np.arange(len(V)), rim)
+    boundary = rim
+    for cut in range(4):
+        u = scale(V, F, boundary, None, ids, faces)
+        ref = log_scale(V, F, boundary)
+        assert np.allclose(u, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        assert np.all(u[boundary] == 0.0) and np.abs(u).max() > 0.01
+        boundary = np.union1d(boundary, rng.choice(inner, 15, replace=False))  # a cut fixes more
+    assert len(made) == 1 + 4  # one SparseCholesky for ChartScale, one per fresh log_scale reference
+
+
+def test_a_chart_scale_analyses_afresh_for_other_faces_or_a_freed_vertex(monkeypatch):
+    from geomopt.atlas.cones import ChartScale, log_scale
+
+    V, F, rim = _bumpy_disk(12)
+    ids, faces = np.arange(len(V)), np.arange(len(F))
+    scale = ChartScale()
+    inner = np.setdiff1d(np.arange(len(V)), rim)
+    more = np.union1d(rim, inner[:5])
+    ref = log_scale(V, F, rim)
+    scale(V, F, more, None, ids, faces)
+    made = _counting(monkeypatch)
+    u = scale(V, F, rim, None, ids, faces)  # a vertex freed: not a restriction of the first system
+    assert len(made) == 1 and np.allclose(u, ref, rtol=0, atol=1e-12)
+    scale(V, F, more, None, ids, faces + 1)  # other faces
+    assert len(made) == 2
+    scale(V, F, np.union1d(more, inner[5:7]), None, ids, faces + 1)  # then more fixed: reused
+    assert len(made) == 2
+
+
+def test_the_greedy_cone_cuts_analyse_each_chart_once(monkeypatch):
+    from geomopt.atlas.cutting import relieve
+
+    V, F, _ = _bumpy_disk(30)
+    V = V * [1.0, 1.0, 3.0]  # steep bumps: several cone cuts
+    g = edge_graph(V, F)
+    made = _counting(monkeypatch)
+    cut, estimate, cuts = relieve(g, edge_costs(g, 2.0), np.zeros(len(g.E), dtype=bool), 4.05, 6)
+    assert cuts >= 3 and cut.sum() > 0
+    assert len(made) == 1  # one chart, analysed once for all its estimates
