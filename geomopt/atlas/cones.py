@@ -20,7 +20,7 @@ from scipy.special import logsumexp
 
 from ..mesh.quality import triangle_areas
 
-__all__ = ["angle_defects", "corner_angles", "cotan_laplacian", "log_scale", "scale_estimate"]
+__all__ = ["angle_defects", "corner_angles", "cotan_laplacian", "log_scale", "scale_estimate", "ChartScale"]
 
 
 def corner_angles(V, F):
@@ -113,3 +113,81 @@ def scale_estimate(V, F, u):
     with np.errstate(over="ignore"):  # a distortion beyond float64's range is inf
         mean = float(np.sum(A * 4 * np.cosh(t + log_c)) / A.sum())  # 2 (c s + 1 / (c s))
     return mean, 2 * u + log_c
+
+
+class ChartScale:
+    """:func:`log_scale` of one chart as cone cuts add to its boundary, with one symbolic analysis
+    of its sparse Cholesky factorization: a cut keeps the chart's faces and only fixes more
+    vertices at ``u = 0``, so each later Dirichlet system is the first one with those rows and
+    columns decoupled (their off-diagonal entries zero, kept in the pattern, and a zero
+    right-hand side): the same pattern, factored again numerically with the first analysis (the
+    fill-reducing ordering, which costs more than the factorization at 10^5 rows).  The solution
+    is the restricted system's (up to rounding).  Another chart's faces, or a vertex freed, are
+    analysed afresh.
+
+    Call it as :func:`log_scale`, with the labels of the chart's vertices and faces (input vertex
+    and face ids, ``ids`` (n,) and ``faces`` (m,)): an interior vertex keeps its label across cuts
+    (a cut splits only the vertices it passes through, which it fixes).
+    """
+
+    def __init__(self):
+        self._chol = None
+
+    def __call__(self, V, F, boundary, angles, ids, faces) -> np.ndarray:
+        free = np.setdiff1d(np.arange(len(V)), boundary)
+        if len(boundary) == 0 or len(free) == 0:
+            return log_scale(V, F, boundary, angles)
+        labels, faces = np.asarray(ids)[free], np.sort(np.asarray(faces))
+        u = np.zeros(len(V))
+        if self._chol is not None and np.array_equal(faces, self._faces):
+            pos = np.minimum(np.searchsorted(self._labels, labels), len(self._labels) - 1)
+            if np.array_equal(self._labels[pos], labels):
+                x = self._refactored(pos)
+                if x is not None:
+                    u[free] = x[pos]
+                    return u
+        return self._analysed(V, F, free, labels, angles, faces)
+
+    def _refactored(self, pos):
+        """The solution with only the rows ``pos`` free (the others fixed at 0), or None when
+        the factorization fails."""
+        from ..linalg.linsolve import NotPositiveDefinite
+
+        fixed = np.ones(len(self._labels), dtype=bool)
+        fixed[pos] = False
+        data = np.where(fixed[self._rows] | fixed[self._cols], 0.0, self._data)
+        keep = self._diag[fixed]
+        data[keep] = self._data[keep]  # a decoupled row keeps its diagonal: the system stays definite
+        try:
+            self._chol.factor(data)
+            return self._chol.solve(np.where(fixed, 0.0, self._rhs))
+        except NotPositiveDefinite:
+            return None
+
+    def _analysed(self, V, F, free, labels, angles, faces):
+        from ..linalg.linsolve import NotPositiveDefinite, SparseCholesky
+
+        V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+        angles = corner_angles(V, F) if angles is None else angles
+        L = cotan_laplacian(V, F, angles)
+        K = angle_defects(V, F, angles)
+        L = L + 1e-10 * sp.diags(np.asarray(abs(L).sum(axis=1)).ravel())  # as log_scale
+        order = free[np.argsort(labels, kind="stable")]  # the rows by label: found again by search
+        lower = sp.tril(L[order][:, order]).tocsc()
+        lower.sort_indices()
+        u = np.zeros(len(V))
+        try:
+            chol = SparseCholesky(lower.indptr, lower.indices, ordering="amd" if len(order) < 300_000 else "metis")
+            chol.factor(lower.data)
+            u[order] = chol.solve(-K[order])
+        except NotPositiveDefinite:
+            self._chol = None
+            u[free] = _solve(L[free][:, free], -K[free])
+            return u
+        self._chol, self._labels, self._faces, self._rhs = chol, np.sort(labels), faces, -K[order]
+        self._data, self._rows = lower.data.copy(), lower.indices
+        self._cols = np.repeat(np.arange(len(order)), np.diff(lower.indptr))
+        self._diag = np.full(len(order), -1, dtype=np.int64)
+        on = self._rows == self._cols
+        self._diag[self._cols[on]] = np.flatnonzero(on)
+        return u

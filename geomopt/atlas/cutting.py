@@ -28,7 +28,7 @@ import numpy as np
 
 from ..mesh.quality import triangle_areas
 from .charts import charts_of_cut
-from .cones import angle_defects, log_scale, scale_estimate
+from .cones import ChartScale, angle_defects, log_scale, scale_estimate
 from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
                     steiner_tree, straighten)
 
@@ -90,7 +90,7 @@ def _cheapest_edge_at(g: EdgeGraph, cost, v, other):
     return int(at[np.argmin(cost[at])])
 
 
-def chart_estimate(g: EdgeGraph, chart, seams):
+def chart_estimate(g: EdgeGraph, chart, seams, scale=None):
     """``(mean, area, vertex, near)``: the estimated mean symmetric Dirichlet of a disk chart
     (:class:`~geomopt.atlas.charts.ChartMesh` of a cut of ``g``), its 3D area, its most shrunk
     interior vertex (an input vertex id of ``g.V``, or -1 when it has none), and the interior
@@ -98,13 +98,17 @@ def chart_estimate(g: EdgeGraph, chart, seams):
     which a cone cut starts where the seam cost reaches most cheaply.  ``seams`` (k,) bool:
     the cut and boundary edges of ``g``; the chart's boundary is where its faces meet them (no
     topology check: a connected, oriented manifold chart is a disk exactly when its Euler
-    characteristic is 1, counted here)."""
+    characteristic is 1, counted here).  ``scale``: a :class:`~geomopt.atlas.cones.ChartScale`
+    kept for this chart's faces across its cone cuts (its analysis reused), else None."""
     Vc = g.V[chart.vertices]
     rows, corner = np.nonzero(seams[g.edge_of[chart.faces]])  # the chart's boundary half-edges
     if not len(rows) or 2 * len(Vc) - len(chart.F) - len(rows) != 2:  # 2 (V - E + F) with 2 E = 3 F + b
         raise RuntimeError("a chart of the seam graph is not a disk")  # never: see module doc
     loop = np.unique(np.r_[chart.F[rows, corner], chart.F[rows, (corner + 1) % 3]])
-    u = log_scale(Vc, chart.F, loop, g.angles[chart.faces])
+    if scale is None:
+        u = log_scale(Vc, chart.F, loop, g.angles[chart.faces])
+    else:
+        u = scale(Vc, chart.F, loop, g.angles[chart.faces], chart.vertices, chart.faces)
     mean, log_area = scale_estimate(Vc, chart.F, u)
     area = float(triangle_areas(Vc[chart.F]).sum())
     inner = np.ones(len(Vc), dtype=bool)
@@ -143,6 +147,7 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
     at the end;  made : int, the number of cuts made.
     """
     known = {}  # chart key (its first face) -> (mean, area, vertex)
+    scales = {}  # chart key -> its ChartScale: a cone cut keeps the chart's faces, fixes more vertices
     cut = cut.copy()
     history, seam, paths = [], [], []
     for made in range(max_cuts + 1):
@@ -152,7 +157,8 @@ def relieve(g: EdgeGraph, cost, cut, target, max_cuts, prune=False):
         rows = []
         for c in range(split.count):
             if int(first[c]) not in known:
-                known[int(first[c])] = chart_estimate(g, split.mesh(c), cut | g.boundary)
+                scale = scales.setdefault(int(first[c]), ChartScale())
+                known[int(first[c])] = chart_estimate(g, split.mesh(c), cut | g.boundary, scale)
             rows.append(known[int(first[c])])
         mean = np.array([r[0] for r in rows])
         area = np.array([r[1] for r in rows])

@@ -162,45 +162,49 @@ def _edge_index(g: EdgeGraph):
 
 
 def _max_spanning_forest(n_nodes, a, b, weight) -> np.ndarray:
-    """(len(a),) bool, the edges ``(a, b)`` of a maximum spanning forest (Kruskal)."""
-    parent = list(range(n_nodes))
+    """(len(a),) bool, the edges ``(a, b)`` of a maximum spanning forest: Kruskal's greedy over
+    the edges by decreasing ``weight``, ties in the order given (a stable sort).  Each edge's
+    weight is replaced by its rank in that order, so the forest is unique and is the one
+    :func:`scipy.sparse.csgraph.minimum_spanning_tree` finds on the ranks (compiled; of parallel
+    edges the first ranked stands for all: the later ones close a cycle)."""
+    from scipy.sparse.csgraph import minimum_spanning_tree
 
-    def find(x):
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    order = np.argsort(-np.asarray(weight, dtype=np.float64), kind="stable")
+    lo, hi = np.minimum(a[order], b[order]), np.maximum(a[order], b[order])
+    _, first = np.unique(lo * n_nodes + hi, return_index=True)  # of parallel edges, the first ranked
+    first = first[lo[first] != hi[first]]  # a loop never joins two parts
+    rank = (first + 1).astype(np.float64)  # ranks 1.. (a csgraph edge of weight 0 is no edge)
+    graph = sp.csr_matrix((rank, (lo[first], hi[first])), shape=(n_nodes, n_nodes))
+    tree = minimum_spanning_tree(graph).tocoo()
     keep = np.zeros(len(a), dtype=bool)
-    for e in np.argsort(-weight, kind="stable").tolist():
-        ra, rb = find(int(a[e])), find(int(b[e]))
-        if ra != rb:
-            parent[ra] = rb
-            keep[e] = True
+    keep[order[tree.data.astype(np.int64) - 1]] = True
     return keep
 
 
 def _prune(g: EdgeGraph, cut: np.ndarray, kept=None) -> np.ndarray:
     """``cut`` without its dangling interior edges: repeatedly drop an interior cut edge with
-    an end that no other cut, boundary or ``kept`` edge touches (cutting it opens nothing)."""
+    an end that no other cut, boundary or ``kept`` edge touches (cutting it opens nothing).
+    The edges dropped do not depend on the order (a degree only falls), so the vertices of
+    degree 1 are stripped a layer at a time, each layer in one vectorised step."""
     cut = cut.copy()
     on = cut | g.boundary | (False if kept is None else kept)
-    degree = np.bincount(g.E[on].ravel(), minlength=len(g.V))
-    incident = [[] for _ in range(len(g.V))]
-    for e in np.flatnonzero(cut).tolist():
-        incident[g.E[e, 0]].append(e)
-        incident[g.E[e, 1]].append(e)
-    stack = [v for v in range(len(g.V)) if degree[v] == 1]
-    while stack:
-        v = stack.pop()
-        for e in incident[v]:
-            if cut[e]:
-                cut[e] = False
-                for w in g.E[e].tolist():
-                    degree[w] -= 1
-                    if degree[w] == 1:
-                        stack.append(w)
-                break
+    n = len(g.V)
+    degree = np.bincount(g.E[on].ravel(), minlength=n)
+    edges = np.flatnonzero(cut)
+    ends = np.r_[g.E[edges, 0], g.E[edges, 1]]
+    order = np.argsort(ends, kind="stable")
+    incident = np.r_[edges, edges][order]  # the cut edges at each vertex, vertex by vertex
+    start = np.searchsorted(ends[order], np.arange(n + 1))
+    leaves = np.flatnonzero(degree == 1)
+    while len(leaves):
+        count = start[leaves + 1] - start[leaves]
+        rows = np.repeat(start[leaves] - np.cumsum(count) + count, count) + np.arange(count.sum())
+        drop = np.unique(incident[rows][cut[incident[rows]]])  # a leaf's one edge, if it is a cut edge
+        cut[drop] = False
+        np.subtract.at(degree, g.E[drop].ravel(), 1)
+        touched = np.unique(g.E[drop].ravel())
+        leaves = touched[degree[touched] == 1]
     return cut
 
 

@@ -11,7 +11,9 @@ rays, spread evenly over its hemisphere, and all the points shooting along ``h``
 share one parallel projection.  Along a direction ``d`` a ray is a point of the plane normal to
 ``d``: it hits a triangle exactly when it lies in the triangle's projection and the triangle is
 ahead of it along ``d``.  The projected triangles are binned in a uniform grid, so each ray
-tests only the triangles of its cell (no bounding volume hierarchy, no per-ray traversal).
+tests only the triangles of its cell (no bounding volume hierarchy, no per-ray traversal): the
+triangles' cells are joined to the rays' (only cells that hold a ray are listed), and a triangle
+wholly behind a ray's origin is dropped before its edges are tested.
 """
 
 from __future__ import annotations
@@ -44,13 +46,21 @@ def _plane_basis(d):
     return np.c_[u, np.cross(d, u)]
 
 
-def _triangle_grid(X, F, fine):
-    """A uniform grid over the projected triangles ``X[F]`` (X: (n, 2)): ``(lo, h, size,
-    start, tri)``, cell ``(i, j)`` (id ``i * size + j``) holding the triangles
-    ``tri[start[id]:start[id + 1]]`` whose bounding boxes meet it; ``fine`` cells span the
-    median triangle's box."""
-    P = X[F]
-    bmin, bmax = P.min(axis=1), P.max(axis=1)
+def _corner_extremes(A):
+    """``(lo, hi)``: the least and greatest of each row's three corners of ``A`` (m, 3, ...),
+    two elementwise passes (a reduction over the short middle axis is several times slower)."""
+    a, b, c = A[:, 0], A[:, 1], A[:, 2]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+
+
+def _grid_join(P, Q, fine):
+    """The (triangle, point) pairs whose projections share a cell of a uniform grid, ``fine``
+    cells a side of the median triangle's bounding box: ``(tri, first, many, points)``, entry
+    ``e`` pairing triangle ``tri[e]`` of the projected triangles ``P`` (m, 3, 2) with the points
+    ``points[first[e]:first[e] + many[e]]`` of ``Q`` (p, 2) in one of the cells its bounding
+    box meets.  The triangles' cells are joined to the points' (the points sorted by cell, not
+    the triangles' cells), and only the cells holding a point are listed."""
+    bmin, bmax = _corner_extremes(P)
     lo, hi = bmin.min(axis=0), bmax.max(axis=0)
     extent = float(np.max(hi - lo))
     typical = float(np.median(np.max(bmax - bmin, axis=1)))
@@ -58,16 +68,19 @@ def _triangle_grid(X, F, fine):
     h = max(extent / size, 1e-300)
     i0 = np.clip(((bmin - lo) / h).astype(np.int64), 0, size - 1)
     i1 = np.clip(((bmax - lo) / h).astype(np.int64), 0, size - 1)
+    q = np.floor((Q - lo) / h).astype(np.int64)
+    inside = np.all((q >= 0) & (q < size), axis=1)
+    where = np.where(inside, q[:, 0] * size + q[:, 1], size * size)  # outside: a cell of no triangle
+    held = np.bincount(where, minlength=size * size + 1)
     span = i1 - i0 + 1
     count = span[:, 0] * span[:, 1]
-    tri = np.repeat(np.arange(len(F)), count)
+    tri = np.repeat(np.arange(len(P)), count)
     k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
-    ci = i0[tri, 0] + k % span[tri, 0]
-    cj = i0[tri, 1] + k // span[tri, 0]
-    cell = ci * size + cj
-    order = np.argsort(cell, kind="stable")
-    start = np.searchsorted(cell[order], np.arange(size * size + 1))
-    return lo, h, size, start, tri[order]
+    across, down = np.divmod(k, np.repeat(span[:, 0], count))
+    cell = np.repeat(i0[:, 0] * size + i0[:, 1], count) + down * size + across
+    many = held[cell]
+    some = many > 0
+    return tri[some], (np.cumsum(held) - held)[cell[some]], many[some], np.argsort(where, kind="stable")
 
 
 def _hits_along(V, F, origins, sign, d, fine=2.0):
@@ -76,30 +89,31 @@ def _hits_along(V, F, origins, sign, d, fine=2.0):
     B = _plane_basis(d)
     X = V @ B
     Q, zq = origins @ B, origins @ d
-    planes = _planes(X[F], (V @ d)[F])
-    lo, h, size, start, tri = _triangle_grid(X, F, fine)
-    cell_ij = np.floor((Q - lo) / h).astype(np.int64)
-    inside = np.all((cell_ij >= 0) & (cell_ij < size), axis=1)
-    cell = np.where(inside, cell_ij[:, 0] * size + cell_ij[:, 1], 0)
-    first = np.where(inside, start[cell], 0)
-    count = np.where(inside, start[cell + 1] - first, 0)
+    P, Z = X[F], (V @ d)[F]
+    planes = _planes(P, Z)
+    reach = np.where(sign > 0, -zq, zq)  # a triangle ahead has sign * depth above sign * zq somewhere
+    deep, high = _corner_extremes(Z)
+    top = np.c_[high, -deep]  # the most of depth and of -depth on each triangle
+    side = (sign < 0).astype(np.int64)
+    tri, first, many, points = _grid_join(P, Q, fine)
+    ends = np.cumsum(many)
     hit = np.zeros(len(origins), dtype=bool)
-    ends = np.cumsum(count)
-    lo_pt = 0
-    while lo_pt < len(origins):  # chunks of at most _MAX_PAIRS candidate pairs
-        base = ends[lo_pt - 1] if lo_pt else 0
-        hi_pt = max(int(np.searchsorted(ends, base + _MAX_PAIRS, side="right")), lo_pt + 1)
-        sel = np.arange(lo_pt, hi_pt)
-        pt = np.repeat(sel, count[sel])
-        k = np.arange(len(pt)) - np.repeat(ends[sel] - count[sel] - base, count[sel])
-        t = tri[first[pt] + k]
+    lo_e = 0
+    while lo_e < len(tri):  # chunks of at most _MAX_PAIRS candidate pairs
+        base = ends[lo_e - 1] if lo_e else 0
+        hi_e = max(int(np.searchsorted(ends, base + _MAX_PAIRS, side="right")), lo_e + 1)
+        m = many[lo_e:hi_e]
+        t = np.repeat(tri[lo_e:hi_e], m)
+        pt = points[np.repeat(first[lo_e:hi_e] - (ends[lo_e:hi_e] - base) + m, m) + np.arange(ends[hi_e - 1] - base)]
+        ahead = top[t, side[pt]] + reach[pt] > 0  # some of the triangle is ahead of the point: cheap, first
+        t, pt = t[ahead], pt[ahead]
         for j in (0, 3, 6, 9):  # the edge tests one at a time, each on the pairs left (most fail early)
             c = planes[t, j:j + 3]
             value = c[:, 0] * Q[pt, 0] + c[:, 1] * Q[pt, 1] + c[:, 2]
             keep = value >= 0 if j < 9 else (value - zq[pt]) * sign[pt] > 0
             t, pt = t[keep], pt[keep]
         hit[pt] = True
-        lo_pt = hi_pt
+        lo_e = hi_e
     return hit
 
 
