@@ -82,11 +82,12 @@ class AtlasOptions:
         the borders of the packing splits too, along the surface's seam cost
         (:func:`~geomopt.atlas.seams.straighten_splits`, kept when the packing loses at most 0.005
         of efficiency); 0: not straightened.
-    straighten_packed : with ``straighten``, also straighten the packing splits' borders after
-        packing, each piece keeping its rotation and translation (faces that change piece take
-        their new piece's): kept where the atlas stays certified and every piece at least the
-        margin from the others (:func:`~geomopt.atlas.packed_splits.straighten_packed`), so the
-        packing efficiency is unchanged.
+    straighten_packed : with ``straighten``, where the straightened borders of the packing splits
+        were not kept (they lost packing), straighten them after packing instead, each piece
+        keeping its rotation and translation (faces that change piece take their new piece's):
+        kept where a border gets no longer, the atlas stays certified and every piece at least
+        the margin from the others (:func:`~geomopt.atlas.packed_splits.straighten_packed`), so
+        charts, distortion and packing efficiency are unchanged.
     max_cuts : the most cone cuts.
     min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
         repack while the packing efficiency (chart area / unit square) is below this and each
@@ -425,13 +426,15 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
                                                  min_gain=options.split_gain,
                                                  screen=screen, V=g.V,
                                                  prescreen=lambda *a: screen(*a, coarse=True))
+    repacked = False
     if options.straighten > 0 and len(meshes) > len(charts):  # the splits' borders follow the seam cost too
         pieces, order, changed = straighten_splits(g, tree_cost, charts, flat, owner, list(zip(meshes, maps)),
                                                    options.straighten)
         again = pack([x for _, x in pieces], [m.F for m, _ in pieces]) if changed else None
-        if again is not None and again.efficiency >= packing.efficiency - _STRAIGHT_LOSS:
+        repacked = again is not None and again.efficiency >= packing.efficiency - _STRAIGHT_LOSS
+        if repacked:
             meshes, maps, packing, owner = [m for m, _ in pieces], [x for _, x in pieces], again, order
-    if options.straighten > 0 and options.straighten_packed and len(meshes) > len(set(owner)):
+    if options.straighten > 0 and options.straighten_packed and not repacked and len(meshes) > len(set(owner)):
         meshes, maps, uvs, moved = straighten_packed(g, tree_cost, charts, flat, owner, meshes, maps, packing,
                                                      margin, options.straighten)
         packing = dataclasses.replace(packing, uvs=uvs) if moved else packing

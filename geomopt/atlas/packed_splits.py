@@ -20,11 +20,12 @@ from scipy.spatial import cKDTree
 
 from ..exact.topology import boundary_half_edges
 from ._certify import certify_atlas
-from .seams import straighten_split
+from .seams import edge_graph, straighten_split
 
 __all__ = ["straighten_packed", "closer_than"]
 
 _AVOID = 1e6  # how much dearer a border is through faces that would not fit where they go
+_EASE = 3.0  # a border longer than as packed is tried once more at this much less turning price
 
 
 def _moved(packing, k, x) -> np.ndarray:
@@ -179,29 +180,35 @@ def _straightened(g, cost, chart, x, mine, meshes, maps, uvs, packing, margin, t
     """``(meshes, maps, uvs)`` with the pieces ``mine`` of ``chart`` (flattening ``x``)
     straightened in place (:func:`straighten_packed`), or None.  The border is rerouted only
     through edges whose faces would fit where they go (:func:`_movable`; the others priced
-    ``_AVOID`` times higher), kept when it is no longer on the surface and checked exactly
-    (:func:`_fits`)."""
+    ``_AVOID`` times higher), kept when it is no longer on the surface (else tried once more at
+    ``1 / _EASE`` of the turning price) and checked exactly (:func:`_fits`)."""
     given = [(meshes[k], maps[k]) for k in mine]
     cost = np.array(cost, dtype=np.float64)
     cost[~_movable(g, chart, x, mine, meshes, uvs, packing, margin)] *= _AVOID
-    new = straighten_split(g, cost, chart, x, given, turn)
-    order = None if new is given else _matched(new, [m for m, _ in given])
-    if order is None:
+    longest = _border_length(g, chart, [m for m, _ in given])
+    for price in (turn, turn / _EASE):  # a border that turns less at a lower price may not be longer
+        new = straighten_split(g, cost, chart, x, given, price)
+        order = None if new is given else _matched(new, [m for m, _ in given])
+        if order is None:
+            return None
+        if _border_length(g, chart, [m for m, _ in new]) <= longest:
+            break
+    else:
         return None
     trial_m, trial_x, trial_u = list(meshes), list(maps), list(uvs)
     for (piece, xp), j in zip(new, order):
         k = int(mine[j])
         trial_m[k], trial_x[k] = piece, np.asarray(xp)
         trial_u[k] = _placed(piece, xp, meshes[k], uvs[k], packing, k)
-    if _border_length(g, [trial_m[k] for k in mine]) > _border_length(g, [m for m, _ in given]):
-        return None
     return (trial_m, trial_x, trial_u) if _fits(trial_m, trial_u, mine, margin) else None
 
 
-def _border_length(g, pieces) -> float:
-    """The surface length of the edges between two of the ``pieces`` (ChartMesh) of a chart."""
-    label = np.full(len(g.F), -1, dtype=np.int64)
+def _border_length(g, chart, pieces) -> float:
+    """The surface length of the edges between two of the ``pieces`` (ChartMesh) of ``chart``
+    that the chart itself glues (not its own slits, seams already)."""
+    label = np.empty(len(chart.F), dtype=np.int64)
     for j, m in enumerate(pieces):
-        label[m.faces] = j
-    a, b = label[g.edge_faces[:, 0]], np.where(g.edge_faces[:, 1] >= 0, label[g.edge_faces[:, 1]], -1)
-    return float(g.length[(a >= 0) & (b >= 0) & (a != b)].sum())
+        label[np.searchsorted(chart.faces, m.faces)] = j
+    own = edge_graph(g.V[chart.vertices], chart.F)
+    a, b = label[own.edge_faces[:, 0]], label[np.maximum(own.edge_faces[:, 1], 0)]
+    return float(own.length[~own.boundary & (a != b)].sum())
