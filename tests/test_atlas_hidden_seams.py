@@ -436,7 +436,7 @@ def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex(monkeypa
     assert apex not in g.E[cut] and column[g.E[cut]].all()
 
 
-def _packed_split(blocker=None):
+def _packed_split(blocker=None, rows=lambda cx: 4.0 + (np.floor(cx / 2) % 2)):
     """A zigzag split grid (11 x 11; its straightened border runs on either row 4 or 5) packed by hand: the pieces 1/30 the grid's size, apart
     in the unit square, unrotated; and, when ``blocker`` (a (2,) point of the grid) is given, a
     third chart, a small triangle there in the frame of the piece that holds it after the
@@ -444,7 +444,7 @@ def _packed_split(blocker=None):
     from geomopt.atlas import Packing
     from geomopt.atlas.charts import ChartMesh
 
-    g, mesh, x, pieces = _split_grid(11, lambda cx: 4.0 + (np.floor(cx / 2) % 2))  # notches 2 cells wide
+    g, mesh, x, pieces = _split_grid(11, rows)  # by default notches 2 cells wide
     meshes, maps = [p for p, _ in pieces], [xp for _, xp in pieces]
     scale, offsets = 1.0 / 30.0, np.array([[0.05, 0.05], [0.05, 0.55]])
     uvs = [scale * xp + o for xp, o in zip(maps, offsets)]
@@ -512,6 +512,22 @@ def test_a_packed_split_stays_as_packed_where_its_straight_border_would_overlap(
     out, out_x, uvs, moved = straighten_packed(*args)
     assert moved == 0 and all(a is b for a, b in zip(out, meshes))
     assert certify_atlas(*_as_atlas(out, uvs)).ok
+
+
+def test_a_packed_split_border_is_not_made_longer():
+    """A straight border whose cheapest reroute is a detour through a hidden U (longer on the
+    surface, at any turning price) stays as packed."""
+    from geomopt.atlas.packed_splits import straighten_packed
+    from geomopt.atlas.seams import straighten_split
+
+    g, mesh, x, meshes, maps, packing = _packed_split(rows=lambda cx: np.full_like(cx, 4.0))
+    X, Y = g.V[:, 0], g.V[:, 1]
+    hidden = (np.isin(X, [3.0, 8.0]) & (Y >= 4) & (Y <= 7)) | ((Y == 7) & (X >= 3) & (X <= 8))
+    cost = edge_costs(g, 2.0, visibility=np.where(hidden, 0.05, 1.0), hide=2.0)
+    new = straighten_split(g, cost, mesh, x, list(zip(meshes, maps)), 1.0)
+    assert len(_border(mesh, new)) > len(_border(mesh, list(zip(meshes, maps))))  # the detour is longer
+    out, _, uvs, moved = straighten_packed(g, cost, [mesh], [x], [0, 0], meshes, maps, packing, 0.005, 1.0)
+    assert moved == 0 and all(a is b for a, b in zip(out, meshes))
 
 
 def test_closer_than_measures_segment_sets_at_their_ends():
