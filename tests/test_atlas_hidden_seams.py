@@ -437,10 +437,10 @@ def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex(monkeypa
 
 
 def _packed_split(blocker=None, rows=lambda cx: 4.0 + (np.floor(cx / 2) % 2)):
-    """A zigzag split grid (11 x 11; its straightened border runs on either row 4 or 5) packed by hand: the pieces 1/30 the grid's size, apart
-    in the unit square, unrotated; and, when ``blocker`` (a (2,) point of the grid) is given, a
-    third chart, a small triangle there in the frame of the piece that holds it after the
-    border is straightened (:func:`_packed_split`'s caller finds it)."""
+    """A split grid (11 x 11; ``rows`` as :func:`_split_grid`'s, by default a zigzag whose
+    straightened border runs on row 4 or 5) packed by hand: the pieces 1/30 the grid's size,
+    apart in the unit square, unrotated; and, when ``blocker`` ``(k, point)`` is given, a third
+    chart, a small triangle at ``point`` of the grid in the frame of piece ``k``."""
     from geomopt.atlas import Packing
     from geomopt.atlas.charts import ChartMesh
 

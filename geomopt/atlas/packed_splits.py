@@ -25,7 +25,6 @@ from .seams import edge_graph, straighten_split
 __all__ = ["straighten_packed", "closer_than"]
 
 _AVOID = 1e6  # how much dearer a border is through faces that would not fit where they go
-_EASE = 3.0  # a border longer than as packed is tried once more at this much less turning price
 
 
 def _moved(packing, k, x) -> np.ndarray:
@@ -180,20 +179,14 @@ def _straightened(g, cost, chart, x, mine, meshes, maps, uvs, packing, margin, t
     """``(meshes, maps, uvs)`` with the pieces ``mine`` of ``chart`` (flattening ``x``)
     straightened in place (:func:`straighten_packed`), or None.  The border is rerouted only
     through edges whose faces would fit where they go (:func:`_movable`; the others priced
-    ``_AVOID`` times higher), kept when it is no longer on the surface (else tried once more at
-    ``1 / _EASE`` of the turning price) and checked exactly (:func:`_fits`)."""
+    ``_AVOID`` times higher), kept when it is no longer on the surface and checked exactly
+    (:func:`_fits`)."""
     given = [(meshes[k], maps[k]) for k in mine]
     cost = np.array(cost, dtype=np.float64)
     cost[~_movable(g, chart, x, mine, meshes, uvs, packing, margin)] *= _AVOID
-    longest = _border_length(g, chart, [m for m, _ in given])
-    for price in (turn, turn / _EASE):  # a border that turns less at a lower price may not be longer
-        new = straighten_split(g, cost, chart, x, given, price)
-        order = None if new is given else _matched(new, [m for m, _ in given])
-        if order is None:
-            return None
-        if _border_length(g, chart, [m for m, _ in new]) <= longest:
-            break
-    else:
+    new = straighten_split(g, cost, chart, x, given, turn)
+    order = None if new is given else _matched(new, [m for m, _ in given])
+    if order is None or _border_length(g, chart, [m for m, _ in new]) > _border_length(g, chart, [m for m, _ in given]):
         return None
     trial_m, trial_x, trial_u = list(meshes), list(maps), list(uvs)
     for (piece, xp), j in zip(new, order):
