@@ -7,10 +7,12 @@ zigzags along the surface's edges; :func:`~geomopt.atlas.seams.straighten_split`
 the surface's seam cost and turning, but repacking the reshaped pieces gives back some of the
 luck of the split search.  Here the pieces keep their motions: a face that changes piece takes
 its new piece's motion (every piece is a part of the one injective flattening, so each stays
-injective), and the new border is kept only when the atlas so made is certified exactly
-(:func:`~geomopt.atlas.certify_atlas`: no chart overlaps itself or another, all in the unit
-square) and every piece stays at least the packing's margin from every other chart.  The
-charts' area and bounding square are unchanged, so is the packing efficiency.
+injective).  The border is rerouted only through faces that would land, moved so, inside the
+square and clear of the other charts (a cheap screen), and kept only when it is no longer on the
+surface, the atlas so made is certified exactly (:func:`~geomopt.atlas.certify_atlas`: no chart
+overlaps itself or another, all in the unit square) and every piece stays at least the packing's
+margin from every other chart.  The charts' area and bounding square are unchanged, so is the
+packing efficiency.
 """
 
 from __future__ import annotations
