@@ -438,7 +438,6 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
         meshes, maps, uvs, moved = straighten_packed(g, tree_cost, charts, flat, owner, meshes, maps, packing,
                                                      margin, options.straighten)
         packing = dataclasses.replace(packing, uvs=uvs) if moved else packing
-        _say(progress, "split borders straightened in place", charts=moved)
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart, certificate = _place(len(F), meshes, maps, packing, pack, inset)
