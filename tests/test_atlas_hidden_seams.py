@@ -203,6 +203,9 @@ def test_up_and_hide_options_are_checked():
         AtlasOptions(hide=-1.0)
     with pytest.raises(ParameterError, match="straighten"):
         AtlasOptions(straighten=-1.0)
+    assert AtlasOptions().straighten_packed and not AtlasOptions(straighten_packed=False).straighten_packed
+    with pytest.raises(ParameterError, match="straighten_packed"):
+        AtlasOptions(straighten_packed="yes")
 
 
 def _zigzag_cut(g, nx, row):
