@@ -203,6 +203,9 @@ def test_up_and_hide_options_are_checked():
         AtlasOptions(hide=-1.0)
     with pytest.raises(ParameterError, match="straighten"):
         AtlasOptions(straighten=-1.0)
+    assert AtlasOptions().straighten_packed and not AtlasOptions(straighten_packed=False).straighten_packed
+    with pytest.raises(ParameterError, match="straighten_packed"):
+        AtlasOptions(straighten_packed="yes")
 
 
 def _zigzag_cut(g, nx, row):
@@ -434,3 +437,125 @@ def test_a_cone_cut_starts_from_a_hidden_candidate_not_the_exposed_apex(monkeypa
     apex = int(np.argmax(g.V[:, 2]))
     assert made == 1 and cut.any()
     assert apex not in g.E[cut] and column[g.E[cut]].all()
+
+
+def _packed_split(blocker=None, rows=lambda cx: 4.0 + (np.floor(cx / 2) % 2)):
+    """A split grid (11 x 11; ``rows`` as :func:`_split_grid`'s, by default a zigzag whose
+    straightened border runs on row 4 or 5) packed by hand: the pieces 1/30 the grid's size,
+    apart in the unit square, unrotated; and, when ``blocker`` ``(k, point)`` is given, a third
+    chart, a small triangle at ``point`` of the grid in the frame of piece ``k``."""
+    from geomopt.atlas import Packing
+    from geomopt.atlas.charts import ChartMesh
+
+    g, mesh, x, pieces = _split_grid(11, rows)  # by default notches 2 cells wide
+    meshes, maps = [p for p, _ in pieces], [xp for _, xp in pieces]
+    scale, offsets = 1.0 / 30.0, np.array([[0.05, 0.05], [0.05, 0.55]])
+    uvs = [scale * xp + o for xp, o in zip(maps, offsets)]
+    if blocker is not None:
+        k, point = blocker
+        tri = point + 0.1 * np.array([[-1.0, -0.5], [1.0, -0.5], [0.0, 1.0]])
+        meshes.append(ChartMesh(np.array([len(g.F)]), np.array([[0, 1, 2]]), np.arange(3), np.arange(3)))
+        maps.append(tri)
+        uvs.append(scale * tri + offsets[k])
+        offsets = np.r_[offsets, offsets[k:k + 1]]
+    packing = Packing(uvs, scale, np.zeros(len(uvs)), offsets, 0.0)
+    return g, mesh, x, meshes, maps, packing
+
+
+def _as_atlas(meshes, uvs):
+    sizes = np.array([len(u) for u in uvs])
+    F = np.concatenate([m.F + s for m, s in zip(meshes, np.cumsum(sizes) - sizes)])
+    return np.concatenate(uvs), F, np.repeat(np.arange(len(meshes)), [len(m.F) for m in meshes])
+
+
+def test_a_packed_split_is_straightened_in_place_keeping_each_pieces_motion():
+    """straighten_packed: the zigzag border between two packed pieces becomes straight, each
+    piece keeping its packed rotation and translation (a face that changes piece takes the
+    other's), the atlas certified; its pieces' total area, so the efficiency, unchanged."""
+    from geomopt.atlas import certify_atlas
+    from geomopt.atlas.packed_splits import straighten_packed
+    from geomopt.mesh.quality import triangle_areas
+
+    g, mesh, x, meshes, maps, packing = _packed_split()
+    cost = edge_costs(g, 2.0)
+    before = [(m, xp) for m, xp in zip(meshes, maps)]
+    assert seam_turning(g.V, _border(mesh, before)) > 40
+    out, out_x, uvs, moved = straighten_packed(g, cost, [mesh], [x], [0, 0], meshes, maps, packing, 0.005, 1.0)
+    assert moved == 1 and certify_atlas(*_as_atlas(out, uvs)).ok
+    assert seam_turning(g.V, _border(mesh, list(zip(out, out_x)))) < 1e-9
+    for m, xp, u, o in zip(out, out_x, uvs, packing.offsets):
+        assert np.array_equal(xp, x[m.vertices]) and np.allclose(u, packing.scale * xp + o, atol=1e-15)
+    area = lambda ms, us: sum(triangle_areas(u[m.F]).sum() for m, u in zip(ms, us))  # noqa: E731
+    assert np.isclose(area(out, uvs), area(meshes, packing.uvs))
+    assert straighten_packed(g, cost, [mesh], [x], [0, 0], meshes, maps, packing, 0.005, 0.0)[3] == 0
+
+
+def test_a_packed_split_stays_as_packed_where_its_straight_border_would_overlap(monkeypatch):
+    """A chart packed where a straightened border's faces would land (in the frame of the
+    piece they join): the border goes straight the other way round it, and the atlas stays
+    certified (no overlap), by the exact check even when the screen of where faces may go
+    lets every edge through (the border then stays as packed)."""
+    from geomopt.atlas import certify_atlas
+    from geomopt.atlas import packed_splits
+    from geomopt.atlas.packed_splits import straighten_packed
+
+    g, mesh, x, meshes, maps, packing = _packed_split()
+    cost = edge_costs(g, 2.0)
+    out = straighten_packed(g, cost, [mesh], [x], [0, 0], meshes, maps, packing, 0.005, 1.0)[0]
+    k = next(i for i in range(2) if not np.isin(out[i].faces, meshes[i].faces).all())  # the piece that grew
+    face = out[k].faces[~np.isin(out[k].faces, meshes[k].faces)][0]
+    g, mesh, x, meshes, maps, packing = _packed_split((k, g.V[g.F[face], :2].mean(axis=0)))
+    assert certify_atlas(*_as_atlas(meshes, packing.uvs)).ok  # the blocker sits in the gap as packed
+    args = (g, cost, [mesh, mesh], [x, x], [0, 0, 1], meshes, maps, packing, 0.005, 1.0)
+    out, out_x, uvs, moved = straighten_packed(*args)
+    assert certify_atlas(*_as_atlas(out, uvs)).ok
+    assert moved == 1 and not np.isin(face, out[k].faces)  # rerouted around the blocker, on the other row
+    assert seam_turning(g.V, _border(mesh, list(zip(out[:2], out_x[:2])))) < 1e-9
+    monkeypatch.setattr(packed_splits, "_movable", lambda g, *a: np.ones(len(g.E), dtype=bool))
+    out, out_x, uvs, moved = straighten_packed(*args)
+    assert moved == 0 and all(a is b for a, b in zip(out, meshes))
+    assert certify_atlas(*_as_atlas(out, uvs)).ok
+
+
+def test_a_packed_split_border_is_not_made_longer():
+    """A straight border whose cheapest reroute is a detour through a hidden U (longer on the
+    surface, at any turning price) stays as packed."""
+    from geomopt.atlas.packed_splits import straighten_packed
+    from geomopt.atlas.seams import straighten_split
+
+    g, mesh, x, meshes, maps, packing = _packed_split(rows=lambda cx: np.full_like(cx, 4.0))
+    X, Y = g.V[:, 0], g.V[:, 1]
+    hidden = (np.isin(X, [3.0, 8.0]) & (Y >= 4) & (Y <= 7)) | ((Y == 7) & (X >= 3) & (X <= 8))
+    cost = edge_costs(g, 2.0, visibility=np.where(hidden, 0.05, 1.0), hide=2.0)
+    new = straighten_split(g, cost, mesh, x, list(zip(meshes, maps)), 1.0)
+    assert len(_border(mesh, new)) > len(_border(mesh, list(zip(meshes, maps))))  # the detour is longer
+    out, _, uvs, moved = straighten_packed(g, cost, [mesh], [x], [0, 0], meshes, maps, packing, 0.005, 1.0)
+    assert moved == 0 and all(a is b for a, b in zip(out, meshes))
+
+
+def test_closer_than_measures_segment_sets_at_their_ends():
+    from geomopt.atlas.packed_splits import closer_than
+
+    S = np.array([[[0.0, 0.0], [1.0, 0.0]]])
+    T = np.array([[[0.5, 0.01], [0.5, 2.0]]])  # a T: its end 0.01 above S's middle
+    assert closer_than(S, T, 0.02) and closer_than(T, S, 0.02)
+    assert not closer_than(S, T, 0.005)
+    assert not closer_than(S, np.zeros((0, 2, 2)), 1.0)
+
+
+def test_make_atlas_straightens_a_packed_split_in_place():
+    """On a holed plate that a packing split cuts in two (its straightened border repacks
+    worse, so it is not kept), the in-place straightening shortens and straightens the seams at
+    the same charts, distortion and efficiency, certified."""
+    from geomopt.atlas import make_atlas
+    from geomopt.mesh import generators
+
+    V, F = generators.holed_plate(2, cells=6)
+    on, off = (make_atlas(V, F, options=AtlasOptions(straighten_packed=s), progress=False) for s in (True, False))
+    a, b = on.details.metrics, off.details.metrics
+    assert on.success and off.success and on.certificate.ok
+    assert a.charts == b.charts and a.mean_symmetric_dirichlet == pytest.approx(b.mean_symmetric_dirichlet, rel=1e-12)
+    assert a.efficiency == pytest.approx(b.efficiency, rel=1e-12)  # the same placements (up to rounding)
+    V3 = np.c_[V, np.zeros(len(V))]
+    assert a.seam_length < b.seam_length - 1.0
+    assert seam_turning(V3, on.details.seams) < seam_turning(V3, off.details.seams) - 1.0

@@ -37,6 +37,7 @@ from .visibility import vertex_visibility
 from ._certify import certify_atlas
 from ._pack import MARGIN, pack_charts, packing_estimate, widest_margin
 from .flat_splits import split_to_pack
+from .packed_splits import straighten_packed
 
 __all__ = ["make_atlas", "AtlasDetails", "AtlasPart", "AtlasOptions", "check_atlas_input"]
 
@@ -81,6 +82,12 @@ class AtlasOptions:
         the borders of the packing splits too, along the surface's seam cost
         (:func:`~geomopt.atlas.seams.straighten_splits`, kept when the packing loses at most 0.005
         of efficiency); 0: not straightened.
+    straighten_packed : with ``straighten``, where the straightened borders of the packing splits
+        were not kept (they lost packing), straighten them after packing instead, each piece
+        keeping its rotation and translation (faces that change piece take their new piece's):
+        kept where a border gets no longer, the atlas stays certified and every piece at least
+        the margin from the others (:func:`~geomopt.atlas.packed_splits.straighten_packed`), so
+        charts, distortion and packing efficiency are unchanged.
     max_cuts : the most cone cuts.
     min_efficiency : split the largest flattened chart (at the best of many straight cuts) and
         repack while the packing efficiency (chart area / unit square) is below this and each
@@ -104,6 +111,7 @@ class AtlasOptions:
     hide: float = 2.0
     up: str | None = None
     straighten: float = 3.0
+    straighten_packed: bool = True
     max_cuts: int = 200
     min_efficiency: float = 0.7
     split_gain: float = 0.01
@@ -116,7 +124,8 @@ class AtlasOptions:
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
                  hide=Real(0.0), straighten=Real(0.0), up=Maybe(OneOf(("x", "y", "z", "-x", "-y", "-z"))),
                  min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Maybe(MARGIN),
-                 resolution=Maybe(Int(1)), padding=Maybe(Real(0.0)), rotate=Instance(bool))
+                 resolution=Maybe(Int(1)), padding=Maybe(Real(0.0)), rotate=Instance(bool),
+                 straighten_packed=Instance(bool))
         if self.resolution is None and self.padding is not None:
             raise ParameterError(f"AtlasOptions: padding ({self.padding!r} texels) needs the texture's resolution: "
                                  f"give resolution=N too (or a margin, a fraction of the square)")
@@ -417,12 +426,18 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
                                                  min_gain=options.split_gain,
                                                  screen=screen, V=g.V,
                                                  prescreen=lambda *a: screen(*a, coarse=True))
+    repacked = False
     if options.straighten > 0 and len(meshes) > len(charts):  # the splits' borders follow the seam cost too
         pieces, order, changed = straighten_splits(g, tree_cost, charts, flat, owner, list(zip(meshes, maps)),
                                                    options.straighten)
         again = pack([x for _, x in pieces], [m.F for m, _ in pieces]) if changed else None
-        if again is not None and again.efficiency >= packing.efficiency - _STRAIGHT_LOSS:
+        repacked = again is not None and again.efficiency >= packing.efficiency - _STRAIGHT_LOSS
+        if repacked:
             meshes, maps, packing, owner = [m for m, _ in pieces], [x for _, x in pieces], again, order
+    if options.straighten > 0 and options.straighten_packed and not repacked and len(meshes) > len(set(owner)):
+        meshes, maps, uvs, moved = straighten_packed(g, tree_cost, charts, flat, owner, meshes, maps, packing,
+                                                     margin, options.straighten)
+        packing = dataclasses.replace(packing, uvs=uvs) if moved else packing
     if len(meshes) > len(set(owner)):
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart, certificate = _place(len(F), meshes, maps, packing, pack, inset)
