@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geomopt import MeshError
-from geomopt.exact.topology import (boundary_half_edges, boundary_loops, check_disk, connected_components,
+from geomopt.exact.topology import (unique_pairs, boundary_half_edges, boundary_loops, check_disk, connected_components,
     half_edges, unique_edges)
 
 from conftest import mesh_path
@@ -79,6 +79,22 @@ def test_unique_edges_of_square():
     np.testing.assert_array_equal(count, [1, 2, 1, 1, 1])
     H = half_edges(F)
     np.testing.assert_array_equal(np.sort(H, axis=1), E[edge_of.ravel()])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_unique_pairs_is_numpys_unique_of_sorted_rows(seed):
+    """The integer-key edge table equals NumPy's row-wise unique of the sorted pairs: edges,
+    inverse and counts (pairs repeated, in both directions, vertex 0 and the largest id used)."""
+    rng = np.random.default_rng(seed)
+    n = 60
+    pairs = rng.integers(0, n, size=(400, 2))
+    pairs[:3] = [[0, n - 1], [n - 1, 0], [0, n - 1]]
+    E, inverse, counts = unique_pairs(pairs, n)
+    want = np.unique(np.sort(pairs, axis=1), axis=0, return_inverse=True, return_counts=True)
+    for got, ref in zip((E, inverse, counts), want):
+        np.testing.assert_array_equal(got, ref.reshape(got.shape))
+        assert got.dtype == np.int64
+    assert [len(a) for a in unique_pairs(np.zeros((0, 2), np.int64), 0)] == [0, 0, 0]
 
 
 def test_boundary_half_edges_of_square():

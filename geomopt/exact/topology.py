@@ -17,6 +17,7 @@ from .._runtime.errors import MeshError
 
 __all__ = [
     "half_edges",
+    "unique_pairs",
     "unique_edges",
     "boundary_half_edges",
     "boundary_vertices",
@@ -80,6 +81,27 @@ def half_edges(F) -> np.ndarray:
     return np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
 
 
+def unique_pairs(pairs, n):
+    """``(edges (E, 2), inverse (k,), counts (E,))``: the unique undirected edges of the vertex
+    ``pairs`` (k, 2) with vertex ids below ``n``, each sorted, in lexicographic order (as
+    ``np.unique(np.sort(pairs, 1), axis=0, return_inverse=True, return_counts=True)``), all int64.
+    Each edge is encoded as the integer ``a n + b`` and the keys sorted once by NumPy's stable
+    sort (a one-dimensional sort: several times faster than the row-wise unique)."""
+    pairs = np.asarray(pairs, dtype=np.int64)
+    width = max(int(n), 1)
+    a, b = pairs[:, 0], pairs[:, 1]
+    keys = np.minimum(a, b) * width + np.maximum(a, b)
+    order = np.argsort(keys, kind="stable")
+    ordered = keys[order]
+    first = np.empty(len(keys), bool)
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(len(keys), np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    counts = np.diff(np.append(np.flatnonzero(first), len(keys)))
+    return np.stack(np.divmod(ordered[first], width), axis=1), inverse, counts.astype(np.int64)
+
+
 def unique_edges(F):
     """Undirected edges, how many faces use each, and each half-edge's edge.
 
@@ -97,12 +119,8 @@ def unique_edges(F):
         ``edge_of[f, c]`` is the row of ``E`` for half-edge ``3 f + c``.
     """
     F = as_faces(F)
-    H = half_edges(F)
-    lo, hi = H.min(axis=1), H.max(axis=1)
-    n = int(F.max()) + 1
-    keys, edge_of, face_count = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
-    E = np.stack([keys // n, keys % n], axis=1)
-    return E, face_count.astype(np.int64), edge_of.reshape(F.shape).astype(np.int64)
+    E, edge_of, face_count = unique_pairs(half_edges(F), int(F.max(initial=-1)) + 1)
+    return E, face_count, edge_of.reshape(F.shape)
 
 
 def _twins(F: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ import dataclasses
 import numpy as np
 
 from .._runtime.errors import MeshError
+from ..exact.topology import unique_pairs
 
 __all__ = ["any_column", "Topology", "Sparse", "Diag", "Sum", "Product", "edge_weights", "masses", "mean_edge_length", "xp_of",
            "COT_MAX", "LAPLACIANS"]
@@ -78,25 +79,6 @@ def any_column(a):
     return out
 
 
-def _unique_edges(pairs, n):
-    """``(edges (E, 2), inverse (k,), counts (E,))``: the unique undirected edges of the vertex
-    ``pairs`` (k, 2), each sorted, in lexicographic order, as ``np.unique(..., axis=0)`` gives
-    them (each edge encoded as the integer ``a n + b``: a one-dimensional unique, several times
-    faster than the row-wise one)."""
-    width = max(int(n), 1)
-    a, b = pairs[:, 0], pairs[:, 1]
-    keys = np.minimum(a, b) * width + np.maximum(a, b)
-    order = np.argsort(keys, kind="stable")  # (NumPy's stable sort of integers is the faster here)
-    ordered = keys[order]
-    first = np.empty(len(keys), bool)
-    first[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
-    inverse = np.empty(len(keys), np.int64)
-    inverse[order] = np.cumsum(first) - 1
-    counts = np.diff(np.append(np.flatnonzero(first), len(keys)))
-    return np.stack(np.divmod(ordered[first], width), axis=1), inverse, counts
-
-
 @dataclasses.dataclass(frozen=True)
 class Topology:
     """The connectivity of a triangle surface or a polyline (NumPy, concrete).
@@ -125,11 +107,11 @@ class Topology:
     def of(cls, S, n) -> "Topology":
         S = np.asarray(S, dtype=np.int64)
         if S.shape[1] == 2:
-            edges, inverse, _ = _unique_edges(S, n)
+            edges, inverse, _ = unique_pairs(S, n)
             degree = np.bincount(S.ravel(), minlength=n)
             return cls(S, n, edges, inverse.reshape(-1, 1), np.flatnonzero(degree == 1))
         opposite = np.stack([S[:, [1, 2]], S[:, [2, 0]], S[:, [0, 1]]], axis=1).reshape(-1, 2)
-        edges, inverse, counts = _unique_edges(opposite, n)
+        edges, inverse, counts = unique_pairs(opposite, n)
         if counts.max(initial=0) > 2:
             raise MeshError(f"an edge is shared by {counts.max()} triangles: the surface must be edge-manifold")
         return cls(S, n, edges, inverse.reshape(-1, 3), np.unique(edges[counts == 1]))
