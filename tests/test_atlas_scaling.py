@@ -91,8 +91,8 @@ def test_a_short_seam_paths_straightening_search_gathers_only_its_neighbourhood(
     cost = g.length.copy()
     lines = _TurnGraph(g, cost, 3.0)
     gathered = []
-    ranges = seams._ranges
-    monkeypatch.setattr(seams, "_ranges", lambda start, idx: gathered.append(len(idx)) or ranges(start, idx))
+    ranges = seams.ranges
+    monkeypatch.setattr(seams, "ranges", lambda start, idx: gathered.append(len(idx)) or ranges(start, idx))
     s, t = 30 * 61 + 28, 30 * 61 + 33  # five edges apart along a row, mid-square
     S, T = np.zeros(len(g.V), dtype=bool), np.zeros(len(g.V), dtype=bool)
     S[s], T[t] = True, True

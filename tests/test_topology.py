@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geomopt import MeshError
-from geomopt.exact.topology import (unique_pairs, boundary_half_edges, boundary_loops, check_disk, connected_components,
+from geomopt.exact.topology import (unique_pairs, ranges, boundary_half_edges, boundary_loops, check_disk, connected_components,
     half_edges, unique_edges)
 
 from conftest import mesh_path
@@ -95,6 +95,12 @@ def test_unique_pairs_is_numpys_unique_of_sorted_rows(seed):
         np.testing.assert_array_equal(got, ref.reshape(got.shape))
         assert got.dtype == np.int64
     assert [len(a) for a in unique_pairs(np.zeros((0, 2), np.int64), 0)] == [0, 0, 0]
+
+
+def test_ranges_are_the_csr_rows_end_to_end():
+    start = np.array([0, 2, 2, 5, 6])
+    np.testing.assert_array_equal(ranges(start, [3, 0, 2, 1, 0]), [5, 0, 1, 2, 3, 4, 0, 1])
+    assert ranges(start, []).shape == (0,) and ranges(start, []).dtype == np.int64
 
 
 def test_boundary_half_edges_of_square():

@@ -25,7 +25,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from ..exact.topology import unique_edges
+from ..exact.topology import ranges, unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "exposure", "underside", "topological_cut", "shortest_topological_cut",
            "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten",
@@ -198,8 +198,7 @@ def _prune(g: EdgeGraph, cut: np.ndarray, kept=None) -> np.ndarray:
     start = np.searchsorted(ends[order], np.arange(n + 1))
     leaves = np.flatnonzero(degree == 1)
     while len(leaves):
-        count = start[leaves + 1] - start[leaves]
-        rows = np.repeat(start[leaves] - np.cumsum(count) + count, count) + np.arange(count.sum())
+        rows = ranges(start, leaves)
         drop = np.unique(incident[rows][cut[incident[rows]]])  # a leaf's one edge, if it is a cut edge
         cut[drop] = False
         np.subtract.at(degree, g.E[drop].ravel(), 1)
@@ -432,10 +431,8 @@ def _turn_graph(g: EdgeGraph):
     head = np.ravel(np.c_[g.E[:, 1], g.E[:, 0]])
     order = np.argsort(tail, kind="stable")
     start = np.searchsorted(tail[order], np.arange(len(g.V) + 1))
-    count = start[head + 1] - start[head]
-    a = np.repeat(np.arange(len(tail)), count)
-    k = np.arange(len(a)) - np.repeat(np.cumsum(count) - count, count)
-    b = order[start[head[a]] + k]
+    a = np.repeat(np.arange(len(tail)), start[head + 1] - start[head])
+    b = order[ranges(start, head)]
     keep = head[b] != tail[a]
     a, b = a[keep], b[keep]
     u = g.V[head] - g.V[tail]
@@ -504,12 +501,6 @@ def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.
     return cut
 
 
-def _ranges(start, idx) -> np.ndarray:
-    """The positions ``start[i] .. start[i + 1] - 1`` of every ``i`` in ``idx``, end to end."""
-    first, count = start[idx], start[idx + 1] - start[idx]
-    return np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
-
-
 class _TurnGraph:
     """The line graph of :func:`_turn_graph` priced as :func:`straighten` prices it, indexed so
     that the part of it a search can reach is gathered in time proportional to that part: a
@@ -528,7 +519,7 @@ class _TurnGraph:
         self.adjacency = g.adjacency(cost)
 
     def _out_of(self, vertices):
-        return np.sort(self.leaving[_ranges(self.leaving_start, vertices)])
+        return np.sort(self.leaving[ranges(self.leaving_start, vertices)])
 
     def cheapest(self, S, T, on, limit):
         """Edges (rows of ``g.E``, in order from ``T`` back to ``S``) of the cheapest priced path
@@ -542,7 +533,7 @@ class _TurnGraph:
         g, tail, head, a, b, edge = self.g, self.tail, self.head, self.a, self.b, self.edge
         reach = np.isfinite(dijkstra(self.adjacency, indices=np.flatnonzero(S), min_only=True, limit=limit))
         near = self._out_of(np.flatnonzero(reach))
-        p = _ranges(self.pair_start, near[reach[head[near]]])
+        p = ranges(self.pair_start, near[reach[head[near]]])
         p = p[reach[head[b[p]]]]
 
         def ok(h):

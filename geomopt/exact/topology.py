@@ -18,6 +18,7 @@ from .._runtime.errors import MeshError
 __all__ = [
     "half_edges",
     "unique_pairs",
+    "ranges",
     "unique_edges",
     "boundary_half_edges",
     "boundary_vertices",
@@ -100,6 +101,14 @@ def unique_pairs(pairs, n):
     inverse[order] = np.cumsum(first) - 1
     counts = np.diff(np.append(np.flatnonzero(first), len(keys)))
     return np.stack(np.divmod(ordered[first], width), axis=1), inverse, counts.astype(np.int64)
+
+
+def ranges(start, rows) -> np.ndarray:
+    """(k,) int64 the positions ``start[r] .. start[r + 1] - 1`` of every ``r`` in ``rows`` (p,),
+    end to end: the entries of those rows of a CSR array whose row pointers are ``start``."""
+    rows = np.asarray(rows, dtype=np.int64)
+    lo, count = start[rows], start[rows + 1] - start[rows]
+    return np.repeat(lo - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
 
 
 def unique_edges(F):

@@ -22,6 +22,7 @@ import dataclasses
 
 import numpy as np
 
+from ..exact.topology import ranges
 from ..exact.normals import corner_signs, normal_agreement, signs_and_agreement
 from .operators import any_column
 
@@ -105,10 +106,7 @@ class Stars:
                                       shape=(self.n, m))
             self._csr = incidence.indptr, incidence.indices  # (each row ascending: S is read in order)
         start, elements = self._csr
-        vertices = np.asarray(vertices, dtype=np.int64)
-        lo, count = start[vertices], start[vertices + 1] - start[vertices]
-        first = np.cumsum(count) - count
-        return np.unique(elements[np.repeat(lo - first, count) + np.arange(int(count.sum()))])
+        return np.unique(elements[ranges(start, vertices)])
 
 
 def recertified(X, S, base: FoldCertificate, X_base, stars: Stars | None = None) -> FoldCertificate:

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._runtime.errors import ParameterError
+from ..exact.topology import ranges
 
 __all__ = ["closest_points", "surface_index", "SurfaceIndex", "point_triangle", "triangle_angles", "smallest_angles", "aspect_ratios", "volume",
            "shape_measures",
@@ -166,10 +167,8 @@ def _ring_candidates(P, index):
     """``(who, faces)``: the faces around each point's nearest vertex (p points)."""
     _, j = index.vertex_tree.query(P)
     v = index.used[j]
-    lo, count = index.ring_start[v], index.ring_start[v + 1] - index.ring_start[v]
-    who = np.repeat(np.arange(len(P)), count)
-    first = np.cumsum(count) - count
-    return who, index.ring_faces[np.repeat(lo - first, count) + np.arange(len(who))]
+    who = np.repeat(np.arange(len(P)), index.ring_start[v + 1] - index.ring_start[v])
+    return who, index.ring_faces[ranges(index.ring_start, v)]
 
 
 def _reach_candidates(P, index, reach):

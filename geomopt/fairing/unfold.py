@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..exact.topology import ranges
 from .certificate import Stars, certify_folds, signs_near
 from .operators import any_column
 
@@ -57,15 +58,8 @@ def _grow(vertices, A, rings):
     edges (the pattern of ``A``, the averaging operator: in a triangle surface or a polyline,
     vertices share an element exactly when they share an edge)."""
     for _ in range(rings):
-        vertices = np.union1d(vertices, _rows(A.indptr, A.indices, vertices))
+        vertices = np.union1d(vertices, A.indices[ranges(A.indptr, vertices)])
     return vertices
-
-
-def _rows(start, items, rows):
-    """(k,) the ``items[start[r]:start[r + 1]]`` of every row of ``rows``, concatenated."""
-    lo, count = start[rows], start[rows + 1] - start[rows]
-    first = np.cumsum(count) - count
-    return items[np.repeat(lo - first, count) + np.arange(int(count.sum()))]
 
 
 def _folded_mask(X, S):
@@ -95,7 +89,7 @@ def _parts(region, A):
     if len(region) == 0:
         return np.zeros(0, np.int64)
     count = A.indptr[region + 1] - A.indptr[region]
-    j = _rows(A.indptr, A.indices, region)
+    j = A.indices[ranges(A.indptr, region)]
     i = np.repeat(np.arange(len(region)), count)
     at = np.minimum(np.searchsorted(region, j), len(region) - 1)
     inside = region[at] == j
