@@ -243,6 +243,74 @@ def test_straighten_replaces_a_zigzag_by_a_straight_path_keeping_the_charts():
     assert np.array_equal(straighten(g, cost, cut, 0.0), cut)
 
 
+def _capped_cylinder(n=64, h=5.0):
+    """A closed cylinder of one row of side facets (each side edge the full height), each cap a
+    fan from one rim vertex: as CAD exports it."""
+    t = 2 * np.pi * np.arange(n) / n
+    bottom = np.c_[np.cos(t), np.sin(t), np.zeros(n)]
+    i, j, k = np.arange(n), (np.arange(n) + 1) % n, np.arange(1, n - 1)
+    side = np.stack([np.c_[i, j, n + j], np.c_[i, n + j, n + i]], axis=1).reshape(-1, 3)
+    caps = np.stack([np.c_[0 * k, k + 1, k], np.c_[n + 0 * k, n + k, n + k + 1]], axis=1).reshape(-1, 3)
+    return np.r_[bottom, bottom + [0.0, 0.0, h]], np.r_[side, caps]
+
+
+def test_a_lone_interior_edge_is_a_slit_and_straightening_never_makes_one():
+    """Cutting one interior edge alone leaves a chart that reads as closed (both sides of the edge
+    on the same two vertices): ``slits`` finds it, straightening refuses to shorten a path of two
+    edges to the one edge joining its ends, and ``cut_surface`` never returns one (the capped
+    cylinder's cheapest seam between its rims, its topological cut, is a single side edge)."""
+    from geomopt.atlas.seams import slits
+
+    n = 64
+    V, F = _capped_cylinder(n)
+    g = edge_graph(V, F)
+    index = {tuple(sorted(e)): k for k, e in enumerate(g.E.tolist())}
+    i = 5
+    side, rim, diagonal = index[(i, n + i)], index[(i - 1, i)], index[(i - 1, n + i)]
+    lone = np.zeros(len(g.E), dtype=bool)
+    lone[diagonal] = True
+    assert np.array_equal(np.flatnonzero(slits(g, lone)), [diagonal])
+    path = np.zeros(len(g.E), dtype=bool)
+    path[[side, rim]] = True  # a disk of four boundary half-edges; its ends are the diagonal's
+    assert not slits(g, path).any()
+    cost = edge_costs(g, 0.0)  # no crease preference: the diagonal is the straightest path
+    for cut in (path, straighten(g, cost, path, 1.0), cut_surface(g, cost, 4.5, max_cuts=0)[0],
+                cut_surface(g, cost, 4.5, turn=1.0)[0]):
+        assert cut.any() and not slits(g, cut).any()
+        split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
+        assert split.count == 1 and split.mesh(0).disk_loop() is not None
+
+
+def test_make_atlas_of_a_cad_cylinder_is_certified():
+    from geomopt.atlas import certify_atlas, make_atlas
+
+    V, F = _capped_cylinder()
+    atlas = make_atlas(V, F, progress=False)
+    d = atlas.details
+    assert atlas.success and certify_atlas(atlas.x, d.uv_faces, d.chart).ok
+
+
+def test_a_chart_whose_uniform_tutte_map_inverts_by_rounding_is_flattened_from_another_start():
+    """The capped cylinder cut along one side edge and one rim edge: a chart of long slivers
+    whose uniform Tutte map has inverted triangles in floating point; the chart is still
+    flattened (mean-value weights) and certified, instead of the atlas failing."""
+    from geomopt.atlas.flatten import flatten_chart
+    from geomopt.param import parameterize
+
+    n = 64
+    V, F = _capped_cylinder(n)
+    g = edge_graph(V, F)
+    index = {tuple(sorted(e)): k for k, e in enumerate(g.E.tolist())}
+    cut = np.zeros(len(g.E), dtype=bool)
+    cut[[index[(45, n + 45)], index[(n + 45, n + 46)]]] = True
+    chart = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut).mesh(0)
+    Vc = g.V[chart.vertices]
+    with pytest.raises(Exception, match="Tutte start map has"):
+        parameterize(Vc, chart.F, progress=False)
+    res = flatten_chart(Vc, chart.F, "symmetric_dirichlet", None, {})
+    assert res.success and res.injectivity == "global"
+
+
 def test_hidden_costs_make_the_cut_of_a_mesh_less_visible_and_straighter():
     """3holes, cut (topology, cone cuts) with the old costs and with visibility and straightening."""
     from geomopt.io import read_mesh

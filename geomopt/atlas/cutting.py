@@ -29,7 +29,7 @@ import numpy as np
 from ..mesh.quality import triangle_areas
 from .charts import charts_of_cut
 from .cones import ChartScale, angle_defects, log_scale, scale_estimate
-from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut,
+from .seams import (EdgeGraph, cut_path_to_seams, dangling_paths, saddle_factor, shortest_topological_cut, slits,
                     steiner_tree, straighten)
 
 __all__ = ["cut_surface", "chart_estimate", "relieve", "strong_cones", "trim"]
@@ -76,18 +76,21 @@ def _open_spheres(g: EdgeGraph, cost, cut, labels, roots):
         d = dijkstra(g.adjacency(g.length), indices=a)[verts]
         far = np.flatnonzero(d >= 0.5 * d.max())
         b = verts[far[int(np.argmin(u[far]))]]
-        path = cut_path_to_seams(g, cost, a, np.array([b]))
-        if len(path) == 1:  # a one-edge slit leaves both sides on the same two vertices: not a disk
-            path.append(_cheapest_edge_at(g, cost, b, path[0]))
-        cut[path] = True
+        cut[cut_path_to_seams(g, cost, a, np.array([b]))] = True
+    return _without_slits(g, cost, cut)
+
+
+def _without_slits(g: EdgeGraph, cost, cut):
+    """``cut`` with each of its :func:`~geomopt.atlas.seams.slits` (a lone interior edge: its two
+    sides on the same two vertices, which no chart mesh can hold) extended by the cheapest other
+    edge at its second end, into a path of two edges: a disk's boundary of four half-edges."""
+    cut = cut.copy()
+    for e in np.flatnonzero(slits(g, cut)):
+        v = g.E[e, 1]
+        at = np.flatnonzero((g.E == v).any(axis=1))
+        at = at[at != e]
+        cut[at[np.argmin(cost[at])]] = True
     return cut
-
-
-def _cheapest_edge_at(g: EdgeGraph, cost, v, other):
-    """The cheapest edge (row of ``g.E``) at vertex ``v`` other than edge ``other``."""
-    at = np.flatnonzero((g.E == v).any(axis=1))
-    at = at[at != other]
-    return int(at[np.argmin(cost[at])])
 
 
 def chart_estimate(g: EdgeGraph, chart, seams, scale=None):
@@ -288,4 +291,4 @@ def cut_surface(g: EdgeGraph, cost, target: float, max_cuts: int = 200, tree_cos
         if best is None or key < best[0]:
             best = (key, (cut, estimate, made))
     cut, estimate, made = best[1]
-    return straighten(g, cost, cut, turn), estimate, made
+    return _without_slits(g, cost, straighten(g, cost, cut, turn)), estimate, made

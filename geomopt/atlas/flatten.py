@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._runtime.errors import MeshError
 from ..mesh.quality import triangle_areas
 from .charts import charts_of_cut
 from .cutting import relieve
@@ -41,16 +42,40 @@ _SPLIT_SEEDS = (True, False)  # each with seeds centred in their regions, and no
 def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=True):
     """A chart's flip-free flattening (:class:`~geomopt.solvers.Result`, ``x`` (nc, 2)): free
     boundary (``free``, when that solve was made already), then, with ``scaffold``, the
-    bijective scaffold when the boundary overlapped itself or the map is not certified."""
+    bijective scaffold when the boundary overlapped itself or the map is not certified.  Each
+    solve starts from the first of :data:`_STARTS` whose start map has no inverted triangle."""
     from ..param import ParamOptions, parameterize
 
-    res = free if free is not None else parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver,
-                                                     progress=False)
+    def solve(weights, x0, bijective=False):
+        return parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False, x0=x0,
+                            options=ParamOptions(weights=weights, bijective=bijective))
+
+    res = free if free is not None else _started(solve)
     if (res.success and res.injectivity == "global") or not scaffold:
         return res
-    again = parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False,
-                         options=ParamOptions(bijective=True))
+    try:
+        again = _started(lambda weights, x0: solve(weights, x0, bijective=True))
+    except MeshError:  # no start map for the scaffold: the free map is what there is
+        return res
     return again if again.success or not res.success else res
+
+
+#: start maps tried in turn, ``(Tutte weights, x0)``: uniform Tutte; mean-value Tutte where
+#: rounding inverts the uniform one's crowded triangles (a long chart of slivers: a cylinder cut
+#: along one side); the projection to the chart's plane, its folds repaired
+_STARTS = (("uniform", None), ("mean_value", None), ("uniform", "projection"))
+
+
+def _started(solve):
+    """``solve(weights, x0)`` from the first start map of :data:`_STARTS` that it accepts; the
+    first one's MeshError when it accepts none."""
+    first = None
+    for weights, x0 in _STARTS:
+        try:
+            return solve(weights, x0)
+        except MeshError as exc:
+            first = first or exc
+    raise first
 
 
 def _key(mesh):

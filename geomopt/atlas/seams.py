@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ..exact.topology import ranges, unique_edges
 
 __all__ = ["EdgeGraph", "edge_graph", "edge_costs", "exposure", "underside", "topological_cut", "shortest_topological_cut",
-           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "straighten",
+           "steiner_tree", "saddle_factor", "dangling_paths", "cut_path_to_seams", "slits", "straighten",
            "straighten_split", "straighten_splits"]
 
 
@@ -441,10 +441,20 @@ def _turn_graph(g: EdgeGraph):
     return tail, head, a, b, angle
 
 
+def slits(g: EdgeGraph, cut) -> np.ndarray:
+    """(k,) bool, the interior cut edges that no other cut or boundary edge touches at either
+    end.  Cutting such an edge alone opens a disk whose boundary is a two-gon (both sides of the
+    edge on the same two vertices): a disk topologically, but no triangle mesh (its two boundary
+    edges are one edge with two faces on each side, so the chart reads as closed)."""
+    on = np.asarray(cut, dtype=bool) | g.boundary
+    degree = np.bincount(g.E[on].ravel(), minlength=len(g.V))
+    return on & ~g.boundary & (degree[g.E[:, 0]] == 1) & (degree[g.E[:, 1]] == 1)
+
+
 def _disks(g: EdgeGraph, cut) -> tuple:
     """``(count, all_disks)``: the charts of ``cut`` and whether each is a disk (Euler
     characteristic 1 of a connected chart: wedges - edges + faces, its edges counted from its
-    faces' half-edges, each glued pair once)."""
+    faces' half-edges, each glued pair once) that a triangle mesh can hold (no :func:`slits`)."""
     from .charts import charts_of_cut
 
     split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
@@ -454,7 +464,7 @@ def _disks(g: EdgeGraph, cut) -> tuple:
     wedge_chart[split.wedge.ravel()] = np.repeat(split.chart, 3)
     wedges = np.bincount(wedge_chart, minlength=split.count)
     chi = 2 * wedges - (3 * faces + open_half) + 2 * faces
-    return split.count, bool(np.all(chi == 2))
+    return split.count, bool(np.all(chi == 2)) and not slits(g, cut).any()
 
 
 def straighten(g: EdgeGraph, cost: np.ndarray, cut: np.ndarray, turn: float = 1.0, slide: float = 0.0) -> np.ndarray:
