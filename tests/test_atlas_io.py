@@ -12,6 +12,7 @@ import pytest
 import geomopt
 from geomopt import ParameterError
 from geomopt.atlas import AtlasOptions, certify_atlas, make_atlas
+from geomopt.atlas.build import welded
 from geomopt.exact.topology import boundary_half_edges
 
 from test_atlas import read_obj_corners  # (v, vt, f: vertex and vt per corner)
@@ -222,3 +223,39 @@ def test_an_atlas_result_saves_as_every_map_does(tmp_path):
     assert np.array_equal(vt, result.x) and np.array_equal(f[:, :, 1], result.details.uv_faces)
     with pytest.raises(geomopt.GeomoptError, match="extension"):
         result.save(tmp_path / "t.ply")
+
+
+def _unwelded(V, F):
+    """Every face its own three vertices (an export that splits vertices at every face)."""
+    return np.asarray(V)[np.asarray(F)].reshape(-1, 3), np.arange(3 * len(F)).reshape(-1, 3)
+
+
+def test_an_unwelded_mesh_is_welded_into_the_atlas_of_the_welded_one():
+    V, Q = quad_torus(6, 3)
+    F = triangles(Q)
+    Vu, Fu = _unwelded(V, F)
+    Fw, joined = welded(Vu, Fu, np.array([0, len(Vu)]))
+    assert joined == len(Vu) - len(V) and len(np.unique(Fw)) == len(V)
+    assert np.array_equal(Vu[Fw], Vu[Fu])  # same positions, vertices shared
+    a, b = make_atlas(V, F, progress=False), make_atlas(Vu, Fu, progress=False)
+    assert a.success and b.success
+    assert b.details.metrics == a.details.metrics  # the welded mesh's atlas (not a chart per triangle)
+    assert np.array_equal(b.details.faces, Fu)  # the input's faces, kept
+    assert np.array_equal(Vu[b.details.vertex][b.details.uv_faces], Vu[Fu])  # each UV row at its corner
+
+
+def test_welding_keeps_apart_what_it_may_not_join():
+    # three triangles on copies of one edge: joined, that edge would have three faces
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0, 0, 0], [1, 0, 0], [0.5, -1, 0],
+                  [0, 0, 0], [1, 0, 0], [0.5, 0, 1]], dtype=float)
+    F = np.arange(9).reshape(3, 3)
+    assert welded(V, F, np.array([0, 9]))[1] == 0
+    # two meshes are never joined, even where joined they would make one good mesh: the two
+    # halves of a torus, each given with all the torus's vertices
+    Vt, Qt = quad_torus(6, 3)
+    T = triangles(Qt)
+    half = len(T) // 2
+    V2, F2 = np.r_[Vt, Vt], np.r_[T[:half], T[half:] + len(Vt)]
+    F_, joined = welded(V2, F2, np.array([0, len(Vt), 2 * len(Vt)]))
+    assert joined == 0 and np.array_equal(F_, F2)
+    assert welded(V2, F2, np.array([0, 2 * len(Vt)]))[1] == len(Vt)  # as one mesh they would join

@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from geomopt._runtime.errors import MeshFormatError
+from geomopt.exact import weld as weld_module
 from geomopt.io import _stl, _text
 from geomopt.io._text import FLOAT_RE, INT_RE, Tokens, parse
 
@@ -99,7 +100,7 @@ def test_stl_welding_is_exact_when_every_hash_collides(monkeypatch):
     V[rng.random(V.shape) < 0.2] = -0.0
     corners = V[rng.integers(0, 30, 60)]
     want = _stl.weld(corners)
-    monkeypatch.setattr(_stl, "_mix", lambda z: np.zeros_like(z))
+    monkeypatch.setattr(weld_module, "_mix", lambda z: np.zeros_like(z))
     got = _stl.weld(corners)
     assert np.array_equal(got[0].view(np.int64), want[0].view(np.int64)) and np.array_equal(got[1], want[1])
     ids = {}

@@ -26,6 +26,7 @@ from .._runtime.x64 import float64
 from ..energies import energy_spec, get_energy
 from ..solvers import Details, Outcome, Result, RunStats
 from ..exact.topology import as_faces, same_side_facets, unique_edges
+from ..exact.weld import equal_points
 from .charts import charts_of_cut
 from .cones import angle_defects
 from .cutting import cut_surface
@@ -39,7 +40,7 @@ from ._pack import MARGIN, pack_charts, packing_estimate, widest_margin
 from .flat_splits import split_to_pack
 from .packed_splits import straighten_packed
 
-__all__ = ["make_atlas", "AtlasDetails", "AtlasPart", "AtlasOptions", "check_atlas_input"]
+__all__ = ["make_atlas", "AtlasDetails", "AtlasPart", "AtlasOptions", "check_atlas_input", "welded"]
 
 # rays per vertex of the visibility that weights the seams' cost (the reported figure uses 96 per edge)
 _COST_RAYS = 32
@@ -104,6 +105,10 @@ class AtlasOptions:
     padding : None, or the texels between charts with ``resolution`` (default 2); below
         ``resolution / 5``.
     rotate : let the packer rotate charts (orientation is always kept: no mirroring).
+    weld : join each input mesh's vertices at bit-identical positions (an export that splits
+        vertices along normals, UV seams or every face leaves them), where the joined mesh is
+        one an atlas can take (:func:`welded`): the atlas then cuts where it chooses, not along
+        every split the file had (an unwelded mesh is otherwise a chart per triangle).
     """
 
     max_distortion: float = 4.15
@@ -119,13 +124,14 @@ class AtlasOptions:
     resolution: int | None = None
     padding: float | None = None
     rotate: bool = True
+    weld: bool = True
 
     def __post_init__(self):
         validate(self, max_distortion=Real(4.0, lo_open=True), crease=Real(0.0), max_cuts=Int(0),
                  hide=Real(0.0), straighten=Real(0.0), up=Maybe(OneOf(("x", "y", "z", "-x", "-y", "-z"))),
                  min_efficiency=Real(0.0, 1.0), split_gain=Real(0.0, 1.0), margin=Maybe(MARGIN),
                  resolution=Maybe(Int(1)), padding=Maybe(Real(0.0)), rotate=Instance(bool),
-                 straighten_packed=Instance(bool))
+                 straighten_packed=Instance(bool), weld=Instance(bool))
         if self.resolution is None and self.padding is not None:
             raise ParameterError(f"AtlasOptions: padding ({self.padding!r} texels) needs the texture's resolution: "
                                  f"give resolution=N too (or a margin, a fraction of the square)")
@@ -180,8 +186,9 @@ class AtlasDetails(Details):
     ----------
     uv_faces : (m, 3) int64, the row of ``result.x`` of each face corner (faces in input order).
     chart : (m,) int64, the chart of each face.
-    vertex : (k,) int64, the vertex (row of ``vertices``) of each UV row.
-    seams : (s, 2) int64, the cut edges as sorted vertex pairs.
+    vertex : (k,) int64, the vertex (row of ``vertices``) of each UV row; where copies of a
+        vertex were welded (``AtlasOptions.weld``), the first copy (``faces`` keep the input's).
+    seams : (s, 2) int64, the cut edges as sorted vertex pairs (of the welded vertices).
     metrics : :class:`~geomopt.atlas.metrics.AtlasMetrics` (charts, seam length, mean and worst
         symmetric Dirichlet, packing efficiency, mirrored charts).
     charts : one :class:`~geomopt.solvers.Result` per chart (its flattening before packing).
@@ -299,6 +306,26 @@ def check_atlas_input(V, F):
     return V, F
 
 
+def welded(V, F, offsets):
+    """``(F, joined)``: the checked faces ``F`` with the vertices of each input mesh (rows
+    ``offsets[i]:offsets[i + 1]`` of ``V``) at bit-identical positions made one, the first of them
+    (:func:`~geomopt.exact.weld.equal_points`), and how many vertices were joined; ``(F, 0)``
+    where none are, or where the joined faces would be refused by :func:`check_atlas_input` (an
+    edge of three faces, a face on one vertex twice, faces not consistently oriented: the copies
+    were kept apart on purpose).  Meshes are never joined to each other."""
+    rep = np.arange(len(V))
+    for lo, hi in zip(offsets[:-1], offsets[1:]):
+        first, group = equal_points(V[lo:hi])
+        rep[lo:hi] = lo + first[group]
+    joined = int(np.count_nonzero(rep[np.unique(F)] != np.unique(F)))
+    if not joined:
+        return F, 0
+    try:
+        return check_atlas_input(V, rep[F])[1], joined
+    except MeshError:
+        return F, 0
+
+
 def _looks(g, options) -> dict:
     """The keywords of :func:`~geomopt.atlas.seams.edge_costs` that hide the seams: each
     vertex's visibility (when ``options.hide``) and the up axis (when ``options.up``)."""
@@ -399,6 +426,11 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     options, energy, energy_params = _check_options(options, energy, progress)
     given = atlas_input(V, F)
     V, F = check_atlas_input(given.V, given.F)
+    faces = F  # the input's, in the details; the atlas maps F, welded
+    if options.weld:
+        F, joined = welded(V, F, given.vertex_offsets)
+        if joined:
+            _say(progress, "welded", vertices=joined)
     g, manifold, pinched = _manifold_graph(V, F, progress)
     cost, tree_cost = _costs(g, given, options)
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
@@ -442,7 +474,7 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
         _say(progress, "split to pack", charts=len(meshes), efficiency=packing.efficiency)
     uv, uv_faces, wedge, chart, certificate = _place(len(F), meshes, maps, packing, pack, inset)
     details = AtlasDetails(uv_faces, chart, manifold.vertex[wedge], seam_edges(F, uv_faces), atlas_metrics(V, F, uv, uv_faces),
-                           tuple(results[i] for i in owner), 0.0, pinched, V, F, given.counts,
+                           tuple(results[i] for i in owner), 0.0, pinched, V, faces, given.counts,
                            given.vertex_offsets, given.face_offsets, margin * (1.0 - 2.0 * inset))
     return _result(uv, certificate, details, results, solver, t0, progress, throw)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._runtime.errors import MeshFormatError
+from ..exact.weld import weld
 from ._text import UTF8_BOM, Tokens, ranges, show, text_data
 
 __all__ = ["read_stl"]
@@ -97,41 +98,3 @@ def _words_are(tokens, lower, index, word):
     for i, byte in enumerate(word):
         ok &= raw[np.minimum(tokens.start[index] + i, len(raw) - 1)] == byte
     return ok
-
-
-def weld(corners):
-    """Merge corners with equal coordinates (-0.0 = +0.0): ``(V (n, 3), F (m, 3))``, vertices in
-    first-seen order with the first corner's exact bits.
-
-    Corners are grouped by a 64-bit hash of their bits (one ``np.unique`` of integers); should two
-    different corners share a hash, the corners are grouped by their bits instead (slower).
-    """
-    corners = np.ascontiguousarray(corners, dtype=np.float64)
-    bits = (corners + 0.0).view(np.uint64)  # -0.0 + 0.0 = +0.0: equal corners weld
-    key = np.zeros(len(bits), dtype=np.uint64)
-    for j in range(3):
-        key = _mix(key ^ bits[:, j])
-    first, inverse = _groups(key)
-    if (bits != bits[first[inverse]]).any():
-        first, inverse = _groups(np.unique(bits, axis=0, return_inverse=True)[1].ravel())
-    rank = np.empty_like(first)
-    rank[np.argsort(first)] = np.arange(first.size)  # groups numbered by their first corner
-    return corners[np.sort(first)], rank[inverse].reshape(-1, 3).astype(np.int64)
-
-
-def _groups(key):
-    """``(first, group)``: the first index of each distinct value of ``key`` and the group of every
-    entry (one unstable sort: the first of a group is its smallest index)."""
-    order = np.argsort(key)
-    ordered = key[order]
-    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
-    group = np.empty(len(key), dtype=np.int64)
-    group[order] = np.cumsum(np.r_[True, ordered[1:] != ordered[:-1]]) - 1
-    return np.minimum.reduceat(order, starts), group
-
-
-def _mix(z):
-    """SplitMix64's finaliser: every output bit depends on every input bit."""
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
