@@ -179,7 +179,7 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     >>> result.details.improved, result.details.after.min > result.details.before.min
     (True, True)
     """
-    from .energies import energy_spec
+    from .energies import energy_spec, get_energy
     from .exact.predicates import box_scale
     from .solvers import get_solver
 
@@ -190,6 +190,10 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     problem = element_problem(V * scale, E, fixed, options.rest)
     V = V * scale
     start = _certified_input(problem, V)
+    if not len(problem.fixed):  # nothing holds the size: an energy that falls with it would collapse the mesh
+        get_energy(energy).check_scale_aware(params, V.shape[1], "smoothing with no vertex fixed",
+                                             "fix the boundary (fixed=None; geomopt smooth --fix boundary) or use a "
+                                             "scale-invariant energy (mips)")
     solver = get_solver(solver)
     if not getattr(getattr(solver, "search", None), "injective", True):
         raise ParameterError("smooth needs a solver whose line search is injective (search.injective=True)")
@@ -200,6 +204,8 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
             warnings.simplefilter("ignore", MaxStepsWarning)
         solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
                                                    params)
+    if not len(problem.fixed):
+        x = _in_gauge(x, V, solves[-1].objective)
     local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
     if not local.ok:  # a free boundary folded over itself: the input
         outcome, reason = Outcome.NOT_INJECTIVE, (f"the minimum is not locally injective ({local.message}); the "
@@ -237,6 +243,24 @@ def _rounds(problem, V, start, energy, solver, progress, max_rounds, params):
         current = problem.with_fixed(both, V[both])
     return solves, V, np.zeros(0, np.int64), Outcome.MAX_STEPS, (
         f"each of {max_rounds} solves made an element worse than the input's worst; the input is returned")
+
+
+def _in_gauge(x, V, objective):
+    """``x`` with nothing held moved back where ``V`` is: translated to its centroid (every energy
+    is a function of the Jacobians: free to translate), and scaled to its size where the energy
+    does not change with scale (Winslow, MIPS: their minimisers are a similarity class, along which
+    a solver may drift until the mesh has shrunk a million times; the elements' shapes, the scaled
+    Jacobians, are the same).  ``x`` as it is when it is not finite."""
+    if not np.isfinite(x).all():
+        return x
+    c, c0 = x.mean(axis=0), V.mean(axis=0)
+    size, size0 = np.sqrt(np.mean((x - c) ** 2)), np.sqrt(np.mean((V - c0) ** 2))
+    moved = x - c + c0
+    if not size > 0:
+        return moved
+    scaled = (x - c) * (size0 / size) + c0
+    e, e_scaled = (float(objective.value(objective.prepare_map(y))) for y in (x, scaled))
+    return scaled if np.isfinite(e_scaled) and abs(e_scaled - e) <= 1e-9 * max(abs(e), 1.0) else moved
 
 
 def _certificate(local, problem, x) -> LocalCertificate:

@@ -199,3 +199,38 @@ def test_smooth_throws_on_request_like_every_driver():
         with pytest.raises(SolveError, match="smooth failed: stopped at the iteration limit") as info:
             smooth(V, Q, options=cut, throw=True)
     assert info.value.result.outcome.value == "max_steps" and info.value.result.certificate.ok
+
+
+def _jittered(V, seed=0):
+    """``V`` with every vertex moved a little (nothing is held here)."""
+    rng = np.random.default_rng(seed)
+    return V + 0.08 * rng.uniform(-1, 1, V.shape) * (np.ptp(V, axis=0) > 0)
+
+
+@pytest.mark.parametrize("kind, energy", [("quad", "winslow"), ("quad", "mips"), ("hexahedron", "mips")])
+def test_smoothing_with_nothing_fixed_keeps_the_mesh_where_and_as_large_as_it_was(kind, energy):
+    """With no vertex fixed, a scale-invariant energy's minimisers are a similarity class: the
+    solver drifted along it until the mesh had shrunk up to a million times, and reported success.
+    The result is moved back to the input's centroid and size (its shapes unchanged)."""
+    V, E = G.quad_mesh(2, 2, size=(2.0, 2.0)) if kind == "quad" else G.hex_mesh(2, 2, 2, size=(2.0, 2.0, 2.0))
+    V = _jittered(V)
+    res = smooth(V, E, energy=energy, fixed=[])
+    assert res.success and res.details.improved
+    assert np.allclose(res.x.mean(axis=0), V.mean(axis=0), atol=1e-9)
+    size = lambda X: np.sqrt(np.mean((X - X.mean(axis=0)) ** 2))  # noqa: E731
+    assert abs(size(res.x) / size(V) - 1) < 1e-9
+    assert res.details.after.min > res.details.before.min
+
+
+def test_smoothing_refuses_an_energy_that_shrinks_the_mesh_when_nothing_is_fixed(cli, tmp_path):
+    """Winslow's 3D density falls with the size (|J^-1|^2 det J ~ s): with nothing fixed the
+    mesh collapses to a point, so it is refused, saying what to do; in 2D it is scale-invariant."""
+    from geomopt import ParameterError
+
+    V, E = G.hex_mesh(2, 2, 2, size=(2.0, 2.0, 2.0))
+    V = _jittered(V)
+    with pytest.raises(ParameterError, match="no vertex fixed would collapse.*--fix boundary"):
+        smooth(V, E, energy="winslow", fixed=[])
+    src = io.write_cells(tmp_path / "in.vtk", V, E, "hexahedron")
+    code, _, err = cli("smooth", src, "-o", tmp_path / "out.vtk", "--fix", "none", "--quiet")
+    assert code == 2 and "collapse" in one_error_line(err) and not (tmp_path / "out.vtk").exists()

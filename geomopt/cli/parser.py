@@ -171,8 +171,9 @@ def _add_untangle(sub):
                          "--rest (quads/hexahedra without it: squares/cubes)")
     sp.add_argument("-o", "--output", required=True,
                     help="one case: output OBJ (2D) or VTK (3D), any tet/quad/hex mesh format for a mesh "
-                         "file or quad/hex case; otherwise an output folder, which gets <case folder "
-                         "name>.obj/.vtk per certified case and summary.csv")
+                         "file or quad/hex case (its cells of the kind untangled only: boundary cells, physical "
+                         "groups, point and cell data are not written); otherwise an output folder, which gets "
+                         "<case folder name>.obj/.vtk per certified case and summary.csv")
     sp.add_argument("--rest", default=None, metavar="REST",
                     help="one mesh file: its rest mesh, a file with the same vertices and cells (required "
                          "for tets)")
@@ -206,7 +207,9 @@ def _add_smooth(sub):
     sp = sub.add_parser("smooth", help="smooth a valid quad/hex mesh (Winslow), never making an element worse "
                                        "than the input's worst")
     sp.add_argument("input", help=f"quad or hex mesh ({formats.listing()}), every element valid")
-    sp.add_argument("-o", "--output", required=True, help="output mesh, same cells (any of the input formats)")
+    sp.add_argument("-o", "--output", required=True,
+                    help="output mesh (any of the input formats): the input's points moved, its quads or "
+                         "hexahedra only (boundary cells, physical groups, point and cell data are not written)")
     sp.add_argument("--energy", default="winslow", metavar="NAME",
                     help=f"one of {', '.join(ENERGIES)} (default winslow: the inverse-harmonic map)")
     sp.add_argument("--solver", default="newton", metavar="NAME",
@@ -225,7 +228,7 @@ def _add_fair(sub):
     sp = sub.add_parser("fair", help="smooth a triangle surface (Laplacian, Taubin, implicit fairing, least "
                                      "squares, spectral, tangential...) with no face ever folded")
     sp.add_argument("input", help="triangle mesh (OBJ/OFF/PLY/STL): closed, with boundary or several components")
-    sp.add_argument("-o", "--output", required=True, help="output .obj, the same faces")
+    sp.add_argument("-o", "--output", required=True, help="output .obj, the same faces (polygons fan-triangulated)")
     sp.add_argument("--method", default="taubin", choices=METHODS, help="smoothing method (default taubin)")
     sp.add_argument("--laplacian", default=None, choices=["uniform", "cotangent"],
                     help="Laplacian weights (default: the method's; cotangent weights are clamped to be >= 0)")

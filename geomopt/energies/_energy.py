@@ -20,6 +20,10 @@ from .._runtime.x64 import float64
 from . import _densities as _d
 
 
+_FREE_ADVICE = ("use a scale-aware energy (symmetric_dirichlet, arap, mips) or fix boundary vertices "
+                "(geomopt.minimize with a Problem that has handles)")
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Energy:
     """A distortion energy ``E(x) = sum_e vol_e * density(J_e(x), params)``.
@@ -111,17 +115,21 @@ class Energy:
         return rv(d) if callable(rv) else rv
 
     @float64
-    def check_scale_aware(self, params=None):
+    def check_scale_aware(self, params=None, d: int = 2, problem: str = "a free-boundary parameterization",
+                          advice: str = _FREE_ADVICE):
         """Refuse this energy for a free boundary when it lets the map shrink to a point (e.g.
         Dirichlet): that problem has no minimiser, so any "solution" is a collapsed map.  Tested
         on the density itself, so it covers user energies: ``psi(s I) < psi(I) / 2`` at
-        ``s = 1e-3`` for 2x2 Jacobians (no scale-aware or scale-invariant distortion does that).
+        ``s = 1e-3`` for d x d Jacobians (no scale-aware or scale-invariant distortion does that;
+        Winslow does in 3D, not in 2D).
 
         Parameters
         ----------
         params : mapping of str to float, optional
             Overrides of the energy's parameters; names it does not have are ignored (the
             caller's own checks report them, with better advice).
+        d : the Jacobians' size.
+        problem, advice : the problem that would collapse and what to do instead, for the message.
 
         Raises
         ------
@@ -131,20 +139,18 @@ class Energy:
         params = self.resolve_params(**{k: v for k, v in (params or {}).items() if k in self.params})
         # one kept program per density (no trace in a warm process) instead of dozens of eager operations;
         # its argument a NumPy array: jnp.array would compile an eager conversion in every process
-        values = np.asarray(_density_at_scales(self.density, params, np.array([1.0, 1e-3]))).tolist()
+        values = np.asarray(_density_at_scales(self.density, params, np.array([1.0, 1e-3]), int(d))).tolist()
         at = dict(zip((1.0, 1e-3), values))
         if np.isfinite(at[1e-3]) and at[1e-3] < at[1.0] - 0.5 * abs(at[1.0]):
             raise ParameterError(
                 f"energy {self.name!r} decreases when the map shrinks ({at[1e-3]:.3g} at 1/1000 scale vs "
-                f"{at[1.0]:.3g} at rest), so a free-boundary parameterization would collapse to a point; "
-                "use a scale-aware energy (symmetric_dirichlet, arap, mips) or fix boundary vertices "
-                "(geomopt.minimize with a Problem that has handles)")
+                f"{at[1.0]:.3g} at rest), so {problem} would collapse to a point; {advice}")
 
 
-@functools.partial(programs_jit, static_argnums=0)
-def _density_at_scales(density, params, scales):
-    """(k,) ``density(s I, params)`` for each 2D scale ``s`` of ``scales`` (k,)."""
-    return jax.vmap(lambda s: density(s * jnp.eye(2), params))(scales)
+@functools.partial(programs_jit, static_argnums=(0, 3))
+def _density_at_scales(density, params, scales, d=2):
+    """(k,) ``density(s I, params)`` for each scale ``s`` of ``scales`` (k,), I the d x d identity."""
+    return jax.vmap(lambda s: density(s * jnp.eye(d), params))(scales)
 
 
 _DENSITY_RULE = ("a density must be a pure JAX function psi(J, params) of a (d, d) float64 array J "
