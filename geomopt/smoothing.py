@@ -144,7 +144,9 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
     energy : an energy name or object (default ``"winslow"``), or a pair ``(name, {parameter:
         value})`` (:func:`geomopt.energies.energy_spec`).
     solver : a solver name or object with an injective search (default projected Newton).
-    fixed : vertex ids held in place (default: the boundary vertices).
+    fixed : vertex ids held in place (default: the boundary vertices).  With none (``[]``) the
+        result is moved back to the input's centroid and, for an energy that does not change with
+        scale, its size; an energy that falls with the size (Winslow in 3D) is refused then.
     options : :class:`SmoothOptions` (rest shape, iteration limits).
     progress : passed to :func:`~geomopt.solvers.minimize`.
     throw : raise :class:`~geomopt.SolveError` (carrying the result) unless it ``success``
@@ -204,7 +206,7 @@ def smooth(V, E, energy="winslow", solver="newton", *, fixed=None, options: Smoo
             warnings.simplefilter("ignore", MaxStepsWarning)
         solves, x, held, outcome, reason = _rounds(problem, V, start, energy, solver, progress, options.max_rounds,
                                                    params)
-    if not len(problem.fixed):
+    if not len(problem.fixed) and x is not V:  # (V itself: no solve kept, nothing to move back)
         x = _in_gauge(x, V, solves[-1].objective)
     local = problem.certify(x)  # elements valid inside, no vertex wound twice, no boundary overlap
     if not local.ok:  # a free boundary folded over itself: the input
