@@ -317,7 +317,8 @@ def welded(V, F, offsets):
     for lo, hi in zip(offsets[:-1], offsets[1:]):
         first, group = equal_points(V[lo:hi])
         rep[lo:hi] = lo + first[group]
-    joined = int(np.count_nonzero(rep[np.unique(F)] != np.unique(F)))
+    used = np.unique(F)
+    joined = int(np.count_nonzero(rep[used] != used))
     if not joined:
         return F, 0
     try:
