@@ -160,7 +160,6 @@ def _rest_variants(tmp_path, rest, T):
     (lambda d, r, t, e, s: ["--rest", e], ["vertices but", "same count and order"]),
     (lambda d, r, t, e, s: [], ["needs the rest mesh", "--rest REST"]),
     (lambda d, r, t, e, s: ["--rest", r, "--handles", d / "bad.txt"], ["handles has 1 indices outside 0..63"]),
-    (lambda d, r, t, e, s: ["--rest", r, "--handles", d / "empty.txt"], ["empty.txt is empty", "fixed boundary"]),
     (lambda d, r, t, e, s: ["--rest", r, "-o", r], ["is the input file"]),
     (lambda d, r, t, e, s: ["--rest", r, "--png", d / "pic.png", "-o", d / "out.obj"], [".obj"]),
 ])
@@ -168,7 +167,6 @@ def test_untangle_refuses_mismatched_files_in_one_line(cli, tmp_path, make, word
     rest, tangled, t, T = _tangled_tets(tmp_path)
     extra, swapped = _rest_variants(tmp_path, rest, T)
     (tmp_path / "bad.txt").write_text(f"0\n{len(t.rest)}\n")
-    (tmp_path / "empty.txt").write_text("")
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     argv = make(tmp_path, rest, tangled, extra, swapped)
     argv = argv if "-o" in argv else argv + ["-o", tmp_path / "out.vtk"]

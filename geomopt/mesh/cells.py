@@ -150,20 +150,8 @@ def read_cell_case(path, rest=None, handles=None, kinds=UNTANGLE_KINDS) -> CellC
         raise MeshError(f"{path} is a tetrahedral mesh: tetrahedra have no reference shape, so untangling them "
                         f"needs the rest mesh: give it with --rest REST (the same tetrahedra at rest), or use a "
                         f"LIM case folder (rest.vtk, init.vtk, handles.txt)")
-    H = None if handles is None else _handles(handles, len(P))
+    H = None if handles is None else io.read_vertex_ids(handles, len(P))
     return CellCase(_planar(P, kind, path), E, None if R is None else _planar(R, kind, rest), H, path, kind)
-
-
-def _handles(path, n):
-    """The vertex ids of a handles file (:func:`geomopt.io.read_vertex_ids`); MeshError when it
-    lists none (an empty file: nothing would be held, and a fixed-boundary untangling needs some)."""
-    from .. import io
-
-    H = io.read_vertex_ids(path, n)
-    if H.size == 0:
-        raise MeshError(f"{path} is empty: untangling needs a fixed boundary; list the 0-based ids of the fixed "
-                        f"vertices in it, one per line (or leave the handles file out: the boundary is held)")
-    return H
 
 
 def _same_cells(read, P, E, kind, rest, path):
@@ -197,7 +185,7 @@ def _read_folder(path):
         raise MeshError(f"{path}: rest.vtk and init.vtk must hold the same points and cells (found {len(rest)} / "
                         f"{len(init)} points, {len(E)} / {len(E2)} cells)")
     handles_file = path / "handles.txt"
-    handles = _handles(handles_file, len(rest)) if handles_file.exists() else None
+    handles = io.read_vertex_ids(handles_file, len(rest)) if handles_file.exists() else None
     return CellCase(_planar(init, kind, path / "init.vtk"), E, _planar(rest, kind, path / "rest.vtk"), handles, path,
                     kind)
 
