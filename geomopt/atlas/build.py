@@ -426,13 +426,8 @@ def make_atlas(V, F=None, energy="symmetric_dirichlet", solver=None, *, options=
     t0 = time.perf_counter()
     options, energy, energy_params = _check_options(options, energy, progress)
     given = atlas_input(V, F)
-    V, F = check_atlas_input(given.V, given.F)
-    faces = F  # the input's, in the details; the atlas maps F, welded
-    if options.weld:
-        F, joined = welded(V, F, given.vertex_offsets)
-        if joined:
-            _say(progress, "welded", vertices=joined)
-    g, manifold, pinched = _manifold_graph(V, F, progress)
+    V, faces = check_atlas_input(given.V, given.F)  # the input's faces, in the details
+    F, g, manifold, pinched = _manifold_graph(V, faces, given.vertex_offsets if options.weld else None, progress)
     cost, tree_cost = _costs(g, given, options)
     cut, estimate, made = cut_surface(g, cost, options.max_distortion + _ESTIMATE_GAP, options.max_cuts,
                                       tree_cost=tree_cost, turn=options.straighten)
@@ -492,15 +487,21 @@ def _place(n_faces, meshes, maps, packing, pack, inset):
     return uv, uv_faces, wedge, chart, certificate
 
 
-def _manifold_graph(V, F, progress):
-    """The edge graph of the mesh with its pinched vertices split (one wedge per fan), the
-    split (:func:`~geomopt.atlas.charts.charts_of_cut`) and the pinched vertices."""
+def _manifold_graph(V, F, offsets, progress):
+    """``(F, g, split, pinched)``: the faces with each mesh's copies of a vertex welded
+    (:func:`welded`, the meshes' vertex ``offsets``; None: not welded), the edge graph of that
+    mesh with its pinched vertices split (one wedge per fan), the split
+    (:func:`~geomopt.atlas.charts.charts_of_cut`) and the pinched vertices."""
+    if offsets is not None:
+        F, joined = welded(V, F, offsets)
+        if joined:
+            _say(progress, "welded", vertices=joined)
     g0 = edge_graph(V, F)
     manifold = charts_of_cut(F, g0.edge_of, g0.edge_faces, np.zeros(len(g0.E), dtype=bool))  # bow-ties apart
     pinched = np.flatnonzero(np.bincount(manifold.vertex, minlength=len(V)) > 1)  # one wedge per fan
     if len(pinched):
         _say(progress, "pinched vertices split", count=len(pinched), first=int(pinched[0]))
-    return edge_graph(V[manifold.vertex], manifold.wedge), manifold, pinched
+    return F, edge_graph(V[manifold.vertex], manifold.wedge), manifold, pinched
 
 
 def _costs(g, given: AtlasInput, options):
