@@ -11,7 +11,7 @@ import pytest
 from geomopt import ParameterError
 from geomopt._runtime.errors import MeshError
 from geomopt.exact.normals import corner_signs, normal_agreement
-from geomopt.fairing import FairOptions, certify_folds, fair, fairing_energy, safe_step, smoothed
+from geomopt.fairing import FairOptions, certify_folds, describe_folds, fair, fairing_energy, safe_step, smoothed
 from geomopt.fairing.surface import closest_points, point_triangle, volume
 
 SOLVED = ("implicit", "least_squares", "energy", "tangential")
@@ -103,6 +103,40 @@ def test_certificate_accepts_a_clean_sphere_and_catches_a_constructed_fold():
     cert = certify_folds(X, F)
     assert not cert.ok and cert.inverted > 0 and np.any(np.isin(F[cert.folded], 0))
     assert np.array_equal(corner_signs(X, F), _reference_signs(X, F))
+
+
+def test_the_fold_message_tells_reversed_degenerate_and_perpendicular_apart():
+    """A right-angled tetrahedron's faces are perpendicular to the vertex normal at a corner of
+    its slanted face (sign 0, nothing turned over); a zero-area face is degenerate; a face
+    turned over is reversed: the certificate counts all three as folds, the message names each."""
+    T = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    Ft = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    cert = certify_folds(T, Ft)
+    assert cert.inverted == 3 and (corner_signs(T, Ft) >= 0).all()
+    assert describe_folds(T, Ft, cert).endswith(": 3 perpendicular to the vertex normal at a corner (zero sign: "
+                                                "nothing turned over, but not positively oriented, e.g. a "
+                                                "right-angled tetrahedron's faces)")
+    V, F = icosphere(1)
+    X = V.copy()
+    a, b, c = F[0]
+    X[c] = X[a]  # a zero normal, exactly
+    cert = certify_folds(X, F)
+    text = describe_folds(X, F, cert)
+    on_ac = int(np.count_nonzero(np.isin(F, [a, c]).sum(axis=1) == 2))  # the faces on edge ac: zero area
+    assert f"{on_ac} degenerate (zero area)" in text and on_ac == 2
+    u = F[F[:, 0] == 0][0, 1]
+    Y = V.copy()
+    Y[0] = Y[0] + 1.6 * (Y[u] - Y[0])
+    cert = certify_folds(Y, F)
+    reversed_ = int(np.count_nonzero((corner_signs(Y, F)[cert.folded] < 0).any(axis=1)))
+    assert describe_folds(Y, F, cert).startswith(f"{cert.message}: {reversed_} reversed at a corner") and reversed_
+    assert describe_folds(V, F, certify_folds(V, F)) == "no folded face (exact)"
+
+
+def test_fair_says_why_a_clean_tetrahedron_is_not_certified():
+    T = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    res = fair(T, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]), "taubin")
+    assert not res.success and "perpendicular to the vertex normal" in res.message
 
 
 @pytest.mark.parametrize("seed", range(3))

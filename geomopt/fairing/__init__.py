@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from .options import BOUNDARIES, METHODS, FairOptions
 
 if TYPE_CHECKING:  # what the lazy names below are, for readers and the API site (griffe reads this)
-    from .certificate import FoldCertificate, certify_folds, safe_step
+    from .certificate import FoldCertificate, certify_folds, describe_folds, safe_step
     from .driver import FairDetails, fair, smoothed
     from .unfold import remove_folds
     from .energies import fairing_energy
@@ -30,10 +30,10 @@ if TYPE_CHECKING:  # what the lazy names below are, for readers and the API site
 # public name -> module (imported on first use, PEP 562: the options, which the command line's
 # parser reads, load without SciPy or JAX)
 _LAZY = {"fair": ".driver", "smoothed": ".driver", "FairDetails": ".driver", "remove_folds": ".unfold",
-         "FoldCertificate": ".certificate", "certify_folds": ".certificate", "safe_step": ".certificate",
+         "FoldCertificate": ".certificate", "certify_folds": ".certificate", "describe_folds": ".certificate", "safe_step": ".certificate",
          "fairing_energy": ".energies"}
 
-__all__ = ["fair", "smoothed", "FairOptions", "FairDetails", "FoldCertificate", "certify_folds", "safe_step",
+__all__ = ["fair", "smoothed", "FairOptions", "FairDetails", "FoldCertificate", "certify_folds", "describe_folds", "safe_step",
            "remove_folds", "fairing_energy", "METHODS", "BOUNDARIES"]
 
 

@@ -24,9 +24,11 @@ import numpy as np
 
 from ..exact.topology import ranges
 from ..exact.normals import corner_signs, normal_agreement, signs_and_agreement
+from ..exact.predicates import normal_signs
 from .operators import any_column
 
-__all__ = ["FoldCertificate", "Stars", "certify_folds", "recertified", "safe_step", "local_signs", "signs_near", "HALVINGS"]
+__all__ = ["FoldCertificate", "Stars", "certify_folds", "describe_folds", "recertified", "safe_step", "local_signs",
+           "signs_near", "HALVINGS"]
 
 #: halvings of a vertex's step fraction before it is set to 0 (its start position)
 HALVINGS = 20
@@ -79,6 +81,30 @@ class FoldCertificate:
 def certify_folds(X, S) -> FoldCertificate:
     """The :class:`FoldCertificate` of vertices ``X`` (n, d) with elements ``S`` (m, 3) or (m, 2)."""
     return _from_signs(corner_signs(X, S) <= 0, len(S))
+
+
+def describe_folds(X, S, cert: FoldCertificate) -> str:
+    """``cert.message`` (the :class:`FoldCertificate` of ``X`` (n, d), ``S``) with its folded
+    elements told apart by their exact signs: *reversed* (a corner's sign negative), *degenerate*
+    (a zero-area triangle or zero-length edge: every sign zero) and *perpendicular* (no sign
+    negative, one zero: the element lies along the vertex normal at a corner, as each face of a
+    right-angled tetrahedron does at the corners of its slanted face).  The last two count as
+    folds by the certificate's definition (each corner strictly positive), though nothing is
+    turned over."""
+    if cert.ok:
+        return cert.message
+    X, S = np.asarray(X, dtype=np.float64), np.asarray(S, dtype=np.int64)
+    signs = corner_signs(X, S)[cert.folded]
+    if S.shape[1] == 3:
+        a, b, c = (X[S[cert.folded, k]] for k in range(3))
+        flat = ~normal_signs(a, b, c).any(axis=1)
+    else:
+        flat = (X[S[cert.folded, 0]] == X[S[cert.folded, 1]]).all(axis=1)
+    reversed_ = (signs < 0).any(axis=1) & ~flat
+    kinds = [(int(reversed_.sum()), "reversed at a corner"), (int(flat.sum()), "degenerate (zero area)"),
+             (int((~reversed_ & ~flat).sum()), "perpendicular to the vertex normal at a corner (zero sign: "
+              "nothing turned over, but not positively oriented, e.g. a right-angled tetrahedron's faces)")]
+    return f"{cert.message}: " + ", ".join(f"{n} {what}" for n, what in kinds if n)
 
 
 def _from_signs(neg, m) -> FoldCertificate:

@@ -29,7 +29,7 @@ from .._runtime.config import options_or_default
 from .._runtime.errors import MeshError, ParameterError, SolveError
 from ..exact.topology import boundary_loops
 from ..solvers import Details, Outcome, Result, RunStats
-from .certificate import Stars, certify_folds, recertified, safe_step
+from .certificate import Stars, certify_folds, describe_folds, recertified, safe_step
 from .methods import TARGETS
 from .operators import Topology, mean_edge_length, xp_of
 from .options import FairOptions
@@ -278,7 +278,8 @@ def _result(V, X, cert, target, t, free, before, rounds, topo, o, scale, measure
                           measured0[0] / scale ** 3, vol1 / scale ** 3, measured0[1], angle1, measured0[2], aspect1,
                           distance, scale, len(np.setdiff1d(cert.folded, before.folded)))
     outcome = Outcome.CONVERGED if cert.ok else Outcome.NOT_INJECTIVE
-    reason = "" if cert.ok else f"{cert.message}: the input's folds could not all be removed"
+    reason = "" if cert.ok else (f"{describe_folds(X, topo.elements, cert)}; the input's {before.inverted} folded faces "
+                                 f"could not all be removed")
     if throw and not cert.ok:
         raise SolveError(f"fair: {reason}")
     stats = RunStats(iterations=o.steps, outer_iterations=rounds, seconds=t1 - t0, certify_seconds=t2 - t1)
