@@ -97,12 +97,15 @@ class _Canvas:
         fit = [k for k, (top, right) in enumerate(limits) if min(top, right) >= 0]
         if not fit:
             return out
-        # the inverse 2D FFT in two passes, the second over the rows of the spots only
+        # the inverse 2D FFT in two passes, the second over the rows of the spots only (of
+        # every orientation at once: one call over the rows any of them needs)
         cols = scipy.fft.ifft(self.occ_hat * hats[fit], axis=-2)
-        for j, k in enumerate(fit):
-            (top, right), (h, w) = limits[k], kernels[k].shape
-            counts = scipy.fft.irfft(cols[j, h - 1:min(H, h + top)], self.fshape[1], axis=-1)
-            out[k] = counts[:, w - 1:H][:, :right + 1] < 0.5
+        rows = [(kernels[k].shape[0] - 1, min(H, kernels[k].shape[0] + limits[k][0])) for k in fit]
+        first, last = min(r[0] for r in rows), max(r[1] for r in rows)
+        counts = scipy.fft.irfft(cols[:, first:last], self.fshape[1], axis=-1)
+        for j, (k, (a, b)) in enumerate(zip(fit, rows)):
+            w, right = kernels[k].shape[1], limits[k][1]
+            out[k] = counts[j, a - first:b - first, w - 1:H][:, :right + 1] < 0.5
         return out
 
     def _free(self, g, y: int, x: int) -> bool:
