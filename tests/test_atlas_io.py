@@ -4,6 +4,7 @@ that saves like every other map."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -239,7 +240,10 @@ def test_an_unwelded_mesh_is_welded_into_the_atlas_of_the_welded_one():
     assert np.array_equal(Vu[Fw], Vu[Fu])  # same positions, vertices shared
     a, b = make_atlas(V, F, progress=False), make_atlas(Vu, Fu, progress=False)
     assert a.success and b.success
-    assert b.details.metrics == a.details.metrics  # the welded mesh's atlas (not a chart per triangle)
+    # the welded mesh's atlas (not a chart per triangle): its vertices are numbered otherwise, so
+    # its sums may round otherwise
+    ma, mb = dataclasses.astuple(a.details.metrics), dataclasses.astuple(b.details.metrics)
+    assert (mb[0], mb[-1]) == (ma[0], ma[-1]) and mb == pytest.approx(ma, rel=1e-9)
     assert np.array_equal(b.details.faces, Fu)  # the input's faces, kept
     assert np.array_equal(Vu[b.details.vertex][b.details.uv_faces], Vu[Fu])  # each UV row at its corner
 

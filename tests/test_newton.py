@@ -224,6 +224,43 @@ def test_a_failed_factorization_is_not_reused(monkeypatch):
     assert new.stats.accepted and float(new.value) < float(state.value)
 
 
+def test_a_few_huge_hessian_entries_do_not_shrink_the_whole_direction():
+    """The diagonal shift is relative to the *median* diagonal: one very stiff element (here
+    weighted 1e20, held at rest; at 853k triangles a sliver of the bijective scaffold, 1e28)
+    made the mean diagonal, and the shift with it, so large that the direction vanished
+    (decrement 5e-13) and Newton stopped "converged" far from the minimum (mean distortion 22
+    against 4.1 there; here ARAP energy 0.5 against 0)."""
+    V, F = grid(10, jitter=0.2, seed=3)
+    weights = np.ones(len(F))
+    weights[0] = 1e20
+    x0 = V.copy()
+    c = V[F[0]].mean(axis=0)
+    others = np.setdiff1d(np.arange(len(V)), F[0])
+    x0[others] = c + 1.5 * (V[others] - c)  # the stiff element at rest, every other one stretched
+    res = minimize(Objective(Problem.planar(V, F), "arap", element_weights=weights), x0, Newton(), progress=False)
+    assert res.energy < 1e-10 and np.abs(res.x - V).max() < 1e-6  # the rest shape: the minimum
+
+
+def test_a_psd_shift_starts_where_the_last_one_factored(monkeypatch):
+    """Where the smallest shifts never factor (a free boundary's rigid motions at 10^5-10^6
+    triangles: three failed factorizations per iteration on an 853k chart), each iteration
+    after the first tries at most one shift below the one that factored last."""
+    from geomopt.solvers.newton import AbstractNewton
+
+    real, offered = AbstractNewton._direction, []
+
+    def direction(self, state, projection, shifts):
+        offered.append(list(shifts))
+        return real(self, state, projection, [s for s in shifts if s >= 1e-9 * 100**3])  # the others "fail"
+
+    monkeypatch.setattr(AbstractNewton, "_direction", direction)
+    V, F = developable_patch(8)
+    res = parameterize(V, F, solver=Newton(projection="clamp", rtol=1e-12), progress=False)
+    assert res.success and res.stats.iterations >= 3
+    below = [sum(s < 1e-9 * 100**3 for s in shifts) for shifts in offered]
+    assert below[0] == 3 and max(below[1:]) <= 1 and sum(below[1:]) < len(below) - 1, below
+
+
 def test_reuse_factor_auto_from_a_size(monkeypatch):
     """``reuse_factor="auto"`` (the default) reuses the factorization only from
     ``REUSE_FROM_DOFS`` free DOFs; a value other than True, False, 'auto' is refused."""

@@ -52,6 +52,8 @@ REUSE_FROM_DOFS = 300_000
 #: kernels, freed on other threads, would otherwise stay resident under the next ones (10^6
 #: triangles, swirled grid: peak 2.66 -> 2.52 GB with the first two); below, a few MB are at stake
 TRIM_FROM_DOFS = 100_000
+#: a PSD projection's diagonal shifts are ``regularization * 100**k``, ``k < _SHIFT_LEVELS``
+_SHIFT_LEVELS = 8
 
 
 class Reuse(NamedTuple):
@@ -91,7 +93,9 @@ class NewtonMemory(NamedTuple):
     grad_ref : the first gradient norm (CG's scale-free forcing term);
     cooldown : iterations left during which ``Adaptive`` clamps after an exact Hessian failed
         to factor;  mu : the Levenberg-Marquardt shift of the exact Hessian (None: not used yet);
-    reuse : the :class:`Reuse` bookkeeping of ``reuse_factor``.
+    reuse : the :class:`Reuse` bookkeeping of ``reuse_factor``;
+    level : where a PSD projection's growing shifts start, ``regularization * 100**level``
+        (:meth:`AbstractNewton._psd_direction`).
     """
 
     factor: Any = None
@@ -100,6 +104,7 @@ class NewtonMemory(NamedTuple):
     cooldown: int = 0
     mu: float | None = None
     reuse: Reuse = Reuse()
+    level: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,7 +240,10 @@ class AbstractNewton(AbstractSolver):
             release_free_memory()
         diag = data[pat.diag]  # unshifted
         g = np.asarray(grad).reshape(-1)[pat.free_dofs]
-        scale = max(float(np.mean(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
+        # the shifts' scale: the median diagonal, which a few huge entries do not move (one
+        # sliver of a bijective scaffold gave 1e28 and a mean that shifted the whole direction
+        # to 1e-19: a false convergence at 5x the optimum's distortion, 853k triangles)
+        scale = max(float(np.median(np.abs(diag))) if len(pat.diag) else 1.0, 1e-300)  # no free DOF: any
         reuse = mem.reuse
         for i, shift in enumerate(shifts):
             data[pat.diag] = diag + shift * scale
@@ -333,8 +341,24 @@ class AbstractNewton(AbstractSolver):
                 return value, grad, dx, decrement, mem._replace(mu=used, reuse=reuse), True
             mem = mem._replace(cooldown=2, mu=1e4 * mu, reuse=reuse)
             projection = Clamp()
-        value, grad, dx, decrement, _, reuse = self._direction(state, projection, [reg * 100**k for k in range(8)])
-        return value, grad, dx, decrement, mem._replace(reuse=reuse), False
+        value, grad, dx, decrement, reuse, level = self._psd_direction(state, projection)
+        return value, grad, dx, decrement, mem._replace(reuse=reuse, level=level), False
+
+    def _psd_direction(self, state, projection):
+        """:meth:`_direction` with the growing shifts ``regularization * 100**k`` (k < 8) from
+        the level in memory: ``(value, grad, dx, decrement, reuse, next level)``.  A free
+        boundary's Hessian is singular (rigid motions) and at 10^5-10^6 triangles the smallest
+        shifts fail to factor in every iteration (three failed factorizations an iteration on an
+        853k-triangle chart): after a shift that needed larger ones first, the next iteration
+        starts at it; after one that factored at once, one level lower (so the shift can fall
+        again as the Hessian improves)."""
+        start = state.memory.level
+        shifts = [self.regularization * 100**k for k in range(_SHIFT_LEVELS)]
+        value, grad, dx, decrement, shift, reuse = self._direction(state, projection, shifts[start:])
+        if dx is None:
+            return value, grad, dx, decrement, reuse, start
+        k = shifts.index(shift)
+        return value, grad, dx, decrement, reuse, k if k > start else max(k - 1, 0)
 
     def step(self, state: State) -> State:
         obj, params, x = state.objective, state.params, state.x
