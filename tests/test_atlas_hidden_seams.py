@@ -116,6 +116,40 @@ def test_a_flat_plane_is_fully_visible_and_a_convex_surface_almost():
     assert vis.mean() > 0.99 and vis.min() >= 0.97  # only rays grazing the facets hit
 
 
+def _capsule(radius, length, sections=12, rings=6):
+    """A UV sphere of ``radius`` cut at its equator and its halves pulled ``length`` apart: the
+    side is one band of triangles as long as the part, the caps many small ones."""
+    lat = np.linspace(-np.pi / 2, np.pi / 2, 2 * rings + 1)[1:-1]
+    phi = 2 * np.pi * np.arange(sections) / sections
+    z, rr = np.repeat(np.sin(lat), sections) * radius, np.repeat(np.cos(lat), sections) * radius
+    V = np.c_[rr * np.tile(np.cos(phi), len(lat)), rr * np.tile(np.sin(phi), len(lat)), z]
+    V[z >= 0, 2] += length
+    V = np.r_[V, [[0, 0, -radius], [0, 0, radius + length]]]
+    ring = lambda i, j: i * sections + j % sections  # noqa: E731
+    F = [f for i in range(len(lat) - 1) for j in range(sections)
+         for f in ([ring(i, j), ring(i, j + 1), ring(i + 1, j + 1)], [ring(i, j), ring(i + 1, j + 1), ring(i + 1, j)])]
+    top = len(lat) - 1
+    F += [[len(V) - 2, ring(0, j + 1), ring(0, j)] for j in range(sections)]
+    F += [[len(V) - 1, ring(top, j), ring(top, j + 1)] for j in range(sections)]
+    return V, np.array(F)
+
+
+def test_a_few_long_triangles_among_small_ones_keep_visibility_in_bounded_memory():
+    """The projections' grid is as fine as the median triangle needs, but never lists more
+    (triangle, cell) pairs than a bound: a thin capsule's sides (single triangles as long as the
+    part, among the caps' small ones) asked 468 million pairs (19 GB) of a 512-face mesh."""
+    import tracemalloc
+
+    V, F = _capsule(0.02, 10.0)
+    tracemalloc.start()
+    try:
+        vis = vertex_visibility(V, F)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 500e6 and np.all(vis == 1.0)  # convex: every ray leaves
+
+
 def test_the_bottom_of_a_deep_narrow_groove_is_hidden():
     V, F = _grid(_XS, _YS, _groove)
     # the middle of the bottom sees the sky through the slot: |dx| < dz (0.5 / 3), |dy| < dz (2 / 3)

@@ -25,6 +25,7 @@ __all__ = ["hemisphere_directions", "ambient_visibility", "vertex_normals", "edg
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 _MAX_PAIRS = 1 << 22  # ray-triangle candidate pairs tested at once (memory bound)
+_MAX_CELLS = 1 << 20  # (triangle, grid cell) entries of a projection's grid, at least (memory bound)
 
 
 def hemisphere_directions(count: int = 96) -> np.ndarray:
@@ -65,6 +66,7 @@ def _grid_join(P, Q, fine):
     extent = float(np.max(hi - lo))
     typical = float(np.median(np.max(bmax - bmin, axis=1)))
     size = int(np.clip(np.ceil(fine * extent / max(typical, 1e-300)), 1, 4096))
+    size = min(size, _affordable_side(bmax - bmin, extent))
     h = max(extent / size, 1e-300)
     i0 = np.clip(((bmin - lo) / h).astype(np.int64), 0, size - 1)
     i1 = np.clip(((bmax - lo) / h).astype(np.int64), 0, size - 1)
@@ -81,6 +83,25 @@ def _grid_join(P, Q, fine):
     many = held[cell]
     some = many > 0
     return tri[some], (np.cumsum(held) - held)[cell[some]], many[some], np.argsort(where, kind="stable")
+
+
+def _affordable_side(boxes, extent) -> int:
+    """The most cells a side of a grid over ``extent`` in which the triangles' bounding boxes
+    ``boxes`` (m, 2: widths, heights) cover at most ``_MAX_CELLS`` (or 16 per triangle) cells in
+    all: a triangle spanning the grid lists every cell it meets, and where a few long triangles
+    sit among many small ones (the sides of a thin capsule, whose caps set the median) a grid
+    fine for the small ones made 468 million (triangle, cell) entries.  A box of width ``w``
+    meets at most ``w / h + 2`` columns of cells of side ``h``: the count is at most
+    ``A / h**2 + 2 B / h + 4 m`` (``A`` the boxes' areas, ``B`` their half-perimeters summed)."""
+    m = len(boxes)
+    budget = max(16 * m, _MAX_CELLS) - 4 * m
+    A = float(np.sum(boxes[:, 0] * boxes[:, 1]))
+    B = float(np.sum(boxes[:, 0] + boxes[:, 1]))
+    if A > 0:
+        inv_h = (-B + np.sqrt(B * B + A * budget)) / A
+    else:
+        inv_h = budget / max(2 * B, 1e-300)
+    return int(max(1, min(4096, np.floor(inv_h * extent))))
 
 
 def _hits_along(V, F, origins, sign, d, fine=2.0):
