@@ -229,7 +229,10 @@ def smallest_square(strategies, r: int, side_of, budget: int):
     area = sum(min(int(s.mask.sum()) for s in sh) for sh in shapes)
     least = max(min(max(s.mask.shape) for s in sh) for sh in shapes)
     lo = max(int(math.sqrt(area)), least) - 1  # no square of this side holds them
-    c = coarse_factor(int(math.sqrt(area / 0.6)))
+    # blocks for the squares to be tried: their side is at least the longest chart's (a strip
+    # thousands of pixels long and one wide has almost no area: a grid from the area alone was
+    # the fine one, an FFT of millions of cells per chart placed)
+    c = coarse_factor(max(int(math.sqrt(area / 0.6)), least))
     cache, best, tries, fft_side = {}, None, 0, 0
     traces = {}  # per distinct strategy, {S: trace} of its packings so far
 

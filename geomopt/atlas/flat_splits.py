@@ -312,6 +312,8 @@ def _best_split(meshes, maps, i, pack, screen, charge, current, prescreen=None):
     best), the ``_FINALISTS`` best are packed with all the other charts by ``pack``.  Returns ``(pieces, packing)`` or None when no split
     pays."""
     cands = candidate_splits(meshes[i], maps[i], V=charge.V, seams=True)
+    can_pay = _PayBound(meshes, maps, i, charge, current)
+    cands = [(pieces, seam) for pieces, seam in cands if can_pay(pieces, seam)]
     bounds = piece_boundaries(meshes[i], [c for c, _ in cands])
 
     def estimate(k, screen):
@@ -344,6 +346,42 @@ def _best_split(meshes, maps, i, pack, screen, charge, current, prescreen=None):
         if best is None or score > best[0]:
             best = (score, pieces, trial)
     return None if best is None else best[1:]
+
+
+class _PayBound:
+    """Whether a split of chart ``i`` can pay at all: its packing's efficiency is at most the
+    charts' area over the square of the largest least side of a square (any rotation) that
+    holds one of them (:func:`~geomopt.atlas._pack.smallest_square_angle` of its hull), and a
+    split whose bound does not pay (:func:`_best_split`'s rule) is neither screened nor packed.
+    A chart whose every cut runs along it (the sides of a thin cylinder or capsule are single
+    triangles as long as the part: no cut crosses them) has only such splits, each of whose
+    packings, of pieces hundreds of pixels long, cost seconds."""
+
+    def __init__(self, meshes, maps, i, charge, current):
+        self.charge, self.current = charge, current
+        self.area = sum(float(triangle_areas(np.asarray(x)[m.F]).sum()) for m, x in zip(meshes, maps))
+        self.others = max([_least_square(x) for j, x in enumerate(maps) if j != i], default=0.0)
+
+    def __call__(self, pieces, seam) -> bool:
+        side = max(self.others, max(_least_square(x) for _, x in pieces))
+        bound = self.area / side**2 * (1 + 1e-9) if side > 0 else np.inf
+        charge = self.charge(pieces, seam)
+        return bound > self.current and (bound - charge >= self.current or bound >= _MULTIPLY * self.current)
+
+
+def _least_square(x) -> float:
+    """The side of the smallest square, at any rotation, holding the points ``x`` (n, 2); 0 (no
+    bound) where they have no hull (collinear)."""
+    from scipy.spatial import ConvexHull
+
+    from ._pack import smallest_square_angle
+
+    x = np.asarray(x, dtype=np.float64)
+    try:
+        hull = x[ConvexHull(x).vertices]
+    except Exception:  # noqa: BLE001 -- qhull refuses flat or tiny point sets
+        return 0.0
+    return smallest_square_angle(hull)[1]
 
 
 class _Charge:
