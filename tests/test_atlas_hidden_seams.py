@@ -324,6 +324,29 @@ def test_make_atlas_of_a_cad_cylinder_is_certified():
     assert atlas.success and certify_atlas(atlas.x, d.uv_faces, d.chart).ok
 
 
+def test_a_chart_solve_at_its_limit_warns_nothing_beside_the_atlas(monkeypatch):
+    """A chart's flattening that stops at its iteration limit is the atlas's to judge (a
+    scaffold, a cut, its own message): its MaxStepsWarning printed after a certified atlas
+    only alarmed (a red-team sweep's needle-triangle sphere)."""
+    import warnings
+
+    import geomopt.param
+    from geomopt import MaxStepsWarning
+    from geomopt.atlas import make_atlas
+
+    real = geomopt.param.parameterize
+
+    def parameterize(*args, **kwargs):
+        warnings.warn("stopped at the limit", MaxStepsWarning, stacklevel=2)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(geomopt.param, "parameterize", parameterize)
+    V, F = _capped_cylinder()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MaxStepsWarning)
+        assert make_atlas(V, F, progress=False).success
+
+
 def test_a_chart_whose_uniform_tutte_map_inverts_by_rounding_is_flattened_from_another_start():
     """The capped cylinder cut along one side edge and one rim edge: a chart of long slivers
     whose uniform Tutte map has inverted triangles in floating point; the chart is still

@@ -17,9 +17,11 @@ whose curvature is spread over many vertices rather than held by a few cones),
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from .._runtime.errors import MeshError
+from .._runtime.errors import MaxStepsWarning, MeshError
 from ..mesh.quality import triangle_areas
 from .charts import charts_of_cut
 from .cutting import relieve
@@ -47,8 +49,12 @@ def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=Tru
     from ..param import ParamOptions, parameterize
 
     def solve(weights, x0, bijective=False):
-        return parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False, x0=x0,
-                            options=ParamOptions(weights=weights, bijective=bijective))
+        # a chart's solve that stops at its limit is judged here (scaffold, cut, split or the
+        # atlas's own message), so its MaxStepsWarning would only alarm beside a certified atlas
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MaxStepsWarning)
+            return parameterize(Vc, Fc, energy=(energy, energy_params), solver=solver, progress=False, x0=x0,
+                                options=ParamOptions(weights=weights, bijective=bijective))
 
     res = free if free is not None else _started(solve)
     if (res.success and res.injectivity == "global") or not scaffold:
