@@ -172,6 +172,48 @@ def test_loop_invariant_under_relabelling(nx, ny, seed):
 # ---------------------------------------------------------------- components
 
 
+def _strip(n=12, twist=True):
+    """A closed band of ``n`` quads (two triangles each), its ends glued straight or with a
+    half twist (a Moebius strip); ``(V, F)``, faces wound consistently along the band."""
+    t = 2 * np.pi * np.arange(n) / n
+    V = np.r_[np.c_[np.cos(t), np.sin(t), np.full(n, -0.2)], np.c_[np.cos(t), np.sin(t), np.full(n, 0.2)]]
+    F = []
+    for k in range(n):
+        a, b, c, d = k, k + 1, n + k, n + k + 1
+        if k == n - 1:
+            b, d = (n, 0) if twist else (0, n)  # the twist: the last quad meets the first upside down
+        F += [[a, b, d], [a, d, c]]
+    return V, np.array(F)
+
+
+def test_orientable_tells_a_moebius_strip_from_a_band_wound_inconsistently():
+    from geomopt.exact.topology import orientable, same_side_facets
+
+    V, F = _strip(twist=False)
+    assert orientable(F) and same_side_facets(F)[0] == 0
+    bad = F.copy()
+    bad[5] = bad[5, ::-1]  # one face flipped: inconsistent, still orientable
+    assert same_side_facets(bad)[0] > 0 and orientable(bad)
+    V, M = _strip(twist=True)
+    assert same_side_facets(M)[0] > 0 and not orientable(M)
+    M2 = M.copy()
+    M2[:7] = M2[:7, ::-1]  # flipping faces does not make a Moebius strip orientable
+    assert not orientable(M2)
+    assert orientable(np.r_[F, M[:0]]) and not orientable(np.r_[F, M + len(V)])  # per component
+
+
+def test_an_atlas_of_a_non_orientable_surface_is_refused_saying_so():
+    from geomopt.atlas import make_atlas
+
+    V, M = _strip(twist=True)
+    with pytest.raises(MeshError, match="non-orientable .* cut it into orientable parts"):
+        make_atlas(V, M, progress=False)
+    V, F = _strip(twist=False)
+    F[5] = F[5, ::-1]
+    with pytest.raises(MeshError, match=r"inconsistent face orientation: .*fix_winding\)$"):
+        make_atlas(V, F, progress=False)
+
+
 def test_connected_components_labels():
     F = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6]])
     count, labels = connected_components(F, 8)

@@ -25,7 +25,7 @@ from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..energies import energy_spec, get_energy
 from ..solvers import Details, Outcome, Result, RunStats
-from ..exact.topology import as_faces, same_side_facets, unique_edges
+from ..exact.topology import as_faces, orientable, same_side_facets, unique_edges
 from ..exact.weld import equal_points
 from .charts import charts_of_cut
 from .cones import angle_defects
@@ -299,10 +299,13 @@ def check_atlas_input(V, F):
                         f"vertices {a} and {b}, in {int(count[first])} faces); an atlas needs an edge-manifold "
                         f"mesh: split or remove the extra faces")
     same, _ = same_side_facets(F)
+    if same and not orientable(F):
+        raise MeshError("the surface is non-orientable (a Moebius strip, a Klein bottle: no consistent face "
+                        "orientation exists), which an atlas of this library does not map: cut it into "
+                        "orientable parts, or map each part as its own mesh")
     if same:
         raise MeshError(f"inconsistent face orientation: {same} edge(s) used twice in the same direction; "
-                        f"orient the faces consistently (e.g. trimesh.repair.fix_winding), or the surface "
-                        f"is non-orientable")
+                        f"orient the faces consistently (e.g. trimesh.repair.fix_winding)")
     return V, F
 
 

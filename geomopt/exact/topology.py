@@ -27,6 +27,7 @@ __all__ = [
     "graph_components",
     "same_side_facets",
     "nonmanifold_facets",
+    "orientable",
     "check_disk",
     "check_sphere",
 ]
@@ -316,6 +317,27 @@ def _walk_loops(B) -> list[np.ndarray]:
 
 
 # --------------------------------------------------------------------------- components
+
+def orientable(F) -> bool:
+    """Whether an edge-manifold triangle mesh ``F`` (m, 3) can be oriented consistently (by
+    flipping some faces): each face has two states, kept or flipped, and each interior edge ties
+    its two faces' states (equal where they run it in opposite directions, else opposite); the
+    surface is non-orientable (a Moebius strip, a Klein bottle) exactly when some face's two
+    states fall in one component of those ties."""
+    F = as_faces(F)
+    m = len(F)
+    E, count, edge_of = unique_edges(F)
+    H = half_edges(F)
+    inner = np.flatnonzero(count[edge_of.ravel()] == 2)
+    order = inner[np.argsort(edge_of.ravel()[inner], kind="stable")]
+    a, b = order[0::2], order[1::2]  # the two half-edges of each interior edge
+    same = H[a, 0] == H[b, 0]  # run in the same direction: one of the faces must flip
+    fa, fb = a // 3, b // 3
+    i = np.r_[fa, fa + m]
+    j = np.r_[np.where(same, fb + m, fb), np.where(same, fb, fb + m)]
+    labels = graph_components(2 * m, i, j)[1]
+    return bool(np.all(labels[:m] != labels[m:]))
+
 
 def graph_components(n, i, j):
     """Connected components of the undirected graph on nodes ``0 .. n - 1`` with the edges
