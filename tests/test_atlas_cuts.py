@@ -42,6 +42,41 @@ def test_the_cheapest_root_opens_each_handle_body_into_one_disk_more_cheaply():
         assert g.length[new & here].sum() < g.length[old & here].sum()
 
 
+def test_closed_spheres_beside_handle_bodies_take_no_root_search_and_change_no_cut(monkeypatch):
+    """A closed genus-0 component's topological cut is empty from any root, so the search for
+    the cheapest roots spreads candidates over the handle bodies only (a scene of many small
+    closed parts spent most of its cut there), and the plates' cut is the one they get alone."""
+    import geomopt.atlas.seams as seams
+
+    plates = _plates()
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    balls = [np.asarray(ball.vertices) * 2.0 + [40.0 + 10.0 * k, 0.0, 0.0] for k in range(3)]
+    n = len(plates.V)
+    F = np.r_[plates.F, *[np.asarray(ball.faces) + n + k * len(ball.vertices) for k in range(3)]]
+    g = edge_graph(np.r_[plates.V, *balls], F)
+    labels = _labels(g)
+    roots = np.unique(labels, return_index=True)[1]
+    spread = seams._spread_roots
+    searched = []
+
+    def spy(g_, cost_, labels_, roots_, tries):
+        searched.append(np.asarray(roots_).copy())
+        return spread(g_, cost_, labels_, roots_, tries)
+
+    monkeypatch.setattr(seams, "_spread_roots", spy)
+    cut = shortest_topological_cut(g, edge_costs(g, 2.0, angle_defects(g.V, g.F)), labels, roots)
+    assert len(searched) == 1 and sorted(labels[searched[0]]) == sorted(set(labels[plates.F[:, 0]]))
+    alone = shortest_topological_cut(plates, edge_costs(plates, 2.0, angle_defects(plates.V, plates.F)),
+                                     _labels(plates), np.array([0, n // 2]))
+    assert not cut[len(plates.E):].any()  # the balls' edges come after the plates' (sorted by vertex)
+    assert np.array_equal(cut[:len(plates.E)], alone)
+    searched.clear()
+    only_balls = edge_graph(np.r_[*balls], F[len(plates.F):] - n)
+    assert not shortest_topological_cut(only_balls, edge_costs(only_balls, 2.0), _labels(only_balls),
+                                        np.unique(_labels(only_balls), return_index=True)[1]).any()
+    assert not searched
+
+
 def test_strong_cones_joined_by_a_tree_open_a_cad_part_nearly_isometrically_with_less_seam():
     """Every corner of a holed plate is a cone of +-90 degrees: the greedy cone cuts alone stall
     above the target (estimate 4.71, seam 69); joining the corners by a cheap tree before the

@@ -64,6 +64,7 @@ def _open_spheres(g: EdgeGraph, cost, cut, labels, roots):
 
     touched = np.zeros(labels.max() + 1, dtype=bool)
     touched[labels[g.E[cut].ravel()]] = True
+    adjacency = g.adjacency(g.length)
     for r in roots:
         comp = labels[r]
         if touched[comp]:
@@ -73,7 +74,7 @@ def _open_spheres(g: EdgeGraph, cost, cut, labels, roots):
         local = np.searchsorted(verts, g.F[faces])
         u = log_scale(g.V[verts], local, [])
         a = verts[int(np.argmin(u))]
-        d = dijkstra(g.adjacency(g.length), indices=a)[verts]
+        d = dijkstra(adjacency, indices=a)[verts]
         far = np.flatnonzero(d >= 0.5 * d.max())
         b = verts[far[int(np.argmin(u[far]))]]
         cut[cut_path_to_seams(g, cost, a, np.array([b]))] = True

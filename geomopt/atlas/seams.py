@@ -266,17 +266,30 @@ def shortest_topological_cut(g: EdgeGraph, cost: np.ndarray, labels, roots, trie
     roots = np.asarray(roots, dtype=np.int64)
     if opened is not None:
         roots = roots[~np.isin(labels[roots], labels[g.E[opened].ravel()])]
+    spheres = _spheres(g, labels)[labels[roots]]  # their cut is empty from any root: nothing to try
+    fixed, roots = roots[spheres], roots[~spheres]
     if len(roots) == 0 or tries <= 1:
-        return topological_cut(g, cost, roots, opened)
+        return topological_cut(g, cost, np.r_[roots, fixed], opened)
     candidates = _spread_roots(g, cost, labels, roots, tries)
     comp = labels[g.E[:, 0]]
     best, best_cost = roots.copy(), np.full(len(roots), np.inf)
     for k in range(tries):
-        cut = topological_cut(g, cost, candidates[:, k], opened)
+        cut = topological_cut(g, cost, np.r_[candidates[:, k], fixed], opened)
         spent = np.bincount(comp[cut], cost[cut], minlength=labels.max() + 1)[labels[roots]]
         better = spent < best_cost
         best[better], best_cost[better] = candidates[better, k], spent[better]
-    return topological_cut(g, cost, best, opened)
+    return topological_cut(g, cost, np.r_[best, fixed], opened)
+
+
+def _spheres(g: EdgeGraph, labels) -> np.ndarray:
+    """(components,) bool, the closed genus-0 components (Euler characteristic 2: a tree and a
+    dual tree take every edge, so their topological cut is empty whatever the root)."""
+    size = labels.max() + 1
+    chi = (np.bincount(labels, minlength=size) - np.bincount(labels[g.E[:, 0]], minlength=size)
+           + np.bincount(labels[g.F[:, 0]], minlength=size))
+    closed = np.ones(size, dtype=bool)
+    closed[labels[g.E[g.boundary, 0]]] = False
+    return closed & (chi == 2)
 
 
 def steiner_tree(g: EdgeGraph, cost: np.ndarray, terminals, labels) -> np.ndarray:
