@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 
 from .._runtime.errors import MaxStepsWarning, MeshError
+from ..solvers import Outcome
 from ..mesh.quality import triangle_areas
 from .charts import charts_of_cut
 from .cutting import relieve
@@ -39,6 +40,8 @@ _SPLIT_WORTH = 0.06
 _SPLIT_REGIONS = (2, 3, 4)  # the numbers of pieces tried
 _SPLIT_OFFERS = 4  # charts (of most excess) whose splits are tried per split made
 _SPLIT_SEEDS = (True, False)  # each with seeds centred in their regions, and not (normal_regions)
+# a free flattening that ended so is at a minimum of the free problem (a certificate may still fail)
+_AT_REST = (Outcome.CONVERGED, Outcome.NOT_INJECTIVE)
 
 
 def flatten_chart(Vc, Fc, energy, solver, energy_params, free=None, scaffold=True):
@@ -122,20 +125,45 @@ def _separate(g, cut, mesh, res, known):
     return cut
 
 
-def _flatten_all(g, cut, solve, known, say, goal):
+def _free_bound(g, split, solve, known, frees):
+    """The area-weighted mean symmetric Dirichlet of the charts of ``split`` that
+    :func:`_flatten_all` cannot end below: the known charts' own, the others' free flattenings'
+    (made now, kept in ``frees`` by key; the bijective scaffold only adds a constraint to a free
+    map's) where that solve came to rest (its boundary may overlap), else 4 (isometric)."""
+    total, area = 0.0, 0.0
+    for c in range(split.count):
+        mesh = split.mesh(c)
+        key = _key(mesh)
+        if key in known:
+            sd, a = known[key][1:]
+        else:
+            Vc = g.V[mesh.vertices]
+            free = frees.setdefault(key, solve(Vc, mesh.F, scaffold=False))
+            sd, a = _mean_sd(Vc, mesh.F, free.x)
+            sd = sd if free.outcome in _AT_REST and np.isfinite(sd) else 4.0
+        total, area = total + sd * a, area + a
+    return total / area
+
+
+def _flatten_all(g, cut, solve, known, say, goal, ceiling=None, frees=None):
     """``(cut, split, meshes, results, sd, area)`` of every chart of ``cut``, reusing the
     results in ``known`` (keyed by :func:`_key`) of unchanged charts.
     A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
     converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
-    is cut instead (:func:`_separate`), so ``cut`` may grow."""
+    is cut instead (:func:`_separate`), so ``cut`` may grow.  With a ``ceiling``: None, without
+    any scaffold solve, when the free flattenings already put the mean above it
+    (:func:`_free_bound`)."""
     split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
+    frees = {} if frees is None else frees
+    if ceiling is not None and _free_bound(g, split, solve, known, frees) > ceiling:
+        return None
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)
         key = _key(mesh)
         if key not in known:
             Vc = g.V[mesh.vertices]
-            free = solve(Vc, mesh.F, scaffold=False)
+            free = frees.pop(key) if key in frees else solve(Vc, mesh.F, scaffold=False)
             res = solve(Vc, mesh.F, free=free)
             known[key] = (res,) + _mean_sd(Vc, mesh.F, res.x)
             if res is not free and free.success and free.injectivity == "local" and not (
@@ -144,7 +172,7 @@ def _flatten_all(g, cut, solve, known, say, goal):
                 if more is not None:
                     say(f"chart {c}", faces=len(mesh.F), scaffold_mean_symmetric_dirichlet=known[key][1],
                         separated=int(more.sum() - cut.sum()))
-                    return _flatten_all(g, more, solve, known, say, goal)
+                    return _flatten_all(g, more, solve, known, say, goal, frees=frees)
             say(f"chart {c}", faces=len(mesh.F), mean_symmetric_dirichlet=known[key][1],
                 injectivity=res.injectivity)
         meshes.append(mesh)
@@ -223,8 +251,9 @@ def _straightened(g, cost, state, turn, solve, known, say, goal):
     cut = straighten(g, cost, state[0], turn)
     if np.array_equal(cut, state[0]):
         return state
-    trial = _flatten_all(g, cut, solve, known, say, goal)
-    if _failed(trial) <= _failed(state) and _mean(trial) <= max(goal, _mean(state)):
+    ceiling = max(goal, _mean(state))
+    trial = _flatten_all(g, cut, solve, known, say, goal, ceiling=ceiling)
+    if trial is not None and _failed(trial) <= _failed(state) and _mean(trial) <= ceiling:
         say("straightened", charts=trial[1].count, mean_symmetric_dirichlet=_mean(trial))
         return trial
     return state
