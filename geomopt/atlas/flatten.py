@@ -125,38 +125,44 @@ def _separate(g, cut, mesh, res, known):
     return cut
 
 
-def _free_bound(g, split, solve, known, frees):
-    """The area-weighted mean symmetric Dirichlet of the charts of ``split`` that
-    :func:`_flatten_all` cannot end below: the known charts' own, the others' free flattenings'
-    (made now, kept in ``frees`` by key; the bijective scaffold only adds a constraint to a free
-    map's) where that solve came to rest (its boundary may overlap), else 4 (isometric)."""
-    total, area = 0.0, 0.0
+def _free_state(g, cut, split, solve, known, frees):
+    """A provisional :func:`_flatten_all` state of ``cut`` (its seventh item False): the known
+    charts' results, the others' free flattenings (made now, kept in ``frees`` by key), each
+    measured by its mean symmetric Dirichlet where that solve came to rest (its boundary may
+    overlap), else 4 (isometric).  Its mean is one :func:`_flatten_all` cannot end below: the
+    bijective scaffold only adds a constraint to a free map."""
+    meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)
         key = _key(mesh)
         if key in known:
-            sd, a = known[key][1:]
+            res, s, a = known[key]
         else:
             Vc = g.V[mesh.vertices]
-            free = frees.setdefault(key, solve(Vc, mesh.F, scaffold=False))
-            sd, a = _mean_sd(Vc, mesh.F, free.x)
-            sd = sd if free.outcome in _AT_REST and np.isfinite(sd) else 4.0
-        total, area = total + sd * a, area + a
-    return total / area
+            res = frees.setdefault(key, solve(Vc, mesh.F, scaffold=False))
+            s, a = _mean_sd(Vc, mesh.F, res.x)
+            s = s if res.outcome in _AT_REST and np.isfinite(s) else 4.0
+        meshes.append(mesh)
+        results.append(res)
+        sd.append(s)
+        area.append(a)
+    return cut, split, meshes, results, np.array(sd), np.array(area), False
 
 
 def _flatten_all(g, cut, solve, known, say, goal, ceiling=None, frees=None):
-    """``(cut, split, meshes, results, sd, area)`` of every chart of ``cut``, reusing the
+    """``(cut, split, meshes, results, sd, area, True)`` of every chart of ``cut``, reusing the
     results in ``known`` (keyed by :func:`_key`) of unchanged charts.
     A chart whose free flattening overlaps itself gets the bijective scaffold; when that does not
     converge or ends above both ``goal`` and the free map's mean symmetric Dirichlet, the chart
-    is cut instead (:func:`_separate`), so ``cut`` may grow.  With a ``ceiling``: None, without
-    any scaffold solve, when the free flattenings already put the mean above it
-    (:func:`_free_bound`)."""
+    is cut instead (:func:`_separate`), so ``cut`` may grow.  With a ``ceiling``: when the free
+    flattenings already put the mean above it, the provisional state of :func:`_free_state`,
+    without any scaffold solve."""
     split = charts_of_cut(g.F, g.edge_of, g.edge_faces, cut)
     frees = {} if frees is None else frees
-    if ceiling is not None and _free_bound(g, split, solve, known, frees) > ceiling:
-        return None
+    if ceiling is not None:
+        free = _free_state(g, cut, split, solve, known, frees)
+        if _mean(free) > ceiling:
+            return free
     meshes, results, sd, area = [], [], [], []
     for c in range(split.count):
         mesh = split.mesh(c)
@@ -179,7 +185,7 @@ def _flatten_all(g, cut, solve, known, say, goal, ceiling=None, frees=None):
         results.append(known[key][0])
         sd.append(known[key][1])
         area.append(known[key][2])
-    return cut, split, meshes, results, np.array(sd), np.array(area)
+    return cut, split, meshes, results, np.array(sd), np.array(area), True
 
 
 def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3, turn=0.0):
@@ -187,7 +193,9 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3, tur
     above ``goal``, cut more (:func:`~geomopt.atlas.cutting.relieve`) and flatten again.  A
     round of cuts that lowers the measured mean by less than ``_SPLIT_WORTH`` per unit of seam
     it adds is taken back; when the mean is still above the goal, the charts are split instead
-    (:func:`split_to_goal`).
+    (:func:`split_to_goal`).  A round that is cut again whose free flattenings are above the goal
+    already is measured by them (progress ``free=True``): its bijective scaffolds, which could only
+    end higher, are not solved.
 
     Parameters
     ----------
@@ -220,15 +228,19 @@ def flatten_to(g, cost, cut, estimate, goal, solve, max_cuts, say, rounds=3, tur
     ``(cut, split, meshes, results)``: the final seam graph, its
     :class:`~geomopt.atlas.charts.ChartSplit`, chart meshes and flattenings.
     """
-    known, last = {}, None
+    known, frees, last = {}, {}, None
     for _ in range(rounds + 1):
-        state = _flatten_all(g, cut, solve, known, say, goal)
-        say("flattened", charts=state[1].count, mean_symmetric_dirichlet=_mean(state), estimate=estimate)
+        final = max_cuts <= 0 or _ == rounds
+        # a round whose free flattenings are above the goal is cut again: its scaffolds not solved
+        state = _flatten_all(g, cut, solve, known, say, goal, ceiling=None if final else goal, frees=frees)
+        frees = {key: frees[key] for key in map(_key, state[2]) if key in frees}  # the charts cut since: gone
+        say("flattened", charts=state[1].count, mean_symmetric_dirichlet=_mean(state), estimate=estimate,
+            **({} if state[6] else {"free": True}))
         if last is not None and _rate(g, last, state) < _SPLIT_WORTH:
             state = last  # the round's cuts did not pay for their seam: split instead
             say("cuts taken back", charts=state[1].count, mean_symmetric_dirichlet=_mean(state))
             break
-        if _mean(state) <= goal or max_cuts <= 0 or _ == rounds:
+        if _mean(state) <= goal or final:
             break
         # the estimate runs above the flattening by about the measured gap: aim it that much lower
         target = max(4.0 + 1e-3, goal + (estimate - _mean(state)))
@@ -252,8 +264,8 @@ def _straightened(g, cost, state, turn, solve, known, say, goal):
     if np.array_equal(cut, state[0]):
         return state
     ceiling = max(goal, _mean(state))
-    trial = _flatten_all(g, cut, solve, known, say, goal, ceiling=ceiling)
-    if trial is not None and _failed(trial) <= _failed(state) and _mean(trial) <= ceiling:
+    trial = _flatten_all(g, cut, solve, known, say, goal, ceiling=ceiling)  # provisional: above the ceiling
+    if _failed(trial) <= _failed(state) and _mean(trial) <= ceiling:
         say("straightened", charts=trial[1].count, mean_symmetric_dirichlet=_mean(trial))
         return trial
     return state
