@@ -111,6 +111,9 @@ def test_bad_input_is_refused_with_one_line(cli, tmp_path):
     a, b = sorted(F[0, :2])
     with pytest.raises(MeshError, match=f"non-manifold edge.*first: the edge of vertices {a} and {b}, in 3 faces"):
         make_atlas(np.r_[V, [[5.0, 5.0, 5.0]]], nonmanifold, progress=False)
+    with pytest.raises(MeshError, match=f"non-manifold edge.*; 1 face\\(s\\) repeat another's vertices \\(first: "
+                                        f"face {len(F)} repeats face 4\\)"):
+        make_atlas(V, np.r_[F, F[4:5, ::-1]], progress=False)  # a face repeated, reversed (a pillow)
     flat = V.copy()
     flat[F[3, 2]] = 0.5 * (flat[F[3, 0]] + flat[F[3, 1]])  # a triangle collapsed to a segment
     with pytest.raises(MeshError, match="zero area"):

@@ -260,6 +260,7 @@ def test_bad_rest_elements_get_one_line_errors(case):
         make()
     msg = str(info.value)
     assert "\n" not in msg and len(msg) > 40
+    assert ("repeat another's vertices (first: hexahedron 8 repeats hexahedron 0)" in msg) == (case == "hex duplicate")
 
 
 def test_clockwise_and_mirrored_meshes_are_reoriented():

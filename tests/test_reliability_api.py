@@ -133,7 +133,9 @@ def test_every_problem_kind_refuses_elements_on_the_same_side_of_a_facet():
     P = np.array([[0, 0], [1, 0], [0, 1], [0.5, 0.4]])
     with pytest.raises(MeshError, match="1 rest edge.*same side"):
         Problem.planar(P, [[0, 1, 2], [0, 1, 3]])
-    with pytest.raises(MeshError, match=r"2 non-manifold edges \(shared by more than two triangles"):
+    with pytest.raises(MeshError, match=r"2 non-manifold edges \(shared by more than two triangles.*; 1 "
+                                        rf"triangle\(s\) repeat another's vertices \(first: triangle {len(F)} repeats "
+                                        r"triangle 0\): remove the repeated ones"):
         Problem.planar(V, np.r_[F, F[:1]])  # a repeated triangle: its 2 interior edges have 3
     P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.2, 0.2, 0.5]])
     with pytest.raises(MeshError, match="1 rest face.*tetrahedra lying on the same side"):

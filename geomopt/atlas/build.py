@@ -25,7 +25,7 @@ from .._runtime.validate import validate_vertices
 from .._runtime.x64 import float64
 from ..energies import energy_spec, get_energy
 from ..solvers import Details, Outcome, Result, RunStats
-from ..exact.topology import as_faces, orientable, same_side_facets, unique_edges
+from ..exact.topology import as_faces, orientable, repeated_elements, same_side_facets, unique_edges
 from ..exact.weld import equal_points
 from .charts import charts_of_cut
 from .cones import angle_defects
@@ -297,7 +297,7 @@ def check_atlas_input(V, F):
         a, b = E[first]
         raise MeshError(f"{int((count > 2).sum())} non-manifold edges (used by more than 2 faces; first: the edge of "
                         f"vertices {a} and {b}, in {int(count[first])} faces); an atlas needs an edge-manifold "
-                        f"mesh: split or remove the extra faces")
+                        f"mesh: split or remove the extra faces" + repeated_elements(F))
     same, _ = same_side_facets(F)
     if same and not orientable(F):
         raise MeshError("the surface is non-orientable (a Moebius strip, a Klein bottle: no consistent face "

@@ -27,6 +27,7 @@ __all__ = [
     "graph_components",
     "same_side_facets",
     "nonmanifold_facets",
+    "repeated_elements",
     "orientable",
     "check_disk",
     "check_sphere",
@@ -200,6 +201,22 @@ def nonmanifold_facets(S):
                                    return_counts=True)
     many = counts[inverse.reshape(-1)] > 2
     return int(np.count_nonzero(counts > 2)), many.reshape(m, k).any(axis=1)
+
+
+def repeated_elements(S, word: str = "face") -> str:
+    """The words that explain a facet of more than two elements when elements repeat: ``""``
+    when no element of ``S`` (m, k) has another's vertices, else ``"; N {word}(s) repeat another's
+    vertices (first: {word} j repeats {word} i)"`` (a file written twice into one mesh, or an
+    export's duplicates), with what to do."""
+    S = np.asarray(S, dtype=np.int64)
+    _, first, inverse = np.unique(np.sort(S, axis=1), axis=0, return_index=True, return_inverse=True)
+    earlier = first[inverse.reshape(-1)]
+    repeat = np.flatnonzero(earlier != np.arange(len(S)))
+    if not len(repeat):
+        return ""
+    j = int(repeat[0])
+    return (f"; {len(repeat)} {word}(s) repeat another's vertices (first: {word} {j} repeats {word} "
+            f"{int(earlier[j])}): remove the repeated ones")
 
 
 def same_side_facets(S):
@@ -479,7 +496,7 @@ def _check_manifold_faces(F, n, sphere=False) -> np.ndarray:
         raise MeshError(
             f"{int((face_count > 2).sum())} non-manifold edges (used by more than 2 faces); "
             + ("a closed surface's edges are used by 2 faces" if sphere else "a disk's edges are used by 1 or 2 faces")
-            + ": split or remove the extra faces"
+            + ": split or remove the extra faces" + repeated_elements(F)
         )
 
     same_direction, _ = same_side_facets(F)

@@ -53,6 +53,7 @@ from .._runtime.validate import validate_simplices
 from ..exact.certify import LocalCertificate, fixed_star_certificate, local_certificate
 from ..exact.hexvalid import HEX_CORNERS, TESTS, hex_validity
 from ..exact.predicates import orient2d
+from ..exact.topology import repeated_elements
 from ..io import CELL_WORDS
 
 __all__ = ["QUAD_CORNERS", "HEX_CORNERS", "ELEMENT_KINDS", "ElementKind", "kind_of", "kind_named", "ElementCertificate", "Quality",
@@ -304,7 +305,8 @@ def check_element_facets(E, n_vertices) -> None:
     if many.any():
         first = owner[start[np.flatnonzero(many)[0]]]
         raise MeshError(f"{int(many.sum())} non-manifold {facet}s (shared by more than two {words}; {word} "
-                        f"{first}): every map of such a mesh folds there; split or remove the extra {words}")
+                        f"{first}): every map of such a mesh folds there; split or remove the extra {words}"
+                        + repeated_elements(E, word))
     pair = np.flatnonzero(counts == 2)
     same = sign[start[pair]] == sign[start[pair] + 1]
     if same.any():

@@ -40,7 +40,7 @@ from .._runtime.errors import MeshError, ParameterError
 from .geometry import det as _det
 from .._runtime.tracing import StaticKey, digest, is_traced, refuse_traced
 from .._runtime.validate import validate_indices, validate_simplices, validate_vertices
-from ..exact.topology import boundary_vertices, nonmanifold_facets, same_side_facets
+from ..exact.topology import boundary_vertices, nonmanifold_facets, repeated_elements, same_side_facets
 
 __all__ = ["Problem", "check_rest_values"]
 
@@ -139,13 +139,13 @@ def _check_facet_orientation(kind, S):
     count, bad = same_side_facets(S)
     if not count:
         return
-    what, facet = ("tetrahedra", "face") if kind == "tet" else ("triangles", "edge")
+    what, one, facet = ("tetrahedra", "tetrahedron", "face") if kind == "tet" else ("triangles", "triangle", "edge")
     many, where = nonmanifold_facets(S)
     if many:
         raise MeshError(
             f"{many} non-manifold {facet}s (shared by more than two {what}; {what} "
             f"{np.flatnonzero(where)[:6].tolist()}): every map of such a mesh folds there; split "
-            f"or remove the extra {what}")
+            f"or remove the extra {what}" + repeated_elements(S, one))
     idx = np.flatnonzero(bad)
     if kind in ("surface", "sphere"):
         raise MeshError(
