@@ -123,9 +123,12 @@ def test_a_trial_whose_free_flattenings_are_above_its_ceiling_solves_no_scaffold
         calls.append("free" if free is None else "scaffold")
         return real(Vc, Fc, free=free, scaffold=scaffold)
 
-    provisional = _flatten_all(g, cut, solve, {}, lambda *a, **k: None, 4.15, ceiling=4.0)
+    frees = {}
+    provisional = _flatten_all(g, cut, solve, {}, lambda *a, **k: None, 4.15, ceiling=4.0, frees=frees)
     assert calls == ["free"] and not provisional[6]  # measured by the free map alone
     assert provisional[3][0].injectivity == "local" and provisional[4][0] >= 4.0
+    again = _flatten_all(g, cut, solve, {}, lambda *a, **k: None, 4.15, ceiling=4.0, frees=frees)
+    assert calls == ["free"] and again[3][0] is provisional[3][0]  # a chart's free map is kept, not solved again
     calls.clear()
     state = _flatten_all(g, cut, solve, {}, lambda *a, **k: None, 4.15, ceiling=1e9)
     assert calls == ["free", "scaffold"] and state[6] and len(state[3]) == 1

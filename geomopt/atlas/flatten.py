@@ -139,7 +139,9 @@ def _free_state(g, cut, split, solve, known, frees):
             res, s, a = known[key]
         else:
             Vc = g.V[mesh.vertices]
-            res = frees.setdefault(key, solve(Vc, mesh.F, scaffold=False))
+            if key not in frees:
+                frees[key] = solve(Vc, mesh.F, scaffold=False)
+            res = frees[key]
             s, a = _mean_sd(Vc, mesh.F, res.x)
             s = s if res.outcome in _AT_REST and np.isfinite(s) else 4.0
         meshes.append(mesh)
